@@ -1,0 +1,30 @@
+"""onlinemap: learning grid maps online with a robot that does not know where it is.
+
+>>> import onlinemap as om
+>>> model = om.corridor(8, p_obs=0.9, p_move=0.8)
+>>> est = om.make_estimator("exact", model)
+>>> belief = est.step(None, 0)
+"""
+
+from __future__ import annotations
+
+__version__ = "0.1.0"
+
+from . import errors, metrics, scenarios
+from .belief import Belief
+from .errors import (ImpossibleObservationError, InvalidActionError, InvalidObservationError,
+                     MemoryLimitError, ModelError, OnlineMapError, UnknownEstimatorError)
+from .estimators import (Estimator, SmoothResult, Trajectory, available_estimators,
+                         estimator_options, exact_smooth, make_estimator, register, run_estimator)
+from .model import DOOR_WORLD_10X10, GridModel, corridor, door_world, grid_model
+from .simulate import Run, random_walk, sample_map, simulate, there_and_back
+
+__all__ = [
+    "Belief", "Estimator", "GridModel", "Run", "SmoothResult", "Trajectory",
+    "corridor", "door_world", "grid_model", "DOOR_WORLD_10X10",
+    "simulate", "random_walk", "there_and_back", "sample_map",
+    "make_estimator", "register", "available_estimators", "estimator_options", "run_estimator",
+    "exact_smooth", "metrics", "scenarios", "errors",
+    "OnlineMapError", "ModelError", "InvalidActionError", "InvalidObservationError",
+    "ImpossibleObservationError", "MemoryLimitError", "UnknownEstimatorError",
+]

@@ -1,0 +1,38 @@
+"""Exceptions raised by onlinemap.
+
+Every error is a ``ValueError`` subclass (``MemoryLimitError`` is also a ``MemoryError``) so
+callers can catch broadly, or precisely by type. An estimator that raises one of these from
+``step`` has left its state exactly as it was before the call.
+"""
+
+from __future__ import annotations
+
+
+class OnlineMapError(ValueError):
+    """Base class of every onlinemap error."""
+
+
+class ModelError(OnlineMapError):
+    """A model's tables or parameters are invalid (shapes, NaN, probabilities, rows not summing to 1)."""
+
+
+class InvalidActionError(OnlineMapError):
+    """An action is out of range, of the wrong type, unknown by name, or given at the wrong step."""
+
+
+class InvalidObservationError(OnlineMapError):
+    """An observation is out of range, of the wrong type, NaN or unknown by name."""
+
+
+class ImpossibleObservationError(OnlineMapError):
+    """An observation has probability zero under the model given everything seen so far."""
+
+
+class MemoryLimitError(OnlineMapError, MemoryError):
+    """An estimator would need more memory than its limit allows; nothing was allocated."""
+
+
+class UnknownEstimatorError(OnlineMapError, KeyError):
+    """``make_estimator`` was given a name that is not in the registry, or an unknown option."""
+
+    __str__ = ValueError.__str__

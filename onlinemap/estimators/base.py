@@ -1,0 +1,115 @@
+"""The estimator protocol, the registry and helpers to run an estimator over a recorded run.
+
+Estimators are plain classes that satisfy :class:`Estimator` (no base class): they take the
+model and keyword-only options in ``__init__``, and ``step(action, observation) -> Belief``.
+A ``step`` that raises leaves the estimator exactly as it was.
+"""
+
+from __future__ import annotations
+
+import inspect
+import time
+from typing import Callable, NamedTuple, Protocol, runtime_checkable
+
+import numpy as np
+
+from ..belief import Belief
+from ..errors import UnknownEstimatorError
+from ..model import GridModel
+
+_REGISTRY: dict[str, type] = {}
+
+
+@runtime_checkable
+class Estimator(Protocol):
+    """What every estimator offers."""
+
+    name: str
+    model: GridModel
+
+    @property
+    def t(self) -> int:
+        """Index of the last step taken (-1 before the first)."""
+
+    @property
+    def belief(self) -> Belief | None:
+        """The belief after the last step (None before the first)."""
+
+    def step(self, action: int | str | None, observation: int | str) -> Belief:
+        """Advance by one action (None at the first step) and one observation."""
+
+
+def register(name: str) -> Callable[[type], type]:
+    """Class decorator: make an estimator available to :func:`make_estimator` under ``name``."""
+
+    def decorate(cls: type) -> type:
+        if name in _REGISTRY and _REGISTRY[name] is not cls:
+            raise ValueError(f"an estimator named {name!r} is already registered")
+        cls.name = name
+        _REGISTRY[name] = cls
+        return cls
+
+    return decorate
+
+
+def available_estimators() -> tuple[str, ...]:
+    """Names accepted by :func:`make_estimator`."""
+    return tuple(_REGISTRY)
+
+
+def estimator_options(name: str) -> dict[str, object]:
+    """The keyword options of an estimator and their defaults."""
+    cls = _lookup(name)
+    params = inspect.signature(cls.__init__).parameters.values()
+    return {p.name: p.default for p in params if p.kind is inspect.Parameter.KEYWORD_ONLY}
+
+
+def _lookup(name: str) -> type:
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise UnknownEstimatorError(
+            f"unknown estimator {name!r}; available: {', '.join(_REGISTRY)}") from None
+
+
+def make_estimator(name: str, model: GridModel, **options) -> Estimator:
+    """Build the estimator registered as ``name`` for ``model`` with keyword ``options``."""
+    cls = _lookup(name)
+    if not isinstance(model, GridModel):
+        raise TypeError(f"model must be a GridModel, got {type(model).__name__}")
+    known = estimator_options(name)
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise UnknownEstimatorError(
+            f"estimator {name!r} has no option {', '.join(map(repr, unknown))}; "
+            f"its options are: {', '.join(known) or 'none'}")
+    return cls(model, **options)
+
+
+class Trajectory(NamedTuple):
+    """Beliefs of one estimator over a run, stacked. T = number of steps."""
+
+    location: np.ndarray  # (T, N)
+    map: np.ndarray  # (T, N, K)
+    log_evidence: np.ndarray  # (T,)
+    seconds_per_step: float
+
+
+def run_estimator(estimator: Estimator, actions, observations) -> Trajectory:
+    """Feed a recorded run (``actions`` (T - 1,), ``observations`` (T,)) through ``step``.
+
+    Cost: T calls of ``step``; memory O(T N K) for the stacked marginals.
+    """
+    n_steps = len(observations)
+    if len(actions) != n_steps - 1:
+        raise ValueError(f"{n_steps} observations need {n_steps - 1} actions, got {len(actions)}")
+    model = estimator.model
+    location = np.empty((n_steps, model.n_cells))
+    maps = np.empty((n_steps, model.n_cells, model.n_labels))
+    evidence = np.empty(n_steps)
+    start = time.perf_counter()
+    for t in range(n_steps):
+        belief = estimator.step(None if t == 0 else actions[t - 1], observations[t])
+        location[t], maps[t], evidence[t] = belief.location, belief.map, belief.log_evidence
+    seconds = (time.perf_counter() - start) / n_steps
+    return Trajectory(location, maps, evidence, seconds)

@@ -1,0 +1,192 @@
+"""Exact Bayes over the joint (location, map) (DESIGN.md section 3, ``exact``).
+
+The belief is the full ``P(L_t, m_0..m_{N-1})``, an (N, K**N) tensor: one clique, the junction
+tree of the two-slice network. Memory ``8 N K^N`` bytes per tensor (the filter keeps two), so
+this is for tiny grids; a guard refuses before allocating more than ``max_bytes``.
+
+Filter step cost: static world, one fused read+write pass over the tensor (numba); dynamic
+world, N + 2 passes (C applied along each map axis). Marginals cost about 4/N of a pass more.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import reduce
+from typing import NamedTuple
+
+import numpy as np
+
+from ..belief import Belief
+from ..errors import ImpossibleObservationError, MemoryLimitError
+from ..kernels import change_every_axis, map_marginals as _map_marginals_kernel, motion_observe
+from ..model import GridModel, apply_motion, apply_motion_transpose
+from ..validation import check_sequence, check_step
+from .base import register
+
+DEFAULT_MAX_BYTES = 2 * 1024**3
+
+
+def tensor_bytes(model: GridModel, copies: int = 1) -> int:
+    """Bytes of ``copies`` float64 (N, K**N) tensors (exact Python ints: no overflow)."""
+    return 8 * copies * model.n_cells * model.n_labels ** model.n_cells
+
+
+def check_memory(model: GridModel, copies: int, max_bytes: int, what: str) -> None:
+    """Raise :class:`MemoryLimitError` if ``copies`` tensors exceed ``max_bytes``; allocate nothing."""
+    need = tensor_bytes(model, copies)
+    if need > max_bytes:
+        raise MemoryLimitError(
+            f"{what} for N={model.n_cells} cells and K={model.n_labels} labels needs "
+            f"{need / 1e9:.3g} GB ({copies} x N*K^N float64) but the limit is {max_bytes / 1e9:.3g} GB; "
+            f"pass max_bytes=... to raise it, or use an approximate estimator (bk, rbpf)")
+
+
+def prior_tensor(model: GridModel) -> np.ndarray:
+    """(N, K**N) joint prior: one-hot start cell times the product of the cells' label priors."""
+    joint = reduce(np.multiply.outer, model.label_prior).ravel()
+    x = np.zeros((model.n_cells, joint.size))
+    x[model.start] = joint
+    return x
+
+
+def map_marginals(joint_map: np.ndarray, n_cells: int, n_labels: int) -> np.ndarray:
+    """(N, K) marginals of a (K**N,) joint over maps (numba; about 2 K/(K-1) reads of it)."""
+    out = np.empty((n_cells, n_labels))
+    _map_marginals_kernel(np.ascontiguousarray(joint_map), n_cells, n_labels, out)
+    return out
+
+
+@register("exact")
+class ExactFilter:
+    """Exact filtering of ``P(L_t, M_t | z_0:t, a_1:t)``. Options: ``max_bytes`` (memory guard)."""
+
+    def __init__(self, model: GridModel, *, max_bytes: int = DEFAULT_MAX_BYTES):
+        check_memory(model, 2, max_bytes, "the exact filter (two belief tensors)")
+        self.model = model
+        self.max_bytes = max_bytes
+        n, k = model.n_cells, model.n_labels
+        self._x = prior_tensor(model)  # current belief, unnormalised by the factor 1/_norm
+        self._scratch = np.empty_like(self._x)
+        self._joint_map = np.empty(k**n)
+        self._norm = 1.0
+        self._log_evidence = 0.0
+        self._t = -1
+        self._belief: Belief | None = None
+        self._no_motion = (np.ones(n), np.full(n, -1, dtype=np.int64))
+        self._dynamic = not model.is_static
+
+    @property
+    def t(self) -> int:
+        return self._t
+
+    @property
+    def belief(self) -> Belief | None:
+        return self._belief
+
+    def step(self, action, observation) -> Belief:
+        a, z = check_step(self.model, self._t + 1, action, observation)
+        model, inv = self.model, 1.0 / self._norm
+        likelihood = np.ascontiguousarray(model.sensor[:, z])
+        location = np.empty(model.n_cells)
+        out = self._scratch
+        if a is None:
+            self_prob, pred = self._no_motion
+            motion_observe(self._x, out, self_prob * inv, pred, 0.0, likelihood, self._joint_map, location)
+        elif not self._dynamic:
+            motion_observe(self._x, out, model.self_prob[a] * inv, model.predecessor[a], model.p_move * inv,
+                           likelihood, self._joint_map, location)
+        else:
+            ones = np.ones(model.n_labels)
+            motion_observe(self._x, out, model.self_prob[a] * inv, model.predecessor[a], model.p_move * inv,
+                           ones, self._joint_map, location)
+            change_every_axis(out, model.change)
+            self_prob, pred = self._no_motion
+            motion_observe(out, out, self_prob, pred, 0.0, likelihood, self._joint_map, location)
+        total = location.sum()
+        if not total > 0 or not np.isfinite(total):
+            raise ImpossibleObservationError(
+                f"observation {model.label_names[z]!r} has probability zero under the exact belief at step "
+                f"{self._t + 1}")
+        self._x, self._scratch = out, self._x
+        self._norm = total
+        self._log_evidence += math.log(total)
+        self._t += 1
+        maps = map_marginals(self._joint_map, model.n_cells, model.n_labels) / total
+        self._belief = Belief(self._t, location / total, maps, self._log_evidence)
+        return self._belief
+
+    def joint(self) -> np.ndarray:
+        """A normalised copy of the joint belief, shape (N, K, ..., K) (N + 1 axes)."""
+        shape = (self.model.n_cells,) + (self.model.n_labels,) * self.model.n_cells
+        return (self._x / self._norm).reshape(shape)
+
+
+# --- smoothing (numpy; tiny grids, offline) ---------------------------------------------
+def observe_tensor(model: GridModel, x: np.ndarray, z: int) -> np.ndarray:
+    """(N, K**N) -> same: slice ``l`` multiplied by ``O[m_l, z]`` along map axis ``l``."""
+    n, k = model.n_cells, model.n_labels
+    out = np.empty_like(x)
+    likelihood = model.sensor[:, z]
+    for l in range(n):
+        view = x[l].reshape(k**l, k, -1)
+        out[l] = (view * likelihood[None, :, None]).ravel()
+    return out
+
+
+def change_tensor(model: GridModel, x: np.ndarray, transpose: bool = False) -> np.ndarray:
+    """Apply ``C`` (or, for the backward pass, ``C`` from the other side) along every map axis."""
+    n, k = model.n_cells, model.n_labels
+    matrix = model.change.T if transpose else model.change
+    y = x.reshape((n,) + (k,) * n)
+    for axis in range(1, n + 1):
+        y = np.moveaxis(np.tensordot(y, matrix, axes=([axis], [0])), -1, axis)
+    return np.ascontiguousarray(y).reshape(x.shape)
+
+
+class SmoothResult(NamedTuple):
+    """Exact smoothed marginals over a run of T steps."""
+
+    location: np.ndarray  # (T, N) P(L_t | z_0:T-1)
+    map: np.ndarray  # (T, N, K) P(m_{i,t} | z_0:T-1)
+    log_evidence: float  # log P(z_0:T-1 | a)
+
+
+def exact_smooth(model: GridModel, actions, observations, *, max_bytes: int = DEFAULT_MAX_BYTES) -> SmoothResult:
+    """Forward filter and backward pass over a recorded run.
+
+    ``actions`` (T - 1,) (or (T,) with a leading None), ``observations`` (T,), by index or name.
+    Memory: T + 2 tensors of (N, K**N) float64; time O(T N K^N (N K)).
+    """
+    a_seq, z_seq = check_sequence(model, actions, observations)
+    n_steps = len(z_seq)
+    check_memory(model, n_steps + 2, max_bytes, f"exact smoothing over {n_steps} steps")
+    n, k = model.n_cells, model.n_labels
+    alphas = np.empty((n_steps, n, k**n))
+    log_evidence = 0.0
+    scales = np.empty(n_steps)
+    x = prior_tensor(model)
+    for t in range(n_steps):
+        if t > 0:
+            x = apply_motion(model, x, a_seq[t - 1])
+            x = change_tensor(model, x)
+        x = observe_tensor(model, x, z_seq[t])
+        total = x.sum()
+        if not total > 0:
+            raise ImpossibleObservationError(f"observation at step {t} has probability zero under the model")
+        scales[t] = total
+        log_evidence += math.log(total)
+        x = x / total
+        alphas[t] = x
+    location = np.empty((n_steps, n))
+    maps = np.empty((n_steps, n, k))
+    beta = np.ones((n, k**n))
+    for t in range(n_steps - 1, -1, -1):
+        post = alphas[t] * beta
+        post /= post.sum()
+        location[t] = post.sum(axis=1)
+        maps[t] = map_marginals(post.sum(axis=0), n, k)
+        if t > 0:
+            beta = observe_tensor(model, beta, z_seq[t])
+            beta = change_tensor(model, beta, transpose=True)
+            beta = apply_motion_transpose(model, beta, a_seq[t - 1]) / scales[t]
+    return SmoothResult(location, maps, log_evidence)

@@ -1,0 +1,338 @@
+"""The generative model: a known grid topology plus four probability tables (DESIGN.md section 1).
+
+A :class:`GridModel` says what the world is; estimators (``onlinemap.estimators``) say how to
+infer it. Cells are numbered row-major, ``0..N-1``. The robot knows the topology; it does not
+know the map ``m`` (one label in ``0..K-1`` per cell), which may change over time.
+
+Tables (all float64, read-only):
+
+- motion ``T[a, i, j] = P(L_t = j | L_{t-1} = i, a)``: the neighbour ``neighbors[i, a]`` with
+  ``p_move``, stay with ``1 - p_move``; where the neighbour does not exist
+  (``neighbors[i, a] == i``) stay with 1. Kept sparse: ``self_prob[a, j] = T[a, j, j]`` and
+  ``predecessor[a, j]``, the one cell that moves into ``j`` under ``a`` (or -1).
+- map dynamics ``C[k, k'] = P(m_{i,t} = k' | m_{i,t-1} = k)``, the same for every cell.
+- sensor ``O[k, z] = P(Z_t = z | m_{L_t} = k)``.
+- label prior ``label_prior[i, k] = P(m_{i,0} = k)``, cells independent; start cell ``start``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import ModelError
+
+CORRIDOR_ACTIONS = ("left", "right")
+GRID_ACTIONS = ("north", "east", "south", "west")
+DOOR_LABELS = ("free", "wall", "open_door", "closed_door")
+DOOR_CHARS = {".": 0, "#": 1, "o": 2, "c": 3}
+FREE, WALL, OPEN_DOOR, CLOSED_DOOR = range(4)
+
+DOOR_WORLD_10X10 = """\
+.....#....
+.....o....
+.....#....
+##c###..##
+.......#..
+.......o..
+###o####..
+.......c..
+..#....#..
+..#....#..
+"""
+
+_ATOL = 1e-9
+
+
+def _probability(name: str, value: float) -> float:
+    value = float(value)
+    if not np.isfinite(value) or not 0.0 <= value <= 1.0:
+        raise ModelError(f"{name} must be a probability in [0, 1], got {value!r}")
+    return value
+
+
+def _stochastic(name: str, matrix, shape: tuple[int, ...]) -> np.ndarray:
+    """Validate a row-stochastic array of the given shape; return a read-only float64 copy."""
+    array = np.array(matrix, dtype=np.float64)
+    if array.shape != shape:
+        raise ModelError(f"{name} must have shape {shape}, got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ModelError(f"{name} contains NaN or infinite entries")
+    if np.any(array < 0) or np.any(array > 1):
+        raise ModelError(f"{name} has entries outside [0, 1]")
+    sums = array.sum(axis=-1)
+    if not np.allclose(sums, 1.0, rtol=0, atol=_ATOL):
+        worst = np.unravel_index(np.argmax(np.abs(sums - 1)), sums.shape)
+        raise ModelError(f"{name} rows must sum to 1; row {tuple(int(i) for i in worst)} sums to {sums[worst]!r}")
+    array.setflags(write=False)
+    return array
+
+
+def symmetric_channel(n_labels: int, p_same: float) -> np.ndarray:
+    """(K, K) matrix with ``p_same`` on the diagonal and ``(1 - p_same) / (K - 1)`` elsewhere."""
+    off = (1.0 - p_same) / (n_labels - 1)
+    return np.full((n_labels, n_labels), off) + np.eye(n_labels) * (p_same - off)
+
+
+@dataclass(frozen=True, eq=False)
+class GridModel:
+    """An immutable, validated grid model. Build one with :func:`corridor`, :func:`door_world`
+    or :func:`grid_model`; ``dataclasses.replace(model, p_move=...)`` re-validates."""
+
+    rows: int
+    cols: int
+    neighbors: np.ndarray  # (N, A) int64: cell reached by a successful move (itself if none)
+    p_move: float
+    change: np.ndarray  # (K, K) C
+    sensor: np.ndarray  # (K, K) O
+    label_prior: np.ndarray  # (N, K)
+    start: int
+    action_names: tuple[str, ...]
+    label_names: tuple[str, ...]
+    self_prob: np.ndarray = field(init=False, repr=False)  # (A, N) T[a, j, j]
+    predecessor: np.ndarray = field(init=False, repr=False)  # (A, N) cell moving into j, or -1
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        if int(self.rows) < 1 or int(self.cols) < 1:
+            raise ModelError(f"a grid needs at least one row and column, got {self.rows} x {self.cols}")
+        set_(self, "rows", int(self.rows))
+        set_(self, "cols", int(self.cols))
+        n = self.rows * self.cols
+        neighbors = np.array(self.neighbors, dtype=np.int64)
+        if neighbors.ndim != 2 or neighbors.shape[0] != n:
+            raise ModelError(f"neighbors must have shape ({n}, n_actions), got {neighbors.shape}")
+        if np.any(neighbors < 0) or np.any(neighbors >= n):
+            raise ModelError("neighbors contains a cell index out of range")
+        n_actions = neighbors.shape[1]
+        if len(self.action_names) != n_actions:
+            raise ModelError(f"{len(self.action_names)} action names for {n_actions} actions")
+        predecessor = np.full((n_actions, n), -1, dtype=np.int64)
+        for a in range(n_actions):
+            movers = np.flatnonzero(neighbors[:, a] != np.arange(n))
+            targets = neighbors[movers, a]
+            if len(np.unique(targets)) != len(targets):
+                raise ModelError(f"action {self.action_names[a]!r} moves two cells into the same cell")
+            predecessor[a, targets] = movers
+        set_(self, "neighbors", neighbors)
+        p_move = _probability("p_move", self.p_move)
+        set_(self, "p_move", p_move)
+        change = np.asarray(self.change)
+        k = change.shape[0] if change.ndim == 2 else -1
+        if k < 2:
+            raise ModelError(f"change matrix C must be K x K with K >= 2, got shape {change.shape}")
+        set_(self, "change", _stochastic("change matrix C", change, (k, k)))
+        set_(self, "sensor", _stochastic("sensor matrix O", self.sensor, (k, k)))
+        prior = np.asarray(self.label_prior, dtype=np.float64)
+        if prior.shape == (k,):
+            prior = np.broadcast_to(prior, (n, k))
+        set_(self, "label_prior", _stochastic("label_prior", prior, (n, k)))
+        if len(self.label_names) != k:
+            raise ModelError(f"{len(self.label_names)} label names for {k} labels")
+        set_(self, "action_names", tuple(str(x) for x in self.action_names))
+        set_(self, "label_names", tuple(str(x) for x in self.label_names))
+        if not 0 <= int(self.start) < n:
+            raise ModelError(f"start cell {self.start} is outside 0..{n - 1}")
+        set_(self, "start", int(self.start))
+        stays = neighbors.T == np.arange(n)
+        self_prob = np.where(stays, 1.0, 1.0 - p_move)
+        for array in (neighbors, predecessor, self_prob):
+            array.setflags(write=False)
+        set_(self, "self_prob", self_prob)
+        set_(self, "predecessor", predecessor)
+
+    # --- sizes and aliases -------------------------------------------------------------
+    @property
+    def n_cells(self) -> int:
+        return self.rows * self.cols
+
+    @property
+    def n_labels(self) -> int:
+        return self.change.shape[0]
+
+    @property
+    def n_actions(self) -> int:
+        return self.neighbors.shape[1]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.rows, self.cols)
+
+    @property
+    def C(self) -> np.ndarray:
+        """Map dynamics, (K, K)."""
+        return self.change
+
+    @property
+    def O(self) -> np.ndarray:  # noqa: E743 - the design's name
+        """Sensor, (K, K)."""
+        return self.sensor
+
+    @property
+    def is_static(self) -> bool:
+        """True when C is the identity (labels never change)."""
+        return bool(np.array_equal(self.change, np.eye(self.n_labels)))
+
+    def __repr__(self) -> str:
+        kind = "static" if self.is_static else "dynamic"
+        return (f"GridModel({self.rows}x{self.cols}, K={self.n_labels} {self.label_names}, "
+                f"actions={self.action_names}, p_move={self.p_move}, {kind}, start={self.start})")
+
+    # --- motion ------------------------------------------------------------------------
+    def motion_matrix(self, action: int) -> sp.csr_array:
+        """Sparse (N, N) ``T[action]``, rows = from, columns = to."""
+        n = self.n_cells
+        cells = np.arange(n)
+        nb = self.neighbors[:, action]
+        movers = nb != cells
+        rows = np.concatenate([cells, cells[movers]])
+        cols = np.concatenate([cells, nb[movers]])
+        vals = np.concatenate([self.self_prob[action], np.full(movers.sum(), self.p_move)])
+        return sp.csr_array((vals, (rows, cols)), shape=(n, n))
+
+    def location_prior(self) -> np.ndarray:
+        """(N,) one-hot at the start cell."""
+        prior = np.zeros(self.n_cells)
+        prior[self.start] = 1.0
+        return prior
+
+    def change_power(self, steps: int) -> np.ndarray:
+        """``C^steps``, (K, K)."""
+        return np.linalg.matrix_power(self.change, int(steps))
+
+    def action_index(self, action) -> int:
+        """Index of an action given by index or by name (no validation of step order)."""
+        from .validation import action_index
+
+        return action_index(self, action)
+
+
+def apply_motion(model: GridModel, x: np.ndarray, action: int) -> np.ndarray:
+    """Predict along axis 0: ``out[j, ...] = sum_i T[a, i, j] x[i, ...]``. x: (N, ...). O(x.size)."""
+    out = model.self_prob[action].reshape((-1,) + (1,) * (x.ndim - 1)) * x
+    pred = model.predecessor[action]
+    into = pred >= 0
+    out[into] += model.p_move * x[pred[into]]
+    return out
+
+
+def apply_motion_transpose(model: GridModel, b: np.ndarray, action: int) -> np.ndarray:
+    """Backward along axis 0: ``out[i, ...] = sum_j T[a, i, j] b[j, ...]``. b: (N, ...). O(b.size)."""
+    out = model.self_prob[action].reshape((-1,) + (1,) * (b.ndim - 1)) * b
+    nb = model.neighbors[:, action]
+    movers = nb != np.arange(model.n_cells)
+    out[movers] += model.p_move * b[nb[movers]]
+    return out
+
+
+# --- constructors ----------------------------------------------------------------------
+def grid_neighbors(rows: int, cols: int) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Neighbour table (N, A) of a rows x cols grid: a 1-row grid is a corridor (left, right),
+    anything else is 4-connected (north, east, south, west). Off-grid moves stay."""
+    r, c = np.divmod(np.arange(rows * cols), cols)
+    if rows == 1:
+        left = np.where(c > 0, c - 1, c)
+        right = np.where(c < cols - 1, c + 1, c)
+        return np.stack([left, right], axis=1), CORRIDOR_ACTIONS
+
+    def cell(rr, cc):
+        return rr * cols + cc
+
+    north = np.where(r > 0, cell(r - 1, c), cell(r, c))
+    east = np.where(c < cols - 1, cell(r, c + 1), cell(r, c))
+    south = np.where(r < rows - 1, cell(r + 1, c), cell(r, c))
+    west = np.where(c > 0, cell(r, c - 1), cell(r, c))
+    return np.stack([north, east, south, west], axis=1), GRID_ACTIONS
+
+
+def grid_model(rows: int, cols: int, n_labels: int = 2, *, p_obs: float = 0.9, p_move: float = 0.8,
+               change=None, sensor=None, label_prior=None, start: int = 0,
+               label_names: Sequence[str] | None = None) -> GridModel:
+    """A general grid model.
+
+    ``change`` (K, K) defaults to the identity (static world); ``sensor`` (K, K) defaults to the
+    symmetric channel with ``p_obs``; ``label_prior`` is (K,) or (N, K), uniform by default.
+    """
+    n_labels = int(n_labels)
+    if n_labels < 2:
+        raise ModelError(f"n_labels must be at least 2, got {n_labels}")
+    if int(rows) < 1 or int(cols) < 1:
+        raise ModelError(f"a grid needs at least one row and column, got {rows} x {cols}")
+    neighbors, action_names = grid_neighbors(int(rows), int(cols))
+    if sensor is None:
+        sensor = symmetric_channel(n_labels, _probability("p_obs", p_obs))
+    if change is None:
+        change = np.eye(n_labels)
+    if label_prior is None:
+        label_prior = np.full(n_labels, 1.0 / n_labels)
+    if label_names is None:
+        label_names = tuple(str(k) for k in range(n_labels))
+    return GridModel(rows=rows, cols=cols, neighbors=neighbors, p_move=p_move, change=change,
+                     sensor=sensor, label_prior=label_prior, start=start,
+                     action_names=action_names, label_names=tuple(label_names))
+
+
+def corridor(n_cells: int, n_labels: int = 2, p_obs: float = 0.9, p_move: float = 0.8,
+             p_change: float = 0.0, start: int = 0, label_prior=None) -> GridModel:
+    """A 1D corridor of ``n_cells`` (actions left=0, right=1). With ``p_change`` a cell's label
+    becomes one of the other ``K - 1`` labels, uniformly, at every step."""
+    p_change = _probability("p_change", p_change)
+    change = symmetric_channel(int(n_labels), 1.0 - p_change) if int(n_labels) >= 2 else None
+    return grid_model(1, n_cells, n_labels, p_obs=p_obs, p_move=p_move, change=change,
+                      label_prior=label_prior, start=start)
+
+
+def parse_layout(layout: str) -> np.ndarray:
+    """Text grid (``.`` free, ``#`` wall, ``o`` open door, ``c`` closed door) -> (rows, cols) labels."""
+    lines = [line.strip() for line in layout.strip().splitlines() if line.strip()]
+    if not lines:
+        raise ModelError("the layout is empty")
+    widths = {len(line) for line in lines}
+    if len(widths) != 1:
+        raise ModelError(f"layout rows have different lengths: {sorted(widths)}")
+    for r, line in enumerate(lines):
+        for c, ch in enumerate(line):
+            if ch not in DOOR_CHARS:
+                raise ModelError(f"layout row {r}, column {c}: unknown character {ch!r} (use . # o c)")
+    return np.array([[DOOR_CHARS[ch] for ch in line] for line in lines], dtype=np.int64)
+
+
+def door_change(p_door: float) -> np.ndarray:
+    """(4, 4) door-world dynamics: doors swap open/closed with ``p_door``; free and wall never change."""
+    p_door = _probability("p_door", p_door)
+    change = np.eye(4)
+    change[OPEN_DOOR] = [0, 0, 1 - p_door, p_door]
+    change[CLOSED_DOOR] = [0, 0, p_door, 1 - p_door]
+    return change
+
+
+def door_world(layout: str | None = None, p_obs: float = 0.9, p_move: float = 0.8,
+               p_door: float = 0.0, start: int | None = None,
+               label_prior=None) -> tuple[GridModel, np.ndarray]:
+    """A 2D door world read from a text layout (default :data:`DOOR_WORLD_10X10`).
+
+    Returns ``(model, true_map)``, the map (N,) read from the layout. ``start`` defaults to the
+    first free cell in row-major order.
+    """
+    grid = parse_layout(DOOR_WORLD_10X10 if layout is None else layout)
+    true_map = grid.ravel()
+    if start is None:
+        free = np.flatnonzero(true_map == FREE)
+        start = int(free[0]) if len(free) else 0
+    model = grid_model(grid.shape[0], grid.shape[1], 4, p_obs=p_obs, p_move=p_move,
+                       change=door_change(p_door), label_prior=label_prior, start=start,
+                       label_names=DOOR_LABELS)
+    if model.rows == 1:
+        raise ModelError("a door world needs at least two rows (use corridor() for 1D worlds)")
+    true_map.setflags(write=False)
+    return model, true_map
+
+
+__all__ = [
+    "GridModel", "grid_model", "corridor", "door_world", "parse_layout", "door_change",
+    "symmetric_channel", "apply_motion", "apply_motion_transpose", "grid_neighbors",
+    "DOOR_WORLD_10X10", "DOOR_LABELS", "CORRIDOR_ACTIONS", "GRID_ACTIONS",
+]

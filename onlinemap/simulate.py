@@ -1,0 +1,148 @@
+"""Simulation of the generative model, and action generators.
+
+Order within a step (DESIGN.md section 1): the action moves the robot, then the map changes,
+then the robot observes. Step 0 has no action. Every random choice takes ``seed`` (an int,
+None or a ``numpy.random.Generator``); the global random state is never used.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from .errors import ModelError
+from .model import GridModel
+from .validation import action_index
+
+SeedLike = int | np.random.Generator | None
+
+
+def as_generator(seed: SeedLike) -> np.random.Generator:
+    """A Generator from an int seed, None (fresh entropy) or an existing Generator (returned as is)."""
+    return seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+
+
+def _frozen_int(array) -> np.ndarray:
+    array = np.array(array, dtype=np.int64)
+    array.setflags(write=False)
+    return array
+
+
+@dataclass(frozen=True, eq=False)
+class Run:
+    """A recorded run of T steps.
+
+    actions: (T - 1,) action at steps 1..T-1; locations: (T,) true cells; maps: (T, N) true
+    labels at each step; observations: (T,) labels seen.
+    """
+
+    model: GridModel
+    actions: np.ndarray
+    locations: np.ndarray
+    maps: np.ndarray
+    observations: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("actions", "locations", "maps", "observations"):
+            object.__setattr__(self, name, _frozen_int(getattr(self, name)))
+        t = len(self.observations)
+        if self.locations.shape != (t,) or self.actions.shape != (t - 1,) or \
+                self.maps.shape != (t, self.model.n_cells):
+            raise ModelError("inconsistent run record shapes")
+
+    @property
+    def n_steps(self) -> int:
+        return len(self.observations)
+
+    @property
+    def initial_map(self) -> np.ndarray:
+        return self.maps[0]
+
+    @property
+    def final_map(self) -> np.ndarray:
+        return self.maps[-1]
+
+    @property
+    def slipped(self) -> np.ndarray:
+        """(T - 1,) True where the intended neighbour existed but the robot stayed."""
+        before = self.locations[:-1]
+        intended = self.model.neighbors[before, self.actions]
+        return (intended != before) & (self.locations[1:] == before)
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per step: t, action (name, None at t = 0), true location, true label there,
+        observation, whether the move slipped, and the number of cells whose label changed."""
+        names = self.model.action_names
+        changed = np.concatenate([[0], (self.maps[1:] != self.maps[:-1]).sum(axis=1)])
+        return pd.DataFrame({
+            "t": np.arange(self.n_steps),
+            "action": [None] + [names[a] for a in self.actions],
+            "true_location": self.locations,
+            "true_label": self.maps[np.arange(self.n_steps), self.locations],
+            "observation": self.observations,
+            "slipped": np.concatenate([[False], self.slipped]),
+            "cells_changed": changed,
+        })
+
+
+def sample_map(model: GridModel, seed: SeedLike = None) -> np.ndarray:
+    """(N,) labels drawn from the per-cell label prior."""
+    rng = as_generator(seed)
+    cumulative = np.cumsum(model.label_prior, axis=1)
+    u = rng.random(model.n_cells)
+    return np.minimum((u[:, None] >= cumulative).sum(axis=1), model.n_labels - 1)
+
+
+def _categorical(rng: np.random.Generator, rows: np.ndarray) -> np.ndarray:
+    """One draw per row of a (R, K) stochastic matrix."""
+    u = rng.random(rows.shape[0])
+    return np.minimum((u[:, None] >= np.cumsum(rows, axis=1)).sum(axis=1), rows.shape[1] - 1)
+
+
+def simulate(model: GridModel, true_map=None, actions=(), seed: SeedLike = None) -> Run:
+    """Simulate a run: ``len(actions) + 1`` steps starting at ``model.start``.
+
+    true_map: (N,) initial labels (drawn from the prior when None); actions: indices or names.
+    Cost O(T N) for a dynamic world (every cell may change each step), O(T) for a static one.
+    """
+    rng = as_generator(seed)
+    n = model.n_cells
+    current = sample_map(model, rng) if true_map is None else np.array(true_map, dtype=np.int64)
+    if current.shape != (n,):
+        raise ModelError(f"true_map must have shape ({n},), got {current.shape}")
+    if np.any(current < 0) or np.any(current >= model.n_labels):
+        raise ModelError(f"true_map labels must be in 0..{model.n_labels - 1}")
+    action_ids = np.array([action_index(model, a) for a in actions], dtype=np.int64)
+    n_steps = len(action_ids) + 1
+    locations = np.empty(n_steps, dtype=np.int64)
+    maps = np.empty((n_steps, n), dtype=np.int64)
+    observations = np.empty(n_steps, dtype=np.int64)
+    static = model.is_static
+    location = model.start
+    for t in range(n_steps):
+        if t > 0:
+            a = action_ids[t - 1]
+            if rng.random() < model.p_move:
+                location = int(model.neighbors[location, a])
+            if not static:
+                current = _categorical(rng, model.change[current])
+        locations[t] = location
+        maps[t] = current
+        observations[t] = _categorical(rng, model.sensor[current[location]][None])[0]
+    return Run(model, action_ids, locations, maps, observations)
+
+
+# --- action generators -------------------------------------------------------------------
+def random_walk(model: GridModel, n_actions: int, seed: SeedLike = None) -> np.ndarray:
+    """(n_actions,) actions drawn uniformly."""
+    return as_generator(seed).integers(0, model.n_actions, size=int(n_actions))
+
+
+def there_and_back(model: GridModel, trips: int = 1) -> np.ndarray:
+    """Corridor only: ``right`` x (N - 1) then ``left`` x (N - 1), ``trips`` times."""
+    if model.action_names != ("left", "right"):
+        raise ModelError("there_and_back is for corridors (actions left, right)")
+    one = [1] * (model.n_cells - 1) + [0] * (model.n_cells - 1)
+    return np.array(one * int(trips), dtype=np.int64)

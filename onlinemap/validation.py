@@ -1,0 +1,76 @@
+"""Checks of step inputs, shared by every estimator.
+
+They turn an action or observation given by index or by name into an index, or raise the
+specific error naming the problem. They never touch an estimator's state.
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+from .errors import InvalidActionError, InvalidObservationError
+from .model import GridModel
+
+
+def _index(value, names: tuple[str, ...], what: str, error: type[Exception]) -> int:
+    if isinstance(value, (str, np.str_)):
+        try:
+            return names.index(str(value))
+        except ValueError:
+            raise error(f"unknown {what} name {value!r}; expected one of {names}") from None
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise error(f"{what} must be an int index or a name, got {type(value).__name__} {value!r}")
+    if isinstance(value, numbers.Integral):
+        index = int(value)
+    else:
+        if not np.isfinite(value):
+            raise error(f"{what} is {value!r}; expected an int index in 0..{len(names) - 1}")
+        if float(value) != int(value):
+            raise error(f"{what} {value!r} is not a whole number")
+        index = int(value)
+    if not 0 <= index < len(names):
+        raise error(f"{what} {index} is out of range 0..{len(names) - 1} ({names})")
+    return index
+
+
+def action_index(model: GridModel, action) -> int:
+    """Index of an action given as an int (or integral float) or a name in ``model.action_names``."""
+    return _index(action, model.action_names, "action", InvalidActionError)
+
+
+def observation_index(model: GridModel, observation) -> int:
+    """Index of an observation given as an int or a label name in ``model.label_names``."""
+    return _index(observation, model.label_names, "observation", InvalidObservationError)
+
+
+def check_step(model: GridModel, t: int, action, observation) -> tuple[int | None, int]:
+    """Validate the inputs of step number ``t`` (0 for the first): ``action`` must be None at
+    t = 0 and a valid action afterwards. Returns ``(action index or None, observation index)``."""
+    if t == 0:
+        if action is not None:
+            raise InvalidActionError(f"the first step takes no action (got {action!r}); call step(None, z0)")
+        a = None
+    else:
+        if action is None:
+            raise InvalidActionError(f"step {t} needs an action; None is only for the first step")
+        a = action_index(model, action)
+    return a, observation_index(model, observation)
+
+
+def check_sequence(model: GridModel, actions, observations) -> tuple[np.ndarray, np.ndarray]:
+    """Validate a whole run: ``observations`` (T,), ``actions`` (T - 1,) or (T,) with a leading
+    None / -1 placeholder. Returns int arrays ``(actions (T - 1,), observations (T,))``."""
+    observations = list(observations)
+    actions = list(actions)
+    if len(observations) == 0:
+        raise InvalidObservationError("a run needs at least one observation")
+    if len(actions) == len(observations) and (actions[0] is None or actions[0] == -1):
+        actions = actions[1:]
+    if len(actions) != len(observations) - 1:
+        raise InvalidActionError(f"{len(observations)} observations need {len(observations) - 1} actions, "
+                                 f"got {len(actions)}")
+    a = np.array([action_index(model, x) for x in actions], dtype=np.int64)
+    z = np.array([observation_index(model, x) for x in observations], dtype=np.int64)
+    return a, z

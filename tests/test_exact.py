@@ -1,0 +1,118 @@
+"""Exact filter and smoother against brute-force enumeration; dead reckoning against a
+hand-written motion-only filter."""
+
+import numpy as np
+import pytest
+
+import onlinemap as om
+from oracles import BruteForce, grid_motion
+
+CASES = [
+    ("corridor K=2 static", lambda: om.corridor(4, 2, p_obs=0.85, p_move=0.7)),
+    ("corridor K=2 dynamic", lambda: om.corridor(4, 2, p_obs=0.85, p_move=0.7, p_change=0.05)),
+    ("corridor K=3 static", lambda: om.corridor(3, 3, p_obs=0.8, p_move=0.75, start=1)),
+    ("corridor K=3 dynamic", lambda: om.corridor(3, 3, p_obs=0.8, p_move=0.75, p_change=0.1)),
+    ("grid 2x3 static", lambda: om.grid_model(2, 3, 2, p_obs=0.8, p_move=0.7, start=4)),
+    ("grid 2x3 dynamic", lambda: om.grid_model(2, 3, 2, p_obs=0.8, p_move=0.7,
+                                               change=[[0.9, 0.1], [0.2, 0.8]], label_prior=[0.3, 0.7])),
+]
+
+
+def random_run(model, steps, seed):
+    rng = np.random.default_rng(seed)
+    return om.simulate(model, None, om.random_walk(model, steps - 1, rng), rng)
+
+
+@pytest.mark.parametrize("name,make", CASES, ids=[c[0] for c in CASES])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_exact_filter_equals_brute_force_every_step(name, make, seed):
+    model = make()
+    run = random_run(model, 9, seed)
+    oracle = BruteForce.of(model).filter(run.actions, run.observations)
+    est = om.make_estimator("exact", model)
+    for t, (loc, maps, log_ev) in enumerate(oracle):
+        belief = est.step(None if t == 0 else run.actions[t - 1], run.observations[t])
+        assert belief.t == t
+        np.testing.assert_allclose(belief.location, loc, atol=1e-10, rtol=0)
+        np.testing.assert_allclose(belief.map, maps, atol=1e-10, rtol=0)
+        assert belief.log_evidence == pytest.approx(log_ev, abs=1e-10)
+
+
+@pytest.mark.parametrize("name,make", CASES, ids=[c[0] for c in CASES])
+def test_exact_smoother_equals_brute_force(name, make):
+    model = make()
+    run = random_run(model, 7, 3)
+    oracle = BruteForce.of(model).smooth(run.actions, run.observations)
+    smoothed = om.exact_smooth(model, run.actions, run.observations)
+    for t, (loc, maps) in enumerate(oracle):
+        np.testing.assert_allclose(smoothed.location[t], loc, atol=1e-10, rtol=0)
+        np.testing.assert_allclose(smoothed.map[t], maps, atol=1e-10, rtol=0)
+    filtered = om.run_estimator(om.make_estimator("exact", model), run.actions, run.observations)
+    assert smoothed.log_evidence == pytest.approx(filtered.log_evidence[-1], abs=1e-10)
+    # the last smoothed step is the last filtered step
+    np.testing.assert_allclose(smoothed.location[-1], filtered.location[-1], atol=1e-12)
+
+
+def test_smoother_accepts_names_and_leading_none():
+    run = om.scenarios.murphy_corridor()
+    names = [None] + [run.model.action_names[a] for a in run.actions]
+    a = om.exact_smooth(run.model, names, run.observations)
+    b = om.exact_smooth(run.model, run.actions, run.observations)
+    np.testing.assert_array_equal(a.location, b.location)
+
+
+def test_dead_reckoning_equals_motion_only_filter():
+    model = om.grid_model(3, 3, 2, p_move=0.6, start=4, change=[[0.9, 0.1], [0.3, 0.7]])
+    run = random_run(model, 20, 5)
+    motion = grid_motion(3, 3, 0.6)
+    est = om.make_estimator("dead_reckoning", model)
+    loc = np.eye(9)[4]
+    maps = np.array(model.label_prior)
+    change = np.array([[0.9, 0.1], [0.3, 0.7]])
+    for t in range(run.n_steps):
+        if t:
+            loc = loc @ motion[run.actions[t - 1]]
+            maps = maps @ change
+        belief = est.step(None if t == 0 else run.actions[t - 1], run.observations[t])
+        np.testing.assert_allclose(belief.location, loc, atol=1e-12)
+        np.testing.assert_allclose(belief.map, maps, atol=1e-12)
+        assert np.isnan(belief.log_evidence)
+
+
+def test_exact_beats_dead_reckoning_on_murphy_corridor():
+    run = om.scenarios.murphy_corridor()
+    exact = om.run_estimator(om.make_estimator("exact", run.model), run.actions, run.observations)
+    dead = om.run_estimator(om.make_estimator("dead_reckoning", run.model), run.actions, run.observations)
+    assert exact.location[-1, 0] >= 0.8
+    assert om.metrics.wrong_cells(exact.map[-1], run.final_map, cells=np.arange(7)) == 0
+    assert om.metrics.map_error(exact.map[-1], run.final_map) < om.metrics.map_error(dead.map[-1], run.final_map)
+
+
+def test_memory_guard_refuses_before_allocating():
+    model = om.corridor(30)
+    with pytest.raises(om.MemoryLimitError, match=r"N=30 cells.*max_bytes"):
+        om.make_estimator("exact", model)
+    small = om.corridor(10)
+    with pytest.raises(om.MemoryLimitError):
+        om.make_estimator("exact", small, max_bytes=1000)
+    with pytest.raises(om.MemoryLimitError, match="smoothing"):
+        om.exact_smooth(small, [1] * 9, [0] * 10, max_bytes=10_000)
+    om.make_estimator("exact", small, max_bytes=10**7)  # raising the limit works
+
+
+def test_joint_is_normalised_and_matches_marginals():
+    run = om.scenarios.murphy_corridor()
+    est = om.make_estimator("exact", run.model)
+    om.run_estimator(est, run.actions, run.observations)
+    joint = est.joint()
+    assert joint.sum() == pytest.approx(1.0, abs=1e-12)
+    np.testing.assert_allclose(joint.reshape(8, -1).sum(1), est.belief.location, atol=1e-12)
+
+
+def test_belief_is_read_only():
+    est = om.make_estimator("exact", om.corridor(4))
+    belief = est.step(None, 0)
+    with pytest.raises(ValueError):
+        belief.location[0] = 1.0
+    with pytest.raises(ValueError):
+        belief.map[0, 0] = 1.0

@@ -1,0 +1,91 @@
+"""Model construction and validation."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import onlinemap as om
+from oracles import grid_motion
+
+
+@pytest.mark.parametrize("rows,cols", [(1, 5), (2, 3), (4, 4), (3, 1)])
+def test_motion_matrix_equals_geometry(rows, cols):
+    model = om.grid_model(rows, cols, 2, p_move=0.7)
+    expected = grid_motion(rows, cols, 0.7)
+    for a in range(model.n_actions):
+        np.testing.assert_allclose(model.motion_matrix(a).toarray(), expected[a], atol=1e-15)
+
+
+def test_corridor_tables():
+    model = om.corridor(5, 3, p_obs=0.7, p_change=0.2)
+    assert (model.n_cells, model.n_labels, model.n_actions) == (5, 3, 2)
+    assert model.action_names == ("left", "right")
+    np.testing.assert_allclose(model.C, [[0.8, 0.1, 0.1], [0.1, 0.8, 0.1], [0.1, 0.1, 0.8]])
+    np.testing.assert_allclose(model.O, [[0.7, 0.15, 0.15], [0.15, 0.7, 0.15], [0.15, 0.15, 0.7]])
+    np.testing.assert_allclose(model.label_prior, np.full((5, 3), 1 / 3))
+    assert not model.is_static and om.corridor(5).is_static
+
+
+def test_door_world_default_and_layout():
+    model, true_map = om.door_world(p_door=0.05)
+    assert model.shape == (10, 10) and true_map.shape == (100,)
+    assert model.label_names == ("free", "wall", "open_door", "closed_door")
+    assert true_map[model.start] == 0
+    assert set(np.unique(true_map)) == {0, 1, 2, 3}
+    np.testing.assert_allclose(model.C[2], [0, 0, 0.95, 0.05])
+    np.testing.assert_allclose(model.C[1], [0, 1, 0, 0])
+    small, small_map = om.door_world("..#\no.c\n")
+    assert small.shape == (2, 3)
+    np.testing.assert_array_equal(small_map, [0, 0, 1, 2, 0, 3])
+    assert om.DOOR_WORLD_10X10.count("\n") == 10
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(p_obs=1.2), "p_obs"),
+    (dict(p_move=-0.1), "p_move"),
+    (dict(p_change=float("nan")), "p_change"),
+    (dict(n_labels=1), "n_labels"),
+    (dict(start=9), "start"),
+    (dict(label_prior=[0.5, 0.6]), "label_prior"),
+    (dict(label_prior=[0.5, 0.5, 0.0]), "label_prior"),
+])
+def test_invalid_corridor_raises(kwargs, match):
+    with pytest.raises(om.ModelError, match=match):
+        om.corridor(4, **kwargs)
+
+
+def test_invalid_tables_raise():
+    with pytest.raises(om.ModelError, match="change matrix"):
+        om.grid_model(2, 2, 2, change=[[0.5, 0.4], [0, 1]])
+    with pytest.raises(om.ModelError, match="sensor"):
+        om.grid_model(2, 2, 2, sensor=[[1.0, 0.0, 0.0], [0, 1, 0]])
+    with pytest.raises(om.ModelError, match="unknown character"):
+        om.door_world("..x\n...")
+    with pytest.raises(om.ModelError, match="lengths"):
+        om.door_world("...\n..")
+
+
+def test_model_is_immutable_and_replace_revalidates():
+    model = om.corridor(4)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        model.p_move = 0.5
+    with pytest.raises(ValueError):
+        model.sensor[0, 0] = 0.5
+    slower = dataclasses.replace(model, p_move=0.5)
+    assert slower.p_move == 0.5 and slower.self_prob[1, 0] == 0.5
+    with pytest.raises(om.ModelError):
+        dataclasses.replace(model, p_move=2.0)
+
+
+def test_world_specs():
+    from onlinemap.worlds import parse_world
+
+    assert parse_world("corridor:6,p_change=0.1,n_labels=3").model.n_labels == 3
+    assert parse_world("grid:2x3").model.shape == (2, 3)
+    world = parse_world("door,p_door=0.01")
+    assert world.true_map is not None and world.model.C[2, 3] == 0.01
+    with pytest.raises(om.ModelError, match="unknown option"):
+        parse_world("corridor:5,foo=1")
+    with pytest.raises(om.ModelError, match="unknown kind"):
+        parse_world("maze:5")
