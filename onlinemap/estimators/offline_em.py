@@ -1,0 +1,152 @@
+"""Offline EM: Baum-Welch over a whole run (DESIGN.md section 3, ``offline_em``).
+
+Same HMM as online EM (hidden location, known sparse motion, observation matrix ``B`` as the
+parameter), but every iteration runs forward-backward over all T steps from the start cell:
+
+- E-step: ``gamma_t = P(L_t | z_0..T-1; B)``; with annealing, ``gamma_t^(1/tau)`` renormalised
+  (deterministic annealing, the softmax M-step of the layered-EM paper), ``tau_j =
+  max(tau_min, tau0 * rate^j)`` at iteration j, so tau shrinks from tau0 towards tau_min;
+- M-step: ``B[i] = (sum_t gamma_t(i) [z_t = .] + c) / (sum_t gamma_t(i) + K c)``.
+
+Without annealing this is EM for the MAP of B under a Dirichlet(c + 1) prior per row, so the
+objective ``log P(z | B) + c sum log B`` never decreases. Iterations stop when it rises by
+less than ``tol`` (and tau has reached tau_min) or after ``n_iter``. EM starts from
+``B0 = label_prior @ O``. Cost: O(T (N + E) + N K^2) per iteration, O(T N) memory.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ..belief import Belief
+from ..errors import ModelError
+from ..hmm import (emission_from_counts, expected_counts, forward_backward, log_dirichlet_prior,
+                   map_from_emission, prior_emission, temper)
+from ..model import GridModel
+from ..validation import check_sequence, check_step
+from .base import register
+from .online_em import check_pseudo_count
+
+
+class Anneal(NamedTuple):
+    """Deterministic annealing schedule: ``tau_j = max(tau_min, tau0 * rate**j)``."""
+
+    tau0: float
+    rate: float
+    tau_min: float
+
+    def tau(self, iteration: int) -> float:
+        return max(self.tau_min, self.tau0 * self.rate**iteration)
+
+
+def check_anneal(anneal) -> Anneal | None:
+    """None, or a valid ``(tau0, rate, tau_min)`` with tau0 >= tau_min > 0 and rate in (0, 1]."""
+    if anneal is None:
+        return None
+    try:
+        schedule = Anneal(*(float(x) for x in anneal))
+    except (TypeError, ValueError):
+        raise ModelError(f"anneal must be None or (tau0, rate, tau_min), got {anneal!r}") from None
+    if not (np.isfinite(schedule).all() and schedule.tau0 >= schedule.tau_min > 0 and 0 < schedule.rate <= 1):
+        raise ModelError(f"anneal (tau0, rate, tau_min) needs tau0 >= tau_min > 0 and 0 < rate <= 1, got {anneal!r}")
+    return schedule
+
+
+class EMFit(NamedTuple):
+    """The result of Baum-Welch on a run of T steps."""
+
+    location: np.ndarray  # (T, N) smoothed P(L_t | z_0..T-1; B) under the final B
+    map: np.ndarray  # (N, K) B read through the inverted sensor channel
+    observation_matrix: np.ndarray  # (N, K) the final B
+    log_likelihood: float  # log P(z_0..T-1 | a; B) under the final B
+    objectives: np.ndarray  # (iterations,) log likelihood + c sum log B of each iteration's input B
+    converged: bool
+
+
+def baum_welch(model: GridModel, actions, observations, *, n_iter: int = 200, tol: float = 1e-8,
+               pseudo_count: float = 0.1, anneal=None, initial: np.ndarray | None = None) -> EMFit:
+    """Fit B to a recorded run (actions (T - 1,), observations (T,), by index or name).
+
+    ``initial`` (N, K) overrides the starting B. Each iteration is one E-step and one M-step;
+    after the last, one more E-step gives the returned location posteriors and likelihood.
+    Raises ImpossibleObservationError if an observation has probability zero under some B.
+    Cost O(iterations T (N + E)).
+    """
+    a_seq, z_seq = check_sequence(model, actions, observations)
+    pseudo_count = check_pseudo_count(pseudo_count)
+    schedule = check_anneal(anneal)
+    fallback = prior_emission(model)
+    emission = fallback.copy() if initial is None else np.array(initial, dtype=np.float64)
+    if emission.shape != fallback.shape:
+        raise ModelError(f"initial B must have shape {fallback.shape}, got {emission.shape}")
+    prior = model.location_prior()
+    objectives = []
+    converged = False
+    for iteration in range(int(n_iter)):
+        fit = forward_backward(model, prior, a_seq, z_seq, emission)
+        objectives.append(fit.log_likelihood + log_dirichlet_prior(emission, pseudo_count))
+        tau = 1.0 if schedule is None else schedule.tau(iteration)
+        if iteration > 0 and tau == (1.0 if schedule is None else schedule.tau_min) \
+                and abs(objectives[-1] - objectives[-2]) < tol:
+            converged = True
+            break
+        counts = expected_counts(temper(fit.posterior, tau), z_seq, model.n_labels)
+        emission = emission_from_counts(counts, pseudo_count, emission)
+    else:
+        fit = forward_backward(model, prior, a_seq, z_seq, emission)
+    return EMFit(fit.posterior, map_from_emission(emission, model.sensor), emission, fit.log_likelihood,
+                 np.array(objectives), converged)
+
+
+@register("offline_em")
+class OfflineEM:
+    """Baum-Welch on all data so far. Options: ``n_iter`` (most iterations), ``tol`` (stop when
+    the objective rises by less), ``pseudo_count`` (c >= 0), ``anneal`` (None or
+    ``(tau0, rate, tau_min)``).
+
+    ``step`` re-fits from scratch on z_0..z_t (a cold start, so the belief at t is exactly what
+    :meth:`fit` gives on that prefix): O(iterations t (N + E)) per step, O(T^2) over a run.
+    Belief: ``location`` = P(L_t | z_0..t; B_t) (smoothing and filtering agree at the last
+    step), ``map`` = B_t through the inverted sensor channel, ``observation_matrix`` = B_t,
+    ``log_evidence`` = log P(z_0..t | a; B_t), the likelihood of the fitted B.
+    """
+
+    def __init__(self, model: GridModel, *, n_iter: int = 200, tol: float = 1e-8, pseudo_count: float = 0.1,
+                 anneal: tuple[float, float, float] | None = None):
+        if int(n_iter) < 1:
+            raise ModelError(f"n_iter must be at least 1, got {n_iter!r}")
+        self.model = model
+        self.n_iter = int(n_iter)
+        self.tol = float(tol)
+        self.pseudo_count = check_pseudo_count(pseudo_count)
+        self.anneal = check_anneal(anneal)
+        self._actions = np.empty(0, dtype=np.int64)
+        self._observations = np.empty(0, dtype=np.int64)
+        self._t = -1
+        self._belief: Belief | None = None
+
+    @property
+    def t(self) -> int:
+        return self._t
+
+    @property
+    def belief(self) -> Belief | None:
+        return self._belief
+
+    def fit(self, actions, observations) -> EMFit:
+        """Batch use: Baum-Welch on a whole run with this estimator's options (state untouched)."""
+        return baum_welch(self.model, actions, observations, n_iter=self.n_iter, tol=self.tol,
+                          pseudo_count=self.pseudo_count, anneal=self.anneal)
+
+    def step(self, action, observation) -> Belief:
+        a, z = check_step(self.model, self._t + 1, action, observation)
+        actions = self._actions if a is None else np.append(self._actions, a)
+        observations = np.append(self._observations, z)
+        fit = self.fit(actions, observations)
+        self._actions, self._observations = actions, observations
+        self._t += 1
+        self._belief = Belief(self._t, fit.location[-1], fit.map, fit.log_likelihood,
+                              observation_matrix=fit.observation_matrix)
+        return self._belief

@@ -1,0 +1,119 @@
+"""Fixed-lag online EM (DESIGN.md section 3, ``online_em``; Murphy 1999's online EM).
+
+The map is a parameter, the observation matrix ``B[i, k] = P(Z = k | L = i)``; only the
+location is hidden. At step t, with the window ``s..t`` of the last W steps
+(``s = max(0, t - W + 1)``):
+
+1. E-step: forward-backward over the window under ``B_{t-1}``, started from the filtered
+   location at ``s - 1`` (as computed at that step) moved by ``a_s`` (the known start cell
+   when ``s = 0``);
+2. ``E_t[i, k] = sum_{tau = s..t} P(L_tau = i | z_s..t) [z_tau = k]``;
+3. ``S_t = decay * S_{t-1} + E_t``;
+4. M-step: ``B_t[i] = (S_t[i] + c) / (sum_k S_t[i, k] + K c)`` with ``c = pseudo_count``
+   (rows with no statistics yet keep the prior's ``label_prior @ O``).
+
+Before any data ``B`` is ``label_prior @ O``. The belief: ``location`` = the window's filtered
+``P(L_t | z_s..t)`` under ``B_{t-1}``; ``map`` = ``B_t`` read through the inverted sensor
+channel (clipped, renormalised); ``observation_matrix`` = ``B_t``; ``log_evidence`` = the
+prequential log-likelihood ``sum_u log P(z_u | z_s(u)..u-1)``, each term under the parameters
+of its time ``B_{u-1}`` (a sequential score, not the likelihood of one fixed B).
+
+Cost per step: O(W (N + E) + N K^2) time (E motion edges, sparse), O(W N) memory; with
+``window="max"`` W = t + 1, so a run of T steps costs O(T^2 N) in all.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..belief import Belief
+from ..errors import ModelError
+from ..hmm import (emission_from_counts, expected_counts, forward_backward, map_from_emission,
+                   prior_emission)
+from ..model import GridModel, apply_motion
+from ..validation import check_step
+from .base import register
+
+
+def check_pseudo_count(pseudo_count: float) -> float:
+    """A finite pseudo-count >= 0, or ModelError."""
+    value = float(pseudo_count)
+    if not np.isfinite(value) or value < 0:
+        raise ModelError(f"pseudo_count must be a finite number >= 0, got {pseudo_count!r}")
+    return value
+
+
+def _check_window(window) -> int | None:
+    if isinstance(window, str):
+        if window != "max":
+            raise ModelError(f"window must be a positive int or 'max', got {window!r}")
+        return None
+    if isinstance(window, (bool, np.bool_)) or not float(window).is_integer() or int(window) < 1:
+        raise ModelError(f"window must be a positive int or 'max', got {window!r}")
+    return int(window)
+
+
+@register("online_em")
+class OnlineEM:
+    """Fixed-lag online EM. Options: ``window`` (int >= 1 or ``"max"`` for the whole history),
+    ``decay`` (lambda in (0, 1]: weight of the previous statistics), ``pseudo_count`` (c >= 0
+    added to every count of the M-step)."""
+
+    def __init__(self, model: GridModel, *, window: int | str = "max", decay: float = 1.0,
+                 pseudo_count: float = 0.1):
+        self.model = model
+        self.window = window
+        self._window = _check_window(window)
+        decay = float(decay)
+        if not 0.0 < decay <= 1.0:
+            raise ModelError(f"decay must be in (0, 1], got {decay!r}")
+        self.decay = decay
+        self.pseudo_count = check_pseudo_count(pseudo_count)
+        self._prior_emission = prior_emission(model)
+        self._emission = self._prior_emission.copy()
+        self._stats = np.zeros((model.n_cells, model.n_labels))
+        self._actions = np.empty(0, dtype=np.int64)  # a_u for the window's steps (and one before)
+        self._observations = np.empty(0, dtype=np.int64)  # z_s..z_t
+        self._filtered = np.empty((0, model.n_cells))  # filtered locations of the last W steps (finite W)
+        self._log_evidence = 0.0
+        self._t = -1
+        self._belief: Belief | None = None
+
+    @property
+    def t(self) -> int:
+        return self._t
+
+    @property
+    def belief(self) -> Belief | None:
+        return self._belief
+
+    @property
+    def observation_matrix(self) -> np.ndarray:
+        """A copy of the current B, (N, K)."""
+        return self._emission.copy()
+
+    def step(self, action, observation) -> Belief:
+        a, z = check_step(self.model, self._t + 1, action, observation)
+        model, t, w = self.model, self._t + 1, self._window
+        observations = np.append(self._observations, z)
+        actions = self._actions if a is None else np.append(self._actions, a)
+        if w is not None and t + 1 > w:  # the window s..t starts after step 0
+            observations, actions = observations[-w:], actions[-w:]
+            prior = apply_motion(model, self._filtered[-w], actions[0])
+            inside = actions[1:]
+        else:
+            prior, inside = model.location_prior(), actions
+        fit = forward_backward(model, prior, inside, observations, self._emission, first_step=t + 1 - len(observations))
+        stats = self.decay * self._stats + expected_counts(fit.posterior, observations, model.n_labels)
+        emission = emission_from_counts(stats, self.pseudo_count, self._prior_emission)
+        location = fit.filtered[-1]
+        # commit (everything above worked on fresh arrays)
+        self._observations, self._actions = observations, actions
+        if w is not None:  # the window's prior needs the filtered location W steps back
+            self._filtered = np.concatenate([self._filtered, location[None]])[-w:]
+        self._stats, self._emission = stats, emission
+        self._log_evidence += float(fit.log_normalizers[-1])
+        self._t = t
+        self._belief = Belief(t, location, map_from_emission(emission, model.sensor), self._log_evidence,
+                              observation_matrix=emission)
+        return self._belief
