@@ -24,7 +24,7 @@ def _block_axes(n, k):
     return b
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def motion_observe(x, out, self_prob, predecessor, p_move, likelihood, joint_map, location):
     """One fused pass: ``out[j, m] = (self_prob[j] x[j, m] + p_move x[pred[j], m]) * lik[m_j]``.
 
@@ -41,8 +41,10 @@ def motion_observe(x, out, self_prob, predecessor, p_move, likelihood, joint_map
     pattern = np.empty((n, block))
     for j in range(inner, n):
         stride = k ** (n - 1 - j)
-        for m in range(block):
-            pattern[j, m] = likelihood[(m // stride) % k]
+        for run in range(block // stride):
+            f = likelihood[run % k]
+            for m in range(run * stride, (run + 1) * stride):
+                pattern[j, m] = f
     joint_map[:] = 0.0
     location[:] = 0.0
     for start in range(0, m_total, block):
@@ -80,7 +82,7 @@ def motion_observe(x, out, self_prob, predecessor, p_move, likelihood, joint_map
             location[j] += acc
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def _change_axis(x, row, base, stride, span, change, k):
     """Apply C along the axis of the given stride to ``x[row, base:base+span]``, in place."""
     if k == 2:
@@ -104,7 +106,7 @@ def _change_axis(x, row, base, stride, span, change, k):
                 x[row, s + c * stride] = acc
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def change_every_axis(x, change):
     """In place on (N, M): apply ``C`` (K, K) along every one of the N map axes,
     ``x[.., m_i = k', ..] <- sum_k C[k, k'] x[.., m_i = k, ..]``.
