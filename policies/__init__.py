@@ -1,2 +1,20 @@
 """Active exploration for onlinemap: entropy rewards, policy iteration, exploration loops
-(DESIGN.md section 4)."""
+(DESIGN.md section 4).
+
+>>> import onlinemap as om, policies
+>>> model, true_map = om.door_world(p_door=0.01)
+>>> frame = policies.explore(model, true_map, "entropy", "rbpf", steps=200, seed=0)  # doctest: +SKIP
+"""
+
+from .explore import COLUMNS, door_cells, explore, explore_env
+from .mdp import (PolicyIterationResult, action_values, evaluate_policy, policy_iteration,
+                  policy_motion)
+from .planners import PLANNERS, EntropyExplorer, Planner, RandomWalk, Sweep, make_planner, sweep_actions
+from .rewards import RewardFunction, entropy_reward
+
+__all__ = [
+    "entropy_reward", "RewardFunction",
+    "policy_iteration", "PolicyIterationResult", "action_values", "evaluate_policy", "policy_motion",
+    "Planner", "EntropyExplorer", "RandomWalk", "Sweep", "make_planner", "sweep_actions", "PLANNERS",
+    "explore", "explore_env", "door_cells", "COLUMNS",
+]

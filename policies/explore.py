@@ -1,0 +1,167 @@
+"""Exploration runs: act, observe, update the estimator, re-plan (DESIGN.md section 4).
+
+:func:`explore` simulates the true world with :func:`onlinemap.simulate.world_step` (the same
+dynamics as :func:`onlinemap.simulate`); :func:`explore_env` drives a gymnasium
+:class:`onlinemap.envs.DoorWorldEnv` instead. Both return one row per step.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+from tqdm.auto import tqdm
+
+from onlinemap import metrics
+from onlinemap.errors import ModelError
+from onlinemap.estimators import Estimator, estimator_options, make_estimator
+from onlinemap.model import CLOSED_DOOR, DOOR_LABELS, OPEN_DOOR, GridModel
+from onlinemap.simulate import SeedLike, world_step
+
+from .planners import Planner, make_planner
+
+COLUMNS = ("t", "action", "true_location", "map_error", "location_error", "location_entropy",
+           "map_entropy", "door_error")
+
+# (observation, true location, true labels (N,)) after a step
+WorldState = tuple[int, int, np.ndarray]
+
+
+def door_cells(model: GridModel, labels: np.ndarray) -> np.ndarray:
+    """Indices of the door cells (true label open or closed) of a door-world map; empty otherwise."""
+    if model.label_names != DOOR_LABELS:
+        return np.empty(0, dtype=np.int64)
+    return np.flatnonzero((labels == OPEN_DOOR) | (labels == CLOSED_DOOR))
+
+
+def _seeds(seed: SeedLike) -> tuple[np.random.Generator, np.random.Generator, int]:
+    """Independent streams for the world, the planner and the estimator, from one seed."""
+    if isinstance(seed, np.random.Generator):
+        world, planner = seed.spawn(2)
+        return world, planner, int(seed.integers(2**63))
+    world, planner, estimator = np.random.SeedSequence(seed).spawn(3)
+    return (np.random.default_rng(world), np.random.default_rng(planner),
+            int(estimator.generate_state(1, np.uint64)[0]))
+
+
+def _estimator(model: GridModel, estimator: str | Estimator, options: dict | None, seed: int) -> Estimator:
+    if isinstance(estimator, str):
+        options = dict(options or {})
+        if "seed" in estimator_options(estimator):
+            options.setdefault("seed", seed)
+        return make_estimator(estimator, model, **options)
+    if options:
+        raise ModelError("estimator_options are for an estimator given by name")
+    if estimator.t != -1:
+        raise ModelError(f"the estimator has already taken {estimator.t + 1} steps; pass a fresh one")
+    if estimator.model is not model:
+        raise ModelError("the estimator was built for a different model")
+    return estimator
+
+
+def _planner(model: GridModel, planner: str | Planner, rng: np.random.Generator) -> Planner:
+    return make_planner(planner, model, seed=rng) if isinstance(planner, str) else planner
+
+
+def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[int], WorldState],
+          planner: Planner, estimator: Estimator, steps: int, progress: bool | None) -> pd.DataFrame:
+    steps = int(steps)
+    if steps < 1:
+        raise ModelError(f"steps must be at least 1 (the first observation), got {steps}")
+    actions = np.full(steps, -1, dtype=np.int64)
+    locations = np.empty(steps, dtype=np.int64)
+    location_belief = np.empty((steps, model.n_cells))
+    map_belief = np.empty((steps, model.n_cells, model.n_labels))
+    true_maps = np.empty((steps, model.n_cells), dtype=np.int64)
+    observation, location, labels = reset()
+    belief = estimator.step(None, observation)
+    started = time.perf_counter()
+    bar = tqdm(total=steps, desc=f"explore ({type(planner).__name__}, {estimator.name})",
+               disable=(steps < 200) if progress is None else not progress, leave=False)
+    for t in range(steps):
+        if t > 0:
+            actions[t] = planner.choose(belief)
+            observation, location, labels = advance(actions[t])
+            belief = estimator.step(int(actions[t]), observation)
+        locations[t], true_maps[t] = location, labels
+        location_belief[t], map_belief[t] = belief.location, belief.map
+        bar.update()
+    bar.close()
+    doors = door_cells(model, true_maps[0])
+    frame = pd.DataFrame({
+        "t": np.arange(steps),
+        "action": [None] + [model.action_names[a] for a in actions[1:]],
+        "true_location": locations,
+        "map_error": metrics.map_error(map_belief, true_maps),
+        "location_error": metrics.location_error(location_belief, locations),
+        "location_entropy": metrics.normalized_entropy(location_belief),
+        "map_entropy": metrics.map_entropy(map_belief),
+        "door_error": (metrics.map_error(map_belief[:, doors], true_maps[:, doors]) if len(doors)
+                       else np.full(steps, np.nan)),
+    })
+    frame.attrs.update(planner=repr(planner), estimator=estimator.name,
+                       seconds_per_step=(time.perf_counter() - started) / steps)
+    return frame
+
+
+def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
+            estimator: str | Estimator = "rbpf", steps: int = 500, seed: SeedLike = None, *,
+            estimator_options: dict | None = None, progress: bool | None = None) -> pd.DataFrame:
+    """Run a closed exploration loop for ``steps`` steps (the first observation included).
+
+    Each step: the planner chooses an action from the estimator's belief, the true world moves
+    (:func:`onlinemap.simulate.world_step`: move, map change, observe), the estimator takes the
+    action and observation. ``planner`` is a :class:`~policies.planners.Planner` or a name
+    (``entropy``, ``random``, ``sweep``); ``estimator`` a fresh estimator or a registry name,
+    built with ``estimator_options`` (and a ``seed`` derived from ``seed`` if it takes one).
+    One ``seed`` fixes the world, a named planner and a named estimator.
+
+    Returns a frame with one row per step and the columns ``t``, ``action`` (name, None at
+    t = 0), ``true_location``, ``map_error`` (mean over cells of 1 - P(true label)),
+    ``location_error`` (1 - P(true cell)), ``location_entropy`` and ``map_entropy``
+    (normalised to [0, 1]) and ``door_error`` (``map_error`` over the door cells; NaN if the
+    world has none). Cost: ``steps`` x (estimator step + planner choice) plus O(steps N K).
+    """
+    world_rng, planner_rng, estimator_seed = _seeds(seed)
+    labels = np.array(true_map, dtype=np.int64)
+    if labels.shape != (model.n_cells,) or np.any(labels < 0) or np.any(labels >= model.n_labels):
+        raise ModelError(f"true_map must be ({model.n_cells},) labels in 0..{model.n_labels - 1}")
+    est = _estimator(model, estimator, estimator_options, estimator_seed)
+    chooser = _planner(model, planner, planner_rng)
+    static = model.is_static
+    state = {"location": model.start, "labels": labels}
+
+    def advance(action: int | None) -> WorldState:
+        location, state["labels"], observation = world_step(
+            model, state["location"], state["labels"], action, world_rng, static)
+        state["location"] = location
+        return observation, location, state["labels"]
+
+    return _loop(model, lambda: advance(None), advance, chooser, est, steps, progress)
+
+
+def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estimator = "rbpf",
+                steps: int = 500, seed: SeedLike = None, *, estimator_options: dict | None = None,
+                progress: bool | None = None) -> pd.DataFrame:
+    """:func:`explore` against a gymnasium :class:`onlinemap.envs.DoorWorldEnv` (possibly wrapped):
+    ``env.reset(seed=...)`` then ``env.step(action)``; the true state is read from ``info``.
+    The episode must last ``steps - 1`` actions (it raises if the env ends it sooner)."""
+    model = env.unwrapped.model
+    world_seed, planner_rng, estimator_seed = _seeds(seed)
+    est = _estimator(model, estimator, estimator_options, estimator_seed)
+    chooser = _planner(model, planner, planner_rng)
+
+    def reset() -> WorldState:
+        observation, info = env.reset(seed=int(world_seed.integers(2**31)))
+        return int(observation), info["location"], info["map"]
+
+    def advance(action: int) -> WorldState:
+        observation, _, terminated, truncated, info = env.step(int(action))
+        if terminated or truncated:
+            raise ModelError(f"the environment ended the episode at step {info['t']}; "
+                             f"ask for fewer steps or raise its max_episode_steps")
+        return int(observation), info["location"], info["map"]
+
+    return _loop(model, reset, advance, chooser, est, steps, progress)

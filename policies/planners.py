@@ -1,0 +1,137 @@
+"""Planners: one interface, ``choose(belief) -> action index``.
+
+- :class:`EntropyExplorer` re-plans from the belief (entropy reward, policy iteration) and
+  acts by maximising ``sum_l P(l) Q(l, a)`` (the Q-MDP rule: act as if the location
+  uncertainty vanished after this step).
+- :class:`RandomWalk` draws actions uniformly.
+- :class:`Sweep` follows a fixed boustrophedon (lawn-mower) pattern and ignores beliefs.
+
+:func:`make_planner` builds one by name (``entropy``, ``random``, ``sweep``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from onlinemap.belief import Belief
+from onlinemap.errors import ModelError
+from onlinemap.model import GridModel
+from onlinemap.simulate import SeedLike, as_generator
+
+from .mdp import PolicyIterationResult, policy_iteration
+from .rewards import RewardFunction, entropy_reward
+
+
+@runtime_checkable
+class Planner(Protocol):
+    """Chooses the next action from the current belief."""
+
+    model: GridModel
+
+    def choose(self, belief: Belief) -> int:
+        """The action (index into ``model.action_names``) to take next."""
+
+
+class EntropyExplorer:
+    """Active exploration (DESIGN.md section 4).
+
+    Every ``replan_every`` calls: reward ``R = reward(belief)`` (default
+    :func:`~policies.rewards.entropy_reward`), ``Q`` by :func:`~policies.mdp.policy_iteration`
+    with discount ``gamma`` (warm-started from the previous plan). Every call: the action
+    maximising ``sum_l P(l) Q(l, a)`` (ties go to the lowest action index).
+    Cost per re-plan: a few sparse solves over N cells; per call O(N A).
+    """
+
+    def __init__(self, model: GridModel, gamma: float = 0.95, replan_every: int = 1,
+                 reward: RewardFunction = entropy_reward):
+        if int(replan_every) < 1:
+            raise ModelError(f"replan_every must be at least 1, got {replan_every!r}")
+        if not 0.0 <= float(gamma) < 1.0:
+            raise ModelError(f"the discount gamma must be in [0, 1), got {gamma!r}")
+        self.model = model
+        self.gamma = float(gamma)
+        self.replan_every = int(replan_every)
+        self.reward = reward
+        self.plan: PolicyIterationResult | None = None
+        self._calls = 0
+
+    def choose(self, belief: Belief) -> int:
+        if self.plan is None or self._calls % self.replan_every == 0:
+            previous = None if self.plan is None else self.plan.policy
+            self.plan = policy_iteration(self.model, self.reward(belief), self.gamma,
+                                         initial_policy=previous)
+        self._calls += 1
+        return int(np.argmax(belief.location @ self.plan.q))
+
+    def __repr__(self) -> str:
+        return f"EntropyExplorer(gamma={self.gamma}, replan_every={self.replan_every})"
+
+
+class RandomWalk:
+    """Uniformly random actions from ``seed`` (an int, None or a Generator); ignores beliefs."""
+
+    def __init__(self, model: GridModel, seed: SeedLike = None):
+        self.model = model
+        self.rng = as_generator(seed)
+
+    def choose(self, belief: Belief) -> int:
+        return int(self.rng.integers(self.model.n_actions))
+
+    def __repr__(self) -> str:
+        return "RandomWalk()"
+
+
+def sweep_actions(model: GridModel) -> np.ndarray:
+    """One cycle of the boustrophedon from the top-left corner, as action indices.
+
+    Grid: rows 0, 1, ..., R-1, R-2, ..., 1 (then back to 0), alternately east and west along
+    each, one step south (north on the way back) between rows. Each row is pressed
+    ``ceil((cols - 1) / p_move)`` times so that, with slips, the robot is expected to reach the
+    far end (extra presses at the edge stay put). Corridor: right then left, as many presses.
+    """
+    names = model.action_names
+    presses = max(1, math.ceil((model.cols - 1) / max(model.p_move, 1e-9)))
+    if set(names) == {"left", "right"}:
+        return np.array([names.index("right")] * presses + [names.index("left")] * presses, dtype=np.int64)
+    if set(names) != {"north", "east", "south", "west"}:
+        raise ModelError(f"Sweep needs corridor (left, right) or grid (north, east, south, west) actions, got {names}")
+    east, west, north, south = (names.index(n) for n in ("east", "west", "north", "south"))
+    order = list(range(model.rows)) + list(range(model.rows - 2, 0, -1)) + [0]
+    actions = []
+    for k, (row, next_row) in enumerate(zip(order[:-1], order[1:])):
+        actions += [east if k % 2 == 0 else west] * presses
+        actions.append(south if next_row > row else north)
+    return np.array(actions, dtype=np.int64)
+
+
+class Sweep:
+    """Coverage sweep: repeats :func:`sweep_actions` open loop, whatever the belief."""
+
+    def __init__(self, model: GridModel):
+        self.model = model
+        self.actions = sweep_actions(model)
+        self._calls = 0
+
+    def choose(self, belief: Belief) -> int:
+        action = int(self.actions[self._calls % len(self.actions)])
+        self._calls += 1
+        return action
+
+    def __repr__(self) -> str:
+        return f"Sweep({len(self.actions)} actions per cycle)"
+
+
+PLANNERS = {"entropy": EntropyExplorer, "random": RandomWalk, "sweep": Sweep}
+
+
+def make_planner(name: str, model: GridModel, seed: SeedLike = None, **options) -> Planner:
+    """Planner by name: ``entropy`` (options gamma, replan_every, reward), ``random`` (uses
+    ``seed``) or ``sweep``."""
+    if name not in PLANNERS:
+        raise ModelError(f"unknown planner {name!r}; available: {', '.join(PLANNERS)}")
+    if name == "random":
+        return RandomWalk(model, seed=seed, **options)
+    return PLANNERS[name](model, **options)
