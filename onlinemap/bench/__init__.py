@@ -14,8 +14,9 @@ from typing import Callable
 
 import numpy as np
 import pandas as pd
+from tqdm.auto import tqdm
 
-BENCHMARK_MODULES = ("exact",)
+BENCHMARK_MODULES = ("exact", "peers")
 _BENCHMARKS: dict[str, Callable[[bool], list[dict]]] = {}
 
 
@@ -53,19 +54,71 @@ def copy_pass_ms(n_floats: int, dtype=np.float64) -> float:
     return 1e3 * seconds_per_call(lambda: np.copyto(target, source))
 
 
-def run_benchmarks(names: list[str] | None = None, quick: bool = False) -> pd.DataFrame:
-    """Run the named benchmarks (all when None) and return one table."""
+def run_benchmarks(names: list[str] | None = None, quick: bool = False, progress: bool = False) -> pd.DataFrame:
+    """Run the named benchmarks (all when None) and return one table.
+
+    With ``names=None`` a benchmark whose optional peer library is missing is skipped (listed
+    in ``table.attrs["skipped"]`` with the reason); one asked for by name raises instead.
+    """
+    from ..peers import PeerMissingError
+
     known = available_benchmarks()
+    run_all = not names
     names = list(names or known)
     unknown = [n for n in names if n not in known]
     if unknown:
         raise ValueError(f"unknown benchmark {', '.join(unknown)}; available: {', '.join(known)}")
-    frames = []
-    for name in names:
-        rows = _BENCHMARKS[name](quick)
+    frames, skipped = [], {}
+    for name in tqdm(names, desc="benchmarks", disable=not progress, leave=False):
+        try:
+            rows = _BENCHMARKS[name](quick)
+        except PeerMissingError as error:
+            if not run_all:
+                raise
+            skipped[name] = str(error)
+            continue
         frame = pd.DataFrame(rows)
         frame.insert(0, "benchmark", name)
         frames.append(frame)
-    table = pd.concat(frames, ignore_index=True)
+    table = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=_COLUMNS)
     table["meets_target"] = np.where(table["target"].isna(), None, table["ratio"] <= table["target"])
+    first = [c for c in _COLUMNS if c in table.columns]
+    table = table[first + [c for c in table.columns if c not in first]]
+    table.attrs["skipped"] = skipped
     return table
+
+
+_COLUMNS = ("benchmark", "case", "ms", "reference", "reference_ms", "ratio", "target", "meets_target")
+
+
+def machine_info() -> dict:
+    """What a benchmark number depends on: versions, CPU, platform, time and git commit."""
+    import datetime
+    import os
+    import platform
+    import subprocess
+
+    import numba
+
+    from .. import __version__
+
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5,
+                                cwd=os.path.dirname(__file__)).stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        commit = None
+    return {"onlinemap": __version__, "git_commit": commit,
+            "time_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "python": platform.python_version(), "numpy": np.__version__, "numba": numba.__version__,
+            "pandas": pd.__version__, "platform": platform.platform(), "machine": platform.machine(),
+            "processor": platform.processor() or None, "cpu_count": os.cpu_count(),
+            "hostname": platform.node()}
+
+
+def benchmark_record(table: pd.DataFrame, quick: bool) -> dict:
+    """A JSON-ready record of one ``onlinemap bench`` run: machine info, options, the rows
+    (NaN as null) and the benchmarks skipped, for tracking numbers over time."""
+    rows = [{key: (None if isinstance(value, float) and not np.isfinite(value) else
+                   value.item() if isinstance(value, np.generic) else value)
+             for key, value in row.items()} for row in table.to_dict(orient="records")]
+    return {"machine": machine_info(), "quick": quick, "skipped": table.attrs.get("skipped", {}), "rows": rows}

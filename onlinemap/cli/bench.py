@@ -4,26 +4,45 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
-from ..bench import available_benchmarks, run_benchmarks
+from ..bench import available_benchmarks, benchmark_record, run_benchmarks
 from .common import print_table
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="run benchmarks (ratios against same-process references)",
-                       description="Run benchmarks and print one table; with no name, all of them. "
-                                   f"Available: {', '.join(available_benchmarks())}.")
+                       description="Run benchmarks and print one table; with no name, all of them "
+                                   "(those needing a missing optional peer library are skipped). "
+                                   "ratio = ms / reference_ms; a row meets its target when "
+                                   f"ratio <= target. Available: {', '.join(available_benchmarks())}.")
     p.add_argument("names", nargs="*", metavar="NAME", help="benchmarks to run (default: all)")
     p.add_argument("--quick", action="store_true", help="small sizes, for a smoke test")
-    p.add_argument("--json", metavar="FILE", help="also write the table as JSON records")
+    p.add_argument("--json", metavar="FILE",
+                   help="also write the table with machine info, versions, time and git commit as "
+                        "JSON; a .jsonl FILE gets one line appended per run (a history)")
     p.set_defaults(func=bench)
 
 
 def bench(args: argparse.Namespace) -> int:
-    table = run_benchmarks(args.names, quick=args.quick)
+    table = run_benchmarks(args.names, quick=args.quick, progress=True)
     print_table(table)
+    judged = table["meets_target"].dropna()
+    if len(judged):
+        missed = table[table["meets_target"] == False]  # noqa: E712 (object column)
+        missed = [f"{row.benchmark} {row.case}" for row in missed.itertuples()]
+        print(f"{int(judged.sum())} of {len(judged)} targets met" +
+              (f"; missed: {', '.join(missed)}" if len(missed) else ""))
+    for name, reason in table.attrs.get("skipped", {}).items():
+        print(f"skipped {name}: {reason}", file=sys.stderr)
     if args.json:
-        Path(args.json).write_text(json.dumps(table.to_dict(orient="records"), indent=2, default=str))
-        print(f"wrote {args.json}")
+        path = Path(args.json)
+        record = benchmark_record(table, args.quick)
+        if path.suffix == ".jsonl":
+            with path.open("a") as stream:
+                stream.write(json.dumps(record) + "\n")
+        else:
+            path.write_text(json.dumps(record, indent=2))
+        print(f"wrote {path}")
     return 0

@@ -1,0 +1,106 @@
+"""``onlinemap bench peers``: the same work done by onlinemap and by a peer library in one
+process; ratio = onlinemap's time / the peer's time, and ``max_abs_diff`` beside it checks
+that the answers agree.
+
+- exact filtering vs pgmpy ``VariableElimination`` on the network unrolled over the run: the
+  filtering location marginal at every step of a random-walk run on a binary corridor (pgmpy
+  needs one query per step on a network that grows with t; onlinemap one filter pass, which
+  also yields the map marginals). Target: >= 100x faster on 8 cells (ratio <= 0.01).
+  ``max_abs_diff`` covers the location at every step and the map marginals at the last step.
+- Baum-Welch vs hmmlearn ``CategoricalHMM(params="e", init_params="")`` (hmmlearn's
+  ``scaling`` implementation) on a single-action run: ms per iteration. Target: no slower
+  (ratio <= 1). Both start from the same random B, no pseudo-count (hmmlearn's default
+  Dirichlet prior of 1 adds nothing), 10 iterations per call; onlinemap's ``baum_welch`` also
+  runs one more forward-backward after the last M-step (for the returned posteriors), which is
+  counted against it. ``max_abs_diff`` compares the emission matrices after 10 iterations.
+
+pgmpy and hmmlearn come with ``pip install 'onlinemap[peers]'``; without them this benchmark
+stops with :class:`onlinemap.peers.PeerMissingError`.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+
+import numpy as np
+
+from ..estimators import make_estimator, run_estimator
+from ..model import corridor
+from ..peers import dense_motion, hmmlearn_categorical_hmm, pgmpy_filter, require, unrolled_network
+from ..simulate import random_walk, simulate
+from . import benchmark, seconds_per_call
+
+
+def _pgmpy_rows(quick: bool) -> list[dict]:
+    rows = []
+    cases = ((6, 0.0), (8, 0.0)) if quick else ((6, 0.0), (8, 0.0), (8, 0.01), (10, 0.0))
+    n_steps = 8 if quick else 20
+    pgmpy_filter(corridor(3), [0], [0, 0])  # first-call costs (imports, caches) out of the timings
+    for n, p_change in cases:
+        model = corridor(n, p_change=p_change)
+        run = simulate(model, None, random_walk(model, n_steps - 1, seed=3), seed=4)
+        mine = run_estimator(make_estimator("exact", model), run.actions, run.observations)  # compiles
+        ms = 1e3 * seconds_per_call(
+            lambda: run_estimator(make_estimator("exact", model), run.actions, run.observations),
+            min_seconds=0.2)
+        start = time.perf_counter()
+        peer = pgmpy_filter(model, run.actions, run.observations, map_steps=())
+        peer_ms = 1e3 * (time.perf_counter() - start)
+        diff = max(np.abs(mine.location - peer.location).max(),
+                   np.abs(mine.map[-1] - _pgmpy_last_map(model, run)).max())
+        kind = "static" if p_change == 0 else "dynamic"
+        rows.append({"case": f"filter corridor:{n} {kind}, {n_steps} steps", "ms": ms,
+                     "reference": "pgmpy VariableElimination", "reference_ms": peer_ms,
+                     "ratio": ms / peer_ms, "target": 0.01 if n == 8 else np.nan, "max_abs_diff": diff})
+    return rows
+
+
+def _pgmpy_last_map(model, run) -> np.ndarray:
+    """(N, K) pgmpy's map marginals at the last step (untimed: the agreement check only)."""
+    inference = require("pgmpy.inference")
+    engine = inference.VariableElimination(unrolled_network(model, run.actions, run.n_steps))
+    evidence = {f"Z_{s}": int(z) for s, z in enumerate(run.observations)}
+    t = run.n_steps - 1
+    return np.stack([engine.query([f"M{i}_{t}"], evidence=evidence, show_progress=False).values
+                     for i in range(model.n_cells)])
+
+
+def _baum_welch_rows(quick: bool) -> list[dict]:
+    from ..estimators.offline_em import baum_welch
+
+    rows = []
+    n_iter = 10
+    cases = ((8, 200), (32, 1000)) if quick else ((8, 200), (32, 1000), (128, 2000))
+    for n, n_steps in cases:
+        model = corridor(n)
+        right = model.action_names.index("right")
+        run = simulate(model, None, [right] * (n_steps - 1), seed=5)
+        initial = np.random.default_rng(6).dirichlet(np.ones(model.n_labels), size=n)  # (N, K)
+        peer = hmmlearn_categorical_hmm(model.location_prior(), dense_motion(model)[right], initial, n_iter)
+        symbols = run.observations.reshape(-1, 1)
+
+        def mine():
+            return baum_welch(model, run.actions, run.observations, n_iter=n_iter, tol=-np.inf,
+                              pseudo_count=0.0, initial=initial)
+
+        def theirs():
+            peer.emissionprob_ = initial.copy()
+            return peer.fit(symbols)
+
+        diff = np.abs(mine().observation_matrix - theirs().emissionprob_).max()  # also compiles
+        ms = 1e3 * seconds_per_call(mine) / n_iter
+        peer_ms = 1e3 * seconds_per_call(theirs) / n_iter
+        rows.append({"case": f"Baum-Welch corridor:{n}, {n_steps} steps, ms/iteration", "ms": ms,
+                     "reference": "hmmlearn CategoricalHMM", "reference_ms": peer_ms,
+                     "ratio": ms / peer_ms, "target": 1.0, "max_abs_diff": diff})
+    return rows
+
+
+@benchmark("peers")
+def bench_peers(quick: bool) -> list[dict]:
+    require("pgmpy")
+    require("hmmlearn")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)  # pgmpy's deprecation notices on import
+        return _pgmpy_rows(quick) + _baum_welch_rows(quick)

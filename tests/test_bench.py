@@ -1,0 +1,47 @@
+"""``onlinemap bench``: all benchmarks in one table, JSON records, and the peers benchmark
+(onlinemap vs pgmpy / hmmlearn in one process, answers checked to agree)."""
+
+import json
+import sys
+
+import numpy as np
+import pytest
+
+from onlinemap.bench import run_benchmarks
+from onlinemap.cli import main
+
+
+@pytest.fixture
+def no_pgmpy(monkeypatch):
+    monkeypatch.setitem(sys.modules, "pgmpy", None)  # import pgmpy now raises ImportError
+    monkeypatch.setitem(sys.modules, "pgmpy.inference", None)
+
+
+def test_bench_peers_without_peer_libraries_says_how_to_install(no_pgmpy, capsys):
+    assert main(["bench", "peers"]) == 2
+    assert "pip install 'onlinemap[peers]'" in capsys.readouterr().err
+
+
+def test_bench_with_no_name_runs_everything_else_and_writes_json(no_pgmpy, tmp_path, capsys):
+    path = tmp_path / "history.jsonl"
+    for _ in range(2):
+        assert main(["bench", "--quick", "--json", str(path)]) == 0
+    out = capsys.readouterr()
+    assert "skipped peers" in out.err and "targets met" in out.out
+    records = [json.loads(line) for line in path.read_text().splitlines()]
+    assert len(records) == 2  # .jsonl appends: a history
+    record = records[0]
+    assert set(record["skipped"]) == {"peers"}
+    assert record["machine"]["onlinemap"] and record["machine"]["cpu_count"] >= 1
+    assert {row["benchmark"] for row in record["rows"]} >= {"exact"}
+    assert all(set(row) >= {"case", "ms", "reference_ms", "ratio", "target", "meets_target"}
+               for row in record["rows"])
+
+
+def test_bench_peers_agrees_with_pgmpy_and_hmmlearn():
+    pytest.importorskip("pgmpy")
+    pytest.importorskip("hmmlearn")
+    table = run_benchmarks(["peers"], quick=True)
+    assert set(table["reference"]) == {"pgmpy VariableElimination", "hmmlearn CategoricalHMM"}
+    assert np.all(table["max_abs_diff"] < 1e-9)
+    assert np.all(table["ms"] > 0) and np.all(table["reference_ms"] > 0)
