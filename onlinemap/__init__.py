@@ -10,9 +10,10 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-from . import errors, metrics, scenarios
+from . import checkpoint, errors, metrics, scenarios
 from .belief import Belief
-from .errors import (ImpossibleObservationError, InvalidActionError, InvalidObservationError,
+from .checkpoint import load, save
+from .errors import (CheckpointError, ImpossibleObservationError, InvalidActionError, InvalidObservationError,
                      MemoryLimitError, ModelError, OnlineMapError, UnknownEstimatorError)
 from .estimators import (Estimator, SmoothResult, Trajectory, available_estimators,
                          estimator_options, exact_smooth, make_estimator, register, run_estimator)
@@ -24,7 +25,7 @@ __all__ = [
     "corridor", "door_world", "grid_model", "DOOR_WORLD_10X10",
     "simulate", "random_walk", "there_and_back", "sample_map",
     "make_estimator", "register", "available_estimators", "estimator_options", "run_estimator",
-    "exact_smooth", "metrics", "scenarios", "errors",
-    "OnlineMapError", "ModelError", "InvalidActionError", "InvalidObservationError",
+    "exact_smooth", "metrics", "scenarios", "errors", "checkpoint", "save", "load",
+    "OnlineMapError", "CheckpointError", "ModelError", "InvalidActionError", "InvalidObservationError",
     "ImpossibleObservationError", "MemoryLimitError", "UnknownEstimatorError",
 ]

@@ -32,6 +32,11 @@ class MemoryLimitError(OnlineMapError, MemoryError):
     """An estimator would need more memory than its limit allows; nothing was allocated."""
 
 
+class CheckpointError(OnlineMapError):
+    """A checkpoint file is truncated, tampered with, of another version, or does not match the
+    estimator or model it is loaded into; or an estimator's state cannot be checkpointed."""
+
+
 class UnknownEstimatorError(OnlineMapError, KeyError):
     """``make_estimator`` was given a name that is not in the registry, or an unknown option."""
 

@@ -7,12 +7,14 @@ A ``step`` that raises leaves the estimator exactly as it was.
 
 from __future__ import annotations
 
+import functools
 import inspect
 import time
 from typing import Callable, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
+from .. import checkpoint
 from ..belief import Belief
 from ..errors import UnknownEstimatorError
 from ..model import GridModel
@@ -38,18 +40,52 @@ class Estimator(Protocol):
     def step(self, action: int | str | None, observation: int | str) -> Belief:
         """Advance by one action (None at the first step) and one observation."""
 
+    options: dict[str, object]  # the keyword options it was built with, defaults filled in
+
+    def state_dict(self) -> dict:
+        """Everything needed to continue bit for bit (default: :func:`onlinemap.checkpoint.state_dict`)."""
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore a :meth:`state_dict` (checked against this estimator's name, model and options)."""
+
 
 def register(name: str) -> Callable[[type], type]:
-    """Class decorator: make an estimator available to :func:`make_estimator` under ``name``."""
+    """Class decorator: make an estimator available to :func:`make_estimator` under ``name``.
+
+    It also records the keyword options every instance is built with as ``est.options``
+    (defaults filled in) and, unless the class defines its own, gives it the generic checkpoint
+    methods ``state_dict()`` / ``load_state_dict(state)`` of :mod:`onlinemap.checkpoint`.
+    """
 
     def decorate(cls: type) -> type:
         if name in _REGISTRY and _REGISTRY[name] is not cls:
             raise ValueError(f"an estimator named {name!r} is already registered")
         cls.name = name
+        _record_options(cls)
+        for method, default in (("state_dict", checkpoint.state_dict),
+                                ("load_state_dict", checkpoint.load_state_dict)):
+            if method not in vars(cls):
+                setattr(cls, method, default)
         _REGISTRY[name] = cls
         return cls
 
     return decorate
+
+
+def _record_options(cls: type) -> None:
+    """Wrap ``cls.__init__`` so that every instance gets ``options``: its keyword options with the
+    defaults filled in (the signature seen by :func:`inspect.signature` is unchanged)."""
+    init = cls.__init__
+    params = inspect.signature(init).parameters.values()
+    defaults = {p.name: p.default for p in params
+                if p.kind is inspect.Parameter.KEYWORD_ONLY and p.default is not inspect.Parameter.empty}
+
+    @functools.wraps(init)
+    def __init__(self, model, *args, **options):
+        init(self, model, *args, **options)
+        self.options = {**defaults, **options}
+
+    cls.__init__ = __init__
 
 
 def available_estimators() -> tuple[str, ...]:

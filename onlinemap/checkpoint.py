@@ -1,0 +1,489 @@
+"""Checkpoints: save an estimator, load it in another process, continue bit for bit.
+
+Generic over every registered estimator, with no per-estimator code: the state is the
+estimator's instance attributes (``vars(est)``), serialised by type.
+
+========================================  =============================================
+attribute value                           stored as
+========================================  =============================================
+``numpy.ndarray`` (numeric, bool, str)    an array in the npz (dtype, shape, read-only flag kept)
+``None``, bool, int, float, str           JSON (floats exactly, NaN and infinities included)
+numpy scalar                              a 0-d array (dtype kept)
+tuple, list, dict with str keys           JSON containers of the above
+``numpy.random.Generator``                its ``bit_generator.state`` (PCG64, MT19937, ...)
+:class:`~onlinemap.belief.Belief`         its fields
+:class:`~onlinemap.model.GridModel`       its tables, rebuilt through the validating constructor
+``numpy.dtype`` or numpy scalar type      its name
+function / numba dispatcher / own method  its name only: configuration, re-derived from the options
+                                          on construction and checked to be the same on load
+anything else                             refused: :class:`CheckpointError` naming the attribute
+========================================  =============================================
+
+Two attributes holding the same array stay one array after loading; two different writable
+arrays sharing memory (views) are refused, since loading could not keep them linked.
+``est.model`` and ``est.options`` (the keyword options it was built with, recorded by
+:func:`~onlinemap.estimators.register`) are stored apart and checked on load.
+
+File format (``save``/``load``): an uncompressed ``.npz`` read with ``allow_pickle=False``:
+``meta`` (UTF-8 JSON as uint8: format name and version, onlinemap version, estimator name,
+options, t, model and attribute tree with arrays replaced by keys ``a0, a1, ...``), ``sha256``
+(hex digest of ``meta`` and every array's bytes) and the arrays. Nothing in a file is ever
+executed: no pickle, JSON only, whitelisted numpy bit generators, the model re-validated. The
+checksum catches truncation, corruption and hand edits; it is not a signature (whoever can
+write the file can recompute it), and needs not be one. Files are written atomically (temp file
+in the same directory, fsync, ``os.replace``): a crash mid-write leaves the previous file intact.
+
+Note: ``bit_generator.state`` does not include the generator's seed sequence, so after loading,
+``Generator.spawn`` gives different children; draws from the generator itself continue exactly.
+
+Cost: one copy of every array of the state (O(state size)) for ``state_dict``, and a write or
+read of it plus one SHA-256 pass for ``save``/``load``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import tempfile
+import types
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from .belief import Belief
+from .errors import CheckpointError, OnlineMapError, UnknownEstimatorError
+from .model import GridModel
+
+FORMAT = "onlinemap-checkpoint"
+FORMAT_VERSION = 1
+_TAG = "$"
+_SEPARATE = ("model", "options")  # attributes stored apart from the state tree
+_ARRAY_KINDS = "biufcUSmM"  # numpy dtype kinds that npy stores without pickling
+_BIT_GENERATORS = ("PCG64", "PCG64DXSM", "MT19937", "Philox", "SFC64")
+_MODEL_FIELDS = ("rows", "cols", "neighbors", "p_move", "change", "sensor", "label_prior", "start",
+                 "action_names", "label_names")
+_ZIP_MAGIC = b"PK\x03\x04"
+
+
+def _package_version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+# --- encoding: Python objects -> tree (JSON values, raw ndarrays, tagged dicts) ----------------------
+class _Encoder:
+    """Turns attribute values into a tree; remembers arrays to keep aliases and refuse views."""
+
+    def __init__(self) -> None:
+        self._arrays: list[tuple[np.ndarray, str]] = []
+
+    def encode(self, value, path: str):
+        kind = type(value)
+        if value is None or kind in (bool, int, float, str):
+            return value
+        if kind is np.ndarray:
+            return self._array(value, path)
+        if isinstance(value, np.generic):
+            return {_TAG: "numpy_scalar", "array": self._array(np.asarray(value), path)}
+        if kind is list:
+            return [self.encode(v, f"{path}[{i}]") for i, v in enumerate(value)]
+        if kind is tuple:
+            return {_TAG: "tuple", "items": [self.encode(v, f"{path}[{i}]") for i, v in enumerate(value)]}
+        if kind is dict:
+            bad = [k for k in value if type(k) is not str]
+            if bad:
+                raise CheckpointError(f"attribute {path}: dict keys must be str, got {bad[0]!r}")
+            return {_TAG: "dict", "items": [[k, self.encode(v, f"{path}[{k!r}]")] for k, v in value.items()]}
+        if kind is np.random.Generator:
+            return {_TAG: "generator", "state": self.encode(value.bit_generator.state, f"{path}.state")}
+        if kind is Belief:
+            return {_TAG: "belief", "fields": {f.name: self.encode(getattr(value, f.name), f"{path}.{f.name}")
+                                              for f in dataclasses.fields(Belief)}}
+        if kind is GridModel:
+            return encode_model(value)
+        if kind is np.dtype:
+            return {_TAG: "dtype", "name": value.str}
+        if isinstance(value, type) and issubclass(value, np.generic):
+            return {_TAG: "scalar_type", "name": np.dtype(value).str}
+        name = _callable_name(value)
+        if name is not None:
+            return {_TAG: "callable", "name": name}
+        raise CheckpointError(
+            f"attribute {path}: cannot checkpoint a {kind.__module__}.{kind.__qualname__}; supported: numpy "
+            f"arrays and scalars, None/bool/int/float/str, tuples, lists, str-keyed dicts, numpy Generators, "
+            f"Belief, GridModel, functions (see onlinemap.checkpoint)")
+
+    def _array(self, array: np.ndarray, path: str):
+        if array.dtype.kind not in _ARRAY_KINDS or array.dtype.fields is not None:
+            raise CheckpointError(f"attribute {path}: arrays of dtype {array.dtype} cannot be stored without pickle")
+        for seen, seen_path in self._arrays:
+            if seen is array:
+                return {_TAG: "same_as", "path": seen_path}
+            if array.flags.writeable and seen.flags.writeable and np.may_share_memory(array, seen):
+                raise CheckpointError(f"attributes {seen_path} and {path} are writable views of the same memory; "
+                                      "a checkpoint cannot keep them linked")
+        self._arrays.append((array, path))
+        copy = array.copy()
+        copy.setflags(write=array.flags.writeable)
+        return copy
+
+
+def _callable_name(value) -> str | None:
+    """``module.qualname`` of a plain function, builtin, ufunc or numba dispatcher; the name of a
+    method bound to the estimator itself (``self.method``); None for anything else."""
+    if isinstance(value, types.MethodType):
+        return f"method {type(value.__self__).__qualname__}.{value.__func__.__name__}"
+    if isinstance(value, (types.FunctionType, types.BuiltinFunctionType, np.ufunc)) or \
+            type(value).__name__ in ("CPUDispatcher", "Dispatcher"):
+        return f"{getattr(value, '__module__', None)}.{getattr(value, '__qualname__', value.__name__)}"
+    return None
+
+
+def encode_model(model: GridModel) -> dict:
+    """Tree of a model's defining tables (the derived ones are rebuilt by the constructor)."""
+    encoder = _Encoder()
+    return {_TAG: "model", "fields": {name: encoder.encode(getattr(model, name), name) for name in _MODEL_FIELDS}}
+
+
+# --- decoding: tree -> fresh Python objects (arrays copied) ------------------------------------------
+class _KeepFresh:
+    """A function attribute: configuration the fresh instance re-derives; only its name is checked."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+
+class _Decoder:
+    def __init__(self) -> None:
+        self._arrays: dict[str, np.ndarray] = {}
+
+    def decode(self, node, path: str):
+        if node is None or type(node) in (bool, int, float, str):
+            return node
+        if type(node) is np.ndarray:
+            array = node.copy()
+            array.setflags(write=node.flags.writeable)
+            self._arrays[path] = array
+            return array
+        if type(node) is list:
+            return [self.decode(v, f"{path}[{i}]") for i, v in enumerate(node)]
+        if type(node) is not dict or not isinstance(node.get(_TAG), str):
+            raise CheckpointError(f"attribute {path}: malformed checkpoint entry {_short(node)}")
+        tag = node[_TAG]
+        try:
+            if tag == "tuple":
+                return tuple(self.decode(v, f"{path}[{i}]") for i, v in enumerate(node["items"]))
+            if tag == "dict":
+                return {str(k): self.decode(v, f"{path}[{k!r}]") for k, v in node["items"]}
+            if tag == "numpy_scalar":
+                return self.decode(node["array"], path)[()]
+            if tag == "same_as":
+                return self._arrays[node["path"]]
+            if tag == "generator":
+                return _generator(self.decode(node["state"], f"{path}.state"))
+            if tag == "belief":
+                return Belief(**{k: self.decode(v, f"{path}.{k}") for k, v in node["fields"].items()})
+            if tag == "model":
+                return decode_model(node)
+            if tag == "dtype":
+                return _dtype(node["name"])
+            if tag == "scalar_type":
+                return _dtype(node["name"]).type
+            if tag == "callable":
+                return _KeepFresh(str(node["name"]))
+        except CheckpointError:
+            raise
+        except (KeyError, TypeError, ValueError, AttributeError) as error:
+            raise CheckpointError(f"attribute {path}: malformed {tag!r} entry: {error}") from None
+        raise CheckpointError(f"attribute {path}: unknown entry type {tag!r}")
+
+
+def _short(node) -> str:
+    text = repr(node)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _dtype(name: str) -> np.dtype:
+    dtype = np.dtype(str(name))
+    if dtype.kind not in _ARRAY_KINDS:
+        raise CheckpointError(f"dtype {name!r} is not allowed in a checkpoint")
+    return dtype
+
+
+def _generator(state: dict) -> np.random.Generator:
+    name = state.get("bit_generator") if isinstance(state, dict) else None
+    if name not in _BIT_GENERATORS:
+        raise CheckpointError(f"unknown bit generator {name!r}; allowed: {', '.join(_BIT_GENERATORS)}")
+    bit_generator = getattr(np.random, name)()
+    bit_generator.state = state
+    return np.random.Generator(bit_generator)
+
+
+def decode_model(node) -> GridModel:
+    """Rebuild a :class:`GridModel` from :func:`encode_model`'s tree (validated by its constructor)."""
+    if type(node) is not dict or node.get(_TAG) != "model" or set(node.get("fields", ())) != set(_MODEL_FIELDS):
+        raise CheckpointError("the checkpoint's model entry is malformed")
+    fields = {name: _Decoder().decode(value, name) for name, value in node["fields"].items()}
+    try:
+        return GridModel(**fields)
+    except (OnlineMapError, TypeError, ValueError) as error:
+        raise CheckpointError(f"the checkpoint's model is invalid: {error}") from None
+
+
+def model_difference(a: GridModel, b: GridModel) -> str | None:
+    """Name of the first defining field in which two models differ (bitwise), or None if equal."""
+    for name in _MODEL_FIELDS:
+        x, y = getattr(a, name), getattr(b, name)
+        if isinstance(x, np.ndarray):
+            if x.shape != y.shape or x.dtype != y.dtype or x.tobytes() != y.tobytes():
+                return name
+        elif x != y:
+            return name
+    return None
+
+
+# --- state_dict / load_state_dict ---------------------------------------------------------------------
+def state_dict(est) -> dict:
+    """Everything needed to continue ``est`` bit for bit, as a tree of JSON values and array copies:
+    ``format``, ``format_version``, ``onlinemap_version``, ``estimator``, ``t``, ``options``,
+    ``model`` and ``attributes`` (one entry per instance attribute). Later steps of ``est`` do not
+    change it. Cost: one copy of every array."""
+    options = getattr(est, "options", None)
+    if not isinstance(options, dict):
+        raise CheckpointError(f"{type(est).__name__} has no recorded options: build estimators with "
+                              "om.make_estimator or a class decorated with om.register")
+    if not isinstance(est.model, GridModel):
+        raise CheckpointError(f"{type(est).__name__}.model is not a GridModel")
+    encoder = _Encoder()
+    attributes = {name: encoder.encode(value, name) for name, value in vars(est).items() if name not in _SEPARATE}
+    return {"format": FORMAT, "format_version": FORMAT_VERSION, "onlinemap_version": _package_version(),
+            "estimator": est.name, "t": int(est.t), "options": _Encoder().encode(dict(options), "options"),
+            "model": encode_model(est.model), "attributes": attributes}
+
+
+def check_header(state: dict, *, strict_version: bool = True) -> None:
+    """Refuse a state of another format, format version or (with ``strict_version``) onlinemap version."""
+    if not isinstance(state, dict) or state.get("format") != FORMAT:
+        raise CheckpointError("not an onlinemap checkpoint (missing format marker)")
+    if state.get("format_version") != FORMAT_VERSION:
+        raise CheckpointError(f"checkpoint format version {state.get('format_version')!r}; this onlinemap "
+                              f"({_package_version()}) reads version {FORMAT_VERSION}")
+    if strict_version and state.get("onlinemap_version") != _package_version():
+        raise CheckpointError(f"checkpoint written by onlinemap {state.get('onlinemap_version')!r}, this is "
+                              f"{_package_version()}; pass strict_version=False to try anyway")
+    for key in ("estimator", "t", "options", "model", "attributes"):
+        if key not in state:
+            raise CheckpointError(f"checkpoint has no {key!r} entry")
+
+
+def load_state_dict(est, state: dict, *, strict_version: bool = True) -> None:
+    """Restore ``est`` from :func:`state_dict`'s output. Checks the format and package versions, the
+    estimator name, the model (bitwise), the options and the attribute names and kinds; refuses
+    with :class:`CheckpointError` and leaves ``est`` untouched on any mismatch."""
+    check_header(state, strict_version=strict_version)
+    if state["estimator"] != est.name:
+        raise CheckpointError(f"checkpoint is for estimator {state['estimator']!r}, not {est.name!r}")
+    field = model_difference(decode_model(state["model"]), est.model)
+    if field is not None:
+        raise CheckpointError(f"checkpoint's model differs from the estimator's model in {field!r}")
+    if not same_tree(state["options"], _Encoder().encode(dict(getattr(est, "options", {})), "options")):
+        options = _Decoder().decode(state["options"], "options")
+        raise CheckpointError(f"checkpoint was written with options {options}, the estimator has {est.options}")
+    if type(state["attributes"]) is not dict:
+        raise CheckpointError("checkpoint's attributes entry is malformed")
+    current = {name: value for name, value in vars(est).items() if name not in _SEPARATE}
+    missing, extra = sorted(set(current) - set(state["attributes"])), sorted(set(state["attributes"]) - set(current))
+    if missing or extra:
+        raise CheckpointError(f"checkpoint does not fit {type(est).__name__}: missing attributes {missing}, "
+                              f"unexpected {extra}")
+    decoder = _Decoder()
+    restored = {}
+    for name, node in state["attributes"].items():
+        value = decoder.decode(node, name)
+        _check_kind(name, current[name], value)
+        if not isinstance(value, _KeepFresh):
+            restored[name] = value
+    vars(est).update(restored)
+
+
+def _kind(value) -> str:
+    if isinstance(value, np.ndarray):
+        return f"array of {value.dtype} with {value.ndim} dimensions"
+    if isinstance(value, (bool, np.bool_)):
+        return "bool"
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return "number"
+    return type(value).__name__
+
+
+def _check_kind(name: str, current, value) -> None:
+    if isinstance(value, _KeepFresh):
+        if _callable_name(current) != value.name:
+            raise CheckpointError(f"attribute {name}: checkpoint has {value.name}, the estimator has "
+                                  f"{_callable_name(current) or _kind(current)}")
+        return
+    if current is None or value is None:
+        return
+    if _kind(current) != _kind(value):
+        raise CheckpointError(f"attribute {name}: checkpoint holds a {_kind(value)}, the estimator a {_kind(current)}")
+
+
+def same_tree(a, b) -> bool:
+    """Bitwise equality of two state trees (e.g. two :func:`state_dict` outputs): same structure,
+    same types, arrays of the same dtype, shape and bytes, floats with the same bits (NaN == NaN)."""
+    if type(a) is not type(b):
+        return False
+    if type(a) is np.ndarray:
+        return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+    if type(a) is float:
+        return np.float64(a).tobytes() == np.float64(b).tobytes()
+    if type(a) is list:
+        return len(a) == len(b) and all(same_tree(x, y) for x, y in zip(a, b))
+    if type(a) is dict:
+        return a.keys() == b.keys() and all(same_tree(a[k], b[k]) for k in a)
+    return a == b
+
+
+# --- files -----------------------------------------------------------------------------------------
+def _externalise(node, arrays: dict[str, np.ndarray]):
+    """Replace every ndarray in a tree by a reference ``{"$": "ndarray", "key": ...}``."""
+    if type(node) is np.ndarray:
+        key = f"a{len(arrays)}"
+        arrays[key] = node
+        return {_TAG: "ndarray", "key": key, "dtype": node.dtype.str, "shape": list(node.shape),
+                "writeable": bool(node.flags.writeable)}
+    if type(node) is list:
+        return [_externalise(v, arrays) for v in node]
+    if type(node) is dict:
+        return {k: _externalise(v, arrays) for k, v in node.items()}
+    return node
+
+
+def _internalise(node, arrays: dict[str, np.ndarray], used: set[str]):
+    if type(node) is list:
+        return [_internalise(v, arrays, used) for v in node]
+    if type(node) is not dict:
+        return node
+    if node.get(_TAG) == "ndarray":
+        key = node.get("key")
+        if key not in arrays or key in used:
+            raise CheckpointError(f"checkpoint refers to a missing or repeated array {key!r}")
+        array = arrays[key]
+        if array.dtype.str != node.get("dtype") or list(array.shape) != node.get("shape"):
+            raise CheckpointError(f"checkpoint array {key}: stored as {array.dtype.str} {list(array.shape)}, "
+                                  f"recorded as {node.get('dtype')} {node.get('shape')} (tampered?)")
+        used.add(key)
+        array.setflags(write=bool(node.get("writeable", True)))
+        return array
+    return {k: _internalise(v, arrays, used) for k, v in node.items()}
+
+
+def _digest(meta: bytes, arrays: dict[str, np.ndarray]) -> str:
+    sha = hashlib.sha256(meta)
+    for key in sorted(arrays, key=lambda k: int(k[1:])):
+        sha.update(key.encode())
+        sha.update(np.ascontiguousarray(arrays[key]).tobytes())
+    return sha.hexdigest()
+
+
+def write(state: dict, path: str | os.PathLike) -> Path:
+    """Write a :func:`state_dict` to ``path`` atomically (temp file in the same directory, fsync,
+    ``os.replace``); returns the path. Missing parent directories are created."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays: dict[str, np.ndarray] = {}
+    meta = json.dumps(_externalise(state, arrays), separators=(",", ":")).encode()
+    digest = _digest(meta, arrays).encode()
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as file:
+            np.savez(file, meta=np.frombuffer(meta, np.uint8), sha256=np.frombuffer(digest, np.uint8), **arrays)
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    _fsync_directory(path.parent)
+    return path
+
+
+def _fsync_directory(directory: Path) -> None:
+    """Make the rename durable (POSIX); a no-op where directories cannot be opened."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def read(path: str | os.PathLike) -> dict:
+    """Read and verify a checkpoint file (zip structure, format version, SHA-256 of metadata and
+    arrays, recorded dtypes and shapes); returns the state tree. Executes nothing from the file."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as file:
+            magic = file.read(4)
+    except OSError as error:
+        raise CheckpointError(f"cannot open checkpoint {path}: {error.strerror or error}") from None
+    if magic != _ZIP_MAGIC:
+        raise CheckpointError(f"{path} is not an onlinemap checkpoint (not an npz file)")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            contents = {name: npz[name] for name in npz.files}
+    except ValueError as error:
+        if "pickle" in str(error):
+            raise CheckpointError(f"{path} contains a pickled object; refused (nothing was loaded or run)") from None
+        raise CheckpointError(f"{path} is corrupt: {error}") from None
+    except (zipfile.BadZipFile, OSError, EOFError, KeyError, NotImplementedError) as error:
+        raise CheckpointError(f"{path} is truncated or corrupt: {error}") from None
+    meta_bytes, digest = contents.pop("meta", None), contents.pop("sha256", None)
+    if meta_bytes is None or digest is None or meta_bytes.dtype != np.uint8 or digest.dtype != np.uint8:
+        raise CheckpointError(f"{path} is not an onlinemap checkpoint (no metadata or checksum)")
+    try:
+        meta = json.loads(meta_bytes.tobytes().decode())
+    except (UnicodeDecodeError, ValueError, RecursionError) as error:
+        raise CheckpointError(f"{path}: unreadable metadata: {error}") from None
+    check_header(meta, strict_version=False)
+    if _digest(meta_bytes.tobytes(), contents) != digest.tobytes().decode(errors="replace"):
+        raise CheckpointError(f"{path}: checksum mismatch: the file was modified or damaged")
+    used: set[str] = set()
+    state = _internalise(meta, contents, used)
+    if used != set(contents):
+        raise CheckpointError(f"{path}: unexpected entries {sorted(set(contents) - used)}")
+    return state
+
+
+def save(est, path: str | os.PathLike) -> Path:
+    """Checkpoint ``est`` (its ``state_dict()``) to ``path``, atomically. Returns the path."""
+    return write(est.state_dict(), path)
+
+
+def load(path: str | os.PathLike, *, strict_version: bool = True):
+    """Build the estimator saved in ``path`` (same name, model and options) and restore its state;
+    the next ``step`` continues exactly where the saved one left off."""
+    from .estimators.base import make_estimator
+
+    state = read(path)
+    check_header(state, strict_version=strict_version)
+    model = decode_model(state["model"])
+    options = _Decoder().decode(state["options"], "options")
+    if type(options) is not dict:
+        raise CheckpointError(f"{path}: malformed options entry")
+    try:
+        est = make_estimator(state["estimator"], model, **options)
+    except UnknownEstimatorError as error:
+        raise CheckpointError(f"{path}: {error}") from None
+    # the version was checked above as asked; est.load_state_dict checks everything else
+    est.load_state_dict({**state, "onlinemap_version": _package_version()})
+    return est
