@@ -9,7 +9,7 @@ import sys
 
 from ..errors import OnlineMapError
 
-COMMANDS = ("run", "bench")
+COMMANDS = ("run", "bench", "track")
 
 
 def build_parser() -> argparse.ArgumentParser:
