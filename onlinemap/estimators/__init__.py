@@ -7,6 +7,7 @@ from .base import (Estimator, Trajectory, available_estimators, estimator_option
                    register, run_estimator)
 from . import dead_reckoning, exact  # noqa: F401  (registration)
 from . import offline_em, online_em  # noqa: F401  (registration)
+from . import bk, rbpf  # noqa: F401  (registration)
 from .exact import SmoothResult, exact_smooth
 
 __all__ = ["Estimator", "Trajectory", "available_estimators", "estimator_options", "make_estimator",

@@ -1,0 +1,196 @@
+"""Rao-Blackwellised particle filter (DESIGN.md section 3, ``rbpf``).
+
+Each of P particles samples the robot's trajectory and holds the exact map marginals given
+it. Given a trajectory the cells are independent (each is a hidden Markov chain with
+transition C, observed through O only at the steps the robot stood on it), so a particle's
+map is N marginals of K labels: only the observed cell changes by the sensor; all cells drift
+by C, which is applied lazily (``C^dt`` for the ``dt`` steps since the cell was last brought
+up to date, when it is next read). A dynamic world therefore costs the same per step as a
+static one.
+
+State (plain attributes): locations (P,), normalised log weights (P,), map marginals
+(P, N, K) float64 in one array, stamps (P, N) (dynamic worlds only), the table of powers of C,
+a ``numpy.random.Generator``.
+
+Cost per step: O(P K^2) for the proposal and weighting (a particle reads its cell and the
+intended neighbour), plus O(P_dropped N K) on the steps that resample (rows copied in place
+into the slots of dropped particles), plus the belief. ``belief.location`` is O(P + N);
+``belief.map`` (the weighted mixture) is one read of the (P, N, K) array, O(P N K^2) flops in
+a dynamic world. :meth:`RaoBlackwellisedPF.update` advances without building the belief; the
+``belief`` property builds it on first access (then caches it), and :meth:`step` is
+``update`` followed by ``belief``. Memory: ``P N (8 K + 8)`` bytes (dynamic; ``8 P N K``
+static) plus ``8 K^2`` per step of the run for the powers of C.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..belief import Belief
+from ..errors import ImpossibleObservationError, MemoryLimitError, ModelError
+from ..rbpf_kernels import in_place_ancestors, rbpf_commit, rbpf_map_mixture, rbpf_propose
+from ..resampling import RESAMPLERS
+from ..simulate import SeedLike, as_generator
+from ..validation import check_step
+from ..model import GridModel
+from .base import register
+
+PROPOSALS = ("optimal", "transition")
+DEFAULT_MAX_BYTES = 2 * 1024**3
+
+
+def _logsumexp(x: np.ndarray) -> float:
+    top = float(np.max(x))
+    if top == -math.inf:
+        return -math.inf
+    return top + math.log(float(np.exp(x - top).sum()))
+
+
+@register("rbpf")
+class RaoBlackwellisedPF:
+    """RBPF over trajectories with exact per-cell map marginals.
+
+    Options: ``n_particles`` (P); ``proposal`` ``"optimal"`` (sample the location given the
+    observation; lower weight variance) or ``"transition"`` (sample the motion model);
+    ``resampling`` ``"residual"``, ``"systematic"``, ``"stratified"`` or ``"multinomial"``;
+    ``resample_threshold`` resample before a step when the effective sample size is below this
+    fraction of P (1.0 = every step, 0.0 = never); ``seed`` (int, None or Generator);
+    ``lazy_dynamics`` (False applies C to every cell of every particle every step: O(P N K^2),
+    the reference the lazy scheme is tested against); ``max_bytes`` guard on the particle maps.
+    """
+
+    def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
+                 resampling: str = "residual", resample_threshold: float = 0.5, seed: SeedLike = None,
+                 lazy_dynamics: bool = True, max_bytes: int = DEFAULT_MAX_BYTES):
+        if isinstance(n_particles, bool) or int(n_particles) != n_particles or n_particles < 1:
+            raise ModelError(f"n_particles must be a positive integer, got {n_particles!r}")
+        if proposal not in PROPOSALS:
+            raise ModelError(f"proposal must be one of {PROPOSALS}, got {proposal!r}")
+        if resampling not in RESAMPLERS:
+            raise ModelError(f"resampling must be one of {tuple(RESAMPLERS)}, got {resampling!r}")
+        if not 0.0 <= float(resample_threshold) <= 1.0:
+            raise ModelError(f"resample_threshold must be in [0, 1], got {resample_threshold!r}")
+        n_particles = int(n_particles)
+        n, k = model.n_cells, model.n_labels
+        self._dynamic = not model.is_static
+        need = 8 * n_particles * n * (k + (1 if self._dynamic and lazy_dynamics else 0))
+        if need > max_bytes:
+            raise MemoryLimitError(
+                f"rbpf with {n_particles} particles on N={n} cells, K={k} labels needs {need / 1e9:.3g} GB "
+                f"of particle maps but the limit is {max_bytes / 1e9:.3g} GB; pass max_bytes=... to raise it")
+        self.model = model
+        self.n_particles = n_particles
+        self.proposal = proposal
+        self.resampling = resampling
+        self.resample_threshold = float(resample_threshold)
+        self.lazy_dynamics = bool(lazy_dynamics)
+        self._rng = as_generator(seed)
+        self._locations = np.full(n_particles, model.start, dtype=np.int64)
+        self._log_weights = np.full(n_particles, -math.log(n_particles))
+        self._maps = np.ascontiguousarray(np.broadcast_to(model.label_prior, (n_particles, n, k)))
+        self._stamped = self._dynamic and self.lazy_dynamics
+        self._stamps = np.zeros((n_particles, n) if self._stamped else (n_particles, 0), dtype=np.int64)
+        self._powers = np.eye(k)[None].copy()  # powers[d] = C^d, grown on demand
+        self._log_evidence = 0.0
+        self._ess = float(n_particles)
+        self._resampled = False
+        self._t = -1
+        self._belief: Belief | None = None
+
+    @property
+    def t(self) -> int:
+        return self._t
+
+    @property
+    def effective_sample_size(self) -> float:
+        return self._ess
+
+    @property
+    def resampled(self) -> bool:
+        """Whether the last step resampled before proposing."""
+        return self._resampled
+
+    @property
+    def weights(self) -> np.ndarray:
+        """(P,) normalised weights (a copy)."""
+        return np.exp(self._log_weights)
+
+    @property
+    def belief(self) -> Belief | None:
+        """The weighted mixture after the last step; built on first access (O(P N K)), cached."""
+        if self._belief is None and self._t >= 0:
+            weights = np.exp(self._log_weights)
+            n, k = self.model.n_cells, self.model.n_labels
+            location = np.bincount(self._locations, weights=weights, minlength=n)
+            maps = np.empty((n, k))
+            rbpf_map_mixture(self._maps, self._stamps, self._powers, self._stamped, self._t, weights, maps)
+            self._belief = Belief(self._t, location, maps, self._log_evidence,
+                                  effective_sample_size=self._ess)
+        return self._belief
+
+    def step(self, action, observation) -> Belief:
+        """``update`` then ``belief``."""
+        self.update(action, observation)
+        return self.belief
+
+    def _change_powers(self, t: int) -> np.ndarray:
+        """(D, K, K) with D > t: ``C^0 .. C^(D-1)``, grown by doubling. O(K^3) per new power."""
+        have = self._powers.shape[0]
+        if have <= t:
+            powers = np.empty((max(2 * have, t + 1), *self._powers.shape[1:]))
+            powers[:have] = self._powers
+            for d in range(have, powers.shape[0]):
+                powers[d] = powers[d - 1] @ self.model.change
+            self._powers = powers
+        return self._powers
+
+    def update(self, action, observation) -> None:
+        """Advance the particles by one action (None at step 0) and observation.
+
+        Resample first if the effective sample size is below ``resample_threshold * P``; then
+        propose, weight and update each particle's observed cell. If the observation has
+        probability zero for every particle, raise :class:`ImpossibleObservationError` and
+        leave everything (particles, weights, random generator) as it was.
+        """
+        model = self.model
+        a, z = check_step(model, self._t + 1, action, observation)
+        t = self._t + 1
+        rng_state = self._rng.bit_generator.state
+        n_particles = self.n_particles
+        log_weights = self._log_weights
+        ancestors = np.arange(n_particles)
+        resample = a is not None and (self.resample_threshold >= 1.0 or
+                                      self._ess < self.resample_threshold * n_particles)
+        if resample:
+            chosen = RESAMPLERS[self.resampling](np.exp(log_weights), self._rng)
+            ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
+            log_weights = np.full(n_particles, -math.log(n_particles))
+        maps, stamps = self._maps, self._stamps
+        powers = self._change_powers(t) if self._stamped else self._powers
+        if a is not None and self._dynamic and not self.lazy_dynamics:
+            maps = maps @ model.change  # eager: every cell of every particle, fresh array
+        neighbors = np.arange(model.n_cells) if a is None else model.neighbors[:, a]
+        new_locations = np.empty(n_particles, dtype=np.int64)
+        new_cells = np.empty((n_particles, model.n_labels))
+        log_increments = np.empty(n_particles)
+        rbpf_propose(self._locations, maps, stamps, powers, self._stamped, t, ancestors, neighbors,
+                     model.p_move, np.ascontiguousarray(model.sensor[:, z]), self.proposal == "optimal",
+                     self._rng.random(n_particles), new_locations, new_cells, log_increments)
+        log_weights = log_weights + log_increments
+        increment = _logsumexp(log_weights)
+        if increment == -math.inf:
+            self._rng.bit_generator.state = rng_state
+            raise ImpossibleObservationError(
+                f"observation {model.label_names[z]!r} has probability zero for every particle at step {t}")
+        # commit
+        rbpf_commit(self._locations, maps, stamps, self._stamped, t, ancestors, new_locations, new_cells)
+        self._maps = maps
+        self._log_weights = log_weights - increment
+        self._log_evidence += increment
+        weights = np.exp(self._log_weights)
+        self._ess = min(float(n_particles), 1.0 / float(np.dot(weights, weights)))  # rounding: <= P
+        self._resampled = resample
+        self._t = t
+        self._belief = None

@@ -1,0 +1,131 @@
+"""Boyen-Koller: exact at the first step, a hand-derived 2-cell update, every step against
+the projection filter written by enumeration, and worse than the RBPF on the scripted
+corridor."""
+
+import numpy as np
+import pytest
+
+import onlinemap as om
+from onlinemap.metrics import total_variation
+from oracles import BruteForce
+
+MODELS = [
+    ("corridor static", lambda: om.corridor(4, 2, p_obs=0.85, p_move=0.7)),
+    ("corridor K=3 dynamic", lambda: om.corridor(3, 3, p_obs=0.8, p_move=0.75, p_change=0.1, start=1)),
+    ("grid 2x2 dynamic", lambda: om.grid_model(2, 2, 2, p_obs=0.8, p_move=0.7, change=[[0.9, 0.1], [0.2, 0.8]],
+                                               label_prior=[0.3, 0.7])),
+]
+
+
+def random_run(model, steps, seed):
+    rng = np.random.default_rng(seed)
+    return om.simulate(model, None, om.random_walk(model, steps - 1, rng), rng)
+
+
+@pytest.mark.parametrize("name,make", MODELS, ids=[m[0] for m in MODELS])
+def test_first_step_equals_exact(name, make):
+    model = make()
+    for z in range(model.n_labels):
+        bk = om.make_estimator("bk", model).step(None, z)
+        exact = om.make_estimator("exact", model).step(None, z)
+        np.testing.assert_allclose(bk.location, exact.location, atol=1e-14)
+        np.testing.assert_allclose(bk.map, exact.map, atol=1e-14)
+        assert bk.log_evidence == pytest.approx(exact.log_evidence, abs=1e-14)
+
+
+def test_hand_derived_two_cell_update():
+    """2-cell corridor, p_obs 0.9, p_move 0.8, uniform prior. Step 0 sees 0 at cell 0:
+    mu_0 = (0.9, 0.1). Step 1, right, sees 1: q = (0.2, 0.8); P(z=1 | L=0) = 0.9*0.1 + 0.1*0.9
+    = 0.18, P(z=1 | L=1) = 0.5, Z = 0.2*0.18 + 0.8*0.5 = 0.436. q' = (0.036, 0.4) / Z;
+    mu_0'(k) = mu_0(k) (0.2 O[k, 1] + 0.4) / Z; mu_1'(k) = 0.5 (0.8 O[k, 1] + 0.036) / Z."""
+    model = om.corridor(2, 2, p_obs=0.9, p_move=0.8)
+    est = om.make_estimator("bk", model)
+    est.step(None, 0)
+    belief = est.step("right", 1)
+    z_total = 0.436
+    np.testing.assert_allclose(belief.location, [0.036 / z_total, 0.4 / z_total], atol=1e-14)
+    np.testing.assert_allclose(belief.map[0], [0.9 * 0.42 / z_total, 0.1 * 0.58 / z_total], atol=1e-14)
+    np.testing.assert_allclose(belief.map[1], [0.5 * 0.116 / z_total, 0.5 * 0.756 / z_total], atol=1e-14)
+    assert belief.log_evidence == pytest.approx(np.log(0.5) + np.log(z_total), abs=1e-14)
+    # here BK still equals exact (the first update only couples cell 0 with a known location) ...
+    exact = om.make_estimator("exact", model)
+    exact.step(None, 0)
+    np.testing.assert_allclose(exact.step("right", 1).map, belief.map, atol=1e-14)
+    # ... but the next step needs the location/map correlation that BK has thrown away
+    assert np.abs(exact.step("left", 0).map - est.step("left", 0).map).max() > 1e-3
+
+
+def projection_filter(model, actions, observations):
+    """Reference BK by enumeration: at each step rebuild the joint over (l, m) as the product
+    of the previous marginals, apply the full transition and likelihood, marginalise."""
+    oracle = BruteForce.of(model)
+    location, maps = np.eye(model.n_cells)[model.start], np.array(model.label_prior)
+    log_ev, out = 0.0, []
+    for t, z in enumerate(observations):
+        joint = np.array([location[l] * np.prod([maps[i, m[i]] for i in range(oracle.n)])
+                          for l, m in oracle.states])
+        if t:
+            joint = joint @ oracle.transition(actions[t - 1])
+        joint = joint * oracle.likelihood(z)
+        log_ev += np.log(joint.sum())
+        location, maps = oracle.marginals(joint / joint.sum())
+        out.append((location, maps, log_ev))
+    return out
+
+
+@pytest.mark.parametrize("name,make", MODELS, ids=[m[0] for m in MODELS])
+def test_every_step_equals_projection_by_enumeration(name, make):
+    model = make()
+    run = random_run(model, 8, seed=2)
+    est = om.make_estimator("bk", model)
+    for t, (location, maps, log_ev) in enumerate(projection_filter(model, run.actions, run.observations)):
+        belief = est.step(None if t == 0 else run.actions[t - 1], run.observations[t])
+        np.testing.assert_allclose(belief.location, location, atol=1e-12)
+        np.testing.assert_allclose(belief.map, maps, atol=1e-12)
+        assert belief.log_evidence == pytest.approx(log_ev, abs=1e-12)
+
+
+def mean_tv_to_exact(name, run, **options):
+    exact = om.run_estimator(om.make_estimator("exact", run.model), run.actions, run.observations)
+    other = om.run_estimator(om.make_estimator(name, run.model, **options), run.actions, run.observations)
+    return (total_variation(other.location, exact.location).mean(),
+            total_variation(other.map, exact.map).mean())
+
+
+def test_bk_is_further_from_exact_than_rbpf_on_scripted_corridor():
+    run = om.scenarios.murphy_corridor()
+    bk_location, bk_map = mean_tv_to_exact("bk", run)
+    for seed in range(3):
+        rb_location, rb_map = mean_tv_to_exact("rbpf", run, n_particles=100, seed=seed)
+        assert rb_location < bk_location and rb_map < bk_map, (seed, rb_location, bk_location, rb_map, bk_map)
+    assert bk_map > 0.02  # not a near-tie
+
+
+def test_impossible_observation_keeps_state():
+    model = om.corridor(3, p_obs=1.0, p_move=1.0)
+    est = om.make_estimator("bk", model)
+    est.step(None, 1)
+    before = est.step("left", 1)
+    with pytest.raises(om.ImpossibleObservationError, match="probability zero"):
+        est.step("left", 0)
+    assert est.t == 1 and est.belief is before
+    np.testing.assert_array_equal(est.step("right", 0).location, [0, 1, 0])
+
+
+def test_bad_input_keeps_state():
+    est = om.make_estimator("bk", om.corridor(4))
+    est.step(None, 0)
+    before = est.belief
+    for action, observation in [(5, 0), (None, 0), (0, 7), ("up", 0)]:
+        with pytest.raises((om.InvalidActionError, om.InvalidObservationError)):
+            est.step(action, observation)
+    assert est.belief is before and est.t == 0
+
+
+def test_product_of_marginals_is_a_distribution():
+    model = om.door_world(p_door=0.05)[0]
+    run = random_run(model, 30, seed=1)
+    belief = om.run_estimator(om.make_estimator("bk", model), run.actions, run.observations)
+    np.testing.assert_allclose(belief.location.sum(axis=1), 1, atol=1e-12)
+    np.testing.assert_allclose(belief.map.sum(axis=2), 1, atol=1e-12)
+    assert belief.map.shape == (30, 100, 4)

@@ -1,0 +1,216 @@
+"""Rao-Blackwellised particle filter against exact Bayes (itself tested against brute force):
+equal when the location is known (p_move = 1), within Monte-Carlo tolerance with many
+particles, lazy map dynamics equal to eager, optimal proposal with lower weight variance,
+and bad or impossible input leaving everything (random generator included) unchanged."""
+
+import numpy as np
+import pytest
+
+import onlinemap as om
+
+STATIC = dict(p_obs=0.85, p_move=0.7)
+
+
+def random_run(model, steps, seed):
+    rng = np.random.default_rng(seed)
+    return om.simulate(model, None, om.random_walk(model, steps - 1, rng), rng)
+
+
+def exact_trajectory(run):
+    return om.run_estimator(om.make_estimator("exact", run.model), run.actions, run.observations)
+
+
+def rbpf_steps(run, **options):
+    """Yield the RBPF's belief after each step of ``run``."""
+    est = om.make_estimator("rbpf", run.model, **options)
+    for t in range(run.n_steps):
+        yield est.step(None if t == 0 else run.actions[t - 1], run.observations[t])
+
+
+KNOWN_LOCATION = [
+    ("corridor static", lambda: om.corridor(6, 2, p_obs=0.8, p_move=1.0)),
+    ("corridor K=3 dynamic", lambda: om.corridor(5, 3, p_obs=0.8, p_move=1.0, p_change=0.1, start=2)),
+    ("grid 2x3 dynamic", lambda: om.grid_model(2, 3, 2, p_obs=0.75, p_move=1.0, change=[[0.9, 0.1], [0.3, 0.7]],
+                                               label_prior=[0.4, 0.6])),
+]
+
+
+@pytest.mark.parametrize("name,make", KNOWN_LOCATION, ids=[m[0] for m in KNOWN_LOCATION])
+@pytest.mark.parametrize("n_particles", [1, 7])
+@pytest.mark.parametrize("proposal,resampling,threshold", [("optimal", "residual", 0.5),
+                                                           ("transition", "multinomial", 1.0)])
+def test_known_location_equals_exact(name, make, n_particles, proposal, resampling, threshold):
+    """With no slips every particle follows the true path and holds the exact map marginals."""
+    model = make()
+    run = random_run(model, 12, seed=3)
+    exact = exact_trajectory(run)
+    beliefs = rbpf_steps(run, n_particles=n_particles, proposal=proposal, resampling=resampling,
+                         resample_threshold=threshold, seed=0)
+    for t, belief in enumerate(beliefs):
+        np.testing.assert_allclose(belief.location, exact.location[t], atol=1e-12, rtol=0)
+        np.testing.assert_allclose(belief.map, exact.map[t], atol=1e-12, rtol=0)
+        assert belief.log_evidence == pytest.approx(exact.log_evidence[t], abs=1e-12)
+        assert belief.effective_sample_size == pytest.approx(n_particles)
+
+
+@pytest.mark.parametrize("p_change", [0.0, 0.05], ids=["static", "dynamic"])
+@pytest.mark.parametrize("proposal", ["optimal", "transition"])
+def test_many_particles_match_exact_within_monte_carlo_tolerance(p_change, proposal):
+    """20000 particles on a 6-cell corridor with slips. Each marginal is a weighted mean of
+    particle values in [0, 1], so its standard error is at most sqrt(p (1 - p) / ESS_t) with
+    ESS_t the step's effective sample size; variance inherited through earlier resampling
+    adds to that (measured below 3.5 such errors on these runs), so the tolerance is 6 of them
+    plus 1 / ESS_t for entries near 0 or 1."""
+    model = om.corridor(6, 2, p_change=p_change, **STATIC)
+    run = random_run(model, 15, seed=4)
+    exact = exact_trajectory(run)
+    for t, belief in enumerate(rbpf_steps(run, n_particles=20_000, proposal=proposal, seed=1)):
+        ess = belief.effective_sample_size
+        assert 0.2 * 20_000 < ess <= 20_000
+        for estimate, truth in ((belief.location, exact.location[t]), (belief.map, exact.map[t])):
+            tolerance = 6 * np.sqrt(truth * (1 - truth) / ess) + 1 / ess
+            assert np.all(np.abs(estimate - truth) <= tolerance), (t, np.abs(estimate - truth).max())
+    # log P(z_0:T) estimate: relative error of the evidence ~ sqrt(T / ESS)
+    assert belief.log_evidence == pytest.approx(exact.log_evidence[-1], abs=5 * np.sqrt(run.n_steps / ess))
+
+
+def test_few_particles_are_close_and_error_shrinks_with_particles():
+    run = om.scenarios.murphy_corridor()
+    exact = exact_trajectory(run)
+
+    def error(n_particles):
+        errors = []
+        for seed in range(4):
+            est = om.make_estimator("rbpf", run.model, n_particles=n_particles, seed=seed)
+            trajectory = om.run_estimator(est, run.actions, run.observations)
+            errors.append(om.metrics.total_variation(trajectory.map, exact.map).mean())
+        return np.mean(errors)
+
+    small, large = error(10), error(1000)
+    assert large < small / 3 and large < 0.01
+
+
+@pytest.mark.parametrize("resampling,threshold", [("residual", 0.5), ("systematic", 1.0)])
+def test_lazy_dynamics_equals_eager(resampling, threshold):
+    """C applied lazily (C^dt when a cell is read) equals C applied to every cell every step."""
+    model = om.grid_model(3, 3, 3, p_obs=0.8, p_move=0.7,
+                          change=[[0.9, 0.05, 0.05], [0.1, 0.8, 0.1], [0.2, 0.2, 0.6]])
+    run = random_run(model, 40, seed=5)
+    options = dict(n_particles=300, resampling=resampling, resample_threshold=threshold, seed=2)
+    lazy = rbpf_steps(run, lazy_dynamics=True, **options)
+    eager = rbpf_steps(run, lazy_dynamics=False, **options)
+    for a, b in zip(lazy, eager):
+        np.testing.assert_allclose(a.location, b.location, atol=1e-12, rtol=0)
+        np.testing.assert_allclose(a.map, b.map, atol=1e-12, rtol=0)
+        assert a.log_evidence == pytest.approx(b.log_evidence, abs=1e-12)
+
+
+def test_optimal_proposal_has_lower_weight_variance():
+    """Resampling every step, the weights after a step are the incremental weights of one
+    step; the optimal proposal minimises their variance given the ancestors. Over 10 seeds
+    the optimal proposal's mean squared coefficient of variation (P / ESS - 1) must be lower
+    in every seed."""
+    model = om.corridor(10, 2, p_obs=0.9, p_move=0.7)
+    run = random_run(model, 40, seed=6)
+    for seed in range(10):
+        cv2 = {}
+        for proposal in ("optimal", "transition"):
+            beliefs = list(rbpf_steps(run, n_particles=200, proposal=proposal, resample_threshold=1.0, seed=seed))
+            cv2[proposal] = np.mean([200 / b.effective_sample_size - 1 for b in beliefs[1:]])
+        assert cv2["optimal"] < cv2["transition"], (seed, cv2)
+
+
+def test_same_seed_same_result_and_generator_seed():
+    run = random_run(om.corridor(8, p_change=0.02), 30, seed=7)
+    a = list(rbpf_steps(run, n_particles=50, seed=11))
+    b = list(rbpf_steps(run, n_particles=50, seed=np.random.default_rng(11)))
+    c = list(rbpf_steps(run, n_particles=50, seed=12))
+    np.testing.assert_array_equal(a[-1].map, b[-1].map)
+    assert not np.array_equal(a[-1].map, c[-1].map)
+
+
+def test_update_then_belief_equals_step_and_belief_is_cached():
+    run = random_run(om.corridor(8, p_change=0.02), 10, seed=8)
+    stepped = list(rbpf_steps(run, n_particles=40, seed=3))
+    est = om.make_estimator("rbpf", run.model, n_particles=40, seed=3)
+    assert est.belief is None
+    for t in range(run.n_steps):
+        est.update(None if t == 0 else run.actions[t - 1], run.observations[t])
+    assert est.belief is est.belief and est.belief.t == run.n_steps - 1
+    np.testing.assert_array_equal(est.belief.map, stepped[-1].map)
+    np.testing.assert_allclose(est.weights.sum(), 1.0)
+
+
+def state(est):
+    return (est.t, est._locations.copy(), est._log_weights.copy(), est._maps.copy(), est._stamps.copy(),
+            est.belief, est._log_evidence, est._ess, est._rng.bit_generator.state)
+
+
+def assert_same_state(est, snap):
+    now = state(est)
+    assert now[0] == snap[0] and now[5] is snap[5] and now[6:] == snap[6:]
+    for x, y in zip(now[1:5], snap[1:5]):
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("proposal", ["optimal", "transition"])
+@pytest.mark.parametrize("p_change", [0.0, 0.1])
+def test_impossible_observation_keeps_everything(proposal, p_change):
+    """Every cell is label 0 for sure and the sensor is perfect: seeing 1 is impossible for
+    every particle. The step resamples first (threshold 1.0) and draws motion uniforms; all of
+    it must be undone, so the filter then continues exactly like one that never saw it."""
+    model = om.corridor(4, 2, p_obs=1.0, p_move=0.6, p_change=0.0, label_prior=[1.0, 0.0])
+    if p_change:
+        model = om.grid_model(1, 4, 2, p_obs=1.0, p_move=0.6, change=[[1, 0], [p_change, 1 - p_change]],
+                              label_prior=[1.0, 0.0])
+    options = dict(n_particles=30, proposal=proposal, resampling="multinomial", resample_threshold=1.0, seed=5)
+    est, twin = (om.make_estimator("rbpf", model, **options) for _ in range(2))
+    for e in (est, twin):
+        e.step(None, 0)
+        e.step("right", 0)
+    snap = state(est)
+    with pytest.raises(om.ImpossibleObservationError, match="every particle"):
+        est.step("right", 1)
+    assert_same_state(est, snap)
+    for action in ("right", "left", "right"):
+        np.testing.assert_array_equal(est.step(action, 0).location, twin.step(action, 0).location)
+    np.testing.assert_array_equal(est._maps, twin._maps)
+
+
+def test_bad_input_keeps_everything():
+    est = om.make_estimator("rbpf", om.corridor(5, p_change=0.05), n_particles=20, seed=0)
+    est.step(None, 0)
+    est.step(1, 1)
+    snap = state(est)
+    for action, observation in [(2, 0), (None, 0), (1, 2), ("up", 0), (1, float("nan"))]:
+        with pytest.raises((om.InvalidActionError, om.InvalidObservationError)):
+            est.step(action, observation)
+    assert_same_state(est, snap)
+
+
+@pytest.mark.parametrize("options,match", [
+    (dict(n_particles=0), "n_particles"), (dict(n_particles=2.5), "n_particles"),
+    (dict(proposal="prior"), "proposal"), (dict(resampling="stratify"), "resampling"),
+    (dict(resample_threshold=1.5), "resample_threshold"),
+])
+def test_bad_options_are_refused(options, match):
+    with pytest.raises(om.ModelError, match=match):
+        om.make_estimator("rbpf", om.corridor(4), **options)
+
+
+def test_memory_guard():
+    model = om.door_world(p_door=0.01)[0]
+    with pytest.raises(om.MemoryLimitError, match="max_bytes"):
+        om.make_estimator("rbpf", model, n_particles=1000, max_bytes=10**6)
+
+
+def test_door_world_beliefs_are_distributions():
+    model, true_map = om.door_world(p_door=0.02)
+    rng = np.random.default_rng(9)
+    run = om.simulate(model, true_map, om.random_walk(model, 60, rng), rng)
+    trajectory = om.run_estimator(om.make_estimator("rbpf", model, n_particles=200, seed=0),
+                                  run.actions, run.observations)
+    np.testing.assert_allclose(trajectory.location.sum(axis=1), 1, atol=1e-12)
+    np.testing.assert_allclose(trajectory.map.sum(axis=2), 1, atol=1e-12)
+    dead = om.run_estimator(om.make_estimator("dead_reckoning", model), run.actions, run.observations)
+    assert om.metrics.map_error(trajectory.map[-1], run.final_map) < om.metrics.map_error(dead.map[-1], run.final_map)
