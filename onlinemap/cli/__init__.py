@@ -9,7 +9,7 @@ import sys
 
 from ..errors import OnlineMapError
 
-COMMANDS = ("run", "bench", "track")
+COMMANDS = ("run", "bench", "track", "reproduce")
 
 
 def build_parser() -> argparse.ArgumentParser:

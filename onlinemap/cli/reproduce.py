@@ -1,0 +1,90 @@
+"""``onlinemap reproduce corridor``: the 1D-corridor failure of online EM (DESIGN.md section 5)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .. import metrics, plots
+from ..reproduce import CORRIDOR_ESTIMATORS, corridor_table, random_corridor_study
+from ..scenarios import murphy_corridor
+from .common import print_table, write_table
+
+OVERVIEW_ONLINE_EM = "online_em W=max decay=1.0"  # the one online EM row of the overview figure
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "reproduce", help="reproduce a claim of the literature (corridor: online EM gets lost)",
+        description="corridor: run Murphy's scripted 8-cell corridor (one slip on the way out) through "
+                    "exact Bayes, dead reckoning, online EM (windows 1, 2, 4, 8, max x decays 0.8, 0.9, "
+                    "0.95, 1.0) and offline EM; print final map error, wrong visited cells, the lowest "
+                    "P(true location) on the way back, the final P(true location) and the time per step. "
+                    "With --out, also write CSV tables and PNG figures (location posterior and map "
+                    "marginals over time per estimator). With --random N, instead run N random "
+                    "corridors (6-12 cells, random labels and slip time) and report how often each "
+                    "estimator ends lost or with a wrong map, with Wilson confidence intervals.")
+    p.add_argument("scenario", choices=["corridor"], help="which reproduction")
+    p.add_argument("--out", metavar="DIR", help="directory for CSV tables and PNG figures")
+    p.add_argument("--random", metavar="N_RUNS", type=int, default=0,
+                   help="run the random-corridor study over N_RUNS runs instead of the scripted run")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random study (default 0)")
+    p.add_argument("--confidence", type=float, default=0.95, help="confidence of the intervals (default 0.95)")
+    p.set_defaults(func=reproduce)
+
+
+def steps_table(run, trajectories) -> pd.DataFrame:
+    """One row per estimator and step: P(true location) and map error."""
+    index = np.arange(run.n_steps)
+    return pd.concat([pd.DataFrame({
+        "estimator": label, "t": index, "true_location": run.locations,
+        "p_true_location": trajectory.location[index, run.locations],
+        "map_error": metrics.map_error(trajectory.map, run.maps)}) for label, trajectory in trajectories.items()],
+        ignore_index=True)
+
+
+def scripted(out: Path | None) -> None:
+    run = murphy_corridor()
+    print(f"Murphy's corridor: labels {run.final_map.tolist()}, true path {run.locations.tolist()}, "
+          f"slip at step {int(np.flatnonzero(run.slipped)[0]) + 1}; p_obs 0.9, p_move 0.8")
+    table, trajectories = corridor_table(run)
+    print_table(table)
+    if out is None:
+        return
+    written = [write_table(table, out / "corridor_summary.csv"),
+               write_table(steps_table(run, trajectories), out / "corridor_steps.csv")]
+    overview = {label: trajectories[label] for label, name, _ in CORRIDOR_ESTIMATORS
+                if name != "online_em" or label == OVERVIEW_ONLINE_EM}
+    written.append(plots.save(plots.estimators_figure(run, overview), out / "corridor_overview.png"))
+    for label, trajectory in trajectories.items():
+        fig = plots.estimators_figure(run, {label: trajectory})
+        written.append(plots.save(fig, out / f"corridor_{plots.slug(label)}.png"))
+    print(f"wrote {len(written)} files to {out}/ (corridor_overview.png first)")
+
+
+def study(n_runs: int, seed: int, confidence: float, out: Path | None) -> None:
+    print(f"{n_runs} random corridors (6-12 cells, uniform binary labels, one slip on the way out), seed {seed}")
+    per_run, summary = random_corridor_study(n_runs, seed, confidence=confidence)
+    print_table(summary)
+    if out is None:
+        return
+    written = [write_table(per_run, out / "corridor_random_runs.csv"),
+               write_table(summary, out / "corridor_random_summary.csv"),
+               plots.save(plots.study_figure(summary, confidence), out / "corridor_random.png")]
+    print(f"wrote {', '.join(str(p) for p in written)}")
+
+
+def reproduce(args: argparse.Namespace) -> int:
+    out = Path(args.out) if args.out else None
+    if args.random < 0:
+        raise SystemExit("onlinemap reproduce: error: --random needs a number of runs >= 1")
+    if not 0 < args.confidence < 1:
+        raise SystemExit("onlinemap reproduce: error: --confidence must be in (0, 1)")
+    if args.random:
+        study(args.random, args.seed, args.confidence, out)
+    else:
+        scripted(out)
+    return 0

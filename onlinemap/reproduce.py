@@ -1,0 +1,147 @@
+"""Reproductions of the literature's claims (DESIGN.md section 5), used by ``onlinemap
+reproduce`` and the notebooks.
+
+Claim 1, the 1D corridor: on Murphy's scripted run, exact Bayes ends with the right map and
+knows where it is; online EM (any window, any decay) locks onto a wrong map and gets lost on
+the way back; offline EM, with hindsight, does well; dead reckoning blurs.
+:func:`corridor_table` measures this on one run, :func:`random_corridor_study` on many random
+ones (random labels, lengths and slip times) with Wilson confidence intervals.
+
+The estimators compared are the entries of :data:`CORRIDOR_ESTIMATORS`; adding an estimator to
+every table, figure and study is adding one entry there.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+import pandas as pd
+from scipy.stats import norm
+from tqdm.auto import tqdm
+
+from . import metrics
+from .estimators import Trajectory, make_estimator, run_estimator
+from .scenarios import scripted_corridor
+from .simulate import Run, SeedLike, as_generator
+
+CORRIDOR_WINDOWS = (1, 2, 4, 8, "max")
+CORRIDOR_DECAYS = (0.8, 0.9, 0.95, 1.0)
+
+#: (label, registry name, options) of every estimator in the corridor reproduction.
+CORRIDOR_ESTIMATORS: list[tuple[str, str, dict]] = [
+    ("exact", "exact", {}),
+    ("dead_reckoning", "dead_reckoning", {}),
+    *((f"online_em W={w} decay={d}", "online_em", {"window": w, "decay": d})
+      for w in CORRIDOR_WINDOWS for d in CORRIDOR_DECAYS),
+    ("offline_em", "offline_em", {}),
+]
+
+LOST_BELOW = 0.5  # a robot whose P(true location) is below this is "lost"
+
+
+def way_back(run: Run) -> np.ndarray:
+    """(T,) True at the steps after the robot turned (after its first action that differs
+    from the first action); all False if it never turns."""
+    turns = np.flatnonzero(run.actions != run.actions[0])
+    mask = np.zeros(run.n_steps, dtype=bool)
+    if len(turns):
+        mask[turns[0] + 1:] = True
+    return mask
+
+
+def corridor_scores(run: Run, trajectory: Trajectory) -> dict[str, float]:
+    """How one estimator did on one run (a static world).
+
+    final_map_error: mean over all cells of 1 - P(true label) at the end; wrong_visited: visited
+    cells whose most likely label is wrong at the end; min_p_true_way_back / final_p_true:
+    P(true location) at its lowest after the turn / at the last step; lost: final_p_true < 0.5.
+    """
+    p_true = trajectory.location[np.arange(run.n_steps), run.locations]
+    back = way_back(run)
+    visited = np.unique(run.locations)
+    return {
+        "final_map_error": float(metrics.map_error(trajectory.map[-1], run.final_map)),
+        "wrong_visited": metrics.wrong_cells(trajectory.map[-1], run.final_map, visited),
+        "min_p_true_way_back": float(p_true[back].min()) if back.any() else math.nan,
+        "final_p_true": float(p_true[-1]),
+        "lost": bool(p_true[-1] < LOST_BELOW),
+        "ms_per_step": 1e3 * trajectory.seconds_per_step,
+    }
+
+
+def corridor_table(run: Run, estimators=None, progress: bool = True) -> tuple[pd.DataFrame, dict[str, Trajectory]]:
+    """Run every (label, name, options) of ``estimators`` (default :data:`CORRIDOR_ESTIMATORS`)
+    over ``run``. Returns one row of :func:`corridor_scores` per estimator, and the trajectories
+    by label."""
+    rows, trajectories = [], {}
+    for label, name, options in tqdm(estimators or CORRIDOR_ESTIMATORS, desc="estimators",
+                                     disable=not progress, leave=False):
+        trajectory = run_estimator(make_estimator(name, run.model, **options), run.actions, run.observations)
+        trajectories[label] = trajectory
+        rows.append({"estimator": label, **corridor_scores(run, trajectory)})
+    return pd.DataFrame(rows), trajectories
+
+
+class CorridorDraw(NamedTuple):
+    """One random corridor run of the study and how it was drawn."""
+
+    run: Run
+    labels: np.ndarray  # (N,) the true labels
+    slip: int  # the outward move (1-based step) that fails
+
+
+def random_corridor(seed: SeedLike = None, n_cells: tuple[int, int] = (6, 12), p_obs: float = 0.9,
+                    p_move: float = 0.8) -> CorridorDraw:
+    """A scripted there-and-back run (:func:`onlinemap.scenarios.scripted_corridor`) with N drawn
+    uniformly in ``n_cells`` (inclusive), i.i.d. uniform binary labels and one slip at a move
+    of the way out drawn uniformly in 1..N-1."""
+    rng = as_generator(seed)
+    n = int(rng.integers(n_cells[0], n_cells[1] + 1))
+    labels = rng.integers(0, 2, size=n)
+    slip = int(rng.integers(1, n))
+    return CorridorDraw(scripted_corridor(labels, slips=(slip,), p_obs=p_obs, p_move=p_move), labels, slip)
+
+
+def wilson_interval(successes, trials, confidence: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+    """Wilson score interval for a binomial proportion: the p with
+    ``|successes / trials - p| <= z sqrt(p (1 - p) / trials)``. Vectorised; returns (low, high)."""
+    k, n = np.asarray(successes, dtype=np.float64), np.asarray(trials, dtype=np.float64)
+    z = norm.ppf(0.5 + confidence / 2)
+    p = k / n
+    centre = (p + z**2 / (2 * n)) / (1 + z**2 / n)
+    half = z / (1 + z**2 / n) * np.sqrt(p * (1 - p) / n + z**2 / (4 * n**2))
+    return np.clip(centre - half, 0, 1), np.clip(centre + half, 0, 1)
+
+
+def random_corridor_study(n_runs: int, seed: SeedLike = 0, estimators=None, confidence: float = 0.95,
+                          progress: bool = True) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Run every estimator on ``n_runs`` random corridors (:func:`random_corridor`).
+
+    Returns (per-run table: run, n_cells, slip, estimator and :func:`corridor_scores`; summary
+    per estimator: fraction of runs lost, with a wrong map, and either, each with its Wilson
+    interval at ``confidence``). Cost: n_runs times the cost of :func:`corridor_table`.
+    """
+    rng = as_generator(seed)
+    frames = []
+    for index in tqdm(range(int(n_runs)), desc="random corridors", disable=not progress):
+        draw = random_corridor(rng)
+        table, _ = corridor_table(draw.run, estimators, progress=False)
+        table.insert(0, "run", index)
+        table.insert(1, "n_cells", len(draw.labels))
+        table.insert(2, "slip", draw.slip)
+        frames.append(table)
+    per_run = pd.concat(frames, ignore_index=True)
+    per_run["wrong_map"] = per_run["wrong_visited"] > 0
+    per_run["lost_or_wrong"] = per_run["lost"] | per_run["wrong_map"]
+    grouped = per_run.groupby("estimator", sort=False)
+    summary = pd.DataFrame({"runs": grouped.size()})
+    for column in ("lost", "wrong_map", "lost_or_wrong"):
+        hits = grouped[column].sum()
+        low, high = wilson_interval(hits, summary["runs"], confidence)
+        summary[column] = hits / summary["runs"]
+        summary[f"{column}_low"], summary[f"{column}_high"] = low, high
+    summary["mean_final_p_true"] = grouped["final_p_true"].mean()
+    return per_run, summary.reset_index()
+
