@@ -36,6 +36,8 @@ CORRIDOR_ESTIMATORS: list[tuple[str, str, dict]] = [
     *((f"online_em W={w} decay={d}", "online_em", {"window": w, "decay": d})
       for w in CORRIDOR_WINDOWS for d in CORRIDOR_DECAYS),
     ("offline_em", "offline_em", {}),
+    ("bk", "bk", {}),
+    ("rbpf P=100", "rbpf", {"n_particles": 100, "seed": 0}),
 ]
 
 LOST_BELOW = 0.5  # a robot whose P(true location) is below this is "lost"
