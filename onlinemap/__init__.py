@@ -19,6 +19,7 @@ from .estimators import (Estimator, SmoothResult, Trajectory, available_estimato
                          estimator_options, exact_smooth, make_estimator, register, run_estimator)
 from .model import DOOR_WORLD_10X10, GridModel, corridor, door_world, grid_model
 from .simulate import Run, random_walk, sample_map, simulate, there_and_back
+from .sweeps import SpecError, SweepError, load_spec, summarize, sweep
 
 __all__ = [
     "Belief", "Estimator", "GridModel", "Run", "SmoothResult", "Trajectory",
@@ -28,4 +29,5 @@ __all__ = [
     "exact_smooth", "metrics", "scenarios", "errors", "checkpoint", "save", "load",
     "OnlineMapError", "CheckpointError", "ModelError", "InvalidActionError", "InvalidObservationError",
     "ImpossibleObservationError", "MemoryLimitError", "UnknownEstimatorError",
+    "sweep", "load_spec", "summarize", "SpecError", "SweepError",
 ]

@@ -1,0 +1,88 @@
+"""``onlinemap sweep``: run an experiment grid (worlds x estimators x options x seeds) serially
+or on dask.distributed, resumable; ``--summary`` prints means with confidence intervals."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from ..errors import OnlineMapError
+from ..sweeps import (default_results_dir, finished_tasks, load_spec, summarize, summary_table, sweep)
+from .common import print_table, split_list
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "sweep", help="run a grid of experiments from a TOML spec (local dask cluster or a scheduler)",
+        description="Run every task of a sweep spec (see examples/*.toml and onlinemap/sweeps.py): "
+                    "one per world, estimator configuration, steps, walk and seed. Finished tasks are "
+                    "kept in OUT's .parts directory as they finish, so an interrupted sweep resumes "
+                    "where it stopped; the table (one row per task, or per task and step with "
+                    "rows = \"step\") is written to OUT and summarised.")
+    p.add_argument("spec", nargs="?", help="the sweep spec (.toml)")
+    p.add_argument("--out", help="results table, .parquet or .csv (default: SPEC_NAME.parquet here)")
+    p.add_argument("--results-dir", help="where finished tasks are kept (default: OUT with suffix .parts)")
+    p.add_argument("--workers", type=int,
+                   help="worker processes of the local dask cluster (default: one per CPU); "
+                        "0 runs the tasks one by one in this process, without dask")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="use an existing dask scheduler (e.g. tcp://10.0.0.5:8786) instead of a local "
+                        "cluster; its workers need onlinemap installed")
+    p.add_argument("--check", action="store_true", help="validate the spec, count the tasks, run nothing")
+    p.add_argument("--summary", metavar="RESULTS",
+                   help="print means with confidence intervals per configuration from a results table")
+    p.add_argument("--metrics", type=split_list, help="comma-separated metrics for the summary (default: all)")
+    p.add_argument("--confidence", type=float, default=0.95, help="confidence level (default 0.95)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def _read(path: str) -> pd.DataFrame:
+    suffix = Path(path).suffix
+    try:
+        return pd.read_csv(path) if suffix == ".csv" else pd.read_parquet(path)
+    except (OSError, ValueError) as error:
+        raise OnlineMapError(f"cannot read results table {path}: {error}") from None
+
+
+def _print_summary(table: pd.DataFrame, args: argparse.Namespace) -> None:
+    summary = summarize(table, args.metrics, args.confidence)
+    step_note = " at each task's last step" if "t" in table.columns else ""
+    print(f"mean [{args.confidence:.0%} confidence interval] over seeds, per configuration{step_note}:")
+    print_table(summary_table(summary))
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.summary:
+        if args.spec:
+            raise OnlineMapError("give either a spec to run or --summary RESULTS, not both")
+        _print_summary(_read(args.summary), args)
+        return 0
+    if not args.spec:
+        raise OnlineMapError("give a sweep spec (.toml) to run, or --summary RESULTS")
+    if args.workers is not None and args.workers < 0:
+        raise OnlineMapError(f"--workers must be >= 0, got {args.workers}")
+    if args.scheduler and args.workers is not None:
+        raise OnlineMapError("--workers sizes a local cluster; with --scheduler the cluster is already there")
+    spec = load_spec(args.spec)
+    out = Path(args.out or f"{Path(args.spec).stem}.parquet")
+    results_dir = Path(args.results_dir) if args.results_dir else default_results_dir(out)
+    done = len(finished_tasks(spec.tasks, results_dir)) if results_dir.exists() else 0
+    print(f"sweep {spec.name!r}: {len(spec.tasks)} tasks" +
+          (f", {done} already finished in {results_dir}" if done else ""))
+    if args.check:
+        return 0
+    try:
+        table = sweep(spec, args.scheduler, workers=args.workers, out=out, results_dir=results_dir,
+                      progress=not args.no_progress)
+    except KeyboardInterrupt:
+        done = len(finished_tasks(spec.tasks, results_dir))
+        print(f"\ninterrupted: {done} of {len(spec.tasks)} tasks finished and kept in {results_dir}; "
+              f"rerun the same command to finish", file=sys.stderr)
+        return 130
+    print(f"wrote {out} ({len(table)} rows); finished tasks are in {results_dir}")
+    _print_summary(table, args)
+    return 0
