@@ -57,12 +57,12 @@ def estimators_figure(run: Run, trajectories: dict[str, Trajectory], label: int 
 
 
 def study_figure(summary: pd.DataFrame, confidence: float = 0.95) -> Figure:
-    """Fractions of runs lost and with a wrong map per estimator, with their intervals (the
+    """Fractions of runs astray on the way back and with a wrong map per estimator, with their intervals (the
     columns of :func:`onlinemap.reproduce.random_corridor_study`'s summary)."""
     fig = Figure(figsize=(9, 0.32 * len(summary) + 1.5), layout="constrained")
     ax = fig.subplots()
     y = np.arange(len(summary))
-    for offset, column, colour in ((-0.2, "lost", "tab:red"), (0.2, "wrong_map", "tab:blue")):
+    for offset, column, colour in ((-0.2, "astray_way_back", "tab:red"), (0.2, "wrong_map", "tab:blue")):
         value = summary[column].to_numpy()
         error = np.stack([value - summary[f"{column}_low"], summary[f"{column}_high"] - value])
         ax.barh(y + offset, value, height=0.4, xerr=error, color=colour, alpha=0.8, capsize=2,

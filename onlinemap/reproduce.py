@@ -14,11 +14,11 @@ every table, figure and study is adding one entry there.
 from __future__ import annotations
 
 import math
+from statistics import NormalDist
 from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
-from scipy.stats import norm
 from tqdm.auto import tqdm
 
 from . import metrics
@@ -41,6 +41,8 @@ CORRIDOR_ESTIMATORS: list[tuple[str, str, dict]] = [
 ]
 
 LOST_BELOW = 0.5  # a robot whose P(true location) is below this is "lost"
+ASTRAY_BELOW = 0.05  # ... and below this, confidently in the wrong place ("astray")
+STUDY_OUTCOMES = ("astray_way_back", "ends_lost", "wrong_map", "ends_lost_or_wrong_map")
 
 
 def way_back(run: Run) -> np.ndarray:
@@ -58,17 +60,23 @@ def corridor_scores(run: Run, trajectory: Trajectory) -> dict[str, float]:
 
     final_map_error: mean over all cells of 1 - P(true label) at the end; wrong_visited: visited
     cells whose most likely label is wrong at the end; min_p_true_way_back / final_p_true:
-    P(true location) at its lowest after the turn / at the last step; lost: final_p_true < 0.5.
+    P(true location) at its lowest after the turn / at the last step; lost_way_back /
+    ends_lost: those below :data:`LOST_BELOW`; astray_way_back: the lowest below
+    :data:`ASTRAY_BELOW` (an uncertain Bayesian robot is often "lost" at 0.5 on the way back, a
+    robot with a wrong map is confidently wrong).
     """
     p_true = trajectory.location[np.arange(run.n_steps), run.locations]
     back = way_back(run)
     visited = np.unique(run.locations)
+    lowest_back = float(p_true[back].min()) if back.any() else math.nan
     return {
         "final_map_error": float(metrics.map_error(trajectory.map[-1], run.final_map)),
         "wrong_visited": metrics.wrong_cells(trajectory.map[-1], run.final_map, visited),
-        "min_p_true_way_back": float(p_true[back].min()) if back.any() else math.nan,
+        "min_p_true_way_back": lowest_back,
         "final_p_true": float(p_true[-1]),
-        "lost": bool(p_true[-1] < LOST_BELOW),
+        "lost_way_back": bool(lowest_back < LOST_BELOW),
+        "astray_way_back": bool(lowest_back < ASTRAY_BELOW),
+        "ends_lost": bool(p_true[-1] < LOST_BELOW),
         "ms_per_step": 1e3 * trajectory.seconds_per_step,
     }
 
@@ -110,7 +118,7 @@ def wilson_interval(successes, trials, confidence: float = 0.95) -> tuple[np.nda
     """Wilson score interval for a binomial proportion: the p with
     ``|successes / trials - p| <= z sqrt(p (1 - p) / trials)``. Vectorised; returns (low, high)."""
     k, n = np.asarray(successes, dtype=np.float64), np.asarray(trials, dtype=np.float64)
-    z = norm.ppf(0.5 + confidence / 2)
+    z = NormalDist().inv_cdf(0.5 + confidence / 2)
     p = k / n
     centre = (p + z**2 / (2 * n)) / (1 + z**2 / n)
     half = z / (1 + z**2 / n) * np.sqrt(p * (1 - p) / n + z**2 / (4 * n**2))
@@ -122,8 +130,10 @@ def random_corridor_study(n_runs: int, seed: SeedLike = 0, estimators=None, conf
     """Run every estimator on ``n_runs`` random corridors (:func:`random_corridor`).
 
     Returns (per-run table: run, n_cells, slip, estimator and :func:`corridor_scores`; summary
-    per estimator: fraction of runs lost, with a wrong map, and either, each with its Wilson
-    interval at ``confidence``). Cost: n_runs times the cost of :func:`corridor_table`.
+    per estimator: the fraction of runs in :data:`STUDY_OUTCOMES` (astray on the way back, ends
+    lost, wrong map, ends lost or with a wrong map), each with its Wilson interval at
+    ``confidence`` (columns NAME, NAME_low, NAME_high), and the mean lowest P(true location)
+    on the way back). Cost: n_runs times the cost of :func:`corridor_table`.
     """
     rng = as_generator(seed)
     frames = []
@@ -136,14 +146,24 @@ def random_corridor_study(n_runs: int, seed: SeedLike = 0, estimators=None, conf
         frames.append(table)
     per_run = pd.concat(frames, ignore_index=True)
     per_run["wrong_map"] = per_run["wrong_visited"] > 0
-    per_run["lost_or_wrong"] = per_run["lost"] | per_run["wrong_map"]
+    per_run["ends_lost_or_wrong_map"] = per_run["ends_lost"] | per_run["wrong_map"]
     grouped = per_run.groupby("estimator", sort=False)
     summary = pd.DataFrame({"runs": grouped.size()})
-    for column in ("lost", "wrong_map", "lost_or_wrong"):
+    for column in STUDY_OUTCOMES:
         hits = grouped[column].sum()
         low, high = wilson_interval(hits, summary["runs"], confidence)
         summary[column] = hits / summary["runs"]
         summary[f"{column}_low"], summary[f"{column}_high"] = low, high
-    summary["mean_final_p_true"] = grouped["final_p_true"].mean()
+    summary["mean_min_p_true_way_back"] = grouped["min_p_true_way_back"].mean()
     return per_run, summary.reset_index()
+
+
+def with_intervals(summary: pd.DataFrame) -> pd.DataFrame:
+    """The study summary with each outcome as one "fraction [low, high]" text column (for printing)."""
+    table = summary[["estimator", "runs"]].copy()
+    for column in STUDY_OUTCOMES:
+        table[column] = [f"{p:.2f} [{lo:.2f}, {hi:.2f}]" for p, lo, hi in
+                         summary[[column, f"{column}_low", f"{column}_high"]].itertuples(index=False)]
+    table["mean_min_p_true_way_back"] = summary["mean_min_p_true_way_back"]
+    return table
 

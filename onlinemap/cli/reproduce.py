@@ -9,7 +9,8 @@ import numpy as np
 import pandas as pd
 
 from .. import metrics, plots
-from ..reproduce import CORRIDOR_ESTIMATORS, corridor_table, random_corridor_study
+from ..reproduce import (ASTRAY_BELOW, CORRIDOR_ESTIMATORS, LOST_BELOW, corridor_table, random_corridor_study,
+                         with_intervals)
 from ..scenarios import murphy_corridor
 from .common import print_table, write_table
 
@@ -68,7 +69,9 @@ def scripted(out: Path | None) -> None:
 def study(n_runs: int, seed: int, confidence: float, out: Path | None) -> None:
     print(f"{n_runs} random corridors (6-12 cells, uniform binary labels, one slip on the way out), seed {seed}")
     per_run, summary = random_corridor_study(n_runs, seed, confidence=confidence)
-    print_table(summary)
+    print(f"fraction of runs [{confidence:.0%} Wilson interval]; lost: P(true location) < {LOST_BELOW}, "
+          f"astray: < {ASTRAY_BELOW}; wrong map: a visited cell's most likely label is wrong")
+    print_table(with_intervals(summary))
     if out is None:
         return
     written = [write_table(per_run, out / "corridor_random_runs.csv"),
