@@ -105,7 +105,7 @@ class _Encoder:
                                               for f in dataclasses.fields(Belief)}}
         if kind is GridModel:
             return encode_model(value)
-        if kind is np.dtype:
+        if isinstance(value, np.dtype):
             return {_TAG: "dtype", "name": value.str}
         if isinstance(value, type) and issubclass(value, np.generic):
             return {_TAG: "scalar_type", "name": np.dtype(value).str}
@@ -133,13 +133,15 @@ class _Encoder:
 
 
 def _callable_name(value) -> str | None:
-    """``module.qualname`` of a plain function, builtin, ufunc or numba dispatcher; the name of a
-    method bound to the estimator itself (``self.method``); None for anything else."""
+    """``module.qualname`` of a named function (plain, builtin, numpy, numba dispatcher); the name
+    of a method bound to an object (``self.method``); None for anything else (instances with
+    ``__call__`` and ``functools.partial`` carry state, so they are not accepted)."""
     if isinstance(value, types.MethodType):
         return f"method {type(value.__self__).__qualname__}.{value.__func__.__name__}"
-    if isinstance(value, (types.FunctionType, types.BuiltinFunctionType, np.ufunc)) or \
-            type(value).__name__ in ("CPUDispatcher", "Dispatcher"):
-        return f"{getattr(value, '__module__', None)}.{getattr(value, '__qualname__', value.__name__)}"
+    if isinstance(value, np.ufunc):
+        return f"numpy.{value.__name__}"
+    if callable(value) and not isinstance(value, type) and isinstance(getattr(value, "__qualname__", None), str):
+        return f"{getattr(value, '__module__', None)}.{value.__qualname__}"
     return None
 
 
@@ -382,11 +384,26 @@ def _internalise(node, arrays: dict[str, np.ndarray], used: set[str]):
     return {k: _internalise(v, arrays, used) for k, v in node.items()}
 
 
+def _array_keys(node, keys: list[str]) -> list[str]:
+    """Keys of the arrays a metadata tree refers to, in order of appearance."""
+    if type(node) is list:
+        for v in node:
+            _array_keys(v, keys)
+    elif type(node) is dict:
+        if node.get(_TAG) == "ndarray":
+            keys.append(str(node.get("key")))
+        else:
+            for v in node.values():
+                _array_keys(v, keys)
+    return keys
+
+
 def _digest(meta: bytes, arrays: dict[str, np.ndarray]) -> str:
+    """SHA-256 of the metadata bytes, then every array's key and bytes, in the dict's order."""
     sha = hashlib.sha256(meta)
-    for key in sorted(arrays, key=lambda k: int(k[1:])):
+    for key, array in arrays.items():
         sha.update(key.encode())
-        sha.update(np.ascontiguousarray(arrays[key]).tobytes())
+        sha.update(np.ascontiguousarray(array).tobytes())
     return sha.hexdigest()
 
 
@@ -455,13 +472,13 @@ def read(path: str | os.PathLike) -> dict:
     except (UnicodeDecodeError, ValueError, RecursionError) as error:
         raise CheckpointError(f"{path}: unreadable metadata: {error}") from None
     check_header(meta, strict_version=False)
-    if _digest(meta_bytes.tobytes(), contents) != digest.tobytes().decode(errors="replace"):
+    keys = _array_keys(meta, [])
+    if sorted(keys) != sorted(contents):
+        raise CheckpointError(f"{path}: entries {sorted(contents)} do not match the metadata's {sorted(keys)}")
+    if _digest(meta_bytes.tobytes(), {key: contents[key] for key in keys}) != \
+            digest.tobytes().decode(errors="replace"):
         raise CheckpointError(f"{path}: checksum mismatch: the file was modified or damaged")
-    used: set[str] = set()
-    state = _internalise(meta, contents, used)
-    if used != set(contents):
-        raise CheckpointError(f"{path}: unexpected entries {sorted(set(contents) - used)}")
-    return state
+    return _internalise(meta, contents, set())
 
 
 def save(est, path: str | os.PathLike) -> Path:

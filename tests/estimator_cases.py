@@ -1,0 +1,61 @@
+"""Registered estimators and worlds small enough for each, for tests generic over the registry.
+
+Tests parametrise over :func:`onlinemap.available_estimators` at collection time, so an
+estimator is covered as soon as it is registered. ``exact`` gets tiny worlds (its belief is
+N x K^N); every other estimator gets small ones. Every estimator is built with its defaults.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+import onlinemap as om
+from onlinemap.model import symmetric_channel
+from onlinemap.simulate import world_step
+
+NAMES = om.available_estimators()
+
+# options that make the cheap estimators cheap (only those that exist are used)
+CHEAP = {"dead_reckoning": {}, "bk": {}, "rbpf": {"n_particles": 100, "seed": 0}, "online_em": {"window": 4}}
+CHEAP_NAMES = tuple(name for name in CHEAP if name in NAMES)
+
+
+def small_worlds(name: str) -> list[tuple[str, om.GridModel]]:
+    """(id, model) pairs, one static and one dynamic, small enough for ``name``."""
+    if name == "exact":
+        return [("corridor4", om.corridor(4)),
+                ("grid2x2-K2-dynamic", om.grid_model(2, 2, 2, change=symmetric_channel(2, 0.95)))]
+    return [("corridor8", om.corridor(8)),
+            ("grid3x3-K3-dynamic", om.grid_model(3, 3, 3, change=symmetric_channel(3, 0.95)))]
+
+
+def cases() -> list[tuple[str, str, om.GridModel]]:
+    return [(name, world_id, model) for name in NAMES for world_id, model in small_worlds(name)]
+
+
+def random_run(model: om.GridModel, n_steps: int, seed: int) -> om.Run:
+    rng = np.random.default_rng(seed)
+    return om.simulate(model, None, om.random_walk(model, n_steps - 1, rng), rng)
+
+
+def stream(model: om.GridModel, true_map, n_steps: int, seed: int):
+    """Yield ``(t, action or None, observation)`` of a simulated run without storing it (O(N) memory)."""
+    rng = np.random.default_rng(seed)
+    location, labels, static = model.start, np.asarray(true_map), model.is_static
+    for t in range(n_steps):
+        action = None if t == 0 else int(rng.integers(model.n_actions))
+        location, labels, z = world_step(model, location, labels, action, rng, static)
+        yield t, action, z
+
+
+def assert_valid_belief(belief: om.Belief, model: om.GridModel, t: int, atol: float = 1e-9) -> None:
+    """Finite, non-negative, summing to 1 within ``atol``; right shapes and step index."""
+    n, k = model.n_cells, model.n_labels
+    assert belief.t == t
+    assert belief.location.shape == (n,) and belief.map.shape == (n, k)
+    for what, p in (("location", belief.location), ("map", belief.map)):
+        assert np.all(np.isfinite(p)), f"{what} has NaN or infinite entries at t={t}"
+        assert np.all(p >= 0), f"{what} has negative entries at t={t}: {p.min()}"
+        sums = p.sum(axis=-1)
+        assert np.all(np.abs(sums - 1) <= atol), f"{what} sums to {sums} at t={t}"
+    assert not belief.log_evidence > 1e-9, f"log evidence {belief.log_evidence} > 0 at t={t}"
