@@ -8,9 +8,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .. import metrics, plots
-from ..reproduce import (ASTRAY_BELOW, CORRIDOR_ESTIMATORS, LOST_BELOW, corridor_table, random_corridor_study,
-                         with_intervals)
+from .. import metrics, plots, reproduce as reproductions
+from ..reproduce import ASTRAY_BELOW, LOST_BELOW, corridor_table, random_corridor_study, with_intervals
 from ..scenarios import murphy_corridor
 from .common import print_table, write_table
 
@@ -57,7 +56,7 @@ def scripted(out: Path | None) -> None:
         return
     written = [write_table(table, out / "corridor_summary.csv"),
                write_table(steps_table(run, trajectories), out / "corridor_steps.csv")]
-    overview = {label: trajectories[label] for label, name, _ in CORRIDOR_ESTIMATORS
+    overview = {label: trajectories[label] for label, name, _ in reproductions.CORRIDOR_ESTIMATORS
                 if name != "online_em" or label == OVERVIEW_ONLINE_EM}
     written.append(plots.save(plots.estimators_figure(run, overview), out / "corridor_overview.png"))
     for label, trajectory in trajectories.items():
