@@ -2,7 +2,7 @@
 (DESIGN.md section 4).
 
 >>> import onlinemap as om, policies
->>> model, true_map = om.door_world(p_door=0.01)
+>>> model, true_map = policies.exploration_world(p_door=0.01)
 >>> frame = policies.explore(model, true_map, "entropy", "rbpf", steps=200, seed=0)  # doctest: +SKIP
 """
 
@@ -10,11 +10,12 @@ from .explore import COLUMNS, door_cells, explore, explore_env
 from .mdp import (PolicyIterationResult, action_values, evaluate_policy, policy_iteration,
                   policy_motion)
 from .planners import PLANNERS, EntropyExplorer, Planner, RandomWalk, Sweep, make_planner, sweep_actions
-from .rewards import RewardFunction, entropy_reward
+from .rewards import RewardFunction, collected_entropy_reward, entropy_reward
+from .worlds import exploration_world, floor_plan_prior
 
 __all__ = [
-    "entropy_reward", "RewardFunction",
+    "entropy_reward", "collected_entropy_reward", "RewardFunction",
     "policy_iteration", "PolicyIterationResult", "action_values", "evaluate_policy", "policy_motion",
     "Planner", "EntropyExplorer", "RandomWalk", "Sweep", "make_planner", "sweep_actions", "PLANNERS",
-    "explore", "explore_env", "door_cells", "COLUMNS",
+    "explore", "explore_env", "door_cells", "COLUMNS", "exploration_world", "floor_plan_prior",
 ]

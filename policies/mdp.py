@@ -39,25 +39,45 @@ def action_values(model: GridModel, reward: np.ndarray, value: np.ndarray, gamma
     return model.self_prob.T * future[:, None] + np.where(moves, model.p_move * future[model.neighbors], 0.0)
 
 
-def policy_motion(model: GridModel, policy: np.ndarray) -> sp.csr_array:
-    """Sparse (N, N) ``T_pi[l, j] = T[policy[l], l, j]``; at most 2 entries per row. O(N)."""
-    n = model.n_cells
-    cells = np.arange(n)
+def _policy_rows(model: GridModel, policy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Row l of ``T_pi`` as two (column, probability) pairs: (N, 2) columns sorted within each
+    row, (N, 2) probabilities, (N, 2) mask of the pairs that exist (a cell that cannot move
+    has only its diagonal)."""
+    cells = np.arange(model.n_cells)
     targets = model.neighbors[cells, policy]
     moves = targets != cells
-    rows = np.concatenate([cells, cells[moves]])
-    cols = np.concatenate([cells, targets[moves]])
-    vals = np.concatenate([model.self_prob[policy, cells], np.full(int(moves.sum()), model.p_move)])
-    return sp.csr_array((vals, (rows, cols)), shape=(n, n))
+    cols = np.stack([cells, targets], axis=1)
+    probs = np.stack([model.self_prob[policy, cells], np.where(moves, model.p_move, 0.0)], axis=1)
+    keep = np.stack([np.ones_like(moves), moves], axis=1)
+    swap = targets < cells
+    return (np.where(swap[:, None], cols[:, ::-1], cols), np.where(swap[:, None], probs[:, ::-1], probs),
+            np.where(swap[:, None], keep[:, ::-1], keep))
+
+
+def _csr(cols: np.ndarray, values: np.ndarray, keep: np.ndarray) -> sp.csr_array:
+    """CSR (N, N) matrix from per-row (column, value) pairs, without a COO round trip."""
+    n = cols.shape[0]
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(keep.sum(axis=1), out=indptr[1:])
+    return sp.csr_array((values[keep], cols[keep], indptr), shape=(n, n))
+
+
+def policy_motion(model: GridModel, policy: np.ndarray) -> sp.csr_array:
+    """Sparse (N, N) ``T_pi[l, j] = T[policy[l], l, j]``; at most 2 entries per row. O(N)."""
+    cols, probs, keep = _policy_rows(model, np.asarray(policy))
+    return _csr(cols, probs, keep)
 
 
 def evaluate_policy(model: GridModel, reward: np.ndarray, policy: np.ndarray, gamma: float) -> np.ndarray:
     """(N,) exact ``V_pi``: solves ``(I - gamma T_pi) V = T_pi R`` with a sparse LU (``spsolve``).
 
-    ``T_pi`` has at most 2 N non-zeros; on grids the factorisation costs about O(N^1.5)."""
-    motion = policy_motion(model, policy)
-    system = sp.identity(model.n_cells, format="csc") - gamma * motion.tocsc()
-    return np.asarray(spsolve(system, motion @ reward), dtype=np.float64)
+    The system is built directly in CSR form (at most 2 N non-zeros); on grids the
+    factorisation costs about O(N^1.5)."""
+    policy = np.asarray(policy)
+    cols, probs, keep = _policy_rows(model, policy)
+    diagonal = cols == np.arange(model.n_cells)[:, None]
+    system = _csr(cols, diagonal - gamma * probs, keep)
+    return np.asarray(spsolve(system, (probs * reward[cols]).sum(axis=1)), dtype=np.float64)
 
 
 def _check(model: GridModel, reward, gamma: float, initial_policy) -> tuple[np.ndarray, float, np.ndarray]:

@@ -22,7 +22,7 @@ from onlinemap.model import GridModel
 from onlinemap.simulate import SeedLike, as_generator
 
 from .mdp import PolicyIterationResult, policy_iteration
-from .rewards import RewardFunction, entropy_reward
+from .rewards import RewardFunction, collected_entropy_reward, entropy_reward
 
 
 @runtime_checkable
@@ -67,7 +67,8 @@ class EntropyExplorer:
         return int(np.argmax(belief.location @ self.plan.q))
 
     def __repr__(self) -> str:
-        return f"EntropyExplorer(gamma={self.gamma}, replan_every={self.replan_every})"
+        return (f"EntropyExplorer(gamma={self.gamma}, replan_every={self.replan_every}, "
+                f"reward={getattr(self.reward, '__name__', self.reward)})")
 
 
 class RandomWalk:
@@ -124,14 +125,19 @@ class Sweep:
         return f"Sweep({len(self.actions)} actions per cycle)"
 
 
-PLANNERS = {"entropy": EntropyExplorer, "random": RandomWalk, "sweep": Sweep}
+PLANNERS = ("entropy", "entropy_collect", "random", "sweep")
 
 
 def make_planner(name: str, model: GridModel, seed: SeedLike = None, **options) -> Planner:
-    """Planner by name: ``entropy`` (options gamma, replan_every, reward), ``random`` (uses
-    ``seed``) or ``sweep``."""
-    if name not in PLANNERS:
-        raise ModelError(f"unknown planner {name!r}; available: {', '.join(PLANNERS)}")
+    """Planner by name: ``entropy`` (:class:`EntropyExplorer`; options gamma, replan_every,
+    reward), ``entropy_collect`` (the same with :func:`~policies.rewards.collected_entropy_reward`),
+    ``random`` (:class:`RandomWalk` with ``seed``) or ``sweep`` (:class:`Sweep`)."""
+    if name == "entropy":
+        return EntropyExplorer(model, **options)
+    if name == "entropy_collect":
+        return EntropyExplorer(model, reward=collected_entropy_reward, **options)
     if name == "random":
         return RandomWalk(model, seed=seed, **options)
-    return PLANNERS[name](model, **options)
+    if name == "sweep":
+        return Sweep(model, **options)
+    raise ModelError(f"unknown planner {name!r}; available: {', '.join(PLANNERS)}")

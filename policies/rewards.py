@@ -29,3 +29,15 @@ def entropy_reward(belief: Belief) -> np.ndarray:
     lost = float(normalized_entropy(belief.location)) if n_cells > 1 else 0.0
     unknown = normalized_entropy(belief.map)
     return lost * (1.0 - unknown) + (1.0 - lost) * unknown
+
+
+def collected_entropy_reward(belief: Belief) -> np.ndarray:
+    """``entropy_reward(belief) * (1 - P(L = i))``: the reward of the cell the robot is in counts
+    as collected by the observation it has just made.
+
+    With :func:`entropy_reward` a robot torn between two neighbouring cells can stay put forever:
+    the map marginal of its cell stays uncertain (half the hypotheses place it elsewhere),
+    staying keeps paying, and repeating the same observation never resolves the ambiguity.
+    Here staying where the robot believes it is earns little, so it moves on. Cost O(N K).
+    """
+    return entropy_reward(belief) * (1.0 - belief.location)
