@@ -121,7 +121,8 @@ class OfflineEM:
         self.n_iter = int(n_iter)
         self.tol = float(tol)
         self.pseudo_count = check_pseudo_count(pseudo_count)
-        self.anneal = check_anneal(anneal)
+        schedule = check_anneal(anneal)
+        self.anneal = None if schedule is None else tuple(schedule)  # plain data (checkpoints)
         self._actions = np.empty(0, dtype=np.int64)
         self._observations = np.empty(0, dtype=np.int64)
         self._t = -1
