@@ -1,0 +1,215 @@
+"""policies: entropy reward, policy iteration, planners.
+
+References: value iteration on dense transition tensors built here from the design's definition
+of the motion model (not from the library's sparse motion), scipy.stats.entropy for the reward.
+"""
+
+import numpy as np
+import pytest
+from scipy.stats import entropy
+
+import onlinemap as om
+from onlinemap.belief import Belief
+from onlinemap.errors import ModelError
+from onlinemap.model import GridModel, symmetric_channel
+from policies import (EntropyExplorer, RandomWalk, Sweep, collected_entropy_reward, entropy_reward,
+                      evaluate_policy, make_planner, policy_iteration, policy_motion, sweep_actions)
+
+
+def dense_motion(model: GridModel) -> np.ndarray:
+    """(A, N, N) T[a, i, j] straight from DESIGN.md section 1, one entry at a time."""
+    n, a_count = model.n_cells, model.n_actions
+    motion = np.zeros((a_count, n, n))
+    for a in range(a_count):
+        for i in range(n):
+            j = model.neighbors[i, a]
+            if j == i:
+                motion[a, i, i] = 1.0
+            else:
+                motion[a, i, j] += model.p_move
+                motion[a, i, i] += 1.0 - model.p_move
+    return motion
+
+
+def value_iteration(motion: np.ndarray, reward: np.ndarray, gamma: float) -> tuple[np.ndarray, np.ndarray]:
+    """(V*, Q*) by value iteration to a sup-norm change below 1e-13."""
+    value = np.zeros(motion.shape[1])
+    while True:
+        q = np.einsum("aij,j->ia", motion, reward + gamma * value)
+        new = q.max(axis=1)
+        if np.abs(new - value).max() < 1e-13:
+            return new, q
+        value = new
+
+
+def random_mdp(seed: int) -> tuple[GridModel, np.ndarray, float]:
+    """A random topology: each action a random permutation of the cells (fixed points = no move)."""
+    rng = np.random.default_rng(seed)
+    n, a_count = int(rng.integers(2, 9)), int(rng.integers(1, 5))
+    neighbors = np.stack([rng.permutation(n) for _ in range(a_count)], axis=1)
+    model = GridModel(rows=1, cols=n, neighbors=neighbors, p_move=float(rng.uniform(0.05, 1.0)),
+                      change=np.eye(2), sensor=symmetric_channel(2, 0.9), label_prior=[0.5, 0.5],
+                      start=0, action_names=tuple(f"a{k}" for k in range(a_count)), label_names=("0", "1"))
+    reward = rng.normal(size=n) * rng.choice([0.01, 1.0, 100.0])
+    return model, reward, float(rng.uniform(0.0, 0.99))
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_policy_iteration_equals_value_iteration_on_random_mdps(seed):
+    model, reward, gamma = random_mdp(seed)
+    result = policy_iteration(model, reward, gamma)
+    v_star, q_star = value_iteration(dense_motion(model), reward, gamma)
+    scale = 1.0 + np.abs(v_star).max()
+    np.testing.assert_allclose(result.value, v_star, atol=1e-9 * scale)
+    np.testing.assert_allclose(result.q, q_star, atol=1e-9 * scale)
+    cells = np.arange(model.n_cells)
+    # the policy is greedy for its own Q, and V is the value of following it
+    np.testing.assert_allclose(result.q[cells, result.policy], result.q.max(axis=1), atol=1e-9 * scale)
+    np.testing.assert_allclose(result.value, result.q[cells, result.policy], atol=1e-9 * scale)
+    assert result.iterations >= 1
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_warm_start_and_policy_evaluation_match_dense_references(seed):
+    model, reward, gamma = random_mdp(100 + seed)
+    motion = dense_motion(model)
+    rng = np.random.default_rng(seed)
+    policy = rng.integers(model.n_actions, size=model.n_cells)
+    cells = np.arange(model.n_cells)
+    t_pi = motion[policy, cells]
+    np.testing.assert_allclose(policy_motion(model, policy).toarray(), t_pi, atol=1e-15)
+    exact = np.linalg.solve(np.eye(model.n_cells) - gamma * t_pi, t_pi @ reward)
+    np.testing.assert_allclose(evaluate_policy(model, reward, policy, gamma), exact, rtol=1e-10, atol=1e-10)
+    cold = policy_iteration(model, reward, gamma)
+    warm = policy_iteration(model, reward, gamma, initial_policy=policy)
+    np.testing.assert_allclose(warm.value, cold.value, rtol=1e-9, atol=1e-9)
+
+
+def test_policy_iteration_on_a_grid_walks_towards_the_reward():
+    model = om.grid_model(6, 7, 2, p_move=0.8)
+    reward = np.zeros(model.n_cells)
+    goal = model.n_cells - 1  # bottom-right corner
+    reward[goal] = 1.0
+    result = policy_iteration(model, reward, 0.9)
+    names = [model.action_names[a] for a in result.policy]
+    rows, cols = np.divmod(np.arange(model.n_cells), model.cols)
+    for cell in range(model.n_cells - 1):
+        assert names[cell] in ("east", "south"), (cell, names[cell])
+        if rows[cell] == model.rows - 1:
+            assert names[cell] == "east"
+        if cols[cell] == model.cols - 1:
+            assert names[cell] == "south"
+    assert result.value.argmax() == goal
+
+
+def test_policy_iteration_rejects_bad_input():
+    model = om.grid_model(2, 3, 2)
+    with pytest.raises(ModelError, match="shape"):
+        policy_iteration(model, np.zeros(5))
+    with pytest.raises(ModelError, match="NaN"):
+        policy_iteration(model, np.full(6, np.nan))
+    with pytest.raises(ModelError, match="gamma"):
+        policy_iteration(model, np.zeros(6), gamma=1.0)
+    with pytest.raises(ModelError, match="initial_policy"):
+        policy_iteration(model, np.zeros(6), initial_policy=np.full(6, 4))
+
+
+def belief(location, maps) -> Belief:
+    return Belief(0, np.asarray(location, dtype=float), np.asarray(maps, dtype=float))
+
+
+def test_entropy_reward_matches_its_formula():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        n, k = rng.integers(2, 12), rng.integers(2, 5)
+        location = rng.dirichlet(np.full(n, 0.3))
+        maps = rng.dirichlet(np.full(k, 0.5), size=n)
+        h_l = entropy(location) / np.log(n)
+        h_m = entropy(maps, axis=1) / np.log(k)
+        expected = h_l * (1 - h_m) + (1 - h_l) * h_m
+        np.testing.assert_allclose(entropy_reward(belief(location, maps)), expected, atol=1e-12)
+        np.testing.assert_allclose(collected_entropy_reward(belief(location, maps)),
+                                   expected * (1 - location), atol=1e-12)
+
+
+def corridor_belief(n, known, location) -> Belief:
+    """Map: cells in ``known`` certain (label 0), the others uniform."""
+    maps = np.full((n, 2), 0.5)
+    maps[known] = [1.0, 0.0]
+    return belief(location, maps)
+
+
+def test_a_certain_robot_goes_to_the_unknown_cell():
+    model = om.corridor(8)
+    known = [0, 1, 2, 3, 5, 6, 7]
+    b = corridor_belief(8, known, np.eye(8)[3])  # certain to be in cell 3; cell 4 unknown
+    reward = entropy_reward(b)
+    assert reward.argmax() == 4 and reward[4] == pytest.approx(1.0) and np.allclose(reward[known], 0)
+    assert model.action_names[EntropyExplorer(model).choose(b)] == "right"
+    b = corridor_belief(8, known, np.eye(8)[6])  # now in cell 6: the unknown cell is to the left
+    assert model.action_names[EntropyExplorer(model).choose(b)] == "left"
+
+
+def test_a_lost_robot_goes_to_the_cells_it_knows():
+    model = om.corridor(8)
+    b = corridor_belief(8, [4, 5, 6, 7], np.full(8, 1 / 8))  # lost; knows the right half
+    reward = entropy_reward(b)
+    np.testing.assert_allclose(reward, [0, 0, 0, 0, 1, 1, 1, 1], atol=1e-12)
+    assert model.action_names[EntropyExplorer(model).choose(b)] == "right"
+    b = corridor_belief(8, [0, 1, 2, 3], np.full(8, 1 / 8))  # knows the left half
+    assert model.action_names[EntropyExplorer(model).choose(b)] == "left"
+
+
+def test_collected_reward_moves_a_robot_off_the_cell_it_just_observed():
+    model = om.corridor(3)
+    maps = np.full((3, 2), 0.5)  # nothing known, robot certain to be in the middle
+    b = belief([0.0, 1.0, 0.0], maps)
+    assert collected_entropy_reward(b)[1] == 0.0
+    assert EntropyExplorer(model, reward=collected_entropy_reward).choose(b) in (0, 1)  # moves
+    assert entropy_reward(b)[1] == 1.0
+
+
+def test_explorer_replans_every_k_steps():
+    model = om.corridor(8)
+    explorer = EntropyExplorer(model, replan_every=3)
+    b = corridor_belief(8, [0, 1, 2], np.eye(8)[1])
+    plans = []
+    for _ in range(7):
+        explorer.choose(b)
+        plans.append(explorer.plan)
+    assert [plans[i] is plans[i - 1] for i in range(1, 7)] == [True, True, False, True, True, False]
+    with pytest.raises(ModelError):
+        EntropyExplorer(model, replan_every=0)
+
+
+def test_random_walk_is_reproducible_and_uniform():
+    model, _ = om.door_world()
+    b = belief(model.location_prior(), model.label_prior)
+    first = [RandomWalk(model, seed=3).choose(b) for _ in range(1)]
+    walk_a, walk_b = RandomWalk(model, seed=3), RandomWalk(model, seed=3)
+    draws = np.array([walk_a.choose(b) for _ in range(4000)])
+    assert draws[0] == first[0]
+    assert np.array_equal(draws, [walk_b.choose(b) for _ in range(4000)])
+    counts = np.bincount(draws, minlength=4)
+    # each count ~ Binomial(4000, 1/4): sd = 27.4, allow 4.5 sd
+    assert np.all(np.abs(counts - 1000) < 4.5 * np.sqrt(4000 * 0.25 * 0.75))
+
+
+@pytest.mark.parametrize("layout", ["...\n...\n", "....\n....\n....\n", om.DOOR_WORLD_10X10])
+def test_sweep_covers_every_cell_without_slips_and_ignores_beliefs(layout):
+    model, true_map = om.door_world(layout, p_move=1.0)
+    actions = sweep_actions(model)
+    run = om.simulate(model, true_map, actions, seed=0)
+    assert set(run.locations) == set(range(model.n_cells))
+    assert run.locations[-1] == model.start  # one cycle returns to the corner
+    sweep = Sweep(model)
+    b = belief(model.location_prior(), model.label_prior)
+    chosen = [sweep.choose(b) for _ in range(2 * len(actions))]
+    assert np.array_equal(chosen, np.concatenate([actions, actions]))
+
+
+def test_sweep_in_a_corridor_and_unknown_planners():
+    model = om.corridor(5)
+    assert [model.action_names[a] for a in sweep_actions(model)] == ["right"] * 5 + ["left"] * 5
+    with pytest.raises(ModelError, match="unknown planner"):
+        make_planner("greedy", model)
