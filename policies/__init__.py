@@ -6,16 +6,18 @@
 >>> frame = policies.explore(model, true_map, "entropy", "rbpf", steps=200, seed=0)  # doctest: +SKIP
 """
 
-from .explore import COLUMNS, door_cells, explore, explore_env
+from .explore import COLUMNS, compare_planners, door_cells, explore, explore_env, summarize
 from .mdp import (PolicyIterationResult, action_values, evaluate_policy, policy_iteration,
                   policy_motion)
 from .planners import PLANNERS, EntropyExplorer, Planner, RandomWalk, Sweep, make_planner, sweep_actions
+from .plots import plot_errors, plot_visits
 from .rewards import RewardFunction, collected_entropy_reward, entropy_reward
-from .worlds import exploration_world, floor_plan_prior
+from .worlds import exploration_world, floor_plan_prior, with_floor_plan
 
 __all__ = [
     "entropy_reward", "collected_entropy_reward", "RewardFunction",
     "policy_iteration", "PolicyIterationResult", "action_values", "evaluate_policy", "policy_motion",
     "Planner", "EntropyExplorer", "RandomWalk", "Sweep", "make_planner", "sweep_actions", "PLANNERS",
     "explore", "explore_env", "door_cells", "COLUMNS", "exploration_world", "floor_plan_prior",
+    "with_floor_plan", "compare_planners", "summarize", "plot_errors", "plot_visits",
 ]

@@ -165,3 +165,43 @@ def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estima
         return int(observation), info["location"], info["map"]
 
     return _loop(model, reset, advance, chooser, est, steps, progress)
+
+
+def compare_planners(model: GridModel, true_map, planners=("entropy", "random", "sweep"),
+                     estimator: str = "rbpf", steps: int = 500, seeds=(0,), *,
+                     estimator_options: dict | None = None, progress: bool = True) -> pd.DataFrame:
+    """:func:`explore` for every planner name and seed (the same seeds for every planner, so
+    the runs are paired). One row per (planner, seed, step): ``planner``, ``seed`` and the
+    :data:`COLUMNS`. Cost: ``len(planners) * len(seeds)`` runs of ``steps`` steps."""
+    runs = [(planner, seed) for planner in planners for seed in seeds]
+    frames = []
+    for planner, seed in tqdm(runs, desc="exploration runs", disable=not progress):
+        frame = explore(model, true_map, planner, estimator, steps, seed,
+                        estimator_options=estimator_options, progress=progress and steps >= 200)
+        frame.insert(0, "seed", seed)
+        frame.insert(0, "planner", planner)
+        frame["seconds_per_step"] = frame.attrs["seconds_per_step"]
+        frames.append(frame)
+    return pd.concat(frames, ignore_index=True)
+
+
+def summarize(table: pd.DataFrame, model: GridModel, true_map) -> pd.DataFrame:
+    """One row per planner from a :func:`compare_planners` table, averaged over seeds:
+    final map error, mean door error over the last two thirds of the run (after the first
+    visits), mean location error, share of steps spent on door cells, distinct cells visited,
+    and milliseconds per step (estimator + planner)."""
+    doors = door_cells(model, np.asarray(true_map))
+    rows = []
+    for (planner, seed), run in table.groupby(["planner", "seed"], sort=False):
+        late = run["t"] >= run["t"].max() / 3
+        rows.append({"planner": planner, "seed": seed,
+                     "final_map_error": run["map_error"].iloc[-1],
+                     "late_door_error": run.loc[late, "door_error"].mean(),
+                     "mean_location_error": run["location_error"].mean(),
+                     "time_at_doors": np.isin(run["true_location"], doors).mean(),
+                     "cells_visited": run["true_location"].nunique(),
+                     "ms_per_step": 1e3 * run["seconds_per_step"].iloc[0]})
+    per_run = pd.DataFrame(rows)
+    summary = per_run.drop(columns="seed").groupby("planner", sort=False).mean().reset_index()
+    summary.insert(1, "runs", per_run.groupby("planner", sort=False).size().to_numpy())
+    return summary

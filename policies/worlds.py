@@ -10,6 +10,8 @@ and spend its effort on what changes: the doors.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from onlinemap.errors import ModelError
@@ -35,13 +37,17 @@ def floor_plan_prior(model: GridModel, true_map, confidence: float = 0.8) -> np.
     return prior
 
 
+def with_floor_plan(model: GridModel, true_map, confidence: float = 0.8) -> GridModel:
+    """``model`` with the :func:`floor_plan_prior` of ``true_map`` as its label prior."""
+    return dataclasses.replace(model, label_prior=floor_plan_prior(model, true_map, confidence))
+
+
 def exploration_world(p_door: float = 0.01, p_move: float = 0.9, floor_plan: float | None = 0.8, *,
                       layout: str | None = None, p_obs: float = 0.9) -> tuple[GridModel, np.ndarray]:
     """The door world used to compare planners: ``door_world(layout, ...)`` (default the 10 x 10
     layout) with the :func:`floor_plan_prior` of confidence ``floor_plan`` (None: uniform
     prior). Returns ``(model, true_map)``."""
     model, true_map = door_world(layout, p_obs=p_obs, p_move=p_move, p_door=p_door)
-    if floor_plan is None:
-        return model, true_map
-    return door_world(layout, p_obs=p_obs, p_move=p_move, p_door=p_door,
-                      label_prior=floor_plan_prior(model, true_map, floor_plan))
+    if floor_plan is not None:
+        model = with_floor_plan(model, true_map, floor_plan)
+    return model, true_map

@@ -9,7 +9,7 @@ import sys
 
 from ..errors import OnlineMapError
 
-COMMANDS = ("run", "bench", "track", "reproduce", "sweep", "compare")
+COMMANDS = ("run", "bench", "track", "reproduce", "sweep", "compare", "explore")
 
 
 def build_parser() -> argparse.ArgumentParser:

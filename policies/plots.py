@@ -1,0 +1,67 @@
+"""Figures for exploration runs (matplotlib, no pyplot state: they work on any backend).
+
+Both take the long table of :func:`policies.explore.compare_planners` (columns ``planner``,
+``seed``, ``t``, ``map_error``, ``door_error``, ``true_location``, ...).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from matplotlib.colors import LogNorm
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
+
+from onlinemap.model import DOOR_LABELS, GridModel, WALL
+
+from .explore import door_cells
+
+
+def plot_errors(table: pd.DataFrame, axes=None) -> Figure:
+    """Map error and door-state error over time, one line per planner: the mean over seeds with
+    a band of +- one standard error. ``axes``: two matplotlib axes (created when None)."""
+    if axes is None:
+        figure = Figure(figsize=(11, 3.8), layout="constrained")
+        axes = figure.subplots(1, 2)
+    columns = [("map_error", "map error (mean 1 - P(true label))"),
+               ("door_error", "door-state error (door cells)")]
+    for ax, (column, title) in zip(axes, columns):
+        for planner, runs in table.groupby("planner", sort=False):
+            by_step = runs.groupby("t")[column]
+            mean, sem = by_step.mean(), by_step.sem().fillna(0.0)
+            ax.plot(mean.index, mean.to_numpy(), label=planner)
+            ax.fill_between(mean.index, mean - sem, mean + sem, alpha=0.2)
+        n_seeds = int(table.groupby("planner")["seed"].nunique().max())
+        ax.set(title=title, xlabel="step", ylim=(0, None))
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel(f"mean over {n_seeds} seed{'s' * (n_seeds > 1)}")
+    axes[0].legend()
+    return axes[0].figure
+
+
+def plot_visits(model: GridModel, true_map, table: pd.DataFrame, axes=None) -> Figure:
+    """The world with the visit counts of each planner (summed over seeds, log colour scale);
+    walls hatched, doors outlined in red. ``axes``: one per planner (created when None)."""
+    planners = list(dict.fromkeys(table["planner"]))
+    if axes is None:
+        figure = Figure(figsize=(3.6 * len(planners), 3.6), layout="constrained")
+        axes = np.atleast_1d(figure.subplots(1, len(planners)))
+    labels = np.asarray(true_map).reshape(model.rows, model.cols)
+    doors = door_cells(model, np.asarray(true_map))
+    door_share = ""
+    for ax, planner in zip(axes, planners):
+        where = table.loc[table["planner"] == planner, "true_location"].to_numpy()
+        counts = np.bincount(where, minlength=model.n_cells).reshape(model.rows, model.cols)
+        image = ax.imshow(np.ma.masked_equal(counts, 0), cmap="viridis",
+                          norm=LogNorm(vmin=1, vmax=max(2, counts.max())))
+        if model.label_names == DOOR_LABELS:
+            for row, col in zip(*np.nonzero(labels == WALL)):
+                ax.add_patch(Rectangle((col - 0.5, row - 0.5), 1, 1, fill=False, hatch="////",
+                                       edgecolor="0.45", linewidth=0))
+            for cell in doors:
+                row, col = divmod(int(cell), model.cols)
+                ax.add_patch(Rectangle((col - 0.45, row - 0.45), 0.9, 0.9, fill=False, edgecolor="red", linewidth=2))
+            door_share = f", {np.isin(where, doors).mean():.0%} of steps on doors"
+        ax.set(title=f"{planner}{door_share}", xticks=[], yticks=[])
+        ax.figure.colorbar(image, ax=ax, shrink=0.8, label="visits", format="%d")
+    return axes[0].figure
