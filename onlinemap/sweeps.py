@@ -6,7 +6,8 @@ A spec is a TOML file (every key but ``worlds`` and ``estimators`` optional)::
     name = "rbpf-vs-particles"        # a label
     worlds = ["corridor:8", "corridor:8,p_change=0.01"]   # world specs (onlinemap.worlds)
     seeds = 20                         # 20 -> seeds 0..19; or a list [0, 4, 7]
-    steps = 100                        # steps per run (first observation included); or a list
+    steps = 100                        # steps per run (first observation included); or a list;
+                                       # "trip": one there-and-back trip, 2 (N - 1) + 1 steps
     walk = "random"                    # "random" or "there_and_back" (corridors); or a list
     rows = "task"                      # "task": one row per task; "step": one per task and step
     reference = "exact"                # also run this estimator on every run and record the
@@ -99,7 +100,7 @@ class Task:
     estimator: str
     options: tuple
     seed: int
-    steps: int
+    steps: int | str  # "trip": one there-and-back trip, 2 (N - 1) + 1 steps
     walk: str = "random"
     reference: str | None = None
     per_step: bool = False
@@ -204,7 +205,9 @@ def parse_spec(text: str, source: str = "<spec>", name: str = "sweep") -> SweepS
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
-        raise SpecError(f"{source}: not valid TOML: {error}") from None
+        line = re.search(r"at line (\d+)", str(error))
+        where = f"{source}, line {line.group(1)}" if line else source
+        raise SpecError(f"{where}: not valid TOML: {error}") from None
     return spec_from_dict(data, _Locator(text, source), name)
 
 
@@ -216,7 +219,7 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
             raise where.error((key,), f"unknown key; known keys: {', '.join(TOP_KEYS)}")
     worlds = _worlds(data, where)
     seeds = _seeds(data, where)
-    steps = _int_list(data, "steps", where, default=100, minimum=1)
+    steps = _steps(data, where)
     rows = _choice(data, "rows", ROWS, where, default="task")
     explore = "planners" in data
     if explore:
@@ -233,6 +236,8 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
                                               f"available: {', '.join(available_estimators())}")
         planners = [(None, (), ())]
     estimators = _configs(data, "estimators", where, estimator_options, _estimator_builder)
+    if "trip" in steps and walks != ["there_and_back"]:
+        raise where.error(("steps",), 'steps = "trip" (one there-and-back trip) needs walk = "there_and_back"')
     if "there_and_back" in walks:
         bad = [w.spec for w in worlds if w.model.action_names != ("left", "right")]
         if bad:
@@ -287,11 +292,11 @@ def _is_int(value) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
 
-def _int_list(data: dict, key: str, where: _Locator, default: int, minimum: int) -> list[int]:
-    value = data.get(key, default)
+def _steps(data: dict, where: _Locator) -> list[int | str]:
+    value = data.get("steps", 100)
     values = value if isinstance(value, list) else [value]
-    if not values or not all(_is_int(v) and v >= minimum for v in values):
-        raise where.error((key,), f"expected an int >= {minimum} or a list of them, got {value!r}")
+    if not values or not all((_is_int(v) and v >= 1) or v == "trip" for v in values):
+        raise where.error(("steps",), f'expected an int >= 1, "trip" or a list of them, got {value!r}')
     return values
 
 
@@ -429,15 +434,18 @@ def _policies():
 
 
 def _planner_builder(name: str) -> type:
-    return _policies().PLANNERS[name]
+    """The class ``policies.make_planner(name, ...)`` builds (found by building one on a 2 x 2 grid)."""
+    from .model import grid_model
+
+    return type(_policies().make_planner(name, grid_model(2, 2), seed=0))
 
 
 def _planner_options(name: str) -> dict:
-    """A planner's options (its ``__init__`` parameters after the model, but the seed) and defaults."""
+    """A planner's options (its class's ``__init__`` parameters after the model, but the seed)."""
     planners = _policies().PLANNERS
     if name not in planners:
         raise OnlineMapError(f"unknown planner {name!r}; available: {', '.join(planners)}")
-    params = list(inspect.signature(planners[name].__init__).parameters.values())[2:]
+    params = list(inspect.signature(_planner_builder(name).__init__).parameters.values())[2:]
     return {p.name: p.default for p in params if p.name != "seed"
             and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
 
@@ -503,7 +511,8 @@ def run_task(task: Task) -> pd.DataFrame:
     model = world.model
     rng = np.random.default_rng(task.seed)
     true_map = world.initial_map(rng)
-    run = simulate(model, true_map, walk_actions(model, task.walk, task.steps - 1, rng), rng)
+    n_actions = 2 * (model.n_cells - 1) if task.steps == "trip" else task.steps - 1
+    run = simulate(model, true_map, walk_actions(model, task.walk, n_actions, rng), rng)
     estimator = _make(task.estimator, model, task.options, task.seed, run)
     trajectory = run_estimator(estimator, run.actions, run.observations)
     steps = {
@@ -517,7 +526,8 @@ def run_task(task: Task) -> pd.DataFrame:
         steps["map_tv"] = metrics.total_variation(trajectory.map, reference.map).mean(axis=-1)
     ms = 1e3 * trajectory.seconds_per_step
     if task.per_step:
-        return _task_frame(task, pd.DataFrame({"t": np.arange(run.n_steps), **steps, "ms_per_step": ms}))
+        return _task_frame(task, pd.DataFrame({"t": np.arange(run.n_steps), **steps, "ms_per_step": ms}),
+                           run.n_steps)
     visited = np.unique(run.locations)
     wrong = metrics.wrong_cells(trajectory.map[-1], run.maps[-1], visited)
     lost = bool(steps["location_error"][-1] > 0.5)
@@ -530,7 +540,7 @@ def run_task(task: Task) -> pd.DataFrame:
         row.update(final_location_tv=steps["location_tv"][-1], mean_location_tv=steps["location_tv"].mean(),
                    final_map_tv=steps["map_tv"][-1], mean_map_tv=steps["map_tv"].mean())
     row["ms_per_step"] = ms
-    return _task_frame(task, pd.DataFrame([row]))
+    return _task_frame(task, pd.DataFrame([row]), run.n_steps)
 
 
 _WARMED: set = set()
@@ -538,7 +548,7 @@ _WARMED: set = set()
 
 def _make(name: str, model: GridModel, options: tuple, seed: int, run=None):
     """The task's estimator; the first time in this process for (name, options, world size),
-    it first takes two steps of ``run`` on a throwaway copy, so that compiling or loading
+    it first takes up to 20 steps of ``run`` on a throwaway copy, so that compiling or loading
     numba kernels is not counted in the time per step."""
     options = dict(options)
     if "seed" in estimator_options(name):
@@ -546,7 +556,9 @@ def _make(name: str, model: GridModel, options: tuple, seed: int, run=None):
     warm = (name, _options_text(tuple(sorted((k, v) for k, v in options.items() if k != "seed"))),
             model.n_cells, model.n_labels)
     if run is not None and warm not in _WARMED and run.n_steps > 1:
-        run_estimator(make_estimator(name, model, **options), run.actions[:1], run.observations[:2])
+        warm_steps = min(run.n_steps, 20)
+        run_estimator(make_estimator(name, model, **options), run.actions[:warm_steps - 1],
+                      run.observations[:warm_steps])
         _WARMED.add(warm)
     return make_estimator(name, model, **options)
 
@@ -566,21 +578,21 @@ def _run_explore(task: Task) -> pd.DataFrame:
     ms = 1e3 * frame.attrs["seconds_per_step"]
     columns = ["map_error", "location_error", "map_entropy", "location_entropy", "door_error"]
     if task.per_step:
-        return _task_frame(task, frame[["t"] + columns].assign(ms_per_step=ms))
+        return _task_frame(task, frame[["t"] + columns].assign(ms_per_step=ms), len(frame))
     last = frame.iloc[-1]
     row = {"final_map_error": last["map_error"], "mean_map_error": frame["map_error"].mean(),
            "final_location_error": last["location_error"], "mean_location_error": frame["location_error"].mean(),
            "final_map_entropy": last["map_entropy"], "final_location_entropy": last["location_entropy"],
            "final_door_error": last["door_error"], "mean_door_error": frame["door_error"].mean(),
            "ms_per_step": ms}
-    return _task_frame(task, pd.DataFrame([row]))
+    return _task_frame(task, pd.DataFrame([row]), len(frame))
 
 
-def _task_frame(task: Task, frame: pd.DataFrame) -> pd.DataFrame:
-    """Prefix the task's description columns."""
+def _task_frame(task: Task, frame: pd.DataFrame, n_steps: int) -> pd.DataFrame:
+    """Prefix the task's description columns (``steps``: the run's actual number of steps)."""
     described = {"task": task.key, "kind": task.kind, "world": task.world, "estimator": task.estimator,
                  "options": _options_text(task.options), "planner": task.planner or "",
-                 "planner_options": _options_text(task.planner_options), "steps": task.steps,
+                 "planner_options": _options_text(task.planner_options), "steps": n_steps,
                  "walk": task.walk if task.kind == "estimate" else "", "reference": task.reference or "",
                  "seed": task.seed}
     for position, (column, value) in enumerate(described.items()):
@@ -803,8 +815,8 @@ def summarize(table: pd.DataFrame, metrics_: Iterable[str] | None = None, confid
     summarised at each task's last step. One row per configuration and metric."""
     if "t" in table.columns:
         table = table.sort_values("t").groupby("task", sort=False).tail(1)
-    known = TASK_METRICS + STEP_METRICS
-    chosen = [m for m in (metrics_ or known) if m in table.columns]
+    known = tuple(dict.fromkeys(TASK_METRICS + STEP_METRICS))
+    chosen = [m for m in dict.fromkeys(metrics_ or known) if m in table.columns]
     missing = [m for m in (metrics_ or ()) if m not in table.columns]
     if missing:
         raise OnlineMapError(f"no metric {', '.join(missing)} in the table; it has: "

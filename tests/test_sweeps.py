@@ -1,0 +1,286 @@
+"""Experiment sweeps (issue 6): a dask cluster gives the serial table, interrupted sweeps
+finish every task exactly once, malformed specs are refused before any task runs with the
+line named, summaries' intervals match textbook values, tasks reproduce ``onlinemap run``."""
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+
+import onlinemap as om
+from onlinemap import sweeps
+from onlinemap.cli import main
+from onlinemap.cli.run import compare_on_run
+
+ROOT = Path(__file__).resolve().parents[1]
+SPEC = """\
+name = "small"
+worlds = ["corridor:5", "corridor:5,p_change=0.02"]
+seeds = 3
+steps = 15
+reference = "exact"
+
+[estimators.exact]
+
+[estimators.dead_reckoning]
+
+[estimators.rbpf]
+n_particles = [10, 40]
+"""
+N_TASKS = 2 * (1 + 1 + 2) * 3
+
+
+def without_timing(table: pd.DataFrame) -> pd.DataFrame:
+    return table.drop(columns=list(sweeps.TIMING_COLUMNS)).reset_index(drop=True)
+
+
+@pytest.fixture(scope="module")
+def client():
+    distributed = pytest.importorskip("distributed")
+    cluster = sweeps.local_cluster(workers=2)
+    client = distributed.Client(cluster)
+    yield client
+    client.close()
+    cluster.close()
+
+
+@pytest.fixture(scope="module")
+def serial_table():
+    return sweeps.sweep(sweeps.parse_spec(SPEC), workers=0, progress=False)
+
+
+def write_spec(tmp_path: Path, text: str = SPEC, name: str = "spec.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+# --- the table -------------------------------------------------------------------------------
+def test_serial_table_has_one_row_per_task_with_sane_metrics(serial_table):
+    assert len(serial_table) == N_TASKS and serial_table["task"].is_unique
+    assert set(serial_table["estimator"]) == {"exact", "dead_reckoning", "rbpf"}
+    for column in ("final_map_error", "final_location_error", "mean_map_tv", "mean_location_tv"):
+        assert serial_table[column].between(0, 1).all()
+    exact = serial_table[serial_table["estimator"] == "exact"]
+    assert (exact[["final_location_tv", "mean_map_tv"]] == 0).all().all()  # its own reference
+    rbpf = serial_table[serial_table["estimator"] == "rbpf"]
+    assert sorted(set(rbpf["opt_n_particles"])) == [10, 40]
+
+
+def test_a_task_reproduces_onlinemap_run_with_the_same_seed(serial_table):
+    world = om.worlds.parse_world("corridor:5,p_change=0.02")
+    seed = 2
+    rng = np.random.default_rng(seed)  # exactly what `onlinemap run --seed 2 --steps 15` does
+    true_map = world.initial_map(rng)
+    run = om.simulate(world.model, true_map, om.random_walk(world.model, 14, rng), rng)
+    summary, _ = compare_on_run(run, ["exact", "dead_reckoning"], progress=False)
+    mine = serial_table[(serial_table["world"] == world.spec) & (serial_table["seed"] == seed)]
+    for name in ("exact", "dead_reckoning"):
+        row = mine[mine["estimator"] == name].iloc[0]
+        theirs = summary[summary["estimator"] == name].iloc[0]
+        assert row["final_map_error"] == pytest.approx(theirs["final_map_error"], abs=1e-12)
+        assert row["mean_location_error"] == pytest.approx(theirs["mean_location_error"], abs=1e-12)
+
+
+def test_per_step_rows_end_with_the_per_task_values(serial_table):
+    spec = sweeps.parse_spec(SPEC.replace('reference = "exact"', 'reference = "exact"\nrows = "step"'))
+    steps = sweeps.sweep(spec, workers=0, progress=False)
+    assert len(steps) == N_TASKS * 15
+    last = steps[steps["t"] == 14].reset_index(drop=True)
+    np.testing.assert_allclose(last["map_error"], serial_table["final_map_error"], atol=1e-12)
+    np.testing.assert_allclose(last["map_tv"], serial_table["final_map_tv"], atol=1e-12)
+    means = steps.groupby("task", sort=False)["location_error"].mean().to_numpy()
+    np.testing.assert_allclose(means, serial_table["mean_location_error"], atol=1e-12)
+
+
+# --- malformed specs ---------------------------------------------------------------------------
+BAD_SPECS = [  # (replace this, with that, the line the error must name, words in the message)
+    ("[estimators.rbpf]", "[estimators.rbfp]", 11, "unknown estimator 'rbfp'"),
+    ("n_particles = [10, 40]", "n_particle = [10, 40]", 12, "unknown option"),
+    ("n_particles = [10, 40]", 'n_particles = [10, "forty"]', 12, "expected int, got 'forty'"),
+    ("n_particles = [10, 40]", "n_particles = 2.5", 12, "expected int"),
+    ("n_particles = [10, 40]", "n_particles = [10, 0]", 11, "n_particles=0"),  # refused by rbpf itself
+    ('steps = 15', 'steps = "15"', 4, "steps"),
+    ('seeds = 3', 'seeds = -1', 3, "seeds"),
+    ('worlds = ["corridor:5", "corridor:5,p_change=0.02"]', 'worlds = ["corridor:5", "coridor:5"]', 2,
+     "unknown kind 'coridor'"),
+    ('reference = "exact"', 'reference = "exakt"', 5, "unknown estimator 'exakt'"),
+    ('reference = "exact"', 'reference = "exact"\nwalk = "zigzag"', 6, "walk"),
+    ('name = "small"', 'name = "small"\nsed = 3', 2, "unknown key"),
+    ("[estimators.exact]", "[estimators.exact]\nmax_bytes = 1000", 7, "MemoryLimitError"),
+    ("steps = 15", "steps = 15 20", 4, "not valid TOML"),  # tomllib's own position
+]
+
+
+@pytest.mark.parametrize("old, new, line, words", BAD_SPECS, ids=[b[3] for b in BAD_SPECS])
+def test_malformed_spec_is_refused_before_any_task_runs_naming_the_line(tmp_path, old, new, line, words):
+    assert old in SPEC
+    path = write_spec(tmp_path, SPEC.replace(old, new))
+    results = tmp_path / "results.parts"
+    with pytest.raises(om.SpecError) as error:
+        om.sweep(path, workers=0, results_dir=results, progress=False)
+    message = str(error.value)
+    assert f"line {line}" in message, message
+    assert str(path) in message and words in message, message
+    assert not results.exists()  # nothing ran, nothing was written
+
+
+def test_malformed_spec_on_the_command_line_exits_2_with_the_line(tmp_path, capsys):
+    path = write_spec(tmp_path, SPEC.replace("[estimators.rbpf]", "[estimators.nope]"))
+    assert main(["sweep", str(path), "--workers", "0", "--out", str(tmp_path / "r.parquet")]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}, line 11: estimators.nope: unknown estimator 'nope'" in err
+    assert not (tmp_path / "r.parts").exists()
+
+
+def test_array_of_tables_errors_name_the_right_table(tmp_path):
+    text = 'worlds = ["corridor:4"]\nseeds = 1\n[[estimators.online_em]]\nwindow = "max"\n' \
+           '[[estimators.online_em]]\nwindow = [1, 2]\ndecay = [0.9, "high"]\n'
+    with pytest.raises(om.SpecError, match=r"line 7: estimators.online_em\[1\].decay: expected float"):
+        sweeps.parse_spec(text, source="s.toml")
+    good = sweeps.parse_spec(text.replace(', "high"', ""))
+    assert [dict(t.options) for t in good.tasks] == [{"window": "max"}, {"decay": 0.9, "window": 1},
+                                                      {"decay": 0.9, "window": 2}]
+
+
+def test_a_list_valued_option_is_a_list_of_lists(tmp_path):
+    text = 'worlds = ["corridor:4"]\nseeds = 1\n[estimators.offline_em]\nanneal = [1.0, 0.9, 0.1]\n'
+    with pytest.raises(om.SpecError, match="line 4.*list of lists"):
+        sweeps.parse_spec(text)
+    spec = sweeps.parse_spec(text.replace("[1.0, 0.9, 0.1]", "[[1.0, 0.9, 0.1]]"))
+    assert dict(spec.tasks[0].options) == {"anneal": (1.0, 0.9, 0.1)}
+
+
+# --- resuming: every task exactly once -----------------------------------------------------------
+def test_killed_sweep_resumes_and_finishes_every_task_exactly_once(tmp_path, serial_table):
+    spec_path = write_spec(tmp_path, SPEC.replace("seeds = 3", "seeds = 3\n").replace(
+        "[estimators.exact]", "[estimators.offline_em]\nn_iter = 30\n\n[estimators.exact]"))
+    spec = sweeps.load_spec(spec_path)
+    out = tmp_path / "r.parquet"
+    parts = sweeps.default_results_dir(out)
+    process = subprocess.Popen([sys.executable, "-m", "onlinemap", "sweep", str(spec_path), "--workers", "0",
+                                "--out", str(out), "--no-progress"], stdout=subprocess.DEVNULL,
+                               stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and len(list(parts.glob("*.parquet"))) < 5 and process.poll() is None:
+        time.sleep(0.02)
+    process.send_signal(signal.SIGKILL)  # no chance to clean up
+    process.wait()
+    kept = {p.name: p.stat().st_mtime_ns for p in parts.glob("*.parquet")}
+    assert 5 <= len(kept) < len(spec.tasks), "the sweep was not stopped midway"
+    table = om.sweep(spec_path, workers=0, out=out, progress=False)
+    assert {p.name: p.stat().st_mtime_ns for p in parts.glob("*.parquet") if p.name in kept} == kept  # not rerun
+    assert len(table) == len(spec.tasks) and table["task"].is_unique
+    assert set(table["task"]) == {t.key for t in spec.tasks}
+    fresh = om.sweep(spec, workers=0, progress=False)
+    pd.testing.assert_frame_equal(without_timing(table), without_timing(fresh))
+    pd.testing.assert_frame_equal(without_timing(pd.read_parquet(out)), without_timing(fresh))
+
+
+def test_rerunning_a_finished_sweep_runs_nothing_and_ignores_stale_results(tmp_path, monkeypatch):
+    spec = sweeps.parse_spec(SPEC)
+    parts = tmp_path / "parts"
+    first = om.sweep(spec, workers=0, results_dir=parts, progress=False)
+    stale = sweeps.Task("corridor:5", "exact", (), 99, 15)  # e.g. from an older version of the spec
+    sweeps._write_part(parts, stale, sweeps.run_task(stale))
+    monkeypatch.setattr(sweeps, "run_task", lambda task: pytest.fail("a finished task ran again"))
+    again = om.sweep(spec, workers=0, results_dir=parts, progress=False)
+    pd.testing.assert_frame_equal(first, again)  # timings too: the same files
+    assert stale.key not in set(again["task"])
+
+
+def test_failed_tasks_are_reported_and_the_rest_kept(tmp_path, monkeypatch):
+    spec = sweeps.parse_spec(SPEC)
+    real = sweeps.run_task
+    monkeypatch.setattr(sweeps, "run_task",
+                        lambda task: real(task) if task.seed != 1 else (_ for _ in ()).throw(RuntimeError("boom")))
+    with pytest.raises(om.SweepError, match=f"{N_TASKS // 3} of {N_TASKS} tasks failed.*boom"):
+        om.sweep(spec, workers=0, results_dir=tmp_path, progress=False)
+    assert len(list(tmp_path.glob("*.parquet"))) == N_TASKS - N_TASKS // 3
+    monkeypatch.setattr(sweeps, "run_task", real)
+    assert len(om.sweep(spec, workers=0, results_dir=tmp_path, progress=False)) == N_TASKS
+
+
+# --- summaries ---------------------------------------------------------------------------------
+def test_mean_interval_matches_textbook_values():
+    values = np.array([0.1, 0.4, 0.35, 0.2, 0.3])
+    low, high = stats.t.interval(0.9, len(values) - 1, loc=values.mean(), scale=stats.sem(values))
+    assert sweeps.mean_interval(values, 0.9) == pytest.approx((values.mean(), low, high))
+    # Wilson score interval: 0 successes in 10 at 95% gives [0, z^2 / (n + z^2)] = [0, 0.2775]
+    assert sweeps.mean_interval(np.zeros(10), proportion=True) == pytest.approx((0, 0, 0.27753), abs=1e-5)
+    # 7 of 10: (0.3968, 0.8922) (Wilson 1927; e.g. Newcombe 1998, table I)
+    ones = np.array([1] * 7 + [0] * 3)
+    assert sweeps.mean_interval(ones, proportion=True) == pytest.approx((0.7, 0.3968, 0.8922), abs=1e-4)
+
+
+def test_summary_groups_configurations_over_seeds(serial_table, tmp_path, capsys):
+    summary = om.summarize(serial_table, ["final_map_error", "failed"])
+    assert set(summary["n"]) == {3}
+    assert len(summary) == 2 * 4 * 2  # worlds x configurations x metrics
+    one = serial_table[(serial_table["world"] == "corridor:5") & (serial_table["estimator"] == "exact")]
+    row = summary[(summary["world"] == "corridor:5") & (summary["estimator"] == "exact")
+                  & (summary["metric"] == "final_map_error")].iloc[0]
+    assert row["mean"] == pytest.approx(one["final_map_error"].mean())
+    path = tmp_path / "r.parquet"
+    serial_table.to_parquet(path)
+    assert main(["sweep", "--summary", str(path), "--metrics", "final_map_error,failed"]) == 0
+    out = capsys.readouterr().out
+    assert "n_particles=40" in out and "final_map_error" in out and "[" in out
+
+
+# --- the example specs -------------------------------------------------------------------------
+@pytest.mark.parametrize("path", sorted((ROOT / "examples").glob("*.toml")), ids=lambda p: p.name)
+def test_example_spec_is_valid_and_runs_in_miniature(path):
+    data = tomllib.loads(path.read_text())
+    missing = [name for name in data.get("estimators", {}) if name not in om.available_estimators()]
+    if missing:
+        pytest.skip(f"estimator {', '.join(missing)} not registered yet")
+    if "planners" in data:
+        policies = pytest.importorskip("policies")
+        if not hasattr(policies, "explore"):
+            pytest.skip("policies.explore not available yet")
+    spec = sweeps.load_spec(path)
+    assert len(spec.tasks) > 1
+    data.update(seeds=1, worlds=data["worlds"][:1])
+    if data.get("steps") != "trip":
+        data["steps"] = 8
+    table = om.sweep(data, workers=0, progress=False)
+    assert len(table) == len(sweeps.spec_from_dict(data).tasks)
+    assert table["final_map_error"].between(0, 1).all()
+
+
+# --- dask ------------------------------------------------------------------------------------------
+def test_local_cluster_with_two_workers_gives_the_serial_table(client, serial_table, tmp_path):
+    assert len(client.scheduler_info()["workers"]) == 2
+    table = om.sweep(sweeps.parse_spec(SPEC), client, results_dir=tmp_path, progress=False)
+    pd.testing.assert_frame_equal(without_timing(table), without_timing(serial_table))
+
+
+def test_killing_a_worker_midway_still_finishes_every_task_once(client, serial_table, tmp_path):
+    spec = sweeps.parse_spec(SPEC.replace("[estimators.exact]", "[estimators.offline_em]\n\n[estimators.exact]"))
+    result = {}
+    runner = threading.Thread(target=lambda: result.update(
+        table=om.sweep(spec, client, results_dir=tmp_path, progress=False)))
+    runner.start()
+    deadline = time.monotonic() + 60
+    while not list(tmp_path.glob("*.parquet")) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    victim = next(iter(client.run(os.getpid).values()))
+    os.kill(victim, signal.SIGKILL)
+    assert len(list(tmp_path.glob("*.parquet"))) < len(spec.tasks), "killed too late"
+    runner.join(timeout=180)
+    assert not runner.is_alive()
+    table = result["table"]
+    assert len(table) == len(spec.tasks) and table["task"].is_unique
+    assert len(list(tmp_path.glob("*.parquet"))) == len(spec.tasks)
+    serial = om.sweep(spec, workers=0, progress=False)
+    pd.testing.assert_frame_equal(without_timing(table), without_timing(serial))
