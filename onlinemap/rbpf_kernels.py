@@ -1,14 +1,19 @@
 """numba kernels of the Rao-Blackwellised particle filter (``estimators/rbpf.py``).
 
-Particle state: ``locations (P,)`` int64, ``maps (P, N, K)`` float64 per-cell label marginals,
-``stamps (P, N)`` int64, the step at which each (particle, cell) marginal was last brought up
-to date. With lazy dynamics the marginal of cell i at step t is
-``maps[p, i] @ powers[t - stamps[p, i]]`` (``powers[d] = C^d``); a static world passes
-``dynamic=False`` and the stamps are never read (a (P, 0) array will do).
+Particle maps are stored as shared, copy-on-write blocks of B consecutive cells:
 
-A step reads and writes only the cells a particle may be in (its cell and the intended
-neighbour): O(P K^2), independent of N. Resampling copies the rows of the particles that
-replace dropped ones: O(P_dropped N K).
+- ``pool (R, B, K)``: block rows of per-cell label marginals; ``pool_stamps (R, B)``: the step
+  at which each marginal was last brought up to date (dynamic worlds with lazy dynamics; a
+  (R, 0) array otherwise, never read); ``row_block (R,)``: which block of the map a row holds;
+  ``refcount (R,)``: how many particles use the row; ``free (R,)`` with ``free_top (1,)``: a
+  stack of unused rows.
+- ``table (P, n_blocks)``: the row holding block b of particle p's map, so cell i of particle p
+  is ``pool[table[p, i // B], i % B]``.
+
+With lazy dynamics the marginal of a cell at step t is ``row @ powers[t - stamp]``
+(``powers[d] = C^d``). Resampling copies table rows (n_blocks ints per particle that replaces
+a dropped one) instead of maps; a particle writing into a shared block first copies that one
+block (B K floats). A step reads two cells per particle: O(P K^2).
 """
 
 from __future__ import annotations
@@ -19,60 +24,56 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
-def _current(maps, stamps, powers, dynamic, t, p, cell, out):
-    """out (K,) <- marginal of ``cell`` for particle ``p`` at step ``t``."""
-    k = out.shape[0]
-    if dynamic and stamps[p, cell] != t:
-        c = powers[t - stamps[p, cell]]
-        for b in range(k):
+@njit(cache=True, inline="always")
+def _label(pool, pool_stamps, powers, dynamic, t, r, j, b):
+    """Current P(label b) of slot j of block row r at step t (C^dt applied on the fly)."""
+    if dynamic:
+        d = t - pool_stamps[r, j]
+        if d != 0:
             acc = 0.0
-            for a in range(k):
-                acc += maps[p, cell, a] * c[a, b]
-            out[b] = acc
-    else:
-        for b in range(k):
-            out[b] = maps[p, cell, b]
+            for a in range(pool.shape[2]):
+                acc += pool[r, j, a] * powers[d, a, b]
+            return acc
+    return pool[r, j, b]
 
 
-@njit(cache=True)
-def _dot(x, y):
+@njit(cache=True, inline="always")
+def _evidence(pool, pool_stamps, powers, dynamic, t, r, j, likelihood):
+    """``P(z | cell) = sum_b current(b) likelihood[b]`` for slot j of block row r."""
     acc = 0.0
-    for b in range(x.shape[0]):
-        acc += x[b] * y[b]
+    for b in range(likelihood.shape[0]):
+        acc += _label(pool, pool_stamps, powers, dynamic, t, r, j, b) * likelihood[b]
     return acc
 
 
 @njit(cache=True)
-def rbpf_propose(locations, maps, stamps, powers, dynamic, t, ancestors, neighbors, p_move, likelihood,
-                 optimal, uniforms, new_locations, new_cells, log_increments):
+def rbpf_propose(locations, pool, pool_stamps, table, block, powers, dynamic, t, ancestors, neighbors, p_move,
+                 likelihood, optimal, uniforms, new_locations, new_cells, log_increments):
     """Propose every particle's step-t location and weight it; writes nothing to the state.
 
     Particle ``p`` descends from ``ancestors[p]``. ``neighbors`` (N,) is ``neighbors[:, a]``
-    (pass ``locations``-independent ``arange(N)`` for step 0: no motion). Candidates are the
-    ancestor's cell ``l`` (probability ``1 - p_move``, or 1 where the move is impossible) and
-    ``n = neighbors[l]`` (``p_move``). Transition proposal: draw from the motion model,
-    increment = ``P(z | l_t, map_p)``. Optimal proposal: draw from ``P(l_t | l, a, z, map_p)``,
-    increment = ``sum_l' T[a, l, l'] P(z | l', map_p)``. Outputs: ``new_locations`` (P,),
-    ``new_cells`` (P, K) the observed cell's updated marginal, ``log_increments`` (P,)
-    (-inf where z is impossible). One uniform per particle. O(P K^2).
+    (``arange(N)`` at step 0: no motion). Candidates are the ancestor's cell ``l`` (probability
+    ``1 - p_move``, or 1 where the move is impossible) and ``n = neighbors[l]`` (``p_move``).
+    Transition proposal: draw from the motion model, increment = ``P(z | l_t, map_p)``.
+    Optimal proposal: draw from ``P(l_t | l, a, z, map_p)``, increment =
+    ``sum_l' T[a, l, l'] P(z | l', map_p)``. Outputs: ``new_locations`` (P,), ``new_cells``
+    (P, K) the observed cell's updated marginal, ``log_increments`` (P,) (-inf where z is
+    impossible). One uniform per particle. O(P K^2).
     """
     n_particles = ancestors.shape[0]
     k = likelihood.shape[0]
-    here = np.empty(k)
-    there = np.empty(k)
     for p in range(n_particles):
         q = ancestors[p]
         l = locations[q]
         n = neighbors[l]
-        _current(maps, stamps, powers, dynamic, t, q, l, here)
-        lam_here = _dot(here, likelihood)
+        r_here = table[q, l // block]
+        lam_here = _evidence(pool, pool_stamps, powers, dynamic, t, r_here, l % block, likelihood)
         target = l
         lam = lam_here
         weight = lam_here
         if n != l:
-            _current(maps, stamps, powers, dynamic, t, q, n, there)
-            lam_there = _dot(there, likelihood)
+            lam_there = _evidence(pool, pool_stamps, powers, dynamic, t, table[q, n // block], n % block,
+                                  likelihood)
             if optimal:
                 move = p_move * lam_there
                 weight = move + (1.0 - p_move) * lam_here
@@ -81,36 +82,60 @@ def rbpf_propose(locations, maps, stamps, powers, dynamic, t, ancestors, neighbo
             elif uniforms[p] < p_move:
                 target, lam, weight = n, lam_there, lam_there
         new_locations[p] = target
-        source = there if target != l else here
-        if lam > 0.0:
-            for b in range(k):
-                new_cells[p, b] = source[b] * likelihood[b] / lam
-            log_increments[p] = math.log(weight)
-        else:
-            for b in range(k):
-                new_cells[p, b] = source[b]
-            log_increments[p] = -np.inf
+        r = table[q, target // block]
+        j = target % block
+        scale = 1.0 / lam if lam > 0.0 else 1.0
+        for b in range(k):
+            new_cells[p, b] = _label(pool, pool_stamps, powers, dynamic, t, r, j, b) * (
+                likelihood[b] * scale if lam > 0.0 else 1.0)
+        log_increments[p] = math.log(weight) if lam > 0.0 else -np.inf
 
 
 @njit(cache=True)
-def rbpf_commit(locations, maps, stamps, dynamic, t, ancestors, new_locations, new_cells):
-    """Apply a proposal in place: copy the rows of ancestors into the slots that take them
-    (``ancestors[p] != p``; such ancestors keep their own slot, so sources are never
-    overwritten), then set each particle's location and observed cell (stamped ``t``).
-    Cost O(N K) per copied row + O(P K)."""
-    n_particles = ancestors.shape[0]
+def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, block, dynamic, t,
+                ancestors, new_locations, new_cells):
+    """Apply a validated proposal in place.
+
+    1. Slots taken over by a copy (``ancestors[p] != p``; such ancestors keep their own slot,
+       so sources are never overwritten) release their rows and share the ancestor's:
+       O(n_blocks) per copied particle.
+    2. Each particle writes its observed cell (stamped ``t``), first copying the block if it is
+       shared: O(B K) per shared write. Needs ``free_top[0] >= P`` free rows.
+    """
+    n_particles, n_blocks = table.shape
     for p in range(n_particles):
         q = ancestors[p]
-        if q != p:
-            maps[p] = maps[q]
-            if dynamic:
-                stamps[p] = stamps[q]
+        if q == p:
+            continue
+        for b in range(n_blocks):
+            r = table[p, b]
+            refcount[r] -= 1
+            if refcount[r] == 0:
+                free[free_top[0]] = r
+                free_top[0] += 1
+            r = table[q, b]
+            table[p, b] = r
+            refcount[r] += 1
     for p in range(n_particles):
         cell = new_locations[p]
-        locations[p] = cell
-        maps[p, cell] = new_cells[p]
+        b = cell // block
+        r = table[p, b]
+        if refcount[r] > 1:
+            free_top[0] -= 1
+            fresh = free[free_top[0]]
+            pool[fresh] = pool[r]
+            if dynamic:
+                pool_stamps[fresh] = pool_stamps[r]
+            row_block[fresh] = b
+            refcount[r] -= 1
+            refcount[fresh] = 1
+            table[p, b] = fresh
+            r = fresh
+        j = cell % block
+        pool[r, j] = new_cells[p]
         if dynamic:
-            stamps[p, cell] = t
+            pool_stamps[r, j] = t
+        locations[p] = cell
 
 
 @njit(cache=True)
@@ -130,26 +155,50 @@ def in_place_ancestors(counts):
 
 
 @njit(cache=True)
-def rbpf_map_mixture(maps, stamps, powers, dynamic, t, weights, out):
-    """out (N, K) <- ``sum_p weights[p] * current marginals of particle p``. One read of
-    ``maps``; with lazy dynamics K^2 flops per out-of-date (particle, cell). O(P N K^2)."""
-    n_particles, n_cells, k = maps.shape
-    out[:] = 0.0
-    tmp = np.empty(k)
+def rbpf_map_mixture(pool, pool_stamps, row_block, table, block, powers, dynamic, t, weights, out):
+    """out (N, K) <- ``sum_p weights[p] * current marginals of particle p``.
+
+    First the weight of every row (the sum over the particles sharing it), O(P n_blocks); then
+    one pass over the rows in use, O(R_used B K), with K^2 flops per out-of-date cell in a
+    dynamic world. R_used <= P n_blocks, and much less when particles share blocks.
+    """
+    n_cells, k = out.shape
+    n_particles, n_blocks = table.shape
+    row_weight = np.zeros(pool.shape[0])
     for p in range(n_particles):
         w = weights[p]
+        for b in range(n_blocks):
+            row_weight[table[p, b]] += w
+    out[:] = 0.0
+    tmp = np.empty(k)
+    for r in range(pool.shape[0]):
+        w = row_weight[r]
         if w == 0.0:
             continue
-        for i in range(n_cells):
-            if dynamic and stamps[p, i] != t:
-                c = powers[t - stamps[p, i]]
+        first = row_block[r] * block
+        for j in range(min(block, n_cells - first)):
+            i = first + j
+            if dynamic and pool_stamps[r, j] != t:
+                c = powers[t - pool_stamps[r, j]]
                 for b in range(k):
                     acc = 0.0
                     for a in range(k):
-                        acc += maps[p, i, a] * c[a, b]
+                        acc += pool[r, j, a] * c[a, b]
                     tmp[b] = acc
                 for b in range(k):
                     out[i, b] += w * tmp[b]
             else:
                 for b in range(k):
-                    out[i, b] += w * maps[p, i, b]
+                    out[i, b] += w * pool[r, j, b]
+
+
+@njit(cache=True)
+def particle_maps(pool, pool_stamps, table, block, powers, dynamic, t, out):
+    """out (P, N, K) <- every particle's current map marginals (for inspection and tests).
+    O(P N K^2)."""
+    n_particles, n_cells, k = out.shape
+    for p in range(n_particles):
+        for i in range(n_cells):
+            r = table[p, i // block]
+            for b in range(k):
+                out[p, i, b] = _label(pool, pool_stamps, powers, dynamic, t, r, i % block, b)

@@ -9,6 +9,7 @@ import pytest
 import onlinemap as om
 
 STATIC = dict(p_obs=0.85, p_move=0.7)
+DYNAMIC_3X3 = dict(p_obs=0.8, p_move=0.7, change=[[0.9, 0.05, 0.05], [0.1, 0.8, 0.1], [0.2, 0.2, 0.6]])
 
 
 def random_run(model, steps, seed):
@@ -90,19 +91,54 @@ def test_few_particles_are_close_and_error_shrinks_with_particles():
     assert large < small / 3 and large < 0.01
 
 
-@pytest.mark.parametrize("resampling,threshold", [("residual", 0.5), ("systematic", 1.0)])
-def test_lazy_dynamics_equals_eager(resampling, threshold):
+@pytest.mark.parametrize("resampling,threshold,block", [("residual", 0.5, None), ("systematic", 1.0, 2)])
+def test_lazy_dynamics_equals_eager(resampling, threshold, block):
     """C applied lazily (C^dt when a cell is read) equals C applied to every cell every step."""
-    model = om.grid_model(3, 3, 3, p_obs=0.8, p_move=0.7,
-                          change=[[0.9, 0.05, 0.05], [0.1, 0.8, 0.1], [0.2, 0.2, 0.6]])
+    model = om.grid_model(3, 3, 3, **DYNAMIC_3X3)
     run = random_run(model, 40, seed=5)
-    options = dict(n_particles=300, resampling=resampling, resample_threshold=threshold, seed=2)
+    options = dict(n_particles=300, resampling=resampling, resample_threshold=threshold, seed=2, block_cells=block)
     lazy = rbpf_steps(run, lazy_dynamics=True, **options)
     eager = rbpf_steps(run, lazy_dynamics=False, **options)
     for a, b in zip(lazy, eager):
         np.testing.assert_allclose(a.location, b.location, atol=1e-12, rtol=0)
         np.testing.assert_allclose(a.map, b.map, atol=1e-12, rtol=0)
         assert a.log_evidence == pytest.approx(b.log_evidence, abs=1e-12)
+
+
+@pytest.mark.parametrize("threshold", [0.5, 1.0])
+def test_block_size_does_not_change_results(threshold):
+    """Maps are stored as shared copy-on-write blocks of B cells; B (dividing N or not, 1 or
+    all of N) changes where numbers live, not their values."""
+    model = om.grid_model(3, 3, 3, **DYNAMIC_3X3)
+    run = random_run(model, 40, seed=10)
+    options = dict(n_particles=60, resample_threshold=threshold, seed=4)
+    reference = list(rbpf_steps(run, block_cells=9, **options))
+    for block in (1, 2, 4, None):
+        for a, b in zip(rbpf_steps(run, block_cells=block, **options), reference):
+            np.testing.assert_array_equal(a.location, b.location)
+            np.testing.assert_allclose(a.map, b.map, atol=1e-14, rtol=0)
+
+
+def test_block_pool_bookkeeping():
+    """After many resampling steps: every row's reference count equals its uses in the table,
+    free rows are exactly the unused ones, rows hold the block they are used for, and the pool
+    grew beyond its initial size without changing the beliefs."""
+    model = om.corridor(30, 2, p_obs=0.9, p_move=0.8, p_change=0.01)
+    run = random_run(model, 80, seed=11)
+    est = om.make_estimator("rbpf", model, n_particles=50, block_cells=4, resample_threshold=1.0,
+                            resampling="multinomial", seed=1)
+    initial_rows = len(est._pool)
+    for t in range(run.n_steps):
+        est.update(None if t == 0 else run.actions[t - 1], run.observations[t])
+        uses = np.bincount(est._table.ravel(), minlength=len(est._pool))
+        np.testing.assert_array_equal(est._refcount, uses)
+        free = est._free[:est._free_top[0]]
+        assert sorted(free) == sorted(np.flatnonzero(uses == 0)) and len(set(free)) == len(free)
+        blocks = np.broadcast_to(np.arange(est._table.shape[1]), est._table.shape)
+        np.testing.assert_array_equal(est._row_block[est._table], blocks)
+    assert len(est._pool) > initial_rows
+    maps = est.particle_maps()
+    np.testing.assert_allclose(np.exp(est._log_weights) @ maps.reshape(50, -1), est.belief.map.ravel(), atol=1e-14)
 
 
 def test_optimal_proposal_has_lower_weight_variance():
@@ -142,15 +178,20 @@ def test_update_then_belief_equals_step_and_belief_is_cached():
 
 
 def state(est):
-    return (est.t, est._locations.copy(), est._log_weights.copy(), est._maps.copy(), est._stamps.copy(),
-            est.belief, est._log_evidence, est._ess, est._rng.bit_generator.state)
+    """Every attribute, arrays copied (the random generator by its state)."""
+    return {name: (value.copy() if isinstance(value, np.ndarray) else
+                   value.bit_generator.state if isinstance(value, np.random.Generator) else value)
+            for name, value in vars(est).items()}
 
 
 def assert_same_state(est, snap):
     now = state(est)
-    assert now[0] == snap[0] and now[5] is snap[5] and now[6:] == snap[6:]
-    for x, y in zip(now[1:5], snap[1:5]):
-        np.testing.assert_array_equal(x, y)
+    assert now.keys() == snap.keys()
+    for name, value in snap.items():
+        if isinstance(value, np.ndarray):
+            np.testing.assert_array_equal(now[name], value, err_msg=name)
+        else:
+            assert now[name] is value or now[name] == value, name
 
 
 @pytest.mark.parametrize("proposal", ["optimal", "transition"])
@@ -174,7 +215,7 @@ def test_impossible_observation_keeps_everything(proposal, p_change):
     assert_same_state(est, snap)
     for action in ("right", "left", "right"):
         np.testing.assert_array_equal(est.step(action, 0).location, twin.step(action, 0).location)
-    np.testing.assert_array_equal(est._maps, twin._maps)
+    np.testing.assert_array_equal(est.particle_maps(), twin.particle_maps())
 
 
 def test_bad_input_keeps_everything():
@@ -191,7 +232,7 @@ def test_bad_input_keeps_everything():
 @pytest.mark.parametrize("options,match", [
     (dict(n_particles=0), "n_particles"), (dict(n_particles=2.5), "n_particles"),
     (dict(proposal="prior"), "proposal"), (dict(resampling="stratify"), "resampling"),
-    (dict(resample_threshold=1.5), "resample_threshold"),
+    (dict(resample_threshold=1.5), "resample_threshold"), (dict(block_cells=0), "block_cells"),
 ])
 def test_bad_options_are_refused(options, match):
     with pytest.raises(om.ModelError, match=match):

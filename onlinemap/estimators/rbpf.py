@@ -8,18 +8,20 @@ by C, which is applied lazily (``C^dt`` for the ``dt`` steps since the cell was 
 up to date, when it is next read). A dynamic world therefore costs the same per step as a
 static one.
 
-State (plain attributes): locations (P,), normalised log weights (P,), map marginals
-(P, N, K) float64 in one array, stamps (P, N) (dynamic worlds only), the table of powers of C,
-a ``numpy.random.Generator``.
+State (plain attributes): locations (P,), normalised log weights (P,), the particles' map
+marginals as shared copy-on-write blocks of B cells (see ``onlinemap/rbpf_kernels.py``: a pool
+of (B, K) block rows with reference counts and a (P, N / B) table of row indices; stamps per
+cell for lazy dynamics), the table of powers of C, a ``numpy.random.Generator``.
 
 Cost per step: O(P K^2) for the proposal and weighting (a particle reads its cell and the
-intended neighbour), plus O(P_dropped N K) on the steps that resample (rows copied in place
-into the slots of dropped particles), plus the belief. ``belief.location`` is O(P + N);
-``belief.map`` (the weighted mixture) is one read of the (P, N, K) array, O(P N K^2) flops in
-a dynamic world. :meth:`RaoBlackwellisedPF.update` advances without building the belief; the
-``belief`` property builds it on first access (then caches it), and :meth:`step` is
-``update`` followed by ``belief``. Memory: ``P N (8 K + 8)`` bytes (dynamic; ``8 P N K``
-static) plus ``8 K^2`` per step of the run for the powers of C.
+intended neighbour) plus O(P B K) at most for copy-on-write of shared blocks; a resampling
+step adds O(P_dropped N / B) (table rows copied, not maps). ``belief.location`` is O(P + N);
+``belief.map`` (the weighted mixture) is O(P N / B) plus one pass over the block rows in use
+(at most P N K floats, far fewer while particles share blocks; K^2 flops per out-of-date cell
+in a dynamic world). :meth:`RaoBlackwellisedPF.update` advances without building the belief;
+the ``belief`` property builds it on first access (then caches it), and :meth:`step` is
+``update`` followed by ``belief``. Memory: the block rows in use (at most ``8 P N (K + 1)``
+bytes), ``8 P N / B`` for the table, ``8 K^2`` per step of the run for the powers of C.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ import numpy as np
 
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, MemoryLimitError, ModelError
-from ..rbpf_kernels import in_place_ancestors, rbpf_commit, rbpf_map_mixture, rbpf_propose
+from ..rbpf_kernels import in_place_ancestors, particle_maps, rbpf_commit, rbpf_map_mixture, rbpf_propose
 from ..resampling import RESAMPLERS
 from ..simulate import SeedLike, as_generator
 from ..validation import check_step
@@ -48,6 +50,13 @@ def _logsumexp(x: np.ndarray) -> float:
     return top + math.log(float(np.exp(x - top).sum()))
 
 
+def _grown(array: np.ndarray, rows: int) -> np.ndarray:
+    """``array`` with zero rows appended up to ``rows`` along axis 0."""
+    out = np.zeros((rows, *array.shape[1:]), dtype=array.dtype)
+    out[:len(array)] = array
+    return out
+
+
 @register("rbpf")
 class RaoBlackwellisedPF:
     """RBPF over trajectories with exact per-cell map marginals.
@@ -58,12 +67,15 @@ class RaoBlackwellisedPF:
     ``resample_threshold`` resample before a step when the effective sample size is below this
     fraction of P (1.0 = every step, 0.0 = never); ``seed`` (int, None or Generator);
     ``lazy_dynamics`` (False applies C to every cell of every particle every step: O(P N K^2),
-    the reference the lazy scheme is tested against); ``max_bytes`` guard on the particle maps.
+    the reference the lazy scheme is tested against); ``block_cells`` B, the cells per shared
+    map block (default about sqrt(N)); ``max_bytes`` guard on the particle maps (worst case,
+    every particle owning all its blocks).
     """
 
     def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
                  resampling: str = "residual", resample_threshold: float = 0.5, seed: SeedLike = None,
-                 lazy_dynamics: bool = True, max_bytes: int = DEFAULT_MAX_BYTES):
+                 lazy_dynamics: bool = True, block_cells: int | None = None,
+                 max_bytes: int = DEFAULT_MAX_BYTES):
         if isinstance(n_particles, bool) or int(n_particles) != n_particles or n_particles < 1:
             raise ModelError(f"n_particles must be a positive integer, got {n_particles!r}")
         if proposal not in PROPOSALS:
@@ -74,6 +86,10 @@ class RaoBlackwellisedPF:
             raise ModelError(f"resample_threshold must be in [0, 1], got {resample_threshold!r}")
         n_particles = int(n_particles)
         n, k = model.n_cells, model.n_labels
+        if block_cells is None:
+            block_cells = min(n, 2 ** round(math.log2(math.sqrt(n))))
+        if isinstance(block_cells, bool) or int(block_cells) != block_cells or block_cells < 1:
+            raise ModelError(f"block_cells must be a positive integer, got {block_cells!r}")
         self._dynamic = not model.is_static
         need = 8 * n_particles * n * (k + (1 if self._dynamic and lazy_dynamics else 0))
         if need > max_bytes:
@@ -89,9 +105,22 @@ class RaoBlackwellisedPF:
         self._rng = as_generator(seed)
         self._locations = np.full(n_particles, model.start, dtype=np.int64)
         self._log_weights = np.full(n_particles, -math.log(n_particles))
-        self._maps = np.ascontiguousarray(np.broadcast_to(model.label_prior, (n_particles, n, k)))
         self._stamped = self._dynamic and self.lazy_dynamics
-        self._stamps = np.zeros((n_particles, n) if self._stamped else (n_particles, 0), dtype=np.int64)
+        self._block = block = min(int(block_cells), n)
+        n_blocks = -(-n // block)
+        prior = np.full((n_blocks * block, k), 1.0 / k)  # cells past N pad the last block, never read
+        prior[:n] = model.label_prior
+        self._pool = np.zeros((n_blocks + 2 * n_particles, block, k))
+        self._pool[:n_blocks] = prior.reshape(n_blocks, block, k)  # every particle shares the prior
+        self._pool_stamps = np.zeros((len(self._pool), block if self._stamped else 0), dtype=np.int64)
+        self._row_block = np.zeros(len(self._pool), dtype=np.int64)
+        self._row_block[:n_blocks] = np.arange(n_blocks)
+        self._refcount = np.zeros(len(self._pool), dtype=np.int64)
+        self._refcount[:n_blocks] = n_particles
+        self._free = np.arange(len(self._pool) - 1, n_blocks - 1, -1)  # stack: lowest row on top
+        self._free_top = np.array([len(self._free)])
+        self._free = np.concatenate([self._free, np.zeros(n_blocks, dtype=np.int64)])
+        self._table = np.tile(np.arange(n_blocks), (n_particles, 1))
         self._powers = np.eye(k)[None].copy()  # powers[d] = C^d, grown on demand
         self._log_evidence = 0.0
         self._ess = float(n_particles)
@@ -125,10 +154,18 @@ class RaoBlackwellisedPF:
             n, k = self.model.n_cells, self.model.n_labels
             location = np.bincount(self._locations, weights=weights, minlength=n)
             maps = np.empty((n, k))
-            rbpf_map_mixture(self._maps, self._stamps, self._powers, self._stamped, self._t, weights, maps)
+            rbpf_map_mixture(self._pool, self._pool_stamps, self._row_block, self._table, self._block,
+                             self._powers, self._stamped, self._t, weights, maps)
             self._belief = Belief(self._t, location, maps, self._log_evidence,
                                   effective_sample_size=self._ess)
         return self._belief
+
+    def particle_maps(self) -> np.ndarray:
+        """(P, N, K) every particle's current map marginals (a fresh array; O(P N K^2))."""
+        out = np.empty((self.n_particles, self.model.n_cells, self.model.n_labels))
+        particle_maps(self._pool, self._pool_stamps, self._table, self._block, self._powers, self._stamped,
+                      max(self._t, 0), out)
+        return out
 
     def step(self, action, observation) -> Belief:
         """``update`` then ``belief``."""
@@ -136,15 +173,31 @@ class RaoBlackwellisedPF:
         return self.belief
 
     def _change_powers(self, t: int) -> np.ndarray:
-        """(D, K, K) with D > t: ``C^0 .. C^(D-1)``, grown by doubling. O(K^3) per new power."""
+        """(D, K, K) with D > t: ``C^0 .. C^(D-1)``, the cached table or a longer copy (doubling;
+        O(K^3) per new power). The caller stores it once the step is committed."""
         have = self._powers.shape[0]
-        if have <= t:
-            powers = np.empty((max(2 * have, t + 1), *self._powers.shape[1:]))
-            powers[:have] = self._powers
-            for d in range(have, powers.shape[0]):
-                powers[d] = powers[d - 1] @ self.model.change
-            self._powers = powers
-        return self._powers
+        if have > t:
+            return self._powers
+        powers = np.empty((max(2 * have, t + 1), *self._powers.shape[1:]))
+        powers[:have] = self._powers
+        for d in range(have, powers.shape[0]):
+            powers[d] = powers[d - 1] @ self.model.change
+        return powers
+
+    def _reserved_rows(self) -> tuple[np.ndarray, ...]:
+        """(pool, pool_stamps, row_block, refcount, free, free_top): the current block pool, or a
+        copy grown by doubling if fewer than P rows are free (a commit may need P). Contents
+        unchanged; the caller stores it once the step is committed."""
+        rows = (self._pool, self._pool_stamps, self._row_block, self._refcount, self._free, self._free_top)
+        top = int(self._free_top[0])
+        if top >= self.n_particles:
+            return rows
+        have, size = len(self._pool), 2 * len(self._pool)
+        free = np.zeros(size, dtype=np.int64)
+        added = np.arange(size - 1, have - 1, -1)  # new rows, the lowest on top of the stack
+        free[:top] = self._free[:top]
+        free[top:top + len(added)] = added
+        return (*(_grown(x, size) for x in rows[:4]), free, np.array([top + len(added)]))
 
     def update(self, action, observation) -> None:
         """Advance the particles by one action (None at step 0) and observation.
@@ -167,15 +220,16 @@ class RaoBlackwellisedPF:
             chosen = RESAMPLERS[self.resampling](np.exp(log_weights), self._rng)
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
             log_weights = np.full(n_particles, -math.log(n_particles))
-        maps, stamps = self._maps, self._stamps
+        pool, pool_stamps, row_block, refcount, free, free_top = self._reserved_rows()
         powers = self._change_powers(t) if self._stamped else self._powers
         if a is not None and self._dynamic and not self.lazy_dynamics:
-            maps = maps @ model.change  # eager: every cell of every particle, fresh array
+            pool = pool @ model.change  # eager: every cell of every block row, fresh array
         neighbors = np.arange(model.n_cells) if a is None else model.neighbors[:, a]
         new_locations = np.empty(n_particles, dtype=np.int64)
         new_cells = np.empty((n_particles, model.n_labels))
         log_increments = np.empty(n_particles)
-        rbpf_propose(self._locations, maps, stamps, powers, self._stamped, t, ancestors, neighbors,
+        rbpf_propose(self._locations, pool, pool_stamps, self._table, self._block, powers, self._stamped,
+                     t, ancestors, neighbors,
                      model.p_move, np.ascontiguousarray(model.sensor[:, z]), self.proposal == "optimal",
                      self._rng.random(n_particles), new_locations, new_cells, log_increments)
         log_weights = log_weights + log_increments
@@ -185,8 +239,10 @@ class RaoBlackwellisedPF:
             raise ImpossibleObservationError(
                 f"observation {model.label_names[z]!r} has probability zero for every particle at step {t}")
         # commit
-        rbpf_commit(self._locations, maps, stamps, self._stamped, t, ancestors, new_locations, new_cells)
-        self._maps = maps
+        rbpf_commit(self._locations, pool, pool_stamps, row_block, refcount, free, free_top, self._table,
+                    self._block, self._stamped, t, ancestors, new_locations, new_cells)
+        self._pool, self._pool_stamps, self._row_block, self._refcount = pool, pool_stamps, row_block, refcount
+        self._free, self._free_top, self._powers = free, free_top, powers
         self._log_weights = log_weights - increment
         self._log_evidence += increment
         weights = np.exp(self._log_weights)
