@@ -5,12 +5,15 @@ tiled), static and dynamic, against one read+write pass over the (P, N, K) parti
 Four rows per case, each a separate cost (none includes another):
 
 - ``update, no resampling``: median over the steps that did not resample; the proposal and
-  weighting touch two cells per particle, O(P K^2) (+ fixed Python overhead).
-- ``update, ESS < 0.5 P``: mean over all steps with the default threshold (resampling steps
-  copy the map rows of the particles that replace dropped ones, O(P_dropped N K)).
+  weighting read two cells per particle, O(P K^2), plus copy-on-write of shared blocks
+  (O(P B K) at most) and fixed Python overhead.
+- ``update, ESS < 0.5 P``: mean over all steps with the default threshold (a resampling step
+  copies the block table rows, N / B indices, of the particles that replace dropped ones;
+  the writes that follow copy the shared blocks they touch).
 - ``update, resample every step``: mean with ``resample_threshold=1.0``.
-- ``belief.map mixture``: building the Belief after a step (one read of the particle maps;
-  K^2 flops per out-of-date cell in a dynamic world), paid only when the belief is read.
+- ``belief.map mixture``: building the Belief after a step (one pass over the block rows in
+  use, at most the P N K floats of unshared maps; K^2 flops per out-of-date cell in a
+  dynamic world), paid only when the belief is read.
 
 Target (the issue's): 1000 particles on 32 x 32 with K = 4 at <= 1 ms per amortised update;
 it is an absolute time, so its ``target`` ratio is ``1 ms / reference_ms`` of that row. Where
