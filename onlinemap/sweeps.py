@@ -853,3 +853,61 @@ def summary_table(summary: pd.DataFrame) -> pd.DataFrame:
     wide = summary.pivot_table(index=config + ["n"], columns="metric", values="cell", aggfunc="first", sort=False)
     order = [m for m in dict.fromkeys(summary["metric"]) if m in wide.columns]
     return wide[order].reset_index().rename_axis(columns=None)
+
+
+def plot_sweep(table: pd.DataFrame, x: str, metrics_: Iterable[str], path: str | os.PathLike | None = None,
+               confidence: float = 0.95):
+    """One panel per metric: its mean over seeds against ``x`` (an option name, e.g.
+    ``n_particles``, or a task column such as ``world`` or ``steps``) with ``confidence``
+    intervals as error bars, one line per remaining configuration. A per-step table is read at
+    each task's last step. Saves to ``path`` if given; returns the matplotlib figure."""
+    import matplotlib.pyplot as plt
+
+    if "t" in table.columns:
+        table = table.sort_values("t").groupby("task", sort=False).tail(1)
+    column = x if x in table.columns else f"opt_{x}"
+    if column not in table.columns:
+        options = sorted(c[4:] for c in table.columns if c.startswith("opt_"))
+        raise OnlineMapError(f"--x {x!r}: not an option or column of the table; options: {', '.join(options)}")
+    metrics_ = [m for m in metrics_ if m in table.columns] or ["final_map_error"]
+    varying = [c for c in ("world", "estimator", "planner", "walk", "steps", "reference")
+               if c in table.columns and c != column and table[c].nunique() > 1]
+    varying += [c for c in table.columns if c.startswith(("opt_", "planner_opt_")) and c != column
+                and table[c].nunique() > 1]
+
+    def label(row) -> str:
+        parts = [f"{c.removeprefix('planner_opt_').removeprefix('opt_')}={row[c]}" if c.startswith(("opt_", "planner_opt_"))
+                 else str(row[c]) for c in varying if pd.notna(row[c]) and row[c] != ""]
+        return ", ".join(parts) or "all"
+
+    table = table.assign(_line=table.apply(label, axis=1) if len(table) else [])
+    flat = table[table[column].isna()]  # configurations without that option: horizontal lines
+    table = table[table[column].notna()]
+    numeric = pd.api.types.is_numeric_dtype(table[column])
+    positions = None if numeric else {v: i for i, v in enumerate(dict.fromkeys(table[column]))}
+    figure, axes = plt.subplots(1, len(metrics_), figsize=(5 * len(metrics_), 3.8), squeeze=False)
+    for axis, metric in zip(axes[0], metrics_):
+        proportion = pd.api.types.is_bool_dtype(table[metric])
+        for line, group in table.groupby("_line", sort=False):
+            points = [(value, mean_interval(g[metric].to_numpy(dtype=np.float64), confidence, proportion))
+                      for value, g in group.groupby(column, sort=True)]
+            xs = np.array([v if numeric else positions[v] for v, _ in points], dtype=np.float64)
+            means = np.array([i.mean for _, i in points])
+            errors = np.array([[i.mean - i.low, i.high - i.mean] for _, i in points]).T
+            axis.errorbar(xs, means, yerr=np.nan_to_num(errors), marker="o", capsize=3, label=line)
+        for style, (line, group) in zip(itertools.cycle(("--", ":", "-.")), flat.groupby("_line", sort=False)):
+            level = mean_interval(group[metric].to_numpy(dtype=np.float64), confidence, proportion)
+            axis.axhline(level.mean, linestyle=style, color="gray", label=f"{line} (no {x})")
+        if numeric and table[column].min() > 0 and table[column].max() / table[column].min() >= 20:
+            axis.set_xscale("log")
+        if positions is not None:
+            axis.set_xticks(range(len(positions)), list(positions), rotation=20)
+        axis.set_xlabel(x)
+        axis.set_ylabel(metric)
+        axis.grid(alpha=0.3)
+    axes[0][-1].legend(fontsize=7)
+    figure.suptitle(f"mean over seeds with {confidence:.0%} intervals")
+    figure.tight_layout()
+    if path is not None:
+        figure.savefig(path, dpi=120)
+    return figure

@@ -237,6 +237,23 @@ def test_summary_groups_configurations_over_seeds(serial_table, tmp_path, capsys
     assert "n_particles=40" in out and "final_map_error" in out and "[" in out
 
 
+def test_plot_against_an_option_draws_one_line_per_configuration(serial_table, tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    figure = sweeps.plot_sweep(serial_table, "n_particles", ["mean_map_tv", "failed"], tmp_path / "p.png")
+    assert (tmp_path / "p.png").stat().st_size > 0 and len(figure.axes) == 2
+    axis = figure.axes[0]
+    curves = [container.lines[0] for container in axis.containers]  # error-bar curves
+    assert len(curves) == 2 and all(list(c.get_xdata()) == [10, 40] for c in curves)  # rbpf, one per world
+    flat = [line for line in axis.lines if line.get_label().endswith("(no n_particles)")]
+    assert len(flat) == 4  # exact and dead reckoning in each world: horizontal lines
+    rbpf = serial_table[(serial_table["world"] == "corridor:5") & (serial_table["opt_n_particles"] == 40)]
+    assert rbpf["mean_map_tv"].mean() in [pytest.approx(y) for c in curves for y in c.get_ydata()]
+    with pytest.raises(om.OnlineMapError, match="not an option"):
+        sweeps.plot_sweep(serial_table, "n_particle", ["mean_map_tv"])
+
+
 # --- the example specs -------------------------------------------------------------------------
 @pytest.mark.parametrize("path", sorted((ROOT / "examples").glob("*.toml")), ids=lambda p: p.name)
 def test_example_spec_is_valid_and_runs_in_miniature(path):

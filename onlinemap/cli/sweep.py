@@ -10,7 +10,8 @@ from pathlib import Path
 import pandas as pd
 
 from ..errors import OnlineMapError
-from ..sweeps import (default_results_dir, finished_tasks, load_spec, summarize, summary_table, sweep)
+from ..sweeps import (default_results_dir, finished_tasks, load_spec, plot_sweep, summarize, summary_table,
+                      sweep)
 from .common import print_table, split_list
 
 
@@ -36,6 +37,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="print means with confidence intervals per configuration from a results table")
     p.add_argument("--metrics", type=split_list, help="comma-separated metrics for the summary (default: all)")
     p.add_argument("--confidence", type=float, default=0.95, help="confidence level (default 0.95)")
+    p.add_argument("--plot", metavar="PNG", help="with --summary (or after a run): plot the metrics "
+                                                 "against --x with confidence intervals")
+    p.add_argument("--x", help="for --plot: an option (e.g. n_particles) or column (world, steps) on "
+                               "the horizontal axis")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -53,6 +58,11 @@ def _print_summary(table: pd.DataFrame, args: argparse.Namespace) -> None:
     step_note = " at each task's last step" if "t" in table.columns else ""
     print(f"mean [{args.confidence:.0%} confidence interval] over seeds, per configuration{step_note}:")
     print_table(summary_table(summary))
+    if args.plot:
+        if not args.x:
+            raise OnlineMapError("--plot needs --x (an option such as n_particles, or world, steps)")
+        plot_sweep(table, args.x, args.metrics or ["final_map_error"], args.plot, args.confidence)
+        print(f"wrote {args.plot}")
 
 
 def run(args: argparse.Namespace) -> int:
