@@ -23,23 +23,28 @@ from .errors import ImpossibleObservationError
 from .model import GridModel
 
 
+_TINY = 1e-280  # messages below this are set to 0: subnormal floats would make every pass ~10x slower
+
+
 @njit(cache=True)
-def _forward_backward(self_prob, predecessor, neighbors, p_move, prior, actions, likelihood,
+def _forward_backward(self_prob, predecessor, neighbors, p_move, prior, actions, observations, emission,
                       filtered, posterior, normalizers):
     """Scaled forward-backward on the sparse motion model.
 
     self_prob (A, N), predecessor (A, N), neighbors (N, A): the model's motion tables; prior (N,)
     the distribution of the first step's location before its observation; actions (W - 1,);
-    likelihood (W, N) ``B[:, z_tau]``. Writes filtered (W, N) ``P(L_tau | z_0..tau)``, posterior
+    observations (W,); emission (N, K) B. Writes filtered (W, N) ``P(L_tau | z_0..tau)``, posterior
     (W, N) ``P(L_tau | z_0..W-1)`` and normalizers (W,) ``P(z_tau | z_0..tau-1)``. Returns the
     index of the first step whose observation has probability zero, or -1. O(W (N + E)).
+    Forward and backward messages below ``_TINY`` (relative to rows summing to 1) are set to 0.
     """
-    w, n = likelihood.shape
+    w, n = filtered.shape
     for t in range(w):
+        z = observations[t]
         total = 0.0
         if t == 0:
             for j in range(n):
-                v = prior[j] * likelihood[0, j]
+                v = prior[j] * emission[j, z]
                 filtered[0, j] = v
                 total += v
         else:
@@ -49,34 +54,42 @@ def _forward_backward(self_prob, predecessor, neighbors, p_move, prior, actions,
                 p = predecessor[a, j]
                 if p >= 0:
                     v += p_move * filtered[t - 1, p]
-                v *= likelihood[t, j]
+                v *= emission[j, z]
+                if v < _TINY:
+                    v = 0.0
                 filtered[t, j] = v
                 total += v
         if not total > 0.0:
             return t
         normalizers[t] = total
+        inverse = 1.0 / total
         for j in range(n):
-            filtered[t, j] /= total
+            filtered[t, j] *= inverse
     beta = np.ones(n)
     scaled = np.empty(n)
     for j in range(n):
         posterior[w - 1, j] = filtered[w - 1, j]
     for t in range(w - 1, 0, -1):
         a = actions[t - 1]
+        z = observations[t]
+        inverse = 1.0 / normalizers[t]
         for j in range(n):
-            scaled[j] = beta[j] * likelihood[t, j] / normalizers[t]
+            scaled[j] = beta[j] * emission[j, z] * inverse
         total = 0.0
         for i in range(n):
             v = self_prob[a, i] * scaled[i]
             nb = neighbors[i, a]
             if nb != i:
                 v += p_move * scaled[nb]
+            if v < _TINY:
+                v = 0.0
             beta[i] = v
             v *= filtered[t - 1, i]
             posterior[t - 1, i] = v
             total += v
+        inverse = 1.0 / total
         for i in range(n):
-            posterior[t - 1, i] /= total
+            posterior[t - 1, i] *= inverse
     return -1
 
 
@@ -94,35 +107,48 @@ class HMMPosterior(NamedTuple):
 
 
 def forward_backward(model: GridModel, prior: np.ndarray, actions: np.ndarray, observations: np.ndarray,
-                     emission: np.ndarray, first_step: int = 0) -> HMMPosterior:
+                     emission: np.ndarray, first_step: int = 0, out: HMMPosterior | None = None) -> HMMPosterior:
     """Filter and smooth the location over W steps under observation matrix ``emission``.
 
     prior (N,): P(L) at the first step before its observation; actions (W - 1,) int, the moves
     between consecutive steps; observations (W,) int; emission (N, K). ``first_step`` only
-    labels error messages. Raises :class:`ImpossibleObservationError` if an observation has
-    probability zero. O(W (N + E)) time, 3 W N floats of memory.
+    labels error messages. ``out``, a previous result of the same shape, has its arrays
+    overwritten instead of allocating new ones (iterating EM over long runs: fresh large arrays
+    cost a page fault per 4 kB on first touch). Raises :class:`ImpossibleObservationError` if an
+    observation has probability zero. O(W (N + E)) time, 3 W N floats of memory.
     """
     actions = np.ascontiguousarray(actions, dtype=np.int64)
-    observations = np.asarray(observations, dtype=np.int64)
-    likelihood = np.ascontiguousarray(emission[:, observations].T)
-    w, n = likelihood.shape
-    filtered, posterior, normalizers = np.empty((w, n)), np.empty((w, n)), np.empty(w)
+    observations = np.ascontiguousarray(observations, dtype=np.int64)
+    w, n = len(observations), model.n_cells
+    if out is not None and out.filtered.shape == (w, n):
+        filtered, posterior, normalizers = out.filtered, out.posterior, out.log_normalizers
+    else:
+        filtered, posterior, normalizers = np.empty((w, n)), np.empty((w, n)), np.empty(w)
     bad = _forward_backward(model.self_prob, model.predecessor, model.neighbors, model.p_move,
-                            np.ascontiguousarray(prior, dtype=np.float64), actions, likelihood,
-                            filtered, posterior, normalizers)
+                            np.ascontiguousarray(prior, dtype=np.float64), actions, observations,
+                            np.ascontiguousarray(emission, dtype=np.float64), filtered, posterior, normalizers)
     if bad >= 0:
         label = model.label_names[observations[bad]]
         raise ImpossibleObservationError(
             f"observation {label!r} at step {first_step + bad} has probability zero under the "
             f"current observation matrix B (use pseudo_count > 0 to keep every observation possible)")
-    return HMMPosterior(filtered, posterior, np.log(normalizers))
+    np.log(normalizers, out=normalizers)
+    return HMMPosterior(filtered, posterior, normalizers)
+
+
+@njit(cache=True)
+def _accumulate_counts(posterior, observations, counts):
+    for t in range(posterior.shape[0]):
+        z = observations[t]
+        for i in range(posterior.shape[1]):
+            counts[i, z] += posterior[t, i]
 
 
 def expected_counts(posterior: np.ndarray, observations: np.ndarray, n_labels: int) -> np.ndarray:
     """Expected sufficient statistics ``E[i, k] = sum_tau P(L_tau = i | z) [z_tau = k]``.
-    posterior (W, N), observations (W,) -> (N, K). O(W N)."""
+    posterior (W, N), observations (W,) -> (N, K). One pass over the posterior (numba): O(W N)."""
     counts = np.zeros((posterior.shape[1], n_labels))
-    np.add.at(counts.T, np.asarray(observations), posterior)
+    _accumulate_counts(np.ascontiguousarray(posterior), np.ascontiguousarray(observations, dtype=np.int64), counts)
     return counts
 
 
@@ -144,14 +170,22 @@ def prior_emission(model: GridModel) -> np.ndarray:
     return model.label_prior @ model.sensor
 
 
-def map_from_emission(emission: np.ndarray, sensor: np.ndarray) -> np.ndarray:
-    """Map marginals read off B by inverting the sensor channel: solve ``m O = B`` row by row
-    (least squares, so a singular O still gives an answer), clip to [0, 1], renormalise rows
-    (a row clipped to all zeros becomes uniform). (N, K), (K, K) -> (N, K). O(N K^2 + K^3)."""
-    maps = np.clip(emission @ np.linalg.pinv(sensor), 0.0, 1.0)
+def sensor_inverse(sensor: np.ndarray) -> np.ndarray:
+    """(K, K) pseudo-inverse of the sensor O (its inverse when O is invertible; least squares
+    when it is singular, e.g. p_obs = 1/K), for :func:`map_from_emission`. O(K^3)."""
+    return np.linalg.pinv(sensor)
+
+
+def map_from_emission(emission: np.ndarray, inverse: np.ndarray) -> np.ndarray:
+    """Map marginals read off B by inverting the sensor channel: ``m = B O^+`` row by row
+    (``inverse`` = :func:`sensor_inverse` of O), clipped to [0, 1], rows renormalised (a row
+    clipped to all zeros becomes uniform). (N, K), (K, K) -> (N, K). O(N K^2)."""
+    maps = np.clip(emission @ inverse, 0.0, 1.0)
     totals = maps.sum(axis=1, keepdims=True)
-    uniform = np.full(maps.shape[1], 1.0 / maps.shape[1])
-    return np.where(totals > 0, maps / np.where(totals > 0, totals, 1.0), uniform)
+    empty = totals[:, 0] <= 0
+    if empty.any():
+        maps[empty], totals[empty] = 1.0, maps.shape[1]
+    return maps / totals
 
 
 def temper(posterior: np.ndarray, tau: float) -> np.ndarray:

@@ -140,7 +140,7 @@ def test_online_em_with_known_location_is_decayed_counting(window, decay, pseudo
                 counts[path[tau], observations[tau]] += decay ** (t - u)
         expected = (counts + pseudo_count) / (counts + pseudo_count).sum(axis=1, keepdims=True)
         np.testing.assert_allclose(belief.observation_matrix, expected, atol=1e-12, rtol=0)
-        np.testing.assert_array_equal(belief.location, np.eye(6)[path[t]])
+        np.testing.assert_allclose(belief.location, np.eye(6)[path[t]], atol=1e-15)
 
 
 @pytest.mark.parametrize("window,decay", [(1, 1.0), (2, 0.8), (4, 0.95), ("max", 0.9)])

@@ -23,7 +23,7 @@ import numpy as np
 from ..belief import Belief
 from ..errors import ModelError
 from ..hmm import (emission_from_counts, expected_counts, forward_backward, log_dirichlet_prior,
-                   map_from_emission, prior_emission, temper)
+                   map_from_emission, prior_emission, sensor_inverse, temper)
 from ..model import GridModel
 from ..validation import check_sequence, check_step
 from .base import register
@@ -84,8 +84,9 @@ def baum_welch(model: GridModel, actions, observations, *, n_iter: int = 200, to
     prior = model.location_prior()
     objectives = []
     converged = False
+    fit = None
     for iteration in range(int(n_iter)):
-        fit = forward_backward(model, prior, a_seq, z_seq, emission)
+        fit = forward_backward(model, prior, a_seq, z_seq, emission, out=fit)
         objectives.append(fit.log_likelihood + log_dirichlet_prior(emission, pseudo_count))
         tau = 1.0 if schedule is None else schedule.tau(iteration)
         if iteration > 0 and tau == (1.0 if schedule is None else schedule.tau_min) \
@@ -95,8 +96,8 @@ def baum_welch(model: GridModel, actions, observations, *, n_iter: int = 200, to
         counts = expected_counts(temper(fit.posterior, tau), z_seq, model.n_labels)
         emission = emission_from_counts(counts, pseudo_count, emission)
     else:
-        fit = forward_backward(model, prior, a_seq, z_seq, emission)
-    return EMFit(fit.posterior, map_from_emission(emission, model.sensor), emission, fit.log_likelihood,
+        fit = forward_backward(model, prior, a_seq, z_seq, emission, out=fit)
+    return EMFit(fit.posterior, map_from_emission(emission, sensor_inverse(model.sensor)), emission, fit.log_likelihood,
                  np.array(objectives), converged)
 
 

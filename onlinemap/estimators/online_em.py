@@ -29,7 +29,7 @@ import numpy as np
 from ..belief import Belief
 from ..errors import ModelError
 from ..hmm import (emission_from_counts, expected_counts, forward_backward, map_from_emission,
-                   prior_emission)
+                   prior_emission, sensor_inverse)
 from ..model import GridModel, apply_motion
 from ..validation import check_step
 from .base import register
@@ -70,11 +70,12 @@ class OnlineEM:
         self.decay = decay
         self.pseudo_count = check_pseudo_count(pseudo_count)
         self._prior_emission = prior_emission(model)
+        self._sensor_inverse = sensor_inverse(model.sensor)
         self._emission = self._prior_emission.copy()
         self._stats = np.zeros((model.n_cells, model.n_labels))
         self._actions = np.empty(0, dtype=np.int64)  # a_u for the window's steps (and one before)
         self._observations = np.empty(0, dtype=np.int64)  # z_s..z_t
-        self._filtered = np.empty((0, model.n_cells))  # filtered locations of the last W steps (finite W)
+        self._filtered = np.empty((0, model.n_cells))  # filtered location of step u in row u % W (finite W)
         self._log_evidence = 0.0
         self._t = -1
         self._belief: Belief | None = None
@@ -99,7 +100,7 @@ class OnlineEM:
         actions = self._actions if a is None else np.append(self._actions, a)
         if w is not None and t + 1 > w:  # the window s..t starts after step 0
             observations, actions = observations[-w:], actions[-w:]
-            prior = apply_motion(model, self._filtered[-w], actions[0])
+            prior = apply_motion(model, self._filtered[t % w], actions[0])  # filtered at s - 1 = t - W
             inside = actions[1:]
         else:
             prior, inside = model.location_prior(), actions
@@ -107,13 +108,16 @@ class OnlineEM:
         stats = self.decay * self._stats + expected_counts(fit.posterior, observations, model.n_labels)
         emission = emission_from_counts(stats, self.pseudo_count, self._prior_emission)
         location = fit.filtered[-1]
+        log_evidence = self._log_evidence + float(fit.log_normalizers[-1])
+        belief = Belief(t, location, map_from_emission(emission, self._sensor_inverse), log_evidence,
+                        observation_matrix=emission)
         # commit (everything above worked on fresh arrays)
         self._observations, self._actions = observations, actions
         if w is not None:  # the window's prior needs the filtered location W steps back
-            self._filtered = np.concatenate([self._filtered, location[None]])[-w:]
+            if len(self._filtered) < w:  # grows to W rows: row = step while t < W
+                self._filtered = np.concatenate([self._filtered, location[None]])
+            else:  # then a ring: step u in row u % W
+                self._filtered[t % w] = location
         self._stats, self._emission = stats, emission
-        self._log_evidence += float(fit.log_normalizers[-1])
-        self._t = t
-        self._belief = Belief(t, location, map_from_emission(emission, model.sensor), self._log_evidence,
-                              observation_matrix=emission)
+        self._log_evidence, self._t, self._belief = log_evidence, t, belief
         return self._belief
