@@ -6,7 +6,8 @@ estimator's instance attributes (``vars(est)``), serialised by type.
 ========================================  =============================================
 attribute value                           stored as
 ========================================  =============================================
-``numpy.ndarray`` (numeric, bool, str)    an array in the npz (dtype, shape, read-only flag kept)
+``numpy.ndarray`` (numeric, bool, str)    an array in the npz (dtype, shape, C/Fortran order and
+                                          read-only flag kept)
 ``None``, bool, int, float, str           JSON (floats exactly, NaN and infinities included)
 numpy scalar                              a 0-d array (dtype kept)
 tuple, list, dict with str keys           JSON containers of the above
@@ -19,7 +20,11 @@ function / numba dispatcher / own method  its name only: configuration, re-deriv
 anything else                             refused: :class:`CheckpointError` naming the attribute
 ========================================  =============================================
 
-Two attributes holding the same array stay one array after loading; two different writable
+A class may name buffers whose contents are dead between steps (fully overwritten before being
+read) in a class attribute ``scratch_attributes = ("_buffer", ...)``: their dtype and shape are
+recorded and checked, their contents are neither saved nor restored (the fresh instance's own
+buffers are kept), so they cost nothing in a checkpoint and do not count as state when
+comparing two state dicts. Two attributes holding the same array stay one array after loading; two different writable
 arrays sharing memory (views) are refused, since loading could not keep them linked.
 ``est.model`` and ``est.options`` (the keyword options it was built with, recorded by
 :func:`~onlinemap.estimators.register`) are stored apart and checked on load.
@@ -127,9 +132,15 @@ class _Encoder:
                 raise CheckpointError(f"attributes {seen_path} and {path} are writable views of the same memory; "
                                       "a checkpoint cannot keep them linked")
         self._arrays.append((array, path))
-        copy = array.copy()
+        copy = array.copy(order="K")  # keeps C or Fortran order: numpy sums in memory order
         copy.setflags(write=array.flags.writeable)
         return copy
+
+
+def _scratch_node(value, name: str) -> dict:
+    if type(value) is not np.ndarray:
+        raise CheckpointError(f"attribute {name}: scratch_attributes must be arrays, got {type(value).__name__}")
+    return {_TAG: "scratch", "dtype": value.dtype.str, "shape": list(value.shape)}
 
 
 def _callable_name(value) -> str | None:
@@ -153,10 +164,11 @@ def encode_model(model: GridModel) -> dict:
 
 # --- decoding: tree -> fresh Python objects (arrays copied) ------------------------------------------
 class _KeepFresh:
-    """A function attribute: configuration the fresh instance re-derives; only its name is checked."""
+    """A function attribute (configuration the fresh instance re-derives; its name is checked) or a
+    scratch buffer (its dtype and shape are checked)."""
 
-    def __init__(self, name: str) -> None:
-        self.name = name
+    def __init__(self, name: str, dtype: str | None = None, shape: list | None = None) -> None:
+        self.name, self.dtype, self.shape = name, dtype, shape
 
 
 class _Decoder:
@@ -167,7 +179,7 @@ class _Decoder:
         if node is None or type(node) in (bool, int, float, str):
             return node
         if type(node) is np.ndarray:
-            array = node.copy()
+            array = node.copy(order="K")
             array.setflags(write=node.flags.writeable)
             self._arrays[path] = array
             return array
@@ -197,6 +209,8 @@ class _Decoder:
                 return _dtype(node["name"]).type
             if tag == "callable":
                 return _KeepFresh(str(node["name"]))
+            if tag == "scratch":
+                return _KeepFresh("scratch", str(node["dtype"]), list(node["shape"]))
         except CheckpointError:
             raise
         except (KeyError, TypeError, ValueError, AttributeError) as error:
@@ -261,7 +275,9 @@ def state_dict(est) -> dict:
     if not isinstance(est.model, GridModel):
         raise CheckpointError(f"{type(est).__name__}.model is not a GridModel")
     encoder = _Encoder()
-    attributes = {name: encoder.encode(value, name) for name, value in vars(est).items() if name not in _SEPARATE}
+    scratch = set(getattr(type(est), "scratch_attributes", ()))
+    attributes = {name: _scratch_node(value, name) if name in scratch else encoder.encode(value, name)
+                  for name, value in vars(est).items() if name not in _SEPARATE}
     return {"format": FORMAT, "format_version": FORMAT_VERSION, "onlinemap_version": _package_version(),
             "estimator": est.name, "t": int(est.t), "options": _Encoder().encode(dict(options), "options"),
             "model": encode_model(est.model), "attributes": attributes}
@@ -323,6 +339,11 @@ def _kind(value) -> str:
 
 
 def _check_kind(name: str, current, value) -> None:
+    if isinstance(value, _KeepFresh) and value.dtype is not None:
+        if type(current) is not np.ndarray or current.dtype.str != value.dtype or list(current.shape) != value.shape:
+            raise CheckpointError(f"attribute {name}: checkpoint has a scratch array {value.dtype} {value.shape}, "
+                                  f"the estimator a {_kind(current)} {getattr(current, 'shape', '')}")
+        return
     if isinstance(value, _KeepFresh):
         if _callable_name(current) != value.name:
             raise CheckpointError(f"attribute {name}: checkpoint has {value.name}, the estimator has "
@@ -337,17 +358,29 @@ def _check_kind(name: str, current, value) -> None:
 def same_tree(a, b) -> bool:
     """Bitwise equality of two state trees (e.g. two :func:`state_dict` outputs): same structure,
     same types, arrays of the same dtype, shape and bytes, floats with the same bits (NaN == NaN)."""
+    return first_difference(a, b) is None
+
+
+def first_difference(a, b, path: str = "") -> str | None:
+    """Where two state trees first differ (a path like ``attributes._rng``), or None if they are
+    bitwise equal (see :func:`same_tree`)."""
     if type(a) is not type(b):
-        return False
+        return f"{path or 'root'} ({type(a).__name__} vs {type(b).__name__})"
     if type(a) is np.ndarray:
-        return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
-    if type(a) is float:
-        return np.float64(a).tobytes() == np.float64(b).tobytes()
-    if type(a) is list:
-        return len(a) == len(b) and all(same_tree(x, y) for x, y in zip(a, b))
-    if type(a) is dict:
-        return a.keys() == b.keys() and all(same_tree(a[k], b[k]) for k in a)
-    return a == b
+        same = a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+    elif type(a) is float:
+        same = np.float64(a).tobytes() == np.float64(b).tobytes()
+    elif type(a) is list:
+        if len(a) != len(b):
+            return f"{path} (length {len(a)} vs {len(b)})"
+        return next((d for i, (x, y) in enumerate(zip(a, b)) if (d := first_difference(x, y, f"{path}[{i}]"))), None)
+    elif type(a) is dict:
+        if a.keys() != b.keys():
+            return f"{path} (keys {sorted(a.keys() ^ b.keys())})"
+        return next((d for k in a if (d := first_difference(a[k], b[k], f"{path}.{k}" if path else k))), None)
+    else:
+        same = a == b
+    return None if same else (path or "root")
 
 
 # --- files -----------------------------------------------------------------------------------------

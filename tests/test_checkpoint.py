@@ -278,6 +278,7 @@ def test_crash_mid_write_keeps_the_last_good_checkpoint(saved, monkeypatch):
 # --- the generic encoder, on a stand-in estimator (not registered) ------------------------------------
 class Stub:
     name = "stub"
+    scratch_attributes = ("_buffer",)
 
     def __init__(self):
         self.model = om.corridor(3)
@@ -287,6 +288,7 @@ class Stub:
         self._mt = np.random.Generator(np.random.MT19937(3))
         self._shared = np.arange(4.0)
         self._alias = self._shared
+        self._fortran = np.asfortranarray(np.arange(6.0).reshape(2, 3))
         self._frozen = np.ones(2)
         self._frozen.setflags(write=False)
         self._scalars = [np.float32(1.5), np.int64(-3), 2**70, float("nan"), None, True, "x"]
@@ -295,6 +297,7 @@ class Stub:
         self._kind = np.float32
         self._fn = np.cumsum
         self._method = self.helper
+        self._buffer = np.zeros((2, 3))
         self._belief = om.Belief(2, np.array([0.5, 0.5, 0.0]), np.full((3, 2), 0.5), -1.0,
                                  effective_sample_size=3.0)
 
@@ -311,6 +314,7 @@ def test_generic_encoder_roundtrip(tmp_path):
     assert fresh._rng.random() == stub._rng.random() and fresh._mt.random() == stub._mt.random()
     assert fresh._alias is fresh._shared and fresh._alias is not stub._shared
     assert not fresh._frozen.flags.writeable and fresh._shared.flags.writeable
+    assert fresh._fortran.flags.f_contiguous and not fresh._fortran.flags.c_contiguous  # numpy sums in memory order
     assert [type(x) for x in fresh._scalars] == [type(x) for x in stub._scalars]
     assert fresh._scalars[0].dtype == np.float32 and fresh._scalars[2] == 2**70 and np.isnan(fresh._scalars[3])
     assert fresh._nested["a"][1][1]["b"].shape == (2, 0) and fresh._nested["$"] == "tag-like key"
@@ -319,6 +323,20 @@ def test_generic_encoder_roundtrip(tmp_path):
     assert fresh._belief.location.tobytes() == stub._belief.location.tobytes()
     assert fresh._belief.effective_sample_size == 3.0
     assert checkpoint.same_tree(checkpoint.state_dict(fresh), checkpoint.state_dict(stub))
+
+
+def test_scratch_buffers_are_checked_but_not_stored():
+    stub = Stub()
+    stub._buffer += 7.0
+    state = checkpoint.state_dict(stub)
+    assert state["attributes"]["_buffer"] == {"$": "scratch", "dtype": "<f8", "shape": [2, 3]}
+    fresh = Stub()
+    own = fresh._buffer
+    checkpoint.load_state_dict(fresh, state)
+    assert fresh._buffer is own and not own.any()
+    fresh._buffer = np.zeros(4)
+    with pytest.raises(om.CheckpointError, match="_buffer: checkpoint has a scratch array <f8 \\[2, 3\\]"):
+        checkpoint.load_state_dict(fresh, state)
 
 
 def test_unsupported_attribute_is_named():

@@ -60,6 +60,8 @@ def map_marginals(joint_map: np.ndarray, n_cells: int, n_labels: int) -> np.ndar
 class ExactFilter:
     """Exact filtering of ``P(L_t, M_t | z_0:t, a_1:t)``. Options: ``max_bytes`` (memory guard)."""
 
+    scratch_attributes = ("_scratch", "_joint_map")  # overwritten by every step: not checkpointed
+
     def __init__(self, model: GridModel, *, max_bytes: int = DEFAULT_MAX_BYTES):
         check_memory(model, 2, max_bytes, "the exact filter (two belief tensors)")
         self.model = model
