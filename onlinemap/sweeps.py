@@ -69,6 +69,7 @@ from .errors import OnlineMapError
 from .estimators import available_estimators, estimator_options, make_estimator, run_estimator
 from .estimators.base import _lookup as _estimator_class
 from .model import GridModel
+from .reproduce import LOST_BELOW, wilson_interval
 from .simulate import random_walk, simulate, there_and_back
 from .worlds import WorldSpec, parse_world
 
@@ -501,7 +502,8 @@ def run_task(task: Task) -> pd.DataFrame:
 
     Metrics: map error (mean over cells of 1 - P(true label)) and location error
     (1 - P(true cell)), final and mean over steps; ``wrong_cells`` (visited cells whose most
-    likely final label is wrong); ``lost`` (final P(true cell) < 0.5); ``failed`` (lost or a
+    likely final label is wrong); ``lost`` (final P(true cell) < ``reproduce.LOST_BELOW`` = 0.5);
+    ``failed`` (lost or a
     wrong cell); time per step; with a reference estimator the total variation to its beliefs
     (location, and per cell averaged over cells); for exploration the entropies and door error.
     """
@@ -530,7 +532,7 @@ def run_task(task: Task) -> pd.DataFrame:
                            run.n_steps)
     visited = np.unique(run.locations)
     wrong = metrics.wrong_cells(trajectory.map[-1], run.maps[-1], visited)
-    lost = bool(steps["location_error"][-1] > 0.5)
+    lost = bool(1.0 - steps["location_error"][-1] < LOST_BELOW)
     row = {"final_map_error": steps["map_error"][-1], "mean_map_error": steps["map_error"].mean(),
            "final_location_error": steps["location_error"][-1],
            "mean_location_error": steps["location_error"].mean(),
@@ -799,10 +801,8 @@ def mean_interval(values: np.ndarray, confidence: float = 0.95, proportion: bool
         return Interval(math.nan, math.nan, math.nan)
     mean = float(values.mean())
     if proportion:
-        z = stats.norm.ppf(0.5 + confidence / 2)
-        centre = (mean + z * z / (2 * n)) / (1 + z * z / n)
-        half = z / (1 + z * z / n) * math.sqrt(mean * (1 - mean) / n + z * z / (4 * n * n))
-        return Interval(mean, max(0.0, centre - half), min(1.0, centre + half))
+        low, high = wilson_interval(values.sum(), n, confidence)
+        return Interval(mean, float(low), float(high))
     if n < 2:
         return Interval(mean, math.nan, math.nan)
     half = stats.t.ppf(0.5 + confidence / 2, n - 1) * values.std(ddof=1) / math.sqrt(n)
