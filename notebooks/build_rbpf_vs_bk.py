@@ -1,0 +1,125 @@
+"""Writes notebooks/rbpf_vs_bk.ipynb (no stored outputs). Run: python notebooks/build_rbpf_vs_bk.py"""
+
+from pathlib import Path
+
+import nbformat
+from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
+
+CELLS = [
+    ("md", """# Approximate Bayes: Rao-Blackwellised particles against Boyen-Koller
+
+Exact Bayes over a robot's location and a map of N cells with K labels keeps N x K^N numbers:
+fine for 10 cells, hopeless for 100. Two ways to approximate it:
+
+* **Boyen-Koller (BK)** keeps one marginal per variable, `P(L) * prod_i P(m_i)`, does the exact
+  update from that product and projects back. Cheap (O(N K) per step) but it forgets that
+  *where the robot is* and *what the map says* are correlated: "if I slipped at step 4, cell 3
+  is a 1; if I did not, cell 4 is".
+* **The Rao-Blackwellised particle filter (RBPF)** samples the robot's trajectory (a particle
+  = one hypothesis of where it has been) and, given a trajectory, computes the map *exactly*:
+  the cells are then independent, so each particle holds N marginals. The correlation lives
+  in the population of particles. The `optimal` proposal samples the next location given
+  the observation; `transition` samples the motion model and lets the weights sort it out.
+
+Both are in the streaming API (`om.make_estimator("bk", model)`,
+`om.make_estimator("rbpf", model, n_particles=100, seed=0)`)."""),
+    ("code", """%matplotlib inline
+import os
+
+import numpy as np
+from IPython.display import display
+from matplotlib.figure import Figure
+
+import onlinemap as om
+from onlinemap import compare, plots
+from onlinemap.metrics import total_variation
+
+N_RUNS = int(os.environ.get("ONLINEMAP_NOTEBOOK_RUNS", "10"))  # random runs per world in the study
+N_STEPS = int(os.environ.get("ONLINEMAP_NOTEBOOK_STEPS", "60"))
+N_SEEDS = int(os.environ.get("ONLINEMAP_NOTEBOOK_SEEDS", "10"))  # filter seeds per particle count"""),
+    ("md", """## The scripted corridor
+
+Murphy's run: 8 cells coloured `0 1 0 1 0 1 0 1`, right 7 times then left 7 times, the fourth
+move slips. Each estimator's location belief (left) and its P(colour 1) per cell (right)."""),
+    ("code", """run = om.scenarios.murphy_corridor()
+estimators = {"exact": om.make_estimator("exact", run.model),
+              "bk": om.make_estimator("bk", run.model),
+              "rbpf (100 particles)": om.make_estimator("rbpf", run.model, n_particles=100, seed=0)}
+trajectories = {name: om.run_estimator(est, run.actions, run.observations) for name, est in estimators.items()}
+display(plots.estimators_figure(run, trajectories))"""),
+    ("md", """How far each is from exact, step by step: the total-variation distance of the location
+belief, and of the map marginals (mean over cells). BK equals exact for two steps (the location
+is still known) and then drifts when the slip makes location and map depend on each other."""),
+    ("code", """exact = trajectories["exact"]
+fig = Figure(figsize=(10, 3.2), layout="constrained")
+ax_loc, ax_map = fig.subplots(1, 2)
+for name in ("bk", "rbpf (100 particles)"):
+    ax_loc.plot(total_variation(trajectories[name].location, exact.location), "o-", label=name)
+    ax_map.plot(total_variation(trajectories[name].map, exact.map).mean(axis=1), "o-", label=name)
+ax_loc.set(title="location: TV distance to exact", xlabel="step t")
+ax_map.set(title="map: mean TV distance to exact", xlabel="step t")
+ax_map.legend()
+fig"""),
+    ("md", """## Particles: how many, and which proposal
+
+The RBPF's error shrinks like 1/sqrt(P). `N_SEEDS` filter seeds per particle count on the
+scripted run."""),
+    ("code", """rows = []
+for proposal in ("optimal", "transition"):
+    for n in (10, 30, 100, 300, 1000):
+        for seed in range(N_SEEDS):
+            est = om.make_estimator("rbpf", run.model, n_particles=n, proposal=proposal, seed=seed)
+            t = om.run_estimator(est, run.actions, run.observations)
+            rows.append((proposal, n, total_variation(t.map, exact.map).mean()))
+import pandas as pd
+particles = pd.DataFrame(rows, columns=["proposal", "particles", "map_tv"]).groupby(
+    ["proposal", "particles"]).map_tv.mean().unstack(0)
+bk_tv = total_variation(trajectories["bk"].map, exact.map).mean()
+fig = Figure(figsize=(5, 3.5), layout="constrained")
+ax = fig.subplots()
+particles.plot(ax=ax, marker="o", logx=True, logy=True)
+ax.axhline(bk_tv, color="C3", linestyle="--", label="bk")
+ax.set(xlabel="particles", ylabel="mean map TV distance to exact")
+ax.legend()
+display(fig)
+particles.assign(bk=bk_tv)"""),
+    ("md", """The optimal proposal looks at the observation before choosing where the robot went, so
+fewer particles are wasted on locations the observation rules out: its weights vary less.
+Resampling every step, the effective sample size after each step measures that directly."""),
+    ("code", """def mean_ess(proposal, seed):
+    est = om.make_estimator("rbpf", run.model, n_particles=200, proposal=proposal, resample_threshold=1.0,
+                            seed=seed)
+    return np.mean([est.step(None if t == 0 else run.actions[t - 1], run.observations[t]).effective_sample_size
+                    for t in range(run.n_steps)])
+
+{proposal: np.mean([mean_ess(proposal, seed) for seed in range(N_SEEDS)]) for proposal in ("optimal", "transition")}"""),
+    ("md", """## Random runs
+
+The same comparison on random walks (`onlinemap compare` runs it from the command line): a
+10-cell corridor and a 3 x 3 grid, static and with labels that change (p_change = 0.02), against
+exact Bayes. Mean distance to exact over runs and steps, per estimator."""),
+    ("code", """per_step = compare.accuracy_study(compare.DEFAULT_WORLDS, n_runs=N_RUNS, n_steps=N_STEPS,
+                                  particles=(10, 100, 1000), progress=False)
+summary = compare.summarise(per_step)
+display(compare.error_vs_particles_figure(summary))
+display(compare.error_over_time_figure(per_step))
+summary.pivot(index="estimator", columns="world", values="map_tv_mean").round(4)"""),
+    ("md", """Reading the table (10 runs of 60 steps per world): with 100 particles the RBPF is closer
+to exact than BK in every world, and 1000 particles are closer still. BK is about as close as a
+10-particle filter on random walks: its projection loses the location-map correlation, but
+walks that re-visit cells often repair it quickly. The scripted corridor, where the robot needs
+the map to notice its own slip, is where BK's error shows most (about 4 times the error of 100
+particles above). Online EM and dead reckoning are several times further from exact than BK."""),
+]
+
+
+def build() -> nbformat.NotebookNode:
+    cells = [new_markdown_cell(src) if kind == "md" else new_code_cell(src) for kind, src in CELLS]
+    return new_notebook(cells=cells, metadata={"kernelspec": {"name": "python3", "display_name": "Python 3",
+                                                              "language": "python"}})
+
+
+if __name__ == "__main__":
+    path = Path(__file__).with_name("rbpf_vs_bk.ipynb")
+    nbformat.write(build(), path)
+    print(f"wrote {path}")
