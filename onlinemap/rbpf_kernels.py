@@ -8,7 +8,9 @@ Particle maps are stored as shared, copy-on-write blocks of B consecutive cells:
   ``refcount (R,)``: how many particles use the row; ``free (R,)`` with ``free_top (1,)``: a
   stack of unused rows.
 - ``table (P, n_blocks)``: the row holding block b of particle p's map, so cell i of particle p
-  is ``pool[table[p, i // B], i % B]``.
+  is ``pool[table[p, cell_block[i]], cell_slot[i]]``; ``block_members (n_blocks, B)`` lists
+  each block's cells (-1 pads a partial block). Blocks are runs of a corridor or square tiles
+  of a 2D grid, so a robot stays in one block for several steps.
 
 With lazy dynamics the marginal of a cell at step t is ``row @ powers[t - stamp]``
 (``powers[d] = C^d``). Resampling copies table rows (n_blocks ints per particle that replaces
@@ -47,8 +49,8 @@ def _evidence(pool, pool_stamps, powers, dynamic, t, r, j, likelihood):
 
 
 @njit(cache=True)
-def rbpf_propose(locations, pool, pool_stamps, table, block, powers, dynamic, t, ancestors, neighbors, p_move,
-                 likelihood, optimal, uniforms, new_locations, new_cells, log_increments):
+def rbpf_propose(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors,
+                 neighbors, p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments):
     """Propose every particle's step-t location and weight it; writes nothing to the state.
 
     Particle ``p`` descends from ``ancestors[p]``. ``neighbors`` (N,) is ``neighbors[:, a]``
@@ -66,13 +68,13 @@ def rbpf_propose(locations, pool, pool_stamps, table, block, powers, dynamic, t,
         q = ancestors[p]
         l = locations[q]
         n = neighbors[l]
-        r_here = table[q, l // block]
-        lam_here = _evidence(pool, pool_stamps, powers, dynamic, t, r_here, l % block, likelihood)
+        lam_here = _evidence(pool, pool_stamps, powers, dynamic, t, table[q, cell_block[l]], cell_slot[l],
+                             likelihood)
         target = l
         lam = lam_here
         weight = lam_here
         if n != l:
-            lam_there = _evidence(pool, pool_stamps, powers, dynamic, t, table[q, n // block], n % block,
+            lam_there = _evidence(pool, pool_stamps, powers, dynamic, t, table[q, cell_block[n]], cell_slot[n],
                                   likelihood)
             if optimal:
                 move = p_move * lam_there
@@ -82,8 +84,8 @@ def rbpf_propose(locations, pool, pool_stamps, table, block, powers, dynamic, t,
             elif uniforms[p] < p_move:
                 target, lam, weight = n, lam_there, lam_there
         new_locations[p] = target
-        r = table[q, target // block]
-        j = target % block
+        r = table[q, cell_block[target]]
+        j = cell_slot[target]
         scale = 1.0 / lam if lam > 0.0 else 1.0
         for b in range(k):
             new_cells[p, b] = _label(pool, pool_stamps, powers, dynamic, t, r, j, b) * (
@@ -92,7 +94,8 @@ def rbpf_propose(locations, pool, pool_stamps, table, block, powers, dynamic, t,
 
 
 @njit(cache=True)
-def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, block, dynamic, t,
+def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
+                dynamic, t,
                 ancestors, new_locations, new_cells):
     """Apply a validated proposal in place.
 
@@ -118,7 +121,7 @@ def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_to
             refcount[r] += 1
     for p in range(n_particles):
         cell = new_locations[p]
-        b = cell // block
+        b = cell_block[cell]
         r = table[p, b]
         if refcount[r] > 1:
             free_top[0] -= 1
@@ -131,7 +134,7 @@ def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_to
             refcount[fresh] = 1
             table[p, b] = fresh
             r = fresh
-        j = cell % block
+        j = cell_slot[cell]
         pool[r, j] = new_cells[p]
         if dynamic:
             pool_stamps[r, j] = t
@@ -155,14 +158,14 @@ def in_place_ancestors(counts):
 
 
 @njit(cache=True)
-def rbpf_map_mixture(pool, pool_stamps, row_block, table, block, powers, dynamic, t, weights, out):
+def rbpf_map_mixture(pool, pool_stamps, row_block, table, block_members, powers, dynamic, t, weights, out):
     """out (N, K) <- ``sum_p weights[p] * current marginals of particle p``.
 
     First the weight of every row (the sum over the particles sharing it), O(P n_blocks); then
     one pass over the rows in use, O(R_used B K), with K^2 flops per out-of-date cell in a
     dynamic world. R_used <= P n_blocks, and much less when particles share blocks.
     """
-    n_cells, k = out.shape
+    k = out.shape[1]
     n_particles, n_blocks = table.shape
     row_weight = np.zeros(pool.shape[0])
     for p in range(n_particles):
@@ -170,35 +173,26 @@ def rbpf_map_mixture(pool, pool_stamps, row_block, table, block, powers, dynamic
         for b in range(n_blocks):
             row_weight[table[p, b]] += w
     out[:] = 0.0
-    tmp = np.empty(k)
     for r in range(pool.shape[0]):
         w = row_weight[r]
         if w == 0.0:
             continue
-        first = row_block[r] * block
-        for j in range(min(block, n_cells - first)):
-            i = first + j
-            if dynamic and pool_stamps[r, j] != t:
-                c = powers[t - pool_stamps[r, j]]
-                for b in range(k):
-                    acc = 0.0
-                    for a in range(k):
-                        acc += pool[r, j, a] * c[a, b]
-                    tmp[b] = acc
-                for b in range(k):
-                    out[i, b] += w * tmp[b]
-            else:
-                for b in range(k):
-                    out[i, b] += w * pool[r, j, b]
+        members = block_members[row_block[r]]
+        for j in range(members.shape[0]):
+            i = members[j]
+            if i < 0:
+                continue
+            for b in range(k):
+                out[i, b] += w * _label(pool, pool_stamps, powers, dynamic, t, r, j, b)
 
 
 @njit(cache=True)
-def particle_maps(pool, pool_stamps, table, block, powers, dynamic, t, out):
+def particle_maps(pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, out):
     """out (P, N, K) <- every particle's current map marginals (for inspection and tests).
     O(P N K^2)."""
     n_particles, n_cells, k = out.shape
     for p in range(n_particles):
         for i in range(n_cells):
-            r = table[p, i // block]
+            r = table[p, cell_block[i]]
             for b in range(k):
-                out[p, i, b] = _label(pool, pool_stamps, powers, dynamic, t, r, i % block, b)
+                out[p, i, b] = _label(pool, pool_stamps, powers, dynamic, t, r, cell_slot[i], b)

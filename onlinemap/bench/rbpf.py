@@ -7,13 +7,17 @@ Four rows per case, each a separate cost (none includes another):
 - ``update, no resampling``: median over the steps that did not resample; the proposal and
   weighting read two cells per particle, O(P K^2), plus copy-on-write of shared blocks
   (O(P B K) at most) and fixed Python overhead.
-- ``update, ESS < 0.5 P``: mean over all steps with the default threshold (a resampling step
+- ``update, ESS < 0.5 P``: amortised over the steps with the default threshold (a resampling step
   copies the block table rows, N / B indices, of the particles that replace dropped ones;
   the writes that follow copy the shared blocks they touch).
-- ``update, resample every step``: mean with ``resample_threshold=1.0``.
+- ``update, resample every step``: median with ``resample_threshold=1.0``.
 - ``belief.map mixture``: building the Belief after a step (one pass over the block rows in
   use, at most the P N K floats of unshared maps; K^2 flops per out-of-date cell in a
   dynamic world), paid only when the belief is read.
+
+Amortised = the medians of quiet and of resampling steps weighted by how often each occurs:
+on a shared machine other processes add 5-10 ms stalls to a tenth of the steps, which a plain
+mean would report as the filter's cost (the plain mean is in column ``mean_ms``).
 
 Target (the issue's): 1000 particles on 32 x 32 with K = 4 at <= 1 ms per amortised update;
 it is an absolute time, so its ``target`` ratio is ``1 ms / reference_ms`` of that row. Where
@@ -89,13 +93,15 @@ def bench_rbpf(quick: bool) -> list[dict]:
                 ms = 1e3 * np.median(quiet)
                 rows.append({"case": f"{case}: update, no resampling", "ms": ms, **common,
                              "ratio": ms / reference, "target": np.nan})
-            ms = 1e3 * times.mean()
-            rows.append({"case": f"{case}: update, ESS < 0.5 P ({resampled.mean():.0%} resample)", "ms": ms,
-                         **common, "ratio": ms / reference, "target": amortised_target})
+            fraction = resampled.mean()
+            ms = 1e3 * sum(np.median(times[resampled == kind]) * np.mean(resampled == kind)
+                           for kind in (False, True) if np.any(resampled == kind))
+            rows.append({"case": f"{case}: update, ESS < 0.5 P ({fraction:.0%} resample)", "ms": ms, **common,
+                         "ratio": ms / reference, "target": amortised_target, "mean_ms": 1e3 * times.mean()})
             every, _, _ = _step_times(model, run, n_particles, 1.0, n_steps)
-            ms = 1e3 * every.mean()
+            ms = 1e3 * np.median(every)
             rows.append({"case": f"{case}: update, resample every step", "ms": ms, **common,
-                         "ratio": ms / reference, "target": pass_target})
+                         "ratio": ms / reference, "target": pass_target, "mean_ms": 1e3 * every.mean()})
             ms = 1e3 * belief_s
             rows.append({"case": f"{case}: belief.map mixture", "ms": ms, **common, "ratio": ms / reference,
                          "target": pass_target if model.is_static else np.nan})

@@ -27,6 +27,7 @@ bytes), ``8 P N / B`` for the table, ``8 K^2`` per step of the run for the power
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -50,6 +51,45 @@ def _logsumexp(x: np.ndarray) -> float:
     return top + math.log(float(np.exp(x - top).sum()))
 
 
+class BlockLayout(NamedTuple):
+    """How cells are grouped into the shared map blocks of the RBPF."""
+
+    cell_block: np.ndarray  # (N,) block of each cell
+    cell_slot: np.ndarray  # (N,) position of each cell in its block
+    members: np.ndarray  # (n_blocks, B) cells of each block, -1 for padding
+
+    @property
+    def block_size(self) -> int:
+        return self.members.shape[1]
+
+
+def block_layout(model: GridModel, block_cells: int | None = None) -> BlockLayout:
+    """Runs of ``block_cells`` consecutive cells in a corridor; square tiles of side
+    ``floor(sqrt(block_cells))`` in a 2D grid (a robot crosses a tile's edge less often than a
+    row's). Default ``block_cells`` about ``sqrt(N / K)``, which balances the copy of one block
+    (B K floats, on a write into a shared block) against the table row of a particle (N / B
+    indices, on resampling)."""
+    n = model.n_cells
+    if block_cells is None:
+        block_cells = max(1, round(math.sqrt(n / model.n_labels)))
+    if isinstance(block_cells, bool) or int(block_cells) != block_cells or block_cells < 1:
+        raise ModelError(f"block_cells must be a positive integer, got {block_cells!r}")
+    cells = np.arange(n)
+    if model.rows == 1:
+        size = min(int(block_cells), n)
+        cell_block, cell_slot = np.divmod(cells, size)
+    else:
+        side = max(1, math.isqrt(int(block_cells)))
+        row, col = np.divmod(cells, model.cols)
+        tiles_across = -(-model.cols // side)
+        cell_block = (row // side) * tiles_across + col // side
+        cell_slot = (row % side) * side + col % side
+        size = side * side
+    members = np.full((int(cell_block.max()) + 1, size), -1, dtype=np.int64)
+    members[cell_block, cell_slot] = cells
+    return BlockLayout(cell_block, cell_slot, members)
+
+
 def _grown(array: np.ndarray, rows: int) -> np.ndarray:
     """``array`` with zero rows appended up to ``rows`` along axis 0."""
     out = np.zeros((rows, *array.shape[1:]), dtype=array.dtype)
@@ -68,7 +108,7 @@ class RaoBlackwellisedPF:
     fraction of P (1.0 = every step, 0.0 = never); ``seed`` (int, None or Generator);
     ``lazy_dynamics`` (False applies C to every cell of every particle every step: O(P N K^2),
     the reference the lazy scheme is tested against); ``block_cells`` B, the cells per shared
-    map block (default about sqrt(N)); ``max_bytes`` guard on the particle maps (worst case,
+    map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes`` guard on the particle maps (worst case,
     every particle owning all its blocks).
     """
 
@@ -86,10 +126,7 @@ class RaoBlackwellisedPF:
             raise ModelError(f"resample_threshold must be in [0, 1], got {resample_threshold!r}")
         n_particles = int(n_particles)
         n, k = model.n_cells, model.n_labels
-        if block_cells is None:
-            block_cells = min(n, 2 ** round(math.log2(math.sqrt(n))))
-        if isinstance(block_cells, bool) or int(block_cells) != block_cells or block_cells < 1:
-            raise ModelError(f"block_cells must be a positive integer, got {block_cells!r}")
+        layout = block_layout(model, block_cells)
         self._dynamic = not model.is_static
         need = 8 * n_particles * n * (k + (1 if self._dynamic and lazy_dynamics else 0))
         if need > max_bytes:
@@ -106,12 +143,11 @@ class RaoBlackwellisedPF:
         self._locations = np.full(n_particles, model.start, dtype=np.int64)
         self._log_weights = np.full(n_particles, -math.log(n_particles))
         self._stamped = self._dynamic and self.lazy_dynamics
-        self._block = block = min(int(block_cells), n)
-        n_blocks = -(-n // block)
-        prior = np.full((n_blocks * block, k), 1.0 / k)  # cells past N pad the last block, never read
-        prior[:n] = model.label_prior
+        self._cell_block, self._cell_slot, self._block_members = layout
+        n_blocks, block = layout.members.shape
         self._pool = np.zeros((n_blocks + 2 * n_particles, block, k))
-        self._pool[:n_blocks] = prior.reshape(n_blocks, block, k)  # every particle shares the prior
+        self._pool[:n_blocks] = 1.0 / k  # padding slots, never read
+        self._pool[layout.cell_block, layout.cell_slot] = model.label_prior  # every particle shares the prior
         self._pool_stamps = np.zeros((len(self._pool), block if self._stamped else 0), dtype=np.int64)
         self._row_block = np.zeros(len(self._pool), dtype=np.int64)
         self._row_block[:n_blocks] = np.arange(n_blocks)
@@ -154,7 +190,7 @@ class RaoBlackwellisedPF:
             n, k = self.model.n_cells, self.model.n_labels
             location = np.bincount(self._locations, weights=weights, minlength=n)
             maps = np.empty((n, k))
-            rbpf_map_mixture(self._pool, self._pool_stamps, self._row_block, self._table, self._block,
+            rbpf_map_mixture(self._pool, self._pool_stamps, self._row_block, self._table, self._block_members,
                              self._powers, self._stamped, self._t, weights, maps)
             self._belief = Belief(self._t, location, maps, self._log_evidence,
                                   effective_sample_size=self._ess)
@@ -163,8 +199,8 @@ class RaoBlackwellisedPF:
     def particle_maps(self) -> np.ndarray:
         """(P, N, K) every particle's current map marginals (a fresh array; O(P N K^2))."""
         out = np.empty((self.n_particles, self.model.n_cells, self.model.n_labels))
-        particle_maps(self._pool, self._pool_stamps, self._table, self._block, self._powers, self._stamped,
-                      max(self._t, 0), out)
+        particle_maps(self._pool, self._pool_stamps, self._table, self._cell_block, self._cell_slot, self._powers,
+                      self._stamped, max(self._t, 0), out)
         return out
 
     def step(self, action, observation) -> Belief:
@@ -228,8 +264,8 @@ class RaoBlackwellisedPF:
         new_locations = np.empty(n_particles, dtype=np.int64)
         new_cells = np.empty((n_particles, model.n_labels))
         log_increments = np.empty(n_particles)
-        rbpf_propose(self._locations, pool, pool_stamps, self._table, self._block, powers, self._stamped,
-                     t, ancestors, neighbors,
+        rbpf_propose(self._locations, pool, pool_stamps, self._table, self._cell_block, self._cell_slot, powers,
+                     self._stamped, t, ancestors, neighbors,
                      model.p_move, np.ascontiguousarray(model.sensor[:, z]), self.proposal == "optimal",
                      self._rng.random(n_particles), new_locations, new_cells, log_increments)
         log_weights = log_weights + log_increments
@@ -240,7 +276,7 @@ class RaoBlackwellisedPF:
                 f"observation {model.label_names[z]!r} has probability zero for every particle at step {t}")
         # commit
         rbpf_commit(self._locations, pool, pool_stamps, row_block, refcount, free, free_top, self._table,
-                    self._block, self._stamped, t, ancestors, new_locations, new_cells)
+                    self._cell_block, self._cell_slot, self._stamped, t, ancestors, new_locations, new_cells)
         self._pool, self._pool_stamps, self._row_block, self._refcount = pool, pool_stamps, row_block, refcount
         self._free, self._free_top, self._powers = free, free_top, powers
         self._log_weights = log_weights - increment
