@@ -48,8 +48,10 @@ def plot_map(ax: Axes, maps: np.ndarray, true_map: np.ndarray, label: int = 1, t
 def estimators_figure(run: Run, trajectories: dict[str, Trajectory], label: int = 1) -> Figure:
     """One row per estimator: location posterior over time, then map marginals over time."""
     rows = len(trajectories)
-    fig = Figure(figsize=(10, 2.6 * rows), layout="constrained")
-    axes = fig.subplots(rows, 2, squeeze=False)
+    height = 2.6 * rows  # fixed margins in inches; a manual layout draws twice as fast as "constrained"
+    fig = Figure(figsize=(10, height))
+    axes = fig.subplots(rows, 2, squeeze=False, gridspec_kw=dict(
+        left=0.06, right=0.98, wspace=0.22, hspace=0.55, top=1 - 0.3 / height, bottom=0.5 / height))
     for (name, trajectory), (ax_loc, ax_map) in zip(trajectories.items(), axes):
         plot_location(ax_loc, trajectory.location, run.locations, f"{name}: P(location)")
         plot_map(ax_map, trajectory.map, run.final_map, label, f"{name}: P(label = {label})")
