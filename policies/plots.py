@@ -6,20 +6,24 @@ Both take the long table of :func:`policies.explore.compare_planners` (columns `
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pandas as pd
-from matplotlib.colors import LogNorm
-from matplotlib.figure import Figure
-from matplotlib.patches import Rectangle
 
 from onlinemap.model import DOOR_LABELS, GridModel, WALL
 
 from .explore import door_cells
 
+if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, not with the package
+    from matplotlib.figure import Figure
 
-def plot_errors(table: pd.DataFrame, axes=None) -> Figure:
+
+def plot_errors(table: pd.DataFrame, axes=None) -> "Figure":
     """Map error and door-state error over time, one line per planner: the mean over seeds with
     a band of +- one standard error. ``axes``: two matplotlib axes (created when None)."""
+    from matplotlib.figure import Figure
+
     if axes is None:
         figure = Figure(figsize=(11, 3.8), layout="constrained")
         axes = figure.subplots(1, 2)
@@ -39,9 +43,13 @@ def plot_errors(table: pd.DataFrame, axes=None) -> Figure:
     return axes[0].figure
 
 
-def plot_visits(model: GridModel, true_map, table: pd.DataFrame, axes=None) -> Figure:
-    """The world with the visit counts of each planner (summed over seeds, log colour scale);
-    walls hatched, doors outlined in red. ``axes``: one per planner (created when None)."""
+def plot_visits(model: GridModel, true_map, table: pd.DataFrame, axes=None) -> "Figure":
+    """The world with the visit counts of each planner (summed over seeds, square-root colour
+    scale, unvisited cells white); walls shaded grey, doors outlined in red. ``axes``: one per planner (created when None)."""
+    from matplotlib.colors import PowerNorm
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
+
     planners = list(dict.fromkeys(table["planner"]))
     if axes is None:
         figure = Figure(figsize=(3.6 * len(planners), 3.6), layout="constrained")
@@ -53,15 +61,15 @@ def plot_visits(model: GridModel, true_map, table: pd.DataFrame, axes=None) -> F
         where = table.loc[table["planner"] == planner, "true_location"].to_numpy()
         counts = np.bincount(where, minlength=model.n_cells).reshape(model.rows, model.cols)
         image = ax.imshow(np.ma.masked_equal(counts, 0), cmap="viridis",
-                          norm=LogNorm(vmin=1, vmax=max(2, counts.max())))
+                          norm=PowerNorm(0.5, vmin=0, vmax=max(1, counts.max())))
         if model.label_names == DOOR_LABELS:
-            for row, col in zip(*np.nonzero(labels == WALL)):
-                ax.add_patch(Rectangle((col - 0.5, row - 0.5), 1, 1, fill=False, hatch="////",
-                                       edgecolor="0.45", linewidth=0))
+            walls = np.zeros(labels.shape + (4,))
+            walls[labels == WALL] = (0.5, 0.5, 0.5, 0.6)
+            ax.imshow(walls)
             for cell in doors:
                 row, col = divmod(int(cell), model.cols)
                 ax.add_patch(Rectangle((col - 0.45, row - 0.45), 0.9, 0.9, fill=False, edgecolor="red", linewidth=2))
             door_share = f", {np.isin(where, doors).mean():.0%} of steps on doors"
         ax.set(title=f"{planner}{door_share}", xticks=[], yticks=[])
-        ax.figure.colorbar(image, ax=ax, shrink=0.8, label="visits", format="%d")
+        ax.figure.colorbar(image, ax=ax, shrink=0.8, label="visits")
     return axes[0].figure

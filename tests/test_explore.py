@@ -1,0 +1,216 @@
+"""policies.explore: the loop's bookkeeping against a replay through onlinemap.simulate and
+run_estimator; the gymnasium-driven loop; the CLI; the notebook; and the literature's claims
+(DESIGN.md section 5.3) as paired statistical comparisons over seeds."""
+
+import os
+from pathlib import Path
+
+import nbformat
+import numpy as np
+import pandas as pd
+import pytest
+from nbclient import NotebookClient
+from scipy import stats
+
+import onlinemap as om
+from onlinemap.cli import main
+from policies import (COLUMNS, EntropyExplorer, compare_planners, door_cells, explore, explore_env,
+                      exploration_world, floor_plan_prior, summarize)
+from policies.explore import _seeds
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ".o.\n#c.\n"  # 2 x 3 door world: small enough for exact Bayes (4^6 maps)
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return om.door_world(TINY, p_door=0.05)
+
+
+def replay_metrics(model, true_map, frame, seed):
+    """Replay the frame's actions through onlinemap.simulate with the world's random stream,
+    filter with a fresh exact estimator, and compute the metrics here, by hand."""
+    actions = [model.action_names.index(a) for a in frame["action"].iloc[1:]]
+    world_rng, _, _ = _seeds(seed)
+    run = om.simulate(model, true_map, actions, seed=world_rng)
+    trajectory = om.run_estimator(om.make_estimator("exact", model), run.actions, run.observations)
+    steps = np.arange(run.n_steps)
+    p_true = trajectory.map[steps[:, None], np.arange(model.n_cells), run.maps]  # (T, N)
+    doors = np.flatnonzero(true_map >= 2)
+    location = trajectory.location
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h_loc = -np.where(location > 0, location * np.log(location), 0).sum(1) / np.log(model.n_cells)
+        h_map = -np.where(trajectory.map > 0, trajectory.map * np.log(trajectory.map), 0).sum(2) / np.log(4)
+    return run, pd.DataFrame({
+        "map_error": 1 - p_true.mean(1), "location_error": 1 - location[steps, run.locations],
+        "location_entropy": h_loc, "map_entropy": h_map.mean(1), "door_error": 1 - p_true[:, doors].mean(1)})
+
+
+@pytest.mark.parametrize("planner", ["entropy", "random", "sweep"])
+def test_explore_matches_a_replay_through_simulate(tiny, planner):
+    model, true_map = tiny
+    frame = explore(model, true_map, planner, "exact", steps=40, seed=11, progress=False)
+    assert tuple(frame.columns) == COLUMNS
+    assert list(frame["t"]) == list(range(40)) and pd.isna(frame["action"].iloc[0])
+    run, expected = replay_metrics(model, true_map, frame, 11)
+    assert np.array_equal(frame["true_location"], run.locations)
+    assert (run.maps != run.maps[0]).any() or planner != "random"  # the doors did change (p_door = 0.05)
+    for column in expected:
+        np.testing.assert_allclose(frame[column], expected[column], atol=1e-9, err_msg=column)
+
+
+def test_same_seed_same_run(tiny):
+    model, true_map = tiny
+    first = explore(model, true_map, "random", "exact", 30, seed=5, progress=False)
+    pd.testing.assert_frame_equal(explore(model, true_map, "random", "exact", 30, seed=5, progress=False), first)
+    assert not explore(model, true_map, "random", "exact", 30, seed=6, progress=False).equals(first)
+    model10, map10 = exploration_world()
+    a = explore(model10, map10, "entropy", "rbpf", 30, seed=1, progress=False)
+    pd.testing.assert_frame_equal(explore(model10, map10, "entropy", "rbpf", 30, seed=1, progress=False), a)
+
+
+def test_explore_takes_instances_and_refuses_bad_input(tiny):
+    model, true_map = tiny
+    estimator = om.make_estimator("exact", model)
+    frame = explore(model, true_map, EntropyExplorer(model, gamma=0.9), estimator, 10, seed=0, progress=False)
+    assert estimator.t == 9 and len(frame) == 10
+    with pytest.raises(om.ModelError, match="already taken"):
+        explore(model, true_map, "random", estimator, 10, seed=0)
+    with pytest.raises(om.ModelError, match="different model"):
+        explore(model, true_map, "random", om.make_estimator("exact", om.door_world(TINY)[0]), 10)
+    with pytest.raises(om.ModelError, match="steps"):
+        explore(model, true_map, "random", "exact", 0)
+    with pytest.raises(om.ModelError, match="true_map"):
+        explore(model, true_map[:-1], "random", "exact", 5)
+    with pytest.raises(om.UnknownEstimatorError):
+        explore(model, true_map, "random", "nope", 5)
+    with pytest.raises(om.ModelError, match="unknown planner"):
+        explore(model, true_map, "nope", "exact", 5)
+
+
+def test_worlds_without_doors_report_nan_door_error():
+    model = om.grid_model(2, 2, 2)
+    frame = explore(model, [0, 1, 1, 0], "sweep", "exact", 12, seed=0, progress=False)
+    assert frame["door_error"].isna().all() and frame["map_error"].notna().all()
+
+
+def test_floor_plan_prior():
+    model, true_map = om.door_world()
+    prior = floor_plan_prior(model, true_map, 0.7)
+    doors = door_cells(model, true_map)
+    assert len(doors) == 5
+    np.testing.assert_allclose(prior.sum(1), 1.0)
+    np.testing.assert_allclose(prior[doors], [[0, 0, 0.5, 0.5]] * len(doors))
+    others = np.setdiff1d(np.arange(100), doors)
+    np.testing.assert_allclose(prior[others, true_map[others]], 0.7)
+    with pytest.raises(om.ModelError):
+        floor_plan_prior(model, true_map, 0.1)
+
+
+def test_explore_env_drives_the_gymnasium_environment(tiny):
+    gym = pytest.importorskip("gymnasium")
+    from onlinemap.envs import DoorWorldEnv
+
+    model, true_map = tiny
+    env = DoorWorldEnv(model=model, true_map=true_map)
+    frame = explore_env(env, "entropy", "exact", steps=30, seed=4, progress=False)
+    assert tuple(frame.columns) == COLUMNS and len(frame) == 30
+    pd.testing.assert_frame_equal(explore_env(env, "entropy", "exact", steps=30, seed=4, progress=False), frame)
+    # replay the episode in the environment: same true locations
+    world_seed, _, _ = _seeds(4)
+    _, info = env.reset(seed=int(world_seed.integers(2**31)))
+    locations = [info["location"]]
+    for action in frame["action"].iloc[1:]:
+        locations.append(env.step(model.action_names.index(action))[4]["location"])
+    assert locations == list(frame["true_location"])
+    limited = gym.wrappers.TimeLimit(DoorWorldEnv(model=model, true_map=true_map), max_episode_steps=5)
+    with pytest.raises(om.ModelError, match="ended the episode"):
+        explore_env(limited, "random", "exact", steps=10, seed=0)
+
+
+def test_cli_explore_writes_table_and_figures(tmp_path, capsys):
+    out = tmp_path / "steps.csv"
+    code = main(["explore", "--world", "grid:2x3", "--estimator", "exact", "--steps", "25", "--repeats", "2",
+                 "--figures", str(tmp_path / "fig"), "--out", str(out)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "final_map_error" in printed and "sweep" in printed
+    table = pd.read_csv(out)
+    assert list(table.columns[:2]) == ["planner", "seed"] and set(COLUMNS) <= set(table.columns)
+    assert len(table) == 3 * 2 * 25
+    for name in ("explore_errors.png", "explore_visits.png"):
+        assert (tmp_path / "fig" / name).stat().st_size > 10_000
+    assert main(["explore", "--planner", "greedy", "--no-figures"]) == 2
+    assert main(["explore", "--world", "door", "--estimator", "dead_reckoning", "--steps", "20",
+                 "--option", "bogus=1", "--no-figures"]) == 2
+
+
+def test_summary_counts_time_at_doors():
+    model, true_map = om.door_world()
+    doors = door_cells(model, true_map)
+    table = pd.DataFrame({"planner": "p", "seed": 0, "t": np.arange(4), "map_error": [.4, .3, .2, .1],
+                          "door_error": [.5, .5, .4, .2], "location_error": 0.0,
+                          "true_location": [0, doors[0], doors[1], 0], "seconds_per_step": 0.001})
+    row = summarize(table, model, true_map).iloc[0]
+    assert row["time_at_doors"] == 0.5 and row["cells_visited"] == 3 and row["final_map_error"] == 0.1
+    assert row["late_door_error"] == pytest.approx((0.5 + 0.4 + 0.2) / 3)
+
+
+# --- the literature's claims, paired over seeds ------------------------------------------------
+SEEDS = range(8)
+
+
+def paired(p_door: float, steps: int, planners) -> pd.DataFrame:
+    if "rbpf" not in om.available_estimators():
+        pytest.skip("needs the rbpf estimator")
+    model, true_map = exploration_world(p_door=p_door)
+    return compare_planners(model, true_map, planners, "rbpf", steps, SEEDS, progress=False)
+
+
+def one_sided_p(better: pd.Series, worse: pd.Series) -> float:
+    """Paired t-test p-value for mean(better - worse) < 0 (the same seeds for both)."""
+    return stats.ttest_rel(better, worse, alternative="less").pvalue
+
+
+@pytest.fixture(scope="module")
+def static_runs():
+    return paired(0.0, 250, ["entropy", "random"])
+
+
+@pytest.fixture(scope="module")
+def dynamic_runs():
+    return paired(0.01, 300, ["entropy", "random"])
+
+
+def test_static_door_world_entropy_planner_learns_the_map_faster_than_a_random_walk(static_runs):
+    final = static_runs.groupby(["planner", "seed"])["map_error"].last().unstack(0)
+    p = one_sided_p(final["entropy"], final["random"])
+    assert p < 0.05, (p, final.round(3).to_dict())
+
+
+def test_dynamic_door_world_entropy_planner_keeps_doors_up_to_date(dynamic_runs):
+    late = dynamic_runs[dynamic_runs["t"] >= 100].groupby(["planner", "seed"])["door_error"].mean().unstack(0)
+    p = one_sided_p(late["entropy"], late["random"])
+    assert p < 0.05, (p, late.round(3).to_dict())
+
+
+def test_dynamic_door_world_entropy_planner_spends_more_time_at_doors(dynamic_runs):
+    model, true_map = exploration_world(p_door=0.01)
+    doors = door_cells(model, true_map)
+    share = dynamic_runs.assign(at_door=np.isin(dynamic_runs["true_location"], doors)) \
+        .groupby(["planner", "seed"])["at_door"].mean().unstack(0)
+    assert one_sided_p(-share["entropy"], -share["random"]) < 0.05, share.round(3).to_dict()
+
+
+# --- the notebook ------------------------------------------------------------------------------
+def test_notebook_runs(tmp_path):
+    notebook = nbformat.read(ROOT / "notebooks" / "active_exploration.ipynb", as_version=4)
+    parameters = [cell for cell in notebook.cells if "parameters" in cell.get("metadata", {}).get("tags", [])]
+    assert len(parameters) == 1
+    parameters[0].source = "STEPS = 40\nSEEDS = [0, 1]\nN_PARTICLES = 30"
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    NotebookClient(notebook, timeout=300, kernel_name="python3",
+                   resources={"metadata": {"path": str(tmp_path)}}).execute()
+    outputs = [out for cell in notebook.cells if cell.cell_type == "code" for out in cell.get("outputs", [])]
+    assert not [out for out in outputs if out.output_type == "error"]
+    assert any("image/png" in out.get("data", {}) for out in outputs)
