@@ -36,8 +36,8 @@ from ..errors import ImpossibleObservationError, MemoryLimitError, ModelError
 from ..rbpf_kernels import in_place_ancestors, particle_maps, rbpf_commit, rbpf_map_mixture, rbpf_propose
 from ..resampling import RESAMPLERS
 from ..simulate import SeedLike, as_generator
-from ..validation import check_step
 from ..model import GridModel
+from ..validation import check_step
 from .base import register
 
 PROPOSALS = ("optimal", "transition")
@@ -57,10 +57,6 @@ class BlockLayout(NamedTuple):
     cell_block: np.ndarray  # (N,) block of each cell
     cell_slot: np.ndarray  # (N,) position of each cell in its block
     members: np.ndarray  # (n_blocks, B) cells of each block, -1 for padding
-
-    @property
-    def block_size(self) -> int:
-        return self.members.shape[1]
 
 
 def block_layout(model: GridModel, block_cells: int | None = None) -> BlockLayout:
@@ -108,8 +104,8 @@ class RaoBlackwellisedPF:
     fraction of P (1.0 = every step, 0.0 = never); ``seed`` (int, None or Generator);
     ``lazy_dynamics`` (False applies C to every cell of every particle every step: O(P N K^2),
     the reference the lazy scheme is tested against); ``block_cells`` B, the cells per shared
-    map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes`` guard on the particle maps (worst case,
-    every particle owning all its blocks).
+    map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes`` guard on
+    the particle maps (worst case: every particle owning all its blocks).
     """
 
     def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
@@ -153,9 +149,10 @@ class RaoBlackwellisedPF:
         self._row_block[:n_blocks] = np.arange(n_blocks)
         self._refcount = np.zeros(len(self._pool), dtype=np.int64)
         self._refcount[:n_blocks] = n_particles
-        self._free = np.arange(len(self._pool) - 1, n_blocks - 1, -1)  # stack: lowest row on top
-        self._free_top = np.array([len(self._free)])
-        self._free = np.concatenate([self._free, np.zeros(n_blocks, dtype=np.int64)])
+        unused = np.arange(len(self._pool) - 1, n_blocks - 1, -1)  # a stack, the lowest row on top
+        self._free = np.zeros(len(self._pool), dtype=np.int64)
+        self._free[:len(unused)] = unused
+        self._free_top = np.array([len(unused)])
         self._table = np.tile(np.arange(n_blocks), (n_particles, 1))
         self._powers = np.eye(k)[None].copy()  # powers[d] = C^d, grown on demand
         self._log_evidence = 0.0
@@ -184,7 +181,8 @@ class RaoBlackwellisedPF:
 
     @property
     def belief(self) -> Belief | None:
-        """The weighted mixture after the last step; built on first access (O(P N K)), cached."""
+        """The weighted mixture after the last step, built on first access and cached (cost: see
+        the module docstring; at most one pass over P N K floats)."""
         if self._belief is None and self._t >= 0:
             weights = np.exp(self._log_weights)
             n, k = self.model.n_cells, self.model.n_labels
