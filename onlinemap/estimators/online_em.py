@@ -55,11 +55,11 @@ def _check_window(window) -> int | None:
 
 @register("online_em")
 class OnlineEM:
-    """Fixed-lag online EM. Options: ``window`` (int >= 1 or ``"max"`` for the whole history),
-    ``decay`` (lambda in (0, 1]: weight of the previous statistics), ``pseudo_count`` (c >= 0
+    """Fixed-lag online EM. Options: ``window`` (int >= 1, default 16, so a step costs the same
+    forever; ``"max"`` for the whole history, O(t) per step), ``decay`` (lambda in (0, 1]: weight of the previous statistics), ``pseudo_count`` (c >= 0
     added to every count of the M-step)."""
 
-    def __init__(self, model: GridModel, *, window: int | str = "max", decay: float = 1.0,
+    def __init__(self, model: GridModel, *, window: int | str = 16, decay: float = 1.0,
                  pseudo_count: float = 0.1):
         self.model = model
         self.window = window
