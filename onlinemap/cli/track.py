@@ -97,6 +97,12 @@ def _number(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def _fraction(x: float) -> float | None:
+    """A normalised entropy, clipped to [0, 1] (rounding can leave it at -1e-16)."""
+    x = _number(x)
+    return None if x is None else min(max(x, 0.0), 1.0)
+
+
 def summarize(belief: Belief, full: bool = False) -> dict[str, object]:
     """The JSON record of one step. Cost O(N K)."""
     where = belief.most_likely_location
@@ -104,9 +110,9 @@ def summarize(belief: Belief, full: bool = False) -> dict[str, object]:
         "t": belief.t,
         "location": where,
         "p_location": float(belief.location[where]),
-        "location_entropy": _number(normalized_entropy(belief.location)),
+        "location_entropy": _fraction(normalized_entropy(belief.location)),
         "map": belief.map_estimate.tolist(),
-        "map_entropy": _number(map_entropy(belief.map)),
+        "map_entropy": _fraction(map_entropy(belief.map)),
         "log_evidence": _number(belief.log_evidence),
     }
     if belief.effective_sample_size is not None:
