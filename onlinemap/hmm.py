@@ -199,8 +199,10 @@ def temper(posterior: np.ndarray, tau: float) -> np.ndarray:
 
 
 def log_dirichlet_prior(emission: np.ndarray, pseudo_count: float) -> float:
-    """The pseudo-count prior's log density up to a constant, ``c sum_ik log B[i, k]`` (0 when c = 0)."""
+    """The pseudo-count prior's log density up to a constant, ``c sum_ik log B[i, k]`` (0 when
+    c = 0; -inf when c > 0 and B has a zero, e.g. a starting B from a prior with zeros)."""
     if pseudo_count == 0:
         return 0.0
-    return float(pseudo_count * np.log(emission).sum())
+    with np.errstate(divide="ignore"):
+        return float(pseudo_count * np.log(emission).sum())
 

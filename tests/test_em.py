@@ -318,3 +318,14 @@ def test_online_em_without_pseudo_counts_refuses_an_impossible_observation_and_k
 def test_bad_options_are_refused(name, options):
     with pytest.raises(om.ModelError):
         om.make_estimator(name, om.corridor(4), **options)
+
+
+@pytest.mark.parametrize("name", ["online_em", "offline_em"])
+def test_observation_impossible_under_the_prior_is_refused_with_state_kept(name):
+    model = om.corridor(4, p_obs=1.0, label_prior=[1.0, 0.0])  # every cell is 0 and the sensor never errs
+    est = om.make_estimator(name, model)
+    before = state(est)
+    with pytest.raises(om.ImpossibleObservationError, match="probability zero"):
+        est.step(None, 1)
+    assert_state_equal(est, before)
+    assert est.step(None, 0).t == 0
