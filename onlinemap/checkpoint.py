@@ -489,6 +489,10 @@ def read(path: str | os.PathLike) -> dict:
     if magic != _ZIP_MAGIC:
         raise CheckpointError(f"{path} is not an onlinemap checkpoint (not an npz file)")
     try:
+        with zipfile.ZipFile(path) as archive:  # stored members only: nothing to inflate (no zip bombs)
+            packed = [info.filename for info in archive.infolist() if info.compress_type != zipfile.ZIP_STORED]
+        if packed:
+            raise CheckpointError(f"{path}: compressed entries {packed[:3]}; onlinemap writes them uncompressed")
         with np.load(path, allow_pickle=False) as npz:
             contents = {name: npz[name] for name in npz.files}
     except ValueError as error:

@@ -243,6 +243,15 @@ def test_pickled_object_is_refused_and_never_executed(saved, tmp_path):
     assert not marker.exists()
 
 
+def test_compressed_entries_are_refused(saved):
+    _, path = saved
+    entries = entries_of(path)
+    with open(path, "wb") as file:
+        np.savez_compressed(file, **entries)
+    with pytest.raises(om.CheckpointError, match="compressed entries"):
+        om.load(path)
+
+
 def test_extra_entry_is_refused(saved):
     _, path = saved
     entries = entries_of(path)

@@ -136,6 +136,9 @@ def test_track_refuses_a_checkpoint_of_another_world_or_options(tmp_path, monkey
                         (["--estimator", "dead_reckoning"], "holds a 'exact' estimator")]:
         assert track_in_process(monkeypatch, ["--checkpoint", str(ck)] + args) == 2
         assert words in capsys.readouterr().err
+    ck.write_bytes(ck.read_bytes()[:100])  # a damaged checkpoint stops the process with a clear error
+    assert track_in_process(monkeypatch, ["--checkpoint", str(ck)]) == 2
+    assert "truncated or corrupt" in capsys.readouterr().err
     assert track_in_process(monkeypatch, ["--every", "3"]) == 2
     assert "--every K needs --checkpoint" in capsys.readouterr().err
     assert track_in_process(monkeypatch, ["--option", "colour=red"]) == 2
