@@ -122,7 +122,9 @@ def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
     t = 0), ``true_location``, ``map_error`` (mean over cells of 1 - P(true label)),
     ``location_error`` (1 - P(true cell)), ``location_entropy`` and ``map_entropy``
     (normalised to [0, 1]) and ``door_error`` (``map_error`` over the door cells; NaN if the
-    world has none). Cost: ``steps`` x (estimator step + planner choice) plus O(steps N K).
+    world has none); ``frame.attrs`` holds the planner, the estimator and seconds per step.
+    ``progress``: a tqdm bar (None: shown for runs of 200 steps or more).
+    Cost: ``steps`` x (estimator step + planner choice) plus O(steps N K) memory and metrics.
     """
     world_rng, planner_rng, estimator_seed = _seeds(seed)
     labels = np.array(true_map, dtype=np.int64)
