@@ -130,8 +130,8 @@ def forward_backward(model: GridModel, prior: np.ndarray, actions: np.ndarray, o
     if bad >= 0:
         label = model.label_names[observations[bad]]
         raise ImpossibleObservationError(
-            f"observation {label!r} at step {first_step + bad} has probability zero under the "
-            f"current observation matrix B (use pseudo_count > 0 to keep every observation possible)")
+            f"observation {label!r} at step {first_step + bad} has probability zero under the observation "
+            f"matrix B in use (B starts as label_prior @ O; a learned B has no zeros when pseudo_count > 0)")
     np.log(normalizers, out=normalizers)
     return HMMPosterior(filtered, posterior, normalizers)
 
