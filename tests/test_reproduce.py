@@ -123,5 +123,7 @@ def test_cli_reproduce_corridor_random(tmp_path, capsys, small_list):
 def test_cli_reproduce_refuses_bad_arguments():
     with pytest.raises(SystemExit):
         main(["reproduce", "hallway"])
-    with pytest.raises(SystemExit):
-        main(["reproduce", "corridor", "--random", "-1"])
+    for bad in (["--random", "-1"], ["--random", "0"], ["--random", "x"], ["--confidence", "1.5"]):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["reproduce", "corridor", *bad])
+        assert exit_info.value.code == 2

@@ -29,11 +29,26 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "estimator ends lost or with a wrong map, with Wilson confidence intervals.")
     p.add_argument("scenario", choices=["corridor"], help="which reproduction")
     p.add_argument("--out", metavar="DIR", help="directory for CSV tables and PNG figures")
-    p.add_argument("--random", metavar="N_RUNS", type=int, default=0,
+    p.add_argument("--random", metavar="N_RUNS", type=_positive_int, default=0,
                    help="run the random-corridor study over N_RUNS runs instead of the scripted run")
     p.add_argument("--seed", type=int, default=0, help="seed of the random study (default 0)")
-    p.add_argument("--confidence", type=float, default=0.95, help="confidence of the intervals (default 0.95)")
+    p.add_argument("--confidence", type=_probability, default=0.95,
+                   help="confidence of the intervals, in (0, 1) (default 0.95)")
     p.set_defaults(func=reproduce)
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"needs a number of runs >= 1, got {text}")
+    return value
+
+
+def _probability(text: str) -> float:
+    value = float(text)
+    if not 0 < value < 1:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1), got {text}")
+    return value
 
 
 def steps_table(run, trajectories) -> pd.DataFrame:
@@ -81,10 +96,6 @@ def study(n_runs: int, seed: int, confidence: float, out: Path | None) -> None:
 
 def reproduce(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else None
-    if args.random < 0:
-        raise SystemExit("onlinemap reproduce: error: --random needs a number of runs >= 1")
-    if not 0 < args.confidence < 1:
-        raise SystemExit("onlinemap reproduce: error: --confidence must be in (0, 1)")
     if args.random:
         study(args.random, args.seed, args.confidence, out)
     else:
