@@ -20,13 +20,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "reproduce", help="reproduce a claim of the literature (corridor: online EM gets lost)",
         description="corridor: run Murphy's scripted 8-cell corridor (one slip on the way out) through "
-                    "exact Bayes, dead reckoning, online EM (windows 1, 2, 4, 8, max x decays 0.8, 0.9, "
-                    "0.95, 1.0) and offline EM; print final map error, wrong visited cells, the lowest "
+                    "every entry of onlinemap.reproduce.CORRIDOR_ESTIMATORS: exact Bayes, dead reckoning, "
+                    "online EM (windows 1, 2, 4, 8, max x decays 0.8, 0.9, 0.95, 1.0), offline EM, BK and "
+                    "the RBPF (100 particles); print final map error, wrong visited cells, the lowest "
                     "P(true location) on the way back, the final P(true location) and the time per step. "
                     "With --out, also write CSV tables and PNG figures (location posterior and map "
                     "marginals over time per estimator). With --random N, instead run N random "
                     "corridors (6-12 cells, random labels and slip time) and report how often each "
-                    "estimator ends lost or with a wrong map, with Wilson confidence intervals.")
+                    "estimator goes astray on the way back (P(true location) < 0.05), ends lost (< 0.5) or "
+                    "with a wrong map, with Wilson confidence intervals.")
     p.add_argument("scenario", choices=["corridor"], help="which reproduction")
     p.add_argument("--out", metavar="DIR", help="directory for CSV tables and PNG figures")
     p.add_argument("--random", metavar="N_RUNS", type=_positive_int, default=0,
