@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-BENCHMARK_MODULES = ("exact", "peers", "rbpf", "em", "planning")
+BENCHMARK_MODULES = ("exact", "peers", "rbpf", "em", "planning", "checkpoint")
 _BENCHMARKS: dict[str, Callable[[bool], list[dict]]] = {}
 
 
