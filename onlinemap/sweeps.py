@@ -8,7 +8,8 @@ A spec is a TOML file (every key but ``worlds`` and ``estimators`` optional)::
     seeds = 20                         # 20 -> seeds 0..19; or a list [0, 4, 7]
     steps = 100                        # steps per run (first observation included); or a list;
                                        # "trip": one there-and-back trip, 2 (N - 1) + 1 steps
-    walk = "random"                    # "random" or "there_and_back" (corridors); or a list
+    walk = "random"                    # "random", "there_and_back" (corridors) or "scripted_trip"
+                                       # (one trip, one slip, noise-free observations); or a list
     rows = "task"                      # "task": one row per task; "step": one per task and step
     reference = "exact"                # also run this estimator on every run and record the
                                        # total variation of each belief to it
@@ -56,6 +57,7 @@ import tomllib
 import types
 import typing
 import uuid
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, NamedTuple
@@ -70,10 +72,11 @@ from .estimators import available_estimators, estimator_options, make_estimator,
 from .estimators.base import _lookup as _estimator_class
 from .model import GridModel
 from .reproduce import LOST_BELOW, wilson_interval
-from .simulate import random_walk, simulate, there_and_back
+from .scenarios import scripted_corridor
+from .simulate import Run, random_walk, simulate, there_and_back
 from .worlds import WorldSpec, parse_world
 
-WALKS = ("random", "there_and_back")
+WALKS = ("random", "there_and_back", "scripted_trip")
 ROWS = ("task", "step")
 TOP_KEYS = ("name", "worlds", "seeds", "steps", "walk", "rows", "reference", "estimators", "planners")
 DASK_HINT = "install dask.distributed with: pip install 'onlinemap[sweeps]'"
@@ -237,12 +240,17 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
                                               f"available: {', '.join(available_estimators())}")
         planners = [(None, (), ())]
     estimators = _configs(data, "estimators", where, estimator_options, _estimator_builder)
-    if "trip" in steps and walks != ["there_and_back"]:
-        raise where.error(("steps",), 'steps = "trip" (one there-and-back trip) needs walk = "there_and_back"')
-    if "there_and_back" in walks:
-        bad = [w.spec for w in worlds if w.model.action_names != ("left", "right")]
+    if "trip" in steps and not set(walks) <= {"there_and_back", "scripted_trip"}:
+        raise where.error(("steps",), 'steps = "trip" (one there-and-back trip) needs walk = "there_and_back" '
+                                      'or "scripted_trip"')
+    if "scripted_trip" in walks and steps != ["trip"]:
+        raise where.error(("walk",), 'walk = "scripted_trip" is one trip: it needs steps = "trip"')
+    if {"there_and_back", "scripted_trip"} & set(walks):
+        bad = [w.spec for w in worlds if w.model.action_names != ("left", "right")
+               or ("scripted_trip" in walks and not w.model.is_static)]
         if bad:
-            raise where.error(("walk",), f"there_and_back needs corridor worlds, not {', '.join(bad)}")
+            raise where.error(("walk",), f"there_and_back needs corridor worlds (scripted_trip static ones), "
+                                         f"not {', '.join(bad)}")
     _check_builds(worlds, estimators, planners, where)
     if reference is not None:
         _check_builds(worlds, [(reference, (), ("reference",))], [(None, (), ())], where)
@@ -476,7 +484,7 @@ def _options_text(options: tuple) -> str:
 
 # --- one task ----------------------------------------------------------------------------------
 TASK_METRICS = ("final_map_error", "mean_map_error", "final_location_error", "mean_location_error",
-                "wrong_cells", "lost", "failed", "final_log_evidence", "final_location_tv",
+                "max_location_error", "wrong_cells", "lost", "failed", "final_log_evidence", "final_location_tv",
                 "mean_location_tv", "final_map_tv", "mean_map_tv", "final_map_entropy",
                 "final_location_entropy", "final_door_error", "mean_door_error", "ms_per_step")
 STEP_METRICS = ("map_error", "location_error", "log_evidence", "location_tv", "map_tv", "map_entropy",
@@ -497,11 +505,21 @@ def walk_actions(model: GridModel, walk: str, n_actions: int, rng: np.random.Gen
     return np.resize(trip, n_actions) if n_actions else trip[:0]
 
 
+def scripted_trip(model: GridModel, labels: np.ndarray, rng: np.random.Generator) -> Run:
+    """The literature's corridor run (DESIGN.md section 5.1) on a static corridor ``model`` with
+    the given labels: right N - 1 times, left N - 1 times, exactly one slip at an outward move
+    drawn uniformly in 1..N-1, every observation the true label
+    (:func:`onlinemap.scenarios.scripted_corridor`, with ``model`` as the robot's model)."""
+    slip = int(rng.integers(1, model.n_cells))
+    run = scripted_corridor(labels, slips=(slip,))  # its path and observations; its model is replaced
+    return Run(model, run.actions, run.locations, run.maps, run.observations)
+
+
 def run_task(task: Task) -> pd.DataFrame:
     """Simulate the task's run and return its metrics: one row, or one row per step.
 
     Metrics: map error (mean over cells of 1 - P(true label)) and location error
-    (1 - P(true cell)), final and mean over steps; ``wrong_cells`` (visited cells whose most
+    (1 - P(true cell)), final and mean over steps (and the worst location error); ``wrong_cells`` (visited cells whose most
     likely final label is wrong); ``lost`` (final P(true cell) < ``reproduce.LOST_BELOW`` = 0.5);
     ``failed`` (lost or a
     wrong cell); time per step; with a reference estimator the total variation to its beliefs
@@ -513,8 +531,11 @@ def run_task(task: Task) -> pd.DataFrame:
     model = world.model
     rng = np.random.default_rng(task.seed)
     true_map = world.initial_map(rng)
-    n_actions = 2 * (model.n_cells - 1) if task.steps == "trip" else task.steps - 1
-    run = simulate(model, true_map, walk_actions(model, task.walk, n_actions, rng), rng)
+    if task.walk == "scripted_trip":
+        run = scripted_trip(model, true_map, rng)
+    else:
+        n_actions = 2 * (model.n_cells - 1) if task.steps == "trip" else task.steps - 1
+        run = simulate(model, true_map, walk_actions(model, task.walk, n_actions, rng), rng)
     estimator = _make(task.estimator, model, task.options, task.seed, run)
     trajectory = run_estimator(estimator, run.actions, run.observations)
     steps = {
@@ -536,6 +557,7 @@ def run_task(task: Task) -> pd.DataFrame:
     row = {"final_map_error": steps["map_error"][-1], "mean_map_error": steps["map_error"].mean(),
            "final_location_error": steps["location_error"][-1],
            "mean_location_error": steps["location_error"].mean(),
+           "max_location_error": steps["location_error"].max(),
            "wrong_cells": wrong, "lost": lost, "failed": lost or wrong > 0,
            "final_log_evidence": steps["log_evidence"][-1]}
     if task.reference is not None:
@@ -673,6 +695,8 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     neither, results live only in memory and nothing resumes). Tasks already there are
     skipped. Raises :class:`SweepError` (after keeping every finished task) if tasks failed.
     """
+    if client is not None and workers is not None:
+        raise OnlineMapError("workers sizes a local cluster or picks serial mode (0); not with a client")
     spec = _as_spec(spec)
     if results_dir is None and out is not None:
         results_dir = default_results_dir(out)
@@ -747,8 +771,10 @@ def local_cluster(workers: int | None = None, n_tasks: int | None = None):
     or are numba kernels): ``workers`` processes, default one per CPU (at most one per task)."""
     distributed = _dask()
     count = workers or max(1, min(os.cpu_count() or 1, n_tasks or os.cpu_count() or 1))
-    return distributed.LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
-                                    dashboard_address=None, silence_logs=40)
+    with warnings.catch_warnings():  # another cluster on this machine holds the default HTTP port
+        warnings.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
+        return distributed.LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
+                                        dashboard_address=None, silence_logs=40)
 
 
 def _run_dask(todo: list[Task], client, workers: int | None, record, failures: list) -> None:

@@ -160,6 +160,24 @@ def test_a_list_valued_option_is_a_list_of_lists(tmp_path):
     assert dict(spec.tasks[0].options) == {"anneal": (1.0, 0.9, 0.1)}
 
 
+def test_scripted_trip_is_the_literature_run_with_one_random_slip():
+    model = om.corridor(7)
+    labels = np.array([0, 1, 1, 0, 1, 0, 0])
+    slips = set()
+    for seed in range(40):
+        run = sweeps.scripted_trip(model, labels, np.random.default_rng(seed))
+        assert run.model is model and list(run.actions) == [1] * 6 + [0] * 6
+        assert run.slipped.sum() == 1 and np.flatnonzero(run.slipped)[0] < 6  # one slip, on the way out
+        np.testing.assert_array_equal(run.observations, labels[run.locations])  # noise-free
+        slips.add(int(np.flatnonzero(run.slipped)[0]))
+    assert slips == set(range(6))  # every outward move can be the one that fails
+    with pytest.raises(om.SpecError, match='line 2: walk: .*needs steps = "trip"'):
+        sweeps.parse_spec('worlds = ["corridor:5"]\nwalk = "scripted_trip"\nsteps = 9\n[estimators.exact]\n')
+    with pytest.raises(om.SpecError, match="line 2: walk: .*static"):
+        sweeps.parse_spec('worlds = ["corridor:5,p_change=0.1"]\nwalk = "scripted_trip"\nsteps = "trip"\n'
+                          '[estimators.exact]\n')
+
+
 # --- resuming: every task exactly once -----------------------------------------------------------
 def test_killed_sweep_resumes_and_finishes_every_task_exactly_once(tmp_path, serial_table):
     spec_path = write_spec(tmp_path, SPEC.replace("seeds = 3", "seeds = 3\n").replace(
@@ -278,8 +296,10 @@ def test_example_spec_is_valid_and_runs_in_miniature(path):
 # --- dask ------------------------------------------------------------------------------------------
 def test_local_cluster_with_two_workers_gives_the_serial_table(client, serial_table, tmp_path):
     assert len(client.scheduler_info()["workers"]) == 2
-    table = om.sweep(sweeps.parse_spec(SPEC), client, results_dir=tmp_path, progress=False)
+    table = om.sweep(sweeps.parse_spec(SPEC), client, results_dir=tmp_path / "a", progress=False)
     pd.testing.assert_frame_equal(without_timing(table), without_timing(serial_table))
+    by_address = om.sweep(sweeps.parse_spec(SPEC), client.scheduler.address, progress=False)  # --scheduler
+    pd.testing.assert_frame_equal(without_timing(by_address), without_timing(serial_table))
 
 
 def test_killing_a_worker_midway_still_finishes_every_task_once(client, serial_table, tmp_path):
