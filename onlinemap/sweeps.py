@@ -239,7 +239,7 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
             raise where.error(("reference",), f"unknown estimator {reference!r}; "
                                               f"available: {', '.join(available_estimators())}")
         planners = [(None, (), ())]
-    estimators = _configs(data, "estimators", where, estimator_options, _estimator_builder)
+    estimators = _configs(data, "estimators", where, estimator_options, _estimator_class)
     if "trip" in steps and not set(walks) <= {"there_and_back", "scripted_trip"}:
         raise where.error(("steps",), 'steps = "trip" (one there-and-back trip) needs walk = "there_and_back" '
                                       'or "scripted_trip"')
@@ -428,10 +428,6 @@ def _configs(data: dict, section: str, where: _Locator, options_of: Callable[[st
     return configs
 
 
-def _estimator_builder(name: str) -> type:
-    return _estimator_class(name)
-
-
 def _policies():
     try:
         import policies
@@ -519,11 +515,12 @@ def run_task(task: Task) -> pd.DataFrame:
     """Simulate the task's run and return its metrics: one row, or one row per step.
 
     Metrics: map error (mean over cells of 1 - P(true label)) and location error
-    (1 - P(true cell)), final and mean over steps (and the worst location error); ``wrong_cells`` (visited cells whose most
-    likely final label is wrong); ``lost`` (final P(true cell) < ``reproduce.LOST_BELOW`` = 0.5);
-    ``failed`` (lost or a
-    wrong cell); time per step; with a reference estimator the total variation to its beliefs
-    (location, and per cell averaged over cells); for exploration the entropies and door error.
+    (1 - P(true cell)), final and mean over steps, and the worst location error;
+    ``wrong_cells`` (visited cells whose most likely final label is wrong); ``lost`` (final
+    P(true cell) < ``reproduce.LOST_BELOW`` = 0.5); ``failed`` (lost or a wrong cell); time
+    per step; with a reference estimator the total variation to its beliefs (location, and per
+    cell averaged over cells); for exploration the entropies and door error.
+    Cost: one simulation plus the estimator's (and the reference's) run.
     """
     if task.kind == "explore":
         return _run_explore(task)
