@@ -116,6 +116,8 @@ def test_bad_use_is_refused():
         env.step(4)
     with pytest.raises(om.ModelError):
         DoorWorldEnv(model=om.corridor(4))  # a model needs its true map
+    with pytest.raises(om.ModelError):
+        DoorWorldEnv(true_map=np.zeros(100, dtype=int))  # a layout has its own map
     with pytest.raises(ValueError, match="render_mode"):
         DoorWorldEnv(render_mode="human")
 

@@ -29,7 +29,7 @@ class DoorWorldEnv(gym.Env):
     """A door world (default layout :data:`onlinemap.DOOR_WORLD_10X10`) as a gymnasium env.
 
     Build it from a layout and the model parameters, or pass ``model`` and ``true_map``
-    (any :class:`~onlinemap.GridModel`). ``info`` holds ``t``, ``location`` (true cell),
+    (any :class:`~onlinemap.GridModel`; its own parameters are used). ``info`` holds ``t``, ``location`` (true cell),
     ``map`` (true labels, (N,) copy) and ``visited`` (distinct cells entered so far).
     Render modes: ``rgb_array`` (``cell_pixels`` pixels per cell, robot in blue), ``ansi``.
     """
@@ -40,6 +40,8 @@ class DoorWorldEnv(gym.Env):
                  p_door: float = 0.01, start: int | None = None, model: GridModel | None = None,
                  true_map=None, render_mode: str | None = None, cell_pixels: int = 16):
         if model is None:
+            if true_map is not None:
+                raise ModelError("true_map goes with model=...; a layout defines its own map")
             model, true_map = door_world(layout, p_obs=p_obs, p_move=p_move, p_door=p_door, start=start)
         elif layout is not None or true_map is None:
             raise ModelError("pass either a layout, or a model together with its true_map")
