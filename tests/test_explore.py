@@ -141,6 +141,7 @@ def test_cli_explore_writes_table_and_figures(tmp_path, capsys):
     for name in ("explore_errors.png", "explore_visits.png"):
         assert (tmp_path / "fig" / name).stat().st_size > 10_000
     assert main(["explore", "--planner", "greedy", "--no-figures"]) == 2
+    assert main(["explore", "--floor-plan", "2", "--steps", "5", "--no-figures"]) == 2
     assert main(["explore", "--world", "door", "--estimator", "dead_reckoning", "--steps", "20",
                  "--option", "bogus=1", "--no-figures"]) == 2
 
