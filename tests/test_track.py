@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import json
+import signal
 import subprocess
 import sys
 
@@ -108,6 +109,25 @@ def test_track_through_a_pipe_with_bad_lines_and_a_restart(name, options, tmp_pa
     assert events[-1] == {"event": "checkpoint", "t": run.n_steps - 1, "path": str(ck)}  # saved at the end
     assert [json.loads(line) for line in second.stdout.splitlines()] == want[8:]
     assert om.load(ck).t == run.n_steps - 1
+
+
+def test_sigterm_saves_and_stops_between_steps(tmp_path):
+    model = parse_world(WORLD).model
+    run = random_run(model, 6, seed=2)
+    ck = tmp_path / "ck.npz"
+    proc = subprocess.Popen(command("exact", [], "--checkpoint", str(ck), "--every", "1000"), stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    for line in lines_of(model, run):
+        proc.stdin.write(line + "\n")
+        proc.stdin.flush()
+        assert json.loads(proc.stdout.readline())["t"] >= 0
+    proc.send_signal(signal.SIGTERM)  # waiting for input: stops at once, saving first
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    events = [json.loads(line) for line in err.splitlines()]
+    assert events[-2:] == [{"event": "checkpoint", "t": 5, "path": str(ck)},
+                           {"event": "stopped", "signal": "SIGTERM", "t": 5}]
+    assert om.load(ck).t == 5
 
 
 def test_summary_without_full_and_options_parsing():

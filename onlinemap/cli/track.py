@@ -13,8 +13,8 @@ observation) gets one JSON line on stderr, ``{"line": n, "error": type, "message
 changes nothing, and the process keeps reading. Informational events (start, resume,
 checkpoint written) are JSON lines on stderr too.
 
-With ``--checkpoint FILE``, the state is saved atomically every ``--every K`` steps and at the
-end of the input; a restarted process finds the file and resumes from it (the next line is step
+With ``--checkpoint FILE``, the state is saved atomically every ``--every K`` steps, at the
+end of the input and on SIGTERM or SIGINT (which stop the loop between steps, never inside one); a restarted process finds the file and resumes from it (the next line is step
 ``t + 1``), after checking that the world, estimator and options are the ones it was saved with.
 """
 
@@ -23,7 +23,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from .. import checkpoint
@@ -160,27 +162,67 @@ def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int
                    "options": options,
                    "actions": list(model.action_names), "labels": list(model.label_names)})
     unsaved = 0
-    try:
-        for number, line in enumerate(stdin, 1):
-            text = line.strip()
-            if not text:
-                continue
-            try:
-                belief = est.step(*parse_line(text))
-            except OnlineMapError as error:
-                _emit(stderr, {"line": number, "error": type(error).__name__, "message": str(error)})
-                continue
-            unsaved += 1
-            _emit(stdout, summarize(belief, args.full))
-            if args.checkpoint is not None and (belief.t + 1) % every == 0:
+    with _GracefulStop() as stop:
+        try:
+            for number, line in enumerate(stdin, 1):
+                text = line.strip()
+                if not text:
+                    continue
+                stop.busy = True
+                try:
+                    belief = est.step(*parse_line(text))
+                except OnlineMapError as error:
+                    _emit(stderr, {"line": number, "error": type(error).__name__, "message": str(error)})
+                else:
+                    unsaved += 1
+                    _emit(stdout, summarize(belief, args.full))
+                    if args.checkpoint is not None and (belief.t + 1) % every == 0:
+                        _save(est, args.checkpoint, stderr)
+                        unsaved = 0
+                finally:
+                    stop.busy = False
+                if stop.requested:
+                    break
+        except _Stopped:
+            pass
+        finally:
+            if args.checkpoint is not None and unsaved:
                 _save(est, args.checkpoint, stderr)
-                unsaved = 0
-    except KeyboardInterrupt:
-        return 130
-    finally:
-        if args.checkpoint is not None and unsaved:
-            _save(est, args.checkpoint, stderr)
+    if stop.requested is not None:
+        _emit(stderr, {"event": "stopped", "signal": signal.Signals(stop.requested).name, "t": est.t})
+        return 130 if stop.requested == signal.SIGINT else 0
     return 0
+
+
+class _Stopped(Exception):
+    """Raised by the signal handler while the loop waits for input."""
+
+
+class _GracefulStop:
+    """SIGTERM and SIGINT end the loop between steps, never inside one: a step cut half-way
+    through its commit could leave an inconsistent state to be checkpointed. While waiting for
+    input the loop stops at once; during a step, right after it. Handlers are restored on exit
+    (installed only in the main thread, where Python delivers signals)."""
+
+    def __init__(self) -> None:
+        self.busy = False
+        self.requested: int | None = None
+        self._previous: dict[int, object] = {}
+
+    def __enter__(self) -> "_GracefulStop":
+        if threading.current_thread() is threading.main_thread():
+            for number in (signal.SIGTERM, signal.SIGINT):
+                self._previous[number] = signal.signal(number, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for number, handler in self._previous.items():
+            signal.signal(number, handler)
+
+    def _handle(self, number, frame) -> None:
+        self.requested = number
+        if not self.busy:
+            raise _Stopped
 
 
 def _save(est, path: Path, stderr) -> None:
