@@ -16,7 +16,6 @@ They take about an hour in all (see README, "Long runs").
 
 from __future__ import annotations
 
-import json
 import time
 import tracemalloc
 
