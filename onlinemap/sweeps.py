@@ -650,18 +650,23 @@ def collect(tasks: Iterable[Task], results_dir: str | os.PathLike) -> pd.DataFra
     """One table from the result files of ``tasks`` (each task once, in spec order), with a
     column ``opt_NAME`` per option (and ``planner_opt_NAME`` per planner option). Files of
     tasks not in ``tasks`` (an older version of the spec) are left out."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
     results_dir = Path(results_dir)
-    tasks = list(tasks)
-    frames = [pd.read_parquet(_part_path(results_dir, t)) for t in tasks if _part_path(results_dir, t).exists()]
     done = [t for t in tasks if _part_path(results_dir, t).exists()]
-    return _assemble(done, frames)
+    parts = [pq.read_table(_part_path(results_dir, t)) for t in done]  # pyarrow: ~3x faster than pandas
+    if not parts:
+        return _assemble([], pd.DataFrame(columns=TASK_COLUMNS), np.empty(0, dtype=np.int64))
+    try:
+        table = pa.concat_tables(parts, promote_options="permissive").to_pandas()
+    except (pa.ArrowInvalid, pa.ArrowTypeError):  # columns whose types differ between tasks
+        table = pd.concat([part.to_pandas() for part in parts], ignore_index=True)
+    return _assemble(done, table, np.array([part.num_rows for part in parts]))
 
 
-def _assemble(tasks: list[Task], frames: list[pd.DataFrame]) -> pd.DataFrame:
-    if not frames:
-        return pd.DataFrame(columns=TASK_COLUMNS)
-    table = pd.concat(frames, ignore_index=True)
-    repeats = np.array([len(f) for f in frames])
+def _assemble(tasks: list[Task], table: pd.DataFrame, repeats: np.ndarray) -> pd.DataFrame:
+    """Add the option columns to ``table``, whose rows are ``repeats[i]`` rows per task i."""
     for prefix, field in (("opt_", "options"), ("planner_opt_", "planner_options")):
         names = sorted({name for t in tasks for name, _ in getattr(t, field)})
         for name in names:
@@ -731,7 +736,9 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
         table = collect(spec.tasks, store)
     else:
         finished = [t for t in spec.tasks if t.key in memory]
-        table = _assemble(finished, [memory[t.key] for t in finished])
+        frames = [memory[t.key] for t in finished]
+        table = _assemble(finished, pd.concat(frames, ignore_index=True) if frames else
+                          pd.DataFrame(columns=TASK_COLUMNS), np.array([len(f) for f in frames], dtype=np.int64))
     if out is not None:
         from .cli.common import write_table
 

@@ -22,20 +22,31 @@ def test_bench_peers_without_peer_libraries_says_how_to_install(no_pgmpy, capsys
     assert "pip install 'onlinemap[peers]'" in capsys.readouterr().err
 
 
-def test_bench_with_no_name_runs_everything_else_and_writes_json(no_pgmpy, tmp_path, capsys):
+def test_bench_with_no_name_runs_everything_else_and_writes_json(no_pgmpy, monkeypatch, tmp_path, capsys):
+    from onlinemap import bench
+    from onlinemap.bench.peers import bench_peers
+
+    def tiny(quick):
+        return [{"case": "a", "ms": 2.0, "reference": "r", "reference_ms": 1.0, "ratio": 2.0, "target": 3.0},
+                {"case": "b", "ms": 1.0, "reference": "r", "reference_ms": 1.0, "ratio": 1.0, "target": np.nan}]
+
+    monkeypatch.setattr(bench, "BENCHMARK_MODULES", ())
+    monkeypatch.setattr(bench, "_BENCHMARKS", {"tiny": tiny, "peers": bench_peers})
     path = tmp_path / "history.jsonl"
     for _ in range(2):
         assert main(["bench", "--quick", "--json", str(path)]) == 0
     out = capsys.readouterr()
-    assert "skipped peers" in out.err and "targets met" in out.out
+    assert "skipped peers" in out.err and "1 of 1 targets met" in out.out
     records = [json.loads(line) for line in path.read_text().splitlines()]
     assert len(records) == 2  # .jsonl appends: a history
     record = records[0]
     assert set(record["skipped"]) == {"peers"}
     assert record["machine"]["onlinemap"] and record["machine"]["cpu_count"] >= 1
-    assert {row["benchmark"] for row in record["rows"]} >= {"exact"}
-    assert all(set(row) >= {"case", "ms", "reference_ms", "ratio", "target", "meets_target"}
-               for row in record["rows"])
+    assert [row["case"] for row in record["rows"]] == ["a", "b"]
+    assert record["rows"][0]["meets_target"] is True and record["rows"][1]["target"] is None  # NaN -> null
+    single = tmp_path / "bench.json"
+    assert main(["bench", "tiny", "--json", str(single)]) == 0
+    assert json.loads(single.read_text())["rows"][0]["benchmark"] == "tiny"
 
 
 def test_bench_peers_agrees_with_pgmpy_and_hmmlearn():
