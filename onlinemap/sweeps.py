@@ -935,9 +935,13 @@ def plot_sweep(table: pd.DataFrame, x: str, metrics_: Iterable[str], path: str |
         axis.set_xlabel(x)
         axis.set_ylabel(metric)
         axis.grid(alpha=0.3)
-    axes[0][-1].legend(fontsize=7)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    columns = min(3, max(1, len(labels)))
+    rows = math.ceil(len(labels) / columns)
+    figure.set_figheight(3.8 + 0.2 * rows)
+    figure.legend(handles, labels, loc="lower center", ncol=columns, fontsize=7, frameon=False)
     figure.suptitle(f"mean over seeds with {confidence:.0%} intervals")
-    figure.tight_layout()
+    figure.tight_layout(rect=(0, 0.2 * rows / (3.8 + 0.2 * rows) + 0.02, 1, 1))
     if path is not None:
         figure.savefig(path, dpi=120)
     return figure
