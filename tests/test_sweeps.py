@@ -142,6 +142,20 @@ def test_malformed_spec_on_the_command_line_exits_2_with_the_line(tmp_path, caps
     assert not (tmp_path / "r.parts").exists()
 
 
+def test_command_line_runs_a_spec_writes_csv_and_summarises(tmp_path, capsys):
+    path = write_spec(tmp_path, SPEC.replace("seeds = 3", "seeds = 2"))
+    assert main(["sweep", str(path), "--check"]) == 0
+    assert f"{N_TASKS // 3 * 2} tasks" in capsys.readouterr().out
+    out = tmp_path / "r.csv"
+    assert main(["sweep", str(path), "--workers", "0", "--out", str(out), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "final_map_error" in printed and "mean_map_tv" in printed and "n_particles=10" in printed
+    table = pd.read_csv(out)
+    assert len(table) == N_TASKS // 3 * 2 and (tmp_path / "r.parts").is_dir()
+    assert main(["sweep", str(path), "--workers", "0", "--out", str(out), "--no-progress"]) == 0
+    assert f"{N_TASKS // 3 * 2} already finished" in capsys.readouterr().out
+
+
 def test_array_of_tables_errors_name_the_right_table(tmp_path):
     text = 'worlds = ["corridor:4"]\nseeds = 1\n[[estimators.online_em]]\nwindow = "max"\n' \
            '[[estimators.online_em]]\nwindow = [1, 2]\ndecay = [0.9, "high"]\n'

@@ -35,7 +35,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--check", action="store_true", help="validate the spec, count the tasks, run nothing")
     p.add_argument("--summary", metavar="RESULTS",
                    help="print means with confidence intervals per configuration from a results table")
-    p.add_argument("--metrics", type=split_list, help="comma-separated metrics for the summary (default: all)")
+    p.add_argument("--metrics", type=split_list,
+                   help="comma-separated metrics for the summary (default: map and location errors, "
+                        "failed, distances to the reference, door error, ms per step, those present)")
     p.add_argument("--confidence", type=float, default=0.95, help="confidence level (default 0.95)")
     p.add_argument("--plot", metavar="PNG", help="with --summary (or after a run): plot the metrics "
                                                  "against --x with confidence intervals")
@@ -53,7 +55,15 @@ def _read(path: str) -> pd.DataFrame:
         raise OnlineMapError(f"cannot read results table {path}: {error}") from None
 
 
+# printed when --metrics is not given (those the table has): per-task and per-step names
+DEFAULT_METRICS = ("final_map_error", "final_location_error", "failed", "mean_map_tv", "mean_location_tv",
+                   "final_door_error", "map_error", "location_error", "map_tv", "location_tv", "door_error",
+                   "ms_per_step")
+
+
 def _print_summary(table: pd.DataFrame, args: argparse.Namespace) -> None:
+    if not args.metrics:
+        args.metrics = [m for m in DEFAULT_METRICS if m in table.columns]
     summary = summarize(table, args.metrics, args.confidence)
     step_note = " at each task's last step" if "t" in table.columns else ""
     print(f"mean [{args.confidence:.0%} confidence interval] over seeds, per configuration{step_note}:")
