@@ -575,7 +575,7 @@ def _make(name: str, model: GridModel, options: tuple, seed: int, run=None):
     if "seed" in estimator_options(name):
         options.setdefault("seed", derived_seed(seed, 1))
     warm = (name, _options_text(tuple(sorted((k, v) for k, v in options.items() if k != "seed"))),
-            model.n_cells, model.n_labels)
+            model.n_cells, model.n_labels, model.n_actions, model.is_static)
     if run is not None and warm not in _WARMED and run.n_steps > 1:
         warm_steps = min(run.n_steps, 20)
         run_estimator(make_estimator(name, model, **options), run.actions[:warm_steps - 1],
