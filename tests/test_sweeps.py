@@ -164,6 +164,9 @@ def test_array_of_tables_errors_name_the_right_table(tmp_path):
     good = sweeps.parse_spec(text.replace(', "high"', ""))
     assert [dict(t.options) for t in good.tasks] == [{"window": "max"}, {"decay": 0.9, "window": 1},
                                                       {"decay": 0.9, "window": 2}]
+    repeated = sweeps.parse_spec(text.replace(', "high"', "").replace('window = [1, 2]', 'window = [1, 2, 1]')
+                                 .replace('["corridor:4"]', '["corridor:4", "corridor:4"]'))
+    assert repeated.tasks == good.tasks  # a repeated world or grid value is one task, run once
 
 
 def test_a_list_valued_option_is_a_list_of_lists(tmp_path):
