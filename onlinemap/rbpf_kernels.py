@@ -95,15 +95,15 @@ def rbpf_propose(locations, pool, pool_stamps, table, cell_block, cell_slot, pow
 
 @njit(cache=True)
 def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
-                dynamic, t,
-                ancestors, new_locations, new_cells):
+                dynamic, powers, max_age, t, ancestors, new_locations, new_cells):
     """Apply a validated proposal in place.
 
     1. Slots taken over by a copy (``ancestors[p] != p``; such ancestors keep their own slot,
        so sources are never overwritten) release their rows and share the ancestor's:
        O(n_blocks) per copied particle.
     2. Each particle writes its observed cell (stamped ``t``), first copying the block if it is
-       shared: O(B K) per shared write. Needs ``free_top[0] >= P`` free rows.
+       shared: O(B K) per shared write (cells of the copy older than ``max_age`` steps are
+       brought up to date, so a copy never extends a row's age). Needs ``free_top[0] >= P``.
     """
     n_particles, n_blocks = table.shape
     for p in range(n_particles):
@@ -129,6 +129,11 @@ def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_to
             pool[fresh] = pool[r]
             if dynamic:
                 pool_stamps[fresh] = pool_stamps[r]
+                for slot in range(pool.shape[1]):
+                    if t - pool_stamps[fresh, slot] > max_age:
+                        for label in range(pool.shape[2]):
+                            pool[fresh, slot, label] = _label(pool, pool_stamps, powers, dynamic, t, r, slot, label)
+                        pool_stamps[fresh, slot] = t
             row_block[fresh] = b
             refcount[r] -= 1
             refcount[fresh] = 1
@@ -139,6 +144,33 @@ def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_to
         if dynamic:
             pool_stamps[r, j] = t
         locations[p] = cell
+
+
+@njit(cache=True)
+def rbpf_refresh(pool, pool_stamps, refcount, powers, t, start, count):
+    """Bring rows ``start, start + 1, ...`` (``count`` of them, cyclically) up to date at step t:
+    ``row <- row @ C^(t - stamp)``, stamp ``t``. Same values, bounded ages: called every step
+    with ``count = ceil(R / h)``, every row is refreshed at least every h steps; with copies
+    refreshed beyond age h (``rbpf_commit``), no stamp is older than 2 h + 1 steps, so a table of
+    powers up to a few h suffices however long the run. O(count B K^2)."""
+    n_rows, block, k = pool.shape
+    tmp = np.empty(k)
+    for step in range(count):
+        r = (start + step) % n_rows
+        if refcount[r] == 0:
+            continue
+        for j in range(block):
+            d = t - pool_stamps[r, j]
+            if d == 0:
+                continue
+            for b in range(k):
+                acc = 0.0
+                for a in range(k):
+                    acc += pool[r, j, a] * powers[d, a, b]
+                tmp[b] = acc
+            for b in range(k):
+                pool[r, j, b] = tmp[b]
+            pool_stamps[r, j] = t
 
 
 @njit(cache=True)

@@ -58,13 +58,16 @@ def _from_sorted_positions(w: np.ndarray, positions: np.ndarray) -> np.ndarray:
     return _sorted_positions_to_indices(cumulative, positions)
 
 
-def multinomial(weights, rng: np.random.Generator) -> np.ndarray:
-    """P independent draws from ``w`` (sorted uniforms by normalised exponential spacings)."""
-    w = _normalised(weights)
-    n = w.size
+def _sorted_uniforms(n: int, rng: np.random.Generator) -> np.ndarray:
+    """n sorted i.i.d. uniforms in O(n): normalised cumulative exponential spacings."""
     spacings = rng.standard_exponential(n + 1)
-    positions = np.cumsum(spacings[:-1]) / spacings.sum()
-    return _from_sorted_positions(w, positions)
+    return np.cumsum(spacings[:-1]) / spacings.sum()
+
+
+def multinomial(weights, rng: np.random.Generator) -> np.ndarray:
+    """P independent draws from ``w``."""
+    w = _normalised(weights)
+    return _from_sorted_positions(w, _sorted_uniforms(w.size, rng))
 
 
 def stratified(weights, rng: np.random.Generator) -> np.ndarray:
@@ -88,8 +91,9 @@ def residual(weights, rng: np.random.Generator) -> np.ndarray:
     expected = n * w
     copies = np.floor(expected).astype(np.int64)
     rest = n - int(copies.sum())
-    if rest > 0:
-        copies += rng.multinomial(rest, _normalised(np.maximum(expected - copies, 0.0)))
+    if rest > 0:  # inverse-CDF draws: a rounding-level change of w moves a draw only at a boundary
+        residuals = _normalised(np.maximum(expected - copies, 0.0))
+        copies += np.bincount(_from_sorted_positions(residuals, _sorted_uniforms(rest, rng)), minlength=n)
     return np.repeat(np.arange(n), copies)
 
 

@@ -11,7 +11,10 @@ static one.
 State (plain attributes): locations (P,), normalised log weights (P,), the particles' map
 marginals as shared copy-on-write blocks of B cells (see ``onlinemap/rbpf_kernels.py``: a pool
 of (B, K) block rows with reference counts and a (P, N / B) table of row indices; stamps per
-cell for lazy dynamics), the table of powers of C, a ``numpy.random.Generator``.
+cell for lazy dynamics), the powers of C, a ``numpy.random.Generator``. To keep the table of
+powers bounded however long the run, each step also refreshes a few block rows in turn (brings
+them up to date: the same values), so that no stamp is more than ``REFRESH_STEPS`` old:
+O(R_used B K^2 / REFRESH_STEPS) per step.
 
 Cost per step: O(P K^2) for the proposal and weighting (a particle reads its cell and the
 intended neighbour) plus O(P B K) at most for copy-on-write of shared blocks; a resampling
@@ -21,7 +24,7 @@ step adds O(P_dropped N / B) (table rows copied, not maps). ``belief.location`` 
 in a dynamic world). :meth:`RaoBlackwellisedPF.update` advances without building the belief;
 the ``belief`` property builds it on first access (then caches it), and :meth:`step` is
 ``update`` followed by ``belief``. Memory: the block rows in use (at most ``8 P N (K + 1)``
-bytes), ``8 P N / B`` for the table, ``8 K^2`` per step of the run for the powers of C.
+bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of C.
 """
 
 from __future__ import annotations
@@ -33,7 +36,8 @@ import numpy as np
 
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, MemoryLimitError, ModelError
-from ..rbpf_kernels import in_place_ancestors, particle_maps, rbpf_commit, rbpf_map_mixture, rbpf_propose
+from ..rbpf_kernels import (in_place_ancestors, particle_maps, rbpf_commit, rbpf_map_mixture, rbpf_propose,
+                             rbpf_refresh)
 from ..resampling import RESAMPLERS
 from ..simulate import SeedLike, as_generator
 from ..model import GridModel
@@ -42,6 +46,7 @@ from .base import register
 
 PROPOSALS = ("optimal", "transition")
 DEFAULT_MAX_BYTES = 2 * 1024**3
+REFRESH_STEPS = 256  # every block row is brought up to date at least this often (lazy dynamics)
 
 
 def _logsumexp(x: np.ndarray) -> float:
@@ -154,7 +159,13 @@ class RaoBlackwellisedPF:
         self._free[:len(unused)] = unused
         self._free_top = np.array([len(unused)])
         self._table = np.tile(np.arange(n_blocks), (n_particles, 1))
-        self._powers = np.eye(k)[None].copy()  # powers[d] = C^d, grown on demand
+        self._powers = np.eye(k)[None].copy()  # powers[d] = C^d for every age d a stamp can have
+        if self._stamped:
+            self._powers = np.empty((4 * REFRESH_STEPS + 1, k, k))  # ages stay <= 2 REFRESH_STEPS + 1
+            self._powers[0] = np.eye(k)
+            for d in range(1, len(self._powers)):
+                self._powers[d] = self._powers[d - 1] @ model.change
+        self._refresh_cursor = 0
         self._log_evidence = 0.0
         self._ess = float(n_particles)
         self._resampled = False
@@ -206,18 +217,6 @@ class RaoBlackwellisedPF:
         self.update(action, observation)
         return self.belief
 
-    def _change_powers(self, t: int) -> np.ndarray:
-        """(D, K, K) with D > t: ``C^0 .. C^(D-1)``, the cached table or a longer copy (doubling;
-        O(K^3) per new power). The caller stores it once the step is committed."""
-        have = self._powers.shape[0]
-        if have > t:
-            return self._powers
-        powers = np.empty((max(2 * have, t + 1), *self._powers.shape[1:]))
-        powers[:have] = self._powers
-        for d in range(have, powers.shape[0]):
-            powers[d] = powers[d - 1] @ self.model.change
-        return powers
-
     def _reserved_rows(self) -> tuple[np.ndarray, ...]:
         """(pool, pool_stamps, row_block, refcount, free, free_top): the current block pool, or a
         copy grown by doubling if fewer than P rows are free (a commit may need P). Contents
@@ -255,14 +254,13 @@ class RaoBlackwellisedPF:
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
             log_weights = np.full(n_particles, -math.log(n_particles))
         pool, pool_stamps, row_block, refcount, free, free_top = self._reserved_rows()
-        powers = self._change_powers(t) if self._stamped else self._powers
         if a is not None and self._dynamic and not self.lazy_dynamics:
             pool = pool @ model.change  # eager: every cell of every block row, fresh array
         neighbors = np.arange(model.n_cells) if a is None else model.neighbors[:, a]
         new_locations = np.empty(n_particles, dtype=np.int64)
         new_cells = np.empty((n_particles, model.n_labels))
         log_increments = np.empty(n_particles)
-        rbpf_propose(self._locations, pool, pool_stamps, self._table, self._cell_block, self._cell_slot, powers,
+        rbpf_propose(self._locations, pool, pool_stamps, self._table, self._cell_block, self._cell_slot, self._powers,
                      self._stamped, t, ancestors, neighbors,
                      model.p_move, np.ascontiguousarray(model.sensor[:, z]), self.proposal == "optimal",
                      self._rng.random(n_particles), new_locations, new_cells, log_increments)
@@ -274,9 +272,14 @@ class RaoBlackwellisedPF:
                 f"observation {model.label_names[z]!r} has probability zero for every particle at step {t}")
         # commit
         rbpf_commit(self._locations, pool, pool_stamps, row_block, refcount, free, free_top, self._table,
-                    self._cell_block, self._cell_slot, self._stamped, t, ancestors, new_locations, new_cells)
+                    self._cell_block, self._cell_slot, self._stamped, self._powers, REFRESH_STEPS, t, ancestors,
+                    new_locations, new_cells)
         self._pool, self._pool_stamps, self._row_block, self._refcount = pool, pool_stamps, row_block, refcount
-        self._free, self._free_top, self._powers = free, free_top, powers
+        self._free, self._free_top = free, free_top
+        if self._stamped:
+            count = -(-len(pool) // REFRESH_STEPS)
+            rbpf_refresh(pool, pool_stamps, refcount, self._powers, t, self._refresh_cursor, count)
+            self._refresh_cursor = (self._refresh_cursor + count) % len(pool)
         self._log_weights = log_weights - increment
         self._log_evidence += increment
         weights = np.exp(self._log_weights)
