@@ -29,7 +29,9 @@ A list is always a grid; a list-valued option is written as a list of lists
 (``anneal = [[1.0, 0.9, 0.05]]``). With ``[planners.NAME]`` tables (``entropy``, ``random``,
 ``sweep`` from the ``policies`` package, options as grids too) every task is an exploration
 run instead (:func:`policies.explore`: the planner chooses the actions, the estimator tracks
-the belief); ``walk`` and ``reference`` do not apply there.
+the belief); ``walk`` and ``reference`` do not apply there, and ``floor_plan = 0.8`` (or a
+list) gives the robot a label prior that puts that confidence on the true initial map
+(``policies.with_floor_plan``; door cells: a door, state unknown).
 
 Every task is one cell of the product (world, estimator configuration[, planner
 configuration], steps, walk, seed). The spec is checked completely before any task runs:
@@ -78,11 +80,12 @@ from .worlds import WorldSpec, parse_world
 
 WALKS = ("random", "there_and_back", "scripted_trip")
 ROWS = ("task", "step")
-TOP_KEYS = ("name", "worlds", "seeds", "steps", "walk", "rows", "reference", "estimators", "planners")
+TOP_KEYS = ("name", "worlds", "seeds", "steps", "walk", "rows", "reference", "floor_plan", "estimators",
+            "planners")
 DASK_HINT = "install dask.distributed with: pip install 'onlinemap[sweeps]'"
 # Columns describing a task (the configuration and the seed); everything else is a metric.
-TASK_COLUMNS = ("task", "kind", "world", "estimator", "options", "planner", "planner_options", "steps",
-                "walk", "reference", "seed")
+TASK_COLUMNS = ("task", "kind", "world", "estimator", "options", "planner", "planner_options", "floor_plan",
+                "steps", "walk", "reference", "seed")
 CONFIG_COLUMNS = tuple(c for c in TASK_COLUMNS if c not in ("task", "seed"))
 TIMING_COLUMNS = ("ms_per_step",)
 
@@ -110,6 +113,7 @@ class Task:
     per_step: bool = False
     planner: str | None = None
     planner_options: tuple = ()
+    floor_plan: float | None = None
 
     @property
     def kind(self) -> str:
@@ -117,8 +121,10 @@ class Task:
 
     @property
     def key(self) -> str:
-        """A stable hash of everything that determines the task's result (16 hex digits)."""
-        return hashlib.sha256(json.dumps(_plain(self.__dict__), sort_keys=True).encode()).hexdigest()[:16]
+        """A stable hash of everything that determines the task's result (16 hex digits); fields
+        left at None are not hashed, so adding an optional field keeps existing keys."""
+        fields = {k: v for k, v in self.__dict__.items() if v is not None}
+        return hashlib.sha256(json.dumps(_plain(fields), sort_keys=True).encode()).hexdigest()[:16]
 
 
 class SweepSpec(NamedTuple):
@@ -232,6 +238,7 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
                 raise where.error((key,), "does not apply to exploration sweeps (with [planners])")
         walks, reference = ["random"], None
         planners = _configs(data, "planners", where, _planner_options, _planner_builder)
+        floor_plans = _floor_plans(data, worlds, where)
     else:
         walks = _choices(data, "walk", WALKS, where, default="random")
         reference = data.get("reference")
@@ -239,6 +246,9 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
             raise where.error(("reference",), f"unknown estimator {reference!r}; "
                                               f"available: {', '.join(available_estimators())}")
         planners = [(None, (), ())]
+        if "floor_plan" in data:
+            raise where.error(("floor_plan",), "applies to exploration sweeps (with [planners]) only")
+        floor_plans = [None]
     estimators = _configs(data, "estimators", where, estimator_options, _estimator_class)
     if "trip" in steps and not set(walks) <= {"there_and_back", "scripted_trip"}:
         raise where.error(("steps",), 'steps = "trip" (one there-and-back trip) needs walk = "there_and_back" '
@@ -255,9 +265,10 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
     if reference is not None:
         _check_builds(worlds, [(reference, (), ("reference",))], [(None, (), ())], where)
     tasks, seen = [], set()
-    for world, (est, options, _), (planner, planner_opts, _), n_steps, walk, seed in itertools.product(
-            worlds, estimators, planners, steps, walks, seeds):
-        task = Task(world.spec, est, options, seed, n_steps, walk, reference, rows == "step", planner, planner_opts)
+    for world, (est, options, _), (planner, planner_opts, _), plan, n_steps, walk, seed in itertools.product(
+            worlds, estimators, planners, floor_plans, steps, walks, seeds):
+        task = Task(world.spec, est, options, seed, n_steps, walk, reference, rows == "step", planner, planner_opts,
+                    plan)
         if task.key not in seen:  # a repeated world or grid value: run once
             seen.add(task.key)
             tasks.append(task)
@@ -265,6 +276,24 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
     if not isinstance(label, str):
         raise where.error(("name",), f"expected a string, got {label!r}")
     return SweepSpec(label, tuple(tasks), where.source)
+
+
+def _floor_plans(data: dict, worlds: list[WorldSpec], where: _Locator) -> list[float | None]:
+    """``floor_plan``: none, a confidence or a list of them (``policies.with_floor_plan``: the
+    robot's label prior puts that much on each cell's true label of the initial map)."""
+    value = data.get("floor_plan")
+    if value is None:
+        return [None]
+    values = value if isinstance(value, list) else [value]
+    if not values or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+        raise where.error(("floor_plan",), f"expected a confidence in [1/K, 1] or a list of them, got {value!r}")
+    for world in worlds:
+        for confidence in values:
+            try:
+                _policies().with_floor_plan(world.model, world.initial_map(0), float(confidence))
+            except OnlineMapError as error:
+                raise where.error(("floor_plan",), f"{world.spec}: {error}") from None
+    return [float(v) for v in values]
 
 
 def _worlds(data: dict, where: _Locator) -> list[WorldSpec]:
@@ -587,8 +616,9 @@ def _make(name: str, model: GridModel, options: tuple, seed: int, run=None):
 def _run_explore(task: Task) -> pd.DataFrame:
     policies = _policies()
     world = parse_world(task.world)
-    model = world.model
     true_map = world.initial_map(np.random.default_rng(derived_seed(task.seed, 3)))
+    model = world.model if task.floor_plan is None else policies.with_floor_plan(world.model, true_map,
+                                                                                 task.floor_plan)
     if task.planner_options:  # the planner stream policies.explore would give a named planner
         planner_rng = np.random.default_rng(np.random.SeedSequence(task.seed).spawn(3)[1])
         planner = policies.make_planner(task.planner, model, seed=planner_rng, **dict(task.planner_options))
@@ -610,12 +640,16 @@ def _run_explore(task: Task) -> pd.DataFrame:
 
 
 def _task_frame(task: Task, frame: pd.DataFrame, n_steps: int) -> pd.DataFrame:
-    """Prefix the task's description columns (``steps``: the run's actual number of steps)."""
-    described = {"task": task.key, "kind": task.kind, "world": task.world, "estimator": task.estimator,
-                 "options": _options_text(task.options), "planner": task.planner or "",
-                 "planner_options": _options_text(task.planner_options), "steps": n_steps,
-                 "walk": task.walk if task.kind == "estimate" else "", "reference": task.reference or "",
-                 "seed": task.seed}
+    """Prefix the task's description columns (those of its kind; ``steps``: the run's actual
+    number of steps)."""
+    described = {"task": task.key, "kind": task.kind, "world": task.world}
+    if task.kind == "explore":
+        described.update(planner=task.planner, planner_options=_options_text(task.planner_options),
+                         floor_plan=np.nan if task.floor_plan is None else task.floor_plan)
+    described.update(estimator=task.estimator, options=_options_text(task.options), steps=n_steps)
+    if task.kind == "estimate":
+        described.update(walk=task.walk, reference=task.reference or "")
+    described["seed"] = task.seed
     for position, (column, value) in enumerate(described.items()):
         frame.insert(position, column, value)
     return frame
@@ -794,14 +828,18 @@ def _run_dask(todo: list[Task], client, workers: int | None, record, failures: l
     try:
         futures = client.map(run_task, todo, pure=False)
         by_key = {future.key: task for future, task in zip(futures, todo)}
-        for future in distributed.as_completed(futures):
+        completed = distributed.as_completed(futures)
+        for future in completed:
             task = by_key[future.key]
-            if future.status == "finished":
-                record(task, future.result())
-            elif future.status == "error":
-                failures.append((task, future.exception()))
+            try:
+                frame = future.result()
+            except Exception as error:
+                if future.status in ("lost", "pending"):  # its worker died after it finished: recomputed
+                    completed.add(future)
+                    continue
+                failures.append((task, error))
             else:
-                failures.append((task, RuntimeError(f"the task was {future.status}")))
+                record(task, frame)
             future.release()
     except BaseException:
         client.cancel(futures)
