@@ -118,6 +118,7 @@ BAD_SPECS = [  # (replace this, with that, the line the error must name, words i
     ('name = "small"', 'name = "small"\nsed = 3', 2, "unknown key"),
     ("[estimators.exact]", "[estimators.exact]\nmax_bytes = 1000", 7, "MemoryLimitError"),
     ("steps = 15", "steps = 15 20", 4, "not valid TOML"),  # tomllib's own position
+    ('seeds = 3', 'seeds = 3\nfloor_plan = 0.8', 4, "exploration sweeps"),
 ]
 
 
@@ -287,6 +288,24 @@ def test_plot_against_an_option_draws_one_line_per_configuration(serial_table, t
     assert rbpf["mean_map_tv"].mean() in [pytest.approx(y) for c in curves for y in c.get_ydata()]
     with pytest.raises(om.OnlineMapError, match="not an option"):
         sweeps.plot_sweep(serial_table, "n_particle", ["mean_map_tv"])
+
+
+def test_an_exploration_task_is_policies_explore_with_the_same_seed():
+    policies = pytest.importorskip("policies")
+    if not hasattr(policies, "explore"):
+        pytest.skip("policies.explore not available yet")
+    spec = sweeps.parse_spec('worlds = ["door,p_door=0.02"]\nseeds = [3]\nsteps = 12\nrows = "step"\n'
+                             'floor_plan = 0.8\n[planners.random]\n[estimators.rbpf]\nn_particles = 20\n')
+    (task,) = spec.tasks
+    mine = sweeps.run_task(task)
+    model, true_map = om.door_world(p_door=0.02)
+    theirs = policies.explore(policies.with_floor_plan(model, true_map, 0.8), true_map, "random", "rbpf", 12, 3,
+                              estimator_options={"n_particles": 20}, progress=False)
+    for column in ("map_error", "location_error", "door_error"):
+        np.testing.assert_allclose(mine[column], theirs[column], atol=1e-12)
+    with pytest.raises(om.SpecError, match="line 5: floor_plan: door,p_door=0.02: confidence"):
+        sweeps.parse_spec('worlds = ["door,p_door=0.02"]\nseeds = [3]\nsteps = 12\n\n'
+                          'floor_plan = 0.1\n[planners.random]\n[estimators.rbpf]\n')
 
 
 # --- the example specs -------------------------------------------------------------------------
