@@ -7,6 +7,10 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
+
+from ..bench import _COLUMNS as _STANDARD
 from ..bench import available_benchmarks, benchmark_record, run_benchmarks
 from .common import print_table
 
@@ -19,15 +23,29 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    f"ratio <= target. Available: {', '.join(available_benchmarks())}.")
     p.add_argument("names", nargs="*", metavar="NAME", help="benchmarks to run (default: all)")
     p.add_argument("--quick", action="store_true", help="small sizes, for a smoke test")
-    p.add_argument("--json", metavar="FILE",
+    p.add_argument("--json", metavar="FILE",  # every column, as the benchmarks gave them
                    help="also write the table with machine info, versions, time and git commit as "
                         "JSON; a .jsonl FILE gets one line appended per run (a history)")
     p.set_defaults(func=bench)
 
 
+def readable(table: pd.DataFrame) -> pd.DataFrame:
+    """The standard columns, and every benchmark's own extra columns folded into one ``notes``
+    column (``name=value`` where set), so that the table stays narrow."""
+    extras = [c for c in table.columns if c not in _STANDARD]
+    if not extras:
+        return table
+
+    def notes(row) -> str:
+        return ", ".join(f"{c}={row[c]:.3g}" if isinstance(row[c], float) else f"{c}={row[c]}"
+                         for c in extras if row[c] is not None and not (isinstance(row[c], float) and np.isnan(row[c])))
+
+    return table[[c for c in table.columns if c in _STANDARD]].assign(notes=table.apply(notes, axis=1))
+
+
 def bench(args: argparse.Namespace) -> int:
     table = run_benchmarks(args.names, quick=args.quick, progress=True)
-    print_table(table)
+    print_table(readable(table))
     judged = table["meets_target"].dropna()
     if len(judged):
         missed = table[table["meets_target"] == False]  # noqa: E712 (object column)
