@@ -51,6 +51,12 @@ def accuracy_study(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_s
     entries = compare_estimators(particles)
     frames = []
     jobs = [(spec, r) for spec in worlds for r in range(n_runs)]
+    for spec in worlds:  # load every numba kernel (resampling included) before anything is timed
+        model = parse_world(spec).model
+        warm_up = simulate(model, None, random_walk(model, 4, 0), 0)
+        for name, options in [("exact", {})] + [(name, options) for _, name, options in entries]:
+            options = {**options, "resample_threshold": 1.0} if name == "rbpf" else options
+            _trajectory(make_estimator(name, model, **options), warm_up)
     for spec, r in tqdm(jobs, desc="runs", disable=not progress, leave=False):
         world = parse_world(spec)
         rng = np.random.default_rng([seed, r])
