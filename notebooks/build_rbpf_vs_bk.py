@@ -92,7 +92,8 @@ Resampling every step, the effective sample size after each step measures that d
     return np.mean([est.step(None if t == 0 else run.actions[t - 1], run.observations[t]).effective_sample_size
                     for t in range(run.n_steps)])
 
-{proposal: np.mean([mean_ess(proposal, seed) for seed in range(N_SEEDS)]) for proposal in ("optimal", "transition")}"""),
+{proposal: np.mean([mean_ess(proposal, seed) for seed in range(N_SEEDS)])
+ for proposal in ("optimal", "transition")}"""),
     ("md", """## Random runs
 
 The same comparison on random walks (`onlinemap compare` runs it from the command line): a
