@@ -98,11 +98,11 @@ class PeerFilter(NamedTuple):
 def pgmpy_filter(model: GridModel, actions, observations, map_steps=None,
                  motion: np.ndarray | None = None) -> PeerFilter:
     """``P(L_t | z_0:t)`` for every t, and ``P(m_i,t | z_0:t)`` for t in ``map_steps`` (None: every
-    step; ``()`` for none), by pgmpy variable elimination on the network unrolled over the first
-    t + 1 steps.
+    step; ``()`` for none), by pgmpy variable elimination on the network unrolled over the whole
+    run, queried with the evidence up to t (pgmpy prunes the later, unobserved slices).
 
-    Cost: one network and one query per step (N + 1 where the map is queried), each growing
-    with t, so O(T^2) network slices in all, each slice O(N K**N).
+    Cost: one network of T slices, each O(N K**N); one query per step (N + 1 where the map is
+    queried), each over the first t + 1 slices, so O(T^2) slices eliminated in all.
     """
     inference = require("pgmpy.inference")
     n_steps = len(observations)
@@ -110,8 +110,8 @@ def pgmpy_filter(model: GridModel, actions, observations, map_steps=None,
     location = np.empty((n_steps, n))
     maps = np.full((n_steps, n, k), np.nan)
     map_steps = set(range(n_steps) if map_steps is None else (t % n_steps for t in map_steps))
+    engine = inference.VariableElimination(unrolled_network(model, actions, n_steps, motion))
     for t in range(n_steps):
-        engine = inference.VariableElimination(unrolled_network(model, actions, t + 1, motion))
         evidence = {f"Z_{s}": int(observations[s]) for s in range(t + 1)}
         location[t] = engine.query([f"L_{t}"], evidence=evidence, show_progress=False).values
         if t in map_steps:
