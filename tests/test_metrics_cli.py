@@ -51,6 +51,8 @@ def test_cli_errors_are_clear(capsys):
 def test_cli_bench_quick_json(tmp_path, capsys):
     path = tmp_path / "b.json"
     assert main(["bench", "exact", "--quick", "--json", str(path)]) == 0
-    rows = json.loads(path.read_text())
+    record = json.loads(path.read_text())  # machine info, versions and the rows
+    rows = record["rows"]
+    assert record["machine"]["numba"] and record["quick"] is True
     assert {r["case"] for r in rows} >= {"corridor:8 static", "corridor:8 dynamic"}
     assert all(r["ratio"] > 0 for r in rows)
