@@ -44,6 +44,10 @@ A task simulates its run from its seed exactly as ``onlinemap run --seed`` does
 ``seed`` option get one derived from the task's seed (unless the spec sets it). Results:
 one parquet file per finished task, named by a hash of the task, in a results directory;
 rerunning skips the tasks found there, and the final table holds each task of the spec once.
+Its columns: the task's description (``task`` hash, ``kind``, ``world``, ``estimator``,
+``options`` as text and one ``opt_NAME`` column per option, ``steps``, ``seed``, ...) then the
+metrics of :func:`run_task`. Cost: the tasks' own, spread over the workers, plus a few
+milliseconds of dask overhead per task and seconds to start a local cluster.
 """
 
 from __future__ import annotations
