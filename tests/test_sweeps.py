@@ -198,7 +198,7 @@ def test_scripted_trip_is_the_literature_run_with_one_random_slip():
 
 # --- resuming: every task exactly once -----------------------------------------------------------
 def test_killed_sweep_resumes_and_finishes_every_task_exactly_once(tmp_path, serial_table):
-    spec_path = write_spec(tmp_path, SPEC.replace("seeds = 3", "seeds = 3\n").replace(
+    spec_path = write_spec(tmp_path, SPEC.replace(
         "[estimators.exact]", "[estimators.offline_em]\nn_iter = 30\n\n[estimators.exact]"))
     spec = sweeps.load_spec(spec_path)
     out = tmp_path / "r.parquet"
