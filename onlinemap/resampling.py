@@ -91,9 +91,8 @@ def residual(weights, rng: np.random.Generator) -> np.ndarray:
     expected = n * w
     copies = np.floor(expected).astype(np.int64)
     rest = n - int(copies.sum())
-    if rest > 0:  # inverse-CDF draws: a rounding-level change of w moves a draw only at a boundary
-        residuals = _normalised(np.maximum(expected - copies, 0.0))
-        copies += np.bincount(_from_sorted_positions(residuals, _sorted_uniforms(rest, rng)), minlength=n)
+    if rest > 0:
+        copies += rng.multinomial(rest, _normalised(np.maximum(expected - copies, 0.0)))
     return np.repeat(np.arange(n), copies)
 
 
