@@ -86,10 +86,9 @@ def rbpf_propose(locations, pool, pool_stamps, table, cell_block, cell_slot, pow
         new_locations[p] = target
         r = table[q, cell_block[target]]
         j = cell_slot[target]
-        scale = 1.0 / lam if lam > 0.0 else 1.0
-        for b in range(k):
-            new_cells[p, b] = _label(pool, pool_stamps, powers, dynamic, t, r, j, b) * (
-                likelihood[b] * scale if lam > 0.0 else 1.0)
+        for b in range(k):  # divide (1 / lam overflows for a subnormal lam)
+            current = _label(pool, pool_stamps, powers, dynamic, t, r, j, b)
+            new_cells[p, b] = current * likelihood[b] / lam if lam > 0.0 else current
         log_increments[p] = math.log(weight) if lam > 0.0 else -np.inf
 
 

@@ -244,6 +244,16 @@ def test_impossible_observation_keeps_everything(proposal, p_change):
     np.testing.assert_array_equal(est.particle_maps(), twin.particle_maps())
 
 
+def test_subnormal_likelihood_gives_a_valid_belief():
+    """Only a label seen with probability 1e-323 (subnormal) explains the last observation."""
+    model = om.grid_model(1, 1, 3, p_move=0.0, sensor=[[1, 0, 0], [1, 0, 0], [1, 1e-323, 0]])
+    est = om.make_estimator("rbpf", model, n_particles=5, seed=0)
+    for z in (0, 0, 1):
+        belief = est.step(None if est.t < 0 else 0, z)
+    np.testing.assert_allclose(belief.map, [[0, 0, 1]], atol=1e-12)
+    assert np.isfinite(belief.log_evidence) and belief.log_evidence < -740
+
+
 def test_bad_input_keeps_everything():
     est = om.make_estimator("rbpf", om.corridor(5, p_change=0.05), n_particles=20, seed=0)
     est.step(None, 0)
