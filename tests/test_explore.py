@@ -158,14 +158,17 @@ def test_summary_counts_time_at_doors():
 
 
 # --- the literature's claims, paired over seeds ------------------------------------------------
-SEEDS = range(8)
+# The door-error advantage is real but small (about 0.3 standard deviations per seed: blocks of
+# 40 seeds gave p from 0.002 to 0.09), so the dynamic claims are tested over 64 paired seeds.
+STATIC_SEEDS = range(20)
+DYNAMIC_SEEDS = range(64)
 
 
-def paired(p_door: float, steps: int, planners) -> pd.DataFrame:
+def paired(p_door: float, steps: int, planners, seeds) -> pd.DataFrame:
     if "rbpf" not in om.available_estimators():
         pytest.skip("needs the rbpf estimator")
     model, true_map = exploration_world(p_door=p_door)
-    return compare_planners(model, true_map, planners, "rbpf", steps, SEEDS, progress=False)
+    return compare_planners(model, true_map, planners, "rbpf", steps, seeds, progress=False)
 
 
 def one_sided_p(better: pd.Series, worse: pd.Series) -> float:
@@ -175,12 +178,12 @@ def one_sided_p(better: pd.Series, worse: pd.Series) -> float:
 
 @pytest.fixture(scope="module")
 def static_runs():
-    return paired(0.0, 250, ["entropy", "random"])
+    return paired(0.0, 250, ["entropy", "random"], STATIC_SEEDS)
 
 
 @pytest.fixture(scope="module")
 def dynamic_runs():
-    return paired(0.01, 300, ["entropy", "random"])
+    return paired(0.01, 300, ["entropy", "random"], DYNAMIC_SEEDS)
 
 
 def test_static_door_world_entropy_planner_learns_the_map_faster_than_a_random_walk(static_runs):
