@@ -2,14 +2,10 @@
 run_estimator; the gymnasium-driven loop; the CLI; the notebook; and the literature's claims
 (DESIGN.md section 5.3) as paired statistical comparisons over seeds."""
 
-import os
-from pathlib import Path
 
-import nbformat
 import numpy as np
 import pandas as pd
 import pytest
-from nbclient import NotebookClient
 from scipy import stats
 
 import onlinemap as om
@@ -18,7 +14,6 @@ from policies import (COLUMNS, EntropyExplorer, compare_planners, door_cells, ex
                       exploration_world, floor_plan_prior, summarize)
 from policies.explore import _seeds
 
-ROOT = Path(__file__).resolve().parents[1]
 TINY = ".o.\n#c.\n"  # 2 x 3 door world: small enough for exact Bayes (4^6 maps)
 
 
@@ -204,17 +199,3 @@ def test_dynamic_door_world_entropy_planner_spends_more_time_at_doors(dynamic_ru
     share = dynamic_runs.assign(at_door=np.isin(dynamic_runs["true_location"], doors)) \
         .groupby(["planner", "seed"])["at_door"].mean().unstack(0)
     assert one_sided_p(-share["entropy"], -share["random"]) < 0.05, share.round(3).to_dict()
-
-
-# --- the notebook ------------------------------------------------------------------------------
-def test_notebook_runs(tmp_path):
-    notebook = nbformat.read(ROOT / "notebooks" / "active_exploration.ipynb", as_version=4)
-    parameters = [cell for cell in notebook.cells if "parameters" in cell.get("metadata", {}).get("tags", [])]
-    assert len(parameters) == 1
-    parameters[0].source = "STEPS = 40\nSEEDS = [0, 1]\nN_PARTICLES = 30"
-    os.environ.setdefault("MPLBACKEND", "Agg")
-    NotebookClient(notebook, timeout=300, kernel_name="python3",
-                   resources={"metadata": {"path": str(tmp_path)}}).execute()
-    outputs = [out for cell in notebook.cells if cell.cell_type == "code" for out in cell.get("outputs", [])]
-    assert not [out for out in outputs if out.output_type == "error"]
-    assert any("image/png" in out.get("data", {}) for out in outputs)
