@@ -49,13 +49,14 @@ def stream(model: om.GridModel, true_map, n_steps: int, seed: int):
 
 
 def assert_valid_belief(belief: om.Belief, model: om.GridModel, t: int, atol: float = 1e-9) -> None:
-    """Finite, non-negative, summing to 1 within ``atol``; right shapes and step index."""
+    """Finite, in [0, 1], summing to 1 within ``atol``; right shapes and step index."""
     n, k = model.n_cells, model.n_labels
     assert belief.t == t
     assert belief.location.shape == (n,) and belief.map.shape == (n, k)
     for what, p in (("location", belief.location), ("map", belief.map)):
         assert np.all(np.isfinite(p)), f"{what} has NaN or infinite entries at t={t}"
         assert np.all(p >= 0), f"{what} has negative entries at t={t}: {p.min()}"
+        assert np.all(p <= 1), f"{what} has entries above 1 at t={t}: {p.max() - 1} too much"
         sums = p.sum(axis=-1)
         assert np.all(np.abs(sums - 1) <= atol), f"{what} sums to {sums} at t={t}"
     assert not belief.log_evidence > 1e-9, f"log evidence {belief.log_evidence} > 0 at t={t}"

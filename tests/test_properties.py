@@ -195,7 +195,5 @@ def test_exact_equals_brute_force_on_random_models(model, intents):
 def test_subnormal_probabilities(name):
     """A sensor entry of 1e-323 (valid, but subnormal): an observation that only it explains.
     Every estimator must either give a valid belief or refuse with ImpossibleObservationError."""
-    if name == "rbpf":
-        pytest.xfail("rbpf's map marginals become NaN/inf here (reported in issue 7's notes)")
     model = om.grid_model(1, 1, 3, p_move=0.0, sensor=[[1, 0, 0], [1, 0, 0], [1, 1e-323, 0]])
     drive(om.make_estimator(name, model), [("valid", 0, 0, 0, False)] * 2 + [("valid", 0, 1, 0, False)])

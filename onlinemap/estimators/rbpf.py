@@ -196,11 +196,14 @@ class RaoBlackwellisedPF:
         the module docstring; at most one pass over P N K floats)."""
         if self._belief is None and self._t >= 0:
             weights = np.exp(self._log_weights)
+            weights /= weights.sum()
             n, k = self.model.n_cells, self.model.n_labels
             location = np.bincount(self._locations, weights=weights, minlength=n)
+            location /= location.sum()  # rounding: keep every probability <= 1
             maps = np.empty((n, k))
             rbpf_map_mixture(self._pool, self._pool_stamps, self._row_block, self._table, self._block_members,
                              self._powers, self._stamped, self._t, weights, maps)
+            maps /= maps.sum(axis=1, keepdims=True)
             self._belief = Belief(self._t, location, maps, self._log_evidence,
                                   effective_sample_size=self._ess)
         return self._belief
