@@ -53,8 +53,10 @@ def register(name: str) -> Callable[[type], type]:
     """Class decorator: make an estimator available to :func:`make_estimator` under ``name``.
 
     It also records the keyword options every instance is built with as ``est.options``
-    (defaults filled in) and, unless the class defines its own, gives it the generic checkpoint
-    methods ``state_dict()`` / ``load_state_dict(state)`` of :mod:`onlinemap.checkpoint`.
+    (defaults filled in) and, unless the class defines its own, gives it the read-only
+    properties ``t`` (from ``self._t``) and ``belief`` (from ``self._belief``) and the generic
+    checkpoint methods ``state_dict()`` / ``load_state_dict(state)`` of
+    :mod:`onlinemap.checkpoint`.
     """
 
     def decorate(cls: type) -> type:
@@ -62,14 +64,19 @@ def register(name: str) -> Callable[[type], type]:
             raise ValueError(f"an estimator named {name!r} is already registered")
         cls.name = name
         _record_options(cls)
-        for method, default in (("state_dict", checkpoint.state_dict),
+        for member, default in (("t", _step_index), ("belief", _last_belief),
+                                ("state_dict", checkpoint.state_dict),
                                 ("load_state_dict", checkpoint.load_state_dict)):
-            if method not in vars(cls):
-                setattr(cls, method, default)
+            if member not in vars(cls):
+                setattr(cls, member, default)
         _REGISTRY[name] = cls
         return cls
 
     return decorate
+
+
+_step_index = property(lambda self: self._t, doc="Index of the last step taken (-1 before the first).")
+_last_belief = property(lambda self: self._belief, doc="The belief after the last step (None before the first).")
 
 
 def _record_options(cls: type) -> None:

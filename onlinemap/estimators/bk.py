@@ -55,14 +55,6 @@ class BoyenKoller:
         self._log_evidence = 0.0
         self._belief: Belief | None = None
 
-    @property
-    def t(self) -> int:
-        return self._t
-
-    @property
-    def belief(self) -> Belief | None:
-        return self._belief
-
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
         location, maps = self._location, self._maps

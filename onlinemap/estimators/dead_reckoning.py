@@ -22,14 +22,6 @@ class DeadReckoning:
         self._t = -1
         self._belief: Belief | None = None
 
-    @property
-    def t(self) -> int:
-        return self._t
-
-    @property
-    def belief(self) -> Belief | None:
-        return self._belief
-
     def step(self, action, observation) -> Belief:
         a, _ = check_step(self.model, self._t + 1, action, observation)
         if a is None:

@@ -77,14 +77,6 @@ class ExactFilter:
         self._no_motion = (np.ones(n), np.full(n, -1, dtype=np.int64))
         self._dynamic = not model.is_static
 
-    @property
-    def t(self) -> int:
-        return self._t
-
-    @property
-    def belief(self) -> Belief | None:
-        return self._belief
-
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
         model, inv = self.model, 1.0 / self._norm

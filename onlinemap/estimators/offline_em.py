@@ -129,14 +129,6 @@ class OfflineEM:
         self._t = -1
         self._belief: Belief | None = None
 
-    @property
-    def t(self) -> int:
-        return self._t
-
-    @property
-    def belief(self) -> Belief | None:
-        return self._belief
-
     def fit(self, actions, observations) -> EMFit:
         """Batch use: Baum-Welch on a whole run with this estimator's options (state untouched)."""
         return baum_welch(self.model, actions, observations, n_iter=self.n_iter, tol=self.tol,

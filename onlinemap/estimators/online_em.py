@@ -81,14 +81,6 @@ class OnlineEM:
         self._belief: Belief | None = None
 
     @property
-    def t(self) -> int:
-        return self._t
-
-    @property
-    def belief(self) -> Belief | None:
-        return self._belief
-
-    @property
     def observation_matrix(self) -> np.ndarray:
         """A copy of the current B, (N, K)."""
         return self._emission.copy()

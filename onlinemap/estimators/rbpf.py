@@ -173,10 +173,6 @@ class RaoBlackwellisedPF:
         self._belief: Belief | None = None
 
     @property
-    def t(self) -> int:
-        return self._t
-
-    @property
     def effective_sample_size(self) -> float:
         return self._ess
 
