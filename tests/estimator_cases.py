@@ -60,3 +60,21 @@ def assert_valid_belief(belief: om.Belief, model: om.GridModel, t: int, atol: fl
         sums = p.sum(axis=-1)
         assert np.all(np.abs(sums - 1) <= atol), f"{what} sums to {sums} at t={t}"
     assert not belief.log_evidence > 1e-9, f"log evidence {belief.log_evidence} > 0 at t={t}"
+
+
+def snapshot(est) -> dict:
+    """Every attribute of an estimator, arrays copied, the random generator by its state."""
+    return {name: (value.copy() if isinstance(value, np.ndarray) else
+                   value.bit_generator.state if isinstance(value, np.random.Generator) else value)
+            for name, value in vars(est).items()}
+
+
+def assert_state_unchanged(est, before: dict) -> None:
+    """The estimator's attributes equal the :func:`snapshot` taken before (arrays bit for bit)."""
+    now = snapshot(est)
+    assert now.keys() == before.keys()
+    for name, value in before.items():
+        if isinstance(value, np.ndarray):
+            np.testing.assert_array_equal(now[name], value, err_msg=name)
+        else:
+            assert now[name] is value or now[name] == value, name

@@ -13,6 +13,7 @@ import onlinemap as om
 from onlinemap import metrics
 from onlinemap.estimators.offline_em import baum_welch
 from onlinemap.hmm import forward_backward, temper
+from estimator_cases import assert_state_unchanged, snapshot
 from oracles import grid_motion
 
 
@@ -266,20 +267,6 @@ def test_offline_em_gets_every_visited_cell_right():
 
 
 # --- bad input -----------------------------------------------------------------------------
-def state(est):
-    return {key: (value.copy() if isinstance(value, np.ndarray) else value) for key, value in vars(est).items()}
-
-
-def assert_state_equal(est, before):
-    after = vars(est)
-    assert after.keys() == before.keys()
-    for key, value in before.items():
-        if isinstance(value, np.ndarray):
-            np.testing.assert_array_equal(after[key], value, err_msg=key)
-        else:
-            assert after[key] is value or after[key] == value, key
-
-
 @pytest.mark.parametrize("name", ["online_em", "offline_em"])
 @pytest.mark.parametrize("action,observation,error", [
     (2, 0, om.InvalidActionError), (None, 0, om.InvalidActionError), ("up", 0, om.InvalidActionError),
@@ -290,10 +277,10 @@ def test_bad_step_raises_and_keeps_state(name, action, observation, error):
     est = om.make_estimator(name, om.corridor(5))
     est.step(None, 0)
     est.step(1, 1)
-    before = state(est)
+    before = snapshot(est)
     with pytest.raises(error):
         est.step(action, observation)
-    assert_state_equal(est, before)
+    assert_state_unchanged(est, before)
     assert est.step(1, 0).t == 2
 
 
@@ -301,10 +288,10 @@ def test_online_em_without_pseudo_counts_refuses_an_impossible_observation_and_k
     est = om.make_estimator("online_em", RUN.model, pseudo_count=0.0)
     for t in range(11):  # B becomes certain of a wrong map; z_11 has probability zero under it
         est.step(None if t == 0 else RUN.actions[t - 1], RUN.observations[t])
-    before = state(est)
+    before = snapshot(est)
     with pytest.raises(om.ImpossibleObservationError, match="probability zero"):
         est.step(RUN.actions[10], RUN.observations[11])
-    assert_state_equal(est, before)
+    assert_state_unchanged(est, before)
     assert est.step(RUN.actions[10], 1 - RUN.observations[11]).t == 11
 
 
@@ -324,8 +311,8 @@ def test_bad_options_are_refused(name, options):
 def test_observation_impossible_under_the_prior_is_refused_with_state_kept(name):
     model = om.corridor(4, p_obs=1.0, label_prior=[1.0, 0.0])  # every cell is 0 and the sensor never errs
     est = om.make_estimator(name, model)
-    before = state(est)
+    before = snapshot(est)
     with pytest.raises(om.ImpossibleObservationError, match="probability zero"):
         est.step(None, 1)
-    assert_state_equal(est, before)
+    assert_state_unchanged(est, before)
     assert est.step(None, 0).t == 0

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import onlinemap as om
+from estimator_cases import assert_state_unchanged, snapshot
 
 STATIC = dict(p_obs=0.85, p_move=0.7)
 DYNAMIC_3X3 = dict(p_obs=0.8, p_move=0.7, change=[[0.9, 0.05, 0.05], [0.1, 0.8, 0.1], [0.2, 0.2, 0.6]])
@@ -203,23 +204,6 @@ def test_update_then_belief_equals_step_and_belief_is_cached():
     np.testing.assert_allclose(est.weights.sum(), 1.0)
 
 
-def state(est):
-    """Every attribute, arrays copied (the random generator by its state)."""
-    return {name: (value.copy() if isinstance(value, np.ndarray) else
-                   value.bit_generator.state if isinstance(value, np.random.Generator) else value)
-            for name, value in vars(est).items()}
-
-
-def assert_same_state(est, snap):
-    now = state(est)
-    assert now.keys() == snap.keys()
-    for name, value in snap.items():
-        if isinstance(value, np.ndarray):
-            np.testing.assert_array_equal(now[name], value, err_msg=name)
-        else:
-            assert now[name] is value or now[name] == value, name
-
-
 @pytest.mark.parametrize("proposal", ["optimal", "transition"])
 @pytest.mark.parametrize("p_change", [0.0, 0.1])
 def test_impossible_observation_keeps_everything(proposal, p_change):
@@ -235,10 +219,10 @@ def test_impossible_observation_keeps_everything(proposal, p_change):
     for e in (est, twin):
         e.step(None, 0)
         e.step("right", 0)
-    snap = state(est)
+    snap = snapshot(est)
     with pytest.raises(om.ImpossibleObservationError, match="every particle"):
         est.step("right", 1)
-    assert_same_state(est, snap)
+    assert_state_unchanged(est, snap)
     for action in ("right", "left", "right"):
         np.testing.assert_array_equal(est.step(action, 0).location, twin.step(action, 0).location)
     np.testing.assert_array_equal(est.particle_maps(), twin.particle_maps())
@@ -258,11 +242,11 @@ def test_bad_input_keeps_everything():
     est = om.make_estimator("rbpf", om.corridor(5, p_change=0.05), n_particles=20, seed=0)
     est.step(None, 0)
     est.step(1, 1)
-    snap = state(est)
+    snap = snapshot(est)
     for action, observation in [(2, 0), (None, 0), (1, 2), ("up", 0), (1, float("nan"))]:
         with pytest.raises((om.InvalidActionError, om.InvalidObservationError)):
             est.step(action, observation)
-    assert_same_state(est, snap)
+    assert_state_unchanged(est, snap)
 
 
 @pytest.mark.parametrize("options,match", [
