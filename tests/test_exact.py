@@ -116,3 +116,43 @@ def test_belief_is_read_only():
         belief.location[0] = 1.0
     with pytest.raises(ValueError):
         belief.map[0, 0] = 1.0
+
+
+@pytest.mark.parametrize("k,n", [(2, 1), (2, 5), (2, 12), (2, 13), (3, 4), (3, 7), (3, 8)])
+def test_change_kernel_equals_tensordot_on_every_axis(k, n):
+    """Sizes past one cache block (2^11 binary, 3^6 ternary maps) take the outer-axis paths."""
+    from onlinemap.kernels import change_every_axis
+
+    rng = np.random.default_rng(n)
+    change = rng.random((k, k))
+    change /= change.sum(axis=1, keepdims=True)
+    x = rng.random((n, k**n))
+    expected = x.reshape((n,) + (k,) * n)
+    for axis in range(1, n + 1):
+        expected = np.moveaxis(np.tensordot(expected, change, axes=([axis], [0])), -1, axis)
+    change_every_axis(x, change)
+    np.testing.assert_allclose(x, expected.reshape(n, -1), atol=1e-13, rtol=0)
+
+
+@pytest.mark.parametrize("p_change", [0.0, 0.02])
+def test_exact_filter_on_a_corridor_larger_than_a_cache_block(p_change):
+    """13 binary cells (2^13 maps > one 2^11 block): the fused kernel against the per-axis
+    numpy operations the smoother uses (motion along the location axis, C along each map
+    axis, the sensor along each slice)."""
+    from onlinemap.estimators.exact import change_tensor, observe_tensor, prior_tensor
+    from onlinemap.model import apply_motion
+
+    model = om.corridor(13, p_change=p_change, start=6)
+    run = random_run(model, 6, 2)
+    est = om.make_estimator("exact", model)
+    x = observe_tensor(model, prior_tensor(model), run.observations[0])
+    est.step(None, run.observations[0])
+    for t in range(1, run.n_steps):
+        x = observe_tensor(model, change_tensor(model, apply_motion(model, x, run.actions[t - 1])),
+                           run.observations[t])
+        x /= x.sum()
+        belief = est.step(run.actions[t - 1], run.observations[t])
+        np.testing.assert_allclose(belief.location, x.sum(axis=1), atol=1e-12)
+        maps = np.stack([x.reshape((13,) + (2,) * 13).sum(axis=tuple(a for a in range(14) if a != i + 1))
+                         for i in range(13)])
+        np.testing.assert_allclose(belief.map, maps, atol=1e-12)
