@@ -18,6 +18,7 @@ Tables (all float64, read-only):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Sequence
 
 import numpy as np
@@ -171,9 +172,9 @@ class GridModel:
         """Sensor, (K, K)."""
         return self.sensor
 
-    @property
+    @cached_property
     def is_static(self) -> bool:
-        """True when C is the identity (labels never change)."""
+        """True when C is the identity (labels never change). Computed once."""
         return bool(np.array_equal(self.change, np.eye(self.n_labels)))
 
     def __repr__(self) -> str:
