@@ -1,9 +1,9 @@
 """Writes notebooks/active_exploration.ipynb (no stored outputs). Run: python notebooks/build_active_exploration.py"""
 
-from pathlib import Path
-
 import nbformat
-from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
+from nbformat.v4 import new_code_cell, new_markdown_cell
+
+from nbbuild import notebook, write
 
 CELLS = [
     new_markdown_cell("""\
@@ -108,12 +108,8 @@ for name, errors in (("final map error", final), ("late door error", late)):
 
 
 def build() -> nbformat.NotebookNode:
-    notebook = new_notebook(cells=CELLS)
-    notebook.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
-    return notebook
+    return notebook(CELLS)
 
 
 if __name__ == "__main__":
-    path = Path(__file__).with_name("active_exploration.ipynb")
-    nbformat.write(build(), path)
-    print(f"wrote {path}")
+    write(build(), "active_exploration.ipynb")

@@ -1,9 +1,8 @@
 """Writes notebooks/corridor_em_failure.ipynb (no stored outputs). Run: python notebooks/build_corridor_em_failure.py"""
 
-from pathlib import Path
-
 import nbformat
-from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
+
+from nbbuild import notebook, write
 
 CELLS = [
     ("md", """# Why online EM gets lost in a corridor, and Bayes does not
@@ -138,13 +137,8 @@ tables from the command line."""),
 
 
 def build() -> nbformat.NotebookNode:
-    notebook = new_notebook()
-    notebook.cells = [new_markdown_cell(text) if kind == "md" else new_code_cell(text) for kind, text in CELLS]
-    notebook.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
-    return notebook
+    return notebook(CELLS)
 
 
 if __name__ == "__main__":
-    path = Path(__file__).with_name("corridor_em_failure.ipynb")
-    nbformat.write(build(), path)
-    print(f"wrote {path}")
+    write(build(), "corridor_em_failure.ipynb")

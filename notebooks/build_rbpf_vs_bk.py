@@ -1,9 +1,8 @@
 """Writes notebooks/rbpf_vs_bk.ipynb (no stored outputs). Run: python notebooks/build_rbpf_vs_bk.py"""
 
-from pathlib import Path
-
 import nbformat
-from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
+
+from nbbuild import notebook, write
 
 CELLS = [
     ("md", """# Approximate Bayes: Rao-Blackwellised particles against Boyen-Koller
@@ -115,12 +114,8 @@ particles above). Online EM and dead reckoning are several times further from ex
 
 
 def build() -> nbformat.NotebookNode:
-    cells = [new_markdown_cell(src) if kind == "md" else new_code_cell(src) for kind, src in CELLS]
-    return new_notebook(cells=cells, metadata={"kernelspec": {"name": "python3", "display_name": "Python 3",
-                                                              "language": "python"}})
+    return notebook(CELLS)
 
 
 if __name__ == "__main__":
-    path = Path(__file__).with_name("rbpf_vs_bk.ipynb")
-    nbformat.write(build(), path)
-    print(f"wrote {path}")
+    write(build(), "rbpf_vs_bk.ipynb")
