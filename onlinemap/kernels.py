@@ -27,12 +27,12 @@ def _block_axes(n, k):
 
 
 @njit(cache=True, fastmath=True)
-def motion_observe(x, out, self_prob, predecessor, p_move, likelihood, joint_map, location):
-    """One fused pass: ``out[j, m] = (self_prob[j] x[j, m] + p_move x[pred[j], m]) * lik[m_j]``.
+def motion_observe(x, out, self_prob, predecessor, p_move, scale, likelihood, joint_map, location):
+    """One fused pass: ``out[j, m] = scale (self_prob[j] x[j, m] + p_move x[pred[j], m]) lik[m_j]``.
 
     x, out: (N, M) (may be the same array when every predecessor is -1); self_prob, predecessor:
     (N,); likelihood: (K,) ``O[:, z]``; writes ``joint_map`` (M,) = sum over locations of out and
-    ``location`` (N,) = sum over maps. Scaling (normalisation) is folded into the coefficients.
+    ``location`` (N,) = sum over maps. ``scale`` folds the previous step's normalisation in.
     Cost: one read and one write of (N, M), plus O(N * 2048) to build the block pattern.
     """
     n, m_total = x.shape
@@ -54,16 +54,16 @@ def motion_observe(x, out, self_prob, predecessor, p_move, likelihood, joint_map
         stop = start + block
         q = joint_map[start:stop]
         for j in range(n):
-            a = self_prob[j]
+            a = self_prob[j] * scale
             p = predecessor[j]
             if j < inner:
                 f = likelihood[(start // k ** (n - 1 - j)) % k]
                 a *= f
                 factor = ones
-                pm = p_move * f
+                pm = p_move * scale * f
             else:
                 factor = pattern[j]
-                pm = p_move
+                pm = p_move * scale
             here = x[j, start:stop]
             target = out[j, start:stop]
             acc = 0.0

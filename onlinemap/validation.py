@@ -15,6 +15,8 @@ from .model import GridModel
 
 
 def _index(value, names: tuple[str, ...], what: str, error: type[Exception]) -> int:
+    if type(value) is int and 0 <= value < len(names):  # the common case, checked first
+        return value
     if isinstance(value, (str, np.str_)):
         try:
             return names.index(str(value))

@@ -75,27 +75,28 @@ class ExactFilter:
         self._t = -1
         self._belief: Belief | None = None
         self._no_motion = (np.ones(n), np.full(n, -1, dtype=np.int64))
+        self._likelihoods = np.ascontiguousarray(model.sensor.T)  # row z = O[:, z]
+        self._flat = np.ones(k)  # the likelihood of "no observation" (dynamic steps)
         self._dynamic = not model.is_static
 
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
         model, inv = self.model, 1.0 / self._norm
-        likelihood = np.ascontiguousarray(model.sensor[:, z])
+        likelihood = self._likelihoods[z]
         location = np.empty(model.n_cells)
         out = self._scratch
         if a is None:
             self_prob, pred = self._no_motion
-            motion_observe(self._x, out, self_prob * inv, pred, 0.0, likelihood, self._joint_map, location)
+            motion_observe(self._x, out, self_prob, pred, 0.0, inv, likelihood, self._joint_map, location)
         elif not self._dynamic:
-            motion_observe(self._x, out, model.self_prob[a] * inv, model.predecessor[a], model.p_move * inv,
+            motion_observe(self._x, out, model.self_prob[a], model.predecessor[a], model.p_move, inv,
                            likelihood, self._joint_map, location)
         else:
-            ones = np.ones(model.n_labels)
-            motion_observe(self._x, out, model.self_prob[a] * inv, model.predecessor[a], model.p_move * inv,
-                           ones, self._joint_map, location)
+            motion_observe(self._x, out, model.self_prob[a], model.predecessor[a], model.p_move, inv,
+                           self._flat, self._joint_map, location)
             change_every_axis(out, model.change)
             self_prob, pred = self._no_motion
-            motion_observe(out, out, self_prob, pred, 0.0, likelihood, self._joint_map, location)
+            motion_observe(out, out, self_prob, pred, 0.0, 1.0, likelihood, self._joint_map, location)
         total = location.sum()
         if not total > 0 or not np.isfinite(total):
             raise ImpossibleObservationError(
