@@ -7,6 +7,7 @@ import pytest
 
 import onlinemap as om
 from onlinemap.metrics import total_variation
+from estimator_cases import random_run
 from oracles import BruteForce
 
 MODELS = [
@@ -15,11 +16,6 @@ MODELS = [
     ("grid 2x2 dynamic", lambda: om.grid_model(2, 2, 2, p_obs=0.8, p_move=0.7, change=[[0.9, 0.1], [0.2, 0.8]],
                                                label_prior=[0.3, 0.7])),
 ]
-
-
-def random_run(model, steps, seed):
-    rng = np.random.default_rng(seed)
-    return om.simulate(model, None, om.random_walk(model, steps - 1, rng), rng)
 
 
 @pytest.mark.parametrize("name,make", MODELS, ids=[m[0] for m in MODELS])

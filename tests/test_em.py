@@ -13,7 +13,7 @@ import onlinemap as om
 from onlinemap import metrics
 from onlinemap.estimators.offline_em import baum_welch
 from onlinemap.hmm import forward_backward, temper
-from estimator_cases import assert_state_unchanged, snapshot
+from estimator_cases import assert_state_unchanged, random_run, snapshot
 from oracles import grid_motion
 
 
@@ -59,11 +59,6 @@ def reference_online_em(model, actions, observations, window, decay, pseudo_coun
         filtered_history.append(filtered[-1])
         out.append((filtered[-1], emission))
     return out
-
-
-def random_run(model, steps, seed):
-    rng = np.random.default_rng(seed)
-    return om.simulate(model, None, om.random_walk(model, steps - 1, rng), rng)
 
 
 def random_emission(n, k, seed):

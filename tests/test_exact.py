@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import onlinemap as om
+from estimator_cases import random_run
 from oracles import BruteForce, grid_motion
 
 CASES = [
@@ -16,11 +17,6 @@ CASES = [
     ("grid 2x3 dynamic", lambda: om.grid_model(2, 3, 2, p_obs=0.8, p_move=0.7,
                                                change=[[0.9, 0.1], [0.2, 0.8]], label_prior=[0.3, 0.7])),
 ]
-
-
-def random_run(model, steps, seed):
-    rng = np.random.default_rng(seed)
-    return om.simulate(model, None, om.random_walk(model, steps - 1, rng), rng)
 
 
 @pytest.mark.parametrize("name,make", CASES, ids=[c[0] for c in CASES])

@@ -7,15 +7,10 @@ import numpy as np
 import pytest
 
 import onlinemap as om
-from estimator_cases import assert_state_unchanged, snapshot
+from estimator_cases import assert_state_unchanged, random_run, snapshot
 
 STATIC = dict(p_obs=0.85, p_move=0.7)
 DYNAMIC_3X3 = dict(p_obs=0.8, p_move=0.7, change=[[0.9, 0.05, 0.05], [0.1, 0.8, 0.1], [0.2, 0.2, 0.6]])
-
-
-def random_run(model, steps, seed):
-    rng = np.random.default_rng(seed)
-    return om.simulate(model, None, om.random_walk(model, steps - 1, rng), rng)
 
 
 def exact_trajectory(run):
