@@ -61,8 +61,13 @@ def _estimator(model: GridModel, estimator: str | Estimator, options: dict | Non
     return estimator
 
 
-def _planner(model: GridModel, planner: str | Planner, rng: np.random.Generator) -> Planner:
-    return make_planner(planner, model, seed=rng) if isinstance(planner, str) else planner
+def _planner(model: GridModel, planner: str | Planner, options: dict | None,
+             rng: np.random.Generator) -> Planner:
+    if isinstance(planner, str):
+        return make_planner(planner, model, seed=rng, **(options or {}))
+    if options:
+        raise ModelError("planner_options are for a planner given by name")
+    return planner
 
 
 def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[int], WorldState],
@@ -108,7 +113,8 @@ def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[
 
 def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
             estimator: str | Estimator = "rbpf", steps: int = 500, seed: SeedLike = None, *,
-            estimator_options: dict | None = None, progress: bool | None = None) -> pd.DataFrame:
+            estimator_options: dict | None = None, planner_options: dict | None = None,
+            progress: bool | None = None) -> pd.DataFrame:
     """Run a closed exploration loop for ``steps`` steps (the first observation included).
 
     Each step: the planner chooses an action from the estimator's belief, the true world moves
@@ -116,6 +122,8 @@ def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
     action and observation. ``planner`` is a :class:`~policies.planners.Planner` or a name
     (``entropy``, ``random``, ``sweep``); ``estimator`` a fresh estimator or a registry name,
     built with ``estimator_options`` (and a ``seed`` derived from ``seed`` if it takes one).
+    A named planner is built with ``planner_options`` (:func:`~policies.planners.make_planner`
+    keywords, e.g. ``gamma`` or ``replan_every``) and the planner stream of ``seed``.
     One ``seed`` fixes the world, a named planner and a named estimator.
 
     Returns a frame with one row per step and the columns ``t``, ``action`` (name, None at
@@ -131,7 +139,7 @@ def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
     if labels.shape != (model.n_cells,) or np.any(labels < 0) or np.any(labels >= model.n_labels):
         raise ModelError(f"true_map must be ({model.n_cells},) labels in 0..{model.n_labels - 1}")
     est = _estimator(model, estimator, estimator_options, estimator_seed)
-    chooser = _planner(model, planner, planner_rng)
+    chooser = _planner(model, planner, planner_options, planner_rng)
     static = model.is_static
     state = {"location": model.start, "labels": labels}
 
@@ -146,14 +154,14 @@ def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
 
 def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estimator = "rbpf",
                 steps: int = 500, seed: SeedLike = None, *, estimator_options: dict | None = None,
-                progress: bool | None = None) -> pd.DataFrame:
+                planner_options: dict | None = None, progress: bool | None = None) -> pd.DataFrame:
     """:func:`explore` against a gymnasium :class:`onlinemap.envs.DoorWorldEnv` (possibly wrapped):
     ``env.reset(seed=...)`` then ``env.step(action)``; the true state is read from ``info``.
     The episode must last ``steps - 1`` actions (it raises if the env ends it sooner)."""
     model = env.unwrapped.model
     world_seed, planner_rng, estimator_seed = _seeds(seed)
     est = _estimator(model, estimator, estimator_options, estimator_seed)
-    chooser = _planner(model, planner, planner_rng)
+    chooser = _planner(model, planner, planner_options, planner_rng)
 
     def reset() -> WorldState:
         observation, info = env.reset(seed=int(world_seed.integers(2**31)))

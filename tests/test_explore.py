@@ -81,6 +81,19 @@ def test_explore_takes_instances_and_refuses_bad_input(tiny):
         explore(model, true_map, "random", "nope", 5)
     with pytest.raises(om.ModelError, match="unknown planner"):
         explore(model, true_map, "nope", "exact", 5)
+    with pytest.raises(om.ModelError, match="planner_options"):
+        explore(model, true_map, EntropyExplorer(model), "exact", 5, planner_options={"gamma": 0.5})
+
+
+def test_planner_options_reach_the_named_planner(tiny):
+    model, true_map = tiny
+    by_name = explore(model, true_map, "entropy", "exact", 15, seed=3, progress=False,
+                      planner_options={"gamma": 0.5, "replan_every": 3})
+    by_instance = explore(model, true_map, EntropyExplorer(model, gamma=0.5, replan_every=3), "exact",
+                          15, seed=3, progress=False)
+    pd.testing.assert_frame_equal(by_name, by_instance)
+    assert by_name.attrs["planner"] == by_instance.attrs["planner"] == "EntropyExplorer(gamma=0.5, " \
+        "replan_every=3, reward=entropy_reward)"
 
 
 def test_worlds_without_doors_report_nan_door_error():
