@@ -38,6 +38,17 @@ def random_run(model: om.GridModel, n_steps: int, seed: int) -> om.Run:
     return om.simulate(model, None, om.random_walk(model, n_steps - 1, rng), rng)
 
 
+def beliefs(est, run: om.Run, start: int = 0, stop: int | None = None):
+    """Step ``est`` through steps ``start .. stop - 1`` of ``run`` (all by default), yielding each belief."""
+    for t in range(start, run.n_steps if stop is None else stop):
+        yield est.step(None if t == 0 else int(run.actions[t - 1]), int(run.observations[t]))
+
+
+def exact_trajectory(run: om.Run) -> om.Trajectory:
+    """The exact filter's trajectory over ``run``."""
+    return om.run_estimator(om.make_estimator("exact", run.model), run.actions, run.observations)
+
+
 def stream(model: om.GridModel, true_map, n_steps: int, seed: int):
     """Yield ``(t, action or None, observation)`` of a simulated run without storing it (O(N) memory)."""
     rng = np.random.default_rng(seed)

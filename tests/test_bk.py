@@ -7,7 +7,7 @@ import pytest
 
 import onlinemap as om
 from onlinemap.metrics import total_variation
-from estimator_cases import random_run
+from estimator_cases import beliefs, exact_trajectory, random_run
 from oracles import BruteForce
 
 MODELS = [
@@ -74,15 +74,15 @@ def test_every_step_equals_projection_by_enumeration(name, make):
     model = make()
     run = random_run(model, 8, seed=2)
     est = om.make_estimator("bk", model)
-    for t, (location, maps, log_ev) in enumerate(projection_filter(model, run.actions, run.observations)):
-        belief = est.step(None if t == 0 else run.actions[t - 1], run.observations[t])
+    for (location, maps, log_ev), belief in zip(projection_filter(model, run.actions, run.observations),
+                                                beliefs(est, run), strict=True):
         np.testing.assert_allclose(belief.location, location, atol=1e-12)
         np.testing.assert_allclose(belief.map, maps, atol=1e-12)
         assert belief.log_evidence == pytest.approx(log_ev, abs=1e-12)
 
 
 def mean_tv_to_exact(name, run, **options):
-    exact = om.run_estimator(om.make_estimator("exact", run.model), run.actions, run.observations)
+    exact = exact_trajectory(run)
     other = om.run_estimator(om.make_estimator(name, run.model, **options), run.actions, run.observations)
     return (total_variation(other.location, exact.location).mean(),
             total_variation(other.map, exact.map).mean())

@@ -13,7 +13,7 @@ import onlinemap as om
 from onlinemap import metrics
 from onlinemap.estimators.offline_em import baum_welch
 from onlinemap.hmm import forward_backward, temper
-from estimator_cases import assert_state_unchanged, random_run, snapshot
+from estimator_cases import assert_state_unchanged, beliefs, random_run, snapshot
 from oracles import grid_motion
 
 
@@ -66,7 +66,7 @@ def random_emission(n, k, seed):
 
 
 def feed(est, run):
-    return [est.step(None if t == 0 else run.actions[t - 1], run.observations[t]) for t in range(run.n_steps)]
+    return list(beliefs(est, run))
 
 
 # --- the shared HMM ------------------------------------------------------------------------
@@ -281,8 +281,7 @@ def test_bad_step_raises_and_keeps_state(name, action, observation, error):
 
 def test_online_em_without_pseudo_counts_refuses_an_impossible_observation_and_keeps_state():
     est = om.make_estimator("online_em", RUN.model, pseudo_count=0.0)
-    for t in range(11):  # B becomes certain of a wrong map; z_11 has probability zero under it
-        est.step(None if t == 0 else RUN.actions[t - 1], RUN.observations[t])
+    list(beliefs(est, RUN, stop=11))  # B becomes certain of a wrong map; z_11 has probability zero under it
     before = snapshot(est)
     with pytest.raises(om.ImpossibleObservationError, match="probability zero"):
         est.step(RUN.actions[10], RUN.observations[11])

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import onlinemap as om
-from estimator_cases import random_run
+from estimator_cases import beliefs, exact_trajectory, random_run
 from oracles import BruteForce, grid_motion
 
 CASES = [
@@ -26,8 +26,7 @@ def test_exact_filter_equals_brute_force_every_step(name, make, seed):
     run = random_run(model, 9, seed)
     oracle = BruteForce.of(model).filter(run.actions, run.observations)
     est = om.make_estimator("exact", model)
-    for t, (loc, maps, log_ev) in enumerate(oracle):
-        belief = est.step(None if t == 0 else run.actions[t - 1], run.observations[t])
+    for t, ((loc, maps, log_ev), belief) in enumerate(zip(oracle, beliefs(est, run), strict=True)):
         assert belief.t == t
         np.testing.assert_allclose(belief.location, loc, atol=1e-10, rtol=0)
         np.testing.assert_allclose(belief.map, maps, atol=1e-10, rtol=0)
@@ -43,7 +42,7 @@ def test_exact_smoother_equals_brute_force(name, make):
     for t, (loc, maps) in enumerate(oracle):
         np.testing.assert_allclose(smoothed.location[t], loc, atol=1e-10, rtol=0)
         np.testing.assert_allclose(smoothed.map[t], maps, atol=1e-10, rtol=0)
-    filtered = om.run_estimator(om.make_estimator("exact", model), run.actions, run.observations)
+    filtered = exact_trajectory(run)
     assert smoothed.log_evidence == pytest.approx(filtered.log_evidence[-1], abs=1e-10)
     # the last smoothed step is the last filtered step
     np.testing.assert_allclose(smoothed.location[-1], filtered.location[-1], atol=1e-12)
@@ -65,11 +64,10 @@ def test_dead_reckoning_equals_motion_only_filter():
     loc = np.eye(9)[4]
     maps = np.array(model.label_prior)
     change = np.array([[0.9, 0.1], [0.3, 0.7]])
-    for t in range(run.n_steps):
+    for t, belief in enumerate(beliefs(est, run)):
         if t:
             loc = loc @ motion[run.actions[t - 1]]
             maps = maps @ change
-        belief = est.step(None if t == 0 else run.actions[t - 1], run.observations[t])
         np.testing.assert_allclose(belief.location, loc, atol=1e-12)
         np.testing.assert_allclose(belief.map, maps, atol=1e-12)
         assert np.isnan(belief.log_evidence)
@@ -77,7 +75,7 @@ def test_dead_reckoning_equals_motion_only_filter():
 
 def test_exact_beats_dead_reckoning_on_murphy_corridor():
     run = om.scenarios.murphy_corridor()
-    exact = om.run_estimator(om.make_estimator("exact", run.model), run.actions, run.observations)
+    exact = exact_trajectory(run)
     dead = om.run_estimator(om.make_estimator("dead_reckoning", run.model), run.actions, run.observations)
     assert exact.location[-1, 0] >= 0.8
     assert om.metrics.wrong_cells(exact.map[-1], run.final_map, cells=np.arange(7)) == 0

@@ -7,21 +7,15 @@ import numpy as np
 import pytest
 
 import onlinemap as om
-from estimator_cases import assert_state_unchanged, random_run, snapshot
+from estimator_cases import assert_state_unchanged, beliefs, exact_trajectory, random_run, snapshot
 
 STATIC = dict(p_obs=0.85, p_move=0.7)
 DYNAMIC_3X3 = dict(p_obs=0.8, p_move=0.7, change=[[0.9, 0.05, 0.05], [0.1, 0.8, 0.1], [0.2, 0.2, 0.6]])
 
 
-def exact_trajectory(run):
-    return om.run_estimator(om.make_estimator("exact", run.model), run.actions, run.observations)
-
-
 def rbpf_steps(run, **options):
     """Yield the RBPF's belief after each step of ``run``."""
-    est = om.make_estimator("rbpf", run.model, **options)
-    for t in range(run.n_steps):
-        yield est.step(None if t == 0 else run.actions[t - 1], run.observations[t])
+    return beliefs(om.make_estimator("rbpf", run.model, **options), run)
 
 
 KNOWN_LOCATION = [
