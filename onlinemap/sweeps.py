@@ -52,6 +52,7 @@ milliseconds of dask overhead per task and seconds to start a local cluster.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import inspect
 import itertools
@@ -75,11 +76,12 @@ from tqdm.auto import tqdm
 from . import metrics
 from .errors import OnlineMapError
 from .estimators import available_estimators, estimator_options, make_estimator, run_estimator
+from .estimators.base import Trajectory
 from .estimators.base import _lookup as _estimator_class
 from .model import GridModel
 from .reproduce import LOST_BELOW, wilson_interval
 from .scenarios import scripted_corridor
-from .simulate import Run, random_walk, simulate, there_and_back
+from .simulate import Run, random_walk, there_and_back
 from .worlds import WorldSpec, parse_world
 
 WALKS = ("random", "there_and_back", "scripted_trip")
@@ -544,6 +546,28 @@ def scripted_trip(model: GridModel, labels: np.ndarray, rng: np.random.Generator
     return Run(model, run.actions, run.locations, run.maps, run.observations)
 
 
+@functools.lru_cache(maxsize=16)
+def simulated_run(world: str, steps: int | str, walk: str, seed: int) -> Run:
+    """The run of a task (memoised per process: every estimator of a sweep sees the same run):
+    ``default_rng(seed)`` draws the map, then the walk (``steps`` - 1 actions, or one trip),
+    then the noise (:meth:`WorldSpec.simulate`); ``scripted_trip`` draws its slip instead."""
+    spec = parse_world(world)
+    model = spec.model
+    if walk == "scripted_trip":
+        rng = np.random.default_rng(seed)
+        return scripted_trip(model, spec.initial_map(rng), rng)
+    n_steps = 2 * (model.n_cells - 1) + 1 if steps == "trip" else steps
+    return spec.simulate(n_steps, seed, walk=lambda model, n_actions, rng: walk_actions(model, walk, n_actions, rng))
+
+
+@functools.lru_cache(maxsize=16)
+def reference_trajectory(world: str, steps: int | str, walk: str, seed: int, reference: str) -> Trajectory:
+    """The reference estimator's trajectory on the task's run (memoised per process, so a
+    sweep runs it once per run and process, not once per task)."""
+    run = simulated_run(world, steps, walk, seed)
+    return run_estimator(_make(reference, run.model, (), seed), run.actions, run.observations)
+
+
 def run_task(task: Task) -> pd.DataFrame:
     """Simulate the task's run and return its metrics: one row, or one row per step.
 
@@ -553,19 +577,13 @@ def run_task(task: Task) -> pd.DataFrame:
     P(true cell) < ``reproduce.LOST_BELOW`` = 0.5); ``failed`` (lost or a wrong cell); time
     per step; with a reference estimator the total variation to its beliefs (location, and per
     cell averaged over cells); for exploration the entropies and door error.
-    Cost: one simulation plus the estimator's (and the reference's) run.
+    Cost: the estimator's run, plus (unless this process has just had them for another task)
+    one simulation and the reference's run (:func:`simulated_run`, :func:`reference_trajectory`).
     """
     if task.kind == "explore":
         return _run_explore(task)
-    world = parse_world(task.world)
-    model = world.model
-    rng = np.random.default_rng(task.seed)
-    true_map = world.initial_map(rng)
-    if task.walk == "scripted_trip":
-        run = scripted_trip(model, true_map, rng)
-    else:
-        n_actions = 2 * (model.n_cells - 1) if task.steps == "trip" else task.steps - 1
-        run = simulate(model, true_map, walk_actions(model, task.walk, n_actions, rng), rng)
+    run = simulated_run(task.world, task.steps, task.walk, task.seed)
+    model = run.model
     estimator = _make(task.estimator, model, task.options, task.seed, run)
     trajectory = run_estimator(estimator, run.actions, run.observations)
     steps = {
@@ -574,7 +592,9 @@ def run_task(task: Task) -> pd.DataFrame:
         "log_evidence": trajectory.log_evidence,
     }
     if task.reference is not None:
-        reference = run_estimator(_make(task.reference, model, (), task.seed), run.actions, run.observations)
+        # the reference estimator itself, unconfigured: its own trajectory (distance 0)
+        reference = trajectory if (task.estimator, task.options) == (task.reference, ()) else \
+            reference_trajectory(task.world, task.steps, task.walk, task.seed, task.reference)
         steps["location_tv"] = metrics.total_variation(trajectory.location, reference.location)
         steps["map_tv"] = metrics.total_variation(trajectory.map, reference.map).mean(axis=-1)
     ms = 1e3 * trajectory.seconds_per_step
@@ -748,6 +768,11 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     else:
         done = set()
     todo = [t for t in spec.tasks if t.key not in done]
+    # tasks sharing a run one after the other, so the memoised run and reference are reused
+    first: dict[tuple, int] = {}
+    for task in todo:
+        first.setdefault(_run_key(task), len(first))
+    todo.sort(key=lambda task: first[_run_key(task)])
     failures: list[tuple[Task, BaseException]] = []
 
     def record(task: Task, frame: pd.DataFrame) -> None:
@@ -782,11 +807,17 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
 
         write_table(table, out)
     if failures:
-        task, error = failures[0]
+        position = {t.key: i for i, t in enumerate(spec.tasks)}
+        task, error = min(failures, key=lambda failure: position[failure[0].key])  # first in spec order
         raise SweepError(f"{len(failures)} of {len(spec.tasks)} tasks failed (the others are kept; rerun to "
                          f"retry); first: {task.estimator}({_options_text(task.options)}) on {task.world}, "
                          f"seed {task.seed}: {type(error).__name__}: {error}")
     return table
+
+
+def _run_key(task: Task) -> tuple:
+    """What determines a task's simulated run (and its reference trajectory)."""
+    return task.world, task.steps, task.walk, task.seed, task.reference, task.planner is None
 
 
 def _as_spec(spec) -> SweepSpec:

@@ -6,13 +6,14 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
 from .errors import ModelError
 from .model import GridModel, corridor, door_world, grid_model, symmetric_channel
-from .simulate import SeedLike, sample_map
+from .simulate import Run, SeedLike, random_walk, sample_map
+from .simulate import simulate as _simulate
 
 _FLOAT_KEYS = {"p_obs", "p_move", "p_change", "p_door"}
 _INT_KEYS = {"n_labels", "start"}
@@ -26,6 +27,18 @@ class WorldSpec(NamedTuple):
     def initial_map(self, seed: SeedLike = None) -> np.ndarray:
         """The fixed map, or one drawn from the label prior with ``seed``."""
         return self.true_map if self.true_map is not None else sample_map(self.model, seed)
+
+    def simulate(self, n_steps: int, seed: SeedLike = None,
+                 walk: Callable[[GridModel, int, np.random.Generator], np.ndarray] | None = None) -> Run:
+        """A seeded run of ``n_steps`` steps (first observation included), as ``onlinemap run
+        --seed`` makes it: ``rng = default_rng(seed)`` draws the initial map
+        (:meth:`initial_map`), then the ``n_steps - 1`` actions (``walk(model, n_actions, rng)``,
+        default :func:`~onlinemap.simulate.random_walk`), then the moves and noise
+        (:func:`~onlinemap.simulate.simulate`). Cost: O(n_steps N K)."""
+        rng = np.random.default_rng(seed)
+        true_map = self.initial_map(rng)
+        actions = (walk or random_walk)(self.model, max(int(n_steps) - 1, 0), rng)
+        return _simulate(self.model, true_map, actions, rng)
 
 
 def parse_world(spec: str) -> WorldSpec:
