@@ -14,9 +14,12 @@ from .errors import InvalidActionError, InvalidObservationError
 from .model import GridModel
 
 
+_INTS = (int, np.int64, np.int32)
+
+
 def _index(value, names: tuple[str, ...], what: str, error: type[Exception]) -> int:
-    if type(value) is int and 0 <= value < len(names):  # the common case, checked first
-        return value
+    if type(value) in _INTS and 0 <= value < len(names):  # the common case, checked first
+        return int(value)
     if isinstance(value, (str, np.str_)):
         try:
             return names.index(str(value))
@@ -64,8 +67,8 @@ def check_step(model: GridModel, t: int, action, observation) -> tuple[int | Non
 def check_sequence(model: GridModel, actions, observations) -> tuple[np.ndarray, np.ndarray]:
     """Validate a whole run: ``observations`` (T,), ``actions`` (T - 1,) or (T,) with a leading
     None / -1 placeholder. Returns int arrays ``(actions (T - 1,), observations (T,))``."""
-    observations = list(observations)
-    actions = list(actions)
+    observations = _as_sequence(observations)
+    actions = _as_sequence(actions)
     if len(observations) == 0:
         raise InvalidObservationError("a run needs at least one observation")
     if len(actions) == len(observations) and (actions[0] is None or actions[0] == -1):
@@ -73,6 +76,27 @@ def check_sequence(model: GridModel, actions, observations) -> tuple[np.ndarray,
     if len(actions) != len(observations) - 1:
         raise InvalidActionError(f"{len(observations)} observations need {len(observations) - 1} actions, "
                                  f"got {len(actions)}")
-    a = np.array([action_index(model, x) for x in actions], dtype=np.int64)
-    z = np.array([observation_index(model, x) for x in observations], dtype=np.int64)
+    a = _indices(actions, model.action_names)
+    if a is None:
+        a = np.array([action_index(model, x) for x in actions], dtype=np.int64)
+    z = _indices(observations, model.label_names)
+    if z is None:
+        z = np.array([observation_index(model, x) for x in observations], dtype=np.int64)
     return a, z
+
+
+def _as_sequence(values):
+    """A 1-d integer array as it is (for the vectorised check), anything else as a list."""
+    if type(values) is np.ndarray and values.ndim == 1 and values.dtype.kind in "iu":
+        return values
+    return list(values)
+
+
+def _indices(values, names: tuple[str, ...]) -> np.ndarray | None:
+    """A fresh int64 copy of a 1-d integer array whose entries all lie in 0..len(names) - 1 (one
+    vectorised range check); None otherwise (the caller then checks entry by entry and raises)."""
+    if type(values) is not np.ndarray:
+        return None
+    if values.size and not (values.min() >= 0 and values.max() < len(names)):
+        return None
+    return values.astype(np.int64)

@@ -75,17 +75,25 @@ def baum_welch(model: GridModel, actions, observations, *, n_iter: int = 200, to
     Cost O(iterations T (N + E)).
     """
     a_seq, z_seq = check_sequence(model, actions, observations)
-    pseudo_count = check_pseudo_count(pseudo_count)
-    schedule = check_anneal(anneal)
     fallback = prior_emission(model)
-    emission = fallback.copy() if initial is None else np.array(initial, dtype=np.float64)
+    emission = fallback if initial is None else np.array(initial, dtype=np.float64)
     if emission.shape != fallback.shape:
         raise ModelError(f"initial B must have shape {fallback.shape}, got {emission.shape}")
-    prior = model.location_prior()
+    return _baum_welch(model, a_seq, z_seq, emission, fallback, model.location_prior(),
+                       sensor_inverse(model.sensor), n_iter=int(n_iter), tol=tol,
+                       pseudo_count=check_pseudo_count(pseudo_count), schedule=check_anneal(anneal))
+
+
+def _baum_welch(model: GridModel, a_seq: np.ndarray, z_seq: np.ndarray, emission: np.ndarray,
+                fallback: np.ndarray, prior: np.ndarray, inverse: np.ndarray, *, n_iter: int, tol: float,
+                pseudo_count: float, schedule: Anneal | None) -> EMFit:
+    """:func:`baum_welch` on checked int64 arrays and options, with the starting B ``emission``
+    (not modified), the M-step's ``fallback`` rows, the location ``prior`` and the sensor's
+    pseudo-inverse ``inverse`` given."""
     objectives = []
     converged = False
     fit = None
-    for iteration in range(int(n_iter)):
+    for iteration in range(n_iter):
         fit = forward_backward(model, prior, a_seq, z_seq, emission, out=fit)
         objectives.append(fit.log_likelihood + log_dirichlet_prior(emission, pseudo_count))
         tau = 1.0 if schedule is None else schedule.tau(iteration)
@@ -97,7 +105,7 @@ def baum_welch(model: GridModel, actions, observations, *, n_iter: int = 200, to
         emission = emission_from_counts(counts, pseudo_count, emission)
     else:
         fit = forward_backward(model, prior, a_seq, z_seq, emission, out=fit)
-    return EMFit(fit.posterior, map_from_emission(emission, sensor_inverse(model.sensor)), emission, fit.log_likelihood,
+    return EMFit(fit.posterior, map_from_emission(emission, inverse), emission, fit.log_likelihood,
                  np.array(objectives), converged)
 
 
@@ -124,6 +132,10 @@ class OfflineEM:
         self.pseudo_count = check_pseudo_count(pseudo_count)
         schedule = check_anneal(anneal)
         self.anneal = None if schedule is None else tuple(schedule)  # plain data (checkpoints)
+        # constant tables of every step's fit, computed once (read-only arrays: checkpointable)
+        self._prior_emission = _read_only(prior_emission(model))
+        self._location_prior = _read_only(model.location_prior())
+        self._sensor_inverse = _read_only(sensor_inverse(model.sensor))
         self._actions = np.empty(0, dtype=np.int64)
         self._observations = np.empty(0, dtype=np.int64)
         self._t = -1
@@ -138,9 +150,17 @@ class OfflineEM:
         a, z = check_step(self.model, self._t + 1, action, observation)
         actions = self._actions if a is None else np.append(self._actions, a)
         observations = np.append(self._observations, z)
-        fit = self.fit(actions, observations)
+        fit = _baum_welch(self.model, actions, observations, self._prior_emission, self._prior_emission,
+                          self._location_prior, self._sensor_inverse, n_iter=self.n_iter, tol=self.tol,
+                          pseudo_count=self.pseudo_count,
+                          schedule=None if self.anneal is None else Anneal(*self.anneal))
         self._actions, self._observations = actions, observations
         self._t += 1
         self._belief = Belief(self._t, fit.location[-1], fit.map, fit.log_likelihood,
                               observation_matrix=fit.observation_matrix)
         return self._belief
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.setflags(write=False)
+    return array
