@@ -10,7 +10,6 @@ the true (current) map. Worlds must be small enough for ``exact``.
 
 from __future__ import annotations
 
-import time
 from typing import Sequence
 
 import numpy as np
@@ -19,8 +18,7 @@ from matplotlib.figure import Figure
 from tqdm.auto import tqdm
 
 from . import metrics
-from .estimators import available_estimators, make_estimator
-from .simulate import random_walk, simulate
+from .estimators import available_estimators, make_estimator, run_estimator
 from .worlds import parse_world
 
 DEFAULT_WORLDS = ("corridor:10", "corridor:10,p_change=0.02", "grid:3x3", "grid:3x3,p_change=0.02")
@@ -52,41 +50,29 @@ def accuracy_study(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_s
     frames = []
     jobs = [(spec, r) for spec in worlds for r in range(n_runs)]
     for spec in worlds:  # load every numba kernel (resampling included) before anything is timed
-        model = parse_world(spec).model
-        warm_up = simulate(model, None, random_walk(model, 4, 0), 0)
+        world = parse_world(spec)
+        model, warm_up = world.model, world.simulate(5, 0)
         for name, options in [("exact", {})] + [(name, options) for _, name, options in entries]:
             options = {**options, "resample_threshold": 1.0} if name == "rbpf" else options
-            _trajectory(make_estimator(name, model, **options), warm_up)
+            run_estimator(make_estimator(name, model, **options), warm_up.actions, warm_up.observations)
     for spec, r in tqdm(jobs, desc="runs", disable=not progress, leave=False):
         world = parse_world(spec)
-        rng = np.random.default_rng([seed, r])
-        run = simulate(world.model, world.initial_map(rng), random_walk(world.model, n_steps - 1, rng), rng)
-        exact = _trajectory(make_estimator("exact", world.model), run)
+        run = world.simulate(n_steps, [seed, r])
+        exact = run_estimator(make_estimator("exact", world.model), run.actions, run.observations)
         for label, name, options in [("exact", "exact", {})] + entries:
             if name == "rbpf":
                 options = {**options, "seed": [seed, r]}
-            location, maps, seconds = exact if name == "exact" else _trajectory(
-                make_estimator(name, world.model, **options), run)
+            trajectory = exact if name == "exact" else run_estimator(
+                make_estimator(name, world.model, **options), run.actions, run.observations)
             frames.append(pd.DataFrame({
                 "world": spec, "run": r, "estimator": label,
                 "particles": options.get("n_particles", np.nan), "proposal": options.get("proposal"),
                 "t": np.arange(run.n_steps),
-                "location_tv": metrics.total_variation(location, exact[0]),
-                "map_tv": metrics.total_variation(maps, exact[1]).mean(axis=-1),
-                "map_error": metrics.map_error(maps, run.maps),
-                "seconds": seconds}))
+                "location_tv": metrics.total_variation(trajectory.location, exact.location),
+                "map_tv": metrics.total_variation(trajectory.map, exact.map).mean(axis=-1),
+                "map_error": metrics.map_error(trajectory.map, run.maps),
+                "seconds": trajectory.seconds_per_step}))
     return pd.concat(frames, ignore_index=True)
-
-
-def _trajectory(estimator, run) -> tuple[np.ndarray, np.ndarray, float]:
-    """(location (T, N), map (T, N, K), seconds per step) of ``estimator`` over ``run``."""
-    location = np.empty((run.n_steps, run.model.n_cells))
-    maps = np.empty((run.n_steps, run.model.n_cells, run.model.n_labels))
-    start = time.perf_counter()
-    for t in range(run.n_steps):
-        belief = estimator.step(None if t == 0 else run.actions[t - 1], run.observations[t])
-        location[t], maps[t] = belief.location, belief.map
-    return location, maps, (time.perf_counter() - start) / run.n_steps
 
 
 def summarise(per_step: pd.DataFrame) -> pd.DataFrame:

@@ -11,7 +11,6 @@ from tqdm.auto import tqdm
 from .. import metrics
 from ..errors import MemoryLimitError
 from ..estimators import make_estimator, run_estimator
-from ..simulate import random_walk, simulate
 from ..worlds import parse_world
 from .common import print_table, split_list, write_table
 
@@ -55,9 +54,7 @@ def compare_on_run(run, names: list[str], options: dict[str, dict] | None = None
 
 def run(args: argparse.Namespace) -> int:
     world = parse_world(args.world)
-    rng = np.random.default_rng(args.seed)
-    true_map = world.initial_map(rng)
-    sim = simulate(world.model, true_map, random_walk(world.model, max(args.steps - 1, 0), rng), rng)
+    sim = world.simulate(args.steps, args.seed)
     print(f"world {args.world}: {world.model}; {sim.n_steps} steps, {int(sim.slipped.sum())} slips, seed {args.seed}")
     summary, per_step = compare_on_run(sim, split_list(args.estimators))
     print_table(summary)
