@@ -119,26 +119,24 @@ def simulate(model: GridModel, true_map=None, actions=(), seed: SeedLike = None)
     locations = np.empty(n_steps, dtype=np.int64)
     maps = np.empty((n_steps, n), dtype=np.int64)
     observations = np.empty(n_steps, dtype=np.int64)
-    static = model.is_static
     location = model.start
     for t in range(n_steps):
         location, current, observations[t] = world_step(
-            model, location, current, None if t == 0 else action_ids[t - 1], rng, static)
+            model, location, current, None if t == 0 else action_ids[t - 1], rng)
         locations[t] = location
         maps[t] = current
     return Run(model, action_ids, locations, maps, observations)
 
 
 def world_step(model: GridModel, location: int, labels: np.ndarray, action: int | None,
-               rng: np.random.Generator, static: bool | None = None) -> tuple[int, np.ndarray, int]:
+               rng: np.random.Generator) -> tuple[int, np.ndarray, int]:
     """One step of the true world: the action moves the robot (skipped when ``action`` is None,
     step 0), then the map changes, then the robot observes. ``labels`` (N,) is not modified;
-    returns ``(location, labels, observation)``. Cost O(N) in a dynamic world, O(1) in a static one
-    (pass ``static=model.is_static`` to skip re-checking it every step)."""
+    returns ``(location, labels, observation)``. Cost O(N) in a dynamic world, O(1) in a static one."""
     if action is not None:
         if rng.random() < model.p_move:
             location = int(model.neighbors[location, action])
-        if not (model.is_static if static is None else static):
+        if not model.is_static:
             labels = _categorical(rng, model.change[labels])
     observation = int(_categorical(rng, model.sensor[labels[location]][None])[0])
     return location, labels, observation

@@ -140,12 +140,11 @@ def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
         raise ModelError(f"true_map must be ({model.n_cells},) labels in 0..{model.n_labels - 1}")
     est = _estimator(model, estimator, estimator_options, estimator_seed)
     chooser = _planner(model, planner, planner_options, planner_rng)
-    static = model.is_static
     state = {"location": model.start, "labels": labels}
 
     def advance(action: int | None) -> WorldState:
         location, state["labels"], observation = world_step(
-            model, state["location"], state["labels"], action, world_rng, static)
+            model, state["location"], state["labels"], action, world_rng)
         state["location"] = location
         return observation, location, state["labels"]
 

@@ -52,10 +52,10 @@ def exact_trajectory(run: om.Run) -> om.Trajectory:
 def stream(model: om.GridModel, true_map, n_steps: int, seed: int):
     """Yield ``(t, action or None, observation)`` of a simulated run without storing it (O(N) memory)."""
     rng = np.random.default_rng(seed)
-    location, labels, static = model.start, np.asarray(true_map), model.is_static
+    location, labels = model.start, np.asarray(true_map)
     for t in range(n_steps):
         action = None if t == 0 else int(rng.integers(model.n_actions))
-        location, labels, z = world_step(model, location, labels, action, rng, static)
+        location, labels, z = world_step(model, location, labels, action, rng)
         yield t, action, z
 
 

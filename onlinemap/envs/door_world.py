@@ -57,7 +57,6 @@ class DoorWorldEnv(gym.Env):
         self.cell_pixels = int(cell_pixels)
         self.observation_space = gym.spaces.Discrete(model.n_labels)
         self.action_space = gym.spaces.Discrete(model.n_actions)
-        self._static = model.is_static
         self._location: int | None = None
         self._labels = initial
         self._visited = np.zeros(model.n_cells, dtype=bool)
@@ -72,7 +71,7 @@ class DoorWorldEnv(gym.Env):
         self._t = 0
         self._visited[:] = False
         self._location, self._labels, observation = world_step(
-            self.model, self.model.start, self.initial_map, None, self.np_random, self._static)
+            self.model, self.model.start, self.initial_map, None, self.np_random)
         self._visited[self._location] = True
         return np.int64(observation), self._info()
 
@@ -81,7 +80,7 @@ class DoorWorldEnv(gym.Env):
             raise gym.error.ResetNeeded("call reset() before step()")
         a = action_index(self.model, action)
         self._location, self._labels, observation = world_step(
-            self.model, self._location, self._labels, a, self.np_random, self._static)
+            self.model, self._location, self._labels, a, self.np_random)
         self._t += 1
         reward = 0.0 if self._visited[self._location] else 1.0
         self._visited[self._location] = True

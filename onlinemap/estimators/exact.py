@@ -77,7 +77,6 @@ class ExactFilter:
         self._no_motion = (np.ones(n), np.full(n, -1, dtype=np.int64))
         self._likelihoods = np.ascontiguousarray(model.sensor.T)  # row z = O[:, z]
         self._flat = np.ones(k)  # the likelihood of "no observation" (dynamic steps)
-        self._dynamic = not model.is_static
 
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
@@ -88,7 +87,7 @@ class ExactFilter:
         if a is None:
             self_prob, pred = self._no_motion
             motion_observe(self._x, out, self_prob, pred, 0.0, inv, likelihood, self._joint_map, location)
-        elif not self._dynamic:
+        elif model.is_static:
             motion_observe(self._x, out, model.self_prob[a], model.predecessor[a], model.p_move, inv,
                            likelihood, self._joint_map, location)
         else:

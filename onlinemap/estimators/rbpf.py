@@ -128,8 +128,7 @@ class RaoBlackwellisedPF:
         n_particles = int(n_particles)
         n, k = model.n_cells, model.n_labels
         layout = block_layout(model, block_cells)
-        self._dynamic = not model.is_static
-        need = 8 * n_particles * n * (k + (1 if self._dynamic and lazy_dynamics else 0))
+        need = 8 * n_particles * n * (k + (0 if model.is_static or not lazy_dynamics else 1))
         if need > max_bytes:
             raise MemoryLimitError(
                 f"rbpf with {n_particles} particles on N={n} cells, K={k} labels needs {need / 1e9:.3g} GB "
@@ -143,7 +142,7 @@ class RaoBlackwellisedPF:
         self._rng = as_generator(seed)
         self._locations = np.full(n_particles, model.start, dtype=np.int64)
         self._log_weights = np.full(n_particles, -math.log(n_particles))
-        self._stamped = self._dynamic and self.lazy_dynamics
+        self._stamped = not model.is_static and self.lazy_dynamics
         self._cell_block, self._cell_slot, self._block_members = layout
         n_blocks, block = layout.members.shape
         self._pool = np.zeros((n_blocks + 2 * n_particles, block, k))
@@ -253,7 +252,7 @@ class RaoBlackwellisedPF:
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
             log_weights = np.full(n_particles, -math.log(n_particles))
         pool, pool_stamps, row_block, refcount, free, free_top = self._reserved_rows()
-        if a is not None and self._dynamic and not self.lazy_dynamics:
+        if a is not None and not model.is_static and not self.lazy_dynamics:
             pool = pool @ model.change  # eager: every cell of every block row, fresh array
         neighbors = np.arange(model.n_cells) if a is None else model.neighbors[:, a]
         new_locations = np.empty(n_particles, dtype=np.int64)
