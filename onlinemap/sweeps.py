@@ -643,13 +643,9 @@ def _run_explore(task: Task) -> pd.DataFrame:
     true_map = world.initial_map(np.random.default_rng(derived_seed(task.seed, 3)))
     model = world.model if task.floor_plan is None else policies.with_floor_plan(world.model, true_map,
                                                                                  task.floor_plan)
-    if task.planner_options:  # the planner stream policies.explore would give a named planner
-        planner_rng = np.random.default_rng(np.random.SeedSequence(task.seed).spawn(3)[1])
-        planner = policies.make_planner(task.planner, model, seed=planner_rng, **dict(task.planner_options))
-    else:
-        planner = task.planner
-    frame = policies.explore(model, true_map, planner, task.estimator, task.steps, task.seed,
-                             estimator_options=dict(task.options), progress=False)
+    frame = policies.explore(model, true_map, task.planner, task.estimator, task.steps, task.seed,
+                             estimator_options=dict(task.options), planner_options=dict(task.planner_options),
+                             progress=False)
     ms = 1e3 * frame.attrs["seconds_per_step"]
     columns = ["map_error", "location_error", "map_entropy", "location_entropy", "door_error"]
     if task.per_step:
