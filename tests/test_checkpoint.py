@@ -17,7 +17,7 @@ import pytest
 
 import onlinemap as om
 from onlinemap import checkpoint
-from estimator_cases import cases, random_run
+from estimator_cases import beliefs, cases, random_run
 
 N_STEPS, SAVE_AT = 30, 12
 CASES = cases()
@@ -48,8 +48,7 @@ for job in json.loads(sys.argv[1]):
 
 def beliefs_after(est, run, start: int) -> dict[str, np.ndarray]:
     rows = []
-    for t in range(start, run.n_steps):
-        b = est.step(None if t == 0 else int(run.actions[t - 1]), int(run.observations[t]))
+    for b in beliefs(est, run, start):
         ess = np.nan if b.effective_sample_size is None else b.effective_sample_size
         rows.append((b.location, b.map, b.log_evidence, ess))
     return {"location": np.array([r[0] for r in rows]), "map": np.array([r[1] for r in rows]),
@@ -65,8 +64,7 @@ def resumed(tmp_path_factory):
     for case_id, (name, _, model) in zip(CASE_IDS, CASES):
         run = random_run(model, N_STEPS, seed=len(case_id))
         est = om.make_estimator(name, model)
-        for t in range(SAVE_AT + 1):
-            est.step(None if t == 0 else int(run.actions[t - 1]), int(run.observations[t]))
+        list(beliefs(est, run, stop=SAVE_AT + 1))
         paths = {key: str(root / f"{case_id}.{key}.npz") for key in ("run", "checkpoint", "out", "final")}
         np.savez(paths["run"], actions=run.actions, observations=run.observations)
         om.save(est, paths["checkpoint"])
@@ -94,8 +92,7 @@ def test_load_state_dict_rewinds_in_process(name, world_id, model):
     """Restore an earlier state into the same object: it retraces its steps exactly (generator too)."""
     run = random_run(model, 20, seed=3)
     est = om.make_estimator(name, model)
-    for t in range(8):
-        est.step(None if t == 0 else int(run.actions[t - 1]), int(run.observations[t]))
+    list(beliefs(est, run, stop=8))
     state = est.state_dict()
     first = beliefs_after(est, run, 8)
     assert not checkpoint.same_tree(est.state_dict(), state)  # it moved on; the snapshot did not

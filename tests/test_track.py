@@ -17,7 +17,7 @@ import onlinemap as om
 from onlinemap.cli import main
 from onlinemap.cli.track import parse_options, summarize
 from onlinemap.worlds import parse_world
-from estimator_cases import NAMES, random_run
+from estimator_cases import NAMES, beliefs, random_run
 
 WORLD = "corridor:6,p_change=0.02"
 SETUPS = [(name, options) for name, options in
@@ -66,11 +66,7 @@ MALFORMED_FIRST = MALFORMED[:4] + [  # before the first step
 
 def reference(name, options, run):
     est = om.make_estimator(name, parse_world(WORLD).model, **parse_options(options))
-    out = []
-    for t in range(run.n_steps):
-        b = est.step(None if t == 0 else int(run.actions[t - 1]), int(run.observations[t]))
-        out.append(json.loads(json.dumps(summarize(b, full=True))))
-    return out
+    return [json.loads(json.dumps(summarize(b, full=True))) for b in beliefs(est, run)]
 
 
 @pytest.mark.parametrize("name,options", SETUPS, ids=[s[0] for s in SETUPS])
