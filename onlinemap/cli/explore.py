@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import ast
 from pathlib import Path
 
 from ..errors import ModelError
 from ..worlds import parse_world
-from .common import print_table, split_list, write_table
+from .common import OPTION_HELP, parse_options, print_table, split_list, write_table
 
 DEFAULT_WORLD = "door,p_door=0.01,p_move=0.9"
 
@@ -30,7 +29,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="comma-separated: entropy, entropy_collect, random, sweep (default entropy,random,sweep)")
     p.add_argument("--estimator", default="rbpf", help="registry name of the estimator (default rbpf)")
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
-                   help="estimator option, repeatable (e.g. --option n_particles=200)")
+                   help=f"estimator option, repeatable (e.g. --option n_particles=200); {OPTION_HELP}")
     p.add_argument("--steps", type=int, default=500, help="steps per run, first observation included (default 500)")
     p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     p.add_argument("--repeats", type=int, default=1, help="runs per planner, seeds seed..seed+repeats-1 (default 1)")
@@ -39,20 +38,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="directory for explore_errors.png and explore_visits.png (default: current directory)")
     p.add_argument("--no-figures", action="store_true", help="do not write figures")
     p.set_defaults(func=run)
-
-
-def parse_options(items: list[str]) -> dict[str, object]:
-    """``["n_particles=200", "proposal=optimal"]`` -> ``{"n_particles": 200, "proposal": "optimal"}``."""
-    options = {}
-    for item in items:
-        key, eq, value = item.partition("=")
-        if not eq or not key:
-            raise ModelError(f"--option {item!r}: expected KEY=VALUE")
-        try:
-            options[key.strip()] = ast.literal_eval(value.strip())
-        except (ValueError, SyntaxError):
-            options[key.strip()] = value.strip()
-    return options
 
 
 def run(args: argparse.Namespace) -> int:

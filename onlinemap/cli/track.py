@@ -36,6 +36,7 @@ from ..errors import CheckpointError, OnlineMapError
 from ..estimators import make_estimator
 from ..metrics import map_entropy, normalized_entropy
 from ..worlds import parse_world
+from .common import OPTION_HELP, parse_options
 
 _KEYS = ("action", "observation")
 
@@ -53,30 +54,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="world spec: corridor:N[,p_change=..,n_labels=..], grid:RxC, door[,p_door=..]")
     p.add_argument("--estimator", required=True, help="registry name (exact, dead_reckoning, bk, rbpf, ...)")
     p.add_argument("-o", "--option", action="append", default=[], metavar="KEY=VALUE",
-                   help="estimator option, repeatable; VALUE is read as JSON when it parses (4, 0.9, null, "
-                        "[1, 0.9, 0.01]) and as a string otherwise (e.g. window=max)")
+                   help=f"estimator option, repeatable; {OPTION_HELP}")
     p.add_argument("--checkpoint", type=Path, metavar="FILE",
                    help="save the state to FILE atomically; resume from it if it exists")
     p.add_argument("--every", type=int, metavar="K",
                    help="save the checkpoint every K steps (default 100; needs --checkpoint)")
     p.add_argument("--full", action="store_true", help="also print the full location and map marginals")
     p.set_defaults(func=track)
-
-
-def parse_options(pairs: list[str]) -> dict[str, object]:
-    """``["window=4", "decay=0.9", "window=max"]`` -> dict; JSON values where they parse (lists
-    become tuples), strings otherwise."""
-    options: dict[str, object] = {}
-    for pair in pairs:
-        key, eq, text = pair.partition("=")
-        if not eq or not key.strip():
-            raise OnlineMapError(f"--option {pair!r}: expected KEY=VALUE")
-        try:
-            value = json.loads(text)
-        except ValueError:
-            value = text
-        options[key.strip()] = tuple(value) if isinstance(value, list) else value
-    return options
 
 
 def parse_line(text: str) -> tuple[object, object]:
