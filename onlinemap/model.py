@@ -95,6 +95,8 @@ class GridModel:
     label_names: tuple[str, ...]
     self_prob: np.ndarray = field(init=False, repr=False)  # (A, N) T[a, j, j]
     predecessor: np.ndarray = field(init=False, repr=False)  # (A, N) cell moving into j, or -1
+    likelihood: np.ndarray = field(init=False, repr=False)  # (K, K) contiguous O.T: row z = O[:, z]
+    moves: np.ndarray = field(init=False, repr=False)  # (A, N) contiguous neighbors.T: row a = neighbors[:, a]
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -140,10 +142,14 @@ class GridModel:
         set_(self, "start", int(self.start))
         stays = neighbors.T == np.arange(n)
         self_prob = np.where(stays, 1.0, 1.0 - p_move)
-        for array in (neighbors, predecessor, self_prob):
+        likelihood = np.ascontiguousarray(self.sensor.T)
+        moves = np.ascontiguousarray(neighbors.T)
+        for array in (neighbors, predecessor, self_prob, likelihood, moves):
             array.setflags(write=False)
         set_(self, "self_prob", self_prob)
         set_(self, "predecessor", predecessor)
+        set_(self, "likelihood", likelihood)
+        set_(self, "moves", moves)
 
     # --- sizes and aliases -------------------------------------------------------------
     @property

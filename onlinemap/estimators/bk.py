@@ -62,7 +62,7 @@ class BoyenKoller:
             location = apply_motion(self.model, location, a)
             if not self.model.is_static:
                 maps = maps @ self.model.change
-        location, maps, total = bk_update(location, maps, np.ascontiguousarray(self.model.sensor[:, z]))
+        location, maps, total = bk_update(location, maps, self.model.likelihood[z])
         if total == 0.0:
             raise ImpossibleObservationError(
                 f"observation {self.model.label_names[z]!r} has probability zero under the factored "

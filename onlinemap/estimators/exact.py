@@ -75,13 +75,12 @@ class ExactFilter:
         self._t = -1
         self._belief: Belief | None = None
         self._no_motion = (np.ones(n), np.full(n, -1, dtype=np.int64))
-        self._likelihoods = np.ascontiguousarray(model.sensor.T)  # row z = O[:, z]
         self._flat = np.ones(k)  # the likelihood of "no observation" (dynamic steps)
 
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
         model, inv = self.model, 1.0 / self._norm
-        likelihood = self._likelihoods[z]
+        likelihood = model.likelihood[z]
         location = np.empty(model.n_cells)
         out = self._scratch
         if a is None:
@@ -120,7 +119,7 @@ def observe_tensor(model: GridModel, x: np.ndarray, z: int) -> np.ndarray:
     """(N, K**N) -> same: slice ``l`` multiplied by ``O[m_l, z]`` along map axis ``l``."""
     n, k = model.n_cells, model.n_labels
     out = np.empty_like(x)
-    likelihood = model.sensor[:, z]
+    likelihood = model.likelihood[z]
     for l in range(n):
         view = x[l].reshape(k**l, k, -1)
         out[l] = (view * likelihood[None, :, None]).ravel()

@@ -254,13 +254,13 @@ class RaoBlackwellisedPF:
         pool, pool_stamps, row_block, refcount, free, free_top = self._reserved_rows()
         if a is not None and not model.is_static and not self.lazy_dynamics:
             pool = pool @ model.change  # eager: every cell of every block row, fresh array
-        neighbors = np.arange(model.n_cells) if a is None else model.neighbors[:, a]
+        neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
         new_locations = np.empty(n_particles, dtype=np.int64)
         new_cells = np.empty((n_particles, model.n_labels))
         log_increments = np.empty(n_particles)
         rbpf_propose(self._locations, pool, pool_stamps, self._table, self._cell_block, self._cell_slot, self._powers,
                      self._stamped, t, ancestors, neighbors,
-                     model.p_move, np.ascontiguousarray(model.sensor[:, z]), self.proposal == "optimal",
+                     model.p_move, model.likelihood[z], self.proposal == "optimal",
                      self._rng.random(n_particles), new_locations, new_cells, log_increments)
         log_weights = log_weights + log_increments
         increment = _logsumexp(log_weights)
@@ -285,3 +285,11 @@ class RaoBlackwellisedPF:
         self._resampled = resample
         self._t = t
         self._belief = None
+
+
+def _no_moves(n: int) -> np.ndarray:
+    """Read-only ``arange(n)`` (every cell stays): the same numba type as a row of ``model.moves``,
+    so rbpf_propose is compiled once."""
+    cells = np.arange(n)
+    cells.setflags(write=False)
+    return cells
