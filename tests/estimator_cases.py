@@ -74,8 +74,11 @@ def assert_valid_belief(belief: om.Belief, model: om.GridModel, t: int, atol: fl
 
 
 def snapshot(est) -> dict:
-    """Every attribute of an estimator, arrays copied, the random generator by its state."""
-    return {name: (value.copy() if isinstance(value, np.ndarray) else
+    """Every attribute of an estimator, arrays copied, the random generator by its state; the
+    ``scratch_attributes`` (buffers every step overwrites, not state) only by dtype and shape."""
+    scratch = set(getattr(type(est), "scratch_attributes", ()))
+    return {name: ((value.dtype, value.shape) if name in scratch else
+                   value.copy() if isinstance(value, np.ndarray) else
                    value.bit_generator.state if isinstance(value, np.random.Generator) else value)
             for name, value in vars(est).items()}
 

@@ -3,18 +3,21 @@
 import numpy as np
 import pytest
 
+import estimator_cases
 import onlinemap as om
 
 ESTIMATORS = ["exact", "dead_reckoning"]
 
 
 def snapshot(est):
+    """Every attribute (estimator_cases.snapshot) and the current belief, copied."""
     b = est.belief
-    return (est.t, b.location.copy(), b.map.copy(), b.log_evidence)
+    return estimator_cases.snapshot(est), est.t, b.location.copy(), b.map.copy(), b.log_evidence
 
 
 def assert_same(est, snap):
-    t, loc, maps, log_ev = snap
+    state, t, loc, maps, log_ev = snap
+    estimator_cases.assert_state_unchanged(est, state)
     assert est.t == t
     np.testing.assert_array_equal(est.belief.location, loc)
     np.testing.assert_array_equal(est.belief.map, maps)
@@ -51,7 +54,7 @@ def test_bad_step_raises_and_keeps_state(name, action, observation, error, match
         est.step(action, observation)
     assert_same(est, snap)
     est.step(0, 0)  # still usable
-    assert est.t == snap[0] + 1
+    assert est.t == snap[1] + 1
 
 
 @pytest.mark.parametrize("name", ESTIMATORS)
