@@ -73,7 +73,7 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from . import metrics
+from . import metrics, plots
 from .errors import OnlineMapError
 from .estimators import available_estimators, estimator_options, make_estimator, run_estimator
 from .estimators.base import Trajectory
@@ -82,6 +82,7 @@ from .model import GridModel
 from .reproduce import LOST_BELOW, wilson_interval
 from .scenarios import scripted_corridor
 from .simulate import Run, random_walk, there_and_back
+from .tables import write_table
 from .worlds import WorldSpec, parse_world
 
 WALKS = ("random", "there_and_back", "scripted_trip")
@@ -799,8 +800,6 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
         table = _assemble(finished, pd.concat(frames, ignore_index=True) if frames else
                           pd.DataFrame(columns=TASK_COLUMNS), np.array([len(f) for f in frames], dtype=np.int64))
     if out is not None:
-        from .cli.common import write_table
-
         write_table(table, out)
     if failures:
         position = {t.key: i for i, t in enumerate(spec.tasks)}
@@ -1012,5 +1011,5 @@ def plot_sweep(table: pd.DataFrame, x: str, metrics_: Iterable[str], path: str |
     figure.suptitle(f"mean over seeds with {confidence:.0%} intervals")
     figure.tight_layout(rect=(0, 0.2 * rows / (3.8 + 0.2 * rows) + 0.02, 1, 1))
     if path is not None:
-        figure.savefig(path, dpi=120)
+        plots.save(figure, path, dpi=120)
     return figure

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import json
 import sys
-from pathlib import Path
 
 import pandas as pd
 
 from ..errors import OnlineMapError
+from ..tables import write_table
+
+__all__ = ["OPTION_HELP", "parse_options", "print_table", "split_list", "write_table"]
 
 
 def split_list(text: str) -> list[str]:
@@ -33,19 +35,6 @@ def parse_options(pairs: list[str]) -> dict[str, object]:
             value = text
         options[key.strip()] = tuple(value) if isinstance(value, list) else value
     return options
-
-
-def write_table(frame: pd.DataFrame, path: str | Path) -> Path:
-    """Write ``frame`` as CSV or parquet, chosen by the file suffix."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if path.suffix == ".csv":
-        frame.to_csv(path, index=False)
-    elif path.suffix in (".parquet", ".pq"):
-        frame.to_parquet(path, index=False)
-    else:
-        raise OnlineMapError(f"--out {path}: use a .csv or .parquet file name")
-    return path
 
 
 def print_table(frame: pd.DataFrame, float_format: str = "{:.4g}") -> None:

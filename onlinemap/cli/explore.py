@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from ..errors import ModelError
+from ..plots import save
 from ..worlds import parse_world
 from .common import OPTION_HELP, parse_options, print_table, split_list, write_table
 
@@ -68,10 +69,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         print(f"wrote {write_table(table, args.out)}")
     if not args.no_figures:
-        folder = Path(args.figures)
-        folder.mkdir(parents=True, exist_ok=True)
         for name, figure in (("explore_errors.png", plot_errors(table)),
                              ("explore_visits.png", plot_visits(model, true_map, table))):
-            figure.savefig(folder / name, dpi=110)
-            print(f"wrote {folder / name}")
+            print(f"wrote {save(figure, Path(args.figures) / name, dpi=110)}")
     return 0
