@@ -49,6 +49,11 @@ def exact_trajectory(run: om.Run) -> om.Trajectory:
     return om.run_estimator(om.make_estimator("exact", run.model), run.actions, run.observations)
 
 
+def binomial_ok(successes, trials, p, z=4.5):
+    """|observed - expected| within z standard deviations of a binomial(trials, p)."""
+    return abs(successes - trials * p) <= z * np.sqrt(trials * p * (1 - p))
+
+
 def stream(model: om.GridModel, true_map, n_steps: int, seed: int):
     """Yield ``(t, action or None, observation)`` of a simulated run without storing it (O(N) memory)."""
     rng = np.random.default_rng(seed)

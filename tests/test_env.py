@@ -15,6 +15,7 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 import onlinemap as om  # noqa: E402
 from onlinemap.envs import DOOR_WORLD_ID, DoorWorldEnv  # noqa: E402
 from onlinemap.envs.door_world import DOOR_COLORS, ROBOT_COLOR  # noqa: E402
+from estimator_cases import binomial_ok  # noqa: E402
 
 
 @pytest.mark.parametrize("render_mode", ["rgb_array", "ansi", None])
@@ -79,7 +80,7 @@ def test_dynamics_have_the_model_statistics():
         door_steps += len(doors)
         assert np.array_equal(info["map"] >= 2, labels >= 2)  # doors stay doors; walls stay walls
     for hits, n, p in ((moves, moves + stays, p_move), (correct, seen, p_obs), (flips, door_steps, p_door)):
-        assert abs(hits / n - p) < 4.5 * np.sqrt(p * (1 - p) / n), (hits, n, p)
+        assert binomial_ok(hits, n, p), (hits, n, p)
 
 
 def test_reward_counts_first_visits():

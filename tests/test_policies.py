@@ -12,6 +12,7 @@ import onlinemap as om
 from onlinemap.belief import Belief
 from onlinemap.errors import ModelError
 from onlinemap.model import GridModel, symmetric_channel
+from estimator_cases import binomial_ok
 from policies import (EntropyExplorer, RandomWalk, Sweep, collected_entropy_reward, entropy_reward,
                       evaluate_policy, make_planner, policy_iteration, policy_motion, sweep_actions)
 
@@ -200,8 +201,7 @@ def test_random_walk_is_reproducible_and_uniform():
     assert np.array_equal(draws, [walk_b.choose(b) for _ in range(4000)])
     assert not np.array_equal(draws[:50], [RandomWalk(model, seed=4).choose(b) for _ in range(50)])
     counts = np.bincount(draws, minlength=4)
-    # each count ~ Binomial(4000, 1/4): sd = 27.4, allow 4.5 sd
-    assert np.all(np.abs(counts - 1000) < 4.5 * np.sqrt(4000 * 0.25 * 0.75))
+    assert np.all(binomial_ok(counts, 4000, 0.25))  # each count ~ Binomial(4000, 1/4)
 
 
 @pytest.mark.parametrize("layout", ["...\n...\n", "....\n....\n....\n", om.DOOR_WORLD_10X10])

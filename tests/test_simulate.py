@@ -4,11 +4,7 @@ import numpy as np
 import pytest
 
 import onlinemap as om
-
-
-def binomial_ok(successes, trials, p, z=4.5):
-    """|observed - expected| within z standard deviations of a binomial(trials, p)."""
-    return abs(successes - trials * p) <= z * np.sqrt(trials * p * (1 - p))
+from estimator_cases import binomial_ok
 
 
 def test_slip_frequency_matches_p_move():
