@@ -89,31 +89,34 @@ def unrolled_network(model: GridModel, actions, n_steps: int, motion: np.ndarray
 
 
 class PeerFilter(NamedTuple):
-    """Filtering marginals from pgmpy. location (T, N); map (T, N, K), NaN where not queried."""
+    """Filtering marginals from pgmpy: location (T, N) and map (T, N, K), NaN where not queried."""
 
     location: np.ndarray
     map: np.ndarray
 
 
 def pgmpy_filter(model: GridModel, actions, observations, map_steps=None,
-                 motion: np.ndarray | None = None) -> PeerFilter:
-    """``P(L_t | z_0:t)`` for every t, and ``P(m_i,t | z_0:t)`` for t in ``map_steps`` (None: every
-    step; ``()`` for none), by pgmpy variable elimination on the network unrolled over the whole
-    run, queried with the evidence up to t (pgmpy prunes the later, unobserved slices).
+                 motion: np.ndarray | None = None, location_steps=None) -> PeerFilter:
+    """``P(L_t | z_0:t)`` for t in ``location_steps`` and ``P(m_i,t | z_0:t)`` for t in
+    ``map_steps`` (each: None for every step, ``()`` for none, negative steps count from the
+    end), by pgmpy variable elimination on the network unrolled over the whole run, queried
+    with the evidence up to t (pgmpy prunes the later, unobserved slices).
 
-    Cost: one network of T slices, each O(N K**N); one query per step (N + 1 where the map is
-    queried), each over the first t + 1 slices, so O(T^2) slices eliminated in all.
+    Cost: one network of T slices, each O(N K**N); one query per located step (N more where the
+    map is queried), each over the first t + 1 slices, so O(T^2) slices eliminated in all.
     """
     inference = require("pgmpy.inference")
     n_steps = len(observations)
     n, k = model.n_cells, model.n_labels
-    location = np.empty((n_steps, n))
+    location = np.full((n_steps, n), np.nan)
     maps = np.full((n_steps, n, k), np.nan)
     map_steps = set(range(n_steps) if map_steps is None else (t % n_steps for t in map_steps))
+    location_steps = set(range(n_steps) if location_steps is None else (t % n_steps for t in location_steps))
     engine = inference.VariableElimination(unrolled_network(model, actions, n_steps, motion))
     for t in range(n_steps):
         evidence = {f"Z_{s}": int(observations[s]) for s in range(t + 1)}
-        location[t] = engine.query([f"L_{t}"], evidence=evidence, show_progress=False).values
+        if t in location_steps:
+            location[t] = engine.query([f"L_{t}"], evidence=evidence, show_progress=False).values
         if t in map_steps:
             for i in range(n):
                 maps[t, i] = engine.query([f"M{i}_{t}"], evidence=evidence, show_progress=False).values
