@@ -52,6 +52,7 @@ import hashlib
 import json
 import os
 import tempfile
+import tokenize
 import types
 import zipfile
 from pathlib import Path
@@ -499,7 +500,8 @@ def read(path: str | os.PathLike) -> dict:
         if "pickle" in str(error):
             raise CheckpointError(f"{path} contains a pickled object; refused (nothing was loaded or run)") from None
         raise CheckpointError(f"{path} is corrupt: {error}") from None
-    except (zipfile.BadZipFile, OSError, EOFError, KeyError, NotImplementedError) as error:
+    except (zipfile.BadZipFile, OSError, EOFError, KeyError, NotImplementedError, SyntaxError,
+            tokenize.TokenError) as error:  # the last two: a damaged npy header (numpy parses it)
         raise CheckpointError(f"{path} is truncated or corrupt: {error}") from None
     meta_bytes, digest = contents.pop("meta", None), contents.pop("sha256", None)
     if meta_bytes is None or digest is None or meta_bytes.dtype != np.uint8 or digest.dtype != np.uint8:
