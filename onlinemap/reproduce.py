@@ -14,7 +14,6 @@ every table, figure and study is adding one entry there.
 from __future__ import annotations
 
 import math
-from statistics import NormalDist
 from typing import NamedTuple
 
 import numpy as np
@@ -25,6 +24,7 @@ from . import metrics
 from .estimators import Trajectory, make_estimator, run_estimator
 from .scenarios import scripted_corridor
 from .simulate import Run, SeedLike, as_generator
+from .stats import wilson_interval
 
 CORRIDOR_WINDOWS = (1, 2, 4, 8, "max")
 CORRIDOR_DECAYS = (0.8, 0.9, 0.95, 1.0)
@@ -112,17 +112,6 @@ def random_corridor(seed: SeedLike = None, n_cells: tuple[int, int] = (6, 12), p
     labels = rng.integers(0, 2, size=n)
     slip = int(rng.integers(1, n))
     return CorridorDraw(scripted_corridor(labels, slips=(slip,), p_obs=p_obs, p_move=p_move), labels, slip)
-
-
-def wilson_interval(successes, trials, confidence: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
-    """Wilson score interval for a binomial proportion: the p with
-    ``|successes / trials - p| <= z sqrt(p (1 - p) / trials)``. Vectorised; returns (low, high)."""
-    k, n = np.asarray(successes, dtype=np.float64), np.asarray(trials, dtype=np.float64)
-    z = NormalDist().inv_cdf(0.5 + confidence / 2)
-    p = k / n
-    centre = (p + z**2 / (2 * n)) / (1 + z**2 / n)
-    half = z / (1 + z**2 / n) * np.sqrt(p * (1 - p) / n + z**2 / (4 * n**2))
-    return np.clip(centre - half, 0, 1), np.clip(centre + half, 0, 1)
 
 
 def random_corridor_study(n_runs: int, seed: SeedLike = 0, estimators=None, confidence: float = 0.95,

@@ -79,9 +79,10 @@ from .estimators import available_estimators, estimator_options, make_estimator,
 from .estimators.base import Trajectory
 from .estimators.base import _lookup as _estimator_class
 from .model import GridModel
-from .reproduce import LOST_BELOW, wilson_interval
+from .reproduce import LOST_BELOW
 from .scenarios import scripted_corridor
 from .simulate import Run, random_walk, there_and_back
+from .stats import mean_interval
 from .tables import write_table
 from .worlds import WorldSpec, parse_world
 
@@ -880,33 +881,6 @@ def _run_dask(todo: list[Task], client, workers: int | None, record, failures: l
 
 
 # --- summaries --------------------------------------------------------------------------------
-class Interval(NamedTuple):
-    mean: float
-    low: float
-    high: float
-
-
-def mean_interval(values: np.ndarray, confidence: float = 0.95, proportion: bool = False) -> Interval:
-    """Mean with a Student-t interval over the finite values; for a ``proportion`` (0/1 data)
-    the Wilson score interval, which stays honest when every run agrees. NaN bounds with fewer
-    than 2 values (t interval)."""
-    from scipy import stats
-
-    values = np.asarray(values, dtype=np.float64)
-    values = values[np.isfinite(values)]
-    n = len(values)
-    if n == 0:
-        return Interval(math.nan, math.nan, math.nan)
-    mean = float(values.mean())
-    if proportion:
-        low, high = wilson_interval(values.sum(), n, confidence)
-        return Interval(mean, float(low), float(high))
-    if n < 2:
-        return Interval(mean, math.nan, math.nan)
-    half = stats.t.ppf(0.5 + confidence / 2, n - 1) * values.std(ddof=1) / math.sqrt(n)
-    return Interval(mean, mean - half, mean + half)
-
-
 def summarize(table: pd.DataFrame, metrics_: Iterable[str] | None = None, confidence: float = 0.95) -> pd.DataFrame:
     """Per configuration (every task column but the seed), for each metric: n, mean and a
     ``confidence`` interval over seeds (see :func:`mean_interval`). A per-step table is
