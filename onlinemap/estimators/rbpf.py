@@ -38,7 +38,7 @@ from ..belief import Belief
 from ..errors import ImpossibleObservationError, MemoryLimitError, ModelError
 from ..rbpf_kernels import (in_place_ancestors, particle_maps, rbpf_commit, rbpf_map_mixture, rbpf_propose,
                              rbpf_refresh)
-from ..resampling import RESAMPLERS
+from ..resampling import RESAMPLERS, effective_sample_size
 from ..simulate import SeedLike, as_generator
 from ..model import GridModel
 from ..validation import check_step
@@ -142,6 +142,7 @@ class RaoBlackwellisedPF:
         self._rng = as_generator(seed)
         self._locations = np.full(n_particles, model.start, dtype=np.int64)
         self._log_weights = np.full(n_particles, -math.log(n_particles))
+        self._weights = np.exp(self._log_weights)  # exp(_log_weights), kept beside them
         self._stamped = not model.is_static and self.lazy_dynamics
         self._cell_block, self._cell_slot, self._block_members = layout
         n_blocks, block = layout.members.shape
@@ -190,8 +191,7 @@ class RaoBlackwellisedPF:
         """The weighted mixture after the last step, built on first access and cached (cost: see
         the module docstring; at most one pass over P N K floats)."""
         if self._belief is None and self._t >= 0:
-            weights = np.exp(self._log_weights)
-            weights /= weights.sum()
+            weights = self._weights / self._weights.sum()
             n, k = self.model.n_cells, self.model.n_labels
             location = np.bincount(self._locations, weights=weights, minlength=n)
             location /= location.sum()  # rounding: keep every probability <= 1
@@ -248,7 +248,7 @@ class RaoBlackwellisedPF:
         resample = a is not None and (self.resample_threshold >= 1.0 or
                                       self._ess < self.resample_threshold * n_particles)
         if resample:
-            chosen = RESAMPLERS[self.resampling](np.exp(log_weights), self._rng)
+            chosen = RESAMPLERS[self.resampling](self._weights, self._rng)
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
             log_weights = np.full(n_particles, -math.log(n_particles))
         pool, pool_stamps, row_block, refcount, free, free_top = self._reserved_rows()
@@ -280,8 +280,8 @@ class RaoBlackwellisedPF:
             self._refresh_cursor = (self._refresh_cursor + count) % len(pool)
         self._log_weights = log_weights - increment
         self._log_evidence += increment
-        weights = np.exp(self._log_weights)
-        self._ess = min(float(n_particles), 1.0 / float(np.dot(weights, weights)))  # rounding: <= P
+        self._weights = np.exp(self._log_weights)
+        self._ess = min(float(n_particles), effective_sample_size(self._weights))  # rounding: <= P
         self._resampled = resample
         self._t = t
         self._belief = None
