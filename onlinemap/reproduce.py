@@ -22,7 +22,7 @@ from tqdm.auto import tqdm
 
 from . import metrics
 from .estimators import Trajectory, make_estimator, run_estimator
-from .scenarios import scripted_corridor
+from .scenarios import one_slip_corridor
 from .simulate import Run, SeedLike, as_generator
 from .stats import wilson_interval
 
@@ -110,8 +110,8 @@ def random_corridor(seed: SeedLike = None, n_cells: tuple[int, int] = (6, 12), p
     rng = as_generator(seed)
     n = int(rng.integers(n_cells[0], n_cells[1] + 1))
     labels = rng.integers(0, 2, size=n)
-    slip = int(rng.integers(1, n))
-    return CorridorDraw(scripted_corridor(labels, slips=(slip,), p_obs=p_obs, p_move=p_move), labels, slip)
+    run, slip = one_slip_corridor(labels, rng, p_obs=p_obs, p_move=p_move)
+    return CorridorDraw(run, labels, slip)
 
 
 def random_corridor_study(n_runs: int, seed: SeedLike = 0, estimators=None, confidence: float = 0.95,

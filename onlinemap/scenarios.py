@@ -4,28 +4,42 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model import corridor
+from .errors import ModelError
+from .model import GridModel, corridor
 from .simulate import Run
 
 MURPHY_LABELS = (0, 1, 0, 1, 0, 1, 0, 1)
 MURPHY_PATH = (0, 1, 2, 3, 3, 4, 5, 6, 5, 4, 3, 2, 1, 0, 0)
 
 
-def scripted_corridor(labels, slips=(), p_obs: float = 0.9, p_move: float = 0.8) -> Run:
+def scripted_corridor(labels, slips=(), p_obs: float = 0.9, p_move: float = 0.8,
+                      model: GridModel | None = None) -> Run:
     """A static corridor with the given (N,) labels: start at cell 0, press right N - 1 times then
     left N - 1 times; the moves at the steps in ``slips`` (1 = the first move) fail, every other
     move succeeds unless blocked by the wall. Every observation is the true label of the true
     cell. The model (binary or K = max label + 1 labels) uses ``p_obs`` and ``p_move`` as the
-    robot's beliefs. Deterministic. O(N)."""
+    robot's beliefs; or pass the robot's ``model`` (an N-cell corridor; its start cell is the
+    run's). Deterministic. O(N)."""
     labels = np.asarray(labels, dtype=np.int64)
     n = len(labels)
-    model = corridor(n, n_labels=max(2, int(labels.max()) + 1), p_obs=p_obs, p_move=p_move)
+    if model is None:
+        model = corridor(n, n_labels=max(2, int(labels.max()) + 1), p_obs=p_obs, p_move=p_move)
+    elif model.action_names != ("left", "right") or model.n_cells != n:
+        raise ModelError(f"scripted_corridor: model must be a corridor of {n} cells")
     actions = np.array([1] * (n - 1) + [0] * (n - 1), dtype=np.int64)
     path = [model.start]
     for t, a in enumerate(actions, start=1):
         path.append(path[-1] if t in slips else int(model.neighbors[path[-1], a]))
     path = np.array(path)
     return Run(model, actions, path, np.tile(labels, (len(path), 1)), labels[path])
+
+
+def one_slip_corridor(labels, rng: np.random.Generator, p_obs: float = 0.9, p_move: float = 0.8,
+                      model: GridModel | None = None) -> tuple[Run, int]:
+    """:func:`scripted_corridor` with exactly one slip, at an outward move drawn uniformly in
+    1..N-1 with ``rng``; returns (the run, the slip)."""
+    slip = int(rng.integers(1, len(labels)))
+    return scripted_corridor(labels, slips=(slip,), p_obs=p_obs, p_move=p_move, model=model), slip
 
 
 def murphy_corridor(p_obs: float = 0.9, p_move: float = 0.8) -> Run:

@@ -80,7 +80,7 @@ from .estimators.base import Trajectory
 from .estimators.base import _lookup as _estimator_class
 from .model import GridModel
 from .reproduce import LOST_BELOW
-from .scenarios import scripted_corridor
+from .scenarios import one_slip_corridor
 from .simulate import Run, random_walk, there_and_back
 from .stats import mean_interval
 from .tables import write_table
@@ -535,7 +535,7 @@ def walk_actions(model: GridModel, walk: str, n_actions: int, rng: np.random.Gen
     if walk == "random":
         return random_walk(model, n_actions, rng)
     trip = there_and_back(model)
-    return np.resize(trip, n_actions) if n_actions else trip[:0]
+    return np.resize(trip, n_actions)
 
 
 def scripted_trip(model: GridModel, labels: np.ndarray, rng: np.random.Generator) -> Run:
@@ -543,9 +543,7 @@ def scripted_trip(model: GridModel, labels: np.ndarray, rng: np.random.Generator
     the given labels: right N - 1 times, left N - 1 times, exactly one slip at an outward move
     drawn uniformly in 1..N-1, every observation the true label
     (:func:`onlinemap.scenarios.scripted_corridor`, with ``model`` as the robot's model)."""
-    slip = int(rng.integers(1, model.n_cells))
-    run = scripted_corridor(labels, slips=(slip,))  # its path and observations; its model is replaced
-    return Run(model, run.actions, run.locations, run.maps, run.observations)
+    return one_slip_corridor(labels, rng, model=model)[0]
 
 
 @functools.lru_cache(maxsize=16)
@@ -881,12 +879,18 @@ def _run_dask(todo: list[Task], client, workers: int | None, record, failures: l
 
 
 # --- summaries --------------------------------------------------------------------------------
+def last_steps(table: pd.DataFrame) -> pd.DataFrame:
+    """A per-step table (with a ``t`` column) cut to each task's last step; others unchanged."""
+    if "t" in table.columns:
+        table = table.sort_values("t").groupby("task", sort=False).tail(1)
+    return table
+
+
 def summarize(table: pd.DataFrame, metrics_: Iterable[str] | None = None, confidence: float = 0.95) -> pd.DataFrame:
     """Per configuration (every task column but the seed), for each metric: n, mean and a
     ``confidence`` interval over seeds (see :func:`mean_interval`). A per-step table is
     summarised at each task's last step. One row per configuration and metric."""
-    if "t" in table.columns:
-        table = table.sort_values("t").groupby("task", sort=False).tail(1)
+    table = last_steps(table)
     known = tuple(dict.fromkeys(TASK_METRICS + STEP_METRICS))
     chosen = [m for m in dict.fromkeys(metrics_ or known) if m in table.columns]
     missing = [m for m in (metrics_ or ()) if m not in table.columns]
@@ -935,8 +939,7 @@ def plot_sweep(table: pd.DataFrame, x: str, metrics_: Iterable[str], path: str |
     each task's last step. Saves to ``path`` if given; returns the matplotlib figure."""
     import matplotlib.pyplot as plt
 
-    if "t" in table.columns:
-        table = table.sort_values("t").groupby("task", sort=False).tail(1)
+    table = last_steps(table)
     column = x if x in table.columns else f"opt_{x}"
     if column not in table.columns:
         options = sorted(c[4:] for c in table.columns if c.startswith("opt_"))
