@@ -84,9 +84,9 @@ def motion_observe(x, out, self_prob, predecessor, p_move, scale, likelihood, jo
 
 
 @njit(cache=True, fastmath=True)
-def _change_axis(x, row, base, stride, span, change, k):
-    """Apply C along the axis of the given stride to ``x[row, base:base+span]``, in place."""
-    tmp = np.empty(k)
+def _change_axis(x, row, base, stride, span, change, k, tmp):
+    """Apply C along the axis of the given stride to ``x[row, base:base+span]``, in place
+    (``tmp`` (K,) scratch)."""
     for g in range(base, base + span, k * stride):
         for s in range(g, g + stride):
             for a in range(k):
@@ -176,29 +176,32 @@ def change_every_axis(x, change):
         return
     b = _block_axes(n, k)
     block = k**b
+    tmp = np.empty(k)
     for row in range(n):
         for start in range(0, m_total, block):
             for axis in range(n - b, n):
-                _change_axis(x, row, start, k ** (n - 1 - axis), block, change, k)
+                _change_axis(x, row, start, k ** (n - 1 - axis), block, change, k, tmp)
         for axis in range(n - b):
-            _change_axis(x, row, 0, k ** (n - 1 - axis), m_total, change, k)
+            _change_axis(x, row, 0, k ** (n - 1 - axis), m_total, change, k, tmp)
 
 
 @njit(cache=True)
 def map_marginals(joint_map, n, k, out):
     """(N, K) marginals of a (K**N,) joint over maps into ``out``, by peeling the leading axis.
-    Cost: about 2 K / (K - 1) reads of the joint."""
-    rest = joint_map
+    ``joint_map`` is scratch: it is overwritten (the rest after each peel is summed in place
+    into its head). Cost: about 2 K / (K - 1) reads of the joint, no allocation."""
     size = joint_map.shape[0]
     for i in range(n):
         size //= k
-        nxt = np.zeros(size)
-        for a in range(k):
+        acc = 0.0
+        for s in range(size):
+            acc += joint_map[s]
+        out[i, 0] = acc
+        for a in range(1, k):
             acc = 0.0
             base = a * size
             for s in range(size):
-                v = rest[base + s]
+                v = joint_map[base + s]
                 acc += v
-                nxt[s] += v
+                joint_map[s] += v
             out[i, a] = acc
-        rest = nxt

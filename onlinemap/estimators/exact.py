@@ -50,7 +50,8 @@ def prior_tensor(model: GridModel) -> np.ndarray:
 
 
 def map_marginals(joint_map: np.ndarray, n_cells: int, n_labels: int) -> np.ndarray:
-    """(N, K) marginals of a (K**N,) joint over maps (numba; about 2 K/(K-1) reads of it)."""
+    """(N, K) marginals of a (K**N,) joint over maps (numba; about 2 K/(K-1) reads of it).
+    Overwrites ``joint_map`` if it is a C-contiguous float64 array (it is used as scratch)."""
     out = np.empty((n_cells, n_labels))
     _map_marginals_kernel(np.ascontiguousarray(joint_map), n_cells, n_labels, out)
     return out
