@@ -206,16 +206,6 @@ class GridModel:
         prior[self.start] = 1.0
         return prior
 
-    def change_power(self, steps: int) -> np.ndarray:
-        """``C^steps``, (K, K)."""
-        return np.linalg.matrix_power(self.change, int(steps))
-
-    def action_index(self, action) -> int:
-        """Index of an action given by index or by name (no validation of step order)."""
-        from .validation import action_index
-
-        return action_index(self, action)
-
 
 def apply_motion(model: GridModel, x: np.ndarray, action: int) -> np.ndarray:
     """Predict along axis 0: ``out[j, ...] = sum_i T[a, i, j] x[i, ...]``. x: (N, ...). O(x.size)."""

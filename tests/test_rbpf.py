@@ -190,7 +190,8 @@ def test_update_then_belief_equals_step_and_belief_is_cached():
         est.update(None if t == 0 else run.actions[t - 1], run.observations[t])
     assert est.belief is est.belief and est.belief.t == run.n_steps - 1
     np.testing.assert_array_equal(est.belief.map, stepped[-1].map)
-    np.testing.assert_allclose(est.weights.sum(), 1.0)
+    np.testing.assert_allclose(np.exp(est._log_weights).sum(), 1.0)  # stored normalised
+    assert 1.0 <= est.belief.effective_sample_size <= 40
 
 
 @pytest.mark.parametrize("proposal", ["optimal", "transition"])

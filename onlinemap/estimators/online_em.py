@@ -80,11 +80,6 @@ class OnlineEM:
         self._t = -1
         self._belief: Belief | None = None
 
-    @property
-    def observation_matrix(self) -> np.ndarray:
-        """A copy of the current B, (N, K)."""
-        return self._emission.copy()
-
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
         model, t, w = self.model, self._t + 1, self._window

@@ -173,18 +173,9 @@ class RaoBlackwellisedPF:
         self._belief: Belief | None = None
 
     @property
-    def effective_sample_size(self) -> float:
-        return self._ess
-
-    @property
     def resampled(self) -> bool:
         """Whether the last step resampled before proposing."""
         return self._resampled
-
-    @property
-    def weights(self) -> np.ndarray:
-        """(P,) normalised weights (a copy)."""
-        return np.exp(self._log_weights)
 
     @property
     def belief(self) -> Belief | None:
