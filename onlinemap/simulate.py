@@ -14,7 +14,7 @@ import pandas as pd
 
 from .errors import ModelError
 from .model import GridModel
-from .validation import action_index
+from .validation import action_index, check_map
 
 SeedLike = int | np.random.Generator | None
 
@@ -109,11 +109,7 @@ def simulate(model: GridModel, true_map=None, actions=(), seed: SeedLike = None)
     """
     rng = as_generator(seed)
     n = model.n_cells
-    current = sample_map(model, rng) if true_map is None else np.array(true_map, dtype=np.int64)
-    if current.shape != (n,):
-        raise ModelError(f"true_map must have shape ({n},), got {current.shape}")
-    if np.any(current < 0) or np.any(current >= model.n_labels):
-        raise ModelError(f"true_map labels must be in 0..{model.n_labels - 1}")
+    current = sample_map(model, rng) if true_map is None else check_map(model, true_map)
     action_ids = np.array([action_index(model, a) for a in actions], dtype=np.int64)
     n_steps = len(action_ids) + 1
     locations = np.empty(n_steps, dtype=np.int64)

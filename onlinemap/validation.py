@@ -10,7 +10,7 @@ import numbers
 
 import numpy as np
 
-from .errors import InvalidActionError, InvalidObservationError
+from .errors import InvalidActionError, InvalidObservationError, ModelError
 from .model import GridModel
 
 
@@ -48,6 +48,18 @@ def action_index(model: GridModel, action) -> int:
 def observation_index(model: GridModel, observation) -> int:
     """Index of an observation given as an int or a label name in ``model.label_names``."""
     return _index(observation, model.label_names, "observation", InvalidObservationError)
+
+
+def check_map(model: GridModel, true_map) -> np.ndarray:
+    """A true map as a fresh (N,) int64 array of labels in 0..K - 1, or :class:`ModelError`."""
+    labels = np.array(true_map, dtype=np.int64)
+    if labels.shape != (model.n_cells,):
+        raise ModelError(f"true_map must be ({model.n_cells},) labels in 0..{model.n_labels - 1}, "
+                         f"got shape {labels.shape}")
+    if labels.size and (labels.min() < 0 or labels.max() >= model.n_labels):
+        raise ModelError(f"true_map must be ({model.n_cells},) labels in 0..{model.n_labels - 1}, "
+                         f"got labels {labels.min()}..{labels.max()}")
+    return labels
 
 
 def check_step(model: GridModel, t: int, action, observation) -> tuple[int | None, int]:

@@ -19,6 +19,7 @@ from onlinemap.errors import ModelError
 from onlinemap.estimators import Estimator, estimator_options, make_estimator
 from onlinemap.model import CLOSED_DOOR, DOOR_LABELS, OPEN_DOOR, GridModel
 from onlinemap.simulate import SeedLike, world_step
+from onlinemap.validation import check_map
 
 from .planners import Planner, make_planner
 
@@ -135,9 +136,7 @@ def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
     Cost: ``steps`` x (estimator step + planner choice) plus O(steps N K) memory and metrics.
     """
     world_rng, planner_rng, estimator_seed = _seeds(seed)
-    labels = np.array(true_map, dtype=np.int64)
-    if labels.shape != (model.n_cells,) or np.any(labels < 0) or np.any(labels >= model.n_labels):
-        raise ModelError(f"true_map must be ({model.n_cells},) labels in 0..{model.n_labels - 1}")
+    labels = check_map(model, true_map)
     est = _estimator(model, estimator, estimator_options, estimator_seed)
     chooser = _planner(model, planner, planner_options, planner_rng)
     state = {"location": model.start, "labels": labels}

@@ -16,16 +16,15 @@ import numpy as np
 
 from onlinemap.errors import ModelError
 from onlinemap.model import CLOSED_DOOR, DOOR_LABELS, OPEN_DOOR, GridModel, door_world
+from onlinemap.validation import check_map
 
 
 def floor_plan_prior(model: GridModel, true_map, confidence: float = 0.8) -> np.ndarray:
     """(N, K) label prior from a floor plan: ``confidence`` on each cell's true label, the rest
     spread uniformly over the other labels. In a door world, door cells get 1/2 open, 1/2
     closed (the plan shows the door, not its state)."""
-    labels = np.asarray(true_map, dtype=np.int64)
+    labels = check_map(model, true_map)
     k = model.n_labels
-    if labels.shape != (model.n_cells,) or np.any(labels < 0) or np.any(labels >= k):
-        raise ModelError(f"true_map must be ({model.n_cells},) labels in 0..{k - 1}")
     if not 1.0 / k <= float(confidence) <= 1.0:
         raise ModelError(f"confidence must be in [1/K, 1] = [{1 / k:.3g}, 1], got {confidence!r}")
     prior = np.full((model.n_cells, k), (1.0 - confidence) / (k - 1))

@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import ModelError
 from ..model import DOOR_LABELS, GridModel, door_world
 from ..simulate import world_step
-from ..validation import action_index
+from ..validation import action_index, check_map
 
 # RGB per door-world label: free, wall, open door, closed door
 DOOR_COLORS = np.array([[245, 245, 245], [60, 60, 60], [80, 190, 90], [170, 70, 40]], dtype=np.uint8)
@@ -45,9 +45,7 @@ class DoorWorldEnv(gym.Env):
             model, true_map = door_world(layout, p_obs=p_obs, p_move=p_move, p_door=p_door, start=start)
         elif layout is not None or true_map is None:
             raise ModelError("pass either a layout, or a model together with its true_map")
-        initial = np.array(true_map, dtype=np.int64)
-        if initial.shape != (model.n_cells,) or np.any(initial < 0) or np.any(initial >= model.n_labels):
-            raise ModelError(f"true_map must be ({model.n_cells},) labels in 0..{model.n_labels - 1}")
+        initial = check_map(model, true_map)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.model = model
