@@ -530,8 +530,7 @@ def load(path: str | os.PathLike, *, strict_version: bool = True):
     the next ``step`` continues exactly where the saved one left off."""
     from .estimators.base import make_estimator
 
-    state = read(path)
-    check_header(state, strict_version=strict_version)
+    state = read(path)  # the header checked, all but the onlinemap version
     model = decode_model(state["model"])
     options = _Decoder().decode(state["options"], "options")
     if type(options) is not dict:
@@ -540,6 +539,5 @@ def load(path: str | os.PathLike, *, strict_version: bool = True):
         est = make_estimator(state["estimator"], model, **options)
     except UnknownEstimatorError as error:
         raise CheckpointError(f"{path}: {error}") from None
-    # the version was checked above as asked; est.load_state_dict checks everything else
-    est.load_state_dict({**state, "onlinemap_version": _package_version()})
+    est.load_state_dict(state, strict_version=strict_version)  # the version and everything else
     return est

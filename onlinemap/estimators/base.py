@@ -45,8 +45,9 @@ class Estimator(Protocol):
     def state_dict(self) -> dict:
         """Everything needed to continue bit for bit (default: :func:`onlinemap.checkpoint.state_dict`)."""
 
-    def load_state_dict(self, state: dict) -> None:
-        """Restore a :meth:`state_dict` (checked against this estimator's name, model and options)."""
+    def load_state_dict(self, state: dict, *, strict_version: bool = True) -> None:
+        """Restore a :meth:`state_dict` (checked against this estimator's name, model and options;
+        with ``strict_version``, also against this onlinemap's version)."""
 
 
 def register(name: str) -> Callable[[type], type]:
@@ -55,7 +56,7 @@ def register(name: str) -> Callable[[type], type]:
     It also records the keyword options every instance is built with as ``est.options``
     (defaults filled in) and, unless the class defines its own, gives it the read-only
     properties ``t`` (from ``self._t``) and ``belief`` (from ``self._belief``) and the generic
-    checkpoint methods ``state_dict()`` / ``load_state_dict(state)`` of
+    checkpoint methods ``state_dict()`` / ``load_state_dict(state, strict_version=True)`` of
     :mod:`onlinemap.checkpoint`.
     """
 
