@@ -34,9 +34,8 @@ class PolicyIterationResult(NamedTuple):
 def action_values(model: GridModel, reward: np.ndarray, value: np.ndarray, gamma: float) -> np.ndarray:
     """(N, A) ``Q(l, a) = sum_j T[a, l, j] (R(j) + gamma V(j))`` for every cell and action, O(N A)."""
     future = reward + gamma * value  # (N,)
-    cells = np.arange(model.n_cells)
-    moves = model.neighbors != cells[:, None]  # (N, A)
-    return model.self_prob.T * future[:, None] + np.where(moves, model.p_move * future[model.neighbors], 0.0)
+    # a blocked move leaves the robot in place (neighbors[l, a] == l): both terms are future[l]
+    return (1.0 - model.p_move) * future[:, None] + model.p_move * future[model.neighbors]
 
 
 def _policy_rows(model: GridModel, policy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
