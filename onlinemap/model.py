@@ -32,6 +32,15 @@ DOOR_LABELS = ("free", "wall", "open_door", "closed_door")
 DOOR_CHARS = {".": 0, "#": 1, "o": 2, "c": 3}
 FREE, WALL, OPEN_DOOR, CLOSED_DOOR = range(4)
 
+
+def door_cells(model: GridModel, labels: np.ndarray) -> np.ndarray:
+    """Indices of the door cells (label open or closed) of a door-world map; empty otherwise."""
+    if model.label_names != DOOR_LABELS:
+        return np.empty(0, dtype=np.int64)
+    labels = np.asarray(labels)
+    return np.flatnonzero((labels == OPEN_DOOR) | (labels == CLOSED_DOOR))
+
+
 DOOR_WORLD_10X10 = """\
 .....#....
 .....o....
@@ -331,5 +340,5 @@ def door_world(layout: str | None = None, p_obs: float = 0.9, p_move: float = 0.
 __all__ = [
     "GridModel", "grid_model", "corridor", "door_world", "parse_layout", "door_change",
     "symmetric_channel", "apply_motion", "apply_motion_transpose", "grid_neighbors",
-    "DOOR_WORLD_10X10", "DOOR_LABELS", "CORRIDOR_ACTIONS", "GRID_ACTIONS",
+    "DOOR_WORLD_10X10", "DOOR_LABELS", "CORRIDOR_ACTIONS", "GRID_ACTIONS", "door_cells",
 ]

@@ -17,7 +17,7 @@ from tqdm import tqdm
 from onlinemap import metrics
 from onlinemap.errors import ModelError
 from onlinemap.estimators import Estimator, estimator_options, make_estimator
-from onlinemap.model import CLOSED_DOOR, DOOR_LABELS, OPEN_DOOR, GridModel
+from onlinemap.model import GridModel, door_cells
 from onlinemap.simulate import SeedLike, world_step
 from onlinemap.validation import check_map
 
@@ -28,13 +28,6 @@ COLUMNS = ("t", "action", "true_location", "map_error", "location_error", "locat
 
 # (observation, true location, true labels (N,)) after a step
 WorldState = tuple[int, int, np.ndarray]
-
-
-def door_cells(model: GridModel, labels: np.ndarray) -> np.ndarray:
-    """Indices of the door cells (true label open or closed) of a door-world map; empty otherwise."""
-    if model.label_names != DOOR_LABELS:
-        return np.empty(0, dtype=np.int64)
-    return np.flatnonzero((labels == OPEN_DOOR) | (labels == CLOSED_DOOR))
 
 
 def _seeds(seed: SeedLike) -> tuple[np.random.Generator, np.random.Generator, int]:
@@ -198,7 +191,7 @@ def summarize(table: pd.DataFrame, model: GridModel, true_map) -> pd.DataFrame:
     final map error, mean door error over the last two thirds of the run (after the first
     visits), mean location error, share of steps spent on door cells, distinct cells visited,
     and milliseconds per step (estimator + planner)."""
-    doors = door_cells(model, np.asarray(true_map))
+    doors = door_cells(model, true_map)
     rows = []
     for (planner, seed), run in table.groupby(["planner", "seed"], sort=False):
         late = run["t"] >= run["t"].max() / 3

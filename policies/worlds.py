@@ -15,7 +15,7 @@ import dataclasses
 import numpy as np
 
 from onlinemap.errors import ModelError
-from onlinemap.model import CLOSED_DOOR, DOOR_LABELS, OPEN_DOOR, GridModel, door_world
+from onlinemap.model import CLOSED_DOOR, OPEN_DOOR, GridModel, door_cells, door_world
 from onlinemap.validation import check_map
 
 
@@ -29,8 +29,8 @@ def floor_plan_prior(model: GridModel, true_map, confidence: float = 0.8) -> np.
         raise ModelError(f"confidence must be in [1/K, 1] = [{1 / k:.3g}, 1], got {confidence!r}")
     prior = np.full((model.n_cells, k), (1.0 - confidence) / (k - 1))
     prior[np.arange(model.n_cells), labels] = confidence
-    if model.label_names == DOOR_LABELS:
-        doors = (labels == OPEN_DOOR) | (labels == CLOSED_DOOR)
+    doors = door_cells(model, labels)
+    if len(doors):
         prior[doors] = 0.0
         prior[np.ix_(doors, [OPEN_DOOR, CLOSED_DOOR])] = 0.5
     return prior
