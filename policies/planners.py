@@ -92,9 +92,13 @@ def sweep_actions(model: GridModel) -> np.ndarray:
     each, one step south (north on the way back) between rows. Each row is pressed
     ``ceil((cols - 1) / p_move)`` times so that, with slips, the robot is expected to reach the
     far end (extra presses at the edge stay put). Corridor: right then left, as many presses.
+    Raises ModelError when p_move = 0 (the robot never moves: no sweep covers the grid).
     """
     names = model.action_names
-    presses = max(1, math.ceil((model.cols - 1) / max(model.p_move, 1e-9)))
+    if model.p_move <= 0:
+        raise ModelError("Sweep needs p_move > 0: with p_move = 0 the robot never moves, so no number "
+                         "of presses reaches the far end of a row")
+    presses = max(1, math.ceil((model.cols - 1) / model.p_move))
     if set(names) == {"left", "right"}:
         return np.array([names.index("right")] * presses + [names.index("left")] * presses, dtype=np.int64)
     if set(names) != {"north", "east", "south", "west"}:

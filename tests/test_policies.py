@@ -222,3 +222,8 @@ def test_sweep_in_a_corridor_and_unknown_planners():
     assert [model.action_names[a] for a in sweep_actions(model)] == ["right"] * 5 + ["left"] * 5
     with pytest.raises(ModelError, match="unknown planner"):
         make_planner("greedy", model)
+    for stuck in (om.corridor(5, p_move=0.0), om.door_world("...\n...\n", p_move=0.0)[0]):
+        with pytest.raises(ModelError, match="p_move > 0"):
+            Sweep(stuck)
+        with pytest.raises(ModelError, match="p_move > 0"):
+            make_planner("sweep", stuck)
