@@ -10,16 +10,32 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
+import importlib
+
 from . import checkpoint, errors, metrics, scenarios
 from .belief import Belief
-from .checkpoint import load, save
+from .checkpoint import save
 from .errors import (CheckpointError, ImpossibleObservationError, InvalidActionError, InvalidObservationError,
                      MemoryLimitError, ModelError, OnlineMapError, UnknownEstimatorError)
 from .estimators import (Estimator, SmoothResult, Trajectory, available_estimators,
-                         estimator_options, exact_smooth, make_estimator, register, run_estimator)
+                         estimator_options, exact_smooth, load, make_estimator, register, run_estimator)
 from .model import DOOR_WORLD_10X10, GridModel, corridor, door_world, grid_model
 from .simulate import Run, random_walk, sample_map, simulate, there_and_back
-from .sweeps import SpecError, SweepError, load_spec, summarize, sweep
+
+# Heavy parts (sweeps: pandas I/O, dask, matplotlib; plots) load on first use, so that
+# ``import onlinemap`` stays fast and never imports matplotlib, dask, the CLI or ``policies``.
+_LAZY = {"sweep": "sweeps", "load_spec": "sweeps", "summarize": "sweeps", "SpecError": "sweeps",
+         "SweepError": "sweeps", "sweeps": None, "plots": None, "compare": None, "reproduce": None,
+         "peers": None, "bench": None, "cli": None, "envs": None}
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module 'onlinemap' has no attribute {name!r}")
+    module = importlib.import_module(f".{_LAZY[name] or name}", __name__)
+    value = module if _LAZY[name] is None else getattr(module, name)
+    globals()[name] = value
+    return value
 
 __all__ = [
     "Belief", "Estimator", "GridModel", "Run", "SmoothResult", "Trajectory",

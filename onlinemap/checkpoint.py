@@ -60,8 +60,8 @@ from pathlib import Path
 import numpy as np
 
 from .belief import Belief
-from .errors import CheckpointError, OnlineMapError, UnknownEstimatorError
-from .model import GridModel
+from .errors import CheckpointError, OnlineMapError
+from .model import DEFINING_FIELDS, GridModel, model_difference
 
 FORMAT = "onlinemap-checkpoint"
 FORMAT_VERSION = 1
@@ -69,8 +69,6 @@ _TAG = "$"
 _SEPARATE = ("model", "options")  # attributes stored apart from the state tree
 _ARRAY_KINDS = "biufcUSmM"  # numpy dtype kinds that npy stores without pickling
 _BIT_GENERATORS = ("PCG64", "PCG64DXSM", "MT19937", "Philox", "SFC64")
-_MODEL_FIELDS = ("rows", "cols", "neighbors", "p_move", "change", "sensor", "label_prior", "start",
-                 "action_names", "label_names")
 _ZIP_MAGIC = b"PK\x03\x04"
 
 
@@ -160,7 +158,7 @@ def _callable_name(value) -> str | None:
 def encode_model(model: GridModel) -> dict:
     """Tree of a model's defining tables (the derived ones are rebuilt by the constructor)."""
     encoder = _Encoder()
-    return {_TAG: "model", "fields": {name: encoder.encode(getattr(model, name), name) for name in _MODEL_FIELDS}}
+    return {_TAG: "model", "fields": {name: encoder.encode(getattr(model, name), name) for name in DEFINING_FIELDS}}
 
 
 # --- decoding: tree -> fresh Python objects (arrays copied) ------------------------------------------
@@ -242,7 +240,7 @@ def _generator(state: dict) -> np.random.Generator:
 
 def decode_model(node) -> GridModel:
     """Rebuild a :class:`GridModel` from :func:`encode_model`'s tree (validated by its constructor)."""
-    if type(node) is not dict or node.get(_TAG) != "model" or set(node.get("fields", ())) != set(_MODEL_FIELDS):
+    if type(node) is not dict or node.get(_TAG) != "model" or set(node.get("fields", ())) != set(DEFINING_FIELDS):
         raise CheckpointError("the checkpoint's model entry is malformed")
     fields = {name: _Decoder().decode(value, name) for name, value in node["fields"].items()}
     try:
@@ -251,16 +249,12 @@ def decode_model(node) -> GridModel:
         raise CheckpointError(f"the checkpoint's model is invalid: {error}") from None
 
 
-def model_difference(a: GridModel, b: GridModel) -> str | None:
-    """Name of the first defining field in which two models differ (bitwise), or None if equal."""
-    for name in _MODEL_FIELDS:
-        x, y = getattr(a, name), getattr(b, name)
-        if isinstance(x, np.ndarray):
-            if x.shape != y.shape or x.dtype != y.dtype or x.tobytes() != y.tobytes():
-                return name
-        elif x != y:
-            return name
-    return None
+def decode_options(node) -> dict:
+    """The estimator options stored by :func:`state_dict` (a dict of plain values)."""
+    options = _Decoder().decode(node, "options")
+    if type(options) is not dict:
+        raise CheckpointError("malformed options entry")
+    return options
 
 
 # --- state_dict / load_state_dict ---------------------------------------------------------------------
@@ -523,21 +517,3 @@ def read(path: str | os.PathLike) -> dict:
 def save(est, path: str | os.PathLike) -> Path:
     """Checkpoint ``est`` (its ``state_dict()``) to ``path``, atomically. Returns the path."""
     return write(est.state_dict(), path)
-
-
-def load(path: str | os.PathLike, *, strict_version: bool = True):
-    """Build the estimator saved in ``path`` (same name, model and options) and restore its state;
-    the next ``step`` continues exactly where the saved one left off."""
-    from .estimators.base import make_estimator
-
-    state = read(path)  # the header checked, all but the onlinemap version
-    model = decode_model(state["model"])
-    options = _Decoder().decode(state["options"], "options")
-    if type(options) is not dict:
-        raise CheckpointError(f"{path}: malformed options entry")
-    try:
-        est = make_estimator(state["estimator"], model, **options)
-    except UnknownEstimatorError as error:
-        raise CheckpointError(f"{path}: {error}") from None
-    est.load_state_dict(state, strict_version=strict_version)  # the version and everything else
-    return est

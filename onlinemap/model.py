@@ -216,6 +216,22 @@ class GridModel:
         return prior
 
 
+DEFINING_FIELDS = ("rows", "cols", "neighbors", "p_move", "change", "sensor", "label_prior", "start",
+                   "action_names", "label_names")  # what makes two models the same; the rest is derived
+
+
+def model_difference(a: GridModel, b: GridModel) -> str | None:
+    """Name of the first defining field in which two models differ (bitwise), or None if equal."""
+    for name in DEFINING_FIELDS:
+        x, y = getattr(a, name), getattr(b, name)
+        if isinstance(x, np.ndarray):
+            if x.shape != y.shape or x.dtype != y.dtype or x.tobytes() != y.tobytes():
+                return name
+        elif x != y:
+            return name
+    return None
+
+
 def apply_motion(model: GridModel, x: np.ndarray, action: int) -> np.ndarray:
     """Predict along axis 0: ``out[j, ...] = sum_i T[a, i, j] x[i, ...]``. x: (N, ...). O(x.size)."""
     out = model.self_prob[action].reshape((-1,) + (1,) * (x.ndim - 1)) * x

@@ -23,7 +23,8 @@ from tqdm.auto import tqdm
 from . import metrics
 from .estimators import Trajectory, make_estimator, run_estimator
 from .scenarios import one_slip_corridor
-from .simulate import Run, SeedLike, as_generator
+from .rng import SeedLike, as_generator
+from .simulate import Run
 from .stats import wilson_interval
 
 CORRIDOR_WINDOWS = (1, 2, 4, 8, "max")

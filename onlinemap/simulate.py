@@ -9,19 +9,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import pandas as pd
 
 from .errors import ModelError
 from .model import GridModel
+from .rng import SeedLike, as_generator
+
+if TYPE_CHECKING:
+    import pandas as pd
 from .validation import action_index, check_map
 
-SeedLike = int | np.random.Generator | None
-
-
-def as_generator(seed: SeedLike) -> np.random.Generator:
-    """A Generator from an int seed, None (fresh entropy) or an existing Generator (returned as is)."""
-    return seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
 
 
 def _frozen_int(array) -> np.ndarray:
@@ -71,11 +70,13 @@ class Run:
         intended = self.model.neighbors[before, self.actions]
         return (intended != before) & (self.locations[1:] == before)
 
-    def to_frame(self) -> pd.DataFrame:
+    def to_frame(self) -> "pd.DataFrame":
         """One row per step: t, action (name, None at t = 0), true location, true label there,
         observation, whether the move slipped, and the number of cells whose label changed."""
         names = self.model.action_names
         changed = np.concatenate([[0], (self.maps[1:] != self.maps[:-1]).sum(axis=1)])
+        import pandas as pd  # lazily: ``import onlinemap`` does not load pandas
+
         return pd.DataFrame({
             "t": np.arange(self.n_steps),
             "action": [None] + [names[a] for a in self.actions],

@@ -12,7 +12,8 @@ import numpy as np
 
 from .errors import ModelError
 from .model import GridModel, corridor, door_world, grid_model, symmetric_channel
-from .simulate import Run, SeedLike, random_walk, sample_map
+from .rng import SeedLike
+from .simulate import Run, random_walk, sample_map
 from .simulate import simulate as _simulate
 
 _FLOAT_KEYS = {"p_obs", "p_move", "p_change", "p_door"}

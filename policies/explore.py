@@ -18,7 +18,8 @@ from onlinemap import metrics
 from onlinemap.errors import ModelError
 from onlinemap.estimators import Estimator, estimator_options, make_estimator
 from onlinemap.model import GridModel, door_cells
-from onlinemap.simulate import SeedLike, world_step
+from onlinemap.rng import SeedLike
+from onlinemap.simulate import world_step
 from onlinemap.validation import check_map
 
 from .planners import Planner, make_planner

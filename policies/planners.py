@@ -19,7 +19,7 @@ import numpy as np
 from onlinemap.belief import Belief
 from onlinemap.errors import ModelError
 from onlinemap.model import GridModel
-from onlinemap.simulate import SeedLike, as_generator
+from onlinemap.rng import SeedLike, as_generator
 
 from .mdp import PolicyIterationResult, policy_iteration
 from .rewards import RewardFunction, collected_entropy_reward, entropy_reward

@@ -115,7 +115,7 @@ def test_belief_is_read_only():
 @pytest.mark.parametrize("k,n", [(2, 1), (2, 5), (2, 12), (2, 13), (3, 4), (3, 7), (3, 8)])
 def test_change_kernel_equals_tensordot_on_every_axis(k, n):
     """Sizes past one cache block (2^11 binary, 3^6 ternary maps) take the outer-axis paths."""
-    from onlinemap.kernels import change_every_axis
+    from onlinemap.kernels.exact import change_every_axis
 
     rng = np.random.default_rng(n)
     change = rng.random((k, k))

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import checkpoint
-from ..estimators import make_estimator
+from ..estimators import load, make_estimator
 from ..model import corridor, door_world
 from ..simulate import random_walk, simulate
 from . import benchmark, copy_pass_ms, seconds_per_call
@@ -57,7 +57,7 @@ def bench_checkpoint(quick: bool) -> list[dict]:
             floats = _state_floats(est)
             copy_ms = copy_pass_ms(floats)
             save_ms = 1e3 * seconds_per_call(lambda: checkpoint.save(est, path), min_seconds=0.2)
-            load_ms = 1e3 * seconds_per_call(lambda: checkpoint.load(path), min_seconds=0.2)
+            load_ms = 1e3 * seconds_per_call(lambda: load(path), min_seconds=0.2)
             for operation, ms in (("save", save_ms), ("load", load_ms)):
                 rows.append({"case": f"{operation} {case}", "ms": ms, "reference": "one step of the estimator",
                              "reference_ms": step_ms, "target": float("nan"),

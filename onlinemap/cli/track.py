@@ -33,8 +33,9 @@ from pathlib import Path
 from .. import checkpoint
 from ..belief import Belief
 from ..errors import CheckpointError, OnlineMapError
-from ..estimators import make_estimator
+from ..estimators import load, make_estimator
 from ..metrics import map_entropy, normalized_entropy
+from ..model import model_difference
 from ..worlds import parse_world
 from .common import OPTION_HELP, parse_options
 
@@ -118,10 +119,10 @@ def _emit(stream, record: dict) -> None:
 
 def _resume(path: Path, name: str, world, options: dict[str, object]):
     """Load the checkpoint at ``path`` and check it is for this world, estimator and options."""
-    est = checkpoint.load(path)
+    est = load(path)
     if est.name != name:
         raise CheckpointError(f"checkpoint {path} holds a {est.name!r} estimator, not {name!r}")
-    field = checkpoint.model_difference(est.model, world.model)
+    field = model_difference(est.model, world.model)
     if field is not None:
         raise CheckpointError(f"checkpoint {path} was written for another world ({field!r} differs from "
                               f"--world {world.spec})")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import os
 import time
 from typing import Callable, NamedTuple, Protocol, runtime_checkable
 
@@ -16,7 +17,7 @@ import numpy as np
 
 from .. import checkpoint
 from ..belief import Belief
-from ..errors import UnknownEstimatorError
+from ..errors import CheckpointError, UnknownEstimatorError
 from ..model import GridModel
 
 _REGISTRY: dict[str, type] = {}
@@ -157,3 +158,20 @@ def run_estimator(estimator: Estimator, actions, observations) -> Trajectory:
         location[t], maps[t], evidence[t] = belief.location, belief.map, belief.log_evidence
     seconds = (time.perf_counter() - start) / n_steps
     return Trajectory(location, maps, evidence, seconds)
+
+
+def load(path: str | os.PathLike, *, strict_version: bool = True):
+    """Build the estimator saved in ``path`` (same name, model and options) and restore its state;
+    the next ``step`` continues exactly where the saved one left off."""
+    state = checkpoint.read(path)  # the header checked, all but the onlinemap version
+    model = checkpoint.decode_model(state["model"])
+    try:
+        options = checkpoint.decode_options(state["options"])
+    except CheckpointError as error:
+        raise CheckpointError(f"{path}: {error}") from None
+    try:
+        est = make_estimator(state["estimator"], model, **options)
+    except UnknownEstimatorError as error:
+        raise CheckpointError(f"{path}: {error}") from None
+    est.load_state_dict(state, strict_version=strict_version)  # the version and everything else
+    return est

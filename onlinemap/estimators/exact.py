@@ -18,7 +18,7 @@ import numpy as np
 
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, MemoryLimitError
-from ..kernels import change_every_axis, map_marginals as _map_marginals_kernel, motion_observe
+from ..kernels.exact import change_every_axis, map_marginals as _map_marginals_kernel, motion_observe
 from ..model import GridModel, apply_motion, apply_motion_transpose
 from ..validation import check_sequence, check_step
 from .base import register

@@ -9,7 +9,7 @@ up to date, when it is next read). A dynamic world therefore costs the same per 
 static one.
 
 State (plain attributes): locations (P,), normalised log weights (P,), the particles' map
-marginals as shared copy-on-write blocks of B cells (see ``onlinemap/rbpf_kernels.py``: a pool
+marginals as shared copy-on-write blocks of B cells (see ``onlinemap/kernels/rbpf.py``: a pool
 of (B, K) block rows with reference counts and a (P, N / B) table of row indices; stamps per
 cell for lazy dynamics), the powers of C, a ``numpy.random.Generator``. To keep the table of
 powers bounded however long the run, each step also refreshes a few block rows in turn (brings
@@ -36,10 +36,10 @@ import numpy as np
 
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, MemoryLimitError, ModelError
-from ..rbpf_kernels import (in_place_ancestors, particle_maps, rbpf_commit, rbpf_map_mixture, rbpf_propose,
+from ..kernels.rbpf import (in_place_ancestors, particle_maps, rbpf_commit, rbpf_map_mixture, rbpf_propose,
                              rbpf_refresh)
 from ..resampling import RESAMPLERS, effective_sample_size
-from ..simulate import SeedLike, as_generator
+from ..rng import SeedLike, as_generator
 from ..model import GridModel
 from ..validation import check_step
 from .base import register
