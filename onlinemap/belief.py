@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .arrays import read_only
+
 
 def _frozen(array: np.ndarray | None) -> np.ndarray | None:
     if array is None:
@@ -13,8 +15,7 @@ def _frozen(array: np.ndarray | None) -> np.ndarray | None:
     array = np.asarray(array, dtype=np.float64)
     if array.flags.writeable and array.base is not None:
         array = array.copy()
-    array.setflags(write=False)
-    return array
+    return read_only(array)
 
 
 @dataclass(frozen=True, eq=False)

@@ -18,12 +18,12 @@ from matplotlib.figure import Figure
 from tqdm.auto import tqdm
 
 from . import metrics
+from .estimators.rbpf import PROPOSALS
 from .estimators import available_estimators, make_estimator, run_estimator
 from .worlds import parse_world
 
 DEFAULT_WORLDS = ("corridor:10", "corridor:10,p_change=0.02", "grid:3x3", "grid:3x3,p_change=0.02")
 DEFAULT_PARTICLES = (10, 50, 100, 1000)
-PROPOSALS = ("optimal", "transition")
 
 
 def compare_estimators(particles: Sequence[int] = DEFAULT_PARTICLES) -> list[tuple[str, str, dict]]:

@@ -24,6 +24,7 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from .arrays import read_only
 from .errors import ModelError
 
 CORRIDOR_ACTIONS = ("left", "right")
@@ -77,8 +78,7 @@ def _stochastic(name: str, matrix, shape: tuple[int, ...]) -> np.ndarray:
     if not np.allclose(sums, 1.0, rtol=0, atol=_ATOL):
         worst = np.unravel_index(np.argmax(np.abs(sums - 1)), sums.shape)
         raise ModelError(f"{name} rows must sum to 1; row {tuple(int(i) for i in worst)} sums to {sums[worst]!r}")
-    array.setflags(write=False)
-    return array
+    return read_only(array)
 
 
 def symmetric_channel(n_labels: int, p_same: float) -> np.ndarray:
@@ -154,7 +154,7 @@ class GridModel:
         likelihood = np.ascontiguousarray(self.sensor.T)
         moves = np.ascontiguousarray(neighbors.T)
         for array in (neighbors, predecessor, self_prob, likelihood, moves):
-            array.setflags(write=False)
+            read_only(array)
         set_(self, "self_prob", self_prob)
         set_(self, "predecessor", predecessor)
         set_(self, "likelihood", likelihood)
@@ -349,8 +349,7 @@ def door_world(layout: str | None = None, p_obs: float = 0.9, p_move: float = 0.
                        label_names=DOOR_LABELS)
     if model.rows == 1:
         raise ModelError("a door world needs at least two rows (use corridor() for 1D worlds)")
-    true_map.setflags(write=False)
-    return model, true_map
+    return model, read_only(true_map)
 
 
 __all__ = [

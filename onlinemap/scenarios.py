@@ -9,7 +9,6 @@ from .model import GridModel, corridor
 from .simulate import Run
 
 MURPHY_LABELS = (0, 1, 0, 1, 0, 1, 0, 1)
-MURPHY_PATH = (0, 1, 2, 3, 3, 4, 5, 6, 5, 4, 3, 2, 1, 0, 0)
 
 
 def scripted_corridor(labels, slips=(), p_obs: float = 0.9, p_move: float = 0.8,

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .arrays import read_only
 from .errors import ModelError
 from .model import GridModel
 from .rng import SeedLike, as_generator
@@ -24,9 +25,7 @@ from .validation import action_index, check_map
 
 
 def _frozen_int(array) -> np.ndarray:
-    array = np.array(array, dtype=np.int64)
-    array.setflags(write=False)
-    return array
+    return read_only(np.array(array, dtype=np.int64))
 
 
 @dataclass(frozen=True, eq=False)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
+from ..arrays import read_only
 from ..errors import ModelError
 from ..model import DOOR_LABELS, GridModel, door_world
 from ..simulate import world_step
@@ -49,8 +50,7 @@ class DoorWorldEnv(gym.Env):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.model = model
-        self.initial_map = initial
-        self.initial_map.setflags(write=False)
+        self.initial_map = read_only(initial)
         self.render_mode = render_mode
         self.cell_pixels = int(cell_pixels)
         self.observation_space = gym.spaces.Discrete(model.n_labels)

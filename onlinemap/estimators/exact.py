@@ -16,6 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..arrays import DEFAULT_MAX_BYTES
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, MemoryLimitError
 from ..kernels.exact import change_every_axis, map_marginals as _map_marginals_kernel, motion_observe
@@ -23,7 +24,6 @@ from ..model import GridModel, apply_motion, apply_motion_transpose
 from ..validation import check_sequence, check_step
 from .base import register
 
-DEFAULT_MAX_BYTES = 2 * 1024**3
 
 
 def tensor_bytes(model: GridModel, copies: int = 1) -> int:

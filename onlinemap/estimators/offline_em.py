@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..arrays import read_only
 from ..belief import Belief
 from ..errors import ModelError
 from ..hmm import (emission_from_counts, expected_counts, forward_backward, log_dirichlet_prior,
@@ -133,9 +134,9 @@ class OfflineEM:
         schedule = check_anneal(anneal)
         self.anneal = None if schedule is None else tuple(schedule)  # plain data (checkpoints)
         # constant tables of every step's fit, computed once (read-only arrays: checkpointable)
-        self._prior_emission = _read_only(prior_emission(model))
-        self._location_prior = _read_only(model.location_prior())
-        self._sensor_inverse = _read_only(sensor_inverse(model.sensor))
+        self._prior_emission = read_only(prior_emission(model))
+        self._location_prior = read_only(model.location_prior())
+        self._sensor_inverse = read_only(sensor_inverse(model.sensor))
         self._actions = np.empty(0, dtype=np.int64)
         self._observations = np.empty(0, dtype=np.int64)
         self._t = -1
@@ -159,8 +160,3 @@ class OfflineEM:
         self._belief = Belief(self._t, fit.location[-1], fit.map, fit.log_likelihood,
                               observation_matrix=fit.observation_matrix)
         return self._belief
-
-
-def _read_only(array: np.ndarray) -> np.ndarray:
-    array.setflags(write=False)
-    return array

@@ -34,6 +34,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, MemoryLimitError, ModelError
 from ..kernels.rbpf import (in_place_ancestors, particle_maps, rbpf_commit, rbpf_map_mixture, rbpf_propose,
@@ -45,7 +46,6 @@ from ..validation import check_step
 from .base import register
 
 PROPOSALS = ("optimal", "transition")
-DEFAULT_MAX_BYTES = 2 * 1024**3
 REFRESH_STEPS = 256  # every block row is brought up to date at least this often (lazy dynamics)
 
 
@@ -281,6 +281,4 @@ class RaoBlackwellisedPF:
 def _no_moves(n: int) -> np.ndarray:
     """Read-only ``arange(n)`` (every cell stays): the same numba type as a row of ``model.moves``,
     so rbpf_propose is compiled once."""
-    cells = np.arange(n)
-    cells.setflags(write=False)
-    return cells
+    return read_only(np.arange(n))
