@@ -99,3 +99,10 @@ def names(name: str, values, count: int, error: type[OnlineMapError] = ModelErro
         repeated = sorted({v for v in values if values.count(v) > 1})
         raise error(f"{name} must be distinct, {repeated} repeated")
     return values
+
+
+def seed(name: str, value, error: type[OnlineMapError] = ModelError):
+    """A seed: None (fresh entropy), an int >= 0, or a ``numpy.random.Generator`` (returned as is)."""
+    if value is None or type(value).__name__ == "Generator":
+        return value
+    return integer(name, value, minimum=0, error=error)

@@ -16,9 +16,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import arguments
 from ..arrays import DEFAULT_MAX_BYTES
 from ..belief import Belief
-from ..errors import ImpossibleObservationError, MemoryLimitError
+from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError
 from ..kernels.exact import change_every_axis, map_marginals as _map_marginals_kernel, motion_observe
 from ..model import GridModel, apply_motion, apply_motion_transpose
 from ..validation import check_sequence, check_step
@@ -64,6 +65,7 @@ class ExactFilter:
     scratch_attributes = ("_scratch", "_joint_map")  # overwritten by every step: not checkpointed
 
     def __init__(self, model: GridModel, *, max_bytes: int = DEFAULT_MAX_BYTES):
+        max_bytes = arguments.byte_limit("max_bytes", max_bytes, InvalidOptionError)
         check_memory(model, 2, max_bytes, "the exact filter (two belief tensors)")
         self.model = model
         self.max_bytes = max_bytes
