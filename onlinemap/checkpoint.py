@@ -329,12 +329,32 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
                               f"unexpected {extra}")
     decoder = _Decoder()
     restored = {}
-    for name, node in state["attributes"].items():
-        value = decoder.decode(node, name)
-        _check_kind(name, current[name], value)
-        if not isinstance(value, _KeepFresh):
-            restored[name] = value
+    try:
+        for name, node in state["attributes"].items():
+            value = decoder.decode(node, name)
+            _check_kind(name, current[name], value)
+            if not isinstance(value, _KeepFresh):
+                restored[name] = value
+    except RecursionError:
+        raise CheckpointError("checkpoint's attributes are nested too deeply") from None
+    check_state(est, restored)
     vars(est).update(restored)
+
+
+def check_state(est, restored: dict) -> None:
+    """Check the attributes ``restored`` (name -> value) as ``est``'s new state, without changing
+    ``est``: the attributes fixed by the model and options equal ``est``'s own, bit for bit, and
+    the rest satisfy the estimator's invariants (:mod:`onlinemap.state_checks`; a class may
+    define its own ``check_state(view)``). Raises :class:`CheckpointError`."""
+    from . import state_checks
+
+    for name in state_checks.CONSTANT.get(est.name, ()):
+        if name in restored and not same_tree(_Encoder().encode(restored[name], name),
+                                              _Encoder().encode(vars(est)[name], name)):
+            raise CheckpointError(f"invalid state: attribute {name} differs from what the model and options give")
+    check = getattr(type(est), "check_state", None) or state_checks.STATE_CHECKS.get(est.name)
+    if check is not None:
+        check(types.SimpleNamespace(**{**vars(est), **restored}))
 
 
 def _kind(value) -> str:
@@ -362,6 +382,8 @@ def _check_kind(name: str, current, value) -> None:
         return
     if _kind(current) != _kind(value):
         raise CheckpointError(f"attribute {name}: checkpoint holds a {_kind(value)}, the estimator a {_kind(current)}")
+    if type(current) is np.ndarray and current.flags.c_contiguous and not value.flags.c_contiguous:
+        raise CheckpointError(f"attribute {name}: the estimator's array is C-contiguous, the checkpoint's is not")
 
 
 def same_tree(a, b) -> bool:
