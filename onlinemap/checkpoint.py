@@ -214,8 +214,8 @@ class _Decoder:
                 return _KeepFresh("scratch", str(node["dtype"]), list(node["shape"]))
         except CheckpointError:
             raise
-        except (KeyError, TypeError, ValueError, AttributeError) as error:
-            raise CheckpointError(f"attribute {path}: malformed {tag!r} entry: {error}") from None
+        except (KeyError, TypeError, ValueError, AttributeError, OverflowError, IndexError) as error:
+            raise CheckpointError(f"attribute {path}: malformed {tag!r} entry: {_short(str(error))}") from None
         raise CheckpointError(f"attribute {path}: unknown entry type {tag!r}")
 
 
