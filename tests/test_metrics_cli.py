@@ -40,8 +40,9 @@ def test_cli_door_world_skips_exact_with_reason(caplog):
 
 
 def test_cli_errors_are_clear(capsys):
-    assert main(["run", "--world", "maze:3"]) == 2
-    assert "unknown kind" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:  # a usage error, found while parsing the arguments
+        main(["run", "--world", "maze:3"])
+    assert exit_info.value.code == 2 and "unknown kind" in capsys.readouterr().err
     assert main(["run", "--estimators", "nope"]) == 2
     with pytest.raises(SystemExit):
         main(["--help"])
