@@ -1,4 +1,4 @@
-"""Writes notebooks/active_exploration.ipynb (no stored outputs). Run: python notebooks/build_active_exploration.py"""
+"""Writes notebooks/active_exploration.ipynb, executed with its outputs. Run: python notebooks/build_active_exploration.py"""
 
 import nbformat
 from nbformat.v4 import new_code_cell, new_markdown_cell
@@ -83,7 +83,7 @@ table = policies.compare_planners(model, true_map, ["entropy", "entropy_collect"
                                   "rbpf", STEPS, SEEDS, estimator_options={"n_particles": N_PARTICLES},
                                   progress=False)
 summary = policies.summarize(table, model, true_map)
-summary"""),
+summary.drop(columns="ms_per_step")  # timings differ between runs; the stored outputs must not"""),
     new_code_cell("""\
 fig, axes = plt.subplots(1, 2, figsize=(12, 4), layout="constrained")
 policies.plot_errors(table, axes=axes);"""),
@@ -104,6 +104,22 @@ for name, errors in (("final map error", final), ("late door error", late)):
         p = stats.ttest_rel(errors[planner_name], errors["random"], alternative="less").pvalue if len(diff) > 1 else np.nan
         print(f"{name:16s} {planner_name:16s} mean difference vs random {diff.mean():+.3f}, "
               f"lower on {(diff < 0).sum()}/{len(diff)} seeds, p = {p:.3g}")"""),
+    new_markdown_cell("""\
+## Conclusion
+
+On these 8 paired seeds of 400 steps in the dynamic door world (RBPF, 100 particles), the
+entropy planner ends with a map error of 0.025 against 0.101 for a random walk (lower on 8 of 8
+seeds), and keeps the doors more up to date (door-state error over the last two thirds 0.35
+against 0.45): its reward sends it back to doors whose state it has become unsure of, and it
+spends about twice the random walk's share of time at doors (9.9% against 5.1% of its steps).
+The open-loop sweep covers the building too but does not look at the belief, so it does not
+return to doors (door error 0.41). Every planner beats the random walk on both errors in the
+paired tests (one-sided p < 0.025).
+
+What none of them achieves is a well-localised robot: the mean location error stays between
+0.38 and 0.49 for all four planners, so the door states stay partly stale. Eight seeds are few
+for the door-state effect; the README's study, with 64 paired seeds, puts it at about 0.3
+standard deviations per seed."""),
 ]
 
 

@@ -16,7 +16,7 @@ from typing import Callable, NamedTuple, Protocol, runtime_checkable
 import numpy as np
 
 from .. import checkpoint
-from ..belief import Belief
+from ..belief import Belief, beliefs_frame
 from ..errors import CheckpointError, ModelError, OnlineMapError, UnknownEstimatorError
 from ..model import GridModel
 
@@ -57,9 +57,9 @@ def register(name: str) -> Callable[[type], type]:
 
     It also records the keyword options every instance is built with as ``est.options``
     (defaults filled in) and, unless the class defines its own, gives it the read-only
-    properties ``t`` (from ``self._t``) and ``belief`` (from ``self._belief``) and the generic
+    properties ``t`` (from ``self._t``) and ``belief`` (from ``self._belief``), the generic
     checkpoint methods ``state_dict()`` / ``load_state_dict(state, ...)`` of
-    :mod:`onlinemap.checkpoint`.
+    :mod:`onlinemap.checkpoint`, and a ``repr`` naming the estimator, its model, options and t.
     """
 
     def decorate(cls: type) -> type:
@@ -69,13 +69,20 @@ def register(name: str) -> Callable[[type], type]:
         _record_options(cls)
         for member, default in (("t", _step_index), ("belief", _last_belief),
                                 ("state_dict", checkpoint.state_dict),
-                                ("load_state_dict", checkpoint.load_state_dict)):
+                                ("load_state_dict", checkpoint.load_state_dict),
+                                ("__repr__", _estimator_repr)):
             if member not in vars(cls):
                 setattr(cls, member, default)
         _REGISTRY[name] = cls
         return cls
 
     return decorate
+
+
+def _estimator_repr(self) -> str:
+    """``rbpf(t=3, model=GridModel(...), n_particles=100, ...)``: registry name, last step, model, options."""
+    options = ", ".join(f"{key}={value!r}" for key, value in getattr(self, "options", {}).items())
+    return f"{self.name}(t={self.t}, model={self.model!r}{', ' + options if options else ''})"
 
 
 _step_index = property(lambda self: self._t, doc="Index of the last step taken (-1 before the first).")
@@ -139,6 +146,11 @@ class Trajectory(NamedTuple):
     map: np.ndarray  # (T, N, K)
     log_evidence: np.ndarray  # (T,)
     seconds_per_step: float
+
+    def to_frame(self, model: GridModel | None = None):
+        """The beliefs over time in long format, one row per step and cell (see
+        :func:`onlinemap.belief.beliefs_frame`), for pandas / seaborn. Cost O(T N K)."""
+        return beliefs_frame(self.location, self.map, model)
 
 
 def run_estimator(estimator: Estimator, actions, observations) -> Trajectory:
