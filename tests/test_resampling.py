@@ -123,19 +123,18 @@ def test_optimal_resampling_is_unbiased_keeps_large_children_and_none_twice(case
     weights = weights / weights.sum()
     c = brute_threshold(weights, n)
     rng = np.random.default_rng(2)
-    draws = 20_000
+    draws = 5000
+    large = weights >= c
     mean_weight = np.zeros(len(weights))
     for _ in range(draws):
         kept = optimal_resampling(weights, n, rng)
-        assert len(np.unique(kept.indices)) == len(kept.indices) == min(n, np.count_nonzero(weights))
-        assert np.all(np.diff(kept.indices) > 0)
-        assert kept.threshold == pytest.approx(c, rel=1e-9)
-        assert set(np.flatnonzero(weights >= c)) <= set(kept.indices)
-        large = weights[kept.indices] >= c
-        np.testing.assert_array_equal(kept.weights[large], weights[kept.indices][large])
-        np.testing.assert_allclose(kept.weights[~large], c, rtol=1e-9)
-        assert kept.weights.sum() == pytest.approx(1.0, abs=1e-12)
-        mean_weight[kept.indices] += kept.weights
+        assert len(kept.indices) == min(n, np.count_nonzero(weights)) and np.all(np.diff(kept.indices) > 0)
+        assert abs(kept.threshold - c) <= 1e-9 * c and abs(kept.weights.sum() - 1) <= 1e-12
+        new_weight = np.zeros(len(weights))
+        new_weight[kept.indices] = kept.weights
+        assert np.array_equal(new_weight[large], weights[large])  # always kept, own weight
+        assert np.all(np.abs(new_weight[~large] - c) <= 1e-9 * c, where=new_weight[~large] > 0)
+        mean_weight += new_weight
     mean_weight /= draws
     tolerance = 5 * np.sqrt(weights * np.maximum(c - weights, 0) / draws) + 1e-12
     assert np.all(np.abs(mean_weight - weights) <= tolerance), (mean_weight, weights, tolerance)
