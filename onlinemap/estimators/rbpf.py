@@ -285,9 +285,10 @@ class RaoBlackwellisedPF:
         child_parent = np.empty(2 * n_particles, dtype=np.int64)
         child_location = np.empty(2 * n_particles, dtype=np.int64)
         child_log_weight = np.empty(2 * n_particles)
+        child_cells = np.empty((2 * n_particles, model.n_labels))
         m = rbpf_enumerate(self._locations, self._log_weights, pool, pool_stamps, self._table, self._cell_block,
                            self._cell_slot, self._powers, self._stamped, t, neighbors, model.p_move,
-                           model.likelihood[z], child_parent, child_location, child_log_weight)
+                           model.likelihood[z], child_parent, child_location, child_log_weight, child_cells)
         if m == 0:
             raise ImpossibleObservationError(
                 f"observation {model.label_names[z]!r} has probability zero for every particle at step {t}")
@@ -297,9 +298,8 @@ class RaoBlackwellisedPF:
         new_locations = np.empty(n_particles, dtype=np.int64)
         new_cells = np.empty((n_particles, model.n_labels))
         log_weights = np.empty(n_particles)
-        rbpf_place_children(self._locations, pool, pool_stamps, self._table, self._cell_block, self._cell_slot,
-                            self._powers, self._stamped, t, model.likelihood[z], child_parent, child_location,
-                            kept.indices, kept.weights, ancestors, new_locations, new_cells, log_weights)
+        rbpf_place_children(child_parent, child_location, child_cells, kept.indices, kept.weights, ancestors,
+                            new_locations, new_cells, log_weights)
         self._commit(t, rows, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights), increment,
                      kept.threshold > 0)
 

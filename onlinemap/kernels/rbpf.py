@@ -27,24 +27,35 @@ from numba import njit
 
 
 @njit(cache=True, inline="always")
+def _age(pool_stamps, dynamic, t, r, j):
+    """Steps since slot j of block row r was last brought up to date (0 in a static world)."""
+    return t - pool_stamps[r, j] if dynamic else 0
+
+
+@njit(cache=True, inline="always")
+def _aged_label(pool, powers, d, r, j, b):
+    """P(label b) of slot j of block row r, ``d`` steps after its stamp: ``(row @ C^d)[b]``."""
+    if d == 0:
+        return pool[r, j, b]
+    acc = 0.0
+    for a in range(pool.shape[2]):
+        acc += pool[r, j, a] * powers[d, a, b]
+    return acc
+
+
+@njit(cache=True, inline="always")
 def _label(pool, pool_stamps, powers, dynamic, t, r, j, b):
     """Current P(label b) of slot j of block row r at step t (C^dt applied on the fly)."""
-    if dynamic:
-        d = t - pool_stamps[r, j]
-        if d != 0:
-            acc = 0.0
-            for a in range(pool.shape[2]):
-                acc += pool[r, j, a] * powers[d, a, b]
-            return acc
-    return pool[r, j, b]
+    return _aged_label(pool, powers, _age(pool_stamps, dynamic, t, r, j), r, j, b)
 
 
 @njit(cache=True, inline="always")
 def _evidence(pool, pool_stamps, powers, dynamic, t, r, j, likelihood):
     """``P(z | cell) = sum_b current(b) likelihood[b]`` for slot j of block row r."""
+    d = _age(pool_stamps, dynamic, t, r, j)
     acc = 0.0
     for b in range(likelihood.shape[0]):
-        acc += _label(pool, pool_stamps, powers, dynamic, t, r, j, b) * likelihood[b]
+        acc += _aged_label(pool, powers, d, r, j, b) * likelihood[b]
     return acc
 
 
@@ -52,8 +63,9 @@ def _evidence(pool, pool_stamps, powers, dynamic, t, r, j, likelihood):
 def _observed_cell(pool, pool_stamps, powers, dynamic, t, r, j, likelihood, lam, out):
     """out (K,) <- the posterior of slot j of row r after seeing a label of likelihood ``likelihood``
     (``lam`` = its evidence, from :func:`_evidence`); the prior unchanged where ``lam`` is 0."""
+    d = _age(pool_stamps, dynamic, t, r, j)
     for b in range(likelihood.shape[0]):  # divide (1 / lam overflows for a subnormal lam)
-        current = _label(pool, pool_stamps, powers, dynamic, t, r, j, b)
+        current = _aged_label(pool, powers, d, r, j, b)
         out[b] = current * likelihood[b] / lam if lam > 0.0 else current
 
 
@@ -69,14 +81,15 @@ def _successor(l, n, p_move, s):
 
 @njit(cache=True)
 def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
-                   neighbors, p_move, likelihood, child_parent, child_location, child_log_weight):
+                   neighbors, p_move, likelihood, child_parent, child_location, child_log_weight, child_cells):
     """Every successor of every live particle with its exact log weight; returns their number M.
 
     For parent q at l (``log_weights[q] > -inf``) and each successor j of l with motion probability
     ``T(l, j) > 0`` (:func:`_successor`; ``neighbors = arange(N)`` at step 0: stay only):
-    ``log w_q + log T(l, j) + log P(z | j, map_q)``. Children with probability zero are left out.
-    Writes the first M entries of ``child_parent``, ``child_location``, ``child_log_weight``
-    (each at least 2P long), grouped by parent in increasing order. O(P K^2)."""
+    ``log w_q + log T(l, j) + log P(z | j, map_q)``, and the child's observed cell, the posterior
+    of cell j given z. Children with probability zero are left out. Writes the first M entries of
+    ``child_parent``, ``child_location``, ``child_log_weight`` and ``child_cells`` (M, K) (each at
+    least 2P long), grouped by parent in increasing order. O(P K^2)."""
     m = 0
     for q in range(locations.shape[0]):
         if log_weights[q] == -np.inf:
@@ -87,29 +100,30 @@ def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block,
             j, probability = _successor(l, n, p_move, s)
             if probability <= 0.0:
                 continue
-            lam = _evidence(pool, pool_stamps, powers, dynamic, t, table[q, cell_block[j]], cell_slot[j], likelihood)
+            r = table[q, cell_block[j]]
+            lam = _evidence(pool, pool_stamps, powers, dynamic, t, r, cell_slot[j], likelihood)
             if lam <= 0.0:
                 continue
             child_parent[m] = q
             child_location[m] = j
             child_log_weight[m] = log_weights[q] + math.log(probability) + math.log(lam)
+            _observed_cell(pool, pool_stamps, powers, dynamic, t, r, cell_slot[j], likelihood, lam, child_cells[m])
             m += 1
     return m
 
 
 @njit(cache=True)
-def rbpf_place_children(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, likelihood,
-                        child_parent, child_location, kept, kept_weights, ancestors, new_locations, new_cells,
-                        new_log_weights):
+def rbpf_place_children(child_parent, child_location, child_cells, kept, kept_weights, ancestors, new_locations,
+                        new_cells, new_log_weights):
     """Put the kept children (``kept`` increasing indices into the children, ``kept_weights``
     their weights) into the P particle slots, for :func:`rbpf_commit`. ``ancestors`` (P,) comes
     from :func:`in_place_ancestors` on the kept children per parent: a parent's first child
     takes the parent's slot, its second the next slot handed to that parent. Slots left without
     a child (fewer children than P) get ``new_locations = -1`` (no write) and weight 0.
-    Outputs (P,), (P, K), (P,). O(P K^2)."""
-    n_particles = ancestors.shape[0]
+    Outputs (P,), (P, K), (P,). O(P K)."""
     new_locations[:] = -1
     new_log_weights[:] = -np.inf
+    new_cells[:] = 0.0
     extra = 0  # the slots handed to second children, in increasing order
     previous = -1
     for i in range(kept.shape[0]):
@@ -123,15 +137,9 @@ def rbpf_place_children(locations, pool, pool_stamps, table, cell_block, cell_sl
                 extra += 1
             slot = extra
             extra += 1
-        j = child_location[c]
-        r = table[q, cell_block[j]]
-        lam = _evidence(pool, pool_stamps, powers, dynamic, t, r, cell_slot[j], likelihood)
-        _observed_cell(pool, pool_stamps, powers, dynamic, t, r, cell_slot[j], likelihood, lam, new_cells[slot])
-        new_locations[slot] = j
+        new_locations[slot] = child_location[c]
+        new_cells[slot] = child_cells[c]
         new_log_weights[slot] = math.log(kept_weights[i])
-    for p in range(n_particles):
-        if new_locations[p] < 0:
-            new_cells[p] = 0.0
 
 
 @njit(cache=True)
@@ -298,8 +306,9 @@ def rbpf_map_mixture(pool, pool_stamps, row_block, table, block_members, powers,
             i = members[j]
             if i < 0:
                 continue
+            d = _age(pool_stamps, dynamic, t, r, j)
             for b in range(k):
-                out[i, b] += w * _label(pool, pool_stamps, powers, dynamic, t, r, j, b)
+                out[i, b] += w * _aged_label(pool, powers, d, r, j, b)
 
 
 @njit(cache=True)
