@@ -38,15 +38,17 @@ from .. import arguments
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
-from ..kernels.rbpf import (in_place_ancestors, particle_maps, rbpf_commit, rbpf_map_mixture, rbpf_propose,
-                             rbpf_refresh)
-from ..resampling import RESAMPLERS, effective_sample_size
+from ..kernels.rbpf import (in_place_ancestors, particle_maps, rbpf_commit, rbpf_enumerate, rbpf_map_mixture,
+                             rbpf_place_children, rbpf_propose, rbpf_refresh)
+from ..resampling import RESAMPLERS, effective_sample_size, optimal_resampling
 from ..rng import SeedLike, as_generator
 from ..model import GridModel
 from ..validation import check_step
 from .base import register
 
 PROPOSALS = ("optimal", "transition")
+FEARNHEAD_CLIFFORD = "fearnhead_clifford"
+RESAMPLING = (*RESAMPLERS, FEARNHEAD_CLIFFORD)
 REFRESH_STEPS = 256  # every block row is brought up to date at least this often (lazy dynamics)
 
 
@@ -146,7 +148,7 @@ class RaoBlackwellisedPF:
         error = InvalidOptionError
         n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
         proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
-        resampling = arguments.choice("resampling", resampling, tuple(RESAMPLERS), error)
+        resampling = arguments.choice("resampling", resampling, RESAMPLING, error)
         resample_threshold = arguments.probability("resample_threshold", resample_threshold, error)
         seed = arguments.seed("seed", seed, error)
         lazy_dynamics = arguments.flag("lazy_dynamics", lazy_dynamics, error)
@@ -170,6 +172,9 @@ class RaoBlackwellisedPF:
         self._rng = as_generator(seed)
         self._locations = np.full(n_particles, model.start, dtype=np.int64)
         self._log_weights = np.full(n_particles, -math.log(n_particles))
+        if resampling == FEARNHEAD_CLIFFORD:  # one particle: the others would enumerate the same children
+            self._log_weights[:] = -math.inf
+            self._log_weights[0] = 0.0
         self._weights = np.exp(self._log_weights)  # exp(_log_weights), kept beside them
         self._stamped = not model.is_static and self.lazy_dynamics
         self._cell_block, self._cell_slot, self._block_members = layout
@@ -260,6 +265,9 @@ class RaoBlackwellisedPF:
         model = self.model
         a, z = check_step(model, self._t + 1, action, observation)
         t = self._t + 1
+        if self.resampling == FEARNHEAD_CLIFFORD:
+            self._update_fearnhead_clifford(a, z, t)
+            return
         rng_state = self._rng.bit_generator.state
         n_particles = self.n_particles
         log_weights = self._log_weights
@@ -287,7 +295,46 @@ class RaoBlackwellisedPF:
             self._rng.bit_generator.state = rng_state
             raise ImpossibleObservationError(
                 f"observation {model.label_names[z]!r} has probability zero for every particle at step {t}")
-        # commit
+        self._commit(t, (pool, pool_stamps, row_block, refcount, free, free_top), ancestors, new_locations, new_cells,
+                     log_weights - increment, increment, resample)
+
+    def _update_fearnhead_clifford(self, a: int | None, z: int, t: int) -> None:
+        """Enumerate every live particle's successors with their exact weights
+        (:func:`rbpf_enumerate`), keep P of them by optimal resampling
+        (:func:`~onlinemap.resampling.optimal_resampling`: none twice, unbiased) and write them
+        into the slots. O(P K^2) plus O(P log P) for the resampling's sort."""
+        model = self.model
+        n_particles = self.n_particles
+        pool, pool_stamps, row_block, refcount, free, free_top = rows = self._reserved_rows()
+        if a is not None and not model.is_static and not self.lazy_dynamics:
+            pool = pool @ model.change
+            rows = (pool, *rows[1:])
+        neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
+        child_parent = np.empty(2 * n_particles, dtype=np.int64)
+        child_location = np.empty(2 * n_particles, dtype=np.int64)
+        child_log_weight = np.empty(2 * n_particles)
+        child_cells = np.empty((2 * n_particles, model.n_labels))
+        m = rbpf_enumerate(self._locations, self._log_weights, pool, pool_stamps, self._table, self._cell_block,
+                           self._cell_slot, self._powers, self._stamped, t, neighbors, model.p_move,
+                           model.likelihood[z], child_parent, child_location, child_log_weight, child_cells)
+        if m == 0:
+            raise ImpossibleObservationError(
+                f"observation {model.label_names[z]!r} has probability zero for every particle at step {t}")
+        increment = _logsumexp(child_log_weight[:m])
+        kept = optimal_resampling(np.exp(child_log_weight[:m] - increment), n_particles, self._rng)
+        ancestors = in_place_ancestors(np.bincount(child_parent[kept.indices], minlength=n_particles))
+        new_locations = np.empty(n_particles, dtype=np.int64)
+        new_cells = np.empty((n_particles, model.n_labels))
+        log_weights = np.empty(n_particles)
+        rbpf_place_children(child_parent, child_location, child_cells, kept.indices, kept.weights, ancestors,
+                            new_locations, new_cells, log_weights)
+        self._commit(t, rows, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights), increment,
+                     kept.threshold > 0)
+
+    def _commit(self, t, rows, ancestors, new_locations, new_cells, log_weights, increment, resampled) -> None:
+        """Write a validated step: the particles' slots (:func:`rbpf_commit`), the block pool
+        ``rows`` (possibly grown), the normalised ``log_weights`` and the evidence ``increment``."""
+        pool, pool_stamps, row_block, refcount, free, free_top = rows
         rbpf_commit(self._locations, pool, pool_stamps, row_block, refcount, free, free_top, self._table,
                     self._cell_block, self._cell_slot, self._stamped, self._powers, REFRESH_STEPS, t, ancestors,
                     new_locations, new_cells)
@@ -297,11 +344,11 @@ class RaoBlackwellisedPF:
             count = -(-len(pool) // REFRESH_STEPS)
             rbpf_refresh(pool, pool_stamps, refcount, self._powers, t, self._refresh_cursor, count)
             self._refresh_cursor = (self._refresh_cursor + count) % len(pool)
-        self._log_weights = log_weights - increment
+        self._log_weights = log_weights
         self._log_evidence += increment
         self._weights = np.exp(self._log_weights)
-        self._ess = min(float(n_particles), effective_sample_size(self._weights))  # rounding: <= P
-        self._resampled = resample
+        self._ess = min(float(self.n_particles), effective_sample_size(self._weights))  # rounding: <= P
+        self._resampled = resampled
         self._t = t
         self._belief = None
 
