@@ -253,19 +253,6 @@ def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot,
 
 
 # --- the planner ------------------------------------------------------------------------------
-def opposite_actions(model: GridModel) -> np.ndarray:
-    """(A,) for each action the one that undoes a successful move (north <-> south, east <-> west,
-    left <-> right); itself if none does."""
-    cells = np.arange(model.n_cells)
-    opposite = np.arange(model.n_actions)
-    for a in range(model.n_actions):
-        moved = np.flatnonzero(model.neighbors[:, a] != cells)
-        for b in range(model.n_actions):
-            if len(moved) and np.array_equal(model.neighbors[model.neighbors[moved, a], b], moved):
-                opposite[a] = b
-    return opposite
-
-
 class MacroScore(NamedTuple):
     """The scores of one plan. C candidate sequences, H their common length."""
 
@@ -295,13 +282,11 @@ class InfoGainExplorer:
 
     def __init__(self, model: GridModel, seed: SeedLike = None, *, hypotheses: int | None = 12,
                  rollout_particles: int | None = 64, press_lengths=None, step_cost: float = 0.1,
-                 location_weight: float = 1.0, commit: int = 4, gamma: float = 0.95, return_tail: int = 0):
+                 location_weight: float = 1.0, commit: int = 4, gamma: float = 0.95):
         if hypotheses is not None and (isinstance(hypotheses, bool) or int(hypotheses) < 1):
             raise ModelError(f"hypotheses must be a positive integer or None, got {hypotheses!r}")
         if rollout_particles is not None and (isinstance(rollout_particles, bool) or int(rollout_particles) < 1):
             raise ModelError(f"rollout_particles must be a positive integer or None, got {rollout_particles!r}")
-        if int(return_tail) < 0:
-            raise ModelError(f"return_tail must be >= 0, got {return_tail!r}")
         if int(commit) < 1:
             raise ModelError(f"commit must be at least 1, got {commit!r}")
         if not 0.0 <= float(gamma) < 1.0:
@@ -322,14 +307,12 @@ class InfoGainExplorer:
         self.location_weight = float(location_weight)
         self.commit = int(commit)
         self.gamma = float(gamma)
-        self.return_tail = int(return_tail)
-        self._opposite = opposite_actions(model)
         self.rng = as_generator(seed)
         self.estimator: Estimator | None = None
         self.last_plan: MacroScore | None = None
         self._queue: list[int] = []
         self._pi: PolicyIterationResult | None = None
-        self._tables = rollout_tables(model, 2 * int(press_lengths[-1]) + self.return_tail)
+        self._tables = rollout_tables(model, int(press_lengths[-1]))
 
     def bind(self, estimator: Estimator) -> None:
         """Plan on copies of ``estimator`` (the live filter of the exploration loop)."""
@@ -372,32 +355,23 @@ class InfoGainExplorer:
         (ties: the shorter, then the earlier candidate). Never changes the live estimator."""
         est = self.estimator
         names, sequences = self.candidates(belief)
+        horizon = sequences.shape[1]
         lengths = self.press_lengths
-        rollouts, ends = sequences, lengths
-        if self.return_tail:  # each (candidate, length): k steps, then press back until the horizon
-            horizon = sequences.shape[1] + self.return_tail
-            rollouts = np.stack([np.concatenate([s[:k], np.full(horizon - k, self._opposite[s[k - 1]])])
-                                 for s in sequences for k in lengths])
-            ends = lengths + self.return_tail
-        checkpoints = np.zeros(rollouts.shape[1] + 1, dtype=np.bool_)
+        checkpoints = np.zeros(horizon + 1, dtype=np.bool_)
         checkpoints[0] = True
-        checkpoints[ends] = True
+        checkpoints[lengths] = True
         if est.name == "rbpf" and self.hypotheses is not None:
             snapshot = particle_snapshot(est)
             weights = np.exp(snapshot.log_weights)
             chosen = self.rng.choice(len(weights), size=self.hypotheses, p=weights / weights.sum())
             worlds = (snapshot.locations[chosen], _draw_labels(snapshot.maps[chosen], self.rng))
             particles = thin(snapshot, self.rollout_particles, self.rng)
-            expected = particle_expected_uncertainty(self.model, particles, rollouts, checkpoints, worlds,
+            expected = particle_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
                                                      self.rng, self.location_weight, self._tables)
         else:
             expected = np.stack([expected_uncertainty(est, s, hypotheses=self.hypotheses, seed=self.rng,
-                                                      location_weight=self.location_weight) for s in rollouts])
-        if self.return_tail:
-            expected = expected.reshape(len(names), len(lengths), -1)
-            gain = expected[:, :, 0] - expected[:, np.arange(len(lengths)), ends]
-        else:
-            gain = expected[:, :1] - expected[:, lengths]
+                                                      location_weight=self.location_weight) for s in sequences])
+        gain = expected[:, :1] - expected[:, lengths]
         utility = gain - self.step_cost * lengths[None, :]
         best = np.flatnonzero(utility.T.ravel() == utility.max())[0]  # length-major: shorter first
         j, c = divmod(int(best), len(names))
