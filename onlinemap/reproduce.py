@@ -20,8 +20,8 @@ import numpy as np
 import pandas as pd
 from .progress import tqdm
 
-from . import metrics
-from .estimators import Trajectory, make_estimator, run_estimator
+from .estimators import Trajectory
+from .evaluate import ASTRAY_BELOW, LOST_BELOW, run_metrics, timed_trajectory, way_back  # noqa: F401 (re-exported)
 from .scenarios import one_slip_corridor
 from .rng import SeedLike, as_generator
 from .simulate import Run
@@ -41,45 +41,22 @@ CORRIDOR_ESTIMATORS: list[tuple[str, str, dict]] = [
     ("rbpf P=100", "rbpf", {"n_particles": 100, "seed": 0}),
 ]
 
-LOST_BELOW = 0.5  # a robot whose P(true location) is below this is "lost"
-ASTRAY_BELOW = 0.05  # ... and below this, confidently in the wrong place ("astray")
 STUDY_OUTCOMES = ("astray_way_back", "ends_lost", "wrong_map", "ends_lost_or_wrong_map")
-
-
-def way_back(run: Run) -> np.ndarray:
-    """(T,) True at the steps after the robot turned (after its first action that differs
-    from the first action); all False if it never turns."""
-    turns = np.flatnonzero(run.actions != run.actions[0])
-    mask = np.zeros(run.n_steps, dtype=bool)
-    if len(turns):
-        mask[turns[0] + 1:] = True
-    return mask
+#: the corridor table's columns (from :func:`onlinemap.evaluate.run_metrics`, plus final_p_true)
+CORRIDOR_COLUMNS = ("final_map_error", "wrong_cells", "min_p_true_way_back", "final_p_true", "astray_way_back",
+                    "ends_lost", "ms_per_step")
 
 
 def corridor_scores(run: Run, trajectory: Trajectory) -> dict[str, float]:
-    """How one estimator did on one run (a static world).
-
-    final_map_error: mean over all cells of 1 - P(true label) at the end; wrong_visited: visited
-    cells whose most likely label is wrong at the end; min_p_true_way_back / final_p_true:
-    P(true location) at its lowest after the turn / at the last step; lost_way_back /
-    ends_lost: those below :data:`LOST_BELOW`; astray_way_back: the lowest below
-    :data:`ASTRAY_BELOW` (an uncertain Bayesian robot is often "lost" at 0.5 on the way back, a
-    robot with a wrong map is confidently wrong).
+    """How one estimator did on one run (a static world): the :data:`CORRIDOR_COLUMNS` of
+    :func:`onlinemap.evaluate.run_metrics` (final map error; ``wrong_cells``: visited cells whose
+    most likely final label is wrong; the lowest P(true location) after the turn and whether it
+    fell below :data:`~onlinemap.evaluate.ASTRAY_BELOW`; ``ends_lost``: final P(true location)
+    below :data:`~onlinemap.evaluate.LOST_BELOW`) and ``final_p_true``, P(true location) at the end.
     """
-    p_true = trajectory.location[np.arange(run.n_steps), run.locations]
-    back = way_back(run)
-    visited = np.unique(run.locations)
-    lowest_back = float(p_true[back].min()) if back.any() else math.nan
-    return {
-        "final_map_error": float(metrics.map_error(trajectory.map[-1], run.final_map)),
-        "wrong_visited": metrics.wrong_cells(trajectory.map[-1], run.final_map, visited),
-        "min_p_true_way_back": lowest_back,
-        "final_p_true": float(p_true[-1]),
-        "lost_way_back": bool(lowest_back < LOST_BELOW),
-        "astray_way_back": bool(lowest_back < ASTRAY_BELOW),
-        "ends_lost": bool(p_true[-1] < LOST_BELOW),
-        "ms_per_step": 1e3 * trajectory.seconds_per_step,
-    }
+    row = run_metrics(run, trajectory)
+    row["final_p_true"] = 1.0 - row["final_location_error"]
+    return {name: row.get(name, math.nan) for name in CORRIDOR_COLUMNS}
 
 
 def corridor_table(run: Run, estimators=None, progress: bool = True) -> tuple[pd.DataFrame, dict[str, Trajectory]]:
@@ -89,7 +66,7 @@ def corridor_table(run: Run, estimators=None, progress: bool = True) -> tuple[pd
     rows, trajectories = [], {}
     for label, name, options in tqdm(estimators or CORRIDOR_ESTIMATORS, desc="estimators",
                                      disable=not progress, leave=False):
-        trajectory = run_estimator(make_estimator(name, run.model, **options), run.actions, run.observations)
+        trajectory = timed_trajectory(name, run.model, options, run)
         trajectories[label] = trajectory
         rows.append({"estimator": label, **corridor_scores(run, trajectory)})
     return pd.DataFrame(rows), trajectories
@@ -135,7 +112,7 @@ def random_corridor_study(n_runs: int, seed: SeedLike = 0, estimators=None, conf
         table.insert(2, "slip", draw.slip)
         frames.append(table)
     per_run = pd.concat(frames, ignore_index=True)
-    per_run["wrong_map"] = per_run["wrong_visited"] > 0
+    per_run["wrong_map"] = per_run["wrong_cells"] > 0
     per_run["ends_lost_or_wrong_map"] = per_run["ends_lost"] | per_run["wrong_map"]
     grouped = per_run.groupby("estimator", sort=False)
     summary = pd.DataFrame({"runs": grouped.size()})

@@ -8,7 +8,7 @@
 
 from .info_gain import (InfoGainExplorer, MacroScore, expected_information_gain, expected_uncertainty,
                         information_reward, uncertainty)
-from .explore import COLUMNS, compare_planners, door_cells, explore, explore_env, summarize
+from .explore import COLUMNS, Exploration, compare_planners, door_cells, explore, exploration, explore_env, summarize
 from .mdp import (PolicyIterationResult, action_values, evaluate_policy, policy_iteration,
                   policy_motion)
 from .planners import PLANNERS, EntropyExplorer, Planner, RandomWalk, Sweep, make_planner, sweep_actions
@@ -22,6 +22,6 @@ __all__ = [
     "Planner", "EntropyExplorer", "RandomWalk", "Sweep", "make_planner", "sweep_actions", "PLANNERS",
     "InfoGainExplorer", "MacroScore", "expected_information_gain", "expected_uncertainty",
     "information_reward", "uncertainty",
-    "explore", "explore_env", "door_cells", "COLUMNS", "exploration_world", "floor_plan_prior",
+    "explore", "exploration", "Exploration", "explore_env", "door_cells", "COLUMNS", "exploration_world", "floor_plan_prior",
     "with_floor_plan", "compare_planners", "summarize", "plot_errors", "plot_visits",
 ]
