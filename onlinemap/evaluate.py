@@ -45,8 +45,19 @@ RUN_METRICS = ("final_map_error", "mean_map_error", "final_location_error", "mea
                "astray_way_back", "final_log_evidence", "final_location_tv", "mean_location_tv", "final_map_tv",
                "mean_map_tv", "final_map_entropy", "final_location_entropy", "final_door_error",
                "mean_door_error", "late_door_error", "ms_per_step")
+UNIT_METRICS = ("error", "_tv", "entropy", "p_true")  # names containing these lie in [0, 1]
 #: a footnote for printed tables: what ``ms_per_step`` includes
 TIMING_NOTE = "ms_per_step: wall time per step, measured after a warm-up run (numba kernels compiled first)"
+
+
+def metric_bounds(name: str) -> tuple[float, float]:
+    """The range of a metric: [0, 1] for errors, distances, entropies and probabilities, [0, inf)
+    for counts and times, unbounded otherwise (log evidence)."""
+    if any(part in name for part in UNIT_METRICS):
+        return 0.0, 1.0
+    if name in ("wrong_cells", "ms_per_step"):
+        return 0.0, math.inf
+    return -math.inf, math.inf
 
 
 def way_back(run: Run) -> np.ndarray:
@@ -81,10 +92,10 @@ def step_metrics(run: Run, trajectory: Trajectory, reference: Trajectory | None 
 
 
 def run_metrics(run: Run, trajectory: Trajectory, reference: Trajectory | None = None,
-                steps: pd.DataFrame | None = None) -> dict[str, float | int | bool]:
+                steps: pd.DataFrame | None = None, *, trip: bool = False) -> dict[str, float | int | bool]:
     """The per-run metrics (module docstring) of ``trajectory`` on ``run``, in
-    :data:`RUN_METRICS` order (those that apply). ``steps``: its :func:`step_metrics`, if
-    already computed."""
+    :data:`RUN_METRICS` order (those that apply; the way-back ones only for a there-and-back
+    ``trip``). ``steps``: its :func:`step_metrics`, if already computed."""
     steps = step_metrics(run, trajectory, reference) if steps is None else steps
     final, location_error = steps.iloc[-1], steps["location_error"].to_numpy()
     visited = np.unique(run.locations)
@@ -95,7 +106,7 @@ def run_metrics(run: Run, trajectory: Trajectory, reference: Trajectory | None =
         "final_location_error": float(location_error[-1]), "mean_location_error": float(location_error.mean()),
         "max_location_error": float(location_error.max()), "wrong_cells": wrong, "ends_lost": ends_lost,
         "failed": ends_lost or wrong > 0}
-    back = way_back(run)
+    back = way_back(run) if trip else np.zeros(run.n_steps, dtype=bool)
     if back.any():
         lowest = float(1.0 - location_error[back].max())
         row.update(min_p_true_way_back=lowest, astray_way_back=bool(lowest < ASTRAY_BELOW))

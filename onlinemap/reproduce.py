@@ -54,7 +54,7 @@ def corridor_scores(run: Run, trajectory: Trajectory) -> dict[str, float]:
     fell below :data:`~onlinemap.evaluate.ASTRAY_BELOW`; ``ends_lost``: final P(true location)
     below :data:`~onlinemap.evaluate.LOST_BELOW`) and ``final_p_true``, P(true location) at the end.
     """
-    row = run_metrics(run, trajectory)
+    row = run_metrics(run, trajectory, trip=True)
     row["final_p_true"] = 1.0 - row["final_location_error"]
     return {name: row.get(name, math.nan) for name in CORRIDOR_COLUMNS}
 
