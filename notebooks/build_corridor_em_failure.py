@@ -79,7 +79,7 @@ Is this the window or the decay? The table runs every window (1, 2, 4, 8, all) a
 (0.8, 0.9, 0.95, 1.0): every online EM row ends with wrong cells on the visited part and a
 probability of the true location far below 0.5 at some point on the way back, while exact
 Bayes ends with every visited cell right."""),
-    ("code", """table[["estimator", "wrong_cells", "min_p_true_way_back", "final_p_true", "final_map_error"]]"""),
+    ("code", """table[["estimator", "wrong_visited", "min_p_true_way_back", "final_p_true", "final_map_error"]]"""),
     ("md", """## Offline EM: the same model, with hindsight
 
 Offline EM (Baum-Welch) fits `B` to the whole run at once, iterating E- and M-steps to

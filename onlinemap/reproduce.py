@@ -43,13 +43,13 @@ CORRIDOR_ESTIMATORS: list[tuple[str, str, dict]] = [
 
 STUDY_OUTCOMES = ("astray_way_back", "ends_lost", "wrong_map", "ends_lost_or_wrong_map")
 #: the corridor table's columns (from :func:`onlinemap.evaluate.run_metrics`, plus final_p_true)
-CORRIDOR_COLUMNS = ("final_map_error", "wrong_cells", "min_p_true_way_back", "final_p_true", "astray_way_back",
+CORRIDOR_COLUMNS = ("final_map_error", "wrong_visited", "min_p_true_way_back", "final_p_true", "astray_way_back",
                     "ends_lost", "ms_per_step")
 
 
 def corridor_scores(run: Run, trajectory: Trajectory) -> dict[str, float]:
     """How one estimator did on one run (a static world): the :data:`CORRIDOR_COLUMNS` of
-    :func:`onlinemap.evaluate.run_metrics` (final map error; ``wrong_cells``: visited cells whose
+    :func:`onlinemap.evaluate.run_metrics` (final map error; ``wrong_visited``: visited cells whose
     most likely final label is wrong; the lowest P(true location) after the turn and whether it
     fell below :data:`~onlinemap.evaluate.ASTRAY_BELOW`; ``ends_lost``: final P(true location)
     below :data:`~onlinemap.evaluate.LOST_BELOW`) and ``final_p_true``, P(true location) at the end.
@@ -112,7 +112,7 @@ def random_corridor_study(n_runs: int, seed: SeedLike = 0, estimators=None, conf
         table.insert(2, "slip", draw.slip)
         frames.append(table)
     per_run = pd.concat(frames, ignore_index=True)
-    per_run["wrong_map"] = per_run["wrong_cells"] > 0
+    per_run["wrong_map"] = per_run["wrong_visited"] > 0
     per_run["ends_lost_or_wrong_map"] = per_run["ends_lost"] | per_run["wrong_map"]
     grouped = per_run.groupby("estimator", sort=False)
     summary = pd.DataFrame({"runs": grouped.size()})

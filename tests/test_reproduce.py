@@ -62,9 +62,9 @@ def test_corridor_table_scores_match_a_direct_computation():
     row = table.set_index("estimator").loc["exact"]
     assert row["final_p_true"] == pytest.approx(p_true[-1])
     assert row["min_p_true_way_back"] == pytest.approx(p_true[8:].min())
-    assert row["wrong_cells"] == 0 and not row["ends_lost"]
+    assert row["wrong_visited"] == 0 and not row["ends_lost"]
     em = table.set_index("estimator").loc["online_em W=max decay=1.0"]
-    assert em["wrong_cells"] >= 1 and em["astray_way_back"]
+    assert em["wrong_visited"] >= 1 and em["astray_way_back"]
 
 
 def test_random_corridors_are_seeded_and_follow_their_slip():

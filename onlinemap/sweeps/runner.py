@@ -107,7 +107,7 @@ def run_task(task: Task) -> pd.DataFrame:
                 reference_trajectory(task.world, task.steps, task.walk, task.seed, task.reference)
     steps = step_metrics(run, trajectory, reference)
     if task.per_step:
-        frame = steps[["t", *(c for c in STEP_METRICS if c in steps)]].assign(
+        frame = steps[["t", "true_location", *(c for c in STEP_METRICS if c in steps)]].assign(
             ms_per_step=1e3 * trajectory.seconds_per_step)
     else:
         row = run_metrics(run, trajectory, reference, steps, trip=task.walk != "random")
