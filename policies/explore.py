@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from onlinemap.errors import ModelError
 from onlinemap.estimators import Estimator, Trajectory, estimator_options, make_estimator
-from onlinemap.evaluate import step_metrics
+from onlinemap.evaluate import from_steps, step_metrics
 from onlinemap.model import GridModel, door_cells
 from onlinemap.rng import SeedLike
 from onlinemap.simulate import Run, world_step
@@ -204,22 +204,18 @@ def compare_planners(model: GridModel, true_map, planners=("entropy", "random", 
 
 
 def summarize(table: pd.DataFrame, model: GridModel, true_map) -> pd.DataFrame:
-    """One row per planner from a :func:`compare_planners` table, averaged over seeds:
-    final map error, mean door error over the last two thirds of the run (after the first
-    visits), mean location error, share of steps spent on door cells, distinct cells visited,
-    and milliseconds per step (estimator + planner)."""
+    """One row per planner from a :func:`compare_planners` table, averaged over seeds: the
+    per-run metrics of :func:`onlinemap.evaluate.from_steps` (final map error, mean door error
+    over the last two thirds of the run, mean location error), the share of steps spent on door
+    cells, distinct cells visited, and milliseconds per step (estimator + planner)."""
     doors = door_cells(model, true_map)
-    rows = []
-    for (planner, seed), run in table.groupby(["planner", "seed"], sort=False):
-        late = run["t"] >= run["t"].max() / 3
-        rows.append({"planner": planner, "seed": seed,
-                     "final_map_error": run["map_error"].iloc[-1],
-                     "late_door_error": run.loc[late, "door_error"].mean(),
-                     "mean_location_error": run["location_error"].mean(),
-                     "time_at_doors": np.isin(run["true_location"], doors).mean(),
-                     "cells_visited": run["true_location"].nunique(),
-                     "ms_per_step": 1e3 * run["seconds_per_step"].iloc[0]})
-    per_run = pd.DataFrame(rows)
-    summary = per_run.drop(columns="seed").groupby("planner", sort=False).mean().reset_index()
+    table = table.assign(ms_per_step=1e3 * table["seconds_per_step"])
+    per_run = from_steps(table, ["planner", "seed"])
+    visits = table.groupby(["planner", "seed"], sort=False)["true_location"]
+    per_run["time_at_doors"] = visits.apply(lambda cells: np.isin(cells, doors).mean()).to_numpy()
+    per_run["cells_visited"] = visits.nunique().to_numpy()
+    columns = ["planner", "final_map_error", "late_door_error", "mean_location_error", "time_at_doors",
+               "cells_visited", "ms_per_step"]
+    summary = per_run[[c for c in columns if c in per_run]].groupby("planner", sort=False).mean().reset_index()
     summary.insert(1, "runs", per_run.groupby("planner", sort=False).size().to_numpy())
     return summary
