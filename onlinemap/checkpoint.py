@@ -62,7 +62,7 @@ import numpy as np
 
 from .belief import Belief
 from .errors import CheckpointError, OnlineMapError
-from .model import DEFINING_FIELDS, GridModel, model_difference
+from .model import DEFINING_FIELDS, OPTIONAL_FIELDS, GridModel, model_difference
 
 FORMAT = "onlinemap-checkpoint"
 FORMAT_VERSION = 1  # bump when the file layout or an estimator's state changes incompatibly
@@ -242,7 +242,8 @@ def _generator(state: dict) -> np.random.Generator:
 
 def decode_model(node) -> GridModel:
     """Rebuild a :class:`GridModel` from :func:`encode_model`'s tree (validated by its constructor)."""
-    if type(node) is not dict or node.get(_TAG) != "model" or set(node.get("fields", ())) != set(DEFINING_FIELDS):
+    names = set(node.get("fields", ())) if type(node) is dict else set()
+    if type(node) is not dict or node.get(_TAG) != "model" or not set(DEFINING_FIELDS) - set(OPTIONAL_FIELDS) <= names <= set(DEFINING_FIELDS):
         raise CheckpointError("the checkpoint's model entry is malformed")
     fields = {name: _Decoder().decode(value, name) for name, value in node["fields"].items()}
     try:
