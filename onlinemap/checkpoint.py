@@ -564,10 +564,11 @@ def read(path: str | os.PathLike) -> dict:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO must not block
     except OSError as error:
         raise CheckpointError(f"cannot open checkpoint {path}: {error.strerror or error}") from None
+    info = os.fstat(fd)
+    if not stat.S_ISREG(info.st_mode):
+        os.close(fd)
+        raise CheckpointError(f"{path} is not a regular file; refused")
     with os.fdopen(fd, "rb") as file:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            raise CheckpointError(f"{path} is not a regular file; refused")
         if file.read(4) != _ZIP_MAGIC:
             raise CheckpointError(f"{path} is not an onlinemap checkpoint (not an npz file)")
         file.seek(0)

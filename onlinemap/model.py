@@ -317,7 +317,7 @@ def grid_model(rows: int, cols: int, n_labels: int = 2, *, p_obs: float = 0.9, p
         label_names = tuple(str(k) for k in range(n_labels))
     return GridModel(rows=rows, cols=cols, neighbors=neighbors, p_move=p_move, change=change,
                      sensor=sensor, label_prior=label_prior, start=start,
-                     action_names=action_names, label_names=tuple(label_names))
+                     action_names=action_names, label_names=label_names)
 
 
 def corridor(n_cells: int, n_labels: int = 2, p_obs: float = 0.9, p_move: float = 0.8,
