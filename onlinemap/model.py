@@ -176,6 +176,8 @@ def _stochastic(name: str, matrix, shape: tuple[int, ...]) -> np.ndarray:
 
 def symmetric_channel(n_labels: int, p_same: float) -> np.ndarray:
     """(K, K) matrix with ``p_same`` on the diagonal and ``(1 - p_same) / (K - 1)`` elsewhere."""
+    n_labels = arguments.integer("n_labels", n_labels, minimum=2, maximum=arguments.MAX_LABELS)
+    p_same = _probability("p_same", p_same)
     off = (1.0 - p_same) / (n_labels - 1)
     return np.full((n_labels, n_labels), off) + np.eye(n_labels) * (p_same - off)
 
