@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from .. import metrics
 from ..arrays import DEFAULT_MAX_BYTES
@@ -16,6 +16,9 @@ from ..progress import show_progress, tqdm
 from ..rng import ESTIMATOR_STREAM, derived_seed
 from .common import (OPTION_HELP, add_out_argument, check_table_format, name_list,
                      non_negative_int, parse_options, positive_int, print_table, world, write_tables)
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +75,8 @@ def compare_on_run(run, names: list[str], options: dict[str, dict] | None = None
     Estimators that would exceed their memory limit are skipped (logged as a warning).
     Cost: T steps of each estimator; memory O(T N K) per estimator.
     """
+    import pandas as pd  # here, so that `onlinemap run --help` does not load it
+
     options = options or {}
     rows, steps, times = [], [], {}
     for name in tqdm(names, desc="estimators", disable=not show_progress(progress), leave=False):
