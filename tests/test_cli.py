@@ -55,6 +55,7 @@ BAD_RUNS = [
     (["--estimators", "rbpf", "-o", "bk.n_particles=10"], "bk"),
     (["-o", "novalue"], "KEY=VALUE"),
     (["--world", "corridor:100000", "--steps", "100000"], "GiB"),
+    (["--world", "corridor:1000000000"], "at most"),
     (["--out", "table.csv"], "directory"),
     (["--no-such-flag"], "--no-such-flag"),
 ]

@@ -10,7 +10,7 @@ import numpy as np
 
 from .. import metrics
 from ..arrays import DEFAULT_MAX_BYTES
-from ..errors import MemoryLimitError, OnlineMapError, UnknownEstimatorError
+from ..errors import MemoryLimitError, UnknownEstimatorError
 from ..estimators import available_estimators, estimator_options, make_estimator, run_estimator
 from ..progress import show_progress, tqdm
 from ..rng import ESTIMATOR_STREAM, derived_seed
@@ -88,10 +88,6 @@ def compare_on_run(run, names: list[str], options: dict[str, dict] | None = None
         except MemoryLimitError as error:
             log.warning("%s: skipped: %s", name, error)
             continue
-        except OnlineMapError:
-            raise
-        except (TypeError, ValueError) as error:  # until every estimator raises its own OnlineMapError
-            raise OnlineMapError(f"{name}: invalid options {chosen}: {error}") from None
         trajectory = run_estimator(estimator, run.actions, run.observations)
         map_err = metrics.map_error(trajectory.map, run.maps)
         loc_err = metrics.location_error(trajectory.location, run.locations)
