@@ -67,6 +67,12 @@ def test_run_refuses_bad_input_in_one_line(args, word):
     assert_one_line_error(code, err, word)
 
 
+def test_run_where_no_estimator_fits_is_refused_not_an_empty_table(caplog):
+    code, out, err = cli(["run", "--world", "door", "--estimators", "exact", "--steps", "3"])
+    assert code == 2 and "exact: skipped" in caplog.text
+    assert err.strip().splitlines()[-1].startswith("onlinemap: error: none of exact fits in memory")
+
+
 def test_bench_refuses_an_unknown_benchmark_in_one_line():
     code, _, err = cli(["bench", "nope"])
     assert_one_line_error(code, err, "nope", "available")

@@ -91,6 +91,9 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except OnlineMapError as error:
         return fail(error)
+    except BrokenPipeError:  # the reader went away (`onlinemap run | head`): stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
     except (ValueError, TypeError, ArithmeticError, OSError) as error:
         # Bad input that the library has not named yet (a float() of a bad world option, a file
         # that is not UTF-8, ...): still one line; ONLINEMAP_DEBUG=1 shows the traceback.
@@ -98,8 +101,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         return fail(f"{type(error).__name__}: {error} (set {DEBUG_ENV}=1 for the traceback)")
     except MemoryError as error:  # a size too large for this machine, found by numpy
-        return fail(f"out of memory ({error or 'allocation failed'}); try a smaller world or fewer steps",
-)
+        return fail(f"out of memory ({error or 'allocation failed'}); try a smaller world or fewer steps")
     except KeyboardInterrupt:
         print("onlinemap: interrupted", file=sys.stderr)
         return 130

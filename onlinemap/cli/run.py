@@ -118,9 +118,11 @@ def run(args: argparse.Namespace) -> int:
     sim = spec.simulate(args.steps, args.seed)
     print(f"world {spec.spec}: {spec.model}; {sim.n_steps} steps, {int(sim.slipped.sum())} slips, seed {args.seed}")
     summary, per_step = compare_on_run(sim, args.estimators, options, seed=args.seed)
-    if len(summary):
-        print_table(summary)
-        print("ms per step: " + ", ".join(f"{name} {ms:.3g}" for name, ms in summary.attrs["ms_per_step"].items()))
+    if not len(summary):
+        raise MemoryLimitError(f"none of {', '.join(args.estimators)} fits in memory on {spec.spec} (see the "
+                               "warnings above); use an approximate estimator (bk, rbpf)")
+    print_table(summary)
+    print("ms per step: " + ", ".join(f"{name} {ms:.3g}" for name, ms in summary.attrs["ms_per_step"].items()))
     if args.out is not None:
         write_tables({"summary": summary, "steps": per_step}, args.out, args.format)
     return 0
