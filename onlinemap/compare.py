@@ -61,7 +61,7 @@ def accuracy_study(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_s
         exact = run_estimator(make_estimator("exact", world.model), run.actions, run.observations)
         for label, name, options in [("exact", "exact", {})] + entries:
             if name == "rbpf":
-                options = {**options, "seed": [seed, r]}
+                options = {**options, "seed": np.random.default_rng([seed, r])}  # as seed=[seed, r] did
             trajectory = exact if name == "exact" else run_estimator(
                 make_estimator(name, world.model, **options), run.actions, run.observations)
             frames.append(pd.DataFrame({
