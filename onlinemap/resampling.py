@@ -118,24 +118,54 @@ class Kept(NamedTuple):
 
 
 @njit(cache=True)
-def _optimal_threshold(w, n):
-    """(c, n_large) for M > n positive weights ``w`` summing to 1: c solves
-    ``sum_i min(1, w_i / c) = n``, and exactly ``n_large < n`` weights are >= c. Sorts: O(M log M).
-    Keeping the k largest, c_k = (sum of the rest) / (n - k); the first k with the (k+1)-th largest
-    below c_k is the solution (the k-th largest is then >= c_k)."""
-    ordered = np.sort(w)[::-1]
-    tail = ordered.sum()
+def _sorted_threshold(w, n):
+    """(c, n_large) by sorting, O(M log M): keeping the k largest, c_k = (sum of the rest) / (n - k);
+    the first k with the (k+1)-th largest below c_k is the solution (the k-th is then >= c_k)."""
+    ascending = np.sort(w)
+    below = np.cumsum(ascending)  # below[i] = sum of the i + 1 smallest: tails without cancellation
+    m = w.shape[0]
     for k in range(n):
-        c = tail / (n - k)
-        if ordered[k] < c:
+        c = below[m - 1 - k] / (n - k)
+        if ascending[m - 1 - k] < c:
             return c, k
-        tail -= ordered[k]
-    return ordered[n - 1], n  # not reached for M > n positive weights
+    return ascending[m - n], n  # not reached for M > n positive weights
 
 
 @njit(cache=True)
-def _optimal_keep(w, n, uniform):
-    """Kernel of :func:`optimal_resampling` on normalised weights; returns (indices, weights, c)."""
+def _optimal_threshold(w, n, max_rounds=8):
+    """(c, n_large) for M > n positive weights ``w`` summing to 1: c solves
+    ``sum_i min(1, w_i / c) = n``, and exactly ``n_large < n`` weights are >= c.
+
+    Fixed point, O(M) a round: from c = 1/n, c <- (sum of the w < c) / (n - #{w >= c}) until no
+    weight crosses c. With f(c) = sum min(1, w / c) decreasing and c >= c* (f(c) <= n), the
+    update stays >= c* (the weights set aside are all >= c*) and is <= c (f(c) <= n), so c
+    decreases to c*, adding weights to the large set each round; once none is added, c solves the
+    equation. Rarely more than 3 rounds; after ``max_rounds`` it sorts instead (O(M log M))."""
+    c = 1.0 / n
+    n_large = -1
+    for _ in range(max_rounds):
+        count = 0
+        rest = 0.0
+        for i in range(w.shape[0]):
+            if w[i] >= c:
+                count += 1
+            else:
+                rest += w[i]
+        if count == n_large or count >= n:
+            break
+        n_large = count
+        c = rest / (n - count)
+    else:
+        return _sorted_threshold(w, n)
+    if count >= n:  # rounding pushed c below c*: sort
+        return _sorted_threshold(w, n)
+    return c, n_large
+
+
+@njit(cache=True)
+def optimal_keep(w, n, uniform):
+    """Kernel of :func:`optimal_resampling` for callers whose weights are already valid: ``w`` (M,)
+    non-negative, summing to 1, ``n >= 1``, ``uniform`` in [0, 1). Returns (indices, weights, c)."""
     m = w.shape[0]
     positive = 0
     for i in range(m):
@@ -184,12 +214,13 @@ def optimal_resampling(weights, n: int, rng: np.random.Generator) -> Kept:
     ``sum_i min(1, w_i / c) = n``, keep every child with ``w_i >= c`` with its weight, and draw
     the others by stratified sampling (one uniform) with weight c. Each child's expected new
     weight is its old one (unbiased: ``P(kept) = w_i / c`` for ``w_i < c``), and the new weights
-    sum to the old total. One uniform; O(M log M) (a sort, only when M > n)."""
+    sum to the old total. One uniform; O(M) (a few passes to find c; a sort, O(M log M), in the
+    rare case they do not settle)."""
     w = _normalised(weights)
     if isinstance(n, bool) or int(n) != n or n < 1:
         raise ValueError(f"n must be a positive integer, got {n!r}")
     total = float(np.sum(np.asarray(weights, dtype=np.float64)))
-    indices, kept, c = _optimal_keep(w, int(n), rng.random())
+    indices, kept, c = optimal_keep(w, int(n), rng.random())
     return Kept(indices, kept * total, c * total)
 
 
@@ -200,4 +231,4 @@ def effective_sample_size(weights) -> float:
 
 
 __all__ = ["multinomial", "stratified", "systematic", "residual", "RESAMPLERS", "Resampler",
-           "effective_sample_size", "optimal_resampling", "Kept"]
+           "effective_sample_size", "optimal_resampling", "optimal_keep", "Kept"]

@@ -100,6 +100,7 @@ OPTIMAL_CASES = {  # (weights, n kept)
     "with zeros, keep 2": (WEIGHTS["with zeros"], 2),
     "one dominant, keep 3": (np.array([0.9, 0.04, 0.03, 0.02, 0.01]), 3),
     "equal, keep 3 of 7": (np.full(7, 1 / 7), 3),
+    "geometric, keep 18 of 22": (2.0 ** -np.arange(22), 18),  # c ~ 1e-5: many rounds, then the sort
 }
 
 

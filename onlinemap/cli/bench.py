@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from ..bench import _COLUMNS as _STANDARD
-from ..bench import available_benchmarks, benchmark_record, run_benchmarks
+from ..bench import available_benchmarks, benchmark_figures, benchmark_record, run_benchmarks
 from .common import print_table
 
 
@@ -26,6 +26,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", metavar="FILE",  # every column, as the benchmarks gave them
                    help="also write the table with machine info, versions, time and git commit as "
                         "JSON; a .jsonl FILE gets one line appended per run (a history)")
+    p.add_argument("--out", metavar="DIR", help="write the figures of benchmarks that draw some (e.g. rbpf: "
+                                                "TV to exact against particles and against ms per step) as PNG")
     p.set_defaults(func=bench)
 
 
@@ -63,4 +65,9 @@ def bench(args: argparse.Namespace) -> int:
         else:
             path.write_text(json.dumps(record, indent=2))
         print(f"wrote {path}")
+    if args.out:
+        from ..plots import save
+
+        for stem, fig in benchmark_figures(table).items():
+            print(f"wrote {save(fig, Path(args.out) / f'{stem}.png')}")
     return 0

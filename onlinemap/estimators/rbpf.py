@@ -39,7 +39,7 @@ from ..belief import Belief
 from ..errors import ImpossibleObservationError, MemoryLimitError, ModelError
 from ..kernels.rbpf import (in_place_ancestors, particle_maps, rbpf_commit, rbpf_enumerate, rbpf_map_mixture,
                              rbpf_place_children, rbpf_propose, rbpf_refresh)
-from ..resampling import RESAMPLERS, effective_sample_size, optimal_resampling
+from ..resampling import RESAMPLERS, effective_sample_size, optimal_keep
 from ..rng import SeedLike, as_generator
 from ..model import GridModel
 from ..validation import check_step
@@ -274,7 +274,7 @@ class RaoBlackwellisedPF:
         """Enumerate every live particle's successors with their exact weights
         (:func:`rbpf_enumerate`), keep P of them by optimal resampling
         (:func:`~onlinemap.resampling.optimal_resampling`: none twice, unbiased) and write them
-        into the slots. O(P K^2) plus O(P log P) for the resampling's sort."""
+        into the slots. O(P K^2); the resampling is O(P)."""
         model = self.model
         n_particles = self.n_particles
         pool, pool_stamps, row_block, refcount, free, free_top = rows = self._reserved_rows()
@@ -293,15 +293,16 @@ class RaoBlackwellisedPF:
             raise ImpossibleObservationError(
                 f"observation {model.label_names[z]!r} has probability zero for every particle at step {t}")
         increment = _logsumexp(child_log_weight[:m])
-        kept = optimal_resampling(np.exp(child_log_weight[:m] - increment), n_particles, self._rng)
-        ancestors = in_place_ancestors(np.bincount(child_parent[kept.indices], minlength=n_particles))
+        kept, kept_weights, threshold = optimal_keep(np.exp(child_log_weight[:m] - increment), n_particles,
+                                                     self._rng.random())
+        ancestors = in_place_ancestors(np.bincount(child_parent[kept], minlength=n_particles))
         new_locations = np.empty(n_particles, dtype=np.int64)
         new_cells = np.empty((n_particles, model.n_labels))
         log_weights = np.empty(n_particles)
-        rbpf_place_children(child_parent, child_location, child_cells, kept.indices, kept.weights, ancestors,
+        rbpf_place_children(child_parent, child_location, child_cells, kept, kept_weights, ancestors,
                             new_locations, new_cells, log_weights)
         self._commit(t, rows, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights), increment,
-                     kept.threshold > 0)
+                     threshold > 0)
 
     def _commit(self, t, rows, ancestors, new_locations, new_cells, log_weights, increment, resampled) -> None:
         """Write a validated step: the particles' slots (:func:`rbpf_commit`), the block pool

@@ -106,7 +106,9 @@ def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block,
                 continue
             child_parent[m] = q
             child_location[m] = j
-            child_log_weight[m] = log_weights[q] + math.log(probability) + math.log(lam)
+            joint = probability * lam  # one log per child; two where the product underflows
+            child_log_weight[m] = log_weights[q] + (math.log(joint) if joint > 0.0 else
+                                                    math.log(probability) + math.log(lam))
             _observed_cell(pool, pool_stamps, powers, dynamic, t, r, cell_slot[j], likelihood, lam, child_cells[m])
             m += 1
     return m
