@@ -15,7 +15,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
-from tqdm.auto import tqdm
+from .progress import tqdm
 
 from . import metrics
 from .estimators.rbpf import PROPOSALS

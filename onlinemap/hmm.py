@@ -54,15 +54,18 @@ def forward_backward(model: GridModel, prior: np.ndarray, actions: np.ndarray, o
         filtered, posterior, normalizers = out.filtered, out.posterior, out.log_normalizers
     else:
         filtered, posterior, normalizers = np.empty((w, n)), np.empty((w, n)), np.empty(w)
+    log_scales = np.empty(w)  # 0 but where a step was rescaled against underflow
     bad = forward_backward_pass(model.self_prob, model.predecessor, model.neighbors, model.p_move,
                             np.ascontiguousarray(prior, dtype=np.float64), actions, observations,
-                            np.ascontiguousarray(emission, dtype=np.float64), filtered, posterior, normalizers)
+                            np.ascontiguousarray(emission, dtype=np.float64), filtered, posterior, normalizers,
+                            log_scales)
     if bad >= 0:
         label = model.label_names[observations[bad]]
         raise ImpossibleObservationError(
             f"observation {label!r} at step {first_step + bad} has probability zero under the observation "
             f"matrix B in use (B starts as label_prior @ O; a learned B has no zeros when pseudo_count > 0)")
     np.log(normalizers, out=normalizers)
+    normalizers += log_scales
     return HMMPosterior(filtered, posterior, normalizers)
 
 

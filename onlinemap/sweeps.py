@@ -71,7 +71,7 @@ from typing import Callable, Iterable, NamedTuple
 
 import numpy as np
 import pandas as pd
-from tqdm.auto import tqdm
+from .progress import tqdm
 
 from . import metrics, plots
 from .errors import OnlineMapError

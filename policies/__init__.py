@@ -6,6 +6,8 @@
 >>> frame = policies.explore(model, true_map, "entropy", "rbpf", steps=200, seed=0)  # doctest: +SKIP
 """
 
+from .info_gain import (InfoGainExplorer, MacroScore, expected_information_gain, expected_uncertainty,
+                        information_reward, uncertainty)
 from .explore import COLUMNS, compare_planners, door_cells, explore, explore_env, summarize
 from .mdp import (PolicyIterationResult, action_values, evaluate_policy, policy_iteration,
                   policy_motion)
@@ -18,6 +20,8 @@ __all__ = [
     "entropy_reward", "collected_entropy_reward", "RewardFunction",
     "policy_iteration", "PolicyIterationResult", "action_values", "evaluate_policy", "policy_motion",
     "Planner", "EntropyExplorer", "RandomWalk", "Sweep", "make_planner", "sweep_actions", "PLANNERS",
+    "InfoGainExplorer", "MacroScore", "expected_information_gain", "expected_uncertainty",
+    "information_reward", "uncertainty",
     "explore", "explore_env", "door_cells", "COLUMNS", "exploration_world", "floor_plan_prior",
     "with_floor_plan", "compare_planners", "summarize", "plot_errors", "plot_visits",
 ]

@@ -75,6 +75,8 @@ def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[
     location_belief = np.empty((steps, model.n_cells))
     map_belief = np.empty((steps, model.n_cells, model.n_labels))
     true_maps = np.empty((steps, model.n_cells), dtype=np.int64)
+    if hasattr(planner, "bind"):  # planners that roll hypotheses out on copies of the live filter
+        planner.bind(estimator)
     observation, location, labels = reset()
     belief = estimator.step(None, observation)
     started = time.perf_counter()

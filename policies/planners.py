@@ -129,7 +129,7 @@ class Sweep:
         return f"Sweep({len(self.actions)} actions per cycle)"
 
 
-PLANNERS = ("entropy", "entropy_collect", "random", "sweep")
+PLANNERS = ("entropy", "entropy_collect", "random", "sweep", "info_gain")
 
 
 def make_planner(name: str, model: GridModel, seed: SeedLike = None, **options) -> Planner:
@@ -144,4 +144,7 @@ def make_planner(name: str, model: GridModel, seed: SeedLike = None, **options) 
         return RandomWalk(model, seed=seed, **options)
     if name == "sweep":
         return Sweep(model, **options)
+    if name == "info_gain":
+        from .info_gain import InfoGainExplorer
+        return InfoGainExplorer(model, seed=seed, **options)
     raise ModelError(f"unknown planner {name!r}; available: {', '.join(PLANNERS)}")

@@ -96,5 +96,5 @@ def test_unknown_estimator_and_option():
         om.make_estimator("kalman", om.corridor(4))
     with pytest.raises(om.UnknownEstimatorError, match="no option 'n_particles'"):
         om.make_estimator("exact", om.corridor(4), n_particles=3)
-    with pytest.raises(TypeError):
+    with pytest.raises(om.ModelError, match="model must be a GridModel"):
         om.make_estimator("exact", "corridor")

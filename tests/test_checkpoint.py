@@ -183,15 +183,23 @@ def rewrite_meta(path, change):
     rewrite(path, entries)
 
 
-def test_wrong_versions_are_refused(saved):
+def test_versions_compatibility_rests_on_the_format_version(saved):
+    """Issue 15 item 7: another onlinemap version with the same format loads (a patch bump must
+    not lock users out); a newer format is refused unless allow_newer; strict_version asks for
+    the same package version."""
     _, path = saved
-    rewrite_meta(path, lambda meta: meta.update(format_version=2))
-    with pytest.raises(om.CheckpointError, match="format version 2"):
+    rewrite_meta(path, lambda meta: meta.update(onlinemap_version="0.1.1"))
+    assert om.load(path).t == 1
+    with pytest.raises(om.CheckpointError, match="written by onlinemap '0.1.1'.*strict_version"):
+        om.load(path, strict_version=True)
+    rewrite_meta(path, lambda meta: meta.update(format_version=checkpoint.FORMAT_VERSION + 1))
+    with pytest.raises(om.CheckpointError, match="format version 2 was written by a newer onlinemap.*allow_newer"):
         om.load(path)
-    rewrite_meta(path, lambda meta: meta.update(format_version=1, onlinemap_version="0.0.1"))
-    with pytest.raises(om.CheckpointError, match="written by onlinemap '0.0.1'"):
-        om.load(path)
-    assert om.load(path, strict_version=False).t == 1
+    assert om.load(path, allow_newer=True).t == 1
+    for bad in (0, "1", True, None, 1.0):
+        rewrite_meta(path, lambda meta: meta.update(format_version=bad))
+        with pytest.raises(om.CheckpointError, match="format version"):
+            om.load(path)
 
 
 def test_forged_shape_in_metadata_is_refused(saved):
@@ -274,7 +282,7 @@ def test_crash_mid_write_keeps_the_last_good_checkpoint(saved, monkeypatch):
         raise OSError("disk full")
 
     monkeypatch.setattr(checkpoint.np, "savez", crash)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(om.CheckpointError, match=f"cannot write checkpoint {path}: disk full; the previous file"):
         om.save(est, path)
     assert path.read_bytes() == before
     assert list(path.parent.glob(".*tmp")) == []  # the temp file is cleaned up

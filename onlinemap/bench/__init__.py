@@ -15,7 +15,7 @@ from typing import Callable
 
 import numpy as np
 import pandas as pd
-from tqdm.auto import tqdm
+from ..progress import tqdm
 
 BENCHMARK_MODULES = ("exact", "peers", "rbpf", "em", "planning", "checkpoint")
 _BENCHMARKS: dict[str, Callable[[bool], list[dict]]] = {}

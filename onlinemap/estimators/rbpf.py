@@ -34,9 +34,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import arguments
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
-from ..errors import ImpossibleObservationError, MemoryLimitError, ModelError
+from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
 from ..kernels.rbpf import (in_place_ancestors, particle_maps, rbpf_commit, rbpf_enumerate, rbpf_map_mixture,
                              rbpf_place_children, rbpf_propose, rbpf_refresh)
 from ..resampling import RESAMPLERS, effective_sample_size, optimal_keep
@@ -93,6 +94,31 @@ def block_layout(model: GridModel, block_cells: int | None = None) -> BlockLayou
     return BlockLayout(cell_block, cell_slot, members)
 
 
+def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = None, lazy_dynamics: bool = True) -> int:
+    """Worst-case peak memory of the filter's state, in bytes (exact Python ints; allocates
+    nothing): every particle owning every one of its map blocks, the block pool grown by doubling
+    to hold them plus P free rows (old and new pool alive together while it grows), a fresh
+    copy of the pool for eager dynamics, the table, the powers of C and per-step temporaries."""
+    n, k, p = model.n_cells, model.n_labels, n_particles
+    block_cells = block_cells or max(1, round(math.sqrt(n / k)))  # block_layout's default
+    if model.rows == 1:
+        size = min(block_cells, n)
+        n_blocks = -(-n // size)
+    else:
+        side = max(1, math.isqrt(block_cells))
+        size, n_blocks = side * side, -(-model.rows // side) * -(-model.cols // side)
+    stamped = lazy_dynamics and not model.is_static
+    rows = n_blocks + 2 * p
+    while rows - p < n_blocks * p:  # doubled until every particle can own every block with P rows free
+        rows *= 2
+    row_bytes = 8 * (size * k + (size if stamped else 0) + 3)  # pool, stamps, row_block / refcount / free
+    pool = rows * row_bytes + rows // 2 * row_bytes  # the grown pool and the one it replaced
+    eager = 0 if lazy_dynamics or model.is_static else rows * size * k * 8
+    powers = 8 * k * k * (4 * REFRESH_STEPS + 1 if stamped else 1)
+    per_step = 8 * p * (k + 8) + 8 * n * k  # proposals, weights, the belief
+    return pool + eager + 8 * p * n_blocks + powers + per_step
+
+
 def _grown(array: np.ndarray, rows: int) -> np.ndarray:
     """``array`` with zero rows appended up to ``rows`` along axis 0."""
     out = np.zeros((rows, *array.shape[1:]), dtype=array.dtype)
@@ -119,22 +145,24 @@ class RaoBlackwellisedPF:
                  resampling: str = "residual", resample_threshold: float = 0.5, seed: SeedLike = None,
                  lazy_dynamics: bool = True, block_cells: int | None = None,
                  max_bytes: int = DEFAULT_MAX_BYTES):
-        if isinstance(n_particles, bool) or int(n_particles) != n_particles or n_particles < 1:
-            raise ModelError(f"n_particles must be a positive integer, got {n_particles!r}")
-        if proposal not in PROPOSALS:
-            raise ModelError(f"proposal must be one of {PROPOSALS}, got {proposal!r}")
-        if resampling not in RESAMPLING:
-            raise ModelError(f"resampling must be one of {RESAMPLING}, got {resampling!r}")
-        if not 0.0 <= float(resample_threshold) <= 1.0:
-            raise ModelError(f"resample_threshold must be in [0, 1], got {resample_threshold!r}")
-        n_particles = int(n_particles)
+        error = InvalidOptionError
+        n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
+        proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
+        resampling = arguments.choice("resampling", resampling, RESAMPLING, error)
+        resample_threshold = arguments.probability("resample_threshold", resample_threshold, error)
+        seed = arguments.seed("seed", seed, error)
+        lazy_dynamics = arguments.flag("lazy_dynamics", lazy_dynamics, error)
+        if block_cells is not None:
+            block_cells = arguments.integer("block_cells", block_cells, minimum=1, maximum=model.n_cells, error=error)
+        max_bytes = arguments.byte_limit("max_bytes", max_bytes, error)
         n, k = model.n_cells, model.n_labels
-        layout = block_layout(model, block_cells)
-        need = 8 * n_particles * n * (k + (0 if model.is_static or not lazy_dynamics else 1))
+        need = peak_bytes(model, n_particles, block_cells, lazy_dynamics)
         if need > max_bytes:
             raise MemoryLimitError(
-                f"rbpf with {n_particles} particles on N={n} cells, K={k} labels needs {need / 1e9:.3g} GB "
-                f"of particle maps but the limit is {max_bytes / 1e9:.3g} GB; pass max_bytes=... to raise it")
+                f"rbpf with {n_particles} particles on N={n} cells, K={k} labels may need {need / 1e9:.3g} GB "
+                f"(every particle owning every map block) but the limit is {max_bytes / 1e9:.3g} GB; pass "
+                f"max_bytes=... to raise it")
+        layout = block_layout(model, block_cells)
         self.model = model
         self.n_particles = n_particles
         self.proposal = proposal
