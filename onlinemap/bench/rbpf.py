@@ -75,10 +75,15 @@ def _worlds(quick: bool):
             yield f"door {side}x{side} {kind}", *tiled_door_world(side, side, 0.01 if dynamic else 0.0)
 
 
+SCALE_MAX_BYTES = 8 * 2**30
+
+
 def _step_times(model, run, n_particles, n_steps, warmup=5, **options):
     """Seconds per update (array) and whether each resampled, after ``warmup`` steps; seconds for the
     belief after the last."""
-    est = make_estimator("rbpf", model, n_particles=n_particles, seed=0, **options)
+    # the guard bounds the worst case (every particle owning all its blocks: 4 GB at 10^4 particles
+    # on 64 x 64); particles share most blocks, and these runs use a few hundred MB
+    est = make_estimator("rbpf", model, n_particles=n_particles, seed=0, max_bytes=SCALE_MAX_BYTES, **options)
     times, resampled = [], []
     for t in range(warmup + n_steps):
         args = (None if t == 0 else run.actions[t - 1], run.observations[t])

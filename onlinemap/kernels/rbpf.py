@@ -90,6 +90,7 @@ def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block,
     of cell j given z. Children with probability zero are left out. Writes the first M entries of
     ``child_parent``, ``child_location``, ``child_log_weight`` and ``child_cells`` (M, K) (each at
     least 2P long), grouped by parent in increasing order. O(P K^2)."""
+    k = likelihood.shape[0]
     m = 0
     for q in range(locations.shape[0]):
         if log_weights[q] == -np.inf:
@@ -101,15 +102,22 @@ def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block,
             if probability <= 0.0:
                 continue
             r = table[q, cell_block[j]]
-            lam = _evidence(pool, pool_stamps, powers, dynamic, t, r, cell_slot[j], likelihood)
+            slot = cell_slot[j]
+            d = _age(pool_stamps, dynamic, t, r, slot)
+            lam = 0.0  # P(z | cell j of map q), as _evidence sums it
+            for b in range(k):
+                current = _aged_label(pool, powers, d, r, slot, b)
+                child_cells[m, b] = current
+                lam += current * likelihood[b]
             if lam <= 0.0:
                 continue
-            child_parent[m] = q
-            child_location[m] = j
+            for b in range(k):  # as _observed_cell: divide (1 / lam overflows for a subnormal lam)
+                child_cells[m, b] = child_cells[m, b] * likelihood[b] / lam
             joint = probability * lam  # one log per child; two where the product underflows
             child_log_weight[m] = log_weights[q] + (math.log(joint) if joint > 0.0 else
                                                     math.log(probability) + math.log(lam))
-            _observed_cell(pool, pool_stamps, powers, dynamic, t, r, cell_slot[j], likelihood, lam, child_cells[m])
+            child_parent[m] = q
+            child_location[m] = j
             m += 1
     return m
 
