@@ -181,6 +181,7 @@ def accuracy_figure(table: pd.DataFrame):
     """TV to exact against particles (top) and against ms per step (bottom), one column per
     world, one line per scheme (error bars: 2 standard errors)."""
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
 
     worlds = list(dict.fromkeys(table["world"]))
     fig, axes = plt.subplots(2, len(worlds), figsize=(4.2 * len(worlds), 7), squeeze=False)
@@ -191,6 +192,7 @@ def accuracy_figure(table: pd.DataFrame):
                 ax.errorbar(curve[x], curve["tv"], yerr=2 * curve["tv_se"], marker="o", capsize=2, label=scheme)
         for ax, xlabel in zip(axes[:, column], ("particles", "ms per step (update + belief)")):
             ax.set(xscale="log", yscale="log", xlabel=xlabel, ylabel="TV to exact")
+            ax.xaxis.set_minor_formatter(NullFormatter())  # minor labels of a short log axis overlap
             ax.grid(True, which="both", alpha=0.3)
         axes[0, column].set_title(world)
     axes[0, 0].legend()

@@ -130,11 +130,21 @@ def _grown(array: np.ndarray, rows: int) -> np.ndarray:
 class RaoBlackwellisedPF:
     """RBPF over trajectories with exact per-cell map marginals.
 
-    Options: ``n_particles`` (P); ``proposal`` ``"optimal"`` (sample the location given the
-    observation; lower weight variance) or ``"transition"`` (sample the motion model);
-    ``resampling`` ``"residual"``, ``"systematic"``, ``"stratified"`` or ``"multinomial"``;
-    ``resample_threshold`` resample before a step when the effective sample size is below this
-    fraction of P (1.0 = every step, 0.0 = never); ``seed`` (int, None or Generator);
+    Options: ``n_particles`` (P); ``resampling``:
+
+    - ``"fearnhead_clifford"`` (Fearnhead and Clifford 2003; the default with the optimal
+      proposal): every step enumerates each particle's successors (stay, move) with their exact
+      weights and keeps P of them by optimal resampling, none twice. It starts from one particle
+      and keeps every child while there are at most P (so with P >= 2^T it is exact Bayes).
+      Measured (``onlinemap bench rbpf``): 0.23-0.39x the TV to exact of the optimal proposal
+      with residual resampling at equal particles, for 1.05-1.5x the time per step.
+    - ``"residual"``, ``"systematic"``, ``"stratified"``, ``"multinomial"``: sample one
+      successor per particle from ``proposal`` — ``"optimal"`` (given the observation; lower
+      weight variance) or ``"transition"`` (the motion model) — and resample by that scheme
+      before a step when the effective sample size is below ``resample_threshold`` times P
+      (1.0 = every step, 0.0 = never). ``None`` picks ``"residual"`` for the transition proposal.
+
+    ``seed`` (int, None or Generator);
     ``lazy_dynamics`` (False applies C to every cell of every particle every step: O(P N K^2),
     the reference the lazy scheme is tested against); ``block_cells`` B, the cells per shared
     map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes`` guard on
@@ -142,13 +152,19 @@ class RaoBlackwellisedPF:
     """
 
     def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
-                 resampling: str = "residual", resample_threshold: float = 0.5, seed: SeedLike = None,
+                 resampling: str | None = None, resample_threshold: float = 0.5, seed: SeedLike = None,
                  lazy_dynamics: bool = True, block_cells: int | None = None,
                  max_bytes: int = DEFAULT_MAX_BYTES):
         error = InvalidOptionError
         n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
         proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
+        if resampling is None:
+            resampling = FEARNHEAD_CLIFFORD if proposal == "optimal" else "residual"
         resampling = arguments.choice("resampling", resampling, RESAMPLING, error)
+        if resampling == FEARNHEAD_CLIFFORD and proposal != "optimal":
+            raise error(f"proposal={proposal!r} samples one successor per particle; resampling="
+                        f"'{FEARNHEAD_CLIFFORD}' enumerates them all (the optimal proposal's weights): pass "
+                        f"resampling='residual' (or another sampling scheme) to use it")
         resample_threshold = arguments.probability("resample_threshold", resample_threshold, error)
         seed = arguments.seed("seed", seed, error)
         lazy_dynamics = arguments.flag("lazy_dynamics", lazy_dynamics, error)
