@@ -12,12 +12,12 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 import pandas as pd
-from tqdm import tqdm
 
 from onlinemap.errors import ModelError
 from onlinemap.estimators import Estimator, Trajectory, estimator_options, make_estimator
 from onlinemap.evaluate import from_steps, step_metrics
 from onlinemap.model import GridModel, door_cells
+from onlinemap.progress import tqdm
 from onlinemap.rng import SeedLike
 from onlinemap.simulate import Run, world_step
 from onlinemap.validation import check_map
