@@ -185,22 +185,33 @@ def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estima
     return _loop(model, reset, advance, chooser, est, steps, progress).frame
 
 
-def compare_planners(model: GridModel, true_map, planners=("entropy", "random", "sweep"),
-                     estimator: str = "rbpf", steps: int = 500, seeds=(0,), *,
-                     estimator_options: dict | None = None, progress: bool = True) -> pd.DataFrame:
+def compare_planners(world: str = "door,p_door=0.01,p_move=0.9", planners=("entropy", "random", "sweep"),
+                     estimator: str = "rbpf", steps: int = 500, seeds=(0,), *, floor_plan: float | None = None,
+                     estimator_options: dict | None = None, workers: int | None = 0,
+                     progress: bool = True) -> pd.DataFrame:
     """:func:`explore` for every planner name and seed (the same seeds for every planner, so
-    the runs are paired). One row per (planner, seed, step): ``planner``, ``seed`` and the
-    :data:`COLUMNS`. Cost: ``len(planners) * len(seeds)`` runs of ``steps`` steps."""
-    runs = [(planner, seed) for planner in planners for seed in seeds]
-    frames = []
-    for planner, seed in tqdm(runs, desc="exploration runs", disable=not progress):
-        frame = explore(model, true_map, planner, estimator, steps, seed,
-                        estimator_options=estimator_options, progress=progress and steps >= 200)
-        frame.insert(0, "seed", seed)
-        frame.insert(0, "planner", planner)
-        frame["seconds_per_step"] = frame.attrs["seconds_per_step"]
-        frames.append(frame)
-    return pd.concat(frames, ignore_index=True)
+    the runs are paired), run as a sweep on :func:`onlinemap.sweeps.sweep` (``workers``: 0 in
+    this process, None or N on a local dask cluster). ``world``: a world spec
+    (:func:`onlinemap.worlds.parse_world`, e.g. ``door,p_door=0.01,p_move=0.9``); ``floor_plan``:
+    the confidence of :func:`~policies.worlds.with_floor_plan` (None: the world's own prior).
+    A run is exactly ``explore(model, true_map, planner, estimator, steps, seed)``.
+    One row per (planner, seed, step): ``planner``, ``seed``, ``t``, ``true_location`` and the
+    per-step metrics of :func:`onlinemap.evaluate.step_metrics`, and ``seconds_per_step``.
+    Cost: ``len(planners) * len(seeds)`` runs of ``steps`` steps."""
+    from onlinemap.sweeps import sweep
+
+    options = {k: [list(v)] if isinstance(v, tuple) else [v] if isinstance(v, list) else v
+               for k, v in (estimator_options or {}).items()}
+    spec = {"name": "compare-planners", "worlds": [world], "seeds": [int(seed) for seed in seeds],
+            "steps": int(steps), "rows": "step", "planners": {name: {} for name in planners},
+            "estimators": {estimator: options}}
+    if floor_plan is not None:
+        spec["floor_plan"] = float(floor_plan)
+    table = sweep(spec, workers=workers, progress=progress)
+    table["seconds_per_step"] = table["ms_per_step"] / 1e3
+    order = {name: i for i, name in enumerate(planners)}
+    return table.sort_values(["planner", "seed", "t"], key=lambda c: c.map(order) if c.name == "planner" else c,
+                             kind="stable").reset_index(drop=True)
 
 
 def summarize(table: pd.DataFrame, model: GridModel, true_map) -> pd.DataFrame:
