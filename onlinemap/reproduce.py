@@ -15,12 +15,11 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pandas as pd
 from .progress import show_progress, tqdm
 
 from .estimators import Trajectory
-from .evaluate import ASTRAY_BELOW, LOST_BELOW, run_metrics, timed_trajectory, way_back  # noqa: F401 (re-exported)
+from .evaluate import run_metrics, timed_trajectory
 from .simulate import Run
 from .stats import wilson_interval
 
