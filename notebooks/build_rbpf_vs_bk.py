@@ -114,9 +114,9 @@ summary.pivot(index="estimator", columns="world", values="mean_map_tv").round(4)
 * **The optimal proposal pays off with few particles** (0.043 against 0.068 for the transition
   proposal at 10 particles); from about 300 particles on the two are alike. Here its effective
   sample size is higher (190 against 173 of 200 particles).
-* **On random walks** (10 runs of 60 steps per world) 100 particles are 1.6 to 1.9 times closer
+* **On random walks** (10 runs of 60 steps per world) 100 particles are 1.9 to 3.9 times closer
   to exact than BK in every world, static or changing, and 1000 particles closer still. BK is
-  closer than a 10-particle filter there, because walks that revisit cells repair the
+  about as close as a 10-particle filter there, because walks that revisit cells repair the
   correlation it drops; online EM and dead reckoning are 3 to 7 times further from exact than BK.
 
 So: `rbpf` with 100 particles and the `optimal` proposal is the default to reach for when exact
