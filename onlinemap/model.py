@@ -261,6 +261,11 @@ class GridModel:
         return len(self.footprint)
 
     @property
+    def observation_shape(self) -> tuple[int, ...]:
+        """() when an observation is one label (F = 1), (F,) otherwise."""
+        return () if self.n_readings == 1 else (self.n_readings,)
+
+    @property
     def has_blocking(self) -> bool:
         """True when some label blocks motion (motion then depends on the map)."""
         return bool(self.blocking.any())

@@ -13,11 +13,13 @@ _TINY = 1e-280  # messages below this are set to 0: subnormal floats would make 
 
 
 @njit(cache=True)
-def forward_backward_pass(self_prob, predecessor, neighbors, p_move, prior, actions, observations, emission,
+def forward_backward_pass(self_prob, predecessor, neighbors, enter, prior, actions, observations, emission,
                           filtered, posterior, normalizers):
     """Scaled forward-backward on the sparse motion model.
 
-    self_prob (A, N), predecessor (A, N), neighbors (N, A): the model's motion tables; prior (N,)
+    self_prob (A, N), predecessor (A, N), neighbors (N, A): the model's motion tables; enter (N,)
+    the probability that a move into cell j succeeds (``p_move`` everywhere for the paper's
+    motion, ``p_move P(m_j passable)`` with blocking labels); prior (N,)
     the distribution of the first step's location before its observation; actions (W - 1,);
     observations (W,); emission (N, K) B. Writes filtered (W, N) ``P(L_tau | z_0..tau)``, posterior
     (W, N) ``P(L_tau | z_0..W-1)`` and normalizers (W,) ``P(z_tau | z_0..tau-1)``. Returns the
@@ -39,7 +41,7 @@ def forward_backward_pass(self_prob, predecessor, neighbors, p_move, prior, acti
                 v = self_prob[a, j] * filtered[t - 1, j]
                 p = predecessor[a, j]
                 if p >= 0:
-                    v += p_move * filtered[t - 1, p]
+                    v += enter[j] * filtered[t - 1, p]
                 v *= emission[j, z]
                 if v < _TINY:
                     v = 0.0
@@ -66,7 +68,7 @@ def forward_backward_pass(self_prob, predecessor, neighbors, p_move, prior, acti
             v = self_prob[a, i] * scaled[i]
             nb = neighbors[i, a]
             if nb != i:
-                v += p_move * scaled[nb]
+                v += enter[nb] * scaled[nb]
             if v < _TINY:
                 v = 0.0
             beta[i] = v
