@@ -1,4 +1,4 @@
-"""Writes notebooks/corridor_em_failure.ipynb (no stored outputs). Run: python notebooks/build_corridor_em_failure.py"""
+"""Writes notebooks/corridor_em_failure.ipynb, executed with its outputs. Run: python notebooks/build_corridor_em_failure.py"""
 
 import nbformat
 

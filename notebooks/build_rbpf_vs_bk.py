@@ -1,4 +1,4 @@
-"""Writes notebooks/rbpf_vs_bk.ipynb (no stored outputs). Run: python notebooks/build_rbpf_vs_bk.py"""
+"""Writes notebooks/rbpf_vs_bk.ipynb, executed with its outputs. Run: python notebooks/build_rbpf_vs_bk.py"""
 
 import nbformat
 
@@ -103,13 +103,25 @@ exact Bayes. Mean distance to exact over runs and steps, per estimator."""),
 summary = compare.summarise(per_step)
 display(compare.error_vs_particles_figure(summary))
 display(compare.error_over_time_figure(per_step))
-summary.pivot(index="estimator", columns="world", values="map_tv_mean").round(4)"""),
-    ("md", """Reading the table (10 runs of 60 steps per world): with 100 particles the RBPF is closer
-to exact than BK in every world, and 1000 particles are closer still. BK is about as close as a
-10-particle filter on random walks: its projection loses the location-map correlation, but
-walks that re-visit cells often repair it quickly. The scripted corridor, where the robot needs
-the map to notice its own slip, is where BK's error shows most (about 4 times the error of 100
-particles above). Online EM and dead reckoning are several times further from exact than BK."""),
+summary.pivot(index="estimator", columns="world", values="mean_map_tv").round(4)"""),
+    ("md", """## Conclusion
+
+* **The RBPF tracks exact Bayes, and more particles bring it closer.** On the scripted corridor
+  the mean map distance to exact falls from 0.043 with 10 particles to 0.0056 with 1000 (optimal
+  proposal). BK stays at 0.069, 4.4 times the error of 100 particles: after the slip, *where the
+  robot is* and *what the map says* depend on each other, and a product of marginals cannot hold
+  that dependence.
+* **The optimal proposal pays off with few particles** (0.043 against 0.068 for the transition
+  proposal at 10 particles); from about 300 particles on the two are alike. Here its effective
+  sample size is higher (190 against 173 of 200 particles).
+* **On random walks** (10 runs of 60 steps per world) 100 particles are 1.9 to 2.5 times closer
+  to exact than BK in every world, static or changing, and 1000 particles closer still. BK is
+  about as close as a 10-particle filter there, because walks that revisit cells repair the
+  correlation it drops; online EM and dead reckoning are 2 to 7 times further from exact than BK.
+
+So: `rbpf` with 100 particles and the `optimal` proposal is the default to reach for when exact
+Bayes is too large; BK is a cheap baseline that fails precisely when the robot must use the map
+to find out where it is."""),
 ]
 
 

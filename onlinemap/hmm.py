@@ -75,15 +75,17 @@ def forward_backward(model: GridModel, prior: np.ndarray, actions: np.ndarray, o
         filtered, posterior, normalizers = out.filtered, out.posterior, out.log_normalizers
     else:
         filtered, posterior, normalizers = np.empty((w, n)), np.empty((w, n)), np.empty(w)
+    log_scales = np.empty(w)  # 0 but where a step was rescaled against underflow
     bad = forward_backward_pass(self_prob, model.predecessor, model.neighbors, enter,
                                 np.ascontiguousarray(prior, dtype=np.float64), actions, kernel_observations,
-                                kernel_emission, filtered, posterior, normalizers)
+                                kernel_emission, filtered, posterior, normalizers, log_scales)
     if bad >= 0:
         label = observations[bad].tolist() if model.has_footprint else model.label_names[observations[bad]]
         raise ImpossibleObservationError(
             f"observation {label!r} at step {first_step + bad} has probability zero under the observation "
             f"matrix B in use (B starts as label_prior @ O; a learned B has no zeros when pseudo_count > 0)")
     np.log(normalizers, out=normalizers)
+    normalizers += log_scales
     return HMMPosterior(filtered, posterior, normalizers)
 
 

@@ -35,6 +35,7 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from . import arguments
 from .arrays import read_only
 from .errors import ModelError
 
@@ -130,15 +131,36 @@ def blocking_mask(blocking, label_names: Sequence[str]) -> np.ndarray:
 
 
 def _probability(name: str, value: float) -> float:
-    value = float(value)
-    if not np.isfinite(value) or not 0.0 <= value <= 1.0:
-        raise ModelError(f"{name} must be a probability in [0, 1], got {value!r}")
-    return value
+    return arguments.probability(name, value)
+
+
+def _table(name: str, values, dtype=np.float64) -> np.ndarray:
+    """A fresh array of numbers (not bools, strings or objects), or ModelError naming ``name``."""
+    if isinstance(values, np.ndarray) and values.dtype.kind in "iuf":  # the common case, vectorised
+        return np.array(values, dtype=dtype)
+    try:
+        array = np.array(values, dtype=object)
+        if array.dtype == object and array.size and not all(
+                isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+                for v in array.flat):
+            raise TypeError("entries must be numbers")
+        return np.array(array.tolist() if array.ndim else values, dtype=dtype)
+    except (TypeError, ValueError, OverflowError) as error:
+        raise ModelError(f"{name} must be a rectangular table of numbers: {error}") from None
+
+
+def _grid_size(rows, cols) -> tuple[int, int]:
+    """Validated ``(rows, cols)``: whole numbers >= 1 with at most ``arguments.MAX_CELLS`` cells."""
+    rows = arguments.integer("rows", rows, minimum=1, maximum=arguments.MAX_CELLS)
+    cols = arguments.integer("cols", cols, minimum=1, maximum=arguments.MAX_CELLS)
+    if rows * cols > arguments.MAX_CELLS:
+        raise ModelError(f"a {rows} x {cols} grid has {rows * cols} cells; at most {arguments.MAX_CELLS} are supported")
+    return rows, cols
 
 
 def _stochastic(name: str, matrix, shape: tuple[int, ...]) -> np.ndarray:
     """Validate a row-stochastic array of the given shape; return a read-only float64 copy."""
-    array = np.array(matrix, dtype=np.float64)
+    array = _table(name, matrix)
     if array.shape != shape:
         raise ModelError(f"{name} must have shape {shape}, got {array.shape}")
     if not np.all(np.isfinite(array)):
@@ -154,6 +176,8 @@ def _stochastic(name: str, matrix, shape: tuple[int, ...]) -> np.ndarray:
 
 def symmetric_channel(n_labels: int, p_same: float) -> np.ndarray:
     """(K, K) matrix with ``p_same`` on the diagonal and ``(1 - p_same) / (K - 1)`` elsewhere."""
+    n_labels = arguments.integer("n_labels", n_labels, minimum=2, maximum=arguments.MAX_LABELS)
+    p_same = _probability("p_same", p_same)
     off = (1.0 - p_same) / (n_labels - 1)
     return np.full((n_labels, n_labels), off) + np.eye(n_labels) * (p_same - off)
 
@@ -183,19 +207,20 @@ class GridModel:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        if int(self.rows) < 1 or int(self.cols) < 1:
-            raise ModelError(f"a grid needs at least one row and column, got {self.rows} x {self.cols}")
-        set_(self, "rows", int(self.rows))
-        set_(self, "cols", int(self.cols))
+        rows, cols = _grid_size(self.rows, self.cols)
+        set_(self, "rows", rows)
+        set_(self, "cols", cols)
         n = self.rows * self.cols
-        neighbors = np.array(self.neighbors, dtype=np.int64)
+        neighbors = _table("neighbors", self.neighbors, np.float64)
+        if np.any(neighbors != np.round(neighbors)):
+            raise ModelError("neighbors must hold whole cell indices")
         if neighbors.ndim != 2 or neighbors.shape[0] != n:
             raise ModelError(f"neighbors must have shape ({n}, n_actions), got {neighbors.shape}")
         if np.any(neighbors < 0) or np.any(neighbors >= n):
             raise ModelError("neighbors contains a cell index out of range")
+        neighbors = neighbors.astype(np.int64)
         n_actions = neighbors.shape[1]
-        if len(self.action_names) != n_actions:
-            raise ModelError(f"{len(self.action_names)} action names for {n_actions} actions")
+        action_names = arguments.names("action_names", self.action_names, n_actions)
         predecessor = np.full((n_actions, n), -1, dtype=np.int64)
         for a in range(n_actions):
             movers = np.flatnonzero(neighbors[:, a] != np.arange(n))
@@ -206,23 +231,23 @@ class GridModel:
         set_(self, "neighbors", neighbors)
         p_move = _probability("p_move", self.p_move)
         set_(self, "p_move", p_move)
-        change = np.asarray(self.change)
+        change = _table("change matrix C", self.change)
         k = change.shape[0] if change.ndim == 2 else -1
-        if k < 2:
-            raise ModelError(f"change matrix C must be K x K with K >= 2, got shape {change.shape}")
+        if not 2 <= k <= arguments.MAX_LABELS:
+            raise ModelError(f"change matrix C must be K x K with 2 <= K <= {arguments.MAX_LABELS}, "
+                             f"got shape {change.shape}")
         set_(self, "change", _stochastic("change matrix C", change, (k, k)))
         set_(self, "sensor", _stochastic("sensor matrix O", self.sensor, (k, k)))
-        prior = np.asarray(self.label_prior, dtype=np.float64)
+        prior = _table("label_prior", self.label_prior)
         if prior.shape == (k,):
             prior = np.broadcast_to(prior, (n, k))
         set_(self, "label_prior", _stochastic("label_prior", prior, (n, k)))
-        if len(self.label_names) != k:
-            raise ModelError(f"{len(self.label_names)} label names for {k} labels")
-        set_(self, "action_names", tuple(str(x) for x in self.action_names))
-        set_(self, "label_names", tuple(str(x) for x in self.label_names))
-        if not 0 <= int(self.start) < n:
-            raise ModelError(f"start cell {self.start} is outside 0..{n - 1}")
-        set_(self, "start", int(self.start))
+        set_(self, "action_names", action_names)
+        set_(self, "label_names", arguments.names("label_names", self.label_names, k))
+        start = arguments.integer("start", self.start)
+        if not 0 <= start < n:
+            raise ModelError(f"start cell {start} is outside 0..{n - 1}")
+        set_(self, "start", start)
         blocking = np.zeros(k, dtype=bool) if self.blocking is None else np.array(self.blocking)
         if blocking.shape != (k,) or blocking.dtype != bool:
             raise ModelError(f"blocking must be a ({k},) bool array (one flag per label), got "
@@ -429,12 +454,12 @@ def grid_model(rows: int, cols: int, n_labels: int = 2, *, p_obs: float = 0.9, p
     ``footprint``: ``"cell"`` (default, the paper's sensor), ``"cross"``, ``"square"`` or a
     sequence of (drow, dcol) offsets.
     """
-    n_labels = int(n_labels)
-    if n_labels < 2:
-        raise ModelError(f"n_labels must be at least 2, got {n_labels}")
-    if int(rows) < 1 or int(cols) < 1:
-        raise ModelError(f"a grid needs at least one row and column, got {rows} x {cols}")
-    neighbors, action_names = grid_neighbors(int(rows), int(cols))
+    n_labels = arguments.integer("n_labels", n_labels, minimum=2, maximum=arguments.MAX_LABELS)
+    rows, cols = _grid_size(rows, cols)
+    if rows * cols * n_labels > arguments.MAX_CELLS:
+        raise ModelError(f"{rows * cols} cells x {n_labels} labels: at most {arguments.MAX_CELLS} cell labels "
+                         "are supported")
+    neighbors, action_names = grid_neighbors(rows, cols)
     if sensor is None:
         sensor = symmetric_channel(n_labels, _probability("p_obs", p_obs))
     if change is None:
@@ -458,13 +483,17 @@ def corridor(n_cells: int, n_labels: int = 2, p_obs: float = 0.9, p_move: float 
     ``footprint`` as in :func:`grid_model` (a corridor's footprint offsets have drow = 0 to read
     anything: cells of other rows are off the grid)."""
     p_change = _probability("p_change", p_change)
-    change = symmetric_channel(int(n_labels), 1.0 - p_change) if int(n_labels) >= 2 else None
+    n_labels = arguments.integer("n_labels", n_labels, minimum=2, maximum=arguments.MAX_LABELS)
+    n_cells = arguments.integer("n_cells", n_cells, minimum=1, maximum=arguments.MAX_CELLS)
+    change = symmetric_channel(n_labels, 1.0 - p_change)
     return grid_model(1, n_cells, n_labels, p_obs=p_obs, p_move=p_move, change=change,
                       label_prior=label_prior, start=start, blocking=blocking, footprint=footprint)
 
 
 def parse_layout(layout: str) -> np.ndarray:
     """Text grid (``.`` free, ``#`` wall, ``o`` open door, ``c`` closed door) -> (rows, cols) labels."""
+    if not isinstance(layout, str):
+        raise ModelError(f"the layout must be a str of . # o c rows, got {type(layout).__name__}")
     lines = [line.strip() for line in layout.strip().splitlines() if line.strip()]
     if not lines:
         raise ModelError("the layout is empty")

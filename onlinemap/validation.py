@@ -6,6 +6,7 @@ specific error naming the problem. They never touch an estimator's state.
 
 from __future__ import annotations
 
+import math
 import numbers
 
 import numpy as np
@@ -30,9 +31,9 @@ def _index(value, names: tuple[str, ...], what: str, error: type[Exception]) -> 
     if isinstance(value, numbers.Integral):
         index = int(value)
     else:
-        if not np.isfinite(value):
+        if not math.isfinite(value):
             raise error(f"{what} is {value!r}; expected an int index in 0..{len(names) - 1}")
-        if float(value) != int(value):
+        if value != int(value):  # exact for floats and Fractions alike
             raise error(f"{what} {value!r} is not a whole number")
         index = int(value)
     if not 0 <= index < len(names):

@@ -19,17 +19,22 @@ if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, not with the
     from matplotlib.figure import Figure
 
 
-def plot_errors(table: pd.DataFrame, axes=None) -> "Figure":
-    """Map error and door-state error over time, one line per planner: the mean over seeds with
-    a band of +- one standard error. ``axes``: two matplotlib axes (created when None)."""
+ERROR_TITLES = {"map_error": "map error (mean 1 - P(true label))",
+                "door_error": "door-state error (door cells)",
+                "location_error": "location error (1 - P(true cell))"}
+
+
+def plot_errors(table: pd.DataFrame, axes=None, columns=("map_error", "door_error")) -> "Figure":
+    """Errors over time (``columns`` of the table, default map error and door-state error), one
+    line per planner: the mean over seeds with a band of +- one standard error. ``axes``: one
+    matplotlib axis per column (created when None)."""
     from matplotlib.figure import Figure
 
     if axes is None:
-        figure = Figure(figsize=(11, 3.8), layout="constrained")
-        axes = figure.subplots(1, 2)
-    columns = [("map_error", "map error (mean 1 - P(true label))"),
-               ("door_error", "door-state error (door cells)")]
-    for ax, (column, title) in zip(axes, columns):
+        figure = Figure(figsize=(5.5 * len(columns), 3.8), layout="constrained")
+        axes = np.atleast_1d(figure.subplots(1, len(columns)))
+    for ax, column in zip(axes, columns):
+        title = ERROR_TITLES.get(column, column)
         for planner, runs in table.groupby("planner", sort=False):
             by_step = runs.groupby("t")[column]
             mean, sem = by_step.mean(), by_step.sem().fillna(0.0)

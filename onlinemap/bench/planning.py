@@ -46,3 +46,58 @@ def bench_policy_iteration(quick: bool) -> list[dict]:
                          "reference": "one sparse policy evaluation", "reference_ms": reference,
                          "target": target})
     return rows
+
+
+DECISION_MS = 20.0  # issue 11: at most 20 ms per decision at 10 x 10 with 1000 particles
+
+
+@benchmark("planning")
+def bench_info_gain(quick: bool) -> list[dict]:
+    """``onlinemap bench planning``: ms per decision of the ``info_gain`` planner with an RBPF of
+    1000 particles (uniform label prior, ``p_move`` 0.8), in the 10 x 10 door world and in a
+    32 x 32 four-label grid, after 100 random steps. A decision is one ``choose`` call (a plan
+    every ``commit`` calls or fewer); a second row gives ms per plan. Reference: one RBPF step
+    (``update`` and ``belief``) of the same filter. Target: 20 ms per decision at 10 x 10
+    (``target = 20 / reference_ms``)."""
+    import time
+
+    from policies import make_planner
+
+    from ..estimators import make_estimator
+    from ..model import door_world
+    from ..simulate import sample_map, world_step
+
+    rows = []
+    rng = np.random.default_rng(1)
+    worlds = [("10x10 door world", *door_world(p_move=0.8))]
+    if not quick:
+        big = grid_model(32, 32, 4, p_move=0.8)
+        worlds.append(("32x32 grid, 4 labels", big, sample_map(big, 0)))
+    for name, model, true_map in worlds:
+        est = make_estimator("rbpf", model, n_particles=1000, seed=0)
+        planner = make_planner("info_gain", model, seed=0)
+        planner.bind(est)
+        location, labels, z = world_step(model, model.start, true_map, None, rng)
+        belief = est.step(None, z)
+        for a in rng.integers(model.n_actions, size=100):
+            location, labels, z = world_step(model, location, labels, int(a), rng)
+            belief = est.step(int(a), z)
+        fork_step = []
+        decisions, plans = [], []
+        for _ in range(12 if quick else 60):
+            planned = not planner._queue
+            t0 = time.perf_counter()
+            a = planner.choose(belief)
+            (plans if planned else decisions).append(time.perf_counter() - t0)
+            location, labels, z = world_step(model, location, labels, a, rng)
+            t0 = time.perf_counter()
+            belief = est.step(a, z)
+            fork_step.append(time.perf_counter() - t0)
+        reference = 1e3 * float(np.median(fork_step))
+        per_decision = 1e3 * (sum(decisions) + sum(plans)) / (len(decisions) + len(plans))
+        target = DECISION_MS / reference if model.n_cells == 100 else float("nan")
+        rows.append({"case": f"{name}, P=1000: ms per decision ({planner!r})", "ms": per_decision,
+                     "reference": "one RBPF step", "reference_ms": reference, "target": target})
+        rows.append({"case": f"{name}, P=1000: ms per plan ({len(plans)} plans)", "ms": 1e3 * float(np.mean(plans)),
+                     "reference": "one RBPF step", "reference_ms": reference, "target": float("nan")})
+    return rows

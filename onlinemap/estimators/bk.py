@@ -36,6 +36,8 @@ from ..model import GridModel, apply_motion, passable_probability
 from ..validation import check_step
 from .base import register
 
+_SMALLEST_NORMAL = np.finfo(np.float64).tiny
+
 
 def bk_update(location: np.ndarray, maps: np.ndarray, likelihood: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """Exact observation update of the product ``location (N,) x prod_i maps[i] (N, K)`` by
@@ -48,7 +50,7 @@ def bk_update(location: np.ndarray, maps: np.ndarray, likelihood: np.ndarray) ->
         return location, maps, 0.0
     here = location[:, None] * likelihood[None, :]  # robot in cell i: label weighted by O[k, z]
     elsewhere = (total - joint_loc)[:, None]  # robot elsewhere: cell i's label untouched
-    return joint_loc / total, maps * (here + elsewhere) / total, total
+    return joint_loc / total, np.minimum(maps * (here + elsewhere) / total, 1.0), total  # rounding: <= 1
 
 
 def bk_footprint_update(model: GridModel, location: np.ndarray, maps: np.ndarray,
@@ -103,15 +105,21 @@ class BoyenKoller:
                 maps = maps @ self.model.change
         if self.model.has_footprint:
             location, maps, total = bk_footprint_update(self.model, location, maps, z)
+            log_scale = 0.0
         else:
-            location, maps, total = bk_update(location, maps, self.model.likelihood[z])
+            likelihood, log_scale = self.model.likelihood[z], 0.0
+            updated = bk_update(location, maps, likelihood)
+            if not updated[2] >= _SMALLEST_NORMAL and likelihood.max() > 0:  # underflow: rescale O[:, z] by its max
+                log_scale = math.log(likelihood.max())
+                updated = bk_update(location, maps, likelihood / likelihood.max())
+            location, maps, total = updated
         if total == 0.0:
             raise ImpossibleObservationError(
                 f"observation {np.asarray(z).tolist() if self.model.has_footprint else self.model.label_names[z]!r} "
                 f"has probability zero under the factored "
                 f"(Boyen-Koller) belief at step {self._t + 1}")
         self._location, self._maps = location, maps
-        self._log_evidence += math.log(total)
+        self._log_evidence += math.log(total) + log_scale
         self._t += 1
         self._belief = Belief(self._t, location, maps, self._log_evidence)
         return self._belief

@@ -23,14 +23,16 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import arguments
 from ..arrays import DEFAULT_MAX_BYTES
 from ..belief import Belief
-from ..errors import ImpossibleObservationError, MemoryLimitError
+from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError
 from ..kernels.exact import change_every_axis, map_marginals as _map_marginals_kernel, motion_observe
 from ..model import GridModel, apply_motion, apply_motion_transpose
 from ..validation import check_sequence, check_step
 from .base import register
 
+_SMALLEST_NORMAL = np.finfo(np.float64).tiny  # below this a total has lost precision (subnormal)
 
 
 def tensor_bytes(model: GridModel, copies: int = 1) -> int:
@@ -71,6 +73,7 @@ class ExactFilter:
     scratch_attributes = ("_scratch", "_joint_map")  # overwritten by every step: not checkpointed
 
     def __init__(self, model: GridModel, *, max_bytes: int = DEFAULT_MAX_BYTES):
+        max_bytes = arguments.byte_limit("max_bytes", max_bytes, InvalidOptionError)
         check_memory(model, 2, max_bytes, "the exact filter (two belief tensors)")
         self.model = model
         self.max_bytes = max_bytes
@@ -89,34 +92,65 @@ class ExactFilter:
         a, z = check_step(self.model, self._t + 1, action, observation)
         if self.model.has_blocking or self.model.has_footprint:
             return self._general_step(a, z)
-        model, inv = self.model, 1.0 / self._norm
+        model = self.model
         likelihood = model.likelihood[z]
         location = np.empty(model.n_cells)
         out = self._scratch
+        total = self._predict_observe(a, likelihood, 0, out, location)
+        log_scale = 0.0
+        if not _SMALLEST_NORMAL <= total < math.inf:  # underflow: the rare branch
+            total, log_scale = self._rescaled(a, likelihood, out, location)
+        if not total > 0 or not np.isfinite(total):
+            raise ImpossibleObservationError(
+                f"observation {model.label_names[z]!r} has probability zero under the exact belief at step "
+                f"{self._t + 1} (or below float64's range even after rescaling)")
+        self._x, self._scratch = out, self._x
+        self._norm = total
+        self._log_evidence += math.log(total) + log_scale
+        self._t += 1
+        maps = np.minimum(map_marginals(self._joint_map, model.n_cells, model.n_labels) / total, 1.0)  # rounding
+        self._belief = Belief(self._t, location / total, maps, self._log_evidence)
+        return self._belief
+
+    def _predict_observe(self, a, likelihood: np.ndarray, exponent: int, out: np.ndarray,
+                         location: np.ndarray) -> float:
+        """``out`` <- the belief moved by ``a`` (None: no motion), its map changed by C, weighted by
+        ``likelihood`` and scaled by ``2**exponent / _norm``; fills ``location`` and the joint map.
+        Returns the total. One fused pass (static), N + 2 passes (dynamic)."""
+        model, inv = self.model, 1.0 / self._norm
         if a is None:
             self_prob, pred = self._no_motion
-            motion_observe(self._x, out, self_prob, pred, 0.0, inv, likelihood, self._joint_map, location)
+            motion_observe(self._x, out, self_prob, pred, 0.0, math.ldexp(inv, exponent), likelihood,
+                           self._joint_map, location)
         elif model.is_static:
-            motion_observe(self._x, out, model.self_prob[a], model.predecessor[a], model.p_move, inv,
-                           likelihood, self._joint_map, location)
+            motion_observe(self._x, out, model.self_prob[a], model.predecessor[a], model.p_move,
+                           math.ldexp(inv, exponent), likelihood, self._joint_map, location)
         else:
             motion_observe(self._x, out, model.self_prob[a], model.predecessor[a], model.p_move, inv,
                            self._flat, self._joint_map, location)
             change_every_axis(out, model.change)
             self_prob, pred = self._no_motion
-            motion_observe(out, out, self_prob, pred, 0.0, 1.0, likelihood, self._joint_map, location)
-        total = location.sum()
-        if not total > 0 or not np.isfinite(total):
-            raise ImpossibleObservationError(
-                f"observation {model.label_names[z]!r} has probability zero under the exact belief at step "
-                f"{self._t + 1}")
-        self._x, self._scratch = out, self._x
-        self._norm = total
-        self._log_evidence += math.log(total)
-        self._t += 1
-        maps = map_marginals(self._joint_map, model.n_cells, model.n_labels) / total
-        self._belief = Belief(self._t, location / total, maps, self._log_evidence)
-        return self._belief
+            motion_observe(out, out, self_prob, pred, 0.0, math.ldexp(1.0, exponent), likelihood, self._joint_map,
+                           location)
+        return location.sum()
+
+    def _rescaled(self, a, likelihood: np.ndarray, out: np.ndarray, location: np.ndarray) -> tuple[float, float]:
+        """The step redone when its total is not a normal float (an observation of probability near
+        or below 1e-308): the likelihood divided by its maximum, then, if the total is still
+        subnormal, the belief scaled by a power of two that brings it near 1. Returns
+        ``(total, log of the factor taken out)``; total 0 when even that underflows. Costs one
+        or two more passes, only on this branch."""
+        top = float(likelihood.max())
+        if not top > 0:
+            return 0.0, 0.0
+        likelihood = likelihood / top
+        total = self._predict_observe(a, likelihood, 0, out, location)
+        exponent = -math.frexp(total)[1] if 0 < total < _SMALLEST_NORMAL else 0
+        if exponent and math.isfinite(math.ldexp(1.0 / self._norm, exponent)):
+            total = self._predict_observe(a, likelihood, exponent, out, location)
+        elif exponent:
+            return 0.0, 0.0
+        return total, math.log(top) - exponent * math.log(2.0)
 
     def _general_step(self, a: int | None, z) -> Belief:
         """The step with blocking labels or a footprint (numpy, fresh arrays). O((F + 3) N K^N)."""

@@ -26,7 +26,8 @@ import numpy as np
 
 from ..arrays import read_only
 from ..belief import Belief
-from ..errors import ModelError
+from .. import arguments
+from ..errors import InvalidOptionError, ModelError
 from ..hmm import (append_observation, emission_from_counts, expected_cell_counts, forward_backward,
                    log_dirichlet_prior, map_from_emission, map_passability, prior_emission, sensor_inverse,
                    temper)
@@ -51,13 +52,22 @@ def check_anneal(anneal) -> Anneal | None:
     """None, or a valid ``(tau0, rate, tau_min)`` with tau0 >= tau_min > 0 and rate in (0, 1]."""
     if anneal is None:
         return None
-    try:
-        schedule = Anneal(*(float(x) for x in anneal))
-    except (TypeError, ValueError):
-        raise ModelError(f"anneal must be None or (tau0, rate, tau_min), got {anneal!r}") from None
+    if isinstance(anneal, (str, bytes)) or not isinstance(anneal, (tuple, list, np.ndarray)) or len(anneal) != 3:
+        raise InvalidOptionError(f"anneal must be None or (tau0, rate, tau_min), got {anneal!r}")
+    schedule = Anneal(*(arguments.real(f"anneal[{i}]", x, error=InvalidOptionError) for i, x in enumerate(anneal)))
     if not (np.isfinite(schedule).all() and schedule.tau0 >= schedule.tau_min > 0 and 0 < schedule.rate <= 1):
-        raise ModelError(f"anneal (tau0, rate, tau_min) needs tau0 >= tau_min > 0 and 0 < rate <= 1, got {anneal!r}")
+        raise InvalidOptionError(f"anneal (tau0, rate, tau_min) needs tau0 >= tau_min > 0 and 0 < rate <= 1, got {anneal!r}")
     return schedule
+
+
+def check_n_iter(n_iter) -> int:
+    """An iteration count >= 1, or InvalidOptionError."""
+    return arguments.integer("n_iter", n_iter, minimum=1, error=InvalidOptionError)
+
+
+def check_tol(tol) -> float:
+    """A finite tolerance >= 0 (NaN or a negative tol would never stop EM early), or InvalidOptionError."""
+    return arguments.real("tol", tol, low=0.0, high=float("inf"), high_open=True, error=InvalidOptionError)
 
 
 class EMFit(NamedTuple):
@@ -86,7 +96,7 @@ def baum_welch(model: GridModel, actions, observations, *, n_iter: int = 200, to
     if emission.shape != fallback.shape:
         raise ModelError(f"initial B must have shape {fallback.shape}, got {emission.shape}")
     return _baum_welch(model, a_seq, z_seq, emission, fallback, model.location_prior(),
-                       sensor_inverse(model.sensor), n_iter=int(n_iter), tol=tol,
+                       sensor_inverse(model.sensor), n_iter=check_n_iter(n_iter), tol=check_tol(tol),
                        pseudo_count=check_pseudo_count(pseudo_count), schedule=check_anneal(anneal))
 
 
@@ -132,11 +142,9 @@ class OfflineEM:
 
     def __init__(self, model: GridModel, *, n_iter: int = 200, tol: float = 1e-8, pseudo_count: float = 0.1,
                  anneal: tuple[float, float, float] | None = None):
-        if int(n_iter) < 1:
-            raise ModelError(f"n_iter must be at least 1, got {n_iter!r}")
         self.model = model
-        self.n_iter = int(n_iter)
-        self.tol = float(tol)
+        self.n_iter = check_n_iter(n_iter)
+        self.tol = check_tol(tol)
         self.pseudo_count = check_pseudo_count(pseudo_count)
         schedule = check_anneal(anneal)
         self.anneal = None if schedule is None else tuple(schedule)  # plain data (checkpoints)

@@ -31,7 +31,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..belief import Belief
-from ..errors import ModelError
+from .. import arguments
+from ..errors import InvalidOptionError
 from ..hmm import (append_observation, emission_from_counts, expected_cell_counts, forward_backward,
                    map_from_emission, map_passability, prior_emission, sensor_inverse)
 from ..model import GridModel, apply_motion
@@ -40,21 +41,17 @@ from .base import register
 
 
 def check_pseudo_count(pseudo_count: float) -> float:
-    """A finite pseudo-count >= 0, or ModelError."""
-    value = float(pseudo_count)
-    if not np.isfinite(value) or value < 0:
-        raise ModelError(f"pseudo_count must be a finite number >= 0, got {pseudo_count!r}")
-    return value
+    """A finite pseudo-count >= 0, or InvalidOptionError."""
+    return arguments.real("pseudo_count", pseudo_count, low=0.0, high=float("inf"), high_open=True,
+                          error=InvalidOptionError)
 
 
 def _check_window(window) -> int | None:
     if isinstance(window, str):
         if window != "max":
-            raise ModelError(f"window must be a positive int or 'max', got {window!r}")
+            raise InvalidOptionError(f"window must be a positive int or 'max', got {window!r}")
         return None
-    if isinstance(window, (bool, np.bool_)) or not float(window).is_integer() or int(window) < 1:
-        raise ModelError(f"window must be a positive int or 'max', got {window!r}")
-    return int(window)
+    return arguments.integer("window (a positive int or 'max')", window, minimum=1, error=InvalidOptionError)
 
 
 @register("online_em")
@@ -68,10 +65,7 @@ class OnlineEM:
         self.model = model
         self.window = window
         self._window = _check_window(window)
-        decay = float(decay)
-        if not 0.0 < decay <= 1.0:
-            raise ModelError(f"decay must be in (0, 1], got {decay!r}")
-        self.decay = decay
+        self.decay = arguments.real("decay", decay, low=0.0, high=1.0, low_open=True, error=InvalidOptionError)
         self.pseudo_count = check_pseudo_count(pseudo_count)
         self._prior_emission = prior_emission(model)
         self._sensor_inverse = sensor_inverse(model.sensor)

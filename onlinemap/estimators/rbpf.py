@@ -34,18 +34,21 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import arguments
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
-from ..errors import ImpossibleObservationError, MemoryLimitError, ModelError
-from ..kernels.rbpf import (in_place_ancestors, particle_maps, rbpf_commit, rbpf_map_mixture, rbpf_propose,
-                             rbpf_refresh)
-from ..resampling import RESAMPLERS, effective_sample_size
+from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
+from ..kernels.rbpf import (children_by_location, in_place_ancestors, particle_maps, rbpf_commit, rbpf_enumerate,
+                             rbpf_map_mixture, rbpf_place_children, rbpf_propose, rbpf_refresh)
+from ..resampling import RESAMPLERS, effective_sample_size, optimal_keep
 from ..rng import SeedLike, as_generator
 from ..model import GridModel
 from ..validation import check_step
 from .base import register
 
 PROPOSALS = ("optimal", "transition")
+FEARNHEAD_CLIFFORD = "fearnhead_clifford"
+RESAMPLING = (*RESAMPLERS, FEARNHEAD_CLIFFORD)
 REFRESH_STEPS = 256  # every block row is brought up to date at least this often (lazy dynamics)
 
 
@@ -91,6 +94,31 @@ def block_layout(model: GridModel, block_cells: int | None = None) -> BlockLayou
     return BlockLayout(cell_block, cell_slot, members)
 
 
+def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = None, lazy_dynamics: bool = True) -> int:
+    """Worst-case peak memory of the filter's state, in bytes (exact Python ints; allocates
+    nothing): every particle owning every one of its map blocks, the block pool grown by doubling
+    to hold them plus P free rows (old and new pool alive together while it grows), a fresh
+    copy of the pool for eager dynamics, the table, the powers of C and per-step temporaries."""
+    n, k, p = model.n_cells, model.n_labels, n_particles
+    block_cells = block_cells or max(1, round(math.sqrt(n / k)))  # block_layout's default
+    if model.rows == 1:
+        size = min(block_cells, n)
+        n_blocks = -(-n // size)
+    else:
+        side = max(1, math.isqrt(block_cells))
+        size, n_blocks = side * side, -(-model.rows // side) * -(-model.cols // side)
+    stamped = lazy_dynamics and not model.is_static
+    rows = n_blocks + 2 * p
+    while rows - p < n_blocks * p:  # doubled until every particle can own every block with P rows free
+        rows *= 2
+    row_bytes = 8 * (size * k + (size if stamped else 0) + 3)  # pool, stamps, row_block / refcount / free
+    pool = rows * row_bytes + rows // 2 * row_bytes  # the grown pool and the one it replaced
+    eager = 0 if lazy_dynamics or model.is_static else rows * size * k * 8
+    powers = 8 * k * k * (4 * REFRESH_STEPS + 1 if stamped else 1)
+    per_step = 8 * p * (k + 8) + 8 * n * k  # proposals, weights, the belief
+    return pool + eager + 8 * p * n_blocks + powers + per_step
+
+
 def _grown(array: np.ndarray, rows: int) -> np.ndarray:
     """``array`` with zero rows appended up to ``rows`` along axis 0."""
     out = np.zeros((rows, *array.shape[1:]), dtype=array.dtype)
@@ -102,11 +130,21 @@ def _grown(array: np.ndarray, rows: int) -> np.ndarray:
 class RaoBlackwellisedPF:
     """RBPF over trajectories with exact per-cell map marginals.
 
-    Options: ``n_particles`` (P); ``proposal`` ``"optimal"`` (sample the location given the
-    observation; lower weight variance) or ``"transition"`` (sample the motion model);
-    ``resampling`` ``"residual"``, ``"systematic"``, ``"stratified"`` or ``"multinomial"``;
-    ``resample_threshold`` resample before a step when the effective sample size is below this
-    fraction of P (1.0 = every step, 0.0 = never); ``seed`` (int, None or Generator);
+    Options: ``n_particles`` (P); ``resampling``:
+
+    - ``"fearnhead_clifford"`` (Fearnhead and Clifford 2003; the default with the optimal
+      proposal): every step enumerates each particle's successors (stay, move) with their exact
+      weights and keeps P of them by optimal resampling, none twice. It starts from one particle
+      and keeps every child while there are at most P (so with P >= 2^T it is exact Bayes).
+      Measured (``onlinemap bench rbpf``): 0.23-0.39x the TV to exact of the optimal proposal
+      with residual resampling at equal particles, for 1.05-1.5x the time per step.
+    - ``"residual"``, ``"systematic"``, ``"stratified"``, ``"multinomial"``: sample one
+      successor per particle from ``proposal`` — ``"optimal"`` (given the observation; lower
+      weight variance) or ``"transition"`` (the motion model) — and resample by that scheme
+      before a step when the effective sample size is below ``resample_threshold`` times P
+      (1.0 = every step, 0.0 = never). ``None`` picks ``"residual"`` for the transition proposal.
+
+    ``seed`` (int, None or Generator);
     ``lazy_dynamics`` (False applies C to every cell of every particle every step: O(P N K^2),
     the reference the lazy scheme is tested against); ``block_cells`` B, the cells per shared
     map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes`` guard on
@@ -114,25 +152,33 @@ class RaoBlackwellisedPF:
     """
 
     def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
-                 resampling: str = "residual", resample_threshold: float = 0.5, seed: SeedLike = None,
+                 resampling: str | None = None, resample_threshold: float = 0.5, seed: SeedLike = None,
                  lazy_dynamics: bool = True, block_cells: int | None = None,
                  max_bytes: int = DEFAULT_MAX_BYTES):
-        if isinstance(n_particles, bool) or int(n_particles) != n_particles or n_particles < 1:
-            raise ModelError(f"n_particles must be a positive integer, got {n_particles!r}")
-        if proposal not in PROPOSALS:
-            raise ModelError(f"proposal must be one of {PROPOSALS}, got {proposal!r}")
-        if resampling not in RESAMPLERS:
-            raise ModelError(f"resampling must be one of {tuple(RESAMPLERS)}, got {resampling!r}")
-        if not 0.0 <= float(resample_threshold) <= 1.0:
-            raise ModelError(f"resample_threshold must be in [0, 1], got {resample_threshold!r}")
-        n_particles = int(n_particles)
+        error = InvalidOptionError
+        n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
+        proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
+        if resampling is None:
+            resampling = FEARNHEAD_CLIFFORD if proposal == "optimal" else "residual"
+        resampling = arguments.choice("resampling", resampling, RESAMPLING, error)
+        if resampling == FEARNHEAD_CLIFFORD and proposal != "optimal":
+            raise error(f"proposal={proposal!r} samples one successor per particle; resampling="
+                        f"'{FEARNHEAD_CLIFFORD}' enumerates them all (the optimal proposal's weights): pass "
+                        f"resampling='residual' (or another sampling scheme) to use it")
+        resample_threshold = arguments.probability("resample_threshold", resample_threshold, error)
+        seed = arguments.seed("seed", seed, error)
+        lazy_dynamics = arguments.flag("lazy_dynamics", lazy_dynamics, error)
+        if block_cells is not None:
+            block_cells = arguments.integer("block_cells", block_cells, minimum=1, maximum=model.n_cells, error=error)
+        max_bytes = arguments.byte_limit("max_bytes", max_bytes, error)
         n, k = model.n_cells, model.n_labels
-        layout = block_layout(model, block_cells)
-        need = 8 * n_particles * n * (k + (0 if model.is_static or not lazy_dynamics else 1))
+        need = peak_bytes(model, n_particles, block_cells, lazy_dynamics)
         if need > max_bytes:
             raise MemoryLimitError(
-                f"rbpf with {n_particles} particles on N={n} cells, K={k} labels needs {need / 1e9:.3g} GB "
-                f"of particle maps but the limit is {max_bytes / 1e9:.3g} GB; pass max_bytes=... to raise it")
+                f"rbpf with {n_particles} particles on N={n} cells, K={k} labels may need {need / 1e9:.3g} GB "
+                f"(every particle owning every map block) but the limit is {max_bytes / 1e9:.3g} GB; pass "
+                f"max_bytes=... to raise it")
+        layout = block_layout(model, block_cells)
         self.model = model
         self.n_particles = n_particles
         self.proposal = proposal
@@ -142,6 +188,9 @@ class RaoBlackwellisedPF:
         self._rng = as_generator(seed)
         self._locations = np.full(n_particles, model.start, dtype=np.int64)
         self._log_weights = np.full(n_particles, -math.log(n_particles))
+        if resampling == FEARNHEAD_CLIFFORD:  # one particle: the others would enumerate the same children
+            self._log_weights[:] = -math.inf
+            self._log_weights[0] = 0.0
         self._weights = np.exp(self._log_weights)  # exp(_log_weights), kept beside them
         self._stamped = not model.is_static and self.lazy_dynamics
         self._cell_block, self._cell_slot, self._block_members = layout
@@ -232,6 +281,9 @@ class RaoBlackwellisedPF:
         model = self.model
         a, z = check_step(model, self._t + 1, action, observation)
         t = self._t + 1
+        if self.resampling == FEARNHEAD_CLIFFORD:
+            self._update_fearnhead_clifford(a, z, t)
+            return
         rng_state = self._rng.bit_generator.state
         n_particles = self.n_particles
         log_weights = self._log_weights
@@ -259,7 +311,50 @@ class RaoBlackwellisedPF:
             self._rng.bit_generator.state = rng_state
             raise ImpossibleObservationError(
                 f"observation {model.label_names[z]!r} has probability zero for every particle at step {t}")
-        # commit
+        self._commit(t, (pool, pool_stamps, row_block, refcount, free, free_top), ancestors, new_locations, new_cells,
+                     log_weights - increment, increment, resample)
+
+    def _update_fearnhead_clifford(self, a: int | None, z: int, t: int) -> None:
+        """Enumerate every live particle's successors with their exact weights
+        (:func:`rbpf_enumerate`), keep P of them by optimal resampling
+        (:func:`~onlinemap.resampling.optimal_resampling`: none twice, unbiased; its strata walk
+        the children ordered by location, :func:`children_by_location`, which spreads the draws
+        over the cells: measured 1.6-2x closer to exact than index order) and write them into the
+        slots. O(P K^2 + N); the resampling is O(P)."""
+        model = self.model
+        n_particles = self.n_particles
+        pool, pool_stamps, row_block, refcount, free, free_top = rows = self._reserved_rows()
+        if a is not None and not model.is_static and not self.lazy_dynamics:
+            pool = pool @ model.change
+            rows = (pool, *rows[1:])
+        neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
+        child_parent = np.empty(2 * n_particles, dtype=np.int64)
+        child_location = np.empty(2 * n_particles, dtype=np.int64)
+        child_log_weight = np.empty(2 * n_particles)
+        child_cells = np.empty((2 * n_particles, model.n_labels))
+        m = rbpf_enumerate(self._locations, self._log_weights, pool, pool_stamps, self._table, self._cell_block,
+                           self._cell_slot, self._powers, self._stamped, t, neighbors, model.p_move,
+                           model.likelihood[z], child_parent, child_location, child_log_weight, child_cells)
+        if m == 0:
+            raise ImpossibleObservationError(
+                f"observation {model.label_names[z]!r} has probability zero for every particle at step {t}")
+        increment = _logsumexp(child_log_weight[:m])
+        kept, kept_weights, threshold = optimal_keep(np.exp(child_log_weight[:m] - increment), n_particles,
+                                                     self._rng.random(),
+                                                     children_by_location(child_location[:m], model.n_cells))
+        ancestors = np.empty(n_particles, dtype=np.int64)
+        new_locations = np.empty(n_particles, dtype=np.int64)
+        new_cells = np.empty((n_particles, model.n_labels))
+        log_weights = np.empty(n_particles)
+        rbpf_place_children(child_parent, child_location, child_cells, kept, kept_weights, ancestors,
+                            new_locations, new_cells, log_weights)
+        self._commit(t, rows, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights), increment,
+                     threshold > 0)
+
+    def _commit(self, t, rows, ancestors, new_locations, new_cells, log_weights, increment, resampled) -> None:
+        """Write a validated step: the particles' slots (:func:`rbpf_commit`), the block pool
+        ``rows`` (possibly grown), the normalised ``log_weights`` and the evidence ``increment``."""
+        pool, pool_stamps, row_block, refcount, free, free_top = rows
         rbpf_commit(self._locations, pool, pool_stamps, row_block, refcount, free, free_top, self._table,
                     self._cell_block, self._cell_slot, self._stamped, self._powers, REFRESH_STEPS, t, ancestors,
                     new_locations, new_cells)
@@ -269,11 +364,11 @@ class RaoBlackwellisedPF:
             count = -(-len(pool) // REFRESH_STEPS)
             rbpf_refresh(pool, pool_stamps, refcount, self._powers, t, self._refresh_cursor, count)
             self._refresh_cursor = (self._refresh_cursor + count) % len(pool)
-        self._log_weights = log_weights - increment
+        self._log_weights = log_weights
         self._log_evidence += increment
         self._weights = np.exp(self._log_weights)
-        self._ess = min(float(n_particles), effective_sample_size(self._weights))  # rounding: <= P
-        self._resampled = resample
+        self._ess = min(float(self.n_particles), effective_sample_size(self._weights))  # rounding: <= P
+        self._resampled = resampled
         self._t = t
         self._belief = None
 

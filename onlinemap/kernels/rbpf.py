@@ -27,25 +27,154 @@ from numba import njit
 
 
 @njit(cache=True, inline="always")
+def _age(pool_stamps, dynamic, t, r, j):
+    """Steps since slot j of block row r was last brought up to date (0 in a static world)."""
+    return t - pool_stamps[r, j] if dynamic else 0
+
+
+@njit(cache=True, inline="always")
+def _aged_label(pool, powers, d, r, j, b):
+    """P(label b) of slot j of block row r, ``d`` steps after its stamp: ``(row @ C^d)[b]``."""
+    if d == 0:
+        return pool[r, j, b]
+    acc = 0.0
+    for a in range(pool.shape[2]):
+        acc += pool[r, j, a] * powers[d, a, b]
+    return acc
+
+
+@njit(cache=True, inline="always")
 def _label(pool, pool_stamps, powers, dynamic, t, r, j, b):
     """Current P(label b) of slot j of block row r at step t (C^dt applied on the fly)."""
-    if dynamic:
-        d = t - pool_stamps[r, j]
-        if d != 0:
-            acc = 0.0
-            for a in range(pool.shape[2]):
-                acc += pool[r, j, a] * powers[d, a, b]
-            return acc
-    return pool[r, j, b]
+    return _aged_label(pool, powers, _age(pool_stamps, dynamic, t, r, j), r, j, b)
 
 
 @njit(cache=True, inline="always")
 def _evidence(pool, pool_stamps, powers, dynamic, t, r, j, likelihood):
     """``P(z | cell) = sum_b current(b) likelihood[b]`` for slot j of block row r."""
+    d = _age(pool_stamps, dynamic, t, r, j)
     acc = 0.0
     for b in range(likelihood.shape[0]):
-        acc += _label(pool, pool_stamps, powers, dynamic, t, r, j, b) * likelihood[b]
+        acc += _aged_label(pool, powers, d, r, j, b) * likelihood[b]
     return acc
+
+
+@njit(cache=True, inline="always")
+def _observed_cell(pool, pool_stamps, powers, dynamic, t, r, j, likelihood, lam, out):
+    """out (K,) <- the posterior of slot j of row r after seeing a label of likelihood ``likelihood``
+    (``lam`` = its evidence, from :func:`_evidence`); the prior unchanged where ``lam`` is 0."""
+    d = _age(pool_stamps, dynamic, t, r, j)
+    for b in range(likelihood.shape[0]):  # divide (1 / lam overflows for a subnormal lam)
+        current = _aged_label(pool, powers, d, r, j, b)
+        out[b] = current * likelihood[b] / lam if lam > 0.0 else current
+
+
+@njit(cache=True, inline="always")
+def _successor(l, n, p_move, s):
+    """(cell, probability) of successor s in {0, 1} of a robot at ``l`` whose action points at ``n``:
+    0 = stay (``1 - p_move``, or 1 where there is no move), 1 = the move (``p_move``; none where
+    ``n == l``). The one place the FC enumeration learns the motion model's successors."""
+    if s == 0:
+        return l, (1.0 if n == l else 1.0 - p_move)
+    return n, (0.0 if n == l else p_move)
+
+
+@njit(cache=True)
+def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
+                   neighbors, p_move, likelihood, child_parent, child_location, child_log_weight, child_cells):
+    """Every successor of every live particle with its exact log weight; returns their number M.
+
+    For parent q at l (``log_weights[q] > -inf``) and each successor j of l with motion probability
+    ``T(l, j) > 0`` (:func:`_successor`; ``neighbors = arange(N)`` at step 0: stay only):
+    ``log w_q + log T(l, j) + log P(z | j, map_q)``, and the child's observed cell, the posterior
+    of cell j given z. Children with probability zero are left out. Writes the first M entries of
+    ``child_parent``, ``child_location``, ``child_log_weight`` and ``child_cells`` (M, K) (each at
+    least 2P long), grouped by parent in increasing order. O(P K^2)."""
+    k = likelihood.shape[0]
+    m = 0
+    for q in range(locations.shape[0]):
+        if log_weights[q] == -np.inf:
+            continue
+        l = locations[q]
+        n = neighbors[l]
+        for s in range(2):
+            j, probability = _successor(l, n, p_move, s)
+            if probability <= 0.0:
+                continue
+            r = table[q, cell_block[j]]
+            slot = cell_slot[j]
+            d = _age(pool_stamps, dynamic, t, r, slot)
+            lam = 0.0  # P(z | cell j of map q), as _evidence sums it
+            for b in range(k):
+                current = _aged_label(pool, powers, d, r, slot, b)
+                child_cells[m, b] = current
+                lam += current * likelihood[b]
+            if lam <= 0.0:
+                continue
+            for b in range(k):  # as _observed_cell: divide (1 / lam overflows for a subnormal lam)
+                child_cells[m, b] = child_cells[m, b] * likelihood[b] / lam
+            joint = probability * lam  # one log per child; two where the product underflows
+            child_log_weight[m] = log_weights[q] + (math.log(joint) if joint > 0.0 else
+                                                    math.log(probability) + math.log(lam))
+            child_parent[m] = q
+            child_location[m] = j
+            m += 1
+    return m
+
+
+@njit(cache=True)
+def children_by_location(child_location, n_cells):
+    """(M,) the children's indices ordered by location (stable: by parent within a location), the
+    order in which Fearnhead-Clifford's strata walk them, so that the draws spread over the cells
+    in proportion to their weight. Counting sort, O(M + N)."""
+    starts = np.zeros(n_cells + 1, dtype=np.int64)
+    for c in range(child_location.shape[0]):
+        starts[child_location[c] + 1] += 1
+    for i in range(n_cells):
+        starts[i + 1] += starts[i]
+    order = np.empty(child_location.shape[0], dtype=np.int64)
+    for c in range(child_location.shape[0]):
+        i = child_location[c]
+        order[starts[i]] = c
+        starts[i] += 1
+    return order
+
+
+@njit(cache=True)
+def rbpf_place_children(child_parent, child_location, child_cells, kept, kept_weights, ancestors, new_locations,
+                        new_cells, new_log_weights):
+    """Put the kept children (``kept`` distinct indices into the children, any order;
+    ``kept_weights`` their weights) into the P particle slots, for :func:`rbpf_commit`: a
+    parent's first kept child takes the parent's slot, a second one the next slot whose particle
+    has no kept child (``ancestors[slot]`` = the parent; ``ancestors[p] = p`` elsewhere). Slots
+    left without a child (fewer children than P) get ``new_locations = -1`` (no write) and weight
+    0. Outputs (P,) ancestors, (P,), (P, K), (P,). O(P K)."""
+    n_particles = ancestors.shape[0]
+    has_child = np.zeros(n_particles, dtype=np.bool_)
+    for i in range(kept.shape[0]):
+        has_child[child_parent[kept[i]]] = True
+    for p in range(n_particles):
+        ancestors[p] = p
+    new_locations[:] = -1
+    new_log_weights[:] = -np.inf
+    new_cells[:] = 0.0
+    filled = np.zeros(n_particles, dtype=np.bool_)
+    extra = 0  # the next slot without a child of its own, for a second child
+    for i in range(kept.shape[0]):
+        c = kept[i]
+        q = child_parent[c]
+        if not filled[q]:
+            slot = q
+        else:
+            while has_child[extra]:
+                extra += 1
+            slot = extra
+            extra += 1
+            ancestors[slot] = q
+        filled[slot] = True
+        new_locations[slot] = child_location[c]
+        new_cells[slot] = child_cells[c]
+        new_log_weights[slot] = math.log(kept_weights[i])
 
 
 @njit(cache=True)
@@ -63,7 +192,6 @@ def rbpf_propose(locations, pool, pool_stamps, table, cell_block, cell_slot, pow
     impossible). One uniform per particle. O(P K^2).
     """
     n_particles = ancestors.shape[0]
-    k = likelihood.shape[0]
     for p in range(n_particles):
         q = ancestors[p]
         l = locations[q]
@@ -84,11 +212,8 @@ def rbpf_propose(locations, pool, pool_stamps, table, cell_block, cell_slot, pow
             elif uniforms[p] < p_move:
                 target, lam, weight = n, lam_there, lam_there
         new_locations[p] = target
-        r = table[q, cell_block[target]]
-        j = cell_slot[target]
-        for b in range(k):  # divide (1 / lam overflows for a subnormal lam)
-            current = _label(pool, pool_stamps, powers, dynamic, t, r, j, b)
-            new_cells[p, b] = current * likelihood[b] / lam if lam > 0.0 else current
+        _observed_cell(pool, pool_stamps, powers, dynamic, t, table[q, cell_block[target]], cell_slot[target],
+                       likelihood, lam, new_cells[p])
         log_increments[p] = math.log(weight) if lam > 0.0 else -np.inf
 
 
@@ -103,6 +228,7 @@ def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_to
     2. Each particle writes its observed cell (stamped ``t``), first copying the block if it is
        shared: O(B K) per shared write (cells of the copy older than ``max_age`` steps are
        brought up to date, so a copy never extends a row's age). Needs ``free_top[0] >= P``.
+       ``new_locations[p] = -1`` leaves slot p as it is (an empty slot).
     """
     n_particles, n_blocks = table.shape
     for p in range(n_particles):
@@ -120,6 +246,8 @@ def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_to
             refcount[r] += 1
     for p in range(n_particles):
         cell = new_locations[p]
+        if cell < 0:  # an empty slot (Fearnhead-Clifford kept fewer children than P): no write
+            continue
         b = cell_block[cell]
         r = table[p, b]
         if refcount[r] > 1:
@@ -213,8 +341,9 @@ def rbpf_map_mixture(pool, pool_stamps, row_block, table, block_members, powers,
             i = members[j]
             if i < 0:
                 continue
+            d = _age(pool_stamps, dynamic, t, r, j)
             for b in range(k):
-                out[i, b] += w * _label(pool, pool_stamps, powers, dynamic, t, r, j, b)
+                out[i, b] += w * _aged_label(pool, powers, d, r, j, b)
 
 
 @njit(cache=True)

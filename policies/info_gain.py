@@ -1,0 +1,390 @@
+"""Information-gain exploration (Stachniss, Grisetti and Burgard 2005; DESIGN.md section 7).
+
+The paper's planner (:class:`~policies.planners.EntropyExplorer`) acts by the Q-MDP rule, which
+assumes the location uncertainty vanishes after one step: it cannot value an action whose payoff
+is knowing where the robot is. This planner scores *macro-actions* by what they are expected to
+teach the filter about the location and the map, measured on the filter itself:
+
+    utility(m) = U(now) - E[ U(after m) ] - step_cost * I0 * len(m),
+    U(belief)  = location_weight * H(L) + sum_i H(m_i)            (nats)
+
+``H(L)`` is the entropy of the location marginal, ``H(m_i)`` that of cell i's label marginal;
+``I0`` is what one observation teaches about a cell under the label prior (the mean over cells of
+:func:`information_reward` of the prior: 0.95 nats in the door world at ``p_obs`` 0.9, 0.19 in
+a binary world at ``p_obs`` 0.8), so ``step_cost`` means the same in every world.
+The expectation is over the observations the robot would make: a hypothetical world (a location
+and a map) is drawn from the current belief, the macro-action is rolled out in it (slips, map
+changes, sensor noise), the simulated observations go through a copy of the filter, and the
+copy's uncertainty is measured. The same hypotheses and random numbers serve every candidate
+(common random numbers), so the candidates are compared on the same futures.
+
+Candidates (each scored at several lengths, the prefixes of one rollout):
+
+- *press d*: press one direction ``k`` times, ``k`` in ``press_lengths`` (default 1, 2, 4, 8 and
+  enough presses to cross the grid with slips). Pressing against the grid's edge is what lets a
+  lost robot relocalise; pressing into the unknown is how a localised one maps.
+- *plan*: the path of the policy-iteration plan (:func:`~policies.mdp.policy_iteration`) for
+  the per-cell information reward ``R(i) = H(m_i) - E_z H(m_i | z)`` (what one observation of
+  cell i would teach a localised robot), followed from the most probable location.
+
+The chosen macro-action is executed for at most ``commit`` steps, then the planner re-plans.
+
+Backends (who plays "a copy of the filter"):
+
+- ``rbpf``: a thinned copy of the particle belief (``rollout_particles`` particles drawn by
+  weight, or all of them), rolled out by the numba kernel
+  :func:`onlinemap.kernels.planning.rollout_uncertainty` without copying any map. Cost per plan:
+  O(P N K^2) to read the particles' maps, plus for each of ``hypotheses`` S worlds and each of
+  the 2 A candidate rollouts of up to H steps, O(H R (H + K^2)) for the steps and O(R N K) per
+  scored length. At 10 x 10, P = 1000, R = 64, S = 12: a few ms per plan.
+- any other estimator: :func:`onlinemap.estimators.fork` (the live estimator is never touched)
+  stepped with simulated observations; with ``hypotheses=None`` the expectation is exact: every
+  observation sequence is enumerated with its predictive probability (the ratio of the fork's
+  evidence before and after), K^H forks: for tiny worlds and tests.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from onlinemap.belief import Belief
+from onlinemap.errors import ImpossibleObservationError, ModelError
+from onlinemap.estimators import Estimator, fork
+from onlinemap.kernels.planning import rollout_uncertainty
+from onlinemap.model import GridModel
+from onlinemap.rng import SeedLike, as_generator
+from onlinemap.simulate import world_step
+
+from .mdp import PolicyIterationResult, policy_iteration
+
+
+def _entropy(p: np.ndarray) -> np.ndarray:
+    """Entropy in nats over the last axis. (..., K) -> (...)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(p > 0, -p * np.log(p), 0.0).sum(axis=-1)
+
+
+def uncertainty(belief: Belief, location_weight: float = 1.0) -> float:
+    """``U = location_weight * H(L) + sum_i H(m_i)`` in nats, from the belief's marginals. O(N K)."""
+    return float(location_weight * _entropy(belief.location) + _entropy(belief.map).sum())
+
+
+def information_reward(belief: Belief, sensor: np.ndarray) -> np.ndarray:
+    """(N,) ``R(i) = H(m_i) - sum_z P(z | i) H(m_i | z)``: the expected entropy drop of cell i's
+    marginal from one observation of it (the mutual information of ``m_i`` and ``z``), with
+    ``P(z | i) = sum_k m_i[k] O[k, z]``. O(N K^2)."""
+    joint = belief.map[:, :, None] * sensor[None]  # (N, K, Z) P(m_i = k, z)
+    p_z = joint.sum(axis=1)  # (N, Z)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        posterior = np.where(p_z[:, None, :] > 0, joint / p_z[:, None, :], 0.0)
+    after = (p_z * _entropy(np.moveaxis(posterior, 1, 2))).sum(axis=1)
+    return np.maximum(_entropy(belief.map) - after, 0.0)
+
+
+def _checked_actions(model: GridModel, actions) -> np.ndarray:
+    actions = np.asarray(actions, dtype=np.int64).ravel()
+    if np.any(actions < 0) or np.any(actions >= model.n_actions):
+        raise ModelError(f"actions must be in 0..{model.n_actions - 1}, got {actions.tolist()}")
+    return actions
+
+
+# --- the generic backend: forks of the live estimator -------------------------------------------
+def sample_states(estimator: Estimator, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``size`` hypothetical worlds drawn from the estimator's belief: locations (S,) and label maps
+    (S, N). Exact: from the joint (O(N K^N)); RBPF: a particle by weight, then each cell's label
+    from that particle's marginals (O(P N K^2)); any other estimator: from the product of its
+    marginals (which is its belief for ``bk`` and ``dead_reckoning``)."""
+    model = estimator.model
+    n, k = model.n_cells, model.n_labels
+    if estimator.name == "exact":
+        joint = estimator.joint().ravel()
+        flat = rng.choice(joint.size, size=size, p=joint / joint.sum())
+        index = np.stack(np.unravel_index(flat, (n,) + (k,) * n), axis=1)
+        return index[:, 0].astype(np.int64), index[:, 1:].astype(np.int64)
+    if estimator.name == "rbpf":
+        snapshot = particle_snapshot(estimator)
+        weights = np.exp(snapshot.log_weights)
+        chosen = rng.choice(len(weights), size=size, p=weights / weights.sum())
+        return snapshot.locations[chosen], _draw_labels(snapshot.maps[chosen], rng)
+    belief = estimator.belief
+    locations = rng.choice(n, size=size, p=belief.location / belief.location.sum())
+    return locations.astype(np.int64), _draw_labels(np.broadcast_to(belief.map, (size, n, k)), rng)
+
+
+def _draw_labels(marginals: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(S, N, K) marginals -> (S, N) labels drawn independently per cell."""
+    cdf = np.cumsum(marginals, axis=-1)
+    u = rng.random(marginals.shape[:-1])[..., None] * cdf[..., -1:]
+    return np.minimum((u >= cdf).sum(axis=-1), marginals.shape[-1] - 1).astype(np.int64)
+
+
+def expected_uncertainty(estimator: Estimator, actions, *, hypotheses: int | None = None,
+                         seed: SeedLike = None, location_weight: float = 1.0) -> np.ndarray:
+    """(H + 1,) the expected :func:`uncertainty` after each prefix of ``actions`` (H,), entry 0 now.
+
+    ``hypotheses=None``: exact expectation over every observation sequence (K^H forks of the
+    estimator, each outcome weighted by its predictive probability ``exp(log_evidence after -
+    log_evidence before)``). An integer S: the mean over S worlds drawn by :func:`sample_states`
+    and simulated with :func:`onlinemap.simulate.world_step` (S forks, S H steps).
+    The estimator itself (state and random generator) is left exactly as it was.
+    """
+    if estimator.belief is None:
+        raise ModelError("the estimator has no belief yet: step it with the first observation first")
+    model = estimator.model
+    actions = _checked_actions(model, actions)
+    out = np.zeros(len(actions) + 1)
+    out[0] = uncertainty(estimator.belief, location_weight)
+    if hypotheses is None:
+        _enumerate(estimator, actions, 0, 1.0, out, location_weight)
+        return out
+    rng = as_generator(seed)
+    locations, maps = sample_states(estimator, int(hypotheses), rng)
+    for location, labels in zip(locations, maps):
+        copy = fork(estimator)
+        for h, a in enumerate(actions, start=1):
+            location, labels, z = world_step(model, int(location), labels, int(a), rng)
+            out[h] += uncertainty(copy.step(int(a), z), location_weight) / len(locations)
+    return out
+
+
+def _enumerate(node: Estimator, actions: np.ndarray, depth: int, probability: float, out: np.ndarray,
+               location_weight: float) -> None:
+    if depth == len(actions) or probability == 0.0:
+        return
+    before = node.belief.log_evidence
+    for z in range(node.model.n_labels):
+        child = fork(node)
+        try:
+            belief = child.step(int(actions[depth]), z)
+        except ImpossibleObservationError:
+            continue
+        p = probability * math.exp(belief.log_evidence - before)
+        out[depth + 1] += p * uncertainty(belief, location_weight)
+        _enumerate(child, actions, depth + 1, p, out, location_weight)
+
+
+def expected_information_gain(estimator: Estimator, actions, *, hypotheses: int | None = None,
+                              seed: SeedLike = None, location_weight: float = 1.0) -> float:
+    """``U(now) - E[U(after actions)]`` (nats), by :func:`expected_uncertainty`."""
+    u = expected_uncertainty(estimator, actions, hypotheses=hypotheses, seed=seed,
+                             location_weight=location_weight)
+    return float(u[0] - u[-1])
+
+
+# --- the particle backend: thinned particle beliefs, rolled out in numba -----------------------
+class ParticleSnapshot(NamedTuple):
+    """A particle belief. R particles, N cells, K labels."""
+
+    locations: np.ndarray  # (R,) int64
+    maps: np.ndarray  # (R, N, K) each particle's current map marginals
+    log_weights: np.ndarray  # (R,) normalised
+
+
+def particle_snapshot(estimator: Estimator) -> ParticleSnapshot:
+    """The particles of an ``rbpf`` estimator (copies; O(P N K^2)). Reads its ``_locations`` and
+    ``_log_weights`` (there is no public accessor) and :meth:`particle_maps`."""
+    if estimator.name != "rbpf":
+        raise ModelError(f"particle_snapshot needs an rbpf estimator, got {estimator.name!r}")
+    return ParticleSnapshot(estimator._locations.copy(), estimator.particle_maps(), estimator._log_weights.copy())
+
+
+def thin(snapshot: ParticleSnapshot, size: int | None, rng: np.random.Generator) -> ParticleSnapshot:
+    """``size`` particles drawn by weight (systematic resampling), equally weighted; all of them,
+    weights kept, if ``size`` is None or not below P. O(size N K)."""
+    n_particles = len(snapshot.locations)
+    if size is None or size >= n_particles:
+        return snapshot
+    chosen = _systematic_subset(np.exp(snapshot.log_weights), size, rng)
+    return ParticleSnapshot(snapshot.locations[chosen], np.ascontiguousarray(snapshot.maps[chosen]),
+                            np.full(size, -math.log(size)))
+
+
+def _systematic_subset(weights: np.ndarray, size: int, rng: np.random.Generator) -> np.ndarray:
+    """``size`` indices by systematic sampling of ``weights`` (one uniform). O(P + size)."""
+    cdf = np.cumsum(weights / weights.sum())
+    positions = (rng.random() + np.arange(size)) / size
+    return np.minimum(np.searchsorted(cdf, positions, side="right"), len(weights) - 1)
+
+
+class RolloutTables(NamedTuple):
+    """The model's tables as the kernel takes them, for horizons up to H."""
+
+    sensor_cdf: np.ndarray  # (K, K)
+    change_cdf: np.ndarray  # (K, K)
+    powers: np.ndarray  # (H + 1, K, K) C^d
+
+
+def rollout_tables(model: GridModel, horizon: int) -> RolloutTables:
+    """Cumulative sensor and change rows and the powers of C up to ``horizon``. O(H K^3)."""
+    powers = np.empty((horizon + 1, model.n_labels, model.n_labels))
+    powers[0] = np.eye(model.n_labels)
+    for d in range(1, horizon + 1):
+        powers[d] = powers[d - 1] @ model.change
+    return RolloutTables(np.cumsum(model.sensor, axis=1), np.cumsum(model.change, axis=1), powers)
+
+
+def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot, sequences: np.ndarray,
+                                  checkpoints: np.ndarray, worlds: tuple[np.ndarray, np.ndarray],
+                                  rng: np.random.Generator, location_weight: float = 1.0,
+                                  tables: RolloutTables | None = None) -> np.ndarray:
+    """(C, H + 1) expected uncertainty of each action sequence ``sequences`` (C, H) after each
+    prefix length h with ``checkpoints[h]`` (other entries 0), averaged over the worlds
+    ``(locations (S,), labels (S, N))``; every sequence sees the same worlds and random numbers.
+    Cost O(S C (H R (H + K^2) + n_checkpoints R N K))."""
+    n_seq, horizon = sequences.shape
+    tables = rollout_tables(model, horizon) if tables is None else tables
+    dynamic = not model.is_static
+    checkpoints = np.asarray(checkpoints, dtype=np.bool_)
+    total = np.zeros((n_seq, horizon + 1))
+    out = np.zeros(horizon + 1)
+    r_count = len(particles.locations)
+    for location, labels in zip(*worlds):
+        world_u = rng.random((horizon, 2))
+        change_u = rng.random((horizon, model.n_cells if dynamic else 0))
+        proposal_u = rng.random((horizon, r_count))
+        for c in range(n_seq):
+            out[:] = 0.0
+            rollout_uncertainty(particles.locations, particles.maps, particles.log_weights, model.moves,
+                                model.p_move, model.likelihood, tables.sensor_cdf, tables.change_cdf,
+                                tables.powers, dynamic, sequences[c], int(location), labels, world_u, change_u,
+                                proposal_u, float(location_weight), checkpoints, out)
+            total[c] += out
+    return total / len(worlds[0])
+
+
+# --- the planner ------------------------------------------------------------------------------
+class MacroScore(NamedTuple):
+    """The scores of one plan. C candidate sequences, H their common length."""
+
+    names: tuple[str, ...]  # (C,) e.g. "press east", "plan"
+    sequences: np.ndarray  # (C, H) actions
+    lengths: np.ndarray  # (L,) the prefix lengths scored
+    gain: np.ndarray  # (C, L) expected uncertainty drop U(now) - E[U(after k steps)], nats
+    utility: np.ndarray  # (C, L) gain - step_cost * I0 * k
+    chosen: tuple[int, int]  # (candidate, length index) of the best utility
+
+
+class InfoGainExplorer:
+    """Information-gain exploration with macro-actions (see the module docstring).
+
+    Options: ``hypotheses`` S worlds drawn per plan (None: exact enumeration of the observations,
+    generic backend only); ``rollout_particles`` R particles of an rbpf belief used for rollouts
+    (None: all); ``press_lengths`` the prefix lengths scored (default 1, 2, 4, 8 and
+    ``ceil((max(rows, cols) - 1) / p_move) + 1``); ``step_cost`` the cost of a step, in units of
+    the information one observation gives about a cell under the prior (``I0`` above);
+    ``location_weight`` the weight of ``H(L)`` in ``U``; ``commit`` the most steps of a chosen
+    macro-action executed before re-planning; ``gamma`` the discount of the policy-iteration
+    plan; ``seed`` (int, None or Generator) the planner's own random stream.
+
+    The planner rolls hypotheses out on copies of the live estimator, so it must see it:
+    :func:`policies.explore` calls :meth:`bind` before the first decision. Planning never
+    changes the live estimator (its arrays and random generator).
+    """
+
+    def __init__(self, model: GridModel, seed: SeedLike = None, *, hypotheses: int | None = 12,
+                 rollout_particles: int | None = 64, press_lengths=None, step_cost: float = 0.05,
+                 location_weight: float = 4.0, commit: int = 8, gamma: float = 0.95):
+        if hypotheses is not None and (isinstance(hypotheses, bool) or int(hypotheses) < 1):
+            raise ModelError(f"hypotheses must be a positive integer or None, got {hypotheses!r}")
+        if rollout_particles is not None and (isinstance(rollout_particles, bool) or int(rollout_particles) < 1):
+            raise ModelError(f"rollout_particles must be a positive integer or None, got {rollout_particles!r}")
+        if int(commit) < 1:
+            raise ModelError(f"commit must be at least 1, got {commit!r}")
+        if not 0.0 <= float(gamma) < 1.0:
+            raise ModelError(f"the discount gamma must be in [0, 1), got {gamma!r}")
+        if not float(step_cost) >= 0.0 or not float(location_weight) >= 0.0:
+            raise ModelError(f"step_cost and location_weight must be >= 0, got {step_cost!r}, {location_weight!r}")
+        if press_lengths is None:
+            longest = math.ceil((max(model.rows, model.cols) - 1) / max(model.p_move, 0.05)) + 1
+            press_lengths = sorted({k for k in (1, 2, 4, 8) if k < longest} | {longest})
+        press_lengths = np.unique(np.asarray(press_lengths, dtype=np.int64))
+        if len(press_lengths) == 0 or press_lengths[0] < 1:
+            raise ModelError(f"press_lengths must be positive integers, got {press_lengths.tolist()}")
+        self.model = model
+        self.hypotheses = None if hypotheses is None else int(hypotheses)
+        self.rollout_particles = None if rollout_particles is None else int(rollout_particles)
+        self.press_lengths = press_lengths
+        self.step_cost = float(step_cost)
+        self.location_weight = float(location_weight)
+        self.commit = int(commit)
+        self.gamma = float(gamma)
+        self.rng = as_generator(seed)
+        self.estimator: Estimator | None = None
+        self.last_plan: MacroScore | None = None
+        self._queue: list[int] = []
+        self._pi: PolicyIterationResult | None = None
+        self._tables = rollout_tables(model, int(press_lengths[-1]))
+        prior = Belief(0, model.location_prior(), model.label_prior)
+        self._nats_per_step = self.step_cost * float(information_reward(prior, model.sensor).mean())
+
+    def bind(self, estimator: Estimator) -> None:
+        """Plan on copies of ``estimator`` (the live filter of the exploration loop)."""
+        if estimator.model is not self.model:
+            raise ModelError("the estimator was built for a different model than the planner")
+        self.estimator = estimator
+        self._queue = []
+
+    def choose(self, belief: Belief) -> int:
+        if self.estimator is None:
+            raise ModelError("info_gain plans on the live estimator: call planner.bind(estimator) first "
+                             "(policies.explore does)")
+        if not self._queue:
+            plan = self.plan(belief)
+            c, j = plan.chosen
+            self._queue = plan.sequences[c, :min(int(plan.lengths[j]), self.commit)].tolist()
+        return int(self._queue.pop(0))
+
+    def candidates(self, belief: Belief) -> tuple[tuple[str, ...], np.ndarray]:
+        """Names (C,) and action sequences (C, H): press each direction H times, and the
+        policy-iteration path for :func:`information_reward` from the most probable location.
+        Cost: one warm-started policy iteration over N cells."""
+        model, horizon = self.model, int(self.press_lengths[-1])
+        names = [f"press {name}" for name in model.action_names]
+        sequences = [np.full(horizon, a, dtype=np.int64) for a in range(model.n_actions)]
+        reward = information_reward(belief, model.sensor)
+        self._pi = policy_iteration(model, reward, self.gamma,
+                                    initial_policy=None if self._pi is None else self._pi.policy)
+        cell, path = int(np.argmax(belief.location)), np.empty(horizon, dtype=np.int64)
+        for h in range(horizon):
+            path[h] = self._pi.policy[cell]
+            cell = int(model.neighbors[cell, path[h]])
+        if not any(np.array_equal(path, s) for s in sequences):
+            names.append("plan")
+            sequences.append(path)
+        return tuple(names), np.stack(sequences)
+
+    def plan(self, belief: Belief) -> MacroScore:
+        """Score every candidate at every length in ``press_lengths`` and pick the best utility
+        (ties: the shorter, then the earlier candidate). Never changes the live estimator."""
+        est = self.estimator
+        names, sequences = self.candidates(belief)
+        horizon = sequences.shape[1]
+        lengths = self.press_lengths
+        checkpoints = np.zeros(horizon + 1, dtype=np.bool_)
+        checkpoints[0] = True
+        checkpoints[lengths] = True
+        if est.name == "rbpf" and self.hypotheses is not None:
+            snapshot = particle_snapshot(est)
+            weights = np.exp(snapshot.log_weights)
+            chosen = self.rng.choice(len(weights), size=self.hypotheses, p=weights / weights.sum())
+            worlds = (snapshot.locations[chosen], _draw_labels(snapshot.maps[chosen], self.rng))
+            particles = thin(snapshot, self.rollout_particles, self.rng)
+            expected = particle_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
+                                                     self.rng, self.location_weight, self._tables)
+        else:
+            expected = np.stack([expected_uncertainty(est, s, hypotheses=self.hypotheses, seed=self.rng,
+                                                      location_weight=self.location_weight) for s in sequences])
+        gain = expected[:, :1] - expected[:, lengths]
+        utility = gain - self._nats_per_step * lengths[None, :]
+        best = np.flatnonzero(utility.T.ravel() == utility.max())[0]  # length-major: shorter first
+        j, c = divmod(int(best), len(names))
+        self.last_plan = MacroScore(names, sequences, lengths, gain, utility, (c, j))
+        return self.last_plan
+
+    def __repr__(self) -> str:
+        return (f"InfoGainExplorer(hypotheses={self.hypotheses}, rollout_particles={self.rollout_particles}, "
+                f"press_lengths={self.press_lengths.tolist()}, step_cost={self.step_cost}, "
+                f"location_weight={self.location_weight}, commit={self.commit})")

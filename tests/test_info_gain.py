@@ -1,0 +1,244 @@
+"""policies.info_gain: the expected information gain against brute-force enumeration of the
+exact belief and every observation outcome; the particle rollout kernel against the same
+enumeration; a hand-checkable decision; planning leaves the live estimator bit-identical;
+and info_gain beats the paper's entropy planner in the paper's world (paired over seeds)."""
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+import onlinemap as om
+from onlinemap import checkpoint
+from onlinemap.errors import ModelError
+from onlinemap.estimators import fork, make_estimator
+from oracles import BruteForce
+from policies import InfoGainExplorer, expected_uncertainty, explore, exploration_world, make_planner
+from policies.info_gain import ParticleSnapshot, particle_expected_uncertainty
+
+
+def entropy(p):
+    p = np.asarray(p)
+    return float(-(p[p > 0] * np.log(p[p > 0])).sum())
+
+
+def brute_expected_uncertainty(oracle, joint, actions, location_weight):
+    """E[location_weight H(L) + sum_i H(m_i)] after each prefix of ``actions``, enumerating every
+    observation sequence over the (l, m) states of the oracle."""
+    out = np.zeros(len(actions) + 1)
+    loc, maps = oracle.marginals(joint)
+    out[0] = location_weight * entropy(loc) + sum(entropy(row) for row in maps)
+    for h in range(1, len(actions) + 1):
+        for zs in itertools.product(range(oracle.k), repeat=h):
+            p = joint.copy()
+            for a, z in zip(actions[:h], zs):
+                p = (p @ oracle.transition(a)) * oracle.likelihood(z)
+            total = p.sum()  # P(z_1..h | data)
+            if total == 0:
+                continue
+            loc, maps = oracle.marginals(p / total)
+            out[h] += total * (location_weight * entropy(loc) + sum(entropy(row) for row in maps))
+    return out
+
+
+def brute_joint(oracle, actions, observations):
+    p = oracle.prior.copy()
+    for t, z in enumerate(observations):
+        if t > 0:
+            p = p @ oracle.transition(actions[t - 1])
+        p = p * oracle.likelihood(z)
+        p /= p.sum()
+    return p
+
+
+TINY_WORLDS = {
+    "corridor4": lambda: om.corridor(4, 2, p_obs=0.85, p_move=0.7),
+    "grid2x2": lambda: om.grid_model(2, 2, 2, p_obs=0.8, p_move=0.75,
+                                     change=om.model.symmetric_channel(2, 0.9)),
+}
+
+
+@pytest.mark.parametrize("world", sorted(TINY_WORLDS))
+def test_expected_uncertainty_equals_brute_force(world):
+    model = TINY_WORLDS[world]()
+    oracle = BruteForce.of(model)
+    rng = np.random.default_rng(3)
+    past_actions = rng.integers(model.n_actions, size=3)
+    past_obs = rng.integers(model.n_labels, size=4)
+    est = make_estimator("exact", model)
+    for t, z in enumerate(past_obs):
+        est.step(None if t == 0 else int(past_actions[t - 1]), int(z))
+    joint = brute_joint(oracle, past_actions, past_obs)
+    for actions in ([0], [1, 1], [model.n_actions - 1, 0, 1]):
+        got = expected_uncertainty(est, actions, hypotheses=None, location_weight=0.7)
+        want = brute_expected_uncertainty(oracle, joint, actions, 0.7)
+        np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12)
+
+
+def test_planner_gains_with_the_exact_estimator_equal_brute_force():
+    model = TINY_WORLDS["grid2x2"]()
+    oracle = BruteForce.of(model)
+    est = make_estimator("exact", model)
+    est.step(None, 1)
+    est.step(2, 0)
+    planner = InfoGainExplorer(model, seed=0, hypotheses=None, press_lengths=(1, 2), location_weight=1.5)
+    planner.bind(est)
+    plan = planner.plan(est.belief)
+    joint = brute_joint(oracle, [2], [1, 0])
+    for c, sequence in enumerate(plan.sequences):
+        want = brute_expected_uncertainty(oracle, joint, list(sequence[:2]), 1.5)
+        np.testing.assert_allclose(plan.gain[c], want[0] - want[[1, 2]], rtol=1e-10, atol=1e-12)
+    c, j = plan.chosen
+    assert plan.utility[c, j] == plan.utility.max()
+
+
+def test_sampled_expectation_agrees_with_enumeration():
+    """The sampled backend (worlds from the exact joint, forks of the estimator) is unbiased: its
+    mean over S worlds is within 4 standard errors of the enumeration."""
+    model = TINY_WORLDS["corridor4"]()
+    est = make_estimator("exact", model)
+    for a, z in [(None, 0), (1, 1), (1, 1)]:
+        est.step(a, z)
+    actions = [0, 0]
+    exact = expected_uncertainty(est, actions, hypotheses=None)
+    rng = np.random.default_rng(7)
+    samples = np.array([expected_uncertainty(est, actions, hypotheses=1, seed=rng)[-1] for _ in range(400)])
+    assert abs(samples.mean() - exact[-1]) < 4 * samples.std(ddof=1) / math.sqrt(len(samples))
+
+
+@pytest.mark.parametrize("p_change", [0.0, 0.1])
+def test_particle_rollout_equals_brute_force_for_an_exact_particle_belief(p_change):
+    """With deterministic motion (p_move = 1), a weighted set of (location, product map) particles
+    is an exact belief and the RBPF update of each particle is exact. The kernel's expected
+    uncertainty over sampled worlds must match the enumeration over every observation
+    sequence (4 standard errors), at every prefix length."""
+    model = om.corridor(4, 2, p_obs=0.8, p_move=1.0, p_change=p_change)
+    oracle = BruteForce.of(model)
+    rng = np.random.default_rng(11)
+    maps = rng.dirichlet([1.0, 1.0], size=(3, 4))
+    particles = ParticleSnapshot(np.array([0, 1, 3]), maps, np.log([0.5, 0.3, 0.2]))
+    joint = np.zeros(len(oracle.states))
+    for s, (l, m) in enumerate(oracle.states):
+        for p in range(3):
+            if particles.locations[p] == l:
+                joint[s] += math.exp(particles.log_weights[p]) * np.prod([maps[p, i, m[i]] for i in range(4)])
+    actions = np.array([1, 1, 0])
+    want = brute_expected_uncertainty(oracle, joint, actions, 1.0)
+    values = []
+    for _ in range(1500):
+        p = rng.choice(3, p=np.exp(particles.log_weights))
+        labels = (rng.random((1, 4)) > maps[p, :, 0]).astype(np.int64)  # label 1 w.p. maps[p, i, 1]
+        worlds = (particles.locations[[p]], labels)
+        values.append(particle_expected_uncertainty(model, particles, actions[None], np.ones(4, bool), worlds,
+                                                    rng)[0])
+    values = np.array(values)
+    np.testing.assert_allclose(values[:, 0], want[0], rtol=1e-12)
+    error = np.abs(values.mean(axis=0) - want)[1:]
+    assert np.all(error < 4 * values.std(axis=0, ddof=1)[1:] / math.sqrt(len(values)) + 1e-9), (error, want)
+
+
+def test_a_robot_unsure_of_its_cell_goes_where_the_hypotheses_differ():
+    """Corridor with known labels 0, 0, 0, 1, 0, start at cell 1, p_move = 0.5: after one press
+    right seeing 0 the robot is at cell 1 or 2, even odds, far from the walls. One step left
+    teaches nothing (every cell it could reach reads 0, and it spreads the belief); going right
+    does (from 2 it may reach the cell labelled 1), by a margin of 0.2 nats at 1 and 2 steps."""
+    prior = np.full((5, 2), [0.999, 0.001])
+    prior[3] = [0.001, 0.999]
+    model = om.corridor(5, 2, p_obs=0.9, p_move=0.5, label_prior=prior, start=1)
+    est = make_estimator("exact", model)
+    est.step(None, 0)
+    est.step(1, 0)
+    assert abs(est.belief.location[1] - est.belief.location[2]) < 0.01
+    planner = InfoGainExplorer(model, seed=0, hypotheses=None, press_lengths=(1, 2), step_cost=0.0)
+    planner.bind(est)
+    plan = planner.plan(est.belief)
+    left, right = plan.names.index("press left"), plan.names.index("press right")
+    assert plan.names[plan.chosen[0]] == "press right"
+    assert np.all(plan.gain[right] > plan.gain[left] + 0.2), plan.gain
+
+
+def test_a_lost_robot_presses_into_a_wall():
+    """Unknown map, slippery floor: after three presses right the robot is spread over cells 0-3
+    of a 5-cell corridor. The best macro-action is a long press (into a wall), not one step."""
+    model = om.corridor(5, 2, p_obs=0.9, p_move=0.6)
+    est = make_estimator("exact", model)
+    for a, z in [(None, 0), (1, 1), (1, 0), (1, 1)]:
+        est.step(a, z)
+    planner = InfoGainExplorer(model, seed=0, hypotheses=None, press_lengths=(1, 2, 6), step_cost=0.05,
+                               location_weight=1.0)
+    planner.bind(est)
+    plan = planner.plan(est.belief)
+    c, j = plan.chosen
+    assert plan.names[c].startswith("press") and plan.lengths[j] == 6
+
+
+def _state(est):
+    return checkpoint.state_dict(est), est.belief
+
+
+@pytest.mark.parametrize("name,options", [("rbpf", {"n_particles": 300, "seed": 4}), ("exact", {}),
+                                          ("bk", {})])
+def test_planning_leaves_the_live_estimator_bit_identical(name, options):
+    model, true_map = om.door_world(".o.\n#c.\n", p_door=0.05)
+    if name == "rbpf":
+        model, true_map = exploration_world(p_door=0.01, p_move=0.8, floor_plan=None)
+    est = make_estimator(name, model, **options)
+    twin = make_estimator(name, model, **options)
+    run = om.simulate(model, true_map, np.random.default_rng(0).integers(4, size=30), seed=1)
+    for t in range(run.n_steps):
+        a = None if t == 0 else int(run.actions[t - 1])
+        est.step(a, int(run.observations[t]))
+        twin.step(a, int(run.observations[t]))
+    before = checkpoint.state_dict(est)
+    rng_before = est._rng.bit_generator.state if hasattr(est, "_rng") else None
+    planner = make_planner("info_gain", model, seed=0, hypotheses=3, commit=1)
+    planner.bind(est)
+    for _ in range(3):
+        planner.choose(est.belief)
+    assert checkpoint.same_tree(before, checkpoint.state_dict(est))
+    if rng_before is not None:
+        assert est._rng.bit_generator.state == rng_before
+    for a, z in [(1, 0), (2, 1), (3, 0)]:  # and it continues exactly as a twin that never planned
+        np.testing.assert_array_equal(est.step(a, z).map, twin.step(a, z).map)
+
+
+def test_fork_is_independent_and_continues_like_the_original():
+    model = om.corridor(6, 2)
+    est = make_estimator("rbpf", model, n_particles=50, seed=2)
+    est.step(None, 0)
+    copy = fork(est)
+    assert copy.model is est.model and copy._rng is not est._rng
+    a = copy.step(1, 1)
+    b = est.step(1, 1)
+    np.testing.assert_array_equal(a.map, b.map)
+    copy.step(1, 0)
+    assert est.t == 1 and copy.t == 2
+
+
+def test_bad_options_and_unbound_use_raise_model_errors():
+    model, _ = exploration_world(p_door=0.0, p_move=0.8, floor_plan=None)
+    for options in ({"hypotheses": 0}, {"rollout_particles": 0}, {"commit": 0}, {"gamma": 1.0},
+                    {"step_cost": -1.0}, {"press_lengths": [0, 2]}):
+        with pytest.raises(ModelError):
+            make_planner("info_gain", model, **options)
+    planner = make_planner("info_gain", model, seed=0)
+    est = make_estimator("rbpf", model, n_particles=10, seed=0)
+    belief = est.step(None, 0)
+    state = planner.rng.bit_generator.state
+    with pytest.raises(ModelError, match="bind"):
+        planner.choose(belief)
+    assert planner.rng.bit_generator.state == state
+    with pytest.raises(ModelError, match="different model"):
+        planner.bind(make_estimator("rbpf", om.door_world(p_move=0.8)[0], n_particles=10))
+    with pytest.raises(ModelError):
+        expected_uncertainty(make_estimator("exact", om.corridor(3)), [0])
+
+
+def test_explore_runs_info_gain_by_name_reproducibly():
+    model, true_map = exploration_world(p_door=0.01, p_move=0.8, floor_plan=None)
+    options = {"n_particles": 100}
+    first = explore(model, true_map, "info_gain", "rbpf", steps=40, seed=3, estimator_options=options)
+    second = explore(model, true_map, "info_gain", "rbpf", steps=40, seed=3, estimator_options=options)
+    assert first["action"].equals(second["action"]) and np.array_equal(first["map_error"], second["map_error"])
