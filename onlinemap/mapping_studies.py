@@ -186,8 +186,9 @@ def anneal_study(n_runs: int = 200, seed: SeedLike = 0, *, laps: int = 3, restar
     objective (log likelihood + the pseudo-count prior) over plain EM, annealed EM and
     ``restarts`` plain EM runs from random B (rows Dirichlet(1)) is the reference; a method
     ends at a local maximum when its objective is more than ``tol`` below it. Reports, per
-    method, the fraction of runs at a local maximum (Wilson), the mean gap to the best and the
-    final map error. Cost: n_runs x (restarts + 2) Baum-Welch fits."""
+    method, the fraction of runs at a local maximum (Wilson), the mean gap to the best, the
+    final map error, and the paired comparison on the same runs: ``stuck_alone`` (runs where
+    only this method is at a local maximum) and the exact McNemar p-value of the two counts. Cost: n_runs x (restarts + 2) Baum-Welch fits."""
     model = loop_world(p_obs, p_move, footprint, size)
     rng = as_generator(seed)
     rows = []
@@ -211,7 +212,19 @@ def anneal_study(n_runs: int = 200, seed: SeedLike = 0, *, laps: int = 3, restar
                          "best_objective": best, "objective_gap": gap, "local_maximum": float(gap > tol),
                          "map_error": _final_scores(run, fit.location[-1], fit.map)["map_error"]})
     per_run = pd.DataFrame(rows)
-    return StudyResult(per_run, summarize(per_run, ["estimator"], ANNEAL_MEASURES, confidence))
+    summary = summarize(per_run, ["estimator"], ANNEAL_MEASURES, confidence)
+    stuck = per_run.pivot(index="run", columns="estimator", values="local_maximum")[list(fits)]
+    alone = [int(((stuck[m] == 1) & (stuck.drop(columns=m) == 0).all(axis=1)).sum()) for m in fits]
+    summary["stuck_alone"] = alone  # runs where only this method ends at a local maximum
+    summary["mcnemar_p"] = _mcnemar(*alone)
+    return StudyResult(per_run, summary)
+
+
+def _mcnemar(a: int, b: int) -> float:
+    """Exact two-sided McNemar p-value of ``a`` against ``b`` discordant pairs (binomial, 1/2)."""
+    from scipy.stats import binomtest
+
+    return float(binomtest(a, a + b).pvalue) if a + b else 1.0
 
 
 # --- blocking walls in the door world -------------------------------------------------------
