@@ -137,12 +137,18 @@ def append_observation(observations: np.ndarray, z) -> np.ndarray:
     return np.concatenate([observations, np.asarray(z, dtype=np.int64)[None]])
 
 
+PASSABLE_FLOOR = 1e-3  # the least passability the EM E-step gives a cell (see map_passability)
+
+
 def map_passability(model: GridModel, emission: np.ndarray, inverse: np.ndarray) -> np.ndarray | None:
-    """(N,) P(cell passable) under the map read off B (:func:`map_from_emission`); None without
-    blocking labels. O(N K^2)."""
+    """(N,) P(cell passable) under the map read off B (:func:`map_from_emission`), at least
+    :data:`PASSABLE_FLOOR`: the clipped channel inversion can put a cell's passability at exactly
+    0, and a run that then enters the cell would have probability zero. None without blocking
+    labels. O(N K^2)."""
     if not model.has_blocking:
         return None
-    return map_from_emission(emission, inverse) @ (~model.blocking).astype(np.float64)
+    passable = map_from_emission(emission, inverse) @ (~model.blocking).astype(np.float64)
+    return np.maximum(passable, PASSABLE_FLOOR)
 
 
 def emission_from_counts(counts: np.ndarray, pseudo_count: float, fallback: np.ndarray) -> np.ndarray:

@@ -60,9 +60,10 @@ def summarize(per_run: pd.DataFrame, by: list[str], measures: dict[str, bool],
         for name, proportion in measures.items():
             interval = mean_interval(group[name].to_numpy(dtype=np.float64), confidence, proportion=proportion)
             row[name], row[f"{name}_low"], row[f"{name}_high"] = interval
-        if "error" in group:
-            errors = group["error"].dropna().unique()
-            row["error"] = "; ".join(errors) if len(errors) else ""
+        if "error" in group:  # failed runs: how many, and the kinds of error (details in per_run)
+            failed = group["error"].dropna()
+            kinds = failed.str.split(":").str[0].value_counts()
+            row["error"] = "; ".join(f"{n} runs: {kind}" for kind, n in kinds.items())
         rows.append(row)
     return pd.DataFrame(rows)
 

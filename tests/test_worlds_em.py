@@ -52,7 +52,7 @@ def passability(model, emission):
     """P(cell passable) under the map read off B through the inverse sensor (clipped, renormalised)."""
     maps = np.clip(emission @ np.linalg.inv(model.sensor), 0, 1)
     maps /= maps.sum(axis=1, keepdims=True)
-    return maps @ np.array([0.0 if b else 1.0 for b in model.blocking])
+    return np.maximum(maps @ np.array([0.0 if b else 1.0 for b in model.blocking]), 1e-3)  # the E-step's floor
 
 
 def dense_smoother(motion, prior, actions, likelihoods):
