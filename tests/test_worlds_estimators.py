@@ -100,3 +100,14 @@ def test_blocking_walls_teach_exact_bayes_where_the_walls_are():
     belief = list(beliefs(om.make_estimator("exact", model), run))[-1]
     assert belief.map[2, 1] > 0.99 and belief.location[1] > 0.99
     assert list(beliefs(om.make_estimator("bk", model), run))[-1].map[2, 1] == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("name", ["exact", "bk", "dead_reckoning", "online_em", "offline_em"])
+def test_checkpoints_of_footprint_and_blocking_estimators_resume_bit_identically(name, tmp_path):
+    model = world("grid2x3", True, "both")
+    run = run_of(model, seed=4, steps=12)
+    est = om.make_estimator(name, model)
+    list(beliefs(est, run, stop=6))
+    resumed = om.load(om.save(est, tmp_path / "state.npz"))
+    for a, b in zip(beliefs(est, run, start=6), beliefs(resumed, run, start=6)):
+        assert a.location.tobytes() == b.location.tobytes() and a.map.tobytes() == b.map.tobytes()
