@@ -154,6 +154,14 @@ def _score_estimators(model: GridModel, run: Run, estimators, seed: int) -> list
     return rows
 
 
+def _loop_runs(model: GridModel, n_runs: int, seed: SeedLike, laps: int, desc: str, progress: bool):
+    """Yield ``(index, run seed, run)`` for ``n_runs`` :func:`loop_run` runs, each seeded from ``seed``."""
+    rng = as_generator(seed)
+    for index in tqdm(range(int(n_runs)), desc=desc, disable=not progress):
+        run_seed = int(rng.integers(2**31))
+        yield index, run_seed, loop_run(model, laps, run_seed)
+
+
 def loop_study(n_runs: int = 200, seed: SeedLike = 0, *, laps: int = 3, p_obs: float = 0.8,
                p_move: float = 0.8, footprint="cross", size: int = 5, estimators=None,
                confidence: float = 0.95, progress: bool = True) -> StudyResult:
@@ -162,12 +170,10 @@ def loop_study(n_runs: int = 200, seed: SeedLike = 0, *, laps: int = 3, p_obs: f
     :data:`LOOP_ESTIMATORS`) on the same runs, scored at the last step: map error, wrong cells,
     location error, lost (P(true location) < 0.5) and any wrong cell. Cost: n_runs x (exact's
     O(T F N 2^N) + offline EM's O(iterations T N F) + the others)."""
-    model = loop_world(p_obs, p_move, footprint, size)
-    rng = as_generator(seed)
     rows = []
-    for index in tqdm(range(int(n_runs)), desc="loop world", disable=not progress):
-        run_seed = int(rng.integers(2**31))
-        run = loop_run(model, laps, run_seed)
+    for index, run_seed, run in _loop_runs(loop_world(p_obs, p_move, footprint, size), n_runs, seed, laps,
+                                           "loop world", progress):
+        model = run.model
         for row in _score_estimators(model, run, estimators or LOOP_ESTIMATORS, run_seed):
             rows.append({"run": index, "seed": run_seed, "slips": int(run.slipped.sum()), **row})
     per_run = pd.DataFrame(rows)
@@ -189,13 +195,11 @@ def anneal_study(n_runs: int = 200, seed: SeedLike = 0, *, laps: int = 3, restar
     ends at a local maximum when its objective is more than ``tol`` below it. Reports, per
     method, the fraction of runs at a local maximum (Wilson), the mean gap to the best, the
     final map error, and the paired comparison on the same runs: ``stuck_alone`` (runs where
-    only this method is at a local maximum) and the exact McNemar p-value of the two counts. Cost: n_runs x (restarts + 2) Baum-Welch fits."""
+    only this method is at a local maximum) and the exact McNemar p-value of the two counts.
+    Cost: n_runs x (restarts + 2) Baum-Welch fits."""
     model = loop_world(p_obs, p_move, footprint, size)
-    rng = as_generator(seed)
     rows = []
-    for index in tqdm(range(int(n_runs)), desc="annealing", disable=not progress):
-        run_seed = int(rng.integers(2**31))
-        run = loop_run(model, laps, run_seed)
+    for index, run_seed, run in _loop_runs(model, n_runs, seed, laps, "annealing", progress):
         fits = {"plain EM": baum_welch(model, run.actions, run.observations, pseudo_count=pseudo_count),
                 f"annealed EM {tuple(anneal)}": baum_welch(model, run.actions, run.observations,
                                                            pseudo_count=pseudo_count, anneal=anneal)}
