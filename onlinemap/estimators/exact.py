@@ -11,20 +11,20 @@ Blocking labels or a sensor footprint (DESIGN.md section 7) take a separate nump
 kernel of the paper's model is untouched): motion multiplies the move from ``l`` to its intended
 ``j`` by the passability of map axis ``j``, and the update multiplies, for each location ``l``,
 the F footprint cells' axes by ``O[:, z_f]`` (zero where the off-grid readings do not fit ``l``).
-Cost per step O((F + 3) N K^N) plus N passes for a dynamic world; one (N, K^N) int table of
-labels is kept.
+Cost per step O((F + 3) N K^N) plus N passes for a dynamic world; an (N, K^N) int8 table of
+labels (and, with blocking, a float table of passability) is cached per grid size.
 """
 
 from __future__ import annotations
 
 import math
-from functools import reduce
+from functools import lru_cache, reduce
 from typing import NamedTuple
 
 import numpy as np
 
 from .. import arguments
-from ..arrays import DEFAULT_MAX_BYTES
+from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError
 from ..kernels.exact import change_every_axis, map_marginals as _map_marginals_kernel, motion_observe
@@ -182,16 +182,25 @@ class ExactFilter:
 
 
 # --- blocking and footprints (numpy; DESIGN.md section 7) ---------------------------------
+@lru_cache(maxsize=4)
 def map_labels(n_cells: int, n_labels: int) -> np.ndarray:
-    """(N, K**N) int8: label of cell i in the map of flat index m (cell 0 the leading axis)."""
+    """(N, K**N) int8, read-only and cached: label of cell i in the map of flat index m (cell 0
+    the leading axis)."""
     index = np.arange(n_labels**n_cells)
     powers = n_labels ** np.arange(n_cells - 1, -1, -1)
-    return ((index[None, :] // powers[:, None]) % n_labels).astype(np.int8)
+    return read_only(((index[None, :] // powers[:, None]) % n_labels).astype(np.int8))
 
 
 def passable_tensor(model: GridModel) -> np.ndarray:
-    """(N, K**N) float: 1 where cell j's label in map m does not block, else 0. O(N K^N)."""
-    return (~model.blocking[map_labels(model.n_cells, model.n_labels)]).astype(np.float64)
+    """(N, K**N) float, read-only and cached per (N, K, blocking labels): 1 where cell j's label
+    in map m does not block, else 0. O(N K^N) the first time."""
+    return _passable(model.n_cells, model.n_labels, model.blocking.tobytes())
+
+
+@lru_cache(maxsize=4)
+def _passable(n_cells: int, n_labels: int, blocking: bytes) -> np.ndarray:
+    mask = np.frombuffer(blocking, dtype=bool)
+    return read_only((~mask[map_labels(n_cells, n_labels)]).astype(np.float64))
 
 
 def blocking_motion(model: GridModel, x: np.ndarray, action: int, transpose: bool = False,
