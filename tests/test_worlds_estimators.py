@@ -111,3 +111,22 @@ def test_checkpoints_of_footprint_and_blocking_estimators_resume_bit_identically
     resumed = om.load(om.save(est, tmp_path / "state.npz"))
     for a, b in zip(beliefs(est, run, start=6), beliefs(resumed, run, start=6)):
         assert a.location.tobytes() == b.location.tobytes() and a.map.tobytes() == b.map.tobytes()
+
+
+@pytest.mark.parametrize("name", ["exact", "bk", "dead_reckoning", "online_em", "offline_em"])
+def test_bad_or_impossible_footprint_observations_change_nothing(name):
+    from estimator_cases import assert_state_unchanged, snapshot
+    from onlinemap.errors import ImpossibleObservationError, InvalidObservationError
+
+    model = om.grid_model(2, 3, 2, p_obs=1.0, footprint="cross", start=1)
+    est = om.make_estimator(name, model)
+    est.step(None, [0, -1, 0, 0, 0])  # cell 1 (top middle): only north is off the grid
+    before = snapshot(est)
+    for bad in ([0, 0, 0], [-1, -1, 0, 0, 0], [0, 0, 0, 0, 0], [0, -1, 0, 0, 5]):
+        with pytest.raises(InvalidObservationError):
+            est.step("east", bad)
+        assert_state_unchanged(est, before)
+    if name != "dead_reckoning":  # north from row 0 stays: the bottom row's off-grid pattern is impossible
+        with pytest.raises(ImpossibleObservationError):
+            est.step("north", [0, 0, 0, -1, 0])
+        assert_state_unchanged(est, before)
