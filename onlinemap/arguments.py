@@ -102,7 +102,12 @@ def names(name: str, values, count: int, error: type[OnlineMapError] = ModelErro
 
 
 def seed(name: str, value, error: type[OnlineMapError] = ModelError):
-    """A seed: None (fresh entropy), an int >= 0, or a ``numpy.random.Generator`` (returned as is)."""
-    if value is None or type(value).__name__ == "Generator":
+    """A seed as ``numpy.random.default_rng`` takes it: None (fresh entropy), an int >= 0, a
+    non-empty sequence of them, a ``SeedSequence`` or a ``Generator``; returned as given."""
+    if value is None or type(value).__name__ in ("Generator", "SeedSequence"):
+        return value
+    if isinstance(value, (list, tuple)) and value:
+        for item in value:
+            integer(f"{name} entries", item, minimum=0, error=error)
         return value
     return integer(name, value, minimum=0, error=error)
