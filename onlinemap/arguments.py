@@ -102,12 +102,12 @@ def names(name: str, values, count: int, error: type[OnlineMapError] = ModelErro
 
 
 def seed(name: str, value, error: type[OnlineMapError] = ModelError):
-    """A seed as ``numpy.random.default_rng`` takes it: None (fresh entropy), an int >= 0, a
-    non-empty sequence of them, a ``SeedSequence`` or a ``Generator``; returned as given."""
-    if value is None or type(value).__name__ in ("Generator", "SeedSequence"):
+    """A seed: None (fresh entropy), an int >= 0, a sequence of ints >= 0 (entropy for
+    ``numpy.random.SeedSequence``, as a tuple), or a ``numpy.random.Generator`` (returned as is)."""
+    if value is None or type(value).__name__ == "Generator":
         return value
-    if isinstance(value, (list, tuple)) and value:
-        for item in value:
-            integer(f"{name} entries", item, minimum=0, error=error)
-        return value
+    if isinstance(value, (list, tuple)):
+        if not value:
+            raise error(f"{name} must not be an empty sequence")
+        return tuple(integer(f"{name}[{i}]", v, minimum=0, error=error) for i, v in enumerate(value))
     return integer(name, value, minimum=0, error=error)
