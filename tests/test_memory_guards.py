@@ -30,7 +30,7 @@ with open("/proc/self/clear_refs", "w") as clear:
     clear.write("5")  # reset the peak to the current resident size (Linux >= 4.0)
 before = peak()
 model = om.corridor(n, p_change=p_change, p_move=1.0)
-est = om.make_estimator("rbpf", model, n_particles=p, seed=0, resample_threshold=0.0)
+est = om.make_estimator("rbpf", model, n_particles=p, seed=0, resampling="residual", resample_threshold=0.0)
 rng = np.random.default_rng(0)
 est.step(None, 0)
 for t in range(1, 2 * n):  # there and back without resampling: every particle ends up owning every block
