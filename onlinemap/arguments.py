@@ -102,7 +102,12 @@ def names(name: str, values, count: int, error: type[OnlineMapError] = ModelErro
 
 
 def seed(name: str, value, error: type[OnlineMapError] = ModelError):
-    """A seed: None (fresh entropy), an int >= 0, or a ``numpy.random.Generator`` (returned as is)."""
+    """A seed: None (fresh entropy), an int >= 0, a sequence of ints >= 0 (entropy for
+    ``numpy.random.SeedSequence``, as a tuple), or a ``numpy.random.Generator`` (returned as is)."""
     if value is None or type(value).__name__ == "Generator":
         return value
+    if isinstance(value, (list, tuple)):
+        if not value:
+            raise error(f"{name} must not be an empty sequence")
+        return tuple(integer(f"{name}[{i}]", v, minimum=0, error=error) for i, v in enumerate(value))
     return integer(name, value, minimum=0, error=error)

@@ -55,7 +55,7 @@ def test_many_particles_match_exact_within_monte_carlo_tolerance(p_change, propo
     model = om.corridor(6, 2, p_change=p_change, **STATIC)
     run = random_run(model, 15, seed=4)
     exact = exact_trajectory(run)
-    for t, belief in enumerate(rbpf_steps(run, n_particles=20_000, proposal=proposal, seed=1)):
+    for t, belief in enumerate(rbpf_steps(run, n_particles=20_000, proposal=proposal, resampling="residual", seed=1)):
         ess = belief.effective_sample_size
         assert 0.2 * 20_000 < ess <= 20_000
         for estimate, truth in ((belief.location, exact.location[t]), (belief.map, exact.map[t])):
@@ -95,13 +95,13 @@ def test_lazy_dynamics_equals_eager(resampling, threshold, block):
         assert a.log_evidence == pytest.approx(b.log_evidence, abs=1e-12)
 
 
-@pytest.mark.parametrize("threshold", [0.5, 1.0])
-def test_block_size_does_not_change_results(threshold):
+@pytest.mark.parametrize("resampling,threshold", [("residual", 0.5), ("residual", 1.0), ("fearnhead_clifford", 0.5)])
+def test_block_size_does_not_change_results(resampling, threshold):
     """Maps are stored as shared copy-on-write blocks of B cells; B (dividing N or not, 1 or
     all of N) changes where numbers live (and the order of rounding), not the values."""
     model = om.grid_model(3, 3, 3, **DYNAMIC_3X3)
     run = random_run(model, 40, seed=10)
-    options = dict(n_particles=60, resample_threshold=threshold, seed=4)
+    options = dict(n_particles=60, resampling=resampling, resample_threshold=threshold, seed=4)
     reference = list(rbpf_steps(run, block_cells=9, **options))
     for block in (1, 2, 4, None):
         for a, b in zip(rbpf_steps(run, block_cells=block, **options), reference):
@@ -167,7 +167,8 @@ def test_optimal_proposal_has_lower_weight_variance():
     for seed in range(10):
         cv2 = {}
         for proposal in ("optimal", "transition"):
-            beliefs = list(rbpf_steps(run, n_particles=200, proposal=proposal, resample_threshold=1.0, seed=seed))
+            beliefs = list(rbpf_steps(run, n_particles=200, proposal=proposal, resampling="residual",
+                                      resample_threshold=1.0, seed=seed))
             cv2[proposal] = np.mean([200 / b.effective_sample_size - 1 for b in beliefs[1:]])
         assert cv2["optimal"] < cv2["transition"], (seed, cv2)
 
@@ -243,6 +244,7 @@ def test_bad_input_keeps_everything():
     (dict(n_particles=0), "n_particles"), (dict(n_particles=2.5), "n_particles"),
     (dict(proposal="prior"), "proposal"), (dict(resampling="stratify"), "resampling"),
     (dict(resample_threshold=1.5), "resample_threshold"), (dict(block_cells=0), "block_cells"),
+    (dict(proposal="transition", resampling="fearnhead_clifford"), "enumerates"),
 ])
 def test_bad_options_are_refused(options, match):
     with pytest.raises(om.ModelError, match=match):
@@ -316,8 +318,9 @@ def test_fearnhead_clifford_many_particles_match_exact_within_monte_carlo_tolera
 
 def test_fearnhead_clifford_is_closer_to_exact_than_residual_resampling():
     """At equal particles (100) on random 8-cell corridor runs: mean TV to exact (location +
-    mean cell) at most 0.75 of the optimal proposal with residual resampling over 6 runs (measured
-    about 0.55; the issue's target 0.6 is checked at scale by ``onlinemap bench rbpf``)."""
+    mean cell) below 0.6 of the optimal proposal with residual resampling over 6 runs, the issue's
+    target (``onlinemap bench rbpf`` measures about 0.33 over 40 runs; the standard error of the
+    ratio over 6 runs is about 0.05)."""
     model = om.corridor(8, p_change=0.02)
     tv = {"residual": [], "fearnhead_clifford": []}
     for seed in range(6):
@@ -328,7 +331,7 @@ def test_fearnhead_clifford_is_closer_to_exact_than_residual_resampling():
             trajectory = om.run_estimator(est, run.actions, run.observations)
             tv[scheme].append(np.mean(om.metrics.total_variation(trajectory.location, exact.location)
                                       + om.metrics.total_variation(trajectory.map, exact.map).mean(axis=1)))
-    assert np.mean(tv["fearnhead_clifford"]) < 0.75 * np.mean(tv["residual"]), tv
+    assert np.mean(tv["fearnhead_clifford"]) < 0.6 * np.mean(tv["residual"]), tv
 
 
 def test_fearnhead_clifford_checkpoint_resume_is_bit_identical(tmp_path):
@@ -363,3 +366,10 @@ def test_fearnhead_clifford_bad_or_impossible_input_keeps_everything():
     for action in ("left", "left", "right"):
         np.testing.assert_array_equal(est.step(action, 0).location, twin.step(action, 0).location)
     np.testing.assert_array_equal(est.particle_maps(), twin.particle_maps())
+
+
+def test_default_resampling_is_fearnhead_clifford_for_the_optimal_proposal():
+    model = om.corridor(6)
+    assert om.make_estimator("rbpf", model).resampling == "fearnhead_clifford"
+    assert om.make_estimator("rbpf", model, proposal="transition").resampling == "residual"
+    assert om.make_estimator("rbpf", model, resampling="systematic").resampling == "systematic"

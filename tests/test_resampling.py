@@ -100,6 +100,7 @@ OPTIMAL_CASES = {  # (weights, n kept)
     "with zeros, keep 2": (WEIGHTS["with zeros"], 2),
     "one dominant, keep 3": (np.array([0.9, 0.04, 0.03, 0.02, 0.01]), 3),
     "equal, keep 3 of 7": (np.full(7, 1 / 7), 3),
+    "geometric, keep 18 of 22": (2.0 ** -np.arange(22), 18),  # c ~ 1e-5: many rounds, then the sort
 }
 
 
@@ -112,8 +113,9 @@ def brute_threshold(weights, n):
     return hi
 
 
+@pytest.mark.parametrize("walk", ["index order", "shuffled order"])
 @pytest.mark.parametrize("case", sorted(OPTIMAL_CASES))
-def test_optimal_resampling_is_unbiased_keeps_large_children_and_none_twice(case):
+def test_optimal_resampling_is_unbiased_keeps_large_children_and_none_twice(case, walk):
     """Fearnhead-Clifford: the mean new weight of each child over many draws equals its weight (a
     child below c gets weight c with probability w / c: per-draw variance w (c - w), so the mean of
     ``draws`` draws has standard deviation sqrt(w (c - w) / draws)); every child with w >= c is
@@ -125,10 +127,13 @@ def test_optimal_resampling_is_unbiased_keeps_large_children_and_none_twice(case
     rng = np.random.default_rng(2)
     draws = 5000
     large = weights >= c
+    order = np.arange(len(weights)) if walk == "index order" else np.random.default_rng(5).permutation(len(weights))
     mean_weight = np.zeros(len(weights))
     for _ in range(draws):
-        kept = optimal_resampling(weights, n, rng)
-        assert len(kept.indices) == min(n, np.count_nonzero(weights)) and np.all(np.diff(kept.indices) > 0)
+        kept = optimal_resampling(weights, n, rng, order)
+        assert len(kept.indices) == min(n, np.count_nonzero(weights)) == len(np.unique(kept.indices))
+        walked = np.argsort(order)[kept.indices]  # positions in the walk: increasing
+        assert np.all(np.diff(walked) > 0)
         assert abs(kept.threshold - c) <= 1e-9 * c and abs(kept.weights.sum() - 1) <= 1e-12
         new_weight = np.zeros(len(weights))
         new_weight[kept.indices] = kept.weights
@@ -150,7 +155,9 @@ def test_optimal_resampling_keeps_everything_when_few_children():
     assert scaled.weights.sum() == pytest.approx(4.0) and len(scaled.indices) == 2
 
 
-@pytest.mark.parametrize("bad,n", [([], 1), ([0.0, 0.0], 1), ([0.5, -0.1], 1), ([1.0, 1.0], 0), ([1.0], 1.5)])
-def test_optimal_resampling_refuses_bad_input(bad, n):
+@pytest.mark.parametrize("bad,n,order", [([], 1, None), ([0.0, 0.0], 1, None), ([0.5, -0.1], 1, None),
+                                         ([1.0, 1.0], 0, None), ([1.0], 1.5, None), ([1.0, 1.0], 1, [0, 0]),
+                                         ([1.0, 1.0], 1, [0]), ([1.0, 1.0], 1, [0.0, 1.0])])
+def test_optimal_resampling_refuses_bad_input(bad, n, order):
     with pytest.raises(ValueError):
-        optimal_resampling(np.array(bad, dtype=float), n, np.random.default_rng(0))
+        optimal_resampling(np.array(bad, dtype=float), n, np.random.default_rng(0), order)

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from ..bench import _COLUMNS as _STANDARD
-from ..bench import available_benchmarks, benchmark_record, run_benchmarks
+from ..bench import available_benchmarks, benchmark_figures, benchmark_record, run_benchmarks
 from ..progress import show_progress
 from .common import add_out_argument, check_table_format, print_table, write_tables
 
@@ -27,7 +27,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", metavar="FILE",  # every column, as the benchmarks gave them
                    help="also write the table with machine info, versions, time and git commit as "
                         "JSON; a .jsonl FILE gets one line appended per run (a history)")
-    add_out_argument(p, "bench.csv (the table, every column) and bench.json (the same with machine info)")
+    add_out_argument(p, "bench.csv (the table, every column), bench.json (the same with machine info) and "
+                        "the figures of benchmarks that draw some (rbpf: rbpf_accuracy.png, TV to exact "
+                        "against particles and against ms per step)")
     p.set_defaults(func=bench)
 
 
@@ -71,6 +73,10 @@ def bench(args: argparse.Namespace) -> int:
         write_tables({"bench": table}, args.out, args.format)
         (args.out / "bench.json").write_text(json.dumps(record, indent=2))
         print(f"wrote {args.out / 'bench.json'}")
+        from ..plots import save
+
+        for stem, fig in benchmark_figures(table).items():
+            print(f"wrote {save(fig, args.out / f'{stem}.png')}")
     if args.json:
         path = Path(args.json)
         if path.suffix == ".jsonl":

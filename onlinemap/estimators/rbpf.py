@@ -38,9 +38,9 @@ from .. import arguments
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
-from ..kernels.rbpf import (in_place_ancestors, particle_maps, rbpf_commit, rbpf_enumerate, rbpf_map_mixture,
-                             rbpf_place_children, rbpf_propose, rbpf_refresh)
-from ..resampling import RESAMPLERS, effective_sample_size, optimal_resampling
+from ..kernels.rbpf import (children_by_location, in_place_ancestors, particle_maps, rbpf_commit, rbpf_enumerate,
+                             rbpf_map_mixture, rbpf_place_children, rbpf_propose, rbpf_refresh)
+from ..resampling import RESAMPLERS, effective_sample_size, optimal_keep
 from ..rng import SeedLike, as_generator
 from ..model import GridModel
 from ..validation import check_step
@@ -130,11 +130,21 @@ def _grown(array: np.ndarray, rows: int) -> np.ndarray:
 class RaoBlackwellisedPF:
     """RBPF over trajectories with exact per-cell map marginals.
 
-    Options: ``n_particles`` (P); ``proposal`` ``"optimal"`` (sample the location given the
-    observation; lower weight variance) or ``"transition"`` (sample the motion model);
-    ``resampling`` ``"residual"``, ``"systematic"``, ``"stratified"`` or ``"multinomial"``;
-    ``resample_threshold`` resample before a step when the effective sample size is below this
-    fraction of P (1.0 = every step, 0.0 = never); ``seed`` (int, None or Generator);
+    Options: ``n_particles`` (P); ``resampling``:
+
+    - ``"fearnhead_clifford"`` (Fearnhead and Clifford 2003; the default with the optimal
+      proposal): every step enumerates each particle's successors (stay, move) with their exact
+      weights and keeps P of them by optimal resampling, none twice. It starts from one particle
+      and keeps every child while there are at most P (so with P >= 2^T it is exact Bayes).
+      Measured (``onlinemap bench rbpf``): 0.23-0.39x the TV to exact of the optimal proposal
+      with residual resampling at equal particles, for 1.05-1.5x the time per step.
+    - ``"residual"``, ``"systematic"``, ``"stratified"``, ``"multinomial"``: sample one
+      successor per particle from ``proposal`` — ``"optimal"`` (given the observation; lower
+      weight variance) or ``"transition"`` (the motion model) — and resample by that scheme
+      before a step when the effective sample size is below ``resample_threshold`` times P
+      (1.0 = every step, 0.0 = never). ``None`` picks ``"residual"`` for the transition proposal.
+
+    ``seed`` (int, None or Generator);
     ``lazy_dynamics`` (False applies C to every cell of every particle every step: O(P N K^2),
     the reference the lazy scheme is tested against); ``block_cells`` B, the cells per shared
     map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes`` guard on
@@ -142,13 +152,19 @@ class RaoBlackwellisedPF:
     """
 
     def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
-                 resampling: str = "residual", resample_threshold: float = 0.5, seed: SeedLike = None,
+                 resampling: str | None = None, resample_threshold: float = 0.5, seed: SeedLike = None,
                  lazy_dynamics: bool = True, block_cells: int | None = None,
                  max_bytes: int = DEFAULT_MAX_BYTES):
         error = InvalidOptionError
         n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
         proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
+        if resampling is None:
+            resampling = FEARNHEAD_CLIFFORD if proposal == "optimal" else "residual"
         resampling = arguments.choice("resampling", resampling, RESAMPLING, error)
+        if resampling == FEARNHEAD_CLIFFORD and proposal != "optimal":
+            raise error(f"proposal={proposal!r} samples one successor per particle; resampling="
+                        f"'{FEARNHEAD_CLIFFORD}' enumerates them all (the optimal proposal's weights): pass "
+                        f"resampling='residual' (or another sampling scheme) to use it")
         resample_threshold = arguments.probability("resample_threshold", resample_threshold, error)
         seed = arguments.seed("seed", seed, error)
         lazy_dynamics = arguments.flag("lazy_dynamics", lazy_dynamics, error)
@@ -301,8 +317,10 @@ class RaoBlackwellisedPF:
     def _update_fearnhead_clifford(self, a: int | None, z: int, t: int) -> None:
         """Enumerate every live particle's successors with their exact weights
         (:func:`rbpf_enumerate`), keep P of them by optimal resampling
-        (:func:`~onlinemap.resampling.optimal_resampling`: none twice, unbiased) and write them
-        into the slots. O(P K^2) plus O(P log P) for the resampling's sort."""
+        (:func:`~onlinemap.resampling.optimal_resampling`: none twice, unbiased; its strata walk
+        the children ordered by location, :func:`children_by_location`, which spreads the draws
+        over the cells: measured 1.6-2x closer to exact than index order) and write them into the
+        slots. O(P K^2 + N); the resampling is O(P)."""
         model = self.model
         n_particles = self.n_particles
         pool, pool_stamps, row_block, refcount, free, free_top = rows = self._reserved_rows()
@@ -321,15 +339,17 @@ class RaoBlackwellisedPF:
             raise ImpossibleObservationError(
                 f"observation {model.label_names[z]!r} has probability zero for every particle at step {t}")
         increment = _logsumexp(child_log_weight[:m])
-        kept = optimal_resampling(np.exp(child_log_weight[:m] - increment), n_particles, self._rng)
-        ancestors = in_place_ancestors(np.bincount(child_parent[kept.indices], minlength=n_particles))
+        kept, kept_weights, threshold = optimal_keep(np.exp(child_log_weight[:m] - increment), n_particles,
+                                                     self._rng.random(),
+                                                     children_by_location(child_location[:m], model.n_cells))
+        ancestors = np.empty(n_particles, dtype=np.int64)
         new_locations = np.empty(n_particles, dtype=np.int64)
         new_cells = np.empty((n_particles, model.n_labels))
         log_weights = np.empty(n_particles)
-        rbpf_place_children(child_parent, child_location, child_cells, kept.indices, kept.weights, ancestors,
+        rbpf_place_children(child_parent, child_location, child_cells, kept, kept_weights, ancestors,
                             new_locations, new_cells, log_weights)
         self._commit(t, rows, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights), increment,
-                     kept.threshold > 0)
+                     threshold > 0)
 
     def _commit(self, t, rows, ancestors, new_locations, new_cells, log_weights, increment, resampled) -> None:
         """Write a validated step: the particles' slots (:func:`rbpf_commit`), the block pool

@@ -90,6 +90,7 @@ def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block,
     of cell j given z. Children with probability zero are left out. Writes the first M entries of
     ``child_parent``, ``child_location``, ``child_log_weight`` and ``child_cells`` (M, K) (each at
     least 2P long), grouped by parent in increasing order. O(P K^2)."""
+    k = likelihood.shape[0]
     m = 0
     for q in range(locations.shape[0]):
         if log_weights[q] == -np.inf:
@@ -101,42 +102,76 @@ def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block,
             if probability <= 0.0:
                 continue
             r = table[q, cell_block[j]]
-            lam = _evidence(pool, pool_stamps, powers, dynamic, t, r, cell_slot[j], likelihood)
+            slot = cell_slot[j]
+            d = _age(pool_stamps, dynamic, t, r, slot)
+            lam = 0.0  # P(z | cell j of map q), as _evidence sums it
+            for b in range(k):
+                current = _aged_label(pool, powers, d, r, slot, b)
+                child_cells[m, b] = current
+                lam += current * likelihood[b]
             if lam <= 0.0:
                 continue
+            for b in range(k):  # as _observed_cell: divide (1 / lam overflows for a subnormal lam)
+                child_cells[m, b] = child_cells[m, b] * likelihood[b] / lam
+            joint = probability * lam  # one log per child; two where the product underflows
+            child_log_weight[m] = log_weights[q] + (math.log(joint) if joint > 0.0 else
+                                                    math.log(probability) + math.log(lam))
             child_parent[m] = q
             child_location[m] = j
-            child_log_weight[m] = log_weights[q] + math.log(probability) + math.log(lam)
-            _observed_cell(pool, pool_stamps, powers, dynamic, t, r, cell_slot[j], likelihood, lam, child_cells[m])
             m += 1
     return m
 
 
 @njit(cache=True)
+def children_by_location(child_location, n_cells):
+    """(M,) the children's indices ordered by location (stable: by parent within a location), the
+    order in which Fearnhead-Clifford's strata walk them, so that the draws spread over the cells
+    in proportion to their weight. Counting sort, O(M + N)."""
+    starts = np.zeros(n_cells + 1, dtype=np.int64)
+    for c in range(child_location.shape[0]):
+        starts[child_location[c] + 1] += 1
+    for i in range(n_cells):
+        starts[i + 1] += starts[i]
+    order = np.empty(child_location.shape[0], dtype=np.int64)
+    for c in range(child_location.shape[0]):
+        i = child_location[c]
+        order[starts[i]] = c
+        starts[i] += 1
+    return order
+
+
+@njit(cache=True)
 def rbpf_place_children(child_parent, child_location, child_cells, kept, kept_weights, ancestors, new_locations,
                         new_cells, new_log_weights):
-    """Put the kept children (``kept`` increasing indices into the children, ``kept_weights``
-    their weights) into the P particle slots, for :func:`rbpf_commit`. ``ancestors`` (P,) comes
-    from :func:`in_place_ancestors` on the kept children per parent: a parent's first child
-    takes the parent's slot, its second the next slot handed to that parent. Slots left without
-    a child (fewer children than P) get ``new_locations = -1`` (no write) and weight 0.
-    Outputs (P,), (P, K), (P,). O(P K)."""
+    """Put the kept children (``kept`` distinct indices into the children, any order;
+    ``kept_weights`` their weights) into the P particle slots, for :func:`rbpf_commit`: a
+    parent's first kept child takes the parent's slot, a second one the next slot whose particle
+    has no kept child (``ancestors[slot]`` = the parent; ``ancestors[p] = p`` elsewhere). Slots
+    left without a child (fewer children than P) get ``new_locations = -1`` (no write) and weight
+    0. Outputs (P,) ancestors, (P,), (P, K), (P,). O(P K)."""
+    n_particles = ancestors.shape[0]
+    has_child = np.zeros(n_particles, dtype=np.bool_)
+    for i in range(kept.shape[0]):
+        has_child[child_parent[kept[i]]] = True
+    for p in range(n_particles):
+        ancestors[p] = p
     new_locations[:] = -1
     new_log_weights[:] = -np.inf
     new_cells[:] = 0.0
-    extra = 0  # the slots handed to second children, in increasing order
-    previous = -1
+    filled = np.zeros(n_particles, dtype=np.bool_)
+    extra = 0  # the next slot without a child of its own, for a second child
     for i in range(kept.shape[0]):
         c = kept[i]
         q = child_parent[c]
-        if q != previous:
+        if not filled[q]:
             slot = q
-            previous = q
         else:
-            while ancestors[extra] == extra:
+            while has_child[extra]:
                 extra += 1
             slot = extra
             extra += 1
+            ancestors[slot] = q
+        filled[slot] = True
         new_locations[slot] = child_location[c]
         new_cells[slot] = child_cells[c]
         new_log_weights[slot] = math.log(kept_weights[i])
