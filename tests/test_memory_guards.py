@@ -25,7 +25,7 @@ warm = om.make_estimator("rbpf", om.corridor(8, p_change=p_change), n_particles=
 warm.step(None, 0), warm.step(1, 1), warm.belief
 before = peak()
 model = om.corridor(n, p_change=p_change, p_move=1.0)
-est = om.make_estimator("rbpf", model, n_particles=p, seed=0, resample_threshold=0.0)
+est = om.make_estimator("rbpf", model, n_particles=p, seed=0, resampling="residual", resample_threshold=0.0)
 rng = np.random.default_rng(0)
 est.step(None, 0)
 for t in range(1, 2 * n):  # there and back without resampling: every particle ends up owning every block
