@@ -1,4 +1,4 @@
-"""Writes notebooks/active_exploration.ipynb (no stored outputs). Run: python notebooks/build_active_exploration.py"""
+"""Writes notebooks/active_exploration.ipynb, executed with its outputs. Run: python notebooks/build_active_exploration.py"""
 
 import nbformat
 from nbformat.v4 import new_code_cell, new_markdown_cell
@@ -79,7 +79,7 @@ Map error and location error over time, mean over seeds with a band of one stand
 planners = ["info_gain", "entropy", "random", "sweep"]
 table = policies.compare_planners(model, true_map, planners, "rbpf", STEPS, SEEDS,
                                   estimator_options={"n_particles": N_PARTICLES}, progress=False)
-policies.summarize(table, model, true_map)"""),
+policies.summarize(table, model, true_map).drop(columns="ms_per_step")  # timings change from run to run"""),
     new_code_cell("""\
 fig, axes = plt.subplots(1, 2, figsize=(12, 4), layout="constrained")
 policies.plot_errors(table, axes=axes, columns=("map_error", "location_error"));"""),
@@ -103,6 +103,19 @@ diff = final["info_gain"] - final["entropy"]
 p = stats.ttest_rel(final["info_gain"], final["entropy"], alternative="less").pvalue if len(diff) > 1 else np.nan
 print(f"final map error: info_gain {final['info_gain'].mean():.3f}, entropy {final['entropy'].mean():.3f}; "
       f"info_gain lower on {(diff < 0).sum()}/{len(diff)} seeds, p = {p:.3g}")"""),
+    new_markdown_cell("""\
+## Conclusion
+
+Starting from nothing (uniform map prior, one press in five failing), no planner keeps this
+robot localised: over these 6 seeds of 600 steps the mean location error is 0.84 for
+`info_gain`, 0.87 for the paper's `entropy` planner, 0.91 for a random walk and 0.95 for the
+sweep. What information gain buys is a better map from the same lost start: a final map error of
+0.37 against 0.49 for `entropy` and 0.53-0.56 for the random walk and the sweep, because it
+values the moves whose payoff is knowing where the robot is (pressing along walls, returning to
+cells it has mapped) and the Q-MDP rule cannot. On 6 seeds that advantage over `entropy` is
+suggestive, not established (lower on 4 of 6 seeds, one-sided paired p = 0.07); the README
+gives the full-size study. Door states stay mostly wrong for every planner here (late door
+error 0.75-0.88): with the location this uncertain, a door observed is rarely a door placed."""),
 ]
 
 

@@ -112,7 +112,7 @@ resampling)."""),
 summary = compare.summarise(per_step)
 display(compare.error_vs_particles_figure(summary))
 display(compare.error_over_time_figure(per_step))
-summary.pivot(index="estimator", columns="world", values="map_tv_mean").round(4)"""),
+summary.pivot(index="estimator", columns="world", values="mean_map_tv").round(4)"""),
     ("md", """## Conclusion
 
 * **The RBPF tracks exact Bayes, and more particles bring it closer.** On the scripted corridor

@@ -29,14 +29,19 @@ arrays sharing memory (views) are refused, since loading could not keep them lin
 ``est.model`` and ``est.options`` (the keyword options it was built with, recorded by
 :func:`~onlinemap.estimators.register`) are stored apart and checked on load.
 
-File format (``save``/``load``): an uncompressed ``.npz`` read with ``allow_pickle=False``:
-``meta`` (UTF-8 JSON as uint8: format name and version, onlinemap version, estimator name,
-options, t, model and attribute tree with arrays replaced by keys ``a0, a1, ...``), ``sha256``
-(hex digest of ``meta`` and every array's bytes) and the arrays. Nothing in a file is ever
-executed: no pickle, JSON only, whitelisted numpy bit generators, the model re-validated. The
-checksum catches truncation, corruption and hand edits; it is not a signature (whoever can
-write the file can recompute it), and needs not be one. Files are written atomically (temp file
-in the same directory, fsync, ``os.replace``): a crash mid-write leaves the previous file intact.
+File format (``save``/``load``): an uncompressed ``.npz``: ``meta`` (UTF-8 JSON as uint8:
+format name and version, onlinemap version, estimator name, options, t, model and attribute
+tree with arrays replaced by keys ``a0, a1, ...``), ``sha256`` (hex digest of ``meta`` and every
+array's bytes) and the arrays. :func:`read` parses it itself: regular files only, no
+compressed or encrypted entries, every npy header's declared size equal to its entry's before
+anything is allocated, metadata nested at most 64 deep. Nothing in a file is ever executed: no
+pickle, JSON only, whitelisted numpy bit generators, the model re-validated. The checksum
+catches truncation, corruption and hand edits; it is not a signature (whoever can write the
+file can recompute it), so :func:`load_state_dict` also checks the restored state against the
+estimator's invariants (:mod:`onlinemap.state_checks`): no file can make a kernel index outside
+its arrays. Compatibility: :data:`FORMAT_VERSION` (see :func:`check_header`). Files are written
+atomically (temp file in the same directory, fsync, ``os.replace``, through symlinks, the mode
+kept): a crash mid-write leaves the previous file intact.
 
 Note: ``bit_generator.state`` does not include the generator's seed sequence, so after loading,
 ``Generator.spawn`` gives different children; draws from the generator itself continue exactly.
@@ -62,7 +67,7 @@ import numpy as np
 
 from .belief import Belief
 from .errors import CheckpointError, OnlineMapError
-from .model import DEFINING_FIELDS, GridModel, model_difference
+from .model import DEFINING_FIELDS, OPTIONAL_FIELDS, GridModel, model_difference
 
 FORMAT = "onlinemap-checkpoint"
 FORMAT_VERSION = 1  # bump when the file layout or an estimator's state changes incompatibly
@@ -242,7 +247,8 @@ def _generator(state: dict) -> np.random.Generator:
 
 def decode_model(node) -> GridModel:
     """Rebuild a :class:`GridModel` from :func:`encode_model`'s tree (validated by its constructor)."""
-    if type(node) is not dict or node.get(_TAG) != "model" or set(node.get("fields", ())) != set(DEFINING_FIELDS):
+    names = set(node.get("fields", ())) if type(node) is dict else set()
+    if type(node) is not dict or node.get(_TAG) != "model" or not set(DEFINING_FIELDS) - set(OPTIONAL_FIELDS) <= names <= set(DEFINING_FIELDS):
         raise CheckpointError("the checkpoint's model entry is malformed")
     fields = {name: _Decoder().decode(value, name) for name, value in node["fields"].items()}
     try:
@@ -564,10 +570,11 @@ def read(path: str | os.PathLike) -> dict:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO must not block
     except OSError as error:
         raise CheckpointError(f"cannot open checkpoint {path}: {error.strerror or error}") from None
+    info = os.fstat(fd)
+    if not stat.S_ISREG(info.st_mode):
+        os.close(fd)
+        raise CheckpointError(f"{path} is not a regular file; refused")
     with os.fdopen(fd, "rb") as file:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            raise CheckpointError(f"{path} is not a regular file; refused")
         if file.read(4) != _ZIP_MAGIC:
             raise CheckpointError(f"{path} is not an onlinemap checkpoint (not an npz file)")
         file.seek(0)

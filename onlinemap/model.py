@@ -13,6 +13,17 @@ Tables (all float64, read-only):
 - map dynamics ``C[k, k'] = P(m_{i,t} = k' | m_{i,t-1} = k)``, the same for every cell.
 - sensor ``O[k, z] = P(Z_t = z | m_{L_t} = k)``.
 - label prior ``label_prior[i, k] = P(m_{i,0} = k)``, cells independent; start cell ``start``.
+
+Two options (DESIGN.md section 7), both off by default (the paper's model, bit for bit):
+
+- ``blocking`` (K,) bool: labels a robot cannot enter. From ``i`` with action ``a`` the intended
+  ``j = neighbors[i, a]`` is reached with ``p_move * [not blocking[m_j]]``, the label judged before
+  this step's map change; otherwise the robot stays. Motion then depends on the map.
+- ``footprint``: ``F`` offsets ``(drow, dcol)`` read at every step (``"cell"``, ``"cross"``,
+  ``"square"`` or explicit pairs). Offset ``f`` from location ``l`` reads cell
+  ``footprint_cells[l, f]`` through ``O`` (independently of the other readings), or -1 with
+  probability 1 when that cell is off the grid. An observation is an int when ``F == 1`` and an
+  (F,) int array otherwise.
 """
 
 from __future__ import annotations
@@ -57,6 +68,66 @@ DOOR_WORLD_10X10 = """\
 """
 
 _ATOL = 1e-9
+
+FOOTPRINTS = {
+    "cell": ((0, 0),),
+    "cross": ((0, 0), (-1, 0), (0, 1), (1, 0), (0, -1)),
+    "square": tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)),
+}  # the sensor presets; "cell" is the paper's
+
+
+def _footprint(value) -> tuple[tuple[int, int], ...]:
+    """A footprint preset name or a sequence of (drow, dcol) int pairs -> tuple of int pairs."""
+    if value is None:
+        return FOOTPRINTS["cell"]
+    if isinstance(value, str):
+        try:
+            return FOOTPRINTS[value]
+        except KeyError:
+            raise ModelError(f"unknown footprint {value!r}; expected one of {tuple(FOOTPRINTS)} "
+                             "or a sequence of (drow, dcol) pairs") from None
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError):
+        array = np.empty(0)
+    if array.ndim != 2 or array.shape[1] != 2 or array.shape[0] < 1 or array.dtype.kind not in "iu":
+        raise ModelError(f"footprint must be a preset name or a non-empty sequence of (drow, dcol) int "
+                         f"pairs, got {value!r}")
+    pairs = tuple((int(dr), int(dc)) for dr, dc in array)
+    if len(set(pairs)) != len(pairs):
+        raise ModelError(f"footprint {pairs} repeats an offset")
+    return pairs
+
+
+def footprint_table(rows: int, cols: int, footprint) -> np.ndarray:
+    """(N, F) int64: the cell read by offset f from location l, row-major, -1 off the grid. O(N F)."""
+    offsets = np.array(footprint, dtype=np.int64).reshape(-1, 2)
+    r, c = np.divmod(np.arange(rows * cols), cols)
+    rr = r[:, None] + offsets[:, 0]
+    cc = c[:, None] + offsets[:, 1]
+    inside = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+    return np.where(inside, rr * cols + cc, -1)
+
+
+def blocking_mask(blocking, label_names: Sequence[str]) -> np.ndarray:
+    """(K,) bool mask from blocking labels given by index or name (None: nothing blocks)."""
+    mask = np.zeros(len(label_names), dtype=bool)
+    if blocking is None:
+        return mask
+    if isinstance(blocking, (str, int, np.integer)):
+        blocking = [blocking]
+    for label in blocking:
+        if isinstance(label, (str, np.str_)):
+            if str(label) not in label_names:
+                raise ModelError(f"unknown blocking label {label!r}; expected one of {tuple(label_names)}")
+            mask[list(label_names).index(str(label))] = True
+        elif isinstance(label, (int, np.integer)) and not isinstance(label, (bool, np.bool_)) \
+                and 0 <= int(label) < len(label_names):
+            mask[int(label)] = True
+        else:
+            raise ModelError(f"blocking label {label!r} is not a label index in 0..{len(label_names) - 1} "
+                             f"or a name in {tuple(label_names)}")
+    return mask
 
 
 def _probability(name: str, value: float) -> float:
@@ -105,6 +176,8 @@ def _stochastic(name: str, matrix, shape: tuple[int, ...]) -> np.ndarray:
 
 def symmetric_channel(n_labels: int, p_same: float) -> np.ndarray:
     """(K, K) matrix with ``p_same`` on the diagonal and ``(1 - p_same) / (K - 1)`` elsewhere."""
+    n_labels = arguments.integer("n_labels", n_labels, minimum=2, maximum=arguments.MAX_LABELS)
+    p_same = _probability("p_same", p_same)
     off = (1.0 - p_same) / (n_labels - 1)
     return np.full((n_labels, n_labels), off) + np.eye(n_labels) * (p_same - off)
 
@@ -124,6 +197,9 @@ class GridModel:
     start: int
     action_names: tuple[str, ...]
     label_names: tuple[str, ...]
+    blocking: np.ndarray | None = None  # (K,) bool: labels a robot cannot enter; None = none
+    footprint: tuple[tuple[int, int], ...] | str | None = FOOTPRINTS["cell"]  # offsets read each step
+    footprint_cells: np.ndarray = field(init=False, repr=False)  # (N, F) cell read by offset f, -1 off grid
     self_prob: np.ndarray = field(init=False, repr=False)  # (A, N) T[a, j, j]
     predecessor: np.ndarray = field(init=False, repr=False)  # (A, N) cell moving into j, or -1
     likelihood: np.ndarray = field(init=False, repr=False)  # (K, K) contiguous O.T: row z = O[:, z]
@@ -172,6 +248,14 @@ class GridModel:
         if not 0 <= start < n:
             raise ModelError(f"start cell {start} is outside 0..{n - 1}")
         set_(self, "start", start)
+        blocking = np.zeros(k, dtype=bool) if self.blocking is None else np.array(self.blocking)
+        if blocking.shape != (k,) or blocking.dtype != bool:
+            raise ModelError(f"blocking must be a ({k},) bool array (one flag per label), got "
+                             f"{blocking.dtype} {blocking.shape}; grid_model(blocking=...) takes labels")
+        set_(self, "blocking", read_only(blocking))
+        footprint = _footprint(self.footprint)
+        set_(self, "footprint", footprint)
+        set_(self, "footprint_cells", read_only(footprint_table(self.rows, self.cols, footprint)))
         stays = neighbors.T == np.arange(n)
         self_prob = np.where(stays, 1.0, 1.0 - p_move)
         likelihood = np.ascontiguousarray(self.sensor.T)
@@ -197,6 +281,21 @@ class GridModel:
         return self.neighbors.shape[1]
 
     @property
+    def n_readings(self) -> int:
+        """F, the number of readings per observation (footprint offsets)."""
+        return len(self.footprint)
+
+    @property
+    def has_blocking(self) -> bool:
+        """True when some label blocks motion (motion then depends on the map)."""
+        return bool(self.blocking.any())
+
+    @cached_property
+    def off_grid_patterns(self) -> np.ndarray:
+        """(U, F) bool: the distinct off-grid masks ``footprint_cells[l] < 0`` over locations l."""
+        return read_only(np.unique(self.footprint_cells < 0, axis=0))
+
+    @property
     def shape(self) -> tuple[int, int]:
         return (self.rows, self.cols)
 
@@ -217,12 +316,19 @@ class GridModel:
 
     def __repr__(self) -> str:
         kind = "static" if self.is_static else "dynamic"
+        extra = ""
+        if self.has_blocking:
+            extra += f", blocking={tuple(n for n, b in zip(self.label_names, self.blocking) if b)}"
+        if self.n_readings > 1:
+            preset = next((name for name, fp in FOOTPRINTS.items() if fp == self.footprint), self.footprint)
+            extra += f", footprint={preset}"
         return (f"GridModel({self.rows}x{self.cols}, K={self.n_labels} {self.label_names}, "
-                f"actions={self.action_names}, p_move={self.p_move}, {kind}, start={self.start})")
+                f"actions={self.action_names}, p_move={self.p_move}, {kind}, start={self.start}{extra})")
 
     # --- motion ------------------------------------------------------------------------
     def motion_matrix(self, action: int) -> sp.csr_array:
-        """Sparse (N, N) ``T[action]``, rows = from, columns = to."""
+        """Sparse (N, N) ``T[action]``, rows = from, columns = to; with blocking labels, the motion
+        of a map where no cell blocks."""
         n = self.n_cells
         cells = np.arange(n)
         nb = self.neighbors[:, action]
@@ -240,7 +346,9 @@ class GridModel:
 
 
 DEFINING_FIELDS = ("rows", "cols", "neighbors", "p_move", "change", "sensor", "label_prior", "start",
-                   "action_names", "label_names")  # what makes two models the same; the rest is derived
+                   "action_names", "label_names", "blocking",
+                   "footprint")  # what makes two models the same; the rest is derived
+OPTIONAL_FIELDS = ("blocking", "footprint")  # defining fields with a default (older checkpoints lack them)
 
 
 def model_difference(a: GridModel, b: GridModel) -> str | None:
@@ -295,11 +403,14 @@ def grid_neighbors(rows: int, cols: int) -> tuple[np.ndarray, tuple[str, ...]]:
 
 def grid_model(rows: int, cols: int, n_labels: int = 2, *, p_obs: float = 0.9, p_move: float = 0.8,
                change=None, sensor=None, label_prior=None, start: int = 0,
-               label_names: Sequence[str] | None = None) -> GridModel:
+               label_names: Sequence[str] | None = None, blocking=None, footprint=None) -> GridModel:
     """A general grid model.
 
     ``change`` (K, K) defaults to the identity (static world); ``sensor`` (K, K) defaults to the
     symmetric channel with ``p_obs``; ``label_prior`` is (K,) or (N, K), uniform by default.
+    ``blocking``: labels (indices or names) a robot cannot enter (None: none, the paper's motion);
+    ``footprint``: ``"cell"`` (default, the paper's sensor), ``"cross"``, ``"square"`` or a
+    sequence of (drow, dcol) offsets.
     """
     n_labels = arguments.integer("n_labels", n_labels, minimum=2, maximum=arguments.MAX_LABELS)
     rows, cols = _grid_size(rows, cols)
@@ -315,21 +426,26 @@ def grid_model(rows: int, cols: int, n_labels: int = 2, *, p_obs: float = 0.9, p
         label_prior = np.full(n_labels, 1.0 / n_labels)
     if label_names is None:
         label_names = tuple(str(k) for k in range(n_labels))
+    label_names = tuple(label_names)
     return GridModel(rows=rows, cols=cols, neighbors=neighbors, p_move=p_move, change=change,
                      sensor=sensor, label_prior=label_prior, start=start,
-                     action_names=action_names, label_names=tuple(label_names))
+                     action_names=action_names, label_names=label_names,
+                     blocking=blocking_mask(blocking, label_names), footprint=_footprint(footprint))
 
 
 def corridor(n_cells: int, n_labels: int = 2, p_obs: float = 0.9, p_move: float = 0.8,
-             p_change: float = 0.0, start: int = 0, label_prior=None) -> GridModel:
+             p_change: float = 0.0, start: int = 0, label_prior=None, *, blocking=None,
+             footprint=None) -> GridModel:
     """A 1D corridor of ``n_cells`` (actions left=0, right=1). With ``p_change`` a cell's label
-    becomes one of the other ``K - 1`` labels, uniformly, at every step."""
+    becomes one of the other ``K - 1`` labels, uniformly, at every step. ``blocking`` and
+    ``footprint`` as in :func:`grid_model` (a corridor's footprint offsets have drow = 0 to read
+    anything: cells of other rows are off the grid)."""
     p_change = _probability("p_change", p_change)
     n_labels = arguments.integer("n_labels", n_labels, minimum=2, maximum=arguments.MAX_LABELS)
     n_cells = arguments.integer("n_cells", n_cells, minimum=1, maximum=arguments.MAX_CELLS)
     change = symmetric_channel(n_labels, 1.0 - p_change)
     return grid_model(1, n_cells, n_labels, p_obs=p_obs, p_move=p_move, change=change,
-                      label_prior=label_prior, start=start)
+                      label_prior=label_prior, start=start, blocking=blocking, footprint=footprint)
 
 
 def parse_layout(layout: str) -> np.ndarray:
@@ -358,13 +474,21 @@ def door_change(p_door: float) -> np.ndarray:
     return change
 
 
+def _flag(name: str, value) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ModelError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
 def door_world(layout: str | None = None, p_obs: float = 0.9, p_move: float = 0.8,
                p_door: float = 0.0, start: int | None = None,
-               label_prior=None) -> tuple[GridModel, np.ndarray]:
+               label_prior=None, *, blocking: bool = False,
+               footprint=None) -> tuple[GridModel, np.ndarray]:
     """A 2D door world read from a text layout (default :data:`DOOR_WORLD_10X10`).
 
     Returns ``(model, true_map)``, the map (N,) read from the layout. ``start`` defaults to the
-    first free cell in row-major order.
+    first free cell in row-major order. ``blocking=True``: walls and closed doors block motion;
+    ``footprint`` as in :func:`grid_model`.
     """
     grid = parse_layout(DOOR_WORLD_10X10 if layout is None else layout)
     true_map = grid.ravel()
@@ -373,7 +497,8 @@ def door_world(layout: str | None = None, p_obs: float = 0.9, p_move: float = 0.
         start = int(free[0]) if len(free) else 0
     model = grid_model(grid.shape[0], grid.shape[1], 4, p_obs=p_obs, p_move=p_move,
                        change=door_change(p_door), label_prior=label_prior, start=start,
-                       label_names=DOOR_LABELS)
+                       label_names=DOOR_LABELS, footprint=footprint,
+                       blocking=("wall", "closed_door") if _flag("blocking", blocking) else None)
     if model.rows == 1:
         raise ModelError("a door world needs at least two rows (use corridor() for 1D worlds)")
     return model, read_only(true_map)
@@ -383,4 +508,5 @@ __all__ = [
     "GridModel", "grid_model", "corridor", "door_world", "parse_layout", "door_change",
     "symmetric_channel", "apply_motion", "apply_motion_transpose", "grid_neighbors",
     "DOOR_WORLD_10X10", "DOOR_LABELS", "CORRIDOR_ACTIONS", "GRID_ACTIONS", "door_cells",
+    "FOOTPRINTS", "footprint_table", "blocking_mask",
 ]

@@ -8,18 +8,18 @@ dynamics as :func:`onlinemap.simulate`); :func:`explore_env` drives a gymnasium
 from __future__ import annotations
 
 import time
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 import pandas as pd
-from tqdm import tqdm
 
-from onlinemap import metrics
 from onlinemap.errors import ModelError
-from onlinemap.estimators import Estimator, estimator_options, make_estimator
+from onlinemap.estimators import Estimator, Trajectory, estimator_options, make_estimator
+from onlinemap.evaluate import step_metrics
 from onlinemap.model import GridModel, door_cells
+from onlinemap.progress import tqdm
 from onlinemap.rng import SeedLike
-from onlinemap.simulate import world_step
+from onlinemap.simulate import Run, world_step
 from onlinemap.validation import check_map
 
 from .planners import Planner, make_planner
@@ -65,15 +65,25 @@ def _planner(model: GridModel, planner: str | Planner, options: dict | None,
     return planner
 
 
+class Exploration(NamedTuple):
+    """One exploration run: the per-step table, the true run and the estimator's beliefs."""
+
+    frame: pd.DataFrame  # one row per step: COLUMNS
+    run: Run  # the actions the planner chose, true locations, maps and observations
+    trajectory: Trajectory  # the estimator's stacked beliefs; seconds_per_step: estimator + planner
+
+
 def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[int], WorldState],
-          planner: Planner, estimator: Estimator, steps: int, progress: bool | None) -> pd.DataFrame:
+          planner: Planner, estimator: Estimator, steps: int, progress: bool | None) -> Exploration:
     steps = int(steps)
     if steps < 1:
         raise ModelError(f"steps must be at least 1 (the first observation), got {steps}")
     actions = np.full(steps, -1, dtype=np.int64)
     locations = np.empty(steps, dtype=np.int64)
+    observations = np.empty(steps, dtype=np.int64)
     location_belief = np.empty((steps, model.n_cells))
     map_belief = np.empty((steps, model.n_cells, model.n_labels))
+    evidence = np.empty(steps)
     true_maps = np.empty((steps, model.n_cells), dtype=np.int64)
     if hasattr(planner, "bind"):  # planners that roll hypotheses out on copies of the live filter
         planner.bind(estimator)
@@ -87,25 +97,20 @@ def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[
             actions[t] = planner.choose(belief)
             observation, location, labels = advance(actions[t])
             belief = estimator.step(int(actions[t]), observation)
-        locations[t], true_maps[t] = location, labels
-        location_belief[t], map_belief[t] = belief.location, belief.map
+        locations[t], true_maps[t], observations[t] = location, labels, observation
+        location_belief[t], map_belief[t], evidence[t] = belief.location, belief.map, belief.log_evidence
         bar.update()
     bar.close()
-    doors = door_cells(model, true_maps[0])
-    frame = pd.DataFrame({
-        "t": np.arange(steps),
-        "action": [None] + [model.action_names[a] for a in actions[1:]],
-        "true_location": locations,
-        "map_error": metrics.map_error(map_belief, true_maps),
-        "location_error": metrics.location_error(location_belief, locations),
-        "location_entropy": metrics.normalized_entropy(location_belief),
-        "map_entropy": metrics.map_entropy(map_belief),
-        "door_error": (metrics.map_error(map_belief[:, doors], true_maps[:, doors]) if len(doors)
-                       else np.full(steps, np.nan)),
-    })
-    frame.attrs.update(planner=repr(planner), estimator=estimator.name,
-                       seconds_per_step=(time.perf_counter() - started) / steps)
-    return frame
+    seconds = (time.perf_counter() - started) / steps
+    run = Run(model, actions[1:], locations, true_maps, observations)
+    trajectory = Trajectory(location_belief, map_belief, evidence, seconds)
+    scores = step_metrics(run, trajectory)
+    frame = pd.DataFrame({"t": scores["t"], "action": [None] + [model.action_names[a] for a in actions[1:]],
+                          "true_location": locations})
+    for column in COLUMNS[3:]:
+        frame[column] = scores[column] if column in scores else np.nan
+    frame.attrs.update(planner=repr(planner), estimator=estimator.name, seconds_per_step=seconds)
+    return Exploration(frame, run, trajectory)
 
 
 def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
@@ -131,6 +136,15 @@ def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
     ``progress``: a tqdm bar (None: shown for runs of 200 steps or more).
     Cost: ``steps`` x (estimator step + planner choice) plus O(steps N K) memory and metrics.
     """
+    return exploration(model, true_map, planner, estimator, steps, seed, estimator_options=estimator_options,
+                       planner_options=planner_options, progress=progress).frame
+
+
+def exploration(model: GridModel, true_map, planner: str | Planner = "entropy",
+                estimator: str | Estimator = "rbpf", steps: int = 500, seed: SeedLike = None, *,
+                estimator_options: dict | None = None, planner_options: dict | None = None,
+                progress: bool | None = None) -> Exploration:
+    """:func:`explore` returning the whole :class:`Exploration` (table, true run, beliefs)."""
     world_rng, planner_rng, estimator_seed = _seeds(seed)
     labels = check_map(model, true_map)
     est = _estimator(model, estimator, estimator_options, estimator_seed)
@@ -168,7 +182,7 @@ def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estima
                              f"ask for fewer steps or raise its max_episode_steps")
         return int(observation), info["location"], info["map"]
 
-    return _loop(model, reset, advance, chooser, est, steps, progress)
+    return _loop(model, reset, advance, chooser, est, steps, progress).frame
 
 
 def compare_planners(model: GridModel, true_map, planners=("entropy", "random", "sweep"),

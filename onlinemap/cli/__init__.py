@@ -4,7 +4,9 @@ that sets ``func(args) -> int`` on its parser.
 Only the module of the command being run is imported (``onlinemap --help`` imports none of
 them), so that help and start-up stay fast. Every :class:`~onlinemap.errors.OnlineMapError` and
 every usage error ends the process with ONE line on stderr (``onlinemap: error: ...``) and exit
-status 2, never a traceback.
+status 2, never a traceback; so do the ``ValueError``, ``TypeError``, ``ArithmeticError`` and
+``OSError`` that bad input can still raise from inside the library (``ONLINEMAP_DEBUG=1`` shows
+their traceback).
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ import sys
 
 from ..errors import OnlineMapError
 from .common import PROGRESS_ENV, OneLineErrorParser, fail
+
+DEBUG_ENV = "ONLINEMAP_DEBUG"
 
 # name -> one-line help shown by ``onlinemap --help`` (the module is imported only when chosen)
 COMMANDS = {
@@ -87,9 +91,17 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except OnlineMapError as error:
         return fail(error)
+    except BrokenPipeError:  # the reader went away (`onlinemap run | head`): stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
+    except (ValueError, TypeError, ArithmeticError, OSError) as error:
+        # Bad input that the library has not named yet (a float() of a bad world option, a file
+        # that is not UTF-8, ...): still one line; ONLINEMAP_DEBUG=1 shows the traceback.
+        if os.environ.get(DEBUG_ENV, "0") not in ("", "0"):
+            raise
+        return fail(f"{type(error).__name__}: {error} (set {DEBUG_ENV}=1 for the traceback)")
     except MemoryError as error:  # a size too large for this machine, found by numpy
-        return fail(f"out of memory ({error or 'allocation failed'}); try a smaller world or fewer steps",
-)
+        return fail(f"out of memory ({error or 'allocation failed'}); try a smaller world or fewer steps")
     except KeyboardInterrupt:
         print("onlinemap: interrupted", file=sys.stderr)
         return 130

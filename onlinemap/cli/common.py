@@ -127,8 +127,6 @@ def world(text: str) -> WorldSpec:
         return parse_world(text)
     except OnlineMapError as error:
         raise argparse.ArgumentTypeError(str(error)) from None
-    except (ValueError, TypeError, ArithmeticError) as error:  # until parse_world names every problem
-        raise argparse.ArgumentTypeError(f"world spec {text!r}: {error}") from None
 
 
 # ---------------------------------------------------------------- estimator options and seeds

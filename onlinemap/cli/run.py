@@ -4,18 +4,21 @@ from __future__ import annotations
 
 import argparse
 import logging
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from .. import metrics
 from ..arrays import DEFAULT_MAX_BYTES
-from ..errors import MemoryLimitError, OnlineMapError, UnknownEstimatorError
+from ..errors import MemoryLimitError, UnknownEstimatorError
 from ..estimators import available_estimators, estimator_options, make_estimator, run_estimator
 from ..progress import show_progress, tqdm
 from ..rng import ESTIMATOR_STREAM, derived_seed
 from .common import (OPTION_HELP, add_out_argument, check_table_format, name_list,
                      non_negative_int, parse_options, positive_int, print_table, world, write_tables)
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +75,8 @@ def compare_on_run(run, names: list[str], options: dict[str, dict] | None = None
     Estimators that would exceed their memory limit are skipped (logged as a warning).
     Cost: T steps of each estimator; memory O(T N K) per estimator.
     """
+    import pandas as pd  # here, so that `onlinemap run --help` does not load it
+
     options = options or {}
     rows, steps, times = [], [], {}
     for name in tqdm(names, desc="estimators", disable=not show_progress(progress), leave=False):
@@ -83,10 +88,6 @@ def compare_on_run(run, names: list[str], options: dict[str, dict] | None = None
         except MemoryLimitError as error:
             log.warning("%s: skipped: %s", name, error)
             continue
-        except OnlineMapError:
-            raise
-        except (TypeError, ValueError) as error:  # until every estimator raises its own OnlineMapError
-            raise OnlineMapError(f"{name}: invalid options {chosen}: {error}") from None
         trajectory = run_estimator(estimator, run.actions, run.observations)
         map_err = metrics.map_error(trajectory.map, run.maps)
         loc_err = metrics.location_error(trajectory.location, run.locations)
@@ -117,9 +118,11 @@ def run(args: argparse.Namespace) -> int:
     sim = spec.simulate(args.steps, args.seed)
     print(f"world {spec.spec}: {spec.model}; {sim.n_steps} steps, {int(sim.slipped.sum())} slips, seed {args.seed}")
     summary, per_step = compare_on_run(sim, args.estimators, options, seed=args.seed)
-    if len(summary):
-        print_table(summary)
-        print("ms per step: " + ", ".join(f"{name} {ms:.3g}" for name, ms in summary.attrs["ms_per_step"].items()))
+    if not len(summary):
+        raise MemoryLimitError(f"none of {', '.join(args.estimators)} fits in memory on {spec.spec} (see the "
+                               "warnings above); use an approximate estimator (bk, rbpf)")
+    print_table(summary)
+    print("ms per step: " + ", ".join(f"{name} {ms:.3g}" for name, ms in summary.attrs["ms_per_step"].items()))
     if args.out is not None:
         write_tables({"summary": summary, "steps": per_step}, args.out, args.format)
     return 0
