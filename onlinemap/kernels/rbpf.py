@@ -218,18 +218,10 @@ def rbpf_propose(locations, pool, pool_stamps, table, cell_block, cell_slot, pow
 
 
 @njit(cache=True)
-def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
-                dynamic, powers, max_age, t, ancestors, new_locations, new_cells):
-    """Apply a validated proposal in place.
-
-    1. Slots taken over by a copy (``ancestors[p] != p``; such ancestors keep their own slot,
-       so sources are never overwritten) release their rows and share the ancestor's:
-       O(n_blocks) per copied particle.
-    2. Each particle writes its observed cell (stamped ``t``), first copying the block if it is
-       shared: O(B K) per shared write (cells of the copy older than ``max_age`` steps are
-       brought up to date, so a copy never extends a row's age). Needs ``free_top[0] >= P``.
-       ``new_locations[p] = -1`` leaves slot p as it is (an empty slot).
-    """
+def _take_over_slots(refcount, free, free_top, table, ancestors):
+    """Slots taken over by a copy (``ancestors[p] != p``; such ancestors keep their own slot, so
+    sources are never overwritten) release their rows and share the ancestor's: O(n_blocks) per
+    copied particle."""
     n_particles, n_blocks = table.shape
     for p in range(n_particles):
         q = ancestors[p]
@@ -244,33 +236,68 @@ def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_to
             r = table[q, b]
             table[p, b] = r
             refcount[r] += 1
-    for p in range(n_particles):
+
+
+@njit(cache=True, inline="always")
+def _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, dynamic,
+                powers, max_age, t, p, cell, values):
+    """Particle p's marginal of ``cell`` <- ``values`` (K,), stamped t; the block is first copied if
+    shared: O(B K) (cells of the copy older than ``max_age`` steps are brought up to date, so a copy
+    never extends a row's age). Takes a free row when it copies."""
+    b = cell_block[cell]
+    r = table[p, b]
+    if refcount[r] > 1:
+        free_top[0] -= 1
+        fresh = free[free_top[0]]
+        pool[fresh] = pool[r]
+        if dynamic:
+            pool_stamps[fresh] = pool_stamps[r]
+            for slot in range(pool.shape[1]):
+                if t - pool_stamps[fresh, slot] > max_age:
+                    for label in range(pool.shape[2]):
+                        pool[fresh, slot, label] = _label(pool, pool_stamps, powers, dynamic, t, r, slot, label)
+                    pool_stamps[fresh, slot] = t
+        row_block[fresh] = b
+        refcount[r] -= 1
+        refcount[fresh] = 1
+        table[p, b] = fresh
+        r = fresh
+    j = cell_slot[cell]
+    pool[r, j] = values
+    if dynamic:
+        pool_stamps[r, j] = t
+
+
+@njit(cache=True)
+def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
+                dynamic, powers, max_age, t, ancestors, new_locations, new_cells):
+    """Apply a validated proposal in place: :func:`_take_over_slots`, then each particle writes
+    its observed cell ``new_cells[p]`` at ``new_locations[p]`` (:func:`_write_cell`; needs
+    ``free_top[0] >= P``). ``new_locations[p] = -1`` leaves slot p as it is (an empty slot)."""
+    _take_over_slots(refcount, free, free_top, table, ancestors)
+    for p in range(table.shape[0]):
         cell = new_locations[p]
         if cell < 0:  # an empty slot (Fearnhead-Clifford kept fewer children than P): no write
             continue
-        b = cell_block[cell]
-        r = table[p, b]
-        if refcount[r] > 1:
-            free_top[0] -= 1
-            fresh = free[free_top[0]]
-            pool[fresh] = pool[r]
-            if dynamic:
-                pool_stamps[fresh] = pool_stamps[r]
-                for slot in range(pool.shape[1]):
-                    if t - pool_stamps[fresh, slot] > max_age:
-                        for label in range(pool.shape[2]):
-                            pool[fresh, slot, label] = _label(pool, pool_stamps, powers, dynamic, t, r, slot, label)
-                        pool_stamps[fresh, slot] = t
-            row_block[fresh] = b
-            refcount[r] -= 1
-            refcount[fresh] = 1
-            table[p, b] = fresh
-            r = fresh
-        j = cell_slot[cell]
-        pool[r, j] = new_cells[p]
-        if dynamic:
-            pool_stamps[r, j] = t
+        _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, dynamic,
+                    powers, max_age, t, p, cell, new_cells[p])
         locations[p] = cell
+
+
+@njit(cache=True)
+def rbpf_commit_cells(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block,
+                      cell_slot, dynamic, powers, max_age, t, ancestors, new_locations, new_ids, new_cells):
+    """:func:`rbpf_commit` with up to W cells written per particle: ``new_ids`` (P, W) the cells
+    (-1: none), ``new_cells`` (P, W, K) their marginals at step t. Needs ``free_top[0] >= W P``."""
+    _take_over_slots(refcount, free, free_top, table, ancestors)
+    for p in range(table.shape[0]):
+        if new_locations[p] < 0:
+            continue
+        for w in range(new_ids.shape[1]):
+            if new_ids[p, w] >= 0:
+                _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
+                            dynamic, powers, max_age, t, p, new_ids[p, w], new_cells[p, w])
+        locations[p] = new_locations[p]
 
 
 @njit(cache=True)
