@@ -123,6 +123,117 @@ def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block,
 
 
 @njit(cache=True)
+def rbpf_enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic,
+                         t, neighbors, p_move, blocking, change, footprint_cells, sensor, readings, child_parent,
+                         child_location, child_log_weight, child_ids, child_cells):
+    """:func:`rbpf_enumerate` for blocking labels and sensor footprints; returns M.
+
+    Blocking (``blocking`` (K,) bool, any True): from l the intended n != l is entered with
+    ``p_move * P(m_n passable)``, judged on n's marginal at step t - 1 (before this step's map
+    change); the move child's n is conditioned on passable, the stay child's on
+    ``(1 - p_move) + p_move [m_n blocks]``, then carried to step t by ``change`` (C). Footprint
+    (``footprint_cells`` (N, F), ``readings`` (F,), -1 off the grid): the likelihood is the product
+    over the offsets of ``sum_k current(c_f)[k] sensor[k, z_f]`` (1 where both cell and reading
+    are off the grid, 0 where only one is), and each read cell gets its posterior. Given the
+    trajectory the cells stay independent, so a child's map differs from its parent's in at most
+    W = F + 1 cells: ``child_ids`` (2P, W) (-1: none) and ``child_cells`` (2P, W, K), at step t.
+    Cost O(P F K^2)."""
+    k = sensor.shape[0]
+    n_reads = footprint_cells.shape[1]
+    width = child_ids.shape[1]
+    has_blocking = False
+    for b in range(k):
+        has_blocking = has_blocking or blocking[b]
+    before = np.empty(k)
+    given = np.empty(k)
+    m = 0
+    for q in range(locations.shape[0]):
+        if log_weights[q] == -np.inf:
+            continue
+        l = locations[q]
+        n = neighbors[l]
+        gated = has_blocking and n != l  # the move's success tells about cell n
+        passable = 1.0
+        if gated:
+            r = table[q, cell_block[n]]
+            d = t - 1 - pool_stamps[r, cell_slot[n]] if dynamic else 0
+            passable = 0.0
+            for b in range(k):
+                before[b] = _aged_label(pool, powers, d, r, cell_slot[n], b)
+                if not blocking[b]:
+                    passable += before[b]
+        for s in range(2):
+            j, probability = _successor(l, n, p_move, s)
+            if gated:
+                probability = probability * passable if s == 1 else 1.0 - p_move * passable
+            if probability <= 0.0:
+                continue
+            used = 0
+            if gated:  # n's marginal given the move's outcome (at t - 1), carried to step t by C
+                total = 0.0
+                for b in range(k):
+                    factor = (0.0 if blocking[b] else 1.0) if s == 1 else \
+                        (1.0 - p_move) + (p_move if blocking[b] else 0.0)
+                    given[b] = before[b] * factor
+                    total += given[b]
+                for b in range(k):
+                    given[b] /= total
+                for b in range(k):
+                    if dynamic:
+                        acc = 0.0
+                        for a in range(k):
+                            acc += given[a] * change[a, b]
+                        child_cells[m, 0, b] = acc
+                    else:
+                        child_cells[m, 0, b] = given[b]
+                child_ids[m, 0] = n
+                used = 1
+            likelihood = 1.0
+            log_likelihood = 0.0
+            possible = True
+            for f in range(n_reads):
+                c = footprint_cells[j, f]
+                z = readings[f]
+                if c < 0 or z < 0:  # off the grid reads -1 with probability 1, a cell never does
+                    if c < 0 and z < 0:
+                        continue
+                    possible = False
+                    break
+                w = used
+                for v in range(used):  # a cell this child already changed (the move's evidence)
+                    if child_ids[m, v] == c:
+                        w = v
+                if w == used:
+                    r = table[q, cell_block[c]]
+                    d = _age(pool_stamps, dynamic, t, r, cell_slot[c])
+                    for b in range(k):
+                        child_cells[m, w, b] = _aged_label(pool, powers, d, r, cell_slot[c], b)
+                    child_ids[m, w] = c
+                    used += 1
+                lam = 0.0
+                for b in range(k):
+                    lam += child_cells[m, w, b] * sensor[b, z]
+                if lam <= 0.0:
+                    possible = False
+                    break
+                for b in range(k):
+                    child_cells[m, w, b] = child_cells[m, w, b] * sensor[b, z] / lam
+                likelihood *= lam
+                log_likelihood += math.log(lam)
+            if not possible:
+                continue
+            for v in range(used, width):
+                child_ids[m, v] = -1
+            joint = probability * likelihood
+            child_log_weight[m] = log_weights[q] + (math.log(joint) if joint > 0.0 else
+                                                    math.log(probability) + log_likelihood)
+            child_parent[m] = q
+            child_location[m] = j
+            m += 1
+    return m
+
+
+@njit(cache=True)
 def children_by_location(child_location, n_cells):
     """(M,) the children's indices ordered by location (stable: by parent within a location), the
     order in which Fearnhead-Clifford's strata walk them, so that the draws spread over the cells
@@ -141,14 +252,15 @@ def children_by_location(child_location, n_cells):
 
 
 @njit(cache=True)
-def rbpf_place_children(child_parent, child_location, child_cells, kept, kept_weights, ancestors, new_locations,
-                        new_cells, new_log_weights):
+def rbpf_place_children(child_parent, child_location, child_ids, child_cells, kept, kept_weights, ancestors,
+                        new_locations, new_ids, new_cells, new_log_weights):
     """Put the kept children (``kept`` distinct indices into the children, any order;
-    ``kept_weights`` their weights) into the P particle slots, for :func:`rbpf_commit`: a
+    ``kept_weights`` their weights) into the P particle slots, for :func:`rbpf_commit_cells`: a
     parent's first kept child takes the parent's slot, a second one the next slot whose particle
-    has no kept child (``ancestors[slot]`` = the parent; ``ancestors[p] = p`` elsewhere). Slots
-    left without a child (fewer children than P) get ``new_locations = -1`` (no write) and weight
-    0. Outputs (P,) ancestors, (P,), (P, K), (P,). O(P K)."""
+    has no kept child (``ancestors[slot]`` = the parent; ``ancestors[p] = p`` elsewhere). A
+    child's changed cells ``child_ids`` (M, W) and their marginals ``child_cells`` (M, W, K) go
+    with it. Slots left without a child (fewer children than P) get ``new_locations = -1`` (no
+    write) and weight 0. Outputs (P,) ancestors, (P,), (P, W), (P, W, K), (P,). O(P W K)."""
     n_particles = ancestors.shape[0]
     has_child = np.zeros(n_particles, dtype=np.bool_)
     for i in range(kept.shape[0]):
@@ -156,6 +268,7 @@ def rbpf_place_children(child_parent, child_location, child_cells, kept, kept_we
     for p in range(n_particles):
         ancestors[p] = p
     new_locations[:] = -1
+    new_ids[:] = -1
     new_log_weights[:] = -np.inf
     new_cells[:] = 0.0
     filled = np.zeros(n_particles, dtype=np.bool_)
@@ -173,6 +286,7 @@ def rbpf_place_children(child_parent, child_location, child_cells, kept, kept_we
             ancestors[slot] = q
         filled[slot] = True
         new_locations[slot] = child_location[c]
+        new_ids[slot] = child_ids[c]
         new_cells[slot] = child_cells[c]
         new_log_weights[slot] = math.log(kept_weights[i])
 
