@@ -1,12 +1,18 @@
 """Rao-Blackwellised particle filter (DESIGN.md section 3, ``rbpf``).
 
-Each of P particles samples the robot's trajectory and holds the exact map marginals given
-it. Given a trajectory the cells are independent (each is a hidden Markov chain with
-transition C, observed through O only at the steps the robot stood on it), so a particle's
-map is N marginals of K labels: only the observed cell changes by the sensor; all cells drift
-by C, which is applied lazily (``C^dt`` for the ``dt`` steps since the cell was last brought
-up to date, when it is next read). A dynamic world therefore costs the same per step as a
-static one.
+Each of P particles holds one trajectory of the robot and the exact map marginals given it.
+Given a trajectory the cells are independent (each is a hidden Markov chain with transition C,
+observed through O only at the steps the robot read it), so a particle's map is N marginals of
+K labels: only the read cells change by the sensor (and, with blocking labels, the cell a move
+tried to enter); all cells drift by C, which is applied lazily (``C^dt`` for the ``dt`` steps
+since the cell was last brought up to date, when it is next read). A dynamic world therefore
+costs the same per step as a static one.
+
+Two ways to choose the trajectories: by default (Fearnhead and Clifford 2003) every step
+enumerates each particle's successors with their exact weights and keeps P of them by optimal
+resampling (:func:`onlinemap.resampling.optimal_resampling`), none twice; or each particle
+samples one successor from a proposal and the population is resampled when the effective
+sample size drops (residual, systematic, stratified or multinomial).
 
 State (plain attributes): locations (P,), normalised log weights (P,), the particles' map
 marginals as shared copy-on-write blocks of B cells (see ``onlinemap/kernels/rbpf.py``: a pool
@@ -17,8 +23,10 @@ them up to date: the same values), so that no stamp is more than ``REFRESH_STEPS
 O(R_used B K^2 / REFRESH_STEPS) per step.
 
 Cost per step: O(P K^2) for the proposal and weighting (a particle reads its cell and the
-intended neighbour) plus O(P B K) at most for copy-on-write of shared blocks; a resampling
-step adds O(P_dropped N / B) (table rows copied, not maps). ``belief.location`` is O(P + N);
+intended neighbour; O(P F K^2) for a footprint of F cells) plus O(P B K) at most for
+copy-on-write of shared blocks (O(P W B K), W = F + 1 cells written); a resampling step adds
+O(P_dropped N / B) (table rows copied, not maps). Fearnhead-Clifford resamples every step (its
+2P children to P, O(P) plus O(N) to order them by location). ``belief.location`` is O(P + N);
 ``belief.map`` (the weighted mixture) is O(P N / B) plus one pass over the block rows in use
 (at most P N K floats, far fewer while particles share blocks; K^2 flops per out-of-date cell
 in a dynamic world). :meth:`RaoBlackwellisedPF.update` advances without building the belief;
