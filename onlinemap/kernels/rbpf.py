@@ -79,6 +79,13 @@ def _successor(l, n, p_move, s):
     return n, (0.0 if n == l else p_move)
 
 
+@njit(cache=True, inline="always")
+def _parent(locations, log_weights, neighbors, q):
+    """(live, l, n) of particle q: whether it has weight, its cell, the cell its action points at."""
+    l = locations[q]
+    return log_weights[q] != -np.inf, l, neighbors[l]
+
+
 @njit(cache=True)
 def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
                    neighbors, p_move, likelihood, child_parent, child_location, child_log_weight, child_cells):
@@ -93,10 +100,9 @@ def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block,
     k = likelihood.shape[0]
     m = 0
     for q in range(locations.shape[0]):
-        if log_weights[q] == -np.inf:
+        live, l, n = _parent(locations, log_weights, neighbors, q)
+        if not live:
             continue
-        l = locations[q]
-        n = neighbors[l]
         for s in range(2):
             j, probability = _successor(l, n, p_move, s)
             if probability <= 0.0:
@@ -148,10 +154,9 @@ def rbpf_enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_
     given = np.empty(k)
     m = 0
     for q in range(locations.shape[0]):
-        if log_weights[q] == -np.inf:
+        live, l, n = _parent(locations, log_weights, neighbors, q)
+        if not live:
             continue
-        l = locations[q]
-        n = neighbors[l]
         gated = has_blocking and n != l  # the move's success tells about cell n
         passable = 1.0
         if gated:
