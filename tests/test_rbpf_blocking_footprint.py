@@ -88,12 +88,12 @@ TOURS = {2: ["east", "east", "south", "west", "west", "north", "east", "east"], 
          1: ["right"] * 5 + ["left"] * 3}
 
 
-def run_both(model, n_steps, seed, n_particles, rbpf_seed=0):
+def run_both(model, n_steps, seed, n_particles, rbpf_seed=0, **options):
     """Yield (belief, exact location, exact map, exact log evidence, est) after each step, on a
     tour of the grid repeated (each intended move exists, so trajectories branch)."""
     tour = TOURS[model.rows]
     run = om.simulate(model, None, (tour * n_steps)[:n_steps - 1], seed=seed)
-    est = om.make_estimator("rbpf", model, n_particles=n_particles, seed=rbpf_seed)
+    est = om.make_estimator("rbpf", model, n_particles=n_particles, seed=rbpf_seed, **options)
     exact = BruteForce(model)
     log_evidence = 0.0
     for t in range(n_steps):
@@ -127,28 +127,34 @@ def test_fearnhead_clifford_with_room_for_every_child_equals_brute_force(shape, 
         assert live >= 3  # the run branched
 
 
-@pytest.mark.parametrize("shape,variant,dynamic", [((1, 6), "blocking", True), ((2, 3), "blocking+pair", True),
-                                                   ((1, 6), "blocking+cross", True)])
-def test_many_particles_match_brute_force_within_monte_carlo_tolerance(shape, variant, dynamic):
+MONTE_CARLO = [((1, 6), "blocking", True, {}), ((2, 3), "blocking+pair", True, {}), ((1, 6), "blocking+cross", True, {}),
+               ((2, 3), "blocking+pair", True, {"resampling": "residual"}),
+               ((1, 6), "blocking+cross", True, {"resampling": "systematic", "proposal": "transition"})]
+
+
+@pytest.mark.parametrize("shape,variant,dynamic,options", MONTE_CARLO,
+                         ids=[f"{r}x{c}-{v}-{o.get('proposal', 'optimal')}-{o.get('resampling', 'fc')}"
+                              for (r, c), v, d, o in MONTE_CARLO])
+def test_many_particles_match_brute_force_within_monte_carlo_tolerance(shape, variant, dynamic, options):
     """20000 particles over 45 steps (more trajectories than particles, so children are dropped):
-    6 standard errors at the step's effective sample size plus 1 / ESS, as for the paper's model."""
+    6 standard errors at the step's effective sample size plus 1 / ESS, as for the paper's model;
+    the default and the sampling schemes (which draw one of the same children per particle)."""
     model = world(shape, variant, dynamic)
     dropped = False
-    for belief, location, maps, log_evidence, est in run_both(model, 45, seed=4, n_particles=20_000, rbpf_seed=1):
+    for belief, location, maps, log_evidence, est in run_both(model, 45, seed=4, n_particles=20_000, rbpf_seed=1,
+                                                              **options):
         dropped |= est.resampled
         ess = belief.effective_sample_size
         for estimate, truth in ((belief.location, location), (belief.map, maps)):
             spread = np.clip(truth * (1 - truth), 0, None)  # rounding can put truth a hair above 1
             tolerance = 6 * np.sqrt(spread / ess) + 1 / ess
             assert np.all(np.abs(estimate - truth) <= tolerance), np.abs(estimate - truth).max()
-    assert dropped
+    assert dropped or "resampling" in options
     assert belief.log_evidence == pytest.approx(log_evidence, abs=5 * np.sqrt(45 / ess))
 
 
-def test_blocking_and_footprint_need_fearnhead_clifford():
+def test_eager_dynamics_is_refused_with_blocking_or_footprint():
     model = world((2, 3), "blocking+cross", True)
-    with pytest.raises(om.ModelError, match="sampling schemes are not implemented"):
-        om.make_estimator("rbpf", model, resampling="residual")
     with pytest.raises(om.ModelError, match="eager"):
         om.make_estimator("rbpf", model, lazy_dynamics=False)
 

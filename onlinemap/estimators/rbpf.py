@@ -47,8 +47,8 @@ from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
 from ..kernels.rbpf import (children_by_location, in_place_ancestors, particle_maps, rbpf_commit, rbpf_commit_cells,
-                             rbpf_enumerate, rbpf_enumerate_cells, rbpf_map_mixture, rbpf_place_children,
-                             rbpf_propose, rbpf_refresh)
+                             rbpf_enumerate, rbpf_enumerate_cells, rbpf_map_mixture, rbpf_pick_children,
+                             rbpf_place_children, rbpf_propose, rbpf_refresh)
 from ..resampling import RESAMPLERS, effective_sample_size, optimal_keep
 from ..rng import SeedLike, as_generator
 from ..model import GridModel
@@ -186,10 +186,6 @@ class RaoBlackwellisedPF:
             raise error(f"proposal={proposal!r} samples one successor per particle; resampling="
                         f"'{FEARNHEAD_CLIFFORD}' enumerates them all (the optimal proposal's weights): pass "
                         f"resampling='residual' (or another sampling scheme) to use it")
-        if not reads_one_cell(model) and resampling != FEARNHEAD_CLIFFORD:
-            raise error(f"resampling={resampling!r}: with blocking labels or a sensor footprint the RBPF "
-                        f"enumerates successors (resampling='{FEARNHEAD_CLIFFORD}', the default); the sampling "
-                        f"schemes are not implemented for them")
         resample_threshold = arguments.probability("resample_threshold", resample_threshold, error)
         seed = arguments.seed("seed", seed, error)
         lazy_dynamics = arguments.flag("lazy_dynamics", lazy_dynamics, error)
@@ -327,25 +323,49 @@ class RaoBlackwellisedPF:
             chosen = RESAMPLERS[self.resampling](self._weights, self._rng)
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
             log_weights = np.full(n_particles, -math.log(n_particles))
-        pool, pool_stamps, row_block, refcount, free, free_top = self._reserved_rows()
+        one_cell = reads_one_cell(model)
+        pool, pool_stamps, row_block, refcount, free, free_top = self._reserved_rows(
+            n_particles * cells_written(model))
         if a is not None and not model.is_static and not self.lazy_dynamics:
             pool = pool @ model.change  # eager: every cell of every block row, fresh array
         neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
         new_locations = np.empty(n_particles, dtype=np.int64)
-        new_cells = np.empty((n_particles, model.n_labels))
         log_increments = np.empty(n_particles)
-        rbpf_propose(self._locations, pool, pool_stamps, self._table, self._cell_block, self._cell_slot, self._powers,
-                     self._stamped, t, ancestors, neighbors,
-                     model.p_move, model.likelihood[z], self.proposal == "optimal",
-                     self._rng.random(n_particles), new_locations, new_cells, log_increments)
+        new_ids = None
+        if one_cell:
+            new_cells = np.empty((n_particles, model.n_labels))
+            rbpf_propose(self._locations, pool, pool_stamps, self._table, self._cell_block, self._cell_slot,
+                         self._powers, self._stamped, t, ancestors, neighbors,
+                         model.p_move, model.likelihood[z], self.proposal == "optimal",
+                         self._rng.random(n_particles), new_locations, new_cells, log_increments)
+        else:  # the same children Fearnhead-Clifford enumerates, one drawn per particle
+            m, children = self._enumerate_cells(pool, pool_stamps, t, neighbors, z, np.zeros(n_particles))
+            width = cells_written(model)
+            new_ids = np.empty((n_particles, width), dtype=np.int64)
+            new_cells = np.empty((n_particles, width, model.n_labels))
+            rbpf_pick_children(ancestors, *children, m, self.proposal == "optimal", self._rng.random(n_particles),
+                               new_locations, new_ids, new_cells, log_increments)
         log_weights = log_weights + log_increments
         increment = _logsumexp(log_weights)
         if increment == -math.inf:
             self._rng.bit_generator.state = rng_state
             raise ImpossibleObservationError(
-                f"observation {model.label_names[z]!r} has probability zero for every particle at step {t}")
+                f"observation {_describe(model, z)} has probability zero for every particle at step {t}")
         self._commit(t, (pool, pool_stamps, row_block, refcount, free, free_top), ancestors, new_locations, new_cells,
-                     log_weights - increment, increment, resample)
+                     log_weights - increment, increment, resample, new_ids)
+
+    def _enumerate_cells(self, pool, pool_stamps, t, neighbors, z, log_weights):
+        """(M, (parent, location, log weight, log motion, ids, cells)): :func:`rbpf_enumerate_cells`
+        on the current particles with ``log_weights``, the observation ``z`` an int or (F,)."""
+        model = self.model
+        size, width = 2 * self.n_particles, cells_written(model)
+        children = (np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size), np.empty(size),
+                    np.empty((size, width), dtype=np.int64), np.empty((size, width, model.n_labels)))
+        m = rbpf_enumerate_cells(self._locations, log_weights, pool, pool_stamps, self._table, self._cell_block,
+                                 self._cell_slot, self._powers, self._stamped, t, neighbors, model.p_move,
+                                 model.blocking, model.change, model.footprint_cells, model.sensor,
+                                 np.atleast_1d(np.asarray(z, dtype=np.int64)), *children)
+        return m, children
 
     def _update_fearnhead_clifford(self, a: int | None, z, t: int) -> None:
         """Enumerate every live particle's successors with their exact weights
@@ -364,23 +384,19 @@ class RaoBlackwellisedPF:
             pool = pool @ model.change
             rows = (pool, *rows[1:])
         neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
-        child_parent = np.empty(2 * n_particles, dtype=np.int64)
-        child_location = np.empty(2 * n_particles, dtype=np.int64)
-        child_log_weight = np.empty(2 * n_particles)
-        child_cells = np.empty((2 * n_particles, width, model.n_labels))
         if reads_one_cell(model):
+            child_parent = np.empty(2 * n_particles, dtype=np.int64)
+            child_location = np.empty(2 * n_particles, dtype=np.int64)
+            child_log_weight = np.empty(2 * n_particles)
+            child_cells = np.empty((2 * n_particles, 1, model.n_labels))
             child_ids = child_location.reshape(-1, 1)  # the one cell a child changes is where it stands
             m = rbpf_enumerate(self._locations, self._log_weights, pool, pool_stamps, self._table, self._cell_block,
                                self._cell_slot, self._powers, self._stamped, t, neighbors, model.p_move,
                                model.likelihood[z], child_parent, child_location, child_log_weight,
                                child_cells.reshape(2 * n_particles, model.n_labels))
         else:
-            child_ids = np.empty((2 * n_particles, width), dtype=np.int64)
-            m = rbpf_enumerate_cells(self._locations, self._log_weights, pool, pool_stamps, self._table,
-                                     self._cell_block, self._cell_slot, self._powers, self._stamped, t, neighbors,
-                                     model.p_move, model.blocking, model.change, model.footprint_cells, model.sensor,
-                                     np.atleast_1d(np.asarray(z, dtype=np.int64)), child_parent, child_location,
-                                     child_log_weight, child_ids, child_cells)
+            m, (child_parent, child_location, child_log_weight, _, child_ids, child_cells) = self._enumerate_cells(
+                pool, pool_stamps, t, neighbors, z, self._log_weights)
         if m == 0:
             raise ImpossibleObservationError(
                 f"observation {_describe(model, z)} has probability zero for every particle at step {t}")

@@ -131,7 +131,7 @@ def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block,
 @njit(cache=True)
 def rbpf_enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic,
                          t, neighbors, p_move, blocking, change, footprint_cells, sensor, readings, child_parent,
-                         child_location, child_log_weight, child_ids, child_cells):
+                         child_location, child_log_weight, child_log_motion, child_ids, child_cells):
     """:func:`rbpf_enumerate` for blocking labels and sensor footprints; returns M.
 
     Blocking (``blocking`` (K,) bool, any True): from l the intended n != l is entered with
@@ -142,8 +142,8 @@ def rbpf_enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_
     over the offsets of ``sum_k current(c_f)[k] sensor[k, z_f]`` (1 where both cell and reading
     are off the grid, 0 where only one is), and each read cell gets its posterior. Given the
     trajectory the cells stay independent, so a child's map differs from its parent's in at most
-    W = F + 1 cells: ``child_ids`` (2P, W) (-1: none) and ``child_cells`` (2P, W, K), at step t.
-    Cost O(P F K^2)."""
+    W = F + 1 cells: ``child_ids`` (2P, W) (-1: none) and ``child_cells`` (2P, W, K), at step t;
+    ``child_log_motion`` (2P,) is each child's ``log T``. Cost O(P F K^2)."""
     k = sensor.shape[0]
     n_reads = footprint_cells.shape[1]
     width = child_ids.shape[1]
@@ -232,10 +232,62 @@ def rbpf_enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_
             joint = probability * likelihood
             child_log_weight[m] = log_weights[q] + (math.log(joint) if joint > 0.0 else
                                                     math.log(probability) + log_likelihood)
+            child_log_motion[m] = math.log(probability)
             child_parent[m] = q
             child_location[m] = j
             m += 1
     return m
+
+
+@njit(cache=True)
+def rbpf_pick_children(ancestors, child_parent, child_location, child_log_weight, child_log_motion, child_ids,
+                       child_cells, m, optimal, uniforms, new_locations, new_ids, new_cells, log_increments):
+    """The sampling schemes on enumerated children (:func:`rbpf_enumerate_cells` with every
+    parent's log weight 0): slot p draws one child of its ancestor ``ancestors[p]`` with
+    ``uniforms[p]``. Optimal proposal: in proportion to ``T P(z | child)``, increment ``log sum``
+    of those; transition proposal: in proportion to ``T`` over every successor (one the
+    observation rules out, left out of the children, gives weight 0), increment ``log P(z |
+    child)``. A slot with weight 0 gets ``new_locations = -1`` (no write). O(P W K)."""
+    n_particles = ancestors.shape[0]
+    start = np.zeros(n_particles + 1, dtype=np.int64)
+    for c in range(m):
+        start[child_parent[c] + 1] += 1
+    for q in range(n_particles):
+        start[q + 1] += start[q]
+    new_locations[:] = -1
+    new_ids[:] = -1
+    new_cells[:] = 0.0
+    for p in range(n_particles):
+        q = ancestors[p]
+        log_increments[p] = -np.inf
+        chosen = -1
+        if optimal and start[q + 1] > start[q]:
+            top = -np.inf
+            for c in range(start[q], start[q + 1]):
+                top = max(top, child_log_weight[c])
+            total = 0.0
+            for c in range(start[q], start[q + 1]):
+                total += math.exp(child_log_weight[c] - top)
+            target = uniforms[p] * total
+            chosen = start[q + 1] - 1
+            for c in range(start[q], start[q + 1]):
+                target -= math.exp(child_log_weight[c] - top)
+                if target < 0.0:
+                    chosen = c
+                    break
+            log_increments[p] = top + math.log(total)
+        elif not optimal:
+            acc = 0.0
+            for c in range(start[q], start[q + 1]):
+                acc += math.exp(child_log_motion[c])
+                if uniforms[p] < acc:
+                    chosen = c
+                    log_increments[p] = child_log_weight[c] - child_log_motion[c]
+                    break
+        if chosen >= 0:
+            new_locations[p] = child_location[chosen]
+            new_ids[p] = child_ids[chosen]
+            new_cells[p] = child_cells[chosen]
 
 
 @njit(cache=True)
