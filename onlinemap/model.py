@@ -286,9 +286,19 @@ class GridModel:
         return len(self.footprint)
 
     @property
+    def observation_shape(self) -> tuple[int, ...]:
+        """() when an observation is one label (F = 1), (F,) otherwise."""
+        return () if self.n_readings == 1 else (self.n_readings,)
+
+    @property
     def has_blocking(self) -> bool:
         """True when some label blocks motion (motion then depends on the map)."""
         return bool(self.blocking.any())
+
+    @property
+    def has_footprint(self) -> bool:
+        """True when the sensor is not the paper's (one reading of the robot's own cell)."""
+        return self.footprint != FOOTPRINTS["cell"]
 
     @cached_property
     def off_grid_patterns(self) -> np.ndarray:
@@ -363,8 +373,27 @@ def model_difference(a: GridModel, b: GridModel) -> str | None:
     return None
 
 
-def apply_motion(model: GridModel, x: np.ndarray, action: int) -> np.ndarray:
-    """Predict along axis 0: ``out[j, ...] = sum_i T[a, i, j] x[i, ...]``. x: (N, ...). O(x.size)."""
+def _move_probability(model: GridModel, action: int, passable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(movers, P(move)) from each moving cell l: ``p_move * passable[neighbors[l, a]]``."""
+    target = model.neighbors[:, action]
+    movers = np.flatnonzero(target != np.arange(model.n_cells))
+    go = np.zeros(model.n_cells)
+    go[movers] = model.p_move * np.asarray(passable, dtype=np.float64)[target[movers]]
+    return movers, go
+
+
+def apply_motion(model: GridModel, x: np.ndarray, action: int, passable: np.ndarray | None = None) -> np.ndarray:
+    """Predict along axis 0: ``out[j, ...] = sum_i T[a, i, j] x[i, ...]``. x: (N, ...). O(x.size).
+
+    ``passable`` (N,): the probability that each cell can be entered (blocking labels, judged
+    on a map belief); the move from i to its neighbour j then succeeds with ``p_move passable[j]``.
+    None: the paper's motion (every cell enterable)."""
+    if passable is not None:
+        movers, go = _move_probability(model, action, passable)
+        shape = (-1,) + (1,) * (x.ndim - 1)
+        out = (1.0 - go).reshape(shape) * x
+        out[model.neighbors[movers, action]] += go[movers].reshape(shape) * x[movers]
+        return out
     out = model.self_prob[action].reshape((-1,) + (1,) * (x.ndim - 1)) * x
     pred = model.predecessor[action]
     into = pred >= 0
@@ -372,13 +401,26 @@ def apply_motion(model: GridModel, x: np.ndarray, action: int) -> np.ndarray:
     return out
 
 
-def apply_motion_transpose(model: GridModel, b: np.ndarray, action: int) -> np.ndarray:
-    """Backward along axis 0: ``out[i, ...] = sum_j T[a, i, j] b[j, ...]``. b: (N, ...). O(b.size)."""
+def apply_motion_transpose(model: GridModel, b: np.ndarray, action: int,
+                           passable: np.ndarray | None = None) -> np.ndarray:
+    """Backward along axis 0: ``out[i, ...] = sum_j T[a, i, j] b[j, ...]``. b: (N, ...). O(b.size).
+    ``passable`` as in :func:`apply_motion`."""
+    if passable is not None:
+        movers, go = _move_probability(model, action, passable)
+        shape = (-1,) + (1,) * (b.ndim - 1)
+        out = (1.0 - go).reshape(shape) * b
+        out[movers] += go[movers].reshape(shape) * b[model.neighbors[movers, action]]
+        return out
     out = model.self_prob[action].reshape((-1,) + (1,) * (b.ndim - 1)) * b
     nb = model.neighbors[:, action]
     movers = nb != np.arange(model.n_cells)
     out[movers] += model.p_move * b[nb[movers]]
     return out
+
+
+def passable_probability(model: GridModel, maps: np.ndarray) -> np.ndarray:
+    """(N,) probability that each cell can be entered under independent map marginals (N, K). O(N K)."""
+    return maps @ (~model.blocking).astype(np.float64)
 
 
 # --- constructors ----------------------------------------------------------------------
@@ -508,5 +550,5 @@ __all__ = [
     "GridModel", "grid_model", "corridor", "door_world", "parse_layout", "door_change",
     "symmetric_channel", "apply_motion", "apply_motion_transpose", "grid_neighbors",
     "DOOR_WORLD_10X10", "DOOR_LABELS", "CORRIDOR_ACTIONS", "GRID_ACTIONS", "door_cells",
-    "FOOTPRINTS", "footprint_table", "blocking_mask",
+    "FOOTPRINTS", "footprint_table", "blocking_mask", "passable_probability",
 ]

@@ -47,8 +47,7 @@ class Run:
         for name in ("actions", "locations", "maps", "observations"):
             object.__setattr__(self, name, _frozen_int(getattr(self, name)))
         t = len(self.observations)
-        readings = () if self.model.n_readings == 1 else (self.model.n_readings,)
-        if self.observations.shape != (t,) + readings or self.locations.shape != (t,) or \
+        if self.observations.shape != (t,) + self.model.observation_shape or self.locations.shape != (t,) or \
                 self.actions.shape != (t - 1,) or self.maps.shape != (t, self.model.n_cells):
             raise ModelError("inconsistent run record shapes")
 
@@ -126,8 +125,7 @@ def simulate(model: GridModel, true_map=None, actions=(), seed: SeedLike = None,
     n_steps = len(action_ids) + 1
     locations = np.empty(n_steps, dtype=np.int64)
     maps = np.empty((n_steps, n), dtype=np.int64)
-    readings = () if model.n_readings == 1 else (model.n_readings,)
-    observations = np.empty((n_steps,) + readings, dtype=np.int64)
+    observations = np.empty((n_steps,) + model.observation_shape, dtype=np.int64)
     location = model.start
     for t in range(n_steps):
         location, current, observations[t] = world_step(

@@ -154,11 +154,13 @@ def check_bk(state) -> None:
 
 
 def _run_record(state, steps: int) -> None:
-    """``_actions`` (steps - 1 or fewer,) and ``_observations`` (steps,) as the EM estimators keep them."""
+    """``_actions`` (steps - 1 or fewer,) and ``_observations`` (steps,) or (steps, F) with a
+    sensor footprint, as the EM estimators keep them."""
     model = state.model
-    observations = array(state, "_observations", (steps,), np.int64)
+    observations = array(state, "_observations", (steps,) + model.observation_shape, np.int64)
     actions = array(state, "_actions", (max(steps - 1, 0) if state._t < steps else steps,), np.int64)
-    indices("_observations", observations, model.n_labels)
+    off_grid = bool(model.off_grid_patterns.any())  # footprint readings may be -1
+    indices("_observations", observations, model.n_labels, start=-1 if off_grid else 0)
     indices("_actions", actions, model.n_actions)
 
 

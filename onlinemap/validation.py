@@ -150,7 +150,7 @@ def check_sequence(model: GridModel, actions, observations) -> tuple[np.ndarray,
 
 def _footprint_observations(model: GridModel, observations) -> np.ndarray:
     """(T,) or (T, F) int64 readings of a footprint model, checked as :func:`observation_value`."""
-    shape = (model.n_readings,) if model.n_readings > 1 else ()
+    shape = model.observation_shape
     if type(observations) is np.ndarray and observations.dtype.kind in "iu" and \
             observations.shape[1:] == shape and observations.ndim == 1 + len(shape):
         values = observations.astype(np.int64)

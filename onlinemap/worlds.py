@@ -1,5 +1,10 @@
 """World specs for the command line: ``corridor:8``, ``corridor:10,p_change=0.01,n_labels=3``,
-``grid:2x3``, ``door``, ``door,p_door=0.01``.
+``grid:2x3``, ``door``, ``door,p_door=0.01``, ``door,blocking=1,footprint=cross``,
+``grid:3x3,blocking=1,footprint=square``.
+
+``footprint`` takes a preset (cell, cross, square); ``blocking`` is 0/1 (false/true) for door
+worlds (walls and closed doors block) and the blocking labels, joined by ``+``, for corridors and
+grids (``blocking=1``, ``blocking=1+2``).
 
 ``parse_world(spec) -> WorldSpec`` holds the model and, for door worlds, the layout's map.
 """
@@ -19,6 +24,7 @@ from .simulate import simulate as _simulate
 
 _FLOAT_KEYS = {"p_obs", "p_move", "p_change", "p_door"}
 _INT_KEYS = {"n_labels", "start"}
+_TEXT_KEYS = {"blocking", "footprint"}
 
 
 class WorldSpec(NamedTuple):
@@ -54,7 +60,9 @@ def _whole(spec: str, what: str, text: str) -> int:
     return int(text)
 
 
-def _value(spec: str, key: str, text: str) -> int | float:
+def _value(spec: str, key: str, text: str) -> int | float | str:
+    if key in _TEXT_KEYS:
+        return text.strip()
     if key in _INT_KEYS:
         return _whole(spec, key, text)
     try:
@@ -62,6 +70,16 @@ def _value(spec: str, key: str, text: str) -> int | float:
     except ValueError:
         raise ModelError(f"world spec {spec!r}: {key} must be a number, got {text!r}") from None
     return arguments.probability(f"world spec {spec!r}: {key}", value)
+
+
+def _blocking(spec: str, kind: str, value: str):
+    """A door world's flag (0/1/true/false) or the '+'-joined blocking labels of another world."""
+    if kind == "door":
+        flags = {"1": True, "true": True, "0": False, "false": False}
+        if value.lower() not in flags:
+            raise ModelError(f"world spec {spec!r}: blocking for a door world is 0 or 1, got {value!r}")
+        return flags[value.lower()]
+    return [int(label) if label.strip().isdigit() else label.strip() for label in value.split("+")]
 
 
 def parse_world(spec: str) -> WorldSpec:
@@ -78,12 +96,14 @@ def parse_world(spec: str) -> WorldSpec:
         key = key.strip()
         if not eq:
             raise ModelError(f"world spec {spec!r}: expected key=value, got {pair!r}")
-        if key not in _FLOAT_KEYS | _INT_KEYS:
+        if key not in _FLOAT_KEYS | _INT_KEYS | _TEXT_KEYS:
             raise ModelError(f"world spec {spec!r}: unknown option {key!r} "
-                             f"(known: {', '.join(sorted(_FLOAT_KEYS | _INT_KEYS))})")
+                             f"(known: {', '.join(sorted(_FLOAT_KEYS | _INT_KEYS | _TEXT_KEYS))})")
         if key in options:
             raise ModelError(f"world spec {spec!r}: option {key!r} given twice")
         options[key] = _value(spec, key, value)
+    if "blocking" in options:
+        options["blocking"] = _blocking(spec, kind, str(options["blocking"]))
     try:
         if kind == "corridor":
             return WorldSpec(spec, corridor(_whole(spec, "the corridor's length", size or "8"), **options), None)

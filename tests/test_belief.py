@@ -58,7 +58,8 @@ def test_reprs_name_what_matters():
     belief = estimator.step(None, 1)
     assert repr(estimator).startswith("rbpf(t=0,")
     assert repr(belief).startswith("Belief(t=0, most likely cell 0 with p=1.000, N=5, K=2")
-    assert "ess=7.0" in repr(belief)
+    assert f"ess={belief.effective_sample_size:.1f}" in repr(belief)
+    assert "ess=" not in repr(om.make_estimator("bk", model).step(None, 1))
     for name in om.available_estimators():
         text = repr(om.make_estimator(name, model))
         assert text.startswith(f"{name}(t=-1, model=GridModel(") and "object at 0x" not in text

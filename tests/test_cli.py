@@ -224,5 +224,5 @@ def test_out_dir_gets_fixed_names_in_the_chosen_format(tmp_path):
     assert len(pd.read_parquet(tmp_path / "r" / "steps.parquet")) == 4
     code, out, err = cli(["bench", "exact", "--quick", "--out", str(tmp_path / "b")])
     assert code == 0, err
-    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == ["bench.csv", "bench.json"]
+    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == ["bench.csv", "bench.csv.json", "bench.json"]
     assert set(pd.read_csv(tmp_path / "b" / "bench.csv")["benchmark"]) == {"exact"}

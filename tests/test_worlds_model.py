@@ -138,3 +138,27 @@ def test_footprint_observations_are_validated():
     with pytest.raises(InvalidObservationError, match="step 3"):
         check_sequence(model, run.actions, wrong)
     assert check_step(om.grid_model(3, 4), 0, None, "1") == (None, 1)  # the paper's sensor as before
+
+
+def test_world_specs_and_the_gym_env_take_blocking_and_footprints():
+    from onlinemap.worlds import parse_world
+
+    spec = parse_world("door,blocking=1,footprint=cross")
+    assert spec.model.has_blocking and spec.model.n_readings == 5
+    assert parse_world("grid:3x3,blocking=1,footprint=square").model.blocking.tolist() == [False, True]
+    assert not parse_world("door,blocking=0").model.has_blocking
+    with pytest.raises(ModelError, match="0 or 1"):
+        parse_world("door,blocking=2")
+    pytest.importorskip("gymnasium")
+    from onlinemap.envs.door_world import DoorWorldEnv
+
+    env = DoorWorldEnv(blocking=True, footprint="cross", p_door=0.0)
+    observation, info = env.reset(seed=1)
+    seen, where = [observation], [info["location"]]
+    for _ in range(300):
+        observation, _, _, _, info = env.step(env.action_space.sample())
+        assert not env.model.blocking[info["map"][info["location"]]]
+        seen.append(observation)
+        where.append(info["location"])
+    assert all(env.observation_space.contains(z) for z in seen)
+    np.testing.assert_array_equal(np.array(seen) == -1, env.model.footprint_cells[where] < 0)

@@ -11,7 +11,11 @@ parameter), but every iteration runs forward-backward over all T steps from the 
 Without annealing this is EM for the MAP of B under a Dirichlet(c + 1) prior per row, so the
 objective ``log P(z | B) + c sum log B`` never decreases. Iterations stop when it rises by
 less than ``tol`` (and tau has reached tau_min) or after ``n_iter``. EM starts from
-``B0 = label_prior @ O``. Cost: O(T (N + E) + N K^2) per iteration, O(T N) memory.
+``B0 = label_prior @ O``. Cost: O(T (N F + E) + N K^2) per iteration, O(T N) memory.
+
+With a sensor footprint of F offsets B is per cell and the M-step counts every reading of each
+cell (the textbook's grid EM); with blocking labels the E-step uses the passability of the map
+read off the current B (a generalised EM step: the objective may then fall; see ``onlinemap.hmm``).
 """
 
 from __future__ import annotations
@@ -24,8 +28,9 @@ from ..arrays import read_only
 from ..belief import Belief
 from .. import arguments
 from ..errors import InvalidOptionError, ModelError
-from ..hmm import (emission_from_counts, expected_counts, forward_backward, log_dirichlet_prior,
-                   map_from_emission, prior_emission, sensor_inverse, temper)
+from ..hmm import (append_observation, emission_from_counts, expected_cell_counts, forward_backward,
+                   log_dirichlet_prior, map_from_emission, map_passability, prior_emission, sensor_inverse,
+                   temper)
 from ..model import GridModel
 from ..validation import check_sequence, check_step
 from .base import register
@@ -105,17 +110,19 @@ def _baum_welch(model: GridModel, a_seq: np.ndarray, z_seq: np.ndarray, emission
     converged = False
     fit = None
     for iteration in range(n_iter):
-        fit = forward_backward(model, prior, a_seq, z_seq, emission, out=fit)
+        fit = forward_backward(model, prior, a_seq, z_seq, emission, out=fit,
+                               passable=map_passability(model, emission, inverse))
         objectives.append(fit.log_likelihood + log_dirichlet_prior(emission, pseudo_count))
         tau = 1.0 if schedule is None else schedule.tau(iteration)
         if iteration > 0 and tau == (1.0 if schedule is None else schedule.tau_min) \
                 and abs(objectives[-1] - objectives[-2]) < tol:
             converged = True
             break
-        counts = expected_counts(temper(fit.posterior, tau), z_seq, model.n_labels)
+        counts = expected_cell_counts(model, temper(fit.posterior, tau), z_seq)
         emission = emission_from_counts(counts, pseudo_count, emission)
     else:
-        fit = forward_backward(model, prior, a_seq, z_seq, emission, out=fit)
+        fit = forward_backward(model, prior, a_seq, z_seq, emission, out=fit,
+                               passable=map_passability(model, emission, inverse))
     return EMFit(fit.posterior, map_from_emission(emission, inverse), emission, fit.log_likelihood,
                  np.array(objectives), converged)
 
@@ -146,7 +153,8 @@ class OfflineEM:
         self._location_prior = read_only(model.location_prior())
         self._sensor_inverse = read_only(sensor_inverse(model.sensor))
         self._actions = np.empty(0, dtype=np.int64)
-        self._observations = np.empty(0, dtype=np.int64)
+        self._observations = np.empty((0,) + model.observation_shape,
+                                      dtype=np.int64)
         self._t = -1
         self._belief: Belief | None = None
 
@@ -158,7 +166,7 @@ class OfflineEM:
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
         actions = self._actions if a is None else np.append(self._actions, a)
-        observations = np.append(self._observations, z)
+        observations = append_observation(self._observations, z)
         fit = _baum_welch(self.model, actions, observations, self._prior_emission, self._prior_emission,
                           self._location_prior, self._sensor_inverse, n_iter=self.n_iter, tol=self.tol,
                           pseudo_count=self.pseudo_count,

@@ -14,7 +14,7 @@ _RESCALE_BELOW = 1e-250  # a step whose normaliser falls below this is redone wi
 
 
 @njit(cache=True, inline="always")
-def _forward_row(self_prob, predecessor, p_move, prior, filtered, actions, emission, t, z, scale):
+def _forward_row(self_prob, predecessor, enter, prior, filtered, actions, emission, t, z, scale):
     """Unnormalised filtered row t into ``filtered[t]`` with the column ``emission[:, z] / scale``;
     returns its total. Entries below ``_TINY`` are set to 0 after the first step. O(N + E)."""
     n = filtered.shape[1]
@@ -30,7 +30,7 @@ def _forward_row(self_prob, predecessor, p_move, prior, filtered, actions, emiss
         v = self_prob[a, j] * filtered[t - 1, j]
         p = predecessor[a, j]
         if p >= 0:
-            v += p_move * filtered[t - 1, p]
+            v += enter[j] * filtered[t - 1, p]
         v *= emission[j, z] / scale
         if v < _TINY:
             v = 0.0
@@ -40,11 +40,13 @@ def _forward_row(self_prob, predecessor, p_move, prior, filtered, actions, emiss
 
 
 @njit(cache=True)
-def forward_backward_pass(self_prob, predecessor, neighbors, p_move, prior, actions, observations, emission,
+def forward_backward_pass(self_prob, predecessor, neighbors, enter, prior, actions, observations, emission,
                           filtered, posterior, normalizers, log_scales):
     """Scaled forward-backward on the sparse motion model.
 
-    self_prob (A, N), predecessor (A, N), neighbors (N, A): the model's motion tables; prior (N,)
+    self_prob (A, N), predecessor (A, N), neighbors (N, A): the model's motion tables; enter (N,)
+    the probability that a move into cell j succeeds (``p_move`` everywhere for the paper's
+    motion, ``p_move P(m_j passable)`` with blocking labels); prior (N,)
     the distribution of the first step's location before its observation; actions (W - 1,);
     observations (W,); emission (N, K) B. Writes filtered (W, N) ``P(L_tau | z_0..tau)``, posterior
     (W, N) ``P(L_tau | z_0..W-1)``, normalizers (W,) and log_scales (W,) with
@@ -61,14 +63,14 @@ def forward_backward_pass(self_prob, predecessor, neighbors, p_move, prior, acti
     scales = np.ones(w)
     for t in range(w):
         z = observations[t]
-        total = _forward_row(self_prob, predecessor, p_move, prior, filtered, actions, emission, t, z, 1.0)
+        total = _forward_row(self_prob, predecessor, enter, prior, filtered, actions, emission, t, z, 1.0)
         log_scales[t] = 0.0
         if not total >= _RESCALE_BELOW:
             top = 0.0
             for j in range(n):
                 top = max(top, emission[j, z])
             if top > 0.0:
-                total = _forward_row(self_prob, predecessor, p_move, prior, filtered, actions, emission, t, z, top)
+                total = _forward_row(self_prob, predecessor, enter, prior, filtered, actions, emission, t, z, top)
                 scales[t] = top
                 log_scales[t] = np.log(top)
             if not total >= _TINY:
@@ -92,7 +94,7 @@ def forward_backward_pass(self_prob, predecessor, neighbors, p_move, prior, acti
             v = self_prob[a, i] * scaled[i]
             nb = neighbors[i, a]
             if nb != i:
-                v += p_move * scaled[nb]
+                v += enter[nb] * scaled[nb]
             if v < _TINY:
                 v = 0.0
             beta[i] = v
