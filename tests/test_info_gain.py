@@ -259,3 +259,11 @@ def test_info_gain_maps_the_papers_world_better_than_the_entropy_planner():
                                 for seed in range(PAIRED_SEEDS)])
              for planner in ("info_gain", "entropy")}
     assert stats.ttest_rel(final["info_gain"], final["entropy"], alternative="less").pvalue < 0.01
+
+
+def test_bench_planning_reports_ms_per_decision():
+    from onlinemap.bench import run_benchmarks
+
+    table = run_benchmarks(["planning"], quick=True)
+    assert list(table["case"].str.contains("per decision")) == [True, False]
+    assert (table["ms"] > 0).all() and (table["reference_ms"] > 0).all()
