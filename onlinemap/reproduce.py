@@ -15,12 +15,11 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pandas as pd
-from .progress import tqdm
+from .progress import show_progress, tqdm
 
 from .estimators import Trajectory
-from .evaluate import ASTRAY_BELOW, LOST_BELOW, run_metrics, timed_trajectory, way_back  # noqa: F401 (re-exported)
+from .evaluate import run_metrics, timed_trajectory
 from .simulate import Run
 from .stats import wilson_interval
 
@@ -62,7 +61,7 @@ def corridor_table(run: Run, estimators=None, progress: bool = True) -> tuple[pd
     by label."""
     rows, trajectories = [], {}
     for label, name, options in tqdm(estimators or CORRIDOR_ESTIMATORS, desc="estimators",
-                                     disable=not progress, leave=False):
+                                     disable=not show_progress(progress), leave=False):
         trajectory = timed_trajectory(name, run.model, options, run)
         trajectories[label] = trajectory
         rows.append({"estimator": label, **corridor_scores(run, trajectory)})

@@ -54,7 +54,7 @@ def check_writable(path: str | Path) -> Path:
         raise OnlineMapError(f"--out {path}: use a .csv or .parquet file name")
     if path.suffix != ".csv":
         try:
-            import pyarrow  # noqa: F401
+            import pyarrow.parquet  # noqa: F401  (fails early, before any work)
         except ImportError:
             raise OnlineMapError(f"--out {path}: writing parquet needs pyarrow (pip install pyarrow), "
                                  f"or write a .csv") from None

@@ -15,7 +15,7 @@ import pandas as pd
 
 from onlinemap.errors import ModelError
 from onlinemap.estimators import Estimator, Trajectory, estimator_options, make_estimator
-from onlinemap.evaluate import step_metrics
+from onlinemap.evaluate import from_steps, step_metrics
 from onlinemap.model import GridModel, door_cells
 from onlinemap.progress import tqdm
 from onlinemap.rng import SeedLike
@@ -185,41 +185,48 @@ def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estima
     return _loop(model, reset, advance, chooser, est, steps, progress).frame
 
 
-def compare_planners(model: GridModel, true_map, planners=("entropy", "random", "sweep"),
-                     estimator: str = "rbpf", steps: int = 500, seeds=(0,), *,
-                     estimator_options: dict | None = None, progress: bool = True) -> pd.DataFrame:
+def compare_planners(world: str = "door,p_door=0.01,p_move=0.9", planners=("entropy", "random", "sweep"),
+                     estimator: str = "rbpf", steps: int = 500, seeds=(0,), *, floor_plan: float | None = None,
+                     estimator_options: dict | None = None, workers: int | None = 0,
+                     progress: bool = True) -> pd.DataFrame:
     """:func:`explore` for every planner name and seed (the same seeds for every planner, so
-    the runs are paired). One row per (planner, seed, step): ``planner``, ``seed`` and the
-    :data:`COLUMNS`. Cost: ``len(planners) * len(seeds)`` runs of ``steps`` steps."""
-    runs = [(planner, seed) for planner in planners for seed in seeds]
-    frames = []
-    for planner, seed in tqdm(runs, desc="exploration runs", disable=not progress):
-        frame = explore(model, true_map, planner, estimator, steps, seed,
-                        estimator_options=estimator_options, progress=progress and steps >= 200)
-        frame.insert(0, "seed", seed)
-        frame.insert(0, "planner", planner)
-        frame["seconds_per_step"] = frame.attrs["seconds_per_step"]
-        frames.append(frame)
-    return pd.concat(frames, ignore_index=True)
+    the runs are paired), run as a sweep on :func:`onlinemap.sweeps.sweep` (``workers``: 0 in
+    this process, None or N on a local dask cluster). ``world``: a world spec
+    (:func:`onlinemap.worlds.parse_world`, e.g. ``door,p_door=0.01,p_move=0.9``); ``floor_plan``:
+    the confidence of :func:`~policies.worlds.with_floor_plan` (None: the world's own prior).
+    A run is exactly ``explore(model, true_map, planner, estimator, steps, seed)``.
+    One row per (planner, seed, step): ``planner``, ``seed``, ``t``, ``true_location`` and the
+    per-step metrics of :func:`onlinemap.evaluate.step_metrics`, and ``seconds_per_step``.
+    Cost: ``len(planners) * len(seeds)`` runs of ``steps`` steps."""
+    from onlinemap.sweeps import sweep
+
+    options = {k: [list(v)] if isinstance(v, tuple) else [v] if isinstance(v, list) else v
+               for k, v in (estimator_options or {}).items()}
+    spec = {"name": "compare-planners", "worlds": [world], "seeds": [int(seed) for seed in seeds],
+            "steps": int(steps), "rows": "step", "planners": {name: {} for name in planners},
+            "estimators": {estimator: options}}
+    if floor_plan is not None:
+        spec["floor_plan"] = float(floor_plan)
+    table = sweep(spec, workers=workers, progress=progress)
+    table["seconds_per_step"] = table["ms_per_step"] / 1e3
+    order = {name: i for i, name in enumerate(planners)}
+    return table.sort_values(["planner", "seed", "t"], key=lambda c: c.map(order) if c.name == "planner" else c,
+                             kind="stable").reset_index(drop=True)
 
 
 def summarize(table: pd.DataFrame, model: GridModel, true_map) -> pd.DataFrame:
-    """One row per planner from a :func:`compare_planners` table, averaged over seeds:
-    final map error, mean door error over the last two thirds of the run (after the first
-    visits), mean location error, share of steps spent on door cells, distinct cells visited,
-    and milliseconds per step (estimator + planner)."""
+    """One row per planner from a :func:`compare_planners` table, averaged over seeds: the
+    per-run metrics of :func:`onlinemap.evaluate.from_steps` (final map error, mean door error
+    over the last two thirds of the run, mean location error), the share of steps spent on door
+    cells, distinct cells visited, and milliseconds per step (estimator + planner)."""
     doors = door_cells(model, true_map)
-    rows = []
-    for (planner, seed), run in table.groupby(["planner", "seed"], sort=False):
-        late = run["t"] >= run["t"].max() / 3
-        rows.append({"planner": planner, "seed": seed,
-                     "final_map_error": run["map_error"].iloc[-1],
-                     "late_door_error": run.loc[late, "door_error"].mean(),
-                     "mean_location_error": run["location_error"].mean(),
-                     "time_at_doors": np.isin(run["true_location"], doors).mean(),
-                     "cells_visited": run["true_location"].nunique(),
-                     "ms_per_step": 1e3 * run["seconds_per_step"].iloc[0]})
-    per_run = pd.DataFrame(rows)
-    summary = per_run.drop(columns="seed").groupby("planner", sort=False).mean().reset_index()
+    table = table.assign(ms_per_step=1e3 * table["seconds_per_step"])
+    per_run = from_steps(table, ["planner", "seed"])
+    visits = table.groupby(["planner", "seed"], sort=False)["true_location"]
+    per_run["time_at_doors"] = visits.apply(lambda cells: np.isin(cells, doors).mean()).to_numpy()
+    per_run["cells_visited"] = visits.nunique().to_numpy()
+    columns = ["planner", "final_map_error", "late_door_error", "mean_location_error", "time_at_doors",
+               "cells_visited", "ms_per_step"]
+    summary = per_run[[c for c in columns if c in per_run]].groupby("planner", sort=False).mean().reset_index()
     summary.insert(1, "runs", per_run.groupby("planner", sort=False).size().to_numpy())
     return summary

@@ -187,8 +187,9 @@ DYNAMIC_SEEDS = range(64)
 def paired(p_door: float, steps: int, planners, seeds) -> pd.DataFrame:
     if "rbpf" not in om.available_estimators():
         pytest.skip("needs the rbpf estimator")
-    model, true_map = exploration_world(p_door=p_door)
-    return compare_planners(model, true_map, planners, "rbpf", steps, seeds, progress=False)
+    # exploration_world(p_door) as a world spec: the 10 x 10 door world, p_move 0.9, floor plan 0.8
+    return compare_planners(f"door,p_door={p_door},p_move=0.9", planners, "rbpf", steps, seeds, floor_plan=0.8,
+                            progress=False)
 
 
 def one_sided_p(better: pd.Series, worse: pd.Series) -> float:

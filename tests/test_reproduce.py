@@ -8,7 +8,7 @@ import pytest
 from scipy.optimize import brentq
 
 import onlinemap as om
-from onlinemap import reproduce
+from onlinemap import evaluate, reproduce
 from onlinemap.cli import main
 
 SMALL = [("exact", "exact", {}), ("dead_reckoning", "dead_reckoning", {}),
@@ -39,7 +39,7 @@ def test_wilson_interval_is_vectorised():
 
 def test_way_back_of_the_scripted_corridor_starts_after_the_turn():
     run = om.scenarios.murphy_corridor()
-    assert np.flatnonzero(reproduce.way_back(run)).tolist() == list(range(8, 15))
+    assert np.flatnonzero(evaluate.way_back(run)).tolist() == list(range(8, 15))
 
 
 def test_every_configured_estimator_exists_and_labels_are_unique():

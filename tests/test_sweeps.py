@@ -494,3 +494,12 @@ def test_planner_options_come_from_the_registry_without_building_one(monkeypatch
     with pytest.raises(om.SpecError, match="planners.entropy.gama: unknown option"):
         sweeps.parse_spec('worlds = ["door"]\nseeds = 1\nsteps = 5\n[planners.entropy]\ngama = 0.9\n'
                           '[estimators.bk]\n')
+
+
+def test_parquet_output_without_pyarrow_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "pyarrow", None)  # import pyarrow now raises ImportError
+    path = write_spec(tmp_path)
+    monkeypatch.setattr(sweeps.runner, "run_task", lambda task: pytest.fail("a task ran"))
+    line = _one_error_line(capsys, ["sweep", str(path), "--workers", "0", "--out", str(tmp_path / "r.parquet")])
+    assert "needs pyarrow" in line and not (tmp_path / "r.parts").exists()
+    assert "use a .csv or .parquet" in _one_error_line(capsys, ["sweep", str(path), "--out", str(tmp_path / "r.txt")])

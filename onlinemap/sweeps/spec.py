@@ -355,7 +355,8 @@ def _configs(data: dict, section: str, where: _Locator, options_of: Callable[[st
                 path = (section, name, index)
                 configs += [(name, combo, path) for combo in _grid(table, path, known, cls, where, max_tasks)]
         else:
-            configs += [(name, combo, (section, name)) for combo in _grid(body, (section, name), known, cls, where, max_tasks)]
+            path = (section, name)
+            configs += [(name, combo, path) for combo in _grid(body, path, known, cls, where, max_tasks)]
     return configs
 
 
