@@ -6,12 +6,13 @@ is knowing where the robot is. This planner scores *macro-actions* by what they 
 teach the filter about the location and the map, measured on the filter itself:
 
     utility(m) = U(now) - E[ U(after m) ] - step_cost * I0 * len(m),
-    U(belief)  = location_weight * H(L) + sum_i H(m_i)            (nats)
+    U(belief)  = location_weight * I0 * H(L) + sum_i H(m_i)            (nats)
 
 ``H(L)`` is the entropy of the location marginal, ``H(m_i)`` that of cell i's label marginal;
-``I0`` is what one observation teaches about a cell under the label prior (the mean over cells of
-:func:`information_reward` of the prior: 0.95 nats in the door world at ``p_obs`` 0.9, 0.19 in
-a binary world at ``p_obs`` 0.8), so ``step_cost`` means the same in every world.
+``I0`` is what one observation teaches about a cell whose label is uniformly unknown
+(:func:`information_reward`: 0.95 nats in the door world at ``p_obs`` 0.9, 0.19 in a binary
+world at ``p_obs`` 0.8), so ``step_cost`` and ``location_weight`` mean the same in
+every world (a nat of location is worth ``location_weight`` observations of an unknown cell).
 The expectation is over the observations the robot would make: a hypothetical world (a location
 and a map) is drawn from the current belief, the macro-action is rolled out in it (slips, map
 changes, sensor noise), the simulated observations go through a copy of the filter, and the
@@ -256,6 +257,24 @@ def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot,
 
 
 # --- the planner ------------------------------------------------------------------------------
+def greedy_path(model: GridModel, q: np.ndarray, start: int, length: int) -> np.ndarray:
+    """(length,) actions of a walk from ``start`` that takes, at each cell, the action of highest
+    ``q`` (N, A) among those reaching a cell not yet on the walk (any moving action if none does).
+    With a per-cell reward that is not used up, the policy-iteration policy may stay on a
+    rewarding cell forever (press into a wall); the walk never stands still. O(length A)."""
+    path = np.empty(length, dtype=np.int64)
+    seen, cell = {start}, start
+    for h in range(length):
+        targets = model.neighbors[cell]
+        moving = targets != cell
+        fresh = moving & ~np.isin(targets, list(seen))
+        allowed = fresh if fresh.any() else moving if moving.any() else np.ones_like(moving)
+        path[h] = int(np.argmax(np.where(allowed, q[cell], -np.inf)))
+        cell = int(targets[path[h]])
+        seen.add(cell)
+    return path
+
+
 class MacroScore(NamedTuple):
     """The scores of one plan. C candidate sequences, H their common length."""
 
@@ -274,8 +293,8 @@ class InfoGainExplorer:
     generic backend only); ``rollout_particles`` R particles of an rbpf belief used for rollouts
     (None: all); ``press_lengths`` the prefix lengths scored (default 1, 2, 4, 8 and
     ``ceil((max(rows, cols) - 1) / p_move) + 1``); ``step_cost`` the cost of a step, in units of
-    the information one observation gives about a cell under the prior (``I0`` above);
-    ``location_weight`` the weight of ``H(L)`` in ``U``; ``commit`` the most steps of a chosen
+    the information one observation gives about a cell of unknown label (``I0`` above);
+    ``location_weight`` the weight of ``H(L)`` in ``U``, also in units of ``I0``; ``commit`` the most steps of a chosen
     macro-action executed before re-planning; ``gamma`` the discount of the policy-iteration
     plan; ``seed`` (int, None or Generator) the planner's own random stream.
 
@@ -317,8 +336,10 @@ class InfoGainExplorer:
         self._queue: list[int] = []
         self._pi: PolicyIterationResult | None = None
         self._tables = rollout_tables(model, int(press_lengths[-1]))
-        prior = Belief(0, model.location_prior(), model.label_prior)
-        self._nats_per_step = self.step_cost * float(information_reward(prior, model.sensor).mean())
+        uniform = np.full((1, model.n_labels), 1.0 / model.n_labels)
+        nats = float(information_reward(Belief(0, np.ones(1), uniform), model.sensor)[0])  # I0
+        self._nats_per_step = self.step_cost * nats
+        self._location_nats = self.location_weight * nats
 
     def bind(self, estimator: Estimator) -> None:
         """Plan on copies of ``estimator`` (the live filter of the exploration loop)."""
@@ -339,7 +360,8 @@ class InfoGainExplorer:
 
     def candidates(self, belief: Belief) -> tuple[tuple[str, ...], np.ndarray]:
         """Names (C,) and action sequences (C, H): press each direction H times, and the
-        policy-iteration path for :func:`information_reward` from the most probable location.
+        :func:`greedy_path` on the policy-iteration ``Q`` of :func:`information_reward` from the
+        most probable location.
         Cost: one warm-started policy iteration over N cells."""
         model, horizon = self.model, int(self.press_lengths[-1])
         names = [f"press {name}" for name in model.action_names]
@@ -347,10 +369,7 @@ class InfoGainExplorer:
         reward = information_reward(belief, model.sensor)
         self._pi = policy_iteration(model, reward, self.gamma,
                                     initial_policy=None if self._pi is None else self._pi.policy)
-        cell, path = int(np.argmax(belief.location)), np.empty(horizon, dtype=np.int64)
-        for h in range(horizon):
-            path[h] = self._pi.policy[cell]
-            cell = int(model.neighbors[cell, path[h]])
+        path = greedy_path(model, self._pi.q, int(np.argmax(belief.location)), horizon)
         if not any(np.array_equal(path, s) for s in sequences):
             names.append("plan")
             sequences.append(path)
@@ -358,7 +377,11 @@ class InfoGainExplorer:
 
     def plan(self, belief: Belief) -> MacroScore:
         """Score every candidate at every length in ``press_lengths`` and pick the best utility
-        (ties: the shorter, then the earlier candidate). Never changes the live estimator."""
+        (ties: the shorter, then the earlier candidate), leaving out macro-actions whose first
+        action leaves the robot in place with probability >= 1/2 (pressing into a wall it is
+        known to stand against; otherwise, when nothing pays its cost, such a press costs least
+        and the robot would stand still).
+        Never changes the live estimator."""
         est = self.estimator
         names, sequences = self.candidates(belief)
         horizon = sequences.shape[1]
@@ -373,13 +396,16 @@ class InfoGainExplorer:
             worlds = (snapshot.locations[chosen], _draw_labels(snapshot.maps[chosen], self.rng))
             particles = thin(snapshot, self.rollout_particles, self.rng)
             expected = particle_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
-                                                     self.rng, self.location_weight, self._tables)
+                                                     self.rng, self._location_nats, self._tables)
         else:
             expected = np.stack([expected_uncertainty(est, s, hypotheses=self.hypotheses, seed=self.rng,
-                                                      location_weight=self.location_weight) for s in sequences])
+                                                      location_weight=self._location_nats) for s in sequences])
         gain = expected[:, :1] - expected[:, lengths]
         utility = gain - self._nats_per_step * lengths[None, :]
-        best = np.flatnonzero(utility.T.ravel() == utility.max())[0]  # length-major: shorter first
+        # a macro-action whose first press most probably hits a wall only re-reads the same cell
+        stays = belief.location @ (self.model.neighbors[:, sequences[:, 0]] == np.arange(self.model.n_cells)[:, None])
+        allowed = np.where((stays < 0.5)[:, None] | np.all(stays >= 0.5), utility, -np.inf)
+        best = np.flatnonzero(allowed.T.ravel() == allowed.max())[0]  # length-major: shorter first
         j, c = divmod(int(best), len(names))
         self.last_plan = MacroScore(names, sequences, lengths, gain, utility, (c, j))
         return self.last_plan

@@ -82,8 +82,7 @@ def bench_info_gain(quick: bool) -> list[dict]:
         for a in rng.integers(model.n_actions, size=100):
             location, labels, z = world_step(model, location, labels, int(a), rng)
             belief = est.step(int(a), z)
-        fork_step = []
-        decisions, plans = [], []
+        filter_steps, decisions, plans = [], [], []
         for _ in range(12 if quick else 60):
             planned = not planner._queue
             t0 = time.perf_counter()
@@ -92,8 +91,8 @@ def bench_info_gain(quick: bool) -> list[dict]:
             location, labels, z = world_step(model, location, labels, a, rng)
             t0 = time.perf_counter()
             belief = est.step(a, z)
-            fork_step.append(time.perf_counter() - t0)
-        reference = 1e3 * float(np.median(fork_step))
+            filter_steps.append(time.perf_counter() - t0)
+        reference = 1e3 * float(np.median(filter_steps))
         per_decision = 1e3 * (sum(decisions) + sum(plans)) / (len(decisions) + len(plans))
         target = DECISION_MS / reference if model.n_cells == 100 else float("nan")
         rows.append({"case": f"{name}, P=1000: ms per decision ({planner!r})", "ms": per_decision,
