@@ -193,10 +193,8 @@ OTHER_COMMANDS_BAD = [
     ["track", "--world", "corridor:8,p_obs=abc", "--estimator", "bk"],
     ["track", "--world", "corridor:8", "--estimator", "rbpf", "-o", "n_particles=abc"],
     ["track", "--world", "corridor:8", "--estimator", "online_em", "-o", "window=null"],
-    ["explore", "--seed", "-1", "--steps", "2", "--no-figures"],
-    pytest.param(["reproduce", "corridor", "--seed", "-1"], id="reproduce --seed -1",
-                 marks=pytest.mark.xfail(strict=True, reason="reproduce's --seed takes any int; "
-                                                             "use cli.common.non_negative_int")),
+    ["explore", "--seed", "-1", "--steps", "2"],
+    ["reproduce", "corridor", "--seed", "-1"],
 ]
 
 

@@ -10,7 +10,7 @@ from ..compare import (DEFAULT_PARTICLES, DEFAULT_WORLDS, accuracy_study, error_
                        error_vs_particles_figure, summarise)
 from ..errors import OnlineMapError
 from ..evaluate import TIMING_NOTE
-from .common import print_table, split_list, write_table
+from .common import non_negative_int, print_table, split_list, write_table
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -29,7 +29,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=int, default=100, help="steps per run, first observation included (default 100)")
     p.add_argument("--particles", default=",".join(map(str, DEFAULT_PARTICLES)),
                    help="comma-separated particle counts for rbpf (default 10,50,100,1000)")
-    p.add_argument("--seed", type=int, default=0, help="seed of maps, walks, noise and particle filters")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="seed of maps, walks, noise and particle filters")
     p.add_argument("--workers", type=int, default=0,
                    help="0 (default): run in this process; N: on a local dask cluster of N processes")
     p.add_argument("--out", metavar="DIR", help="directory for compare_steps.csv, compare_summary.csv and figures "

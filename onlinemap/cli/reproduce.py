@@ -13,7 +13,7 @@ from ..errors import OnlineMapError
 from ..evaluate import ASTRAY_BELOW, LOST_BELOW, TIMING_NOTE
 from ..reproduce import corridor_table, random_corridor_study, with_intervals
 from ..scenarios import murphy_corridor
-from .common import print_table, write_table
+from .common import non_negative_int, print_table, write_table
 
 MAPPING_STUDIES = ("loop", "anneal", "blocking")  # onlinemap.mapping_studies.STUDIES, imported lazily
 OVERVIEW_ONLINE_EM = "online_em W=max decay=1.0"  # the one online EM row of the overview figure
@@ -40,7 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--random", metavar="N_RUNS", type=_positive_int, default=0,
                    help="run the random-corridor study over N_RUNS runs (rounded up to a multiple of 7) "
                         "instead of the scripted run")
-    p.add_argument("--seed", type=int, default=0, help="first seed of the random study (default 0)")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="first seed of the random study (default 0)")
     p.add_argument("--workers", type=int, default=0,
                    help="random study: 0 (default) runs in this process, N on a local dask cluster of N processes")
     p.add_argument("--confidence", type=_probability, default=0.95,
