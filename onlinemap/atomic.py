@@ -7,13 +7,17 @@ failure (disk full, an exception in the writer, Ctrl-C) the temporary file is re
 previous file is left untouched. :func:`remove_temporaries` clears leftovers of a process that
 was killed mid-write (call it when a directory of results is opened again).
 
-Used by the result tables (:mod:`onlinemap.tables`) and the sweep part store; checkpoints keep
-the same guarantees. Cost: one extra fsync of the file and one of its directory per write.
+A symlink is written through (its target is replaced, the link kept); an existing file keeps its
+permission bits, a new one gets ``0o666`` less the umask; a target that exists but is not a
+regular file is refused. Used by the result tables (:mod:`onlinemap.tables`), the sweep part store
+and checkpoints (:mod:`onlinemap.checkpoint`). Cost: one extra fsync of the file and one of its
+directory per write.
 """
 
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from pathlib import Path
 from typing import BinaryIO, Callable
@@ -21,31 +25,42 @@ from typing import BinaryIO, Callable
 TEMPORARY_SUFFIX = ".tmp"
 
 
-def _file_mode() -> int:
-    """0o666 less the process umask (mkstemp makes 0o600 files; a table should be readable)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
+def file_mode(target: Path) -> int:
+    """Permission bits for ``target``: those of the file it replaces, or 0o666 less the process
+    umask for a new one (mkstemp makes 0o600 files). A target that exists but is not a regular
+    file raises ``IsADirectoryError`` / ``OSError``."""
+    try:
+        info = os.stat(target)
+    except FileNotFoundError:
+        mask = os.umask(0o022)
+        os.umask(mask)
+        return 0o666 & ~mask
+    if not stat.S_ISREG(info.st_mode):
+        raise OSError(f"{target} exists and is not a regular file")
+    return stat.S_IMODE(info.st_mode)
 
 
 def atomic_write(path: str | os.PathLike, write: Callable[[BinaryIO], None]) -> Path:
-    """Call ``write(file)`` on a temporary binary file beside ``path``, then fsync it and rename
-    it to ``path`` (creating missing parent directories). Returns ``path``."""
+    """Call ``write(file)`` on a temporary binary file beside ``path`` (beside a symlink's target),
+    then fsync it and rename it over the target (creating missing parent directories). Returns
+    ``path``. OS errors propagate (the previous file is untouched, the temporary removed)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TEMPORARY_SUFFIX)
+    target = Path(os.path.realpath(path))
+    target.parent.mkdir(parents=True, exist_ok=True)
+    mode = file_mode(target)
+    fd, temporary = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=TEMPORARY_SUFFIX)
     try:
         with os.fdopen(fd, "wb") as file:
+            os.fchmod(file.fileno(), mode)
             write(file)
             file.flush()
-            os.fchmod(file.fileno(), _file_mode())
             os.fsync(file.fileno())
-        os.replace(temporary, path)
+        os.replace(temporary, target)
     except BaseException:
         if os.path.exists(temporary):
             os.unlink(temporary)
         raise
-    fsync_directory(path.parent)
+    fsync_directory(target.parent)
     return path
 
 

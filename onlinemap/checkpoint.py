@@ -65,6 +65,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .atomic import atomic_write, file_mode
 from .belief import Belief
 from .errors import CheckpointError, OnlineMapError
 from .model import DEFINING_FIELDS, OPTIONAL_FIELDS, GridModel, model_difference
@@ -485,44 +486,15 @@ def write(state: dict, path: str | os.PathLike) -> Path:
     directory, full disk, ...) raises :class:`CheckpointError` naming the file, and the previous
     file is left as it was."""
     path = Path(path)
-    target = Path(os.path.realpath(path))
     arrays: dict[str, np.ndarray] = {}
     meta = json.dumps(_externalise(state, arrays), separators=(",", ":")).encode()
     digest = _digest(meta, arrays).encode()
-    tmp = None
     try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        mode = _file_mode(target)
-        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
-        with os.fdopen(fd, "wb") as file:
-            os.fchmod(file.fileno(), mode)
-            np.savez(file, meta=np.frombuffer(meta, np.uint8), sha256=np.frombuffer(digest, np.uint8), **arrays)
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(tmp, target)
-        tmp = None
+        return atomic_write(path, lambda file: np.savez(file, meta=np.frombuffer(meta, np.uint8),
+                                                          sha256=np.frombuffer(digest, np.uint8), **arrays))
     except OSError as error:
         raise CheckpointError(f"cannot write checkpoint {path}: {error.strerror or error}; the previous file "
                               "(if any) is unchanged") from None
-    finally:
-        if tmp is not None and os.path.exists(tmp):
-            os.unlink(tmp)
-    _fsync_directory(target.parent)
-    return path
-
-
-def _file_mode(target: Path) -> int:
-    """Permission bits for a checkpoint at ``target``: those of the file it replaces, or 0o666
-    less the process's umask for a new one. Refuses a target that exists but is not a regular file."""
-    try:
-        info = os.stat(target)
-    except FileNotFoundError:
-        umask = os.umask(0o022)
-        os.umask(umask)
-        return 0o666 & ~umask
-    if not stat.S_ISREG(info.st_mode):
-        raise CheckpointError(f"cannot write checkpoint {target}: it exists and is not a regular file")
-    return stat.S_IMODE(info.st_mode)
 
 
 def check_writable(path: str | os.PathLike) -> None:
@@ -532,26 +504,12 @@ def check_writable(path: str | os.PathLike) -> None:
     target = Path(os.path.realpath(path))
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
-        _file_mode(target)
+        file_mode(target)
         fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
         os.close(fd)
         os.unlink(tmp)
     except OSError as error:
         raise CheckpointError(f"cannot write checkpoint {path}: {error.strerror or error}") from None
-
-
-def _fsync_directory(directory: Path) -> None:
-    """Make the rename durable (POSIX); a no-op where directories cannot be opened."""
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 _MAX_MEMBERS = 100_000  # zip entries
