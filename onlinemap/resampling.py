@@ -128,7 +128,7 @@ def _sorted_threshold(w, n):
         c = below[m - 1 - k] / (n - k)
         if ascending[m - 1 - k] < c:
             return c, k
-    return ascending[m - n], n  # not reached for M > n positive weights
+    return ascending[m - n], n  # the n - 1 smallest weigh less than the rounding of the rest
 
 
 @njit(cache=True)
@@ -187,8 +187,8 @@ def optimal_keep(w, n, uniform, order):
     for i in order:
         if w[i] < c:
             small_total += w[i]
-    n_small = n - n_large
-    step = small_total / n_small
+    n_small = n - n_large  # 0 only when the children below c weigh less than the rounding of the rest
+    step = small_total / n_small if n_small > 0 else 0.0
     indices = np.empty(n, dtype=np.int64)
     weights = np.empty(n)
     position = uniform * step  # the strata are [j step, (j + 1) step), one point in each
@@ -197,12 +197,13 @@ def optimal_keep(w, n, uniform, order):
     kept = 0
     for i in order:
         if w[i] >= c:
-            indices[kept] = i
-            weights[kept] = w[i]
-            kept += 1
+            if kept < n:  # more than n at c only through ties after rounding: keep the first n
+                indices[kept] = i
+                weights[kept] = w[i]
+                kept += 1
             continue
         cumulative += w[i]
-        if drawn < n_small and position < cumulative:  # w[i] < step: at most one point falls in it
+        if drawn < n_small and position < cumulative and kept < n:  # w[i] < step: at most one point falls in it
             indices[kept] = i
             weights[kept] = step
             kept += 1

@@ -161,3 +161,13 @@ def test_optimal_resampling_keeps_everything_when_few_children():
 def test_optimal_resampling_refuses_bad_input(bad, n, order):
     with pytest.raises(ValueError):
         optimal_resampling(np.array(bad, dtype=float), n, np.random.default_rng(0), order)
+
+
+def test_optimal_resampling_with_children_below_rounding():
+    """Regression (blocking door world, rbpf): when the children below c weigh less than the
+    rounding of the others, the threshold search ends with n large children; the kernel divided
+    by zero. Now it keeps the n largest and drops mass below float resolution."""
+    w = np.array([0.5, 0.5 - 1e-17, 1e-300, 1e-300, 1e-300])
+    kept = optimal_resampling(w, 2, np.random.default_rng(0))
+    assert sorted(kept.indices.tolist()) == [0, 1]
+    assert kept.weights.sum() == pytest.approx(1.0, abs=1e-15)
