@@ -24,13 +24,14 @@ def peak():
         return next(int(line.split()[1]) * 1024 for line in status if line.startswith("VmHWM:"))
 
 n, p, p_change = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
-warm = om.make_estimator("rbpf", om.corridor(8, p_change=p_change), n_particles=4, seed=0)  # compile first
+options = dict(seed=0, resampling="residual", resample_threshold=0.0)  # never resampling: the worst case
+warm = om.make_estimator("rbpf", om.corridor(8, p_change=p_change), n_particles=4, **options)  # compile first
 warm.step(None, 0), warm.step(1, 1), warm.belief
 with open("/proc/self/clear_refs", "w") as clear:
     clear.write("5")  # reset the peak to the current resident size (Linux >= 4.0)
 before = peak()
 model = om.corridor(n, p_change=p_change, p_move=1.0)
-est = om.make_estimator("rbpf", model, n_particles=p, seed=0, resampling="residual", resample_threshold=0.0)
+est = om.make_estimator("rbpf", model, n_particles=p, **options)
 rng = np.random.default_rng(0)
 est.step(None, 0)
 for t in range(1, 2 * n):  # there and back without resampling: every particle ends up owning every block
