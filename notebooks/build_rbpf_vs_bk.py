@@ -126,11 +126,11 @@ summary.pivot(index="estimator", columns="world", values="mean_map_tv").round(4)
 * **Among the sampling schemes, the optimal proposal pays off with few particles** (0.043
   against 0.068 for the transition proposal at 10 particles); from about 300 particles on the
   two are alike. Here its effective sample size is higher (190 against 173 of 200 particles).
-* **On random walks** (10 runs of 60 steps per world) 100 default particles are 3.4 to 5.1 times
+* **On random walks** (10 runs of 60 steps per world) 100 default particles are 1.9 to 3.9 times
   closer to exact than BK in every world, static or changing (the transition proposal with
-  residual resampling: 1.3 to 2.0 times), and 1000 particles closer still. BK is about as close
+  residual resampling: 1.0 to 1.35 times), and 1000 particles closer still. BK is about as close
   as a 10-particle filter there, because walks that revisit cells repair the correlation it
-  drops; online EM and dead reckoning are 2 to 7 times further from exact than BK.
+  drops; online EM and dead reckoning are 3 to 7 times further from exact than BK.
 
 So: `rbpf` with 100 particles and its defaults is the estimator to reach for when exact Bayes is
 too large; BK is a cheap baseline that fails precisely when the robot must use the map

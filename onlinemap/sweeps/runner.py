@@ -22,15 +22,11 @@ from ..estimators import estimator_options
 from ..estimators.base import Trajectory
 from ..evaluate import RUN_METRICS, STEP_METRICS, run_metrics, step_metrics, timed_trajectory
 from ..model import GridModel
+from ..rng import ESTIMATOR_STREAM, derived_seed
 from ..scenarios import one_slip_corridor
 from ..simulate import Run, random_walk, there_and_back
 from ..worlds import WorldSpec, parse_world
 from .tasks import OPTION_PREFIXES, Task, options_text
-
-
-def derived_seed(seed: int, stream: int) -> int:
-    """An independent 32-bit seed for stream ``stream`` of task seed ``seed``."""
-    return int(np.random.SeedSequence([seed, stream]).generate_state(1)[0])
 
 
 @functools.lru_cache(maxsize=64)
@@ -73,7 +69,7 @@ def _options(name: str, options: tuple, seed: int) -> dict:
     """The task's estimator options, with a seed derived from the task's if it takes one."""
     options = dict(options)
     if "seed" in estimator_options(name):
-        options.setdefault("seed", derived_seed(seed, 1))
+        options.setdefault("seed", derived_seed(seed, ESTIMATOR_STREAM))
     return options
 
 
