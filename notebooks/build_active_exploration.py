@@ -23,8 +23,8 @@ world the robot never relocalises, and its map smears.
 
 **Information gain** (`info_gain`, Stachniss, Grisetti and Burgard 2005) scores macro-actions
 (press one direction k times; follow the policy-iteration path of a per-cell information reward)
-by the expected drop of the belief's uncertainty $U = w\\,H(L) + \\sum_i H(m_i)$ (nats), minus a
-cost per step. The expectation is taken by simulation: draw a world (a particle's location and a
+by the expected drop of the belief's uncertainty $U = w\\,I_0\\,H(L) + \\sum_i H(m_i)$ (nats; $I_0$ is
+what one observation teaches about an unknown cell), minus a cost per step. The expectation is taken by simulation: draw a world (a particle's location and a
 map from its marginals), roll the macro-action out in it, feed the simulated observations to a
 copy of the filter, measure its uncertainty. A long press into a wall is worth a lot to a lost
 robot; a path into unmapped cells is worth a lot to a localised one. The live filter is never
