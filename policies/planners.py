@@ -135,7 +135,9 @@ PLANNERS = ("entropy", "entropy_collect", "random", "sweep", "info_gain")
 def make_planner(name: str, model: GridModel, seed: SeedLike = None, **options) -> Planner:
     """Planner by name: ``entropy`` (:class:`EntropyExplorer`; options gamma, replan_every,
     reward), ``entropy_collect`` (the same with :func:`~policies.rewards.collected_entropy_reward`),
-    ``random`` (:class:`RandomWalk` with ``seed``) or ``sweep`` (:class:`Sweep`)."""
+    ``random`` (:class:`RandomWalk` with ``seed``), ``sweep`` (:class:`Sweep`) or ``info_gain``
+    (:class:`~policies.info_gain.InfoGainExplorer` with ``seed``; it plans on the live estimator,
+    which :func:`~policies.explore` hands it through ``bind``)."""
     if name == "entropy":
         return EntropyExplorer(model, **options)
     if name == "entropy_collect":
