@@ -1,4 +1,4 @@
-"""Writes notebooks/corridor_em_failure.ipynb (no stored outputs). Run: python notebooks/build_corridor_em_failure.py"""
+"""Writes notebooks/corridor_em_failure.ipynb, executed with its outputs. Run: python notebooks/build_corridor_em_failure.py"""
 
 import nbformat
 
@@ -103,7 +103,8 @@ and counts, per estimator, how often the robot goes *astray* on the way back (it
 true cell less than 5%: confidently in the wrong place), ends lost (below 50% at the end), or
 ends with a wrong colour on a visited cell, with 95% Wilson intervals.
 
-What to look for (with the default 200 runs):
+What to look for (with the default `N_RUNS = 200`, rounded up to 203 so that every length from
+6 to 12 cells gets 29 runs):
 
 * **astray**: exact Bayes, the particle filter, BK and even dead reckoning essentially never
   are; online EM is in a sizeable fraction of runs, and *more* often with longer windows
@@ -124,7 +125,7 @@ reproduce.with_intervals(summary)"""),
 
 * Exact Bayes keeps the competing explanations of the slip until the data decides: on the
   scripted run it learns the map and knows where it is at the end; on random runs it is
-  often uncertain, but (in the default 200 runs) never confidently wrong.
+  often uncertain, but (in the default 203 runs) never confidently wrong.
 * Online EM commits to one map after every step. On the scripted run a single slip is enough
   for it to lock onto a shifted map and lose the robot on the way back, whatever the window
   or decay; on random runs it goes astray often, more so with longer windows.

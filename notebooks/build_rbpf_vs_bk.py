@@ -1,4 +1,4 @@
-"""Writes notebooks/rbpf_vs_bk.ipynb (no stored outputs). Run: python notebooks/build_rbpf_vs_bk.py"""
+"""Writes notebooks/rbpf_vs_bk.ipynb, executed with its outputs. Run: python notebooks/build_rbpf_vs_bk.py"""
 
 import nbformat
 
@@ -17,8 +17,12 @@ fine for 10 cells, hopeless for 100. Two ways to approximate it:
 * **The Rao-Blackwellised particle filter (RBPF)** samples the robot's trajectory (a particle
   = one hypothesis of where it has been) and, given a trajectory, computes the map *exactly*:
   the cells are then independent, so each particle holds N marginals. The correlation lives
-  in the population of particles. The `optimal` proposal samples the next location given
-  the observation; `transition` samples the motion model and lets the weights sort it out.
+  in the population of particles. By default (`resampling="fearnhead_clifford"`) nothing is
+  sampled twice: each step enumerates every particle's successors (stay or move) with their
+  exact weights and keeps P of them by optimal resampling (Fearnhead and Clifford 2003). The
+  sampling schemes remain: the `optimal` proposal samples the next location given the
+  observation, `transition` samples the motion model and lets the weights sort it out, each
+  with `resampling="residual"` (or systematic, stratified, multinomial).
 
 Both are in the streaming API (`om.make_estimator("bk", model)`,
 `om.make_estimator("rbpf", model, n_particles=100, seed=0)`)."""),
@@ -59,20 +63,23 @@ ax_loc.set(title="location: TV distance to exact", xlabel="step t")
 ax_map.set(title="map: mean TV distance to exact", xlabel="step t")
 ax_map.legend()
 fig"""),
-    ("md", """## Particles: how many, and which proposal
+    ("md", """## Particles: how many, and which scheme
 
-The RBPF's error shrinks like 1/sqrt(P). `N_SEEDS` filter seeds per particle count on the
-scripted run."""),
-    ("code", """rows = []
-for proposal in ("optimal", "transition"):
+The sampling schemes' error shrinks like 1/sqrt(P). `N_SEEDS` filter seeds per particle count
+on the scripted run, for the default (Fearnhead-Clifford) and the two proposals with residual
+resampling."""),
+    ("code", """SCHEMES = {"fearnhead_clifford": {}, "optimal + residual": {"proposal": "optimal", "resampling": "residual"},
+           "transition + residual": {"proposal": "transition", "resampling": "residual"}}
+rows = []
+for scheme, options in SCHEMES.items():
     for n in (10, 30, 100, 300, 1000):
         for seed in range(N_SEEDS):
-            est = om.make_estimator("rbpf", run.model, n_particles=n, proposal=proposal, seed=seed)
+            est = om.make_estimator("rbpf", run.model, n_particles=n, seed=seed, **options)
             t = om.run_estimator(est, run.actions, run.observations)
-            rows.append((proposal, n, total_variation(t.map, exact.map).mean()))
+            rows.append((scheme, n, total_variation(t.map, exact.map).mean()))
 import pandas as pd
-particles = pd.DataFrame(rows, columns=["proposal", "particles", "map_tv"]).groupby(
-    ["proposal", "particles"]).map_tv.mean().unstack(0)
+particles = pd.DataFrame(rows, columns=["scheme", "particles", "map_tv"]).groupby(
+    ["scheme", "particles"], sort=False).map_tv.mean().unstack(0)
 bk_tv = total_variation(trajectories["bk"].map, exact.map).mean()
 fig = Figure(figsize=(5, 3.5), layout="constrained")
 ax = fig.subplots()
@@ -84,10 +91,11 @@ display(fig)
 particles.assign(bk=bk_tv)"""),
     ("md", """The optimal proposal looks at the observation before choosing where the robot went, so
 fewer particles are wasted on locations the observation rules out: its weights vary less.
-Resampling every step, the effective sample size after each step measures that directly."""),
+With the same resampling for both (residual, every step), the effective sample size after each
+step measures that directly."""),
     ("code", """def mean_ess(proposal, seed):
-    est = om.make_estimator("rbpf", run.model, n_particles=200, proposal=proposal, resample_threshold=1.0,
-                            seed=seed)
+    est = om.make_estimator("rbpf", run.model, n_particles=200, proposal=proposal, resampling="residual",
+                            resample_threshold=1.0, seed=seed)
     return np.mean([est.step(None if t == 0 else run.actions[t - 1], run.observations[t]).effective_sample_size
                     for t in range(run.n_steps)])
 
@@ -97,19 +105,36 @@ Resampling every step, the effective sample size after each step measures that d
 
 The same comparison on random walks (`onlinemap compare` runs it from the command line): a
 10-cell corridor and a 3 x 3 grid, static and with labels that change (p_change = 0.02), against
-exact Bayes. Mean distance to exact over runs and steps, per estimator."""),
+exact Bayes. Mean distance to exact over runs and steps, per estimator (`rbpf optimal` is the
+default, Fearnhead-Clifford; `rbpf transition` samples the motion model with residual
+resampling)."""),
     ("code", """per_step = compare.accuracy_study(compare.DEFAULT_WORLDS, n_runs=N_RUNS, n_steps=N_STEPS,
                                   particles=(10, 100, 1000), progress=False)
 summary = compare.summarise(per_step)
 display(compare.error_vs_particles_figure(summary))
 display(compare.error_over_time_figure(per_step))
-summary.pivot(index="estimator", columns="world", values="map_tv_mean").round(4)"""),
-    ("md", """Reading the table (10 runs of 60 steps per world): with 100 particles the RBPF is closer
-to exact than BK in every world, and 1000 particles are closer still. BK is about as close as a
-10-particle filter on random walks: its projection loses the location-map correlation, but
-walks that re-visit cells often repair it quickly. The scripted corridor, where the robot needs
-the map to notice its own slip, is where BK's error shows most (about 4 times the error of 100
-particles above). Online EM and dead reckoning are several times further from exact than BK."""),
+summary.pivot(index="estimator", columns="world", values="mean_map_tv").round(4)"""),
+    ("md", """## Conclusion
+
+* **The RBPF tracks exact Bayes, and more particles bring it closer.** On the scripted corridor
+  the default (Fearnhead-Clifford) is 0.018 from exact in mean map distance with 10 particles,
+  0.00057 with 100 and 0.000005 with 1000: the run has few plausible trajectories, and it keeps
+  each of them at most once. Sampling with the optimal proposal and residual resampling gives
+  0.043, 0.015 and 0.0056. BK stays at 0.069, 120 times the error of 100 default particles:
+  after the slip, *where the robot is* and *what the map says* depend on each other, and a
+  product of marginals cannot hold that dependence.
+* **Among the sampling schemes, the optimal proposal pays off with few particles** (0.043
+  against 0.068 for the transition proposal at 10 particles); from about 300 particles on the
+  two are alike. Here its effective sample size is higher (190 against 173 of 200 particles).
+* **On random walks** (10 runs of 60 steps per world) 100 default particles are 3.4 to 5.1 times
+  closer to exact than BK in every world, static or changing (the transition proposal with
+  residual resampling: 1.3 to 2.0 times), and 1000 particles closer still. BK is about as close
+  as a 10-particle filter there, because walks that revisit cells repair the correlation it
+  drops; online EM and dead reckoning are 2 to 7 times further from exact than BK.
+
+So: `rbpf` with 100 particles and its defaults is the estimator to reach for when exact Bayes is
+too large; BK is a cheap baseline that fails precisely when the robot must use the map
+to find out where it is."""),
 ]
 
 

@@ -3,10 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .arrays import read_only
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from .model import GridModel
 
 
 def _frozen(array: np.ndarray | None) -> np.ndarray | None:
@@ -54,14 +60,50 @@ class Belief:
 
     @property
     def most_likely_location(self) -> int:
+        """The cell ``argmax_i P(L_t = i)`` (the lowest index on ties)."""
         return int(np.argmax(self.location))
 
     @property
     def map_estimate(self) -> np.ndarray:
-        """(N,) the most likely label of every cell."""
+        """(N,) the most likely label of every cell, ``argmax_k P(m_i = k)`` (marginal by marginal:
+        not necessarily the most likely map as a whole)."""
         return np.argmax(self.map, axis=1)
+
+    def to_frame(self, model: GridModel | None = None) -> pd.DataFrame:
+        """One row per cell: ``t``, ``cell`` (with ``row``, ``col`` given the model), ``location`` =
+        P(L_t = cell), one column ``map_LABEL`` per label = P(m_cell = LABEL), and
+        ``most_likely_label``. Labels are named by ``model`` (else 0..K-1). Cost O(N K)."""
+        return beliefs_frame(self.location[None], self.map[None], model, t=np.array([self.t]))
 
     def __repr__(self) -> str:
         where = self.most_likely_location
+        extra = "" if self.effective_sample_size is None else f", ess={self.effective_sample_size:.1f}"
         return (f"Belief(t={self.t}, most likely cell {where} with p={self.location[where]:.3f}, "
-                f"N={self.n_cells}, K={self.n_labels}, log_evidence={self.log_evidence:.4g})")
+                f"N={self.n_cells}, K={self.n_labels}, log_evidence={self.log_evidence:.4g}{extra})")
+
+
+def beliefs_frame(location: np.ndarray, maps: np.ndarray, model: GridModel | None = None,
+                  t: np.ndarray | None = None) -> pd.DataFrame:
+    """Beliefs over time in long format (for pandas / seaborn): one row per step and cell.
+
+    location (T, N), maps (T, N, K), t (T,) step indices (default 0..T-1). Columns: ``t``,
+    ``cell``, ``row`` and ``col`` (with a model), ``location``, ``map_LABEL`` per label (named
+    by the model, else 0..K-1), ``most_likely_label`` (a name with a model, else an index).
+    Cost O(T N K) time and memory.
+    """
+    import pandas as pd
+
+    location, maps = np.asarray(location, dtype=float), np.asarray(maps, dtype=float)
+    steps, cells, labels = maps.shape
+    if location.shape != (steps, cells):
+        raise ValueError(f"location {location.shape} and maps {maps.shape} do not match: (T, N) and (T, N, K)")
+    names = model.label_names if model is not None else tuple(str(k) for k in range(labels))
+    best = np.argmax(maps, axis=2).ravel()
+    columns = {"t": np.repeat(np.arange(steps) if t is None else np.asarray(t), cells),
+               "cell": np.tile(np.arange(cells), steps)}
+    if model is not None:
+        columns["row"], columns["col"] = np.divmod(columns["cell"], model.cols)
+    columns["location"] = location.ravel()
+    columns.update({f"map_{name}": maps[:, :, k].ravel() for k, name in enumerate(names)})
+    columns["most_likely_label"] = np.asarray(names, dtype=object)[best] if model is not None else best
+    return pd.DataFrame(columns)

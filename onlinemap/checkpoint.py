@@ -29,14 +29,19 @@ arrays sharing memory (views) are refused, since loading could not keep them lin
 ``est.model`` and ``est.options`` (the keyword options it was built with, recorded by
 :func:`~onlinemap.estimators.register`) are stored apart and checked on load.
 
-File format (``save``/``load``): an uncompressed ``.npz`` read with ``allow_pickle=False``:
-``meta`` (UTF-8 JSON as uint8: format name and version, onlinemap version, estimator name,
-options, t, model and attribute tree with arrays replaced by keys ``a0, a1, ...``), ``sha256``
-(hex digest of ``meta`` and every array's bytes) and the arrays. Nothing in a file is ever
-executed: no pickle, JSON only, whitelisted numpy bit generators, the model re-validated. The
-checksum catches truncation, corruption and hand edits; it is not a signature (whoever can
-write the file can recompute it), and needs not be one. Files are written atomically (temp file
-in the same directory, fsync, ``os.replace``): a crash mid-write leaves the previous file intact.
+File format (``save``/``load``): an uncompressed ``.npz``: ``meta`` (UTF-8 JSON as uint8:
+format name and version, onlinemap version, estimator name, options, t, model and attribute
+tree with arrays replaced by keys ``a0, a1, ...``), ``sha256`` (hex digest of ``meta`` and every
+array's bytes) and the arrays. :func:`read` parses it itself: regular files only, no
+compressed or encrypted entries, every npy header's declared size equal to its entry's before
+anything is allocated, metadata nested at most 64 deep. Nothing in a file is ever executed: no
+pickle, JSON only, whitelisted numpy bit generators, the model re-validated. The checksum
+catches truncation, corruption and hand edits; it is not a signature (whoever can write the
+file can recompute it), so :func:`load_state_dict` also checks the restored state against the
+estimator's invariants (:mod:`onlinemap.state_checks`): no file can make a kernel index outside
+its arrays. Compatibility: :data:`FORMAT_VERSION` (see :func:`check_header`). Files are written
+atomically (temp file in the same directory, fsync, ``os.replace``, through symlinks, the mode
+kept): a crash mid-write leaves the previous file intact.
 
 Note: ``bit_generator.state`` does not include the generator's seed sequence, so after loading,
 ``Generator.spawn`` gives different children; draws from the generator itself continue exactly.
@@ -51,6 +56,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import stat
 import tempfile
 import tokenize
 import types
@@ -61,10 +67,11 @@ import numpy as np
 
 from .belief import Belief
 from .errors import CheckpointError, OnlineMapError
-from .model import DEFINING_FIELDS, GridModel, model_difference
+from .model import DEFINING_FIELDS, OPTIONAL_FIELDS, GridModel, model_difference
 
 FORMAT = "onlinemap-checkpoint"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 1  # bump when the file layout or an estimator's state changes incompatibly
+OLDEST_FORMAT_VERSION = 1  # the oldest format this code still reads
 _TAG = "$"
 _SEPARATE = ("model", "options")  # attributes stored apart from the state tree
 _ARRAY_KINDS = "biufcUSmM"  # numpy dtype kinds that npy stores without pickling
@@ -212,13 +219,13 @@ class _Decoder:
                 return _KeepFresh("scratch", str(node["dtype"]), list(node["shape"]))
         except CheckpointError:
             raise
-        except (KeyError, TypeError, ValueError, AttributeError) as error:
-            raise CheckpointError(f"attribute {path}: malformed {tag!r} entry: {error}") from None
+        except (KeyError, TypeError, ValueError, AttributeError, OverflowError, IndexError) as error:
+            raise CheckpointError(f"attribute {path}: malformed {tag!r} entry: {_short(str(error))}") from None
         raise CheckpointError(f"attribute {path}: unknown entry type {tag!r}")
 
 
 def _short(node) -> str:
-    text = repr(node)
+    text = node if isinstance(node, str) else repr(node)
     return text if len(text) <= 80 else text[:77] + "..."
 
 
@@ -240,7 +247,8 @@ def _generator(state: dict) -> np.random.Generator:
 
 def decode_model(node) -> GridModel:
     """Rebuild a :class:`GridModel` from :func:`encode_model`'s tree (validated by its constructor)."""
-    if type(node) is not dict or node.get(_TAG) != "model" or set(node.get("fields", ())) != set(DEFINING_FIELDS):
+    names = set(node.get("fields", ())) if type(node) is dict else set()
+    if type(node) is not dict or node.get(_TAG) != "model" or not set(DEFINING_FIELDS) - set(OPTIONAL_FIELDS) <= names <= set(DEFINING_FIELDS):
         raise CheckpointError("the checkpoint's model entry is malformed")
     fields = {name: _Decoder().decode(value, name) for name, value in node["fields"].items()}
     try:
@@ -278,26 +286,38 @@ def state_dict(est) -> dict:
             "model": encode_model(est.model), "attributes": attributes}
 
 
-def check_header(state: dict, *, strict_version: bool = True) -> None:
-    """Refuse a state of another format, format version or (with ``strict_version``) onlinemap version."""
+def check_header(state: dict, *, strict_version: bool = False, allow_newer: bool = False) -> None:
+    """Refuse a state of another format, of a format version this onlinemap cannot read (older
+    than :data:`OLDEST_FORMAT_VERSION`, or newer than :data:`FORMAT_VERSION` unless
+    ``allow_newer``) or, with ``strict_version``, written by another onlinemap version.
+
+    Compatibility rests on the format version, not the package version: a patch or minor
+    release that keeps the format reads its predecessors' checkpoints."""
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         raise CheckpointError("not an onlinemap checkpoint (missing format marker)")
-    if state.get("format_version") != FORMAT_VERSION:
-        raise CheckpointError(f"checkpoint format version {state.get('format_version')!r}; this onlinemap "
-                              f"({_package_version()}) reads version {FORMAT_VERSION}")
+    version = state.get("format_version")
+    if type(version) is not int or version < OLDEST_FORMAT_VERSION:
+        raise CheckpointError(f"checkpoint format version {_short(repr(version))}; this onlinemap "
+                              f"({_package_version()}) reads versions {OLDEST_FORMAT_VERSION} to {FORMAT_VERSION}")
+    if version > FORMAT_VERSION and not allow_newer:
+        raise CheckpointError(f"checkpoint format version {version} was written by a newer onlinemap "
+                              f"({_short(repr(state.get('onlinemap_version')))}); this one ({_package_version()}) reads "
+                              f"up to version {FORMAT_VERSION}: upgrade onlinemap, or pass allow_newer=True "
+                              "(track: --allow-newer-checkpoint) to try anyway")
     if strict_version and state.get("onlinemap_version") != _package_version():
-        raise CheckpointError(f"checkpoint written by onlinemap {state.get('onlinemap_version')!r}, this is "
-                              f"{_package_version()}; pass strict_version=False to try anyway")
+        raise CheckpointError(f"checkpoint written by onlinemap {_short(repr(state.get('onlinemap_version')))}, this is "
+                              f"{_package_version()}, and strict_version=True asks for the same version")
     for key in ("estimator", "t", "options", "model", "attributes"):
         if key not in state:
             raise CheckpointError(f"checkpoint has no {key!r} entry")
 
 
-def load_state_dict(est, state: dict, *, strict_version: bool = True) -> None:
-    """Restore ``est`` from :func:`state_dict`'s output. Checks the format and package versions, the
-    estimator name, the model (bitwise), the options and the attribute names and kinds; refuses
-    with :class:`CheckpointError` and leaves ``est`` untouched on any mismatch."""
-    check_header(state, strict_version=strict_version)
+def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_newer: bool = False) -> None:
+    """Restore ``est`` from :func:`state_dict`'s output. Checks the format version (see
+    :func:`check_header`), the estimator name, the model (bitwise), the options and the attribute
+    names and kinds, then the restored state's invariants (see :mod:`onlinemap.state_checks`);
+    refuses with :class:`CheckpointError` and leaves ``est`` untouched on any mismatch."""
+    check_header(state, strict_version=strict_version, allow_newer=allow_newer)
     if state["estimator"] != est.name:
         raise CheckpointError(f"checkpoint is for estimator {state['estimator']!r}, not {est.name!r}")
     field = model_difference(decode_model(state["model"]), est.model)
@@ -315,12 +335,32 @@ def load_state_dict(est, state: dict, *, strict_version: bool = True) -> None:
                               f"unexpected {extra}")
     decoder = _Decoder()
     restored = {}
-    for name, node in state["attributes"].items():
-        value = decoder.decode(node, name)
-        _check_kind(name, current[name], value)
-        if not isinstance(value, _KeepFresh):
-            restored[name] = value
+    try:
+        for name, node in state["attributes"].items():
+            value = decoder.decode(node, name)
+            _check_kind(name, current[name], value)
+            if not isinstance(value, _KeepFresh):
+                restored[name] = value
+    except RecursionError:
+        raise CheckpointError("checkpoint's attributes are nested too deeply") from None
+    check_state(est, restored)
     vars(est).update(restored)
+
+
+def check_state(est, restored: dict) -> None:
+    """Check the attributes ``restored`` (name -> value) as ``est``'s new state, without changing
+    ``est``: the attributes fixed by the model and options equal ``est``'s own, bit for bit, and
+    the rest satisfy the estimator's invariants (:mod:`onlinemap.state_checks`; a class may
+    define its own ``check_state(view)``). Raises :class:`CheckpointError`."""
+    from . import state_checks
+
+    for name in state_checks.CONSTANT.get(est.name, ()):
+        if name in restored and not same_tree(_Encoder().encode(restored[name], name),
+                                              _Encoder().encode(vars(est)[name], name)):
+            raise CheckpointError(f"invalid state: attribute {name} differs from what the model and options give")
+    check = getattr(type(est), "check_state", None) or state_checks.STATE_CHECKS.get(est.name)
+    if check is not None:
+        check(types.SimpleNamespace(**{**vars(est), **restored}))
 
 
 def _kind(value) -> str:
@@ -348,6 +388,8 @@ def _check_kind(name: str, current, value) -> None:
         return
     if _kind(current) != _kind(value):
         raise CheckpointError(f"attribute {name}: checkpoint holds a {_kind(value)}, the estimator a {_kind(current)}")
+    if type(current) is np.ndarray and current.flags.c_contiguous and not value.flags.c_contiguous:
+        raise CheckpointError(f"attribute {name}: the estimator's array is C-contiguous, the checkpoint's is not")
 
 
 def same_tree(a, b) -> bool:
@@ -437,25 +479,65 @@ def _digest(meta: bytes, arrays: dict[str, np.ndarray]) -> str:
 
 def write(state: dict, path: str | os.PathLike) -> Path:
     """Write a :func:`state_dict` to ``path`` atomically (temp file in the same directory, fsync,
-    ``os.replace``); returns the path. Missing parent directories are created."""
+    ``os.replace``); returns the path. Missing parent directories are created. A symlink is
+    written through (its target is replaced, the link kept); an existing file keeps its
+    permission bits, a new one gets ``0o666`` less the umask. Any OS failure (read-only
+    directory, full disk, ...) raises :class:`CheckpointError` naming the file, and the previous
+    file is left as it was."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    target = Path(os.path.realpath(path))
     arrays: dict[str, np.ndarray] = {}
     meta = json.dumps(_externalise(state, arrays), separators=(",", ":")).encode()
     digest = _digest(meta, arrays).encode()
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    tmp = None
     try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        mode = _file_mode(target)
+        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
         with os.fdopen(fd, "wb") as file:
+            os.fchmod(file.fileno(), mode)
             np.savez(file, meta=np.frombuffer(meta, np.uint8), sha256=np.frombuffer(digest, np.uint8), **arrays)
             file.flush()
             os.fsync(file.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
+        os.replace(tmp, target)
+        tmp = None
+    except OSError as error:
+        raise CheckpointError(f"cannot write checkpoint {path}: {error.strerror or error}; the previous file "
+                              "(if any) is unchanged") from None
+    finally:
+        if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
-        raise
-    _fsync_directory(path.parent)
+    _fsync_directory(target.parent)
     return path
+
+
+def _file_mode(target: Path) -> int:
+    """Permission bits for a checkpoint at ``target``: those of the file it replaces, or 0o666
+    less the process's umask for a new one. Refuses a target that exists but is not a regular file."""
+    try:
+        info = os.stat(target)
+    except FileNotFoundError:
+        umask = os.umask(0o022)
+        os.umask(umask)
+        return 0o666 & ~umask
+    if not stat.S_ISREG(info.st_mode):
+        raise CheckpointError(f"cannot write checkpoint {target}: it exists and is not a regular file")
+    return stat.S_IMODE(info.st_mode)
+
+
+def check_writable(path: str | os.PathLike) -> None:
+    """Raise :class:`CheckpointError` unless a checkpoint can be written at ``path``: its
+    directory exists or can be created, a file can be created in it, and ``path`` (or what it
+    links to) is a regular file or does not exist. Creates and removes one empty temp file."""
+    target = Path(os.path.realpath(path))
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        _file_mode(target)
+        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as error:
+        raise CheckpointError(f"cannot write checkpoint {path}: {error.strerror or error}") from None
 
 
 def _fsync_directory(directory: Path) -> None:
@@ -472,46 +554,128 @@ def _fsync_directory(directory: Path) -> None:
         os.close(fd)
 
 
+_MAX_MEMBERS = 100_000  # zip entries
+_MAX_DEPTH = 64  # nesting of the metadata (the state trees nest a few levels deep)
+_MAX_NPY_HEADER = 10_000  # bytes, numpy's own default limit
+
+
 def read(path: str | os.PathLike) -> dict:
-    """Read and verify a checkpoint file (zip structure, format version, SHA-256 of metadata and
-    arrays, recorded dtypes and shapes); returns the state tree. Executes nothing from the file."""
+    """Read and verify a checkpoint file (regular file, zip structure, npy headers, format
+    version, SHA-256 of metadata and arrays, recorded dtypes and shapes); returns the state tree.
+    Executes nothing from the file, and allocates nothing larger than the file: every array's
+    declared size is checked against its zip entry before it is read. Any defect raises
+    :class:`CheckpointError` naming the file and the problem."""
     path = Path(path)
     try:
-        with open(path, "rb") as file:
-            magic = file.read(4)
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO must not block
     except OSError as error:
         raise CheckpointError(f"cannot open checkpoint {path}: {error.strerror or error}") from None
-    if magic != _ZIP_MAGIC:
-        raise CheckpointError(f"{path} is not an onlinemap checkpoint (not an npz file)")
-    try:
-        with zipfile.ZipFile(path) as archive:  # stored members only: nothing to inflate (no zip bombs)
-            packed = [info.filename for info in archive.infolist() if info.compress_type != zipfile.ZIP_STORED]
-        if packed:
-            raise CheckpointError(f"{path}: compressed entries {packed[:3]}; onlinemap writes them uncompressed")
-        with np.load(path, allow_pickle=False) as npz:
-            contents = {name: npz[name] for name in npz.files}
-    except ValueError as error:
-        if "pickle" in str(error):
-            raise CheckpointError(f"{path} contains a pickled object; refused (nothing was loaded or run)") from None
-        raise CheckpointError(f"{path} is corrupt: {error}") from None
-    except (zipfile.BadZipFile, OSError, EOFError, KeyError, NotImplementedError, SyntaxError,
-            tokenize.TokenError) as error:  # the last two: a damaged npy header (numpy parses it)
-        raise CheckpointError(f"{path} is truncated or corrupt: {error}") from None
+    info = os.fstat(fd)
+    if not stat.S_ISREG(info.st_mode):
+        os.close(fd)
+        raise CheckpointError(f"{path} is not a regular file; refused")
+    with os.fdopen(fd, "rb") as file:
+        if file.read(4) != _ZIP_MAGIC:
+            raise CheckpointError(f"{path} is not an onlinemap checkpoint (not an npz file)")
+        file.seek(0)
+        try:
+            contents = _read_npz(file, info.st_size, path)
+        except CheckpointError:
+            raise
+        except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError, KeyError, NotImplementedError,
+                RuntimeError, ValueError, TypeError, SyntaxError, RecursionError, MemoryError,
+                tokenize.TokenError) as error:
+            raise CheckpointError(f"{path} is truncated or corrupt: {type(error).__name__}: "
+                                  f"{_short(str(error))}") from None
     meta_bytes, digest = contents.pop("meta", None), contents.pop("sha256", None)
     if meta_bytes is None or digest is None or meta_bytes.dtype != np.uint8 or digest.dtype != np.uint8:
         raise CheckpointError(f"{path} is not an onlinemap checkpoint (no metadata or checksum)")
     try:
         meta = json.loads(meta_bytes.tobytes().decode())
     except (UnicodeDecodeError, ValueError, RecursionError) as error:
-        raise CheckpointError(f"{path}: unreadable metadata: {error}") from None
-    check_header(meta, strict_version=False)
+        raise CheckpointError(f"{path}: unreadable metadata: {_short(str(error))}") from None
+    if _depth(meta) > _MAX_DEPTH:
+        raise CheckpointError(f"{path}: metadata nested more than {_MAX_DEPTH} levels deep")
+    try:
+        check_header(meta, allow_newer=True)  # the caller decides about versions (load_state_dict)
+    except CheckpointError as error:
+        raise CheckpointError(f"{path}: {error}") from None
     keys = _array_keys(meta, [])
     if sorted(keys) != sorted(contents):
-        raise CheckpointError(f"{path}: entries {sorted(contents)} do not match the metadata's {sorted(keys)}")
+        raise CheckpointError(f"{path}: entries {_short(sorted(contents))} do not match the metadata's "
+                              f"{_short(sorted(keys))}")
     if _digest(meta_bytes.tobytes(), {key: contents[key] for key in keys}) != \
             digest.tobytes().decode(errors="replace"):
         raise CheckpointError(f"{path}: checksum mismatch: the file was modified or damaged")
     return _internalise(meta, contents, set())
+
+
+def _read_npz(file, file_size: int, path: Path) -> dict[str, np.ndarray]:
+    """The arrays of an uncompressed, unencrypted npz, each entry's npy header checked (no
+    pickled objects, declared size equal to the entry's size) before its data is read."""
+    contents: dict[str, np.ndarray] = {}
+    with zipfile.ZipFile(file) as archive:
+        members = archive.infolist()
+        if len(members) > _MAX_MEMBERS:
+            raise CheckpointError(f"{path}: {len(members)} zip entries; refused")
+        for info in members:
+            name = info.filename
+            if info.compress_type != zipfile.ZIP_STORED:
+                raise CheckpointError(f"{path}: compressed entries ({name!r}); onlinemap writes them uncompressed")
+            if info.flag_bits & 0x1:
+                raise CheckpointError(f"{path}: entry {name!r} is marked encrypted; refused")
+            if not name.endswith(".npy") or name[:-4] in contents or not name[:-4].isidentifier():
+                raise CheckpointError(f"{path}: unexpected zip entry {_short(name)}")
+            if info.file_size > file_size:
+                raise CheckpointError(f"{path}: entry {name!r} claims {info.file_size} bytes, more than the "
+                                      f"file's {file_size}")
+            with archive.open(info) as member:
+                contents[name[:-4]] = _read_npy(member, info.file_size, f"{path}: entry {name!r}")
+    return contents
+
+
+def _read_npy(member, size: int, where: str) -> np.ndarray:
+    """One npy entry of ``size`` bytes; its header's shape and dtype must account for exactly
+    the bytes that follow it."""
+    fmt = np.lib.format
+    version = fmt.read_magic(member)
+    if version == (1, 0):
+        shape, fortran, dtype = fmt.read_array_header_1_0(member, max_header_size=_MAX_NPY_HEADER)
+    elif version in ((2, 0), (3, 0)):
+        shape, fortran, dtype = fmt.read_array_header_2_0(member, max_header_size=_MAX_NPY_HEADER)
+    else:
+        raise CheckpointError(f"{where}: npy format version {version}")
+    if dtype.hasobject:
+        raise CheckpointError(f"{where} contains a pickled object; refused (nothing was loaded or run)")
+    if dtype.kind not in _ARRAY_KINDS or dtype.fields is not None or dtype.subdtype is not None:
+        raise CheckpointError(f"{where}: dtype {dtype} is not allowed in a checkpoint")
+    count = 1
+    for extent in shape:
+        count *= extent
+    need = count * dtype.itemsize
+    header = member.tell()
+    if need != size - header:
+        raise CheckpointError(f"{where}: header declares {shape} {dtype} ({need} bytes), the entry holds "
+                              f"{size - header}")
+    data = bytearray(need)
+    if member.readinto(data) != need or member.read(1):
+        raise CheckpointError(f"{where} is truncated")
+    return np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
+
+
+def _depth(node) -> int:
+    """Nesting depth of a JSON tree, without recursion (a crafted file may nest thousands deep)."""
+    deepest, stack = 0, [(node, 1)]
+    while stack:
+        node, level = stack.pop()
+        deepest = max(deepest, level)
+        if deepest > _MAX_DEPTH:
+            break
+        if type(node) is list:
+            stack.extend((v, level + 1) for v in node)
+        elif type(node) is dict:
+            stack.extend((v, level + 1) for v in node.values())
+    return deepest
 
 
 def save(est, path: str | os.PathLike) -> Path:

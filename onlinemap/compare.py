@@ -2,10 +2,12 @@
 section 5, claim 2), used by ``onlinemap compare`` and ``notebooks/rbpf_vs_bk.ipynb``.
 
 For every world and run (a random walk through a map drawn from the prior), every estimator
-of :func:`compare_estimators` is run next to ``exact``; per step we record the total-variation
-distance to exact of the location marginal (``location_tv``, over cells) and of the map
-marginals (``map_tv``, the mean over cells of each cell's distance), and the map error against
-the true (current) map. Worlds must be small enough for ``exact``.
+of :func:`compare_estimators` is run next to ``exact``, as a sweep (:func:`study_spec` on
+:func:`onlinemap.sweeps.sweep`, so it runs on dask, resumes and writes parquet like any sweep);
+per step it records (:mod:`onlinemap.evaluate`) the total-variation distance to exact of the
+location marginal (``location_tv``, over cells) and of the map marginals (``map_tv``, the mean
+over cells of each cell's distance), and the map error against the true (current) map. Worlds
+must be small enough for ``exact``.
 """
 
 from __future__ import annotations
@@ -15,12 +17,9 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
-from tqdm.auto import tqdm
 
-from . import metrics
+from .estimators import available_estimators
 from .estimators.rbpf import PROPOSALS
-from .estimators import available_estimators, make_estimator, run_estimator
-from .worlds import parse_world
 
 DEFAULT_WORLDS = ("corridor:10", "corridor:10,p_change=0.02", "grid:3x3", "grid:3x3,p_change=0.02")
 DEFAULT_PARTICLES = (10, 50, 100, 1000)
@@ -38,57 +37,61 @@ def compare_estimators(particles: Sequence[int] = DEFAULT_PARTICLES) -> list[tup
     return entries
 
 
+def study_spec(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_steps: int = 100,
+               particles: Sequence[int] = DEFAULT_PARTICLES, seed: int = 0) -> dict:
+    """The accuracy study as a sweep spec (:mod:`onlinemap.sweeps`): every world, seeds
+    ``seed .. seed + n_runs - 1``, ``n_steps`` steps of a random walk, one row per step, exact
+    Bayes as the reference, and every estimator of :func:`compare_estimators`."""
+    estimators: dict[str, object] = {"exact": {}}
+    for _, name, options in compare_estimators(particles):
+        if name == "rbpf":
+            estimators["rbpf"] = {"n_particles": [int(n) for n in particles], "proposal": list(PROPOSALS)}
+        else:
+            estimators[name] = {}
+    return {"name": "compare", "worlds": list(worlds), "seeds": list(range(int(seed), int(seed) + int(n_runs))),
+            "steps": int(n_steps), "rows": "step", "reference": "exact", "estimators": estimators}
+
+
+def label(estimator: str, proposal, n_particles) -> str:
+    """The study's label of a configuration: ``rbpf optimal P=100``, or the registry name."""
+    return f"rbpf {proposal} P={int(n_particles)}" if estimator == "rbpf" else estimator
+
+
 def accuracy_study(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_steps: int = 100,
-                   particles: Sequence[int] = DEFAULT_PARTICLES, seed: int = 0,
-                   progress: bool = True) -> pd.DataFrame:
-    """Per-step distances to exact, one row per (world, run, estimator, t): columns world, run,
-    estimator, particles (NaN unless rbpf), proposal, t, location_tv, map_tv, map_error and
-    seconds (the estimator's mean wall time per step on that run). Particle filters are seeded
-    from (seed, run). Cost: n_runs * n_steps steps of exact and of every estimator, per world.
-    """
-    entries = compare_estimators(particles)
-    frames = []
-    jobs = [(spec, r) for spec in worlds for r in range(n_runs)]
-    for spec in worlds:  # load every numba kernel (resampling included) before anything is timed
-        world = parse_world(spec)
-        model, warm_up = world.model, world.simulate(5, 0)
-        for name, options in [("exact", {})] + [(name, options) for _, name, options in entries]:
-            options = {**options, "resample_threshold": 1.0} if name == "rbpf" else options
-            run_estimator(make_estimator(name, model, **options), warm_up.actions, warm_up.observations)
-    for spec, r in tqdm(jobs, desc="runs", disable=not progress, leave=False):
-        world = parse_world(spec)
-        run = world.simulate(n_steps, [seed, r])
-        exact = run_estimator(make_estimator("exact", world.model), run.actions, run.observations)
-        for label, name, options in [("exact", "exact", {})] + entries:
-            if name == "rbpf":
-                options = {**options, "seed": [seed, r]}
-            trajectory = exact if name == "exact" else run_estimator(
-                make_estimator(name, world.model, **options), run.actions, run.observations)
-            frames.append(pd.DataFrame({
-                "world": spec, "run": r, "estimator": label,
-                "particles": options.get("n_particles", np.nan), "proposal": options.get("proposal"),
-                "t": np.arange(run.n_steps),
-                "location_tv": metrics.total_variation(trajectory.location, exact.location),
-                "map_tv": metrics.total_variation(trajectory.map, exact.map).mean(axis=-1),
-                "map_error": metrics.map_error(trajectory.map, run.maps),
-                "seconds": trajectory.seconds_per_step}))
-    return pd.concat(frames, ignore_index=True)
+                   particles: Sequence[int] = DEFAULT_PARTICLES, seed: int = 0, progress: bool = True, *,
+                   workers: int | None = 0, out=None) -> pd.DataFrame:
+    """Per-step distances to exact, run on the sweep engine (:func:`study_spec`; ``workers`` and
+    ``out`` as in :func:`onlinemap.sweeps.sweep`: 0 runs serially here, None on a local dask
+    cluster). One row per (world, run, estimator, t): the sweep's per-step columns
+    (:mod:`onlinemap.evaluate`: ``location_tv``, ``map_tv``, ``map_error``, ``ms_per_step``, ...)
+    plus ``run`` (the seed), ``particles`` (NaN unless rbpf), ``proposal`` and ``estimator``
+    relabelled by :func:`label`. Cost: n_runs * n_steps steps of exact and of every estimator,
+    per world."""
+    from .sweeps import sweep
+
+    table = sweep(study_spec(worlds, n_runs, n_steps, particles, seed), workers=workers, out=out,
+                  progress=progress)
+    proposal = table["opt_proposal"] if "opt_proposal" in table else pd.Series(None, index=table.index)
+    count = table["opt_n_particles"] if "opt_n_particles" in table else pd.Series(None, index=table.index)
+    table["estimator"] = [label(e, p, n) for e, p, n in zip(table["estimator"], proposal, count)]
+    table["run"], table["particles"], table["proposal"] = table["seed"], count.astype("Float64"), proposal
+    return table
 
 
 def summarise(per_step: pd.DataFrame) -> pd.DataFrame:
     """One row per (world, estimator): mean and worst (over runs and steps) location and map
     distances to exact, mean map error against the truth (over runs and steps) and at the last
-    step, and ms per step."""
+    step, and ms per step (after a warm-up run)."""
     grouped = per_step.groupby(["world", "estimator"], sort=False)
     last = per_step[per_step["t"] == per_step["t"].max()].groupby(["world", "estimator"], sort=False)
     return pd.DataFrame({
-        "location_tv_mean": grouped["location_tv"].mean(),
-        "location_tv_worst": grouped["location_tv"].max(),
-        "map_tv_mean": grouped["map_tv"].mean(),
-        "map_tv_worst": grouped["map_tv"].max(),
-        "map_error_mean": grouped["map_error"].mean(),
-        "map_error_final": last["map_error"].mean(),
-        "ms_per_step": 1e3 * grouped["seconds"].mean(),
+        "mean_location_tv": grouped["location_tv"].mean(),
+        "worst_location_tv": grouped["location_tv"].max(),
+        "mean_map_tv": grouped["map_tv"].mean(),
+        "worst_map_tv": grouped["map_tv"].max(),
+        "mean_map_error": grouped["map_error"].mean(),
+        "final_map_error": last["map_error"].mean(),
+        "ms_per_step": grouped["ms_per_step"].mean(),
     }).reset_index()
 
 
@@ -111,12 +114,12 @@ def error_vs_particles_figure(summary: pd.DataFrame) -> Figure:
             sub = rows[rows["estimator"].str.startswith(f"rbpf {proposal} ")]
             n = sub["estimator"].str.extract(r"P=(\d+)")[0].astype(int)
             order = np.argsort(n.to_numpy())
-            ax.plot(n.to_numpy()[order], sub["map_tv_mean"].to_numpy()[order], "o-", color=color,
+            ax.plot(n.to_numpy()[order], sub["mean_map_tv"].to_numpy()[order], "o-", color=color,
                     label=f"rbpf {proposal}: map")
-            ax.plot(n.to_numpy()[order], sub["location_tv_mean"].to_numpy()[order], "o:", color=color,
+            ax.plot(n.to_numpy()[order], sub["mean_location_tv"].to_numpy()[order], "o:", color=color,
                     label=f"rbpf {proposal}: location")
         others = rows[~rbpf.loc[rows.index] & (rows["estimator"] != "exact")]
-        for (label, value), color in zip(others[["estimator", "map_tv_mean"]].itertuples(index=False),
+        for (label, value), color in zip(others[["estimator", "mean_map_tv"]].itertuples(index=False),
                                          ("C3", "C4", "C5", "C6")):
             ax.axhline(value, color=color, linestyle="--", linewidth=1, label=f"{label}: map")
         ax.set(xscale="log", yscale="log", xlabel="particles")

@@ -16,6 +16,11 @@ class ModelError(OnlineMapError):
     """A model's tables or parameters are invalid (shapes, NaN, probabilities, rows not summing to 1)."""
 
 
+class InvalidOptionError(ModelError):
+    """An estimator option is of the wrong type or out of range (a :class:`ModelError` too, as
+    option errors were before this class existed)."""
+
+
 class InvalidActionError(OnlineMapError):
     """An action is out of range, of the wrong type, unknown by name, or given at the wrong step."""
 

@@ -7,8 +7,15 @@ share: forward-backward over a stretch of steps (numba), expected sufficient sta
 M-step, the map read off ``B`` through the sensor channel, and posterior tempering
 (deterministic annealing).
 
-Costs: W steps, N cells, E motion edges (E <= 2 N for every grid here), K labels.
-``forward_backward`` O(W (N + E)); ``expected_counts`` O(W N); ``emission_from_counts`` and
+A sensor footprint (DESIGN.md section 7, the textbook's grid EM): ``B[c, k]`` is the probability
+of reading k when cell c is read, an observation is F readings and its probability at location
+l is ``prod_f B[c_f(l), z_f]`` (0 where the -1 readings do not fit l); the M-step stays a count
+per cell (:func:`expected_cell_counts`). Blocking labels: the E-step moves into cell j with
+``p_move P(m_j passable)`` under the map read off the current B (``passable``), a generalised
+EM step: the objective is no longer guaranteed to rise, and bumps teach the M-step nothing.
+
+Costs: W steps, N cells, E motion edges (E <= 2 N for every grid here), K labels, F readings.
+``forward_backward`` O(W (N F + E)); ``expected_counts`` O(W N F); ``emission_from_counts`` and
 ``map_from_emission`` O(N K^2).
 """
 
@@ -37,7 +44,8 @@ class HMMPosterior(NamedTuple):
 
 
 def forward_backward(model: GridModel, prior: np.ndarray, actions: np.ndarray, observations: np.ndarray,
-                     emission: np.ndarray, first_step: int = 0, out: HMMPosterior | None = None) -> HMMPosterior:
+                     emission: np.ndarray, first_step: int = 0, out: HMMPosterior | None = None,
+                     passable: np.ndarray | None = None) -> HMMPosterior:
     """Filter and smooth the location over W steps under observation matrix ``emission``.
 
     prior (N,): P(L) at the first step before its observation; actions (W - 1,) int, the moves
@@ -45,24 +53,39 @@ def forward_backward(model: GridModel, prior: np.ndarray, actions: np.ndarray, o
     labels error messages. ``out``, a previous result of the same shape, has its arrays
     overwritten instead of allocating new ones (iterating EM over long runs: fresh large arrays
     cost a page fault per 4 kB on first touch). Raises :class:`ImpossibleObservationError` if an
-    observation has probability zero. O(W (N + E)) time, 3 W N floats of memory.
+    observation has probability zero. With a footprint, observations are (W, F) readings; with
+    blocking labels, ``passable`` (N,) is the probability that each cell can be entered (None:
+    every cell). O(W (N F + E)) time, 3 W N floats of memory (4 W N with a footprint).
     """
     actions = np.ascontiguousarray(actions, dtype=np.int64)
     observations = np.ascontiguousarray(observations, dtype=np.int64)
     w, n = len(observations), model.n_cells
+    self_prob, enter = model.self_prob, np.full(n, model.p_move)
+    if passable is not None:
+        enter = model.p_move * np.asarray(passable, dtype=np.float64)
+        movers = model.neighbors != np.arange(n)[:, None]  # (N, A)
+        self_prob = np.ascontiguousarray(np.where(movers, 1.0 - enter[model.neighbors], 1.0).T)
+    if model.has_footprint:  # the kernel reads emission[j, observations[t]]: give it (N, W) and 0..W-1
+        kernel_emission = np.ascontiguousarray(footprint_emission(model, emission, observations).T)
+        kernel_observations = np.arange(w, dtype=np.int64)
+    else:
+        kernel_emission = np.ascontiguousarray(emission, dtype=np.float64)
+        kernel_observations = observations
     if out is not None and out.filtered.shape == (w, n):
         filtered, posterior, normalizers = out.filtered, out.posterior, out.log_normalizers
     else:
         filtered, posterior, normalizers = np.empty((w, n)), np.empty((w, n)), np.empty(w)
-    bad = forward_backward_pass(model.self_prob, model.predecessor, model.neighbors, model.p_move,
-                            np.ascontiguousarray(prior, dtype=np.float64), actions, observations,
-                            np.ascontiguousarray(emission, dtype=np.float64), filtered, posterior, normalizers)
+    log_scales = np.empty(w)  # 0 but where a step was rescaled against underflow
+    bad = forward_backward_pass(self_prob, model.predecessor, model.neighbors, enter,
+                                np.ascontiguousarray(prior, dtype=np.float64), actions, kernel_observations,
+                                kernel_emission, filtered, posterior, normalizers, log_scales)
     if bad >= 0:
-        label = model.label_names[observations[bad]]
+        label = observations[bad].tolist() if model.has_footprint else model.label_names[observations[bad]]
         raise ImpossibleObservationError(
             f"observation {label!r} at step {first_step + bad} has probability zero under the observation "
             f"matrix B in use (B starts as label_prior @ O; a learned B has no zeros when pseudo_count > 0)")
     np.log(normalizers, out=normalizers)
+    normalizers += log_scales
     return HMMPosterior(filtered, posterior, normalizers)
 
 
@@ -72,6 +95,60 @@ def expected_counts(posterior: np.ndarray, observations: np.ndarray, n_labels: i
     counts = np.zeros((posterior.shape[1], n_labels))
     accumulate_counts(np.ascontiguousarray(posterior), np.ascontiguousarray(observations, dtype=np.int64), counts)
     return counts
+
+
+def footprint_emission(model: GridModel, emission: np.ndarray, observations: np.ndarray) -> np.ndarray:
+    """(W, N) ``P(z_t | L = l; B) = prod_f B[c_f(l), z_tf]``, 0 where the -1 readings of z_t are
+    not exactly l's off-grid offsets. emission (N, K), observations (W, F) or (W,). O(W N F)."""
+    readings = np.asarray(observations, dtype=np.int64).reshape(len(observations), -1)
+    cells = model.footprint_cells
+    fits = ((readings < 0)[:, None, :] == (cells < 0)[None]).all(axis=2)  # (W, N)
+    out = fits.astype(np.float64)
+    for f in range(cells.shape[1]):
+        on = cells[:, f] >= 0
+        z = np.where(readings[:, f] < 0, 0, readings[:, f])
+        out[:, on] *= emission[cells[on, f][None, :], z[:, None]]
+    return out
+
+
+def expected_cell_counts(model: GridModel, posterior: np.ndarray, observations: np.ndarray) -> np.ndarray:
+    """The M-step's statistics per cell, ``E[c, k] = sum_t sum_{l, f: c_f(l) = c} P(L_t = l | z)
+    [z_tf = k]`` (N, K): :func:`expected_counts` for the paper's sensor, a count over every
+    footprint reading otherwise. posterior (W, N), observations (W,) or (W, F). O(W N F)."""
+    if not model.has_footprint:
+        return expected_counts(posterior, observations, model.n_labels)
+    n, k = model.n_cells, model.n_labels
+    readings = np.asarray(observations, dtype=np.int64).reshape(len(observations), -1)
+    counts = np.zeros(n * k)
+    for f in range(model.n_readings):
+        cells = model.footprint_cells[:, f]
+        on = cells >= 0
+        z = readings[:, f]
+        seen = z >= 0
+        index = cells[on][None, :] * k + z[seen][:, None]  # (W', N') flat (cell, label)
+        counts += np.bincount(index.ravel(), weights=posterior[np.ix_(seen, on)].ravel(), minlength=n * k)
+    return counts.reshape(n, k)
+
+
+def append_observation(observations: np.ndarray, z) -> np.ndarray:
+    """A fresh (W + 1,) or (W + 1, F) int64 array: the stored observations and z appended."""
+    if observations.ndim == 1:
+        return np.append(observations, z)
+    return np.concatenate([observations, np.asarray(z, dtype=np.int64)[None]])
+
+
+PASSABLE_FLOOR = 1e-3  # the least passability the EM E-step gives a cell (see map_passability)
+
+
+def map_passability(model: GridModel, emission: np.ndarray, inverse: np.ndarray) -> np.ndarray | None:
+    """(N,) P(cell passable) under the map read off B (:func:`map_from_emission`), at least
+    :data:`PASSABLE_FLOOR`: the clipped channel inversion can put a cell's passability at exactly
+    0, and a run that then enters the cell would have probability zero. None without blocking
+    labels. O(N K^2)."""
+    if not model.has_blocking:
+        return None
+    passable = map_from_emission(emission, inverse) @ (~model.blocking).astype(np.float64)
+    return np.maximum(passable, PASSABLE_FLOOR)
 
 
 def emission_from_counts(counts: np.ndarray, pseudo_count: float, fallback: np.ndarray) -> np.ndarray:

@@ -13,6 +13,17 @@ Tables (all float64, read-only):
 - map dynamics ``C[k, k'] = P(m_{i,t} = k' | m_{i,t-1} = k)``, the same for every cell.
 - sensor ``O[k, z] = P(Z_t = z | m_{L_t} = k)``.
 - label prior ``label_prior[i, k] = P(m_{i,0} = k)``, cells independent; start cell ``start``.
+
+Two options (DESIGN.md section 7), both off by default (the paper's model, bit for bit):
+
+- ``blocking`` (K,) bool: labels a robot cannot enter. From ``i`` with action ``a`` the intended
+  ``j = neighbors[i, a]`` is reached with ``p_move * [not blocking[m_j]]``, the label judged before
+  this step's map change; otherwise the robot stays. Motion then depends on the map.
+- ``footprint``: ``F`` offsets ``(drow, dcol)`` read at every step (``"cell"``, ``"cross"``,
+  ``"square"`` or explicit pairs). Offset ``f`` from location ``l`` reads cell
+  ``footprint_cells[l, f]`` through ``O`` (independently of the other readings), or -1 with
+  probability 1 when that cell is off the grid. An observation is an int when ``F == 1`` and an
+  (F,) int array otherwise.
 """
 
 from __future__ import annotations
@@ -24,6 +35,7 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from . import arguments
 from .arrays import read_only
 from .errors import ModelError
 
@@ -57,17 +69,98 @@ DOOR_WORLD_10X10 = """\
 
 _ATOL = 1e-9
 
+FOOTPRINTS = {
+    "cell": ((0, 0),),
+    "cross": ((0, 0), (-1, 0), (0, 1), (1, 0), (0, -1)),
+    "square": tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)),
+}  # the sensor presets; "cell" is the paper's
+
+
+def _footprint(value) -> tuple[tuple[int, int], ...]:
+    """A footprint preset name or a sequence of (drow, dcol) int pairs -> tuple of int pairs."""
+    if value is None:
+        return FOOTPRINTS["cell"]
+    if isinstance(value, str):
+        try:
+            return FOOTPRINTS[value]
+        except KeyError:
+            raise ModelError(f"unknown footprint {value!r}; expected one of {tuple(FOOTPRINTS)} "
+                             "or a sequence of (drow, dcol) pairs") from None
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError):
+        array = np.empty(0)
+    if array.ndim != 2 or array.shape[1] != 2 or array.shape[0] < 1 or array.dtype.kind not in "iu":
+        raise ModelError(f"footprint must be a preset name or a non-empty sequence of (drow, dcol) int "
+                         f"pairs, got {value!r}")
+    pairs = tuple((int(dr), int(dc)) for dr, dc in array)
+    if len(set(pairs)) != len(pairs):
+        raise ModelError(f"footprint {pairs} repeats an offset")
+    return pairs
+
+
+def footprint_table(rows: int, cols: int, footprint) -> np.ndarray:
+    """(N, F) int64: the cell read by offset f from location l, row-major, -1 off the grid. O(N F)."""
+    offsets = np.array(footprint, dtype=np.int64).reshape(-1, 2)
+    r, c = np.divmod(np.arange(rows * cols), cols)
+    rr = r[:, None] + offsets[:, 0]
+    cc = c[:, None] + offsets[:, 1]
+    inside = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+    return np.where(inside, rr * cols + cc, -1)
+
+
+def blocking_mask(blocking, label_names: Sequence[str]) -> np.ndarray:
+    """(K,) bool mask from blocking labels given by index or name (None: nothing blocks)."""
+    mask = np.zeros(len(label_names), dtype=bool)
+    if blocking is None:
+        return mask
+    if isinstance(blocking, (str, int, np.integer)):
+        blocking = [blocking]
+    for label in blocking:
+        if isinstance(label, (str, np.str_)):
+            if str(label) not in label_names:
+                raise ModelError(f"unknown blocking label {label!r}; expected one of {tuple(label_names)}")
+            mask[list(label_names).index(str(label))] = True
+        elif isinstance(label, (int, np.integer)) and not isinstance(label, (bool, np.bool_)) \
+                and 0 <= int(label) < len(label_names):
+            mask[int(label)] = True
+        else:
+            raise ModelError(f"blocking label {label!r} is not a label index in 0..{len(label_names) - 1} "
+                             f"or a name in {tuple(label_names)}")
+    return mask
+
 
 def _probability(name: str, value: float) -> float:
-    value = float(value)
-    if not np.isfinite(value) or not 0.0 <= value <= 1.0:
-        raise ModelError(f"{name} must be a probability in [0, 1], got {value!r}")
-    return value
+    return arguments.probability(name, value)
+
+
+def _table(name: str, values, dtype=np.float64) -> np.ndarray:
+    """A fresh array of numbers (not bools, strings or objects), or ModelError naming ``name``."""
+    if isinstance(values, np.ndarray) and values.dtype.kind in "iuf":  # the common case, vectorised
+        return np.array(values, dtype=dtype)
+    try:
+        array = np.array(values, dtype=object)
+        if array.dtype == object and array.size and not all(
+                isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+                for v in array.flat):
+            raise TypeError("entries must be numbers")
+        return np.array(array.tolist() if array.ndim else values, dtype=dtype)
+    except (TypeError, ValueError, OverflowError) as error:
+        raise ModelError(f"{name} must be a rectangular table of numbers: {error}") from None
+
+
+def _grid_size(rows, cols) -> tuple[int, int]:
+    """Validated ``(rows, cols)``: whole numbers >= 1 with at most ``arguments.MAX_CELLS`` cells."""
+    rows = arguments.integer("rows", rows, minimum=1, maximum=arguments.MAX_CELLS)
+    cols = arguments.integer("cols", cols, minimum=1, maximum=arguments.MAX_CELLS)
+    if rows * cols > arguments.MAX_CELLS:
+        raise ModelError(f"a {rows} x {cols} grid has {rows * cols} cells; at most {arguments.MAX_CELLS} are supported")
+    return rows, cols
 
 
 def _stochastic(name: str, matrix, shape: tuple[int, ...]) -> np.ndarray:
     """Validate a row-stochastic array of the given shape; return a read-only float64 copy."""
-    array = np.array(matrix, dtype=np.float64)
+    array = _table(name, matrix)
     if array.shape != shape:
         raise ModelError(f"{name} must have shape {shape}, got {array.shape}")
     if not np.all(np.isfinite(array)):
@@ -83,6 +176,8 @@ def _stochastic(name: str, matrix, shape: tuple[int, ...]) -> np.ndarray:
 
 def symmetric_channel(n_labels: int, p_same: float) -> np.ndarray:
     """(K, K) matrix with ``p_same`` on the diagonal and ``(1 - p_same) / (K - 1)`` elsewhere."""
+    n_labels = arguments.integer("n_labels", n_labels, minimum=2, maximum=arguments.MAX_LABELS)
+    p_same = _probability("p_same", p_same)
     off = (1.0 - p_same) / (n_labels - 1)
     return np.full((n_labels, n_labels), off) + np.eye(n_labels) * (p_same - off)
 
@@ -102,6 +197,9 @@ class GridModel:
     start: int
     action_names: tuple[str, ...]
     label_names: tuple[str, ...]
+    blocking: np.ndarray | None = None  # (K,) bool: labels a robot cannot enter; None = none
+    footprint: tuple[tuple[int, int], ...] | str | None = FOOTPRINTS["cell"]  # offsets read each step
+    footprint_cells: np.ndarray = field(init=False, repr=False)  # (N, F) cell read by offset f, -1 off grid
     self_prob: np.ndarray = field(init=False, repr=False)  # (A, N) T[a, j, j]
     predecessor: np.ndarray = field(init=False, repr=False)  # (A, N) cell moving into j, or -1
     likelihood: np.ndarray = field(init=False, repr=False)  # (K, K) contiguous O.T: row z = O[:, z]
@@ -109,19 +207,20 @@ class GridModel:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        if int(self.rows) < 1 or int(self.cols) < 1:
-            raise ModelError(f"a grid needs at least one row and column, got {self.rows} x {self.cols}")
-        set_(self, "rows", int(self.rows))
-        set_(self, "cols", int(self.cols))
+        rows, cols = _grid_size(self.rows, self.cols)
+        set_(self, "rows", rows)
+        set_(self, "cols", cols)
         n = self.rows * self.cols
-        neighbors = np.array(self.neighbors, dtype=np.int64)
+        neighbors = _table("neighbors", self.neighbors, np.float64)
+        if np.any(neighbors != np.round(neighbors)):
+            raise ModelError("neighbors must hold whole cell indices")
         if neighbors.ndim != 2 or neighbors.shape[0] != n:
             raise ModelError(f"neighbors must have shape ({n}, n_actions), got {neighbors.shape}")
         if np.any(neighbors < 0) or np.any(neighbors >= n):
             raise ModelError("neighbors contains a cell index out of range")
+        neighbors = neighbors.astype(np.int64)
         n_actions = neighbors.shape[1]
-        if len(self.action_names) != n_actions:
-            raise ModelError(f"{len(self.action_names)} action names for {n_actions} actions")
+        action_names = arguments.names("action_names", self.action_names, n_actions)
         predecessor = np.full((n_actions, n), -1, dtype=np.int64)
         for a in range(n_actions):
             movers = np.flatnonzero(neighbors[:, a] != np.arange(n))
@@ -132,23 +231,31 @@ class GridModel:
         set_(self, "neighbors", neighbors)
         p_move = _probability("p_move", self.p_move)
         set_(self, "p_move", p_move)
-        change = np.asarray(self.change)
+        change = _table("change matrix C", self.change)
         k = change.shape[0] if change.ndim == 2 else -1
-        if k < 2:
-            raise ModelError(f"change matrix C must be K x K with K >= 2, got shape {change.shape}")
+        if not 2 <= k <= arguments.MAX_LABELS:
+            raise ModelError(f"change matrix C must be K x K with 2 <= K <= {arguments.MAX_LABELS}, "
+                             f"got shape {change.shape}")
         set_(self, "change", _stochastic("change matrix C", change, (k, k)))
         set_(self, "sensor", _stochastic("sensor matrix O", self.sensor, (k, k)))
-        prior = np.asarray(self.label_prior, dtype=np.float64)
+        prior = _table("label_prior", self.label_prior)
         if prior.shape == (k,):
             prior = np.broadcast_to(prior, (n, k))
         set_(self, "label_prior", _stochastic("label_prior", prior, (n, k)))
-        if len(self.label_names) != k:
-            raise ModelError(f"{len(self.label_names)} label names for {k} labels")
-        set_(self, "action_names", tuple(str(x) for x in self.action_names))
-        set_(self, "label_names", tuple(str(x) for x in self.label_names))
-        if not 0 <= int(self.start) < n:
-            raise ModelError(f"start cell {self.start} is outside 0..{n - 1}")
-        set_(self, "start", int(self.start))
+        set_(self, "action_names", action_names)
+        set_(self, "label_names", arguments.names("label_names", self.label_names, k))
+        start = arguments.integer("start", self.start)
+        if not 0 <= start < n:
+            raise ModelError(f"start cell {start} is outside 0..{n - 1}")
+        set_(self, "start", start)
+        blocking = np.zeros(k, dtype=bool) if self.blocking is None else np.array(self.blocking)
+        if blocking.shape != (k,) or blocking.dtype != bool:
+            raise ModelError(f"blocking must be a ({k},) bool array (one flag per label), got "
+                             f"{blocking.dtype} {blocking.shape}; grid_model(blocking=...) takes labels")
+        set_(self, "blocking", read_only(blocking))
+        footprint = _footprint(self.footprint)
+        set_(self, "footprint", footprint)
+        set_(self, "footprint_cells", read_only(footprint_table(self.rows, self.cols, footprint)))
         stays = neighbors.T == np.arange(n)
         self_prob = np.where(stays, 1.0, 1.0 - p_move)
         likelihood = np.ascontiguousarray(self.sensor.T)
@@ -174,6 +281,31 @@ class GridModel:
         return self.neighbors.shape[1]
 
     @property
+    def n_readings(self) -> int:
+        """F, the number of readings per observation (footprint offsets)."""
+        return len(self.footprint)
+
+    @property
+    def observation_shape(self) -> tuple[int, ...]:
+        """() when an observation is one label (F = 1), (F,) otherwise."""
+        return () if self.n_readings == 1 else (self.n_readings,)
+
+    @property
+    def has_blocking(self) -> bool:
+        """True when some label blocks motion (motion then depends on the map)."""
+        return bool(self.blocking.any())
+
+    @property
+    def has_footprint(self) -> bool:
+        """True when the sensor is not the paper's (one reading of the robot's own cell)."""
+        return self.footprint != FOOTPRINTS["cell"]
+
+    @cached_property
+    def off_grid_patterns(self) -> np.ndarray:
+        """(U, F) bool: the distinct off-grid masks ``footprint_cells[l] < 0`` over locations l."""
+        return read_only(np.unique(self.footprint_cells < 0, axis=0))
+
+    @property
     def shape(self) -> tuple[int, int]:
         return (self.rows, self.cols)
 
@@ -194,12 +326,19 @@ class GridModel:
 
     def __repr__(self) -> str:
         kind = "static" if self.is_static else "dynamic"
+        extra = ""
+        if self.has_blocking:
+            extra += f", blocking={tuple(n for n, b in zip(self.label_names, self.blocking) if b)}"
+        if self.n_readings > 1:
+            preset = next((name for name, fp in FOOTPRINTS.items() if fp == self.footprint), self.footprint)
+            extra += f", footprint={preset}"
         return (f"GridModel({self.rows}x{self.cols}, K={self.n_labels} {self.label_names}, "
-                f"actions={self.action_names}, p_move={self.p_move}, {kind}, start={self.start})")
+                f"actions={self.action_names}, p_move={self.p_move}, {kind}, start={self.start}{extra})")
 
     # --- motion ------------------------------------------------------------------------
     def motion_matrix(self, action: int) -> sp.csr_array:
-        """Sparse (N, N) ``T[action]``, rows = from, columns = to."""
+        """Sparse (N, N) ``T[action]``, rows = from, columns = to; with blocking labels, the motion
+        of a map where no cell blocks."""
         n = self.n_cells
         cells = np.arange(n)
         nb = self.neighbors[:, action]
@@ -217,7 +356,9 @@ class GridModel:
 
 
 DEFINING_FIELDS = ("rows", "cols", "neighbors", "p_move", "change", "sensor", "label_prior", "start",
-                   "action_names", "label_names")  # what makes two models the same; the rest is derived
+                   "action_names", "label_names", "blocking",
+                   "footprint")  # what makes two models the same; the rest is derived
+OPTIONAL_FIELDS = ("blocking", "footprint")  # defining fields with a default (older checkpoints lack them)
 
 
 def model_difference(a: GridModel, b: GridModel) -> str | None:
@@ -232,8 +373,27 @@ def model_difference(a: GridModel, b: GridModel) -> str | None:
     return None
 
 
-def apply_motion(model: GridModel, x: np.ndarray, action: int) -> np.ndarray:
-    """Predict along axis 0: ``out[j, ...] = sum_i T[a, i, j] x[i, ...]``. x: (N, ...). O(x.size)."""
+def _move_probability(model: GridModel, action: int, passable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(movers, P(move)) from each moving cell l: ``p_move * passable[neighbors[l, a]]``."""
+    target = model.neighbors[:, action]
+    movers = np.flatnonzero(target != np.arange(model.n_cells))
+    go = np.zeros(model.n_cells)
+    go[movers] = model.p_move * np.asarray(passable, dtype=np.float64)[target[movers]]
+    return movers, go
+
+
+def apply_motion(model: GridModel, x: np.ndarray, action: int, passable: np.ndarray | None = None) -> np.ndarray:
+    """Predict along axis 0: ``out[j, ...] = sum_i T[a, i, j] x[i, ...]``. x: (N, ...). O(x.size).
+
+    ``passable`` (N,): the probability that each cell can be entered (blocking labels, judged
+    on a map belief); the move from i to its neighbour j then succeeds with ``p_move passable[j]``.
+    None: the paper's motion (every cell enterable)."""
+    if passable is not None:
+        movers, go = _move_probability(model, action, passable)
+        shape = (-1,) + (1,) * (x.ndim - 1)
+        out = (1.0 - go).reshape(shape) * x
+        out[model.neighbors[movers, action]] += go[movers].reshape(shape) * x[movers]
+        return out
     out = model.self_prob[action].reshape((-1,) + (1,) * (x.ndim - 1)) * x
     pred = model.predecessor[action]
     into = pred >= 0
@@ -241,13 +401,26 @@ def apply_motion(model: GridModel, x: np.ndarray, action: int) -> np.ndarray:
     return out
 
 
-def apply_motion_transpose(model: GridModel, b: np.ndarray, action: int) -> np.ndarray:
-    """Backward along axis 0: ``out[i, ...] = sum_j T[a, i, j] b[j, ...]``. b: (N, ...). O(b.size)."""
+def apply_motion_transpose(model: GridModel, b: np.ndarray, action: int,
+                           passable: np.ndarray | None = None) -> np.ndarray:
+    """Backward along axis 0: ``out[i, ...] = sum_j T[a, i, j] b[j, ...]``. b: (N, ...). O(b.size).
+    ``passable`` as in :func:`apply_motion`."""
+    if passable is not None:
+        movers, go = _move_probability(model, action, passable)
+        shape = (-1,) + (1,) * (b.ndim - 1)
+        out = (1.0 - go).reshape(shape) * b
+        out[movers] += go[movers].reshape(shape) * b[model.neighbors[movers, action]]
+        return out
     out = model.self_prob[action].reshape((-1,) + (1,) * (b.ndim - 1)) * b
     nb = model.neighbors[:, action]
     movers = nb != np.arange(model.n_cells)
     out[movers] += model.p_move * b[nb[movers]]
     return out
+
+
+def passable_probability(model: GridModel, maps: np.ndarray) -> np.ndarray:
+    """(N,) probability that each cell can be entered under independent map marginals (N, K). O(N K)."""
+    return maps @ (~model.blocking).astype(np.float64)
 
 
 # --- constructors ----------------------------------------------------------------------
@@ -272,18 +445,21 @@ def grid_neighbors(rows: int, cols: int) -> tuple[np.ndarray, tuple[str, ...]]:
 
 def grid_model(rows: int, cols: int, n_labels: int = 2, *, p_obs: float = 0.9, p_move: float = 0.8,
                change=None, sensor=None, label_prior=None, start: int = 0,
-               label_names: Sequence[str] | None = None) -> GridModel:
+               label_names: Sequence[str] | None = None, blocking=None, footprint=None) -> GridModel:
     """A general grid model.
 
     ``change`` (K, K) defaults to the identity (static world); ``sensor`` (K, K) defaults to the
     symmetric channel with ``p_obs``; ``label_prior`` is (K,) or (N, K), uniform by default.
+    ``blocking``: labels (indices or names) a robot cannot enter (None: none, the paper's motion);
+    ``footprint``: ``"cell"`` (default, the paper's sensor), ``"cross"``, ``"square"`` or a
+    sequence of (drow, dcol) offsets.
     """
-    n_labels = int(n_labels)
-    if n_labels < 2:
-        raise ModelError(f"n_labels must be at least 2, got {n_labels}")
-    if int(rows) < 1 or int(cols) < 1:
-        raise ModelError(f"a grid needs at least one row and column, got {rows} x {cols}")
-    neighbors, action_names = grid_neighbors(int(rows), int(cols))
+    n_labels = arguments.integer("n_labels", n_labels, minimum=2, maximum=arguments.MAX_LABELS)
+    rows, cols = _grid_size(rows, cols)
+    if rows * cols * n_labels > arguments.MAX_CELLS:
+        raise ModelError(f"{rows * cols} cells x {n_labels} labels: at most {arguments.MAX_CELLS} cell labels "
+                         "are supported")
+    neighbors, action_names = grid_neighbors(rows, cols)
     if sensor is None:
         sensor = symmetric_channel(n_labels, _probability("p_obs", p_obs))
     if change is None:
@@ -292,23 +468,32 @@ def grid_model(rows: int, cols: int, n_labels: int = 2, *, p_obs: float = 0.9, p
         label_prior = np.full(n_labels, 1.0 / n_labels)
     if label_names is None:
         label_names = tuple(str(k) for k in range(n_labels))
+    label_names = tuple(label_names)
     return GridModel(rows=rows, cols=cols, neighbors=neighbors, p_move=p_move, change=change,
                      sensor=sensor, label_prior=label_prior, start=start,
-                     action_names=action_names, label_names=tuple(label_names))
+                     action_names=action_names, label_names=label_names,
+                     blocking=blocking_mask(blocking, label_names), footprint=_footprint(footprint))
 
 
 def corridor(n_cells: int, n_labels: int = 2, p_obs: float = 0.9, p_move: float = 0.8,
-             p_change: float = 0.0, start: int = 0, label_prior=None) -> GridModel:
+             p_change: float = 0.0, start: int = 0, label_prior=None, *, blocking=None,
+             footprint=None) -> GridModel:
     """A 1D corridor of ``n_cells`` (actions left=0, right=1). With ``p_change`` a cell's label
-    becomes one of the other ``K - 1`` labels, uniformly, at every step."""
+    becomes one of the other ``K - 1`` labels, uniformly, at every step. ``blocking`` and
+    ``footprint`` as in :func:`grid_model` (a corridor's footprint offsets have drow = 0 to read
+    anything: cells of other rows are off the grid)."""
     p_change = _probability("p_change", p_change)
-    change = symmetric_channel(int(n_labels), 1.0 - p_change) if int(n_labels) >= 2 else None
+    n_labels = arguments.integer("n_labels", n_labels, minimum=2, maximum=arguments.MAX_LABELS)
+    n_cells = arguments.integer("n_cells", n_cells, minimum=1, maximum=arguments.MAX_CELLS)
+    change = symmetric_channel(n_labels, 1.0 - p_change)
     return grid_model(1, n_cells, n_labels, p_obs=p_obs, p_move=p_move, change=change,
-                      label_prior=label_prior, start=start)
+                      label_prior=label_prior, start=start, blocking=blocking, footprint=footprint)
 
 
 def parse_layout(layout: str) -> np.ndarray:
     """Text grid (``.`` free, ``#`` wall, ``o`` open door, ``c`` closed door) -> (rows, cols) labels."""
+    if not isinstance(layout, str):
+        raise ModelError(f"the layout must be a str of . # o c rows, got {type(layout).__name__}")
     lines = [line.strip() for line in layout.strip().splitlines() if line.strip()]
     if not lines:
         raise ModelError("the layout is empty")
@@ -331,13 +516,21 @@ def door_change(p_door: float) -> np.ndarray:
     return change
 
 
+def _flag(name: str, value) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ModelError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
 def door_world(layout: str | None = None, p_obs: float = 0.9, p_move: float = 0.8,
                p_door: float = 0.0, start: int | None = None,
-               label_prior=None) -> tuple[GridModel, np.ndarray]:
+               label_prior=None, *, blocking: bool = False,
+               footprint=None) -> tuple[GridModel, np.ndarray]:
     """A 2D door world read from a text layout (default :data:`DOOR_WORLD_10X10`).
 
     Returns ``(model, true_map)``, the map (N,) read from the layout. ``start`` defaults to the
-    first free cell in row-major order.
+    first free cell in row-major order. ``blocking=True``: walls and closed doors block motion;
+    ``footprint`` as in :func:`grid_model`.
     """
     grid = parse_layout(DOOR_WORLD_10X10 if layout is None else layout)
     true_map = grid.ravel()
@@ -346,7 +539,8 @@ def door_world(layout: str | None = None, p_obs: float = 0.9, p_move: float = 0.
         start = int(free[0]) if len(free) else 0
     model = grid_model(grid.shape[0], grid.shape[1], 4, p_obs=p_obs, p_move=p_move,
                        change=door_change(p_door), label_prior=label_prior, start=start,
-                       label_names=DOOR_LABELS)
+                       label_names=DOOR_LABELS, footprint=footprint,
+                       blocking=("wall", "closed_door") if _flag("blocking", blocking) else None)
     if model.rows == 1:
         raise ModelError("a door world needs at least two rows (use corridor() for 1D worlds)")
     return model, read_only(true_map)
@@ -356,4 +550,5 @@ __all__ = [
     "GridModel", "grid_model", "corridor", "door_world", "parse_layout", "door_change",
     "symmetric_channel", "apply_motion", "apply_motion_transpose", "grid_neighbors",
     "DOOR_WORLD_10X10", "DOOR_LABELS", "CORRIDOR_ACTIONS", "GRID_ACTIONS", "door_cells",
+    "FOOTPRINTS", "footprint_table", "blocking_mask", "passable_probability",
 ]

@@ -7,12 +7,15 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import matplotlib.colors
 import numpy as np
 import pandas as pd
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
+from .belief import Belief
 from .estimators import Trajectory
+from .model import GridModel
 from .simulate import Run
 
 
@@ -74,6 +77,58 @@ def study_figure(summary: pd.DataFrame, confidence: float = 0.95) -> Figure:
     ax.set(xlim=(0, 1), xlabel=f"fraction of {int(summary['runs'].iloc[0])} random runs "
                                f"({confidence:.0%} Wilson intervals)")
     ax.legend(loc="lower right")
+    return fig
+
+
+def plot_belief(model: GridModel, belief: Belief, true_map: np.ndarray | None = None,
+                true_location: int | None = None) -> Figure:
+    """The location and the map of one belief, drawn on the grid.
+
+    Corridors (one row): bars of P(L_t = i) and stacked bars of P(m_i = k) per label. 2D worlds:
+    an image of P(L_t) and an image of the most likely label per cell, faded where it is
+    uncertain (opacity = its probability). ``true_map`` (N,) and ``true_location`` are marked when
+    given (dots on the wrong cells, a star on the robot). Cost O(N K).
+    """
+    if belief.location.shape != (model.n_cells,) or belief.map.shape != (model.n_cells, model.n_labels):
+        raise ValueError(f"a belief over {belief.n_cells} cells x {belief.n_labels} labels does not fit {model}")
+    fig = Figure(figsize=(10, 3.2) if model.rows == 1 else (10, 4.2), layout="constrained")
+    ax_loc, ax_map = fig.subplots(1, 2)
+    cells = np.arange(model.n_cells)
+    best = belief.map_estimate
+    wrong = None if true_map is None else np.flatnonzero(best != np.asarray(true_map))
+    if model.rows == 1:
+        ax_loc.bar(cells, belief.location, color="tab:purple")
+        ax_loc.set(xlabel="cell", ylabel="P(location)", ylim=(0, 1), title=f"location at t = {belief.t}")
+        bottom = np.zeros(model.n_cells)
+        for k, name in enumerate(model.label_names):
+            ax_map.bar(cells, belief.map[:, k], bottom=bottom, label=name, color=f"C{k}")
+            bottom += belief.map[:, k]
+        ax_map.set(xlabel="cell", ylabel="P(label)", ylim=(0, 1), title="map marginals")
+        ax_map.legend(loc="upper right", fontsize="x-small", ncols=min(model.n_labels, 4))
+        if true_location is not None:
+            ax_loc.plot([true_location], [1.0], marker="*", color="black", markersize=12, clip_on=False)
+        if wrong is not None:
+            ax_map.plot(wrong, np.full(len(wrong), 1.02), "v", color="black", clip_on=False, label="wrong")
+        ax_loc.set_xticks(cells)
+        ax_map.set_xticks(cells)
+        return fig
+    shape = model.shape
+    image = ax_loc.imshow(belief.location.reshape(shape), cmap="magma", vmin=0, interpolation="nearest")
+    fig.colorbar(image, ax=ax_loc, fraction=0.046, label="P(location)")
+    ax_loc.set(title=f"location at t = {belief.t}", xlabel="column", ylabel="row")
+    colours = np.array([matplotlib.colors.to_rgb(f"C{k}") for k in range(model.n_labels)])
+    rgba = np.concatenate([colours[best], belief.map.max(axis=1)[:, None]], axis=1).reshape(*shape, 4)
+    ax_map.imshow(rgba, interpolation="nearest")
+    ax_map.set(title="most likely label (faded: uncertain)", xlabel="column", ylabel="row")
+    for k, name in enumerate(model.label_names):
+        ax_map.scatter([], [], marker="s", color=colours[k], label=name)
+    ax_map.legend(loc="upper left", bbox_to_anchor=(1.01, 1), fontsize="x-small")
+    if true_location is not None:
+        row, col = divmod(int(true_location), model.cols)
+        ax_loc.plot(col, row, marker="*", color="cyan", markersize=12)
+    if wrong is not None:
+        rows, cols = np.divmod(wrong, model.cols)
+        ax_map.plot(cols, rows, ".", color="black", markersize=4, label="wrong")
     return fig
 
 

@@ -14,16 +14,12 @@ every table, figure and study is adding one entry there.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
-import numpy as np
 import pandas as pd
-from tqdm.auto import tqdm
+from .progress import show_progress, tqdm
 
-from . import metrics
-from .estimators import Trajectory, make_estimator, run_estimator
-from .scenarios import one_slip_corridor
-from .rng import SeedLike, as_generator
+from .estimators import Trajectory
+from .evaluate import run_metrics, timed_trajectory
 from .simulate import Run
 from .stats import wilson_interval
 
@@ -41,45 +37,22 @@ CORRIDOR_ESTIMATORS: list[tuple[str, str, dict]] = [
     ("rbpf P=100", "rbpf", {"n_particles": 100, "seed": 0}),
 ]
 
-LOST_BELOW = 0.5  # a robot whose P(true location) is below this is "lost"
-ASTRAY_BELOW = 0.05  # ... and below this, confidently in the wrong place ("astray")
 STUDY_OUTCOMES = ("astray_way_back", "ends_lost", "wrong_map", "ends_lost_or_wrong_map")
-
-
-def way_back(run: Run) -> np.ndarray:
-    """(T,) True at the steps after the robot turned (after its first action that differs
-    from the first action); all False if it never turns."""
-    turns = np.flatnonzero(run.actions != run.actions[0])
-    mask = np.zeros(run.n_steps, dtype=bool)
-    if len(turns):
-        mask[turns[0] + 1:] = True
-    return mask
+#: the corridor table's columns (from :func:`onlinemap.evaluate.run_metrics`, plus final_p_true)
+CORRIDOR_COLUMNS = ("final_map_error", "wrong_visited", "min_p_true_way_back", "final_p_true", "astray_way_back",
+                    "ends_lost", "ms_per_step")
 
 
 def corridor_scores(run: Run, trajectory: Trajectory) -> dict[str, float]:
-    """How one estimator did on one run (a static world).
-
-    final_map_error: mean over all cells of 1 - P(true label) at the end; wrong_visited: visited
-    cells whose most likely label is wrong at the end; min_p_true_way_back / final_p_true:
-    P(true location) at its lowest after the turn / at the last step; lost_way_back /
-    ends_lost: those below :data:`LOST_BELOW`; astray_way_back: the lowest below
-    :data:`ASTRAY_BELOW` (an uncertain Bayesian robot is often "lost" at 0.5 on the way back, a
-    robot with a wrong map is confidently wrong).
+    """How one estimator did on one run (a static world): the :data:`CORRIDOR_COLUMNS` of
+    :func:`onlinemap.evaluate.run_metrics` (final map error; ``wrong_visited``: visited cells whose
+    most likely final label is wrong; the lowest P(true location) after the turn and whether it
+    fell below :data:`~onlinemap.evaluate.ASTRAY_BELOW`; ``ends_lost``: final P(true location)
+    below :data:`~onlinemap.evaluate.LOST_BELOW`) and ``final_p_true``, P(true location) at the end.
     """
-    p_true = trajectory.location[np.arange(run.n_steps), run.locations]
-    back = way_back(run)
-    visited = np.unique(run.locations)
-    lowest_back = float(p_true[back].min()) if back.any() else math.nan
-    return {
-        "final_map_error": float(metrics.map_error(trajectory.map[-1], run.final_map)),
-        "wrong_visited": metrics.wrong_cells(trajectory.map[-1], run.final_map, visited),
-        "min_p_true_way_back": lowest_back,
-        "final_p_true": float(p_true[-1]),
-        "lost_way_back": bool(lowest_back < LOST_BELOW),
-        "astray_way_back": bool(lowest_back < ASTRAY_BELOW),
-        "ends_lost": bool(p_true[-1] < LOST_BELOW),
-        "ms_per_step": 1e3 * trajectory.seconds_per_step,
-    }
+    row = run_metrics(run, trajectory, trip=True)
+    row["final_p_true"] = 1.0 - row["final_location_error"]
+    return {name: row.get(name, math.nan) for name in CORRIDOR_COLUMNS}
 
 
 def corridor_table(run: Run, estimators=None, progress: bool = True) -> tuple[pd.DataFrame, dict[str, Trajectory]]:
@@ -88,56 +61,59 @@ def corridor_table(run: Run, estimators=None, progress: bool = True) -> tuple[pd
     by label."""
     rows, trajectories = [], {}
     for label, name, options in tqdm(estimators or CORRIDOR_ESTIMATORS, desc="estimators",
-                                     disable=not progress, leave=False):
-        trajectory = run_estimator(make_estimator(name, run.model, **options), run.actions, run.observations)
+                                     disable=not show_progress(progress), leave=False):
+        trajectory = timed_trajectory(name, run.model, options, run)
         trajectories[label] = trajectory
         rows.append({"estimator": label, **corridor_scores(run, trajectory)})
     return pd.DataFrame(rows), trajectories
 
 
-class CorridorDraw(NamedTuple):
-    """One random corridor run of the study and how it was drawn."""
-
-    run: Run
-    labels: np.ndarray  # (N,) the true labels
-    slip: int  # the outward move (1-based step) that fails
+RANDOM_LENGTHS = tuple(range(6, 13))  # the study's corridor lengths, each run as often
 
 
-def random_corridor(seed: SeedLike = None, n_cells: tuple[int, int] = (6, 12), p_obs: float = 0.9,
-                    p_move: float = 0.8) -> CorridorDraw:
-    """A scripted there-and-back run (:func:`onlinemap.scenarios.scripted_corridor`) with N drawn
-    uniformly in ``n_cells`` (inclusive), i.i.d. uniform binary labels and one slip at a move
-    of the way out drawn uniformly in 1..N-1."""
-    rng = as_generator(seed)
-    n = int(rng.integers(n_cells[0], n_cells[1] + 1))
-    labels = rng.integers(0, 2, size=n)
-    run, slip = one_slip_corridor(labels, rng, p_obs=p_obs, p_move=p_move)
-    return CorridorDraw(run, labels, slip)
+def random_corridor_spec(n_runs: int, seed: int = 0, estimators=None) -> dict:
+    """The random-corridor study as a sweep spec (:mod:`onlinemap.sweeps`): corridors of every
+    length in :data:`RANDOM_LENGTHS` (p_obs 0.9, p_move 0.8), one scripted trip each
+    (``walk = "scripted_trip"``: uniform binary labels, one slip at a random outward move,
+    noise-free observations), ``ceil(n_runs / 7)`` seeds from ``seed`` per length, and every
+    (label, name, options) of ``estimators`` (default :data:`CORRIDOR_ESTIMATORS`)."""
+    per_length = max(1, math.ceil(int(n_runs) / len(RANDOM_LENGTHS)))
+    tables: dict[str, list] = {}
+    for _, name, options in estimators or CORRIDOR_ESTIMATORS:
+        tables.setdefault(name, []).append({k: [list(v)] if isinstance(v, tuple) else v for k, v in options.items()})
+    return {"name": "random-corridors", "worlds": [f"corridor:{n}" for n in RANDOM_LENGTHS],
+            "seeds": list(range(int(seed), int(seed) + per_length)), "steps": "trip", "walk": "scripted_trip",
+            "estimators": tables}
 
 
-def random_corridor_study(n_runs: int, seed: SeedLike = 0, estimators=None, confidence: float = 0.95,
-                          progress: bool = True) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Run every estimator on ``n_runs`` random corridors (:func:`random_corridor`).
+def random_corridor_study(n_runs: int, seed: int = 0, estimators=None, confidence: float = 0.95,
+                          progress: bool = True, *, workers: int | None = 0,
+                          out=None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Run every estimator on random corridors (:func:`random_corridor_spec`, on the sweep engine:
+    ``workers`` and ``out`` as in :func:`onlinemap.sweeps.sweep`).
 
-    Returns (per-run table: run, n_cells, slip, estimator and :func:`corridor_scores`; summary
+    Returns (per-run table: the sweep's rows (:mod:`onlinemap.evaluate`) with ``estimator``
+    relabelled as in :data:`CORRIDOR_ESTIMATORS`, ``run`` (the seed) and ``n_cells``; summary
     per estimator: the fraction of runs in :data:`STUDY_OUTCOMES` (astray on the way back, ends
     lost, wrong map, ends lost or with a wrong map), each with its Wilson interval at
     ``confidence`` (columns NAME, NAME_low, NAME_high), and the mean lowest P(true location)
-    on the way back). Cost: n_runs times the cost of :func:`corridor_table`.
+    on the way back). Cost: about n_runs times the cost of :func:`corridor_table`.
     """
-    rng = as_generator(seed)
-    frames = []
-    for index in tqdm(range(int(n_runs)), desc="random corridors", disable=not progress):
-        draw = random_corridor(rng)
-        table, _ = corridor_table(draw.run, estimators, progress=False)
-        table.insert(0, "run", index)
-        table.insert(1, "n_cells", len(draw.labels))
-        table.insert(2, "slip", draw.slip)
-        frames.append(table)
-    per_run = pd.concat(frames, ignore_index=True)
+    from .sweeps import sweep
+    from .sweeps.tasks import frozen, options_text
+
+    estimators = estimators or CORRIDOR_ESTIMATORS
+    labels = {(name, options_text(tuple(sorted((k, frozen(v)) for k, v in options.items())))): label
+              for label, name, options in estimators}
+    per_run = sweep(random_corridor_spec(n_runs, seed, estimators), workers=workers, out=out, progress=progress)
+    per_run["estimator"] = [labels[key] for key in zip(per_run["estimator"], per_run["options"])]
+    per_run.insert(0, "run", per_run["seed"])
+    per_run.insert(1, "n_cells", per_run["world"].str.partition(":")[2].astype(int))
     per_run["wrong_map"] = per_run["wrong_visited"] > 0
     per_run["ends_lost_or_wrong_map"] = per_run["ends_lost"] | per_run["wrong_map"]
-    grouped = per_run.groupby("estimator", sort=False)
+    order = {label: i for i, (label, _, _) in enumerate(estimators)}
+    grouped = per_run.sort_values("estimator", key=lambda c: c.map(order), kind="stable").groupby(
+        "estimator", sort=False)
     summary = pd.DataFrame({"runs": grouped.size()})
     for column in STUDY_OUTCOMES:
         hits = grouped[column].sum()

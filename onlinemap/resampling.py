@@ -14,11 +14,14 @@ sorted. Cost O(P) (multinomial O(P log P)); one or P uniforms per call.
 
 (filterpy 2.0.0's ``residual_resample`` is biased and uses numpy's global random state;
 these are written from the definitions and tested for unbiasedness.)
+
+:func:`optimal_resampling` (Fearnhead and Clifford 2003) is of another kind: it keeps at most
+``n`` of M weighted children, no child twice, and returns new weights besides the indices.
 """
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -104,6 +107,130 @@ RESAMPLERS: dict[str, Resampler] = {
 }
 
 
+class Kept(NamedTuple):
+    """The children :func:`optimal_resampling` keeps: ``indices`` (n',) in walk order, no repeat;
+    ``weights`` (n',) their new weights (summing to the input's total, up to rounding);
+    ``threshold`` c (0 when every positive child is kept)."""
+
+    indices: np.ndarray
+    weights: np.ndarray
+    threshold: float
+
+
+@njit(cache=True)
+def _sorted_threshold(w, n):
+    """(c, n_large) by sorting, O(M log M): keeping the k largest, c_k = (sum of the rest) / (n - k);
+    the first k with the (k+1)-th largest below c_k is the solution (the k-th is then >= c_k)."""
+    ascending = np.sort(w)
+    below = np.cumsum(ascending)  # below[i] = sum of the i + 1 smallest: tails without cancellation
+    m = w.shape[0]
+    for k in range(n):
+        c = below[m - 1 - k] / (n - k)
+        if ascending[m - 1 - k] < c:
+            return c, k
+    return ascending[m - n], n  # not reached for M > n positive weights
+
+
+@njit(cache=True)
+def _optimal_threshold(w, n, max_rounds=8):
+    """(c, n_large) for M > n positive weights ``w`` summing to 1: c solves
+    ``sum_i min(1, w_i / c) = n``, and exactly ``n_large < n`` weights are >= c.
+
+    Fixed point, O(M) a round: from c = 1/n, c <- (sum of the w < c) / (n - #{w >= c}) until no
+    weight crosses c. With f(c) = sum min(1, w / c) decreasing and c >= c* (f(c) <= n), the
+    update stays >= c* (the weights set aside are all >= c*) and is <= c (f(c) <= n), so c
+    decreases to c*, adding weights to the large set each round; once none is added, c solves the
+    equation. Rarely more than 3 rounds; after ``max_rounds`` it sorts instead (O(M log M))."""
+    c = 1.0 / n
+    n_large = -1
+    for _ in range(max_rounds):
+        count = 0
+        rest = 0.0
+        for i in range(w.shape[0]):
+            if w[i] >= c:
+                count += 1
+            else:
+                rest += w[i]
+        if count == n_large or count >= n:
+            break
+        n_large = count
+        c = rest / (n - count)
+    else:
+        return _sorted_threshold(w, n)
+    if count >= n:  # rounding pushed c below c*: sort
+        return _sorted_threshold(w, n)
+    return c, n_large
+
+
+@njit(cache=True)
+def optimal_keep(w, n, uniform, order):
+    """Kernel of :func:`optimal_resampling` for callers whose input is already valid: ``w`` (M,)
+    non-negative, summing to 1, ``n >= 1``, ``uniform`` in [0, 1), ``order`` (M,) a permutation:
+    the order in which the strata walk the children (any order fixed before the uniform is drawn
+    keeps the scheme unbiased; children of similar states next to each other spread the draws
+    over the states). Returns (indices in walk order, weights, c). O(M)."""
+    m = w.shape[0]
+    positive = 0
+    for i in range(m):
+        if w[i] > 0.0:
+            positive += 1
+    if positive <= n:
+        indices = np.empty(positive, dtype=np.int64)
+        j = 0
+        for i in order:
+            if w[i] > 0.0:
+                indices[j] = i
+                j += 1
+        return indices, w[indices].copy(), 0.0
+    c, n_large = _optimal_threshold(w, n)
+    small_total = 0.0  # summed in the order the strata are walked, so the last stratum fits
+    for i in order:
+        if w[i] < c:
+            small_total += w[i]
+    n_small = n - n_large
+    step = small_total / n_small
+    indices = np.empty(n, dtype=np.int64)
+    weights = np.empty(n)
+    position = uniform * step  # the strata are [j step, (j + 1) step), one point in each
+    drawn = 0
+    cumulative = 0.0
+    kept = 0
+    for i in order:
+        if w[i] >= c:
+            indices[kept] = i
+            weights[kept] = w[i]
+            kept += 1
+            continue
+        cumulative += w[i]
+        if drawn < n_small and position < cumulative:  # w[i] < step: at most one point falls in it
+            indices[kept] = i
+            weights[kept] = step
+            kept += 1
+            drawn += 1
+            position += step
+    return indices[:kept], weights[:kept], c
+
+
+def optimal_resampling(weights, n: int, rng: np.random.Generator, order=None) -> Kept:
+    """Keep at most ``n`` of the M children ``weights`` (M,), none twice (Fearnhead and Clifford
+    2003): if at most ``n`` are positive, keep those with their weights; otherwise find c with
+    ``sum_i min(1, w_i / c) = n``, keep every child with ``w_i >= c`` with its weight, and draw
+    the others by stratified sampling (one uniform) with weight c. Each child's expected new
+    weight is its old one (unbiased: ``P(kept) = w_i / c`` for ``w_i < c``), and the new weights
+    sum to the old total. ``order`` (M,), a permutation (default: index order), is the order in
+    which the strata walk the children (the returned indices follow it). One uniform; O(M) (a few
+    passes to find c; a sort, O(M log M), in the rare case they do not settle)."""
+    w = _normalised(weights)
+    if isinstance(n, bool) or int(n) != n or n < 1:
+        raise ValueError(f"n must be a positive integer, got {n!r}")
+    order = np.arange(w.size) if order is None else np.asarray(order)
+    if order.shape != w.shape or order.dtype.kind not in "iu" or not np.array_equal(np.sort(order), np.arange(w.size)):
+        raise ValueError(f"order must be a permutation of 0..{w.size - 1}")
+    total = float(np.sum(np.asarray(weights, dtype=np.float64)))
+    indices, kept, c = optimal_keep(w, int(n), rng.random(), order.astype(np.int64))
+    return Kept(indices, kept * total, c * total)
+
+
 def effective_sample_size(weights) -> float:
     """``(sum w)^2 / sum w^2`` of non-negative weights (P for equal weights, 1 for one survivor)."""
     w = np.asarray(weights, dtype=np.float64)
@@ -111,4 +238,4 @@ def effective_sample_size(weights) -> float:
 
 
 __all__ = ["multinomial", "stratified", "systematic", "residual", "RESAMPLERS", "Resampler",
-           "effective_sample_size"]
+           "effective_sample_size", "optimal_resampling", "optimal_keep", "Kept"]

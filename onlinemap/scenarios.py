@@ -6,7 +6,7 @@ import numpy as np
 
 from .errors import ModelError
 from .model import GridModel, corridor
-from .simulate import Run
+from .simulate import Run, there_and_back
 
 MURPHY_LABELS = (0, 1, 0, 1, 0, 1, 0, 1)
 
@@ -25,7 +25,7 @@ def scripted_corridor(labels, slips=(), p_obs: float = 0.9, p_move: float = 0.8,
         model = corridor(n, n_labels=max(2, int(labels.max()) + 1), p_obs=p_obs, p_move=p_move)
     elif model.action_names != ("left", "right") or model.n_cells != n:
         raise ModelError(f"scripted_corridor: model must be a corridor of {n} cells")
-    actions = np.array([1] * (n - 1) + [0] * (n - 1), dtype=np.int64)
+    actions = there_and_back(model)
     path = [model.start]
     for t, a in enumerate(actions, start=1):
         path.append(path[-1] if t in slips else int(model.neighbors[path[-1], a]))

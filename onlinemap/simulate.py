@@ -33,7 +33,8 @@ class Run:
     """A recorded run of T steps.
 
     actions: (T - 1,) action at steps 1..T-1; locations: (T,) true cells; maps: (T, N) true
-    labels at each step; observations: (T,) labels seen.
+    labels at each step; observations: (T,) labels seen, or (T, F) readings (-1 off the grid)
+    when the model's footprint has F > 1 offsets.
     """
 
     model: GridModel
@@ -46,8 +47,8 @@ class Run:
         for name in ("actions", "locations", "maps", "observations"):
             object.__setattr__(self, name, _frozen_int(getattr(self, name)))
         t = len(self.observations)
-        if self.locations.shape != (t,) or self.actions.shape != (t - 1,) or \
-                self.maps.shape != (t, self.model.n_cells):
+        if self.observations.shape != (t,) + self.model.observation_shape or self.locations.shape != (t,) or \
+                self.actions.shape != (t - 1,) or self.maps.shape != (t, self.model.n_cells):
             raise ModelError("inconsistent run record shapes")
 
     @property
@@ -81,7 +82,7 @@ class Run:
             "action": [None] + [names[a] for a in self.actions],
             "true_location": self.locations,
             "true_label": self.maps[np.arange(self.n_steps), self.locations],
-            "observation": self.observations,
+            "observation": self.observations if self.observations.ndim == 1 else list(self.observations),
             "slipped": np.concatenate([[False], self.slipped]),
             "cells_changed": changed,
         })
@@ -101,20 +102,30 @@ def _categorical(rng: np.random.Generator, rows: np.ndarray) -> np.ndarray:
     return np.minimum((u[:, None] >= np.cumsum(rows, axis=1)).sum(axis=1), rows.shape[1] - 1)
 
 
-def simulate(model: GridModel, true_map=None, actions=(), seed: SeedLike = None) -> Run:
+def simulate(model: GridModel, true_map=None, actions=(), seed: SeedLike = None, *,
+             steps: int | None = None) -> Run:
     """Simulate a run: ``len(actions) + 1`` steps starting at ``model.start``.
 
     true_map: (N,) initial labels (drawn from the prior when None); actions: indices or names.
-    Cost O(T N) for a dynamic world (every cell may change each step), O(T) for a static one.
+    ``steps=T`` without actions: a run of T steps under a uniform random walk, its T - 1 actions
+    drawn first from the same generator (``random_walk(model, T - 1, rng)``).
+    Cost O(T (N + F)) for a dynamic world (every cell may change each step), O(T F) for a static
+    one, F the footprint size.
     """
     rng = as_generator(seed)
+    if steps is not None:
+        if len(actions):
+            raise ModelError("give either actions or steps, not both")
+        if isinstance(steps, (bool, np.bool_)) or not isinstance(steps, (int, np.integer)) or steps < 1:
+            raise ModelError(f"steps must be a positive int (the run's length T), got {steps!r}")
+        actions = random_walk(model, int(steps) - 1, rng)
     n = model.n_cells
     current = sample_map(model, rng) if true_map is None else check_map(model, true_map)
     action_ids = np.array([action_index(model, a) for a in actions], dtype=np.int64)
     n_steps = len(action_ids) + 1
     locations = np.empty(n_steps, dtype=np.int64)
     maps = np.empty((n_steps, n), dtype=np.int64)
-    observations = np.empty(n_steps, dtype=np.int64)
+    observations = np.empty((n_steps,) + model.observation_shape, dtype=np.int64)
     location = model.start
     for t in range(n_steps):
         location, current, observations[t] = world_step(
@@ -125,16 +136,28 @@ def simulate(model: GridModel, true_map=None, actions=(), seed: SeedLike = None)
 
 
 def world_step(model: GridModel, location: int, labels: np.ndarray, action: int | None,
-               rng: np.random.Generator) -> tuple[int, np.ndarray, int]:
+               rng: np.random.Generator) -> tuple[int, np.ndarray, int | np.ndarray]:
     """One step of the true world: the action moves the robot (skipped when ``action`` is None,
     step 0), then the map changes, then the robot observes. ``labels`` (N,) is not modified;
-    returns ``(location, labels, observation)``. Cost O(N) in a dynamic world, O(1) in a static one."""
+    returns ``(location, labels, observation)``, the observation an int (F = 1) or an (F,) array
+    of readings, -1 off the grid. A move into a cell whose label blocks fails (the robot stays);
+    the draws are the same either way. Cost O(N + F) in a dynamic world, O(F) in a static one."""
     if action is not None:
         if rng.random() < model.p_move:
-            location = int(model.neighbors[location, action])
+            target = int(model.neighbors[location, action])
+            if not model.blocking[labels[target]]:
+                location = target
         if not model.is_static:
             labels = _categorical(rng, model.change[labels])
-    observation = int(_categorical(rng, model.sensor[labels[location]][None])[0])
+    if model.n_readings == 1:
+        cell = location if model.footprint == ((0, 0),) else int(model.footprint_cells[location, 0])
+        if cell < 0:
+            return location, labels, -1
+        return location, labels, int(_categorical(rng, model.sensor[labels[cell]][None])[0])
+    cells = model.footprint_cells[location]
+    on_grid = cells >= 0
+    observation = np.full(model.n_readings, -1, dtype=np.int64)
+    observation[on_grid] = _categorical(rng, model.sensor[labels[cells[on_grid]]])
     return location, labels, observation
 
 

@@ -27,10 +27,12 @@ def wilson_interval(successes, trials, confidence: float = 0.95) -> tuple[np.nda
     return np.clip(centre - half, 0, 1), np.clip(centre + half, 0, 1)
 
 
-def mean_interval(values: np.ndarray, confidence: float = 0.95, proportion: bool = False) -> Interval:
+def mean_interval(values: np.ndarray, confidence: float = 0.95, proportion: bool = False,
+                  bounds: tuple[float, float] = (-math.inf, math.inf)) -> Interval:
     """Mean with a Student-t interval over the finite values; for a ``proportion`` (0/1 data)
     the Wilson score interval, which stays honest when every run agrees. NaN bounds with fewer
-    than 2 values (t interval)."""
+    than 2 values (t interval). ``bounds``: the range the mean lies in (e.g. (0, 1) for an
+    error); the t interval is intersected with it, which keeps its coverage."""
     from scipy import stats
 
     values = np.asarray(values, dtype=np.float64)
@@ -45,4 +47,4 @@ def mean_interval(values: np.ndarray, confidence: float = 0.95, proportion: bool
     if n < 2:
         return Interval(mean, math.nan, math.nan)
     half = stats.t.ppf(0.5 + confidence / 2, n - 1) * values.std(ddof=1) / math.sqrt(n)
-    return Interval(mean, mean - half, mean + half)
+    return Interval(mean, max(mean - half, bounds[0]), min(mean + half, bounds[1]))

@@ -6,6 +6,7 @@ specific error naming the problem. They never touch an estimator's state.
 
 from __future__ import annotations
 
+import math
 import numbers
 
 import numpy as np
@@ -30,9 +31,9 @@ def _index(value, names: tuple[str, ...], what: str, error: type[Exception]) -> 
     if isinstance(value, numbers.Integral):
         index = int(value)
     else:
-        if not np.isfinite(value):
+        if not math.isfinite(value):
             raise error(f"{what} is {value!r}; expected an int index in 0..{len(names) - 1}")
-        if float(value) != int(value):
+        if value != int(value):  # exact for floats and Fractions alike
             raise error(f"{what} {value!r} is not a whole number")
         index = int(value)
     if not 0 <= index < len(names):
@@ -50,6 +51,50 @@ def observation_index(model: GridModel, observation) -> int:
     return _index(observation, model.label_names, "observation", InvalidObservationError)
 
 
+def observation_value(model: GridModel, observation):
+    """An observation as the estimators take it: an int label (footprint of one offset that never
+    leaves the grid, the paper's sensor: exactly :func:`observation_index`), or else an int (F = 1)
+    or a fresh (F,) int64 array of readings, each a label (index or name) where the offset's cell
+    exists and -1 where it is off the grid. A wrong length, or -1 readings that match no location's
+    off-grid offsets (a -1 where a cell exists, a label where none exists), raise
+    :class:`InvalidObservationError`. Cost O(F U), U the number of distinct off-grid patterns."""
+    if model.n_readings == 1 and not model.off_grid_patterns.any():
+        return observation_index(model, observation)
+    single = model.n_readings == 1
+    if single:
+        readings = [observation]
+    else:
+        if isinstance(observation, (str, bytes, np.str_)) or not hasattr(observation, "__len__"):
+            raise InvalidObservationError(
+                f"the footprint reads {model.n_readings} cells; an observation is a sequence of "
+                f"{model.n_readings} labels (-1 off the grid), got {observation!r}")
+        readings = list(np.asarray(observation, dtype=object).ravel()) if isinstance(observation, np.ndarray) \
+            else list(observation)
+        if len(readings) != model.n_readings:
+            raise InvalidObservationError(f"observation has {len(readings)} readings; the footprint "
+                                          f"{model.footprint} reads {model.n_readings}")
+    values = np.array([-1 if _is_off_grid(r) else observation_index(model, r) for r in readings], dtype=np.int64)
+    _check_off_grid(model, values[None])
+    return int(values[0]) if single else values
+
+
+def _is_off_grid(reading) -> bool:
+    return type(reading) in _INTS and reading == -1 or \
+        isinstance(reading, numbers.Real) and not isinstance(reading, (bool, np.bool_)) and reading == -1
+
+
+def _check_off_grid(model: GridModel, values: np.ndarray) -> None:
+    """values (T, F): every row's -1 mask must be the off-grid mask of some location. O(T F U)."""
+    masks = values < 0
+    fits = (masks[:, None, :] == model.off_grid_patterns[None]).all(axis=2).any(axis=1)
+    if not fits.all():
+        t = int(np.argmin(fits))
+        raise InvalidObservationError(
+            f"observation {values[t].tolist()}{f' (step {t})' if len(values) > 1 else ''}: its -1 readings "
+            f"(offsets {np.flatnonzero(masks[t]).tolist()}) match the off-grid offsets of no location; "
+            f"a reading is -1 exactly where its offset {model.footprint} leaves the grid")
+
+
 def check_map(model: GridModel, true_map) -> np.ndarray:
     """A true map as a fresh (N,) int64 array of labels in 0..K - 1, or :class:`ModelError`."""
     labels = np.array(true_map, dtype=np.int64)
@@ -64,7 +109,8 @@ def check_map(model: GridModel, true_map) -> np.ndarray:
 
 def check_step(model: GridModel, t: int, action, observation) -> tuple[int | None, int]:
     """Validate the inputs of step number ``t`` (0 for the first): ``action`` must be None at
-    t = 0 and a valid action afterwards. Returns ``(action index or None, observation index)``."""
+    t = 0 and a valid action afterwards. Returns ``(action index or None, observation)``, the
+    observation as :func:`observation_value` gives it (an int, or an (F,) array for a footprint)."""
     if t == 0:
         if action is not None:
             raise InvalidActionError(f"the first step takes no action (got {action!r}); call step(None, z0)")
@@ -73,13 +119,17 @@ def check_step(model: GridModel, t: int, action, observation) -> tuple[int | Non
         if action is None:
             raise InvalidActionError(f"step {t} needs an action; None is only for the first step")
         a = action_index(model, action)
-    return a, observation_index(model, observation)
+    return a, observation_value(model, observation)
 
 
 def check_sequence(model: GridModel, actions, observations) -> tuple[np.ndarray, np.ndarray]:
     """Validate a whole run: ``observations`` (T,), ``actions`` (T - 1,) or (T,) with a leading
-    None / -1 placeholder. Returns int arrays ``(actions (T - 1,), observations (T,))``."""
-    observations = _as_sequence(observations)
+    None / -1 placeholder. Returns int arrays ``(actions (T - 1,), observations (T,))``, the
+    observations (T, F) when the footprint reads F > 1 cells."""
+    if model.n_readings > 1 or model.off_grid_patterns.any():
+        observations = _footprint_observations(model, observations)
+    else:
+        observations = _as_sequence(observations)
     actions = _as_sequence(actions)
     if len(observations) == 0:
         raise InvalidObservationError("a run needs at least one observation")
@@ -91,10 +141,25 @@ def check_sequence(model: GridModel, actions, observations) -> tuple[np.ndarray,
     a = _indices(actions, model.action_names)
     if a is None:
         a = np.array([action_index(model, x) for x in actions], dtype=np.int64)
-    z = _indices(observations, model.label_names)
+    z = observations if model.n_readings > 1 or model.off_grid_patterns.any() else \
+        _indices(observations, model.label_names)
     if z is None:
         z = np.array([observation_index(model, x) for x in observations], dtype=np.int64)
     return a, z
+
+
+def _footprint_observations(model: GridModel, observations) -> np.ndarray:
+    """(T,) or (T, F) int64 readings of a footprint model, checked as :func:`observation_value`."""
+    shape = model.observation_shape
+    if type(observations) is np.ndarray and observations.dtype.kind in "iu" and \
+            observations.shape[1:] == shape and observations.ndim == 1 + len(shape):
+        values = observations.astype(np.int64)
+        if values.size and (values.min() < -1 or values.max() >= model.n_labels):
+            bad = values[(values < -1) | (values >= model.n_labels)][0]
+            raise InvalidObservationError(f"observation reading {int(bad)} is out of range -1..{model.n_labels - 1}")
+        _check_off_grid(model, values.reshape(len(values), -1))
+        return values
+    return np.array([observation_value(model, z) for z in observations], dtype=np.int64).reshape((-1,) + shape)
 
 
 def _as_sequence(values):

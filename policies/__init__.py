@@ -8,10 +8,11 @@
 
 from .info_gain import (InfoGainExplorer, MacroScore, expected_information_gain, expected_uncertainty,
                         information_reward, uncertainty)
-from .explore import COLUMNS, compare_planners, door_cells, explore, explore_env, summarize
+from .explore import COLUMNS, Exploration, compare_planners, door_cells, explore, exploration, explore_env, summarize
 from .mdp import (PolicyIterationResult, action_values, evaluate_policy, policy_iteration,
                   policy_motion)
-from .planners import PLANNERS, EntropyExplorer, Planner, RandomWalk, Sweep, make_planner, sweep_actions
+from .planners import (PLANNERS, EntropyExplorer, Planner, PlannerEntry, RandomWalk, Sweep, make_planner,
+                       planner_class, planner_options, sweep_actions)
 from .plots import plot_errors, plot_visits
 from .rewards import RewardFunction, collected_entropy_reward, entropy_reward
 from .worlds import exploration_world, floor_plan_prior, with_floor_plan
@@ -19,9 +20,10 @@ from .worlds import exploration_world, floor_plan_prior, with_floor_plan
 __all__ = [
     "entropy_reward", "collected_entropy_reward", "RewardFunction",
     "policy_iteration", "PolicyIterationResult", "action_values", "evaluate_policy", "policy_motion",
-    "Planner", "EntropyExplorer", "RandomWalk", "Sweep", "make_planner", "sweep_actions", "PLANNERS",
+    "Planner", "EntropyExplorer", "RandomWalk", "Sweep", "make_planner", "sweep_actions", "PLANNERS", "PlannerEntry",
+    "planner_options", "planner_class",
     "InfoGainExplorer", "MacroScore", "expected_information_gain", "expected_uncertainty",
     "information_reward", "uncertainty",
-    "explore", "explore_env", "door_cells", "COLUMNS", "exploration_world", "floor_plan_prior",
+    "explore", "exploration", "Exploration", "explore_env", "door_cells", "COLUMNS", "exploration_world", "floor_plan_prior",
     "with_floor_plan", "compare_planners", "summarize", "plot_errors", "plot_visits",
 ]

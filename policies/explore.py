@@ -8,18 +8,18 @@ dynamics as :func:`onlinemap.simulate`); :func:`explore_env` drives a gymnasium
 from __future__ import annotations
 
 import time
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 import pandas as pd
-from tqdm import tqdm
 
-from onlinemap import metrics
 from onlinemap.errors import ModelError
-from onlinemap.estimators import Estimator, estimator_options, make_estimator
+from onlinemap.estimators import Estimator, Trajectory, estimator_options, make_estimator
+from onlinemap.evaluate import from_steps, step_metrics
 from onlinemap.model import GridModel, door_cells
+from onlinemap.progress import tqdm
 from onlinemap.rng import SeedLike
-from onlinemap.simulate import world_step
+from onlinemap.simulate import Run, world_step
 from onlinemap.validation import check_map
 
 from .planners import Planner, make_planner
@@ -65,15 +65,25 @@ def _planner(model: GridModel, planner: str | Planner, options: dict | None,
     return planner
 
 
+class Exploration(NamedTuple):
+    """One exploration run: the per-step table, the true run and the estimator's beliefs."""
+
+    frame: pd.DataFrame  # one row per step: COLUMNS
+    run: Run  # the actions the planner chose, true locations, maps and observations
+    trajectory: Trajectory  # the estimator's stacked beliefs; seconds_per_step: estimator + planner
+
+
 def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[int], WorldState],
-          planner: Planner, estimator: Estimator, steps: int, progress: bool | None) -> pd.DataFrame:
+          planner: Planner, estimator: Estimator, steps: int, progress: bool | None) -> Exploration:
     steps = int(steps)
     if steps < 1:
         raise ModelError(f"steps must be at least 1 (the first observation), got {steps}")
     actions = np.full(steps, -1, dtype=np.int64)
     locations = np.empty(steps, dtype=np.int64)
+    observations = np.empty(steps, dtype=np.int64)
     location_belief = np.empty((steps, model.n_cells))
     map_belief = np.empty((steps, model.n_cells, model.n_labels))
+    evidence = np.empty(steps)
     true_maps = np.empty((steps, model.n_cells), dtype=np.int64)
     if hasattr(planner, "bind"):  # planners that roll hypotheses out on copies of the live filter
         planner.bind(estimator)
@@ -87,25 +97,20 @@ def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[
             actions[t] = planner.choose(belief)
             observation, location, labels = advance(actions[t])
             belief = estimator.step(int(actions[t]), observation)
-        locations[t], true_maps[t] = location, labels
-        location_belief[t], map_belief[t] = belief.location, belief.map
+        locations[t], true_maps[t], observations[t] = location, labels, observation
+        location_belief[t], map_belief[t], evidence[t] = belief.location, belief.map, belief.log_evidence
         bar.update()
     bar.close()
-    doors = door_cells(model, true_maps[0])
-    frame = pd.DataFrame({
-        "t": np.arange(steps),
-        "action": [None] + [model.action_names[a] for a in actions[1:]],
-        "true_location": locations,
-        "map_error": metrics.map_error(map_belief, true_maps),
-        "location_error": metrics.location_error(location_belief, locations),
-        "location_entropy": metrics.normalized_entropy(location_belief),
-        "map_entropy": metrics.map_entropy(map_belief),
-        "door_error": (metrics.map_error(map_belief[:, doors], true_maps[:, doors]) if len(doors)
-                       else np.full(steps, np.nan)),
-    })
-    frame.attrs.update(planner=repr(planner), estimator=estimator.name,
-                       seconds_per_step=(time.perf_counter() - started) / steps)
-    return frame
+    seconds = (time.perf_counter() - started) / steps
+    run = Run(model, actions[1:], locations, true_maps, observations)
+    trajectory = Trajectory(location_belief, map_belief, evidence, seconds)
+    scores = step_metrics(run, trajectory)
+    frame = pd.DataFrame({"t": scores["t"], "action": [None] + [model.action_names[a] for a in actions[1:]],
+                          "true_location": locations})
+    for column in COLUMNS[3:]:
+        frame[column] = scores[column] if column in scores else np.nan
+    frame.attrs.update(planner=repr(planner), estimator=estimator.name, seconds_per_step=seconds)
+    return Exploration(frame, run, trajectory)
 
 
 def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
@@ -132,6 +137,15 @@ def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
     ``progress``: a tqdm bar (None: shown for runs of 200 steps or more).
     Cost: ``steps`` x (estimator step + planner choice) plus O(steps N K) memory and metrics.
     """
+    return exploration(model, true_map, planner, estimator, steps, seed, estimator_options=estimator_options,
+                       planner_options=planner_options, progress=progress).frame
+
+
+def exploration(model: GridModel, true_map, planner: str | Planner = "entropy",
+                estimator: str | Estimator = "rbpf", steps: int = 500, seed: SeedLike = None, *,
+                estimator_options: dict | None = None, planner_options: dict | None = None,
+                progress: bool | None = None) -> Exploration:
+    """:func:`explore` returning the whole :class:`Exploration` (table, true run, beliefs)."""
     world_rng, planner_rng, estimator_seed = _seeds(seed)
     labels = check_map(model, true_map)
     est = _estimator(model, estimator, estimator_options, estimator_seed)
@@ -169,44 +183,51 @@ def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estima
                              f"ask for fewer steps or raise its max_episode_steps")
         return int(observation), info["location"], info["map"]
 
-    return _loop(model, reset, advance, chooser, est, steps, progress)
+    return _loop(model, reset, advance, chooser, est, steps, progress).frame
 
 
-def compare_planners(model: GridModel, true_map, planners=("entropy", "random", "sweep"),
-                     estimator: str = "rbpf", steps: int = 500, seeds=(0,), *,
-                     estimator_options: dict | None = None, progress: bool = True) -> pd.DataFrame:
+def compare_planners(world: str = "door,p_door=0.01,p_move=0.9", planners=("entropy", "random", "sweep"),
+                     estimator: str = "rbpf", steps: int = 500, seeds=(0,), *, floor_plan: float | None = None,
+                     estimator_options: dict | None = None, workers: int | None = 0,
+                     progress: bool = True) -> pd.DataFrame:
     """:func:`explore` for every planner name and seed (the same seeds for every planner, so
-    the runs are paired). One row per (planner, seed, step): ``planner``, ``seed`` and the
-    :data:`COLUMNS`. Cost: ``len(planners) * len(seeds)`` runs of ``steps`` steps."""
-    runs = [(planner, seed) for planner in planners for seed in seeds]
-    frames = []
-    for planner, seed in tqdm(runs, desc="exploration runs", disable=not progress):
-        frame = explore(model, true_map, planner, estimator, steps, seed,
-                        estimator_options=estimator_options, progress=progress and steps >= 200)
-        frame.insert(0, "seed", seed)
-        frame.insert(0, "planner", planner)
-        frame["seconds_per_step"] = frame.attrs["seconds_per_step"]
-        frames.append(frame)
-    return pd.concat(frames, ignore_index=True)
+    the runs are paired), run as a sweep on :func:`onlinemap.sweeps.sweep` (``workers``: 0 in
+    this process, None or N on a local dask cluster). ``world``: a world spec
+    (:func:`onlinemap.worlds.parse_world`, e.g. ``door,p_door=0.01,p_move=0.9``); ``floor_plan``:
+    the confidence of :func:`~policies.worlds.with_floor_plan` (None: the world's own prior).
+    A run is exactly ``explore(model, true_map, planner, estimator, steps, seed)``.
+    One row per (planner, seed, step): ``planner``, ``seed``, ``t``, ``true_location`` and the
+    per-step metrics of :func:`onlinemap.evaluate.step_metrics`, and ``seconds_per_step``.
+    Cost: ``len(planners) * len(seeds)`` runs of ``steps`` steps."""
+    from onlinemap.sweeps import sweep
+
+    options = {k: [list(v)] if isinstance(v, tuple) else [v] if isinstance(v, list) else v
+               for k, v in (estimator_options or {}).items()}
+    spec = {"name": "compare-planners", "worlds": [world], "seeds": [int(seed) for seed in seeds],
+            "steps": int(steps), "rows": "step", "planners": {name: {} for name in planners},
+            "estimators": {estimator: options}}
+    if floor_plan is not None:
+        spec["floor_plan"] = float(floor_plan)
+    table = sweep(spec, workers=workers, progress=progress)
+    table["seconds_per_step"] = table["ms_per_step"] / 1e3
+    order = {name: i for i, name in enumerate(planners)}
+    return table.sort_values(["planner", "seed", "t"], key=lambda c: c.map(order) if c.name == "planner" else c,
+                             kind="stable").reset_index(drop=True)
 
 
 def summarize(table: pd.DataFrame, model: GridModel, true_map) -> pd.DataFrame:
-    """One row per planner from a :func:`compare_planners` table, averaged over seeds:
-    final map error, mean door error over the last two thirds of the run (after the first
-    visits), mean location error, share of steps spent on door cells, distinct cells visited,
-    and milliseconds per step (estimator + planner)."""
+    """One row per planner from a :func:`compare_planners` table, averaged over seeds: the
+    per-run metrics of :func:`onlinemap.evaluate.from_steps` (final map error, mean door error
+    over the last two thirds of the run, mean location error), the share of steps spent on door
+    cells, distinct cells visited, and milliseconds per step (estimator + planner)."""
     doors = door_cells(model, true_map)
-    rows = []
-    for (planner, seed), run in table.groupby(["planner", "seed"], sort=False):
-        late = run["t"] >= run["t"].max() / 3
-        rows.append({"planner": planner, "seed": seed,
-                     "final_map_error": run["map_error"].iloc[-1],
-                     "late_door_error": run.loc[late, "door_error"].mean(),
-                     "mean_location_error": run["location_error"].mean(),
-                     "time_at_doors": np.isin(run["true_location"], doors).mean(),
-                     "cells_visited": run["true_location"].nunique(),
-                     "ms_per_step": 1e3 * run["seconds_per_step"].iloc[0]})
-    per_run = pd.DataFrame(rows)
-    summary = per_run.drop(columns="seed").groupby("planner", sort=False).mean().reset_index()
+    table = table.assign(ms_per_step=1e3 * table["seconds_per_step"])
+    per_run = from_steps(table, ["planner", "seed"])
+    visits = table.groupby(["planner", "seed"], sort=False)["true_location"]
+    per_run["time_at_doors"] = visits.apply(lambda cells: np.isin(cells, doors).mean()).to_numpy()
+    per_run["cells_visited"] = visits.nunique().to_numpy()
+    columns = ["planner", "final_map_error", "late_door_error", "mean_location_error", "time_at_doors",
+               "cells_visited", "ms_per_step"]
+    summary = per_run[[c for c in columns if c in per_run]].groupby("planner", sort=False).mean().reset_index()
     summary.insert(1, "runs", per_run.groupby("planner", sort=False).size().to_numpy())
     return summary

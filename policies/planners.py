@@ -6,13 +6,16 @@
 - :class:`RandomWalk` draws actions uniformly.
 - :class:`Sweep` follows a fixed boustrophedon (lawn-mower) pattern and ignores beliefs.
 
-:func:`make_planner` builds one by name (``entropy``, ``random``, ``sweep``).
+:data:`PLANNERS` is the registry (name -> class and fixed options; the exploration planner
+``info_gain`` lives in :mod:`policies.info_gain`); :func:`make_planner` builds one by name and
+:func:`planner_options` lists a name's options without building anything.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
-from typing import Protocol, runtime_checkable
+from typing import NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -21,6 +24,7 @@ from onlinemap.errors import ModelError
 from onlinemap.model import GridModel
 from onlinemap.rng import SeedLike, as_generator
 
+from .info_gain import InfoGainExplorer
 from .mdp import PolicyIterationResult, policy_iteration
 from .rewards import RewardFunction, collected_entropy_reward, entropy_reward
 
@@ -129,24 +133,59 @@ class Sweep:
         return f"Sweep({len(self.actions)} actions per cycle)"
 
 
-PLANNERS = ("entropy", "entropy_collect", "random", "sweep", "info_gain")
+class PlannerEntry(NamedTuple):
+    """A registered planner: its class and the keyword arguments its name fixes."""
+
+    cls: type
+    fixed: dict
+
+
+#: name -> planner class (and fixed keywords). The options of a name are its class's keyword
+#: parameters after the model, less ``seed`` and the fixed ones (:func:`planner_options`).
+PLANNERS: dict[str, PlannerEntry] = {
+    "entropy": PlannerEntry(EntropyExplorer, {}),
+    "entropy_collect": PlannerEntry(EntropyExplorer, {"reward": collected_entropy_reward}),
+    "random": PlannerEntry(RandomWalk, {}),
+    "sweep": PlannerEntry(Sweep, {}),
+    "info_gain": PlannerEntry(InfoGainExplorer, {}),
+}
+
+
+def _entry(name: str) -> PlannerEntry:
+    if name not in PLANNERS:
+        raise ModelError(f"unknown planner {name!r}; available: {', '.join(PLANNERS)}")
+    return PLANNERS[name]
+
+
+def _parameters(cls: type) -> list[inspect.Parameter]:
+    """The keyword parameters of ``cls.__init__`` after ``self`` and the model."""
+    params = list(inspect.signature(cls.__init__).parameters.values())[2:]
+    return [p for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+
+
+def planner_options(name: str) -> dict[str, object]:
+    """The options of planner ``name`` and their defaults (no planner is built)."""
+    entry = _entry(name)
+    return {p.name: p.default for p in _parameters(entry.cls) if p.name != "seed" and p.name not in entry.fixed}
+
+
+def planner_class(name: str) -> type:
+    """The class :func:`make_planner` builds for ``name`` (its ``__init__`` annotates the options)."""
+    return _entry(name).cls
 
 
 def make_planner(name: str, model: GridModel, seed: SeedLike = None, **options) -> Planner:
-    """Planner by name: ``entropy`` (:class:`EntropyExplorer`; options gamma, replan_every,
-    reward), ``entropy_collect`` (the same with :func:`~policies.rewards.collected_entropy_reward`),
-    ``random`` (:class:`RandomWalk` with ``seed``), ``sweep`` (:class:`Sweep`) or ``info_gain``
-    (:class:`~policies.info_gain.InfoGainExplorer` with ``seed``; it plans on the live estimator,
-    which :func:`~policies.explore` hands it through ``bind``)."""
-    if name == "entropy":
-        return EntropyExplorer(model, **options)
-    if name == "entropy_collect":
-        return EntropyExplorer(model, reward=collected_entropy_reward, **options)
-    if name == "random":
-        return RandomWalk(model, seed=seed, **options)
-    if name == "sweep":
-        return Sweep(model, **options)
-    if name == "info_gain":
-        from .info_gain import InfoGainExplorer
-        return InfoGainExplorer(model, seed=seed, **options)
-    raise ModelError(f"unknown planner {name!r}; available: {', '.join(PLANNERS)}")
+    """Planner by registered name (:data:`PLANNERS`): ``entropy`` (:class:`EntropyExplorer`;
+    options gamma, replan_every, reward), ``entropy_collect`` (the same with
+    :func:`~policies.rewards.collected_entropy_reward`), ``random`` (:class:`RandomWalk`),
+    ``sweep`` (:class:`Sweep`), ``info_gain`` (:class:`~policies.info_gain.InfoGainExplorer`).
+    ``seed`` goes to planners that draw random numbers. Unknown options raise ModelError."""
+    entry = _entry(name)
+    known = planner_options(name)
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise ModelError(f"planner {name!r} has no option {', '.join(unknown)}; its options: "
+                         f"{', '.join(known) or 'none'}")
+    if any(p.name == "seed" for p in _parameters(entry.cls)):
+        options["seed"] = seed
+    return entry.cls(model, **entry.fixed, **options)

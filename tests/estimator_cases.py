@@ -41,7 +41,8 @@ def random_run(model: om.GridModel, n_steps: int, seed: int) -> om.Run:
 def beliefs(est, run: om.Run, start: int = 0, stop: int | None = None):
     """Step ``est`` through steps ``start .. stop - 1`` of ``run`` (all by default), yielding each belief."""
     for t in range(start, run.n_steps if stop is None else stop):
-        yield est.step(None if t == 0 else int(run.actions[t - 1]), int(run.observations[t]))
+        z = run.observations[t]
+        yield est.step(None if t == 0 else int(run.actions[t - 1]), int(z) if z.ndim == 0 else z)
 
 
 def exact_trajectory(run: om.Run) -> om.Trajectory:

@@ -96,5 +96,83 @@ def test_unknown_estimator_and_option():
         om.make_estimator("kalman", om.corridor(4))
     with pytest.raises(om.UnknownEstimatorError, match="no option 'n_particles'"):
         om.make_estimator("exact", om.corridor(4), n_particles=3)
-    with pytest.raises(TypeError):
+    with pytest.raises(om.ModelError, match="model must be a GridModel"):
         om.make_estimator("exact", "corridor")
+
+
+# --- constructors, world specs and options (issue 14 items 9 and 10) ----------------------------------
+@pytest.mark.parametrize("build,words", [
+    (lambda: om.corridor(1.5), "n_cells must be a whole number"),  # gave 1 cell
+    (lambda: om.corridor(8, n_labels=2.5), "n_labels must be a whole number"),  # gave 2
+    (lambda: om.grid_model(2.7, 3.9), "rows must be a whole number"),  # gave 2 x 3
+    (lambda: om.corridor(None), "n_cells must be an integer, got NoneType"),
+    (lambda: om.corridor("8"), "n_cells must be an integer, got str"),
+    (lambda: om.corridor(8, p_obs=float("nan")), "p_obs must be in"),
+    (lambda: om.corridor(8, p_move=float("inf")), "p_move must be in"),
+    (lambda: om.corridor(8, p_obs="0.9"), "p_obs must be a number"),
+    (lambda: om.corridor(10**30), "n_cells must be at most"),  # OverflowError / MemoryError before
+    (lambda: om.grid_model(10**5, 10**5), "at most"),
+    (lambda: om.grid_model(2, 2, label_names=["a", "a"]), "label_names must be distinct"),
+    (lambda: om.grid_model(2, 2, label_prior=[[0.5, 0.5], [1.0]]), "label_prior must be a rectangular table"),
+    (lambda: om.grid_model(2, 2, sensor=[["a", "b"], ["c", "d"]]), "sensor matrix O must be a rectangular"),
+    (lambda: om.grid_model(2, 2, change=None, sensor=[[1, 0], [0, None]]), "sensor matrix O"),
+    (lambda: om.grid_model(2, 3, n_labels=1), "n_labels must be at least 2"),  # ZeroDivisionError before
+    (lambda: om.door_world(12345), "layout must be a str"),
+    (lambda: om.corridor(8, start=2.5), "start must be a whole number"),
+])
+def test_constructors_refuse_instead_of_coercing(build, words):
+    with pytest.raises(om.ModelError, match=words):
+        build()
+
+
+def test_integral_values_of_other_types_are_accepted():
+    assert om.corridor(8.0).n_cells == 8 and om.corridor(np.int64(5), n_labels=np.int32(3)).n_labels == 3
+    assert om.grid_model(2, 3, label_names=("a", "b")).label_names == ("a", "b")
+
+
+@pytest.mark.parametrize("spec,words", [
+    ("corridor:8,p_obs=abc", "p_obs must be a number"),
+    ("grid:2x3,n_labels=1", "n_labels must be at least 2"),
+    ("grid:3x3x", "cols must be a whole number"),
+    ("grid:3", "a grid's size is RxC"),
+    ("corridor:99999999999999999", "whole number"),
+    ("corridor:-4", "whole number"),
+    ("corridor:8,p_obs=nan", "p_obs must be in"),
+    ("corridor:8,p_obs=0.9,p_obs=0.8", "given twice"),
+    ("corridor:8,n_labels=2.5", "n_labels must be a whole number"),
+])
+def test_world_specs_refuse_with_one_clear_error(spec, words):
+    from onlinemap.worlds import parse_world
+
+    with pytest.raises(om.ModelError, match=words):
+        parse_world(spec)
+
+
+@pytest.mark.parametrize("name,options,words", [
+    ("offline_em", {"n_iter": 1.5}, "n_iter must be a whole number"),  # became 1
+    ("offline_em", {"anneal": (1.0, "0.5", 0.1)}, "anneal\\[1\\] must be a number"),
+    ("online_em", {"decay": "0.5"}, "decay must be a number"),  # was accepted
+    ("online_em", {"window": None}, "window"),
+    ("online_em", {"window": 2.5}, "window"),
+    ("online_em", {"pseudo_count": None}, "pseudo_count must be a number"),
+    ("rbpf", {"n_particles": "abc"}, "n_particles must be an integer"),
+    ("rbpf", {"seed": -1}, "seed must be at least 0"),
+    ("rbpf", {"lazy_dynamics": "no"}, "lazy_dynamics must be True or False"),
+    ("rbpf", {"resampling": ["residual"]}, "resampling must be one of"),
+    ("rbpf", {"resample_threshold": float("nan")}, "resample_threshold must be in"),
+])
+def test_options_refuse_with_option_errors(name, options, words):
+    with pytest.raises(om.InvalidOptionError, match=words):
+        om.make_estimator(name, om.corridor(4), **options)
+
+
+def test_fraction_action_is_an_index_or_a_specific_error():
+    """Regression: a fractions.Fraction action raised a bare TypeError."""
+    from fractions import Fraction
+
+    est = warmed("exact")
+    assert est.step(Fraction(1, 1), 0).t == 2
+    snap = snapshot(est)
+    with pytest.raises(om.InvalidActionError, match="whole number"):
+        est.step(Fraction(3, 2), 0)
+    assert_same(est, snap)

@@ -6,10 +6,14 @@ estimator is covered (parametrised at collection time), on a static and a dynami
 
 from __future__ import annotations
 
+import io
 import json
+import os
 import pathlib
+import stat
 import subprocess
 import sys
+import threading
 import zipfile
 
 import numpy as np
@@ -183,15 +187,23 @@ def rewrite_meta(path, change):
     rewrite(path, entries)
 
 
-def test_wrong_versions_are_refused(saved):
+def test_versions_compatibility_rests_on_the_format_version(saved):
+    """Issue 15 item 7: another onlinemap version with the same format loads (a patch bump must
+    not lock users out); a newer format is refused unless allow_newer; strict_version asks for
+    the same package version."""
     _, path = saved
-    rewrite_meta(path, lambda meta: meta.update(format_version=2))
-    with pytest.raises(om.CheckpointError, match="format version 2"):
+    rewrite_meta(path, lambda meta: meta.update(onlinemap_version="0.1.1"))
+    assert om.load(path).t == 1
+    with pytest.raises(om.CheckpointError, match="written by onlinemap '0.1.1'.*strict_version"):
+        om.load(path, strict_version=True)
+    rewrite_meta(path, lambda meta: meta.update(format_version=checkpoint.FORMAT_VERSION + 1))
+    with pytest.raises(om.CheckpointError, match="format version 2 was written by a newer onlinemap.*allow_newer"):
         om.load(path)
-    rewrite_meta(path, lambda meta: meta.update(format_version=1, onlinemap_version="0.0.1"))
-    with pytest.raises(om.CheckpointError, match="written by onlinemap '0.0.1'"):
-        om.load(path)
-    assert om.load(path, strict_version=False).t == 1
+    assert om.load(path, allow_newer=True).t == 1
+    for bad in (0, "1", True, None, 1.0):
+        rewrite_meta(path, lambda meta: meta.update(format_version=bad))
+        with pytest.raises(om.CheckpointError, match="format version"):
+            om.load(path)
 
 
 def test_forged_shape_in_metadata_is_refused(saved):
@@ -274,7 +286,7 @@ def test_crash_mid_write_keeps_the_last_good_checkpoint(saved, monkeypatch):
         raise OSError("disk full")
 
     monkeypatch.setattr(checkpoint.np, "savez", crash)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(om.CheckpointError, match=f"cannot write checkpoint {path}: disk full; the previous file"):
         om.save(est, path)
     assert path.read_bytes() == before
     assert list(path.parent.glob(".*tmp")) == []  # the temp file is cleaned up
@@ -405,3 +417,97 @@ def test_any_flipped_byte_is_refused_or_harmless(tmp_path):
             continue
         assert checkpoint.same_tree(loaded.state_dict(), reference)
     assert refused > 300
+
+
+# --- hostile files (issue 14 item 7): every defect is a CheckpointError naming the file ------------------
+def test_encrypted_flag_is_refused(saved):
+    """Regression: a flipped zip "encrypted" flag raised RuntimeError."""
+    _, path = saved
+    data = bytearray(path.read_bytes())
+    central = data.index(b"PK\x01\x02")
+    data[central + 8] |= 0x1  # general purpose flag bits of the first central directory entry
+    path.write_bytes(bytes(data))
+    with pytest.raises(om.CheckpointError, match=f"{path.name}.*marked encrypted"):
+        om.load(path)
+
+
+def npz_with_member(path, name, payload: bytes):
+    """``path``'s entries plus one raw member ``name`` (stored)."""
+    with zipfile.ZipFile(path, "a", compression=zipfile.ZIP_STORED) as archive:
+        archive.writestr(name, payload)
+
+
+def test_member_that_is_not_npy_is_refused(saved):
+    """Regression: a member that is not an npy file raised AttributeError."""
+    _, path = saved
+    npz_with_member(path, "notes.txt", b"hello")
+    with pytest.raises(om.CheckpointError, match="unexpected zip entry"):
+        om.load(path)
+
+
+def test_garbage_npy_member_is_refused(saved):
+    est, path = saved
+    npz_with_member(path, "a99.npy", b"\x93NUMPY garbage")
+    with pytest.raises(om.CheckpointError, match="a99.npy': npy format version"):
+        om.load(path)
+    om.save(est, path)
+    npz_with_member(path, "a98.npy", b"\x93NUMPY\x01\x00\x10\x00{'descr': <f8}    ")
+    with pytest.raises(om.CheckpointError, match="truncated or corrupt"):
+        om.load(path)
+
+
+def test_huge_declared_array_is_refused_before_allocating(saved):
+    """Regression: a header declaring 8 TiB raised MemoryError before the checksum was checked."""
+    _, path = saved
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (2**40,)})
+    npz_with_member(path, "a99.npy", header.getvalue() + b"\0" * 64)
+    with pytest.raises(om.CheckpointError, match=r"declares \(1099511627776,\) float64"):
+        om.load(path)
+
+
+def test_deeply_nested_metadata_is_refused(saved):
+    """Regression: a 500-deep list in the metadata raised RecursionError."""
+    _, path = saved
+    deep = []
+    for _ in range(500):
+        deep = [deep]
+    rewrite_meta(path, lambda meta: meta.update(extra=deep))
+    with pytest.raises(om.CheckpointError, match="nested more than"):
+        om.load(path)
+
+
+def test_fifo_is_refused_without_blocking(tmp_path):
+    """Regression: om.load on a FIFO blocked forever."""
+    fifo = tmp_path / "pipe.npz"
+    os.mkfifo(fifo)
+    outcome = []
+    worker = threading.Thread(target=lambda: outcome.append(pytest.raises(om.CheckpointError, om.load, fifo)),
+                              daemon=True)
+    worker.start()
+    worker.join(20)
+    assert not worker.is_alive(), "om.load blocked on a FIFO"
+    assert "not a regular file" in str(outcome[0].value)
+
+
+def test_save_writes_through_a_symlink_and_keeps_the_mode(saved, tmp_path):
+    """Regression: om.save onto a symlink replaced the link; the file's mode was not kept."""
+    est, path = saved
+    path.chmod(0o640)
+    link = tmp_path / "link.npz"
+    link.symlink_to(path)
+    est.step(0, 0)
+    om.save(est, link)
+    assert link.is_symlink() and om.load(path).t == est.t
+    assert stat.S_IMODE(path.stat().st_mode) == 0o640
+
+
+def test_save_to_an_unwritable_place_is_a_checkpoint_error(saved, tmp_path):
+    """Regression: om.save raised a bare OSError."""
+    est, _ = saved
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(om.CheckpointError, match=f"cannot write checkpoint {blocker / 'ck.npz'}"):
+        om.save(est, blocker / "ck.npz")
+    with pytest.raises(om.CheckpointError, match="not a regular file"):
+        om.save(est, tmp_path)

@@ -12,16 +12,16 @@ def test_study_distances_and_ordering():
     per_step = accuracy_study(["corridor:8"], n_runs=3, n_steps=30, particles=(10, 1000), seed=1, progress=False)
     summary = summarise(per_step).set_index("estimator")
     exact = summary.loc["exact"]
-    assert exact["location_tv_mean"] == 0 and exact["map_tv_worst"] == 0
+    assert exact["mean_location_tv"] == 0 and exact["worst_map_tv"] == 0
     assert per_step.groupby("estimator").size().nunique() == 1  # every estimator: runs x steps rows
     assert set(per_step["world"]) == {"corridor:8"} and per_step["run"].nunique() == 3
     assert np.all((per_step[["location_tv", "map_tv", "map_error"]] >= 0).to_numpy())
     assert np.all((per_step[["location_tv", "map_tv"]] <= 1 + 1e-12).to_numpy())
     for proposal in ("optimal", "transition"):  # more particles, closer to exact, and closer than bk
         many, few = summary.loc[f"rbpf {proposal} P=1000"], summary.loc[f"rbpf {proposal} P=10"]
-        assert many["map_tv_mean"] < few["map_tv_mean"] / 2
-        assert many["map_tv_mean"] < summary.loc["bk", "map_tv_mean"]
-    assert summary.loc["dead_reckoning", "map_error_mean"] == 0.5  # uniform prior, binary labels
+        assert many["mean_map_tv"] < few["mean_map_tv"] / 2
+        assert many["mean_map_tv"] < summary.loc["bk", "mean_map_tv"]
+    assert summary.loc["dead_reckoning", "mean_map_error"] == 0.5  # uniform prior, binary labels
 
 
 def test_online_em_only_if_registered(monkeypatch):
@@ -37,7 +37,7 @@ def test_cli_writes_tables_and_figures(tmp_path, capsys):
                  "--steps", "8", "--particles", "10,50", "--seed", "3", "--out", str(out)])
     assert code == 0
     printed = capsys.readouterr().out
-    assert "location_tv_worst" in printed and "rbpf transition P=50" in printed
+    assert "worst_location_tv" in printed and "rbpf transition P=50" in printed
     summary = pd.read_csv(out / "compare_summary.csv")
     assert set(summary["world"]) == {"corridor:5", "grid:2x2,p_change=0.05"}
     assert len(pd.read_csv(out / "compare_steps.csv")) == 2 * 2 * 8 * summary["estimator"].nunique()

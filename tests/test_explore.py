@@ -137,22 +137,33 @@ def test_explore_env_drives_the_gymnasium_environment(tiny):
         explore_env(limited, "random", "exact", steps=10, seed=0)
 
 
-def test_cli_explore_writes_table_and_figures(tmp_path, capsys):
-    out = tmp_path / "steps.csv"
+def test_cli_explore_runs_on_the_sweep_engine_and_writes_only_under_out(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "out"
     code = main(["explore", "--world", "grid:2x3", "--estimator", "exact", "--steps", "25", "--repeats", "2",
-                 "--figures", str(tmp_path / "fig"), "--out", str(out)])
+                 "--out", str(out)])
     assert code == 0
     printed = capsys.readouterr().out
-    assert "final_map_error" in printed and "sweep" in printed
-    table = pd.read_csv(out)
-    assert list(table.columns[:2]) == ["planner", "seed"] and set(COLUMNS) <= set(table.columns)
-    assert len(table) == 3 * 2 * 25
+    assert "final_map_error" in printed and "wrong_cells" in printed and "sweep" in printed and "[" in printed
+    steps = pd.read_csv(out / "explore_steps.csv")
+    assert {"planner", "seed", "t", "true_location", "map_error", "location_error"} <= set(steps.columns)
+    assert len(steps) == 3 * 2 * 25
+    runs = pd.read_csv(out / "explore_runs.csv")
+    assert len(runs) == 3 * 2
+    # the one scorer's definitions, recomputed here from the per-step table
+    last = steps.sort_values("t").groupby(["planner", "seed"]).tail(1).set_index(["planner", "seed"])
+    for (planner, seed), row in runs.set_index(["planner", "seed"]).iterrows():
+        assert row["final_map_error"] == pytest.approx(last.loc[(planner, seed), "map_error"])
+        assert row["wrong_cells"] == last.loc[(planner, seed), "wrong_cells"]
     for name in ("explore_errors.png", "explore_visits.png"):
-        assert (tmp_path / "fig" / name).stat().st_size > 10_000
-    assert main(["explore", "--planner", "greedy", "--no-figures"]) == 2
-    assert main(["explore", "--floor-plan", "2", "--steps", "5", "--no-figures"]) == 2
+        assert (out / name).stat().st_size > 10_000
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # nothing outside --out
+    assert main(["explore", "--steps", "5"]) == 0 and "late_door_error" in capsys.readouterr().out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert main(["explore", "--planner", "greedy"]) == 2
+    assert main(["explore", "--floor-plan", "2", "--steps", "5"]) == 2
     assert main(["explore", "--world", "door", "--estimator", "dead_reckoning", "--steps", "20",
-                 "--option", "bogus=1", "--no-figures"]) == 2
+                 "-o", "bogus=1"]) == 2
 
 
 def test_summary_counts_time_at_doors():
@@ -176,8 +187,9 @@ DYNAMIC_SEEDS = range(64)
 def paired(p_door: float, steps: int, planners, seeds) -> pd.DataFrame:
     if "rbpf" not in om.available_estimators():
         pytest.skip("needs the rbpf estimator")
-    model, true_map = exploration_world(p_door=p_door)
-    return compare_planners(model, true_map, planners, "rbpf", steps, seeds, progress=False)
+    # exploration_world(p_door) as a world spec: the 10 x 10 door world, p_move 0.9, floor plan 0.8
+    return compare_planners(f"door,p_door={p_door},p_move=0.9", planners, "rbpf", steps, seeds, floor_plan=0.8,
+                            progress=False)
 
 
 def one_sided_p(better: pd.Series, worse: pd.Series) -> float:

@@ -24,24 +24,25 @@ def test_metrics_by_hand():
 
 
 def test_cli_run_table_and_out(tmp_path, capsys):
-    out = tmp_path / "m.csv"
-    assert main(["run", "--world", "corridor:6", "--steps", "30", "--seed", "1", "--out", str(out)]) == 0
+    assert main(["run", "--world", "corridor:6", "--steps", "30", "--seed", "1", "--out", str(tmp_path)]) == 0
     text = capsys.readouterr().out
     assert "exact" in text and "dead_reckoning" in text
-    frame = pd.read_csv(out)
+    assert len(pd.read_csv(tmp_path / "summary.csv")) == 2
+    frame = pd.read_csv(tmp_path / "steps.csv")
     assert set(frame.estimator) == {"exact", "dead_reckoning"} and len(frame) == 60
     final = frame[frame.t == 29].set_index("estimator")
     assert final.loc["exact", "map_error"] < final.loc["dead_reckoning", "map_error"]
 
 
-def test_cli_door_world_skips_exact_with_reason(capsys):
+def test_cli_door_world_skips_exact_with_reason(caplog):
     assert main(["run", "--world", "door", "--steps", "5"]) == 0
-    assert "exact: skipped" in capsys.readouterr().out
+    assert "exact: skipped" in caplog.text and "limit" in caplog.text
 
 
 def test_cli_errors_are_clear(capsys):
-    assert main(["run", "--world", "maze:3"]) == 2
-    assert "unknown kind" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:  # a usage error, found while parsing the arguments
+        main(["run", "--world", "maze:3"])
+    assert exit_info.value.code == 2 and "unknown kind" in capsys.readouterr().err
     assert main(["run", "--estimators", "nope"]) == 2
     with pytest.raises(SystemExit):
         main(["--help"])

@@ -11,3 +11,18 @@ def test_ci_runs_the_readme_test_command():
     assert len(block) == 2, "the README opens with exactly two commands"
     assert "pytest" in block[1]
     assert block[1] in (ROOT / ".ci" / "run").read_text()
+
+
+def test_the_readme_door_world_example_gives_what_it_says():
+    """The door-world block of the README runs and prints the values its comments give."""
+    readme = (ROOT / "README.md").read_text()
+    blocks = [b.split("```", 1)[0] for b in readme.split("```python\n")[1:]]
+    (block,) = [b for b in blocks if "exploration_world(p_door=0.0," in b]
+    lines = block.strip().splitlines()
+    namespace: dict = {}
+    exec("\n".join(line for line in lines if "#" not in line), namespace)
+    for line in (line for line in lines if "  # " in line):
+        expression, expected = line.split("  # ")
+        value = eval(expression, namespace)
+        assert f"{value:.2f}" == expected.strip() if isinstance(value, float) else \
+            str(tuple(int(v) for v in value)) == expected.strip()

@@ -4,7 +4,7 @@ derived from the number of draws, reproducibility, and input checks."""
 import numpy as np
 import pytest
 
-from onlinemap.resampling import RESAMPLERS, effective_sample_size
+from onlinemap.resampling import RESAMPLERS, effective_sample_size, optimal_resampling
 
 WEIGHTS = {
     "design example": np.array([0.5, 0.3, 0.15, 0.05]),
@@ -92,3 +92,72 @@ def test_effective_sample_size():
     assert effective_sample_size(np.full(8, 0.125)) == pytest.approx(8)
     assert effective_sample_size([0, 0, 3.0]) == pytest.approx(1)
     assert effective_sample_size([1, 1, 0, 0]) == pytest.approx(2)
+
+
+OPTIMAL_CASES = {  # (weights, n kept)
+    "design example, keep 2": (WEIGHTS["design example"], 2),
+    "random 10, keep 4": (WEIGHTS["random 10"], 4),
+    "with zeros, keep 2": (WEIGHTS["with zeros"], 2),
+    "one dominant, keep 3": (np.array([0.9, 0.04, 0.03, 0.02, 0.01]), 3),
+    "equal, keep 3 of 7": (np.full(7, 1 / 7), 3),
+    "geometric, keep 18 of 22": (2.0 ** -np.arange(22), 18),  # c ~ 1e-5: many rounds, then the sort
+}
+
+
+def brute_threshold(weights, n):
+    """c with sum_i min(1, w_i / c) = n, by bisection (independent of the sort in the library)."""
+    lo, hi = 0.0, 1.0
+    for _ in range(200):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if np.minimum(1, weights / mid).sum() > n else (lo, mid)
+    return hi
+
+
+@pytest.mark.parametrize("walk", ["index order", "shuffled order"])
+@pytest.mark.parametrize("case", sorted(OPTIMAL_CASES))
+def test_optimal_resampling_is_unbiased_keeps_large_children_and_none_twice(case, walk):
+    """Fearnhead-Clifford: the mean new weight of each child over many draws equals its weight (a
+    child below c gets weight c with probability w / c: per-draw variance w (c - w), so the mean of
+    ``draws`` draws has standard deviation sqrt(w (c - w) / draws)); every child with w >= c is
+    kept every time with its own weight; none is kept twice; at most n are kept, exactly n when
+    more than n are positive; zero weights are never kept."""
+    weights, n = OPTIMAL_CASES[case]
+    weights = weights / weights.sum()
+    c = brute_threshold(weights, n)
+    rng = np.random.default_rng(2)
+    draws = 5000
+    large = weights >= c
+    order = np.arange(len(weights)) if walk == "index order" else np.random.default_rng(5).permutation(len(weights))
+    mean_weight = np.zeros(len(weights))
+    for _ in range(draws):
+        kept = optimal_resampling(weights, n, rng, order)
+        assert len(kept.indices) == min(n, np.count_nonzero(weights)) == len(np.unique(kept.indices))
+        walked = np.argsort(order)[kept.indices]  # positions in the walk: increasing
+        assert np.all(np.diff(walked) > 0)
+        assert abs(kept.threshold - c) <= 1e-9 * c and abs(kept.weights.sum() - 1) <= 1e-12
+        new_weight = np.zeros(len(weights))
+        new_weight[kept.indices] = kept.weights
+        assert np.array_equal(new_weight[large], weights[large])  # always kept, own weight
+        assert np.all(np.abs(new_weight[~large] - c) <= 1e-9 * c, where=new_weight[~large] > 0)
+        mean_weight += new_weight
+    mean_weight /= draws
+    tolerance = 5 * np.sqrt(weights * np.maximum(c - weights, 0) / draws) + 1e-12
+    assert np.all(np.abs(mean_weight - weights) <= tolerance), (mean_weight, weights, tolerance)
+
+
+def test_optimal_resampling_keeps_everything_when_few_children():
+    weights = np.array([0.0, 3.0, 1.0, 0.0])
+    kept = optimal_resampling(weights, 2, np.random.default_rng(0))
+    np.testing.assert_array_equal(kept.indices, [1, 2])
+    np.testing.assert_array_equal(kept.weights, [3.0, 1.0])
+    assert kept.threshold == 0
+    scaled = optimal_resampling(weights * 0 + [1, 1, 1, 1], 2, np.random.default_rng(0))
+    assert scaled.weights.sum() == pytest.approx(4.0) and len(scaled.indices) == 2
+
+
+@pytest.mark.parametrize("bad,n,order", [([], 1, None), ([0.0, 0.0], 1, None), ([0.5, -0.1], 1, None),
+                                         ([1.0, 1.0], 0, None), ([1.0], 1.5, None), ([1.0, 1.0], 1, [0, 0]),
+                                         ([1.0, 1.0], 1, [0]), ([1.0, 1.0], 1, [0.0, 1.0])])
+def test_optimal_resampling_refuses_bad_input(bad, n, order):
+    with pytest.raises(ValueError):
+        optimal_resampling(np.array(bad, dtype=float), n, np.random.default_rng(0), order)

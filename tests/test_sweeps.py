@@ -20,6 +20,7 @@ import onlinemap as om
 from onlinemap import sweeps
 from onlinemap.cli import main
 from onlinemap.cli.run import compare_on_run
+from onlinemap.stats import mean_interval
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = """\
@@ -40,7 +41,7 @@ N_TASKS = 2 * (1 + 1 + 2) * 3
 
 
 def without_timing(table: pd.DataFrame) -> pd.DataFrame:
-    return table.drop(columns=list(sweeps.TIMING_COLUMNS)).reset_index(drop=True)
+    return table.drop(columns=["ms_per_step"]).reset_index(drop=True)
 
 
 @pytest.fixture(scope="module")
@@ -227,8 +228,8 @@ def test_rerunning_a_finished_sweep_runs_nothing_and_ignores_stale_results(tmp_p
     parts = tmp_path / "parts"
     first = om.sweep(spec, workers=0, results_dir=parts, progress=False)
     stale = sweeps.Task("corridor:5", "exact", (), 99, 15)  # e.g. from an older version of the spec
-    sweeps._write_part(parts, stale, sweeps.run_task(stale))
-    monkeypatch.setattr(sweeps, "run_task", lambda task: pytest.fail("a finished task ran again"))
+    sweeps.write_part(parts, stale, sweeps.run_task(stale))
+    monkeypatch.setattr(sweeps.runner, "run_task", lambda task: pytest.fail("a finished task ran again"))
     again = om.sweep(spec, workers=0, results_dir=parts, progress=False)
     pd.testing.assert_frame_equal(first, again)  # timings too: the same files
     assert stale.key not in set(again["task"])
@@ -237,12 +238,12 @@ def test_rerunning_a_finished_sweep_runs_nothing_and_ignores_stale_results(tmp_p
 def test_failed_tasks_are_reported_and_the_rest_kept(tmp_path, monkeypatch):
     spec = sweeps.parse_spec(SPEC)
     real = sweeps.run_task
-    monkeypatch.setattr(sweeps, "run_task",
+    monkeypatch.setattr(sweeps.runner, "run_task",
                         lambda task: real(task) if task.seed != 1 else (_ for _ in ()).throw(RuntimeError("boom")))
     with pytest.raises(om.SweepError, match=f"{N_TASKS // 3} of {N_TASKS} tasks failed.*boom"):
         om.sweep(spec, workers=0, results_dir=tmp_path, progress=False)
     assert len(list(tmp_path.glob("*.parquet"))) == N_TASKS - N_TASKS // 3
-    monkeypatch.setattr(sweeps, "run_task", real)
+    monkeypatch.setattr(sweeps.runner, "run_task", real)
     assert len(om.sweep(spec, workers=0, results_dir=tmp_path, progress=False)) == N_TASKS
 
 
@@ -250,12 +251,12 @@ def test_failed_tasks_are_reported_and_the_rest_kept(tmp_path, monkeypatch):
 def test_mean_interval_matches_textbook_values():
     values = np.array([0.1, 0.4, 0.35, 0.2, 0.3])
     low, high = stats.t.interval(0.9, len(values) - 1, loc=values.mean(), scale=stats.sem(values))
-    assert sweeps.mean_interval(values, 0.9) == pytest.approx((values.mean(), low, high))
+    assert mean_interval(values, 0.9) == pytest.approx((values.mean(), low, high))
     # Wilson score interval: 0 successes in 10 at 95% gives [0, z^2 / (n + z^2)] = [0, 0.2775]
-    assert sweeps.mean_interval(np.zeros(10), proportion=True) == pytest.approx((0, 0, 0.27753), abs=1e-5)
+    assert mean_interval(np.zeros(10), proportion=True) == pytest.approx((0, 0, 0.27753), abs=1e-5)
     # 7 of 10: (0.3968, 0.8922) (Wilson 1927; e.g. Newcombe 1998, table I)
     ones = np.array([1] * 7 + [0] * 3)
-    assert sweeps.mean_interval(ones, proportion=True) == pytest.approx((0.7, 0.3968, 0.8922), abs=1e-4)
+    assert mean_interval(ones, proportion=True) == pytest.approx((0.7, 0.3968, 0.8922), abs=1e-4)
 
 
 def test_summary_groups_configurations_over_seeds(serial_table, tmp_path, capsys):
@@ -357,3 +358,148 @@ def test_killing_a_worker_midway_still_finishes_every_task_once(client, serial_t
     assert len(list(tmp_path.glob("*.parquet"))) == len(spec.tasks)
     serial = om.sweep(spec, workers=0, progress=False)
     pd.testing.assert_frame_equal(without_timing(table), without_timing(serial))
+
+
+# --- reliability (issue 14) and trustworthy tables (issue 15) ----------------------------------------
+def test_a_failed_table_write_keeps_the_previous_file_and_no_temporary(tmp_path, monkeypatch):
+    from onlinemap.tables import write_table
+
+    frame = pd.DataFrame({"a": [1, 2]})
+    for name in ("r.csv", "r.parquet"):
+        path = write_table(frame, tmp_path / name)
+        before = path.read_bytes()
+
+        def disk_full(*args, **kwargs):
+            raise OSError(28, "No space left on device")
+
+        monkeypatch.setattr(pd.DataFrame, "to_csv", disk_full)
+        monkeypatch.setattr("pyarrow.parquet.write_table", disk_full)
+        with pytest.raises(OSError, match="No space"):
+            write_table(pd.DataFrame({"a": [3]}), path)
+        monkeypatch.undo()
+        assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.csv", "r.csv.json", "r.parquet"]
+
+
+def test_failed_part_writes_leave_no_temporaries_and_old_ones_are_cleaned(tmp_path, monkeypatch):
+    parts = tmp_path / "parts"
+    parts.mkdir()
+    (parts / ".abc.parquet.x1y2.tmp").write_bytes(b"half a file")  # a killed process's leftover
+    real = pd.DataFrame.to_parquet
+
+    def flaky(frame, file, *args, **kwargs):
+        if frame["seed"].iloc[0] == 1:
+            raise OSError(28, "No space left on device")
+        return real(frame, file, *args, **kwargs)
+
+    monkeypatch.setattr(pd.DataFrame, "to_parquet", flaky)
+    with pytest.raises(om.SweepError, match="No space"):
+        om.sweep(sweeps.parse_spec(SPEC), workers=0, results_dir=parts, progress=False)
+    assert not list(parts.glob(".*")), "temporary files left behind"
+    assert len(list(parts.glob("*.parquet"))) == N_TASKS - N_TASKS // 3
+
+
+@pytest.mark.parametrize("old, new, words", [
+    ("seeds = 3", "seeds = 1000000000", "exceed the cap of 100,000"),
+    ("seeds = 3", "seeds = [1, 9223372036854775808]", r"2\*\*63"),
+    ("steps = 15", "steps = 1000000000000", "steps"),
+    ("n_particles = [10, 40]", "n_particles = [" + ", ".join(map(str, range(1, 400))) + "]\n"
+     "proposal = [\"optimal\", \"transition\"]\nresampling = [\"residual\", \"systematic\", \"stratified\", "
+     "\"multinomial\"]\nresample_threshold = [" + ", ".join(str(i / 100) for i in range(1, 100)) + "]",
+     "configurations exceeds the cap"),
+])
+def test_huge_specs_are_refused_at_once(old, new, words):
+    started = time.perf_counter()
+    with pytest.raises(om.SpecError, match=words):
+        sweeps.parse_spec(SPEC.replace(old, new))
+    assert time.perf_counter() - started < 5  # counted, not built
+
+
+def test_the_task_cap_can_be_raised():
+    with pytest.raises(om.SpecError, match="24 tasks exceed the cap of 10"):
+        sweeps.parse_spec(SPEC, max_tasks=10)
+    assert len(sweeps.parse_spec(SPEC, max_tasks=24).tasks) == N_TASKS
+
+
+def _one_error_line(capsys, argv) -> str:
+    try:
+        status = main(argv)
+    except SystemExit as exit_:  # argparse usage errors
+        status = exit_.code
+    err = capsys.readouterr().err.strip()
+    assert status == 2 and "Traceback" not in err and len(err.splitlines()) >= 1, err
+    return err.splitlines()[-1]
+
+
+def test_bad_command_lines_print_one_error_line_and_exit_2(tmp_path, capsys):
+    path = write_spec(tmp_path)
+    table = tmp_path / "t.parquet"
+    pd.DataFrame({"estimator": ["a"], "seed": [0], "final_map_error": [0.5]}).to_parquet(table)
+    for value in ("2", "nan"):
+        assert "confidence" in _one_error_line(capsys, ["sweep", "--summary", str(table), "--confidence", value])
+    assert "--scheduler 'nonsense'" in _one_error_line(
+        capsys, ["sweep", str(path), "--scheduler", "nonsense", "--out", str(tmp_path / "r.parquet")])
+    bad_world = write_spec(tmp_path, SPEC.replace('"corridor:5"', '"corridor:5,p_obs=abc"'), "w.toml")
+    assert "line 2: worlds: world spec 'corridor:5,p_obs=abc': p_obs must be a number" in _one_error_line(
+        capsys, ["sweep", str(bad_world), "--check"])
+    latin = tmp_path / "latin.toml"
+    latin.write_bytes(SPEC.replace('name = "small"', 'name = "caf\xe9"').encode("latin-1"))
+    assert "line 1: not UTF-8" in _one_error_line(capsys, ["sweep", str(latin), "--check"])
+
+
+def test_plot_when_a_configuration_failed_on_every_seed(tmp_path, capsys):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    table = pd.DataFrame({"task": [f"t{i}" for i in range(6)], "estimator": ["rbpf"] * 6, "seed": [0, 1, 2] * 2,
+                          "opt_n_particles": [10] * 3 + [40] * 3, "failed": [True] * 3 + [False, True, False],
+                          "final_map_error": [0.9, 0.8, 0.95, 0.1, 0.2, 0.0]})
+    path = tmp_path / "t.parquet"
+    table.to_parquet(path)
+    assert main(["sweep", "--summary", str(path), "--metrics", "failed,final_map_error", "--plot",
+                 str(tmp_path / "p.png"), "--x", "n_particles"]) == 0
+    assert (tmp_path / "p.png").stat().st_size > 0
+
+
+def test_intervals_of_bounded_metrics_stay_in_range():
+    values = np.array([1.0, 0.0, 0.0, 0.0, 0.0])  # t interval: 0.2 +- 0.555
+    table = pd.DataFrame({"estimator": "a", "seed": range(5), "final_map_error": values,
+                          "final_log_evidence": -values})
+    summary = om.summarize(table, ["final_map_error", "final_log_evidence"]).set_index("metric")
+    assert summary.loc["final_map_error", "low"] == 0.0 and summary.loc["final_map_error", "high"] < 1
+    assert summary.loc["final_log_evidence", "low"] < -0.75  # unbounded: the plain t interval
+    low, high = stats.t.interval(0.95, 4, loc=0.2, scale=stats.sem(values))
+    assert summary.loc["final_map_error", "high"] == pytest.approx(high)
+
+
+def test_option_columns_are_typed_and_parts_assemble_without_the_spec(serial_table, tmp_path):
+    assert serial_table["opt_n_particles"].dtype == "Int64"  # not floats beside exact's missing values
+    assert serial_table["opt_n_particles"].isna().sum() == 2 * 2 * 3
+    out = tmp_path / "r.parquet"
+    table = om.sweep(sweeps.parse_spec(SPEC), workers=0, out=out, progress=False)
+    alone = sweeps.collect(sweeps.default_results_dir(out))  # no spec: every part in the folder
+    order = ["world", "estimator", "options", "seed"]
+    pd.testing.assert_frame_equal(without_timing(alone.sort_values(order)), without_timing(table.sort_values(order)))
+    from onlinemap.tables import read_provenance
+
+    meta = read_provenance(out)
+    assert meta["onlinemap_version"] == om.__version__ and "n_particles" in meta["source"]
+    assert "git_commit" in meta
+
+
+def test_planner_options_come_from_the_registry_without_building_one(monkeypatch):
+    policies = pytest.importorskip("policies")
+    assert policies.planner_options("entropy_collect") == {"gamma": 0.95, "replan_every": 1}
+    monkeypatch.setattr(policies.EntropyExplorer, "__init__", lambda *a, **k: pytest.fail("built a planner"))
+    with pytest.raises(om.SpecError, match="planners.entropy.gama: unknown option"):
+        sweeps.parse_spec('worlds = ["door"]\nseeds = 1\nsteps = 5\n[planners.entropy]\ngama = 0.9\n'
+                          '[estimators.bk]\n')
+
+
+def test_parquet_output_without_pyarrow_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "pyarrow", None)  # import pyarrow now raises ImportError
+    path = write_spec(tmp_path)
+    monkeypatch.setattr(sweeps.runner, "run_task", lambda task: pytest.fail("a task ran"))
+    line = _one_error_line(capsys, ["sweep", str(path), "--workers", "0", "--out", str(tmp_path / "r.parquet")])
+    assert "needs pyarrow" in line and not (tmp_path / "r.parts").exists()
+    assert "use a .csv or .parquet" in _one_error_line(capsys, ["sweep", str(path), "--out", str(tmp_path / "r.txt")])

@@ -9,11 +9,13 @@ import json
 import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
 
 import onlinemap as om
+from onlinemap import checkpoint as checkpoint_module
 from onlinemap.cli import main
 from onlinemap.cli.track import parse_options, summarize
 from onlinemap.worlds import parse_world
@@ -159,3 +161,131 @@ def test_track_refuses_a_checkpoint_of_another_world_or_options(tmp_path, monkey
     assert "--every K needs --checkpoint" in capsys.readouterr().err
     assert track_in_process(monkeypatch, ["--option", "colour=red"]) == 2
     assert "no option 'colour'" in capsys.readouterr().err
+
+
+def test_signals_during_the_final_save_keep_every_printed_step(tmp_path):
+    """Regression (issue 14 item 3): SIGTERM during the final save, or a second Ctrl-C, left a
+    traceback, no checkpoint, and printed steps missing from the saved state. Here a stream of
+    SIGTERM and SIGINT hits the process from the end of its input until it exits: no traceback,
+    every stderr line is JSON, and the checkpoint holds every printed step."""
+    world = "corridor:16"  # exact state 16 x 2**16 floats (8 MB): a save takes a while
+    ck = tmp_path / "ck.npz"
+    proc = subprocess.Popen([sys.executable, "-m", "onlinemap", "track", "--world", world, "--estimator", "exact",
+                             "--checkpoint", str(ck), "--every", "1000"],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    printed = []
+    for t in range(6):
+        proc.stdin.write(json.dumps({"observation": t % 2, **({"action": 1} if t else {})}) + "\n")
+        proc.stdin.flush()
+        printed.append(json.loads(proc.stdout.readline())["t"])
+    proc.stdin.close()  # end of input: the final save starts
+    sent = 0
+    while proc.poll() is None:
+        proc.send_signal((signal.SIGTERM, signal.SIGINT)[sent % 2])
+        sent += 1
+        time.sleep(0.001)
+    err = proc.stderr.read()
+    assert "Traceback" not in err, err
+    events = [json.loads(line) for line in err.splitlines()]
+    assert proc.returncode in (0, 130), (proc.returncode, events)
+    assert {"event": "checkpoint", "t": printed[-1], "path": str(ck)} in events
+    assert sent >= 1 and om.load(ck).t == printed[-1] == 5
+
+
+def test_sigint_twice_while_stepping(tmp_path):
+    """Two Ctrl-C while the process waits for input: one clean stop, the state saved once."""
+    model = parse_world(WORLD).model
+    run = random_run(model, 4, seed=1)
+    ck = tmp_path / "ck.npz"
+    proc = subprocess.Popen(command("exact", [], "--checkpoint", str(ck)), stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    for line in lines_of(model, run):
+        proc.stdin.write(line + "\n")
+        proc.stdin.flush()
+        proc.stdout.readline()
+    proc.send_signal(signal.SIGINT)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    events = [json.loads(line) for line in err.splitlines()]
+    assert [e["event"] for e in events if "event" in e] == ["start", "checkpoint", "stopped"]
+    assert om.load(ck).t == 3
+
+
+def test_hostile_lines_are_refused_one_by_one(monkeypatch, capsys):
+    """Regression (issue 14 item 6): 1000 nested arrays raised an uncaught RecursionError and the
+    rest of the input was lost; a huge line was held in memory and echoed whole."""
+    huge = json.dumps({"observation": "x" * 200_000})
+    text = "\n".join(["[" * 1000 + "]" * 1000, huge, '{"observation": 0}', "\xff", '{"action": 1, "observation": 1}'])
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO(text.encode("utf-8", "surrogateescape")
+                                                                  .replace(b"\xc3\xbf", b"\xff"))))
+    assert main(["track", "--world", WORLD, "--estimator", "exact"]) == 0
+    out, err = capsys.readouterr()
+    assert [json.loads(line)["t"] for line in out.splitlines()] == [0, 1]
+    errors = [json.loads(line) for line in err.splitlines() if '"error"' in line]
+    assert [(e["line"], e["error"]) for e in errors] == [(1, "MalformedLineError"), (2, "MalformedLineError"),
+                                                         (4, "MalformedLineError")]
+    assert "1000 brackets" in errors[0]["message"] and "longer than 65536" in errors[1]["message"]
+    assert "UTF-8" in errors[2]["message"]
+    assert max(len(line) for line in err.splitlines()) < 1000  # nothing echoed whole
+
+
+def test_long_value_is_quoted_as_an_excerpt(monkeypatch, capsys):
+    text = json.dumps({"observation": "y" * 30_000}) + "\n"
+    assert track_in_process(monkeypatch, [], text) == 0
+    err = capsys.readouterr().err
+    assert "InvalidObservationError" in err and "characters)" in err and len(err) < 2000
+
+
+def test_closed_stdout_exits_quietly_without_saving_undelivered_steps(tmp_path):
+    """Regression (issue 14 item 6): ``| head -1``: exit quietly; the checkpoint holds no step whose
+    output could not be written."""
+    ck = tmp_path / "ck.npz"
+    lines = [json.dumps({"observation": 0})] + [json.dumps({"action": 1, "observation": t % 2}) for t in range(5000)]
+    shell = (f"{sys.executable} -m onlinemap track --world {WORLD} --estimator exact --checkpoint {ck} --every 7 "
+             f"| head -1")
+    done = subprocess.run(["bash", "-o", "pipefail", "-c", shell], input="\n".join(lines) + "\n",
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "Traceback" not in done.stderr and "Exception" not in done.stderr, done.stderr
+    assert json.loads(done.stdout)["t"] == 0
+    events = [json.loads(line) for line in done.stderr.splitlines()]
+    closed = [e for e in events if e.get("event") == "stdout closed"]
+    assert len(closed) == 1
+    saved = [e["t"] for e in events if e.get("event") == "checkpoint"]
+    assert closed[0]["t"] == (saved[-1] if saved else -1)
+    if saved:  # every saved step was written to the pipe before its checkpoint
+        assert om.load(ck).t == saved[-1]
+
+
+def test_unwritable_checkpoint_is_refused_at_start(tmp_path, monkeypatch, capsys):
+    """Regression (issue 14 item 4): the first save failed after steps were processed, with a
+    double traceback. Now: one error line at start-up, exit 2, nothing read."""
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    assert track_in_process(monkeypatch, ["--checkpoint", str(blocker / "ck.npz")], '{"observation": 0}\n') == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and "cannot write checkpoint" in err
+
+
+def test_failed_save_reports_one_line_and_keeps_the_previous_file(tmp_path, monkeypatch, capsys):
+    """A full disk at the second save: one JSON error line, the first checkpoint kept, the loop goes
+    on; the final save succeeds once space is back."""
+    ck = tmp_path / "ck.npz"
+    real_savez, calls = np.savez, []
+
+    def flaky(file, **entries):
+        calls.append(1)
+        if len(calls) == 2:
+            raise OSError(28, "No space left on device")
+        real_savez(file, **entries)
+
+    monkeypatch.setattr(checkpoint_module.np, "savez", flaky)
+    text = "".join(json.dumps({"observation": 0, **({"action": 1} if t else {})}) + "\n" for t in range(5))
+    assert track_in_process(monkeypatch, ["--checkpoint", str(ck), "--every", "2"], text) == 0
+    out, err = capsys.readouterr()
+    assert [json.loads(line)["t"] for line in out.splitlines()] == [0, 1, 2, 3, 4]
+    lines = [json.loads(line) for line in err.splitlines()]
+    failures = [e for e in lines if e.get("error") == "CheckpointError"]
+    assert len(failures) == 1 and failures[0]["t"] == 3 and "No space left" in failures[0]["message"]
+    assert [e["t"] for e in lines if e.get("event") == "checkpoint"] == [1, 4]
+    assert om.load(ck).t == 4

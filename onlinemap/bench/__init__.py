@@ -15,10 +15,11 @@ from typing import Callable
 
 import numpy as np
 import pandas as pd
-from tqdm.auto import tqdm
+from ..progress import tqdm
 
 BENCHMARK_MODULES = ("exact", "peers", "rbpf", "em", "planning", "checkpoint")
 _BENCHMARKS: dict[str, Callable[[bool], list[dict]]] = {}
+_FIGURES: dict[str, Callable[[pd.DataFrame], dict]] = {}
 
 
 def benchmark(name: str):
@@ -29,6 +30,26 @@ def benchmark(name: str):
         return fn
 
     return decorate
+
+
+def figure(name: str):
+    """Decorator registering the figures of benchmark ``name``: a function (its rows of a
+    :func:`run_benchmarks` table) -> ``{file stem: matplotlib Figure}``."""
+
+    def decorate(fn):
+        _FIGURES[name] = fn
+        return fn
+
+    return decorate
+
+
+def benchmark_figures(table: pd.DataFrame) -> dict:
+    """``{file stem: Figure}`` of every benchmark in ``table`` that draws figures."""
+    figures = {}
+    for name, rows in table.groupby("benchmark", sort=False):
+        if name in _FIGURES:
+            figures.update(_FIGURES[name](rows.reset_index(drop=True)))
+    return figures
 
 
 def available_benchmarks() -> tuple[str, ...]:

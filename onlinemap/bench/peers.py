@@ -73,7 +73,7 @@ def _baum_welch_rows(quick: bool) -> list[dict]:
         symbols = run.observations.reshape(-1, 1)
 
         def mine():
-            return baum_welch(model, run.actions, run.observations, n_iter=n_iter, tol=-np.inf,
+            return baum_welch(model, run.actions, run.observations, n_iter=n_iter, tol=0.0,
                               pseudo_count=0.0, initial=initial)
 
         def theirs():

@@ -1,8 +1,22 @@
-"""``onlinemap bench rbpf``: ms per RBPF step for 100, 1000 and 10000 particles on corridors of
+"""``onlinemap bench rbpf``: the RBPF's resampling schemes side by side (accuracy against exact
+Bayes), then ms per RBPF step at scale.
+
+Accuracy rows (``accuracy ...``): the optimal proposal with residual resampling against
+Fearnhead-Clifford enumeration with optimal resampling, on the same random runs in the same
+process (60 steps; 8-cell corridors, static and ``p_change = 0.02``, and a static 3 x 3 binary
+grid; 20 runs each, 3 with ``--quick``). ``tv`` is the total-variation distance to exact
+(location TV + mean cell TV, averaged over the steps, then over the runs); ``ms`` the median
+over runs of the ms per step (update and belief). Each Fearnhead-Clifford row has as reference
+the residual row at the same particles: ``tv_ratio`` = its TV over residual's (target <= 0.6 at
+100 and 1000 particles), and ``tv_ratio_equal_ms`` = its TV over residual's TV at the same ms
+per step (residual's curve interpolated in log-log; < 1 means more accurate per millisecond).
+``onlinemap bench rbpf --out DIR`` draws TV against particles and against ms per step.
+
+Scale rows: ms per RBPF step for 100, 1000 and 10000 particles on corridors of
 64 and 1024 cells (K = 2) and on 32 x 32 and 64 x 64 door worlds (K = 4, the 10 x 10 layout
 tiled), static and dynamic, against one read+write pass over the (P, N, K) particle maps.
 
-Four rows per case, each a separate cost (none includes another):
+Five rows per case, each a separate cost (none includes another):
 
 - ``update, no resampling``: median over the steps that did not resample; the proposal and
   weighting read two cells per particle, O(P K^2), plus copy-on-write of shared blocks
@@ -11,16 +25,21 @@ Four rows per case, each a separate cost (none includes another):
   copies the block table rows, N / B indices, of the particles that replace dropped ones;
   the writes that follow copy the shared blocks they touch).
 - ``update, resample every step``: median with ``resample_threshold=1.0``.
+- ``update, fearnhead_clifford``: median with ``resampling="fearnhead_clifford"`` (every step
+  enumerates 2 children per particle and keeps P), after ``log2 P`` more warm-up steps (it
+  starts from one particle, so the first steps have fewer).
 - ``belief.map mixture``: building the Belief after a step (one pass over the block rows in
   use, at most the P N K floats of unshared maps; K^2 flops per out-of-date cell in a
-  dynamic world), paid only when the belief is read.
+  dynamic world), paid only when the belief is read; for each scheme.
 
 Amortised = the medians of quiet and of resampling steps weighted by how often each occurs:
 on a shared machine other processes add 5-10 ms stalls to a tenth of the steps, which a plain
 mean would report as the filter's cost (the plain mean is in column ``mean_ms``).
 
 Target (the issue's): 1000 particles on 32 x 32 with K = 4 at <= 1 ms per amortised update;
-it is an absolute time, so its ``target`` ratio is ``1 ms / reference_ms`` of that row. Where
+it is an absolute time, so its ``target`` ratio is ``1 ms / reference_ms`` of that row; likewise
+10000 particles on the dynamic 64 x 64 door world at <= 10 ms per update and <= 10 ms for
+``belief.map``, for both schemes. Where
 the particle maps are large (P N K >= 1e6, so fixed per-call overhead does not dominate):
 resampling every step <= 1 pass (copying at most every row once), and the static mixture
 <= 1 pass (it reads the array once; a pass reads and writes it).
@@ -28,14 +47,18 @@ resampling every step <= 1 pass (copying at most every row once), and the static
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
+import pandas as pd
+from tqdm.auto import tqdm
 
-from ..estimators import make_estimator
-from ..model import DOOR_WORLD_10X10, corridor, door_world
+from ..estimators import make_estimator, run_estimator
+from ..metrics import total_variation
+from ..model import DOOR_WORLD_10X10, corridor, door_world, grid_model
 from ..simulate import random_walk, simulate
-from . import benchmark, copy_pass_ms
+from . import benchmark, copy_pass_ms, figure
 
 
 def tiled_door_world(rows: int, cols: int, p_door: float):
@@ -54,9 +77,15 @@ def _worlds(quick: bool):
             yield f"door {side}x{side} {kind}", *tiled_door_world(side, side, 0.01 if dynamic else 0.0)
 
 
-def _step_times(model, run, n_particles, threshold, n_steps, warmup=5):
-    """Seconds per update (array) and whether each resampled, after ``warmup`` steps."""
-    est = make_estimator("rbpf", model, n_particles=n_particles, seed=0, resample_threshold=threshold)
+SCALE_MAX_BYTES = 8 * 2**30
+
+
+def _step_times(model, run, n_particles, n_steps, warmup=5, **options):
+    """Seconds per update (array) and whether each resampled, after ``warmup`` steps; seconds for the
+    belief after the last."""
+    # the guard bounds the worst case (every particle owning all its blocks: 4 GB at 10^4 particles
+    # on 64 x 64); particles share most blocks, and these runs use a few hundred MB
+    est = make_estimator("rbpf", model, n_particles=n_particles, seed=0, max_bytes=SCALE_MAX_BYTES, **options)
     times, resampled = [], []
     for t in range(warmup + n_steps):
         args = (None if t == 0 else run.actions[t - 1], run.observations[t])
@@ -72,9 +101,129 @@ def _step_times(model, run, n_particles, threshold, n_steps, warmup=5):
     return np.array(times), np.array(resampled), time.perf_counter() - start
 
 
+# --- accuracy: the two resampling schemes against exact, same runs, same process --------------------
+SCHEMES = {"residual": {"proposal": "optimal", "resampling": "residual"},
+           "fearnhead_clifford": {"resampling": "fearnhead_clifford"}}
+ACCURACY_STEPS = 60
+TV_TARGET = 0.6  # Fearnhead-Clifford TV / residual TV at equal particles (100 and 1000)
+
+
+def accuracy_worlds() -> dict:
+    """The issue's small worlds, where exact Bayes is cheap (N K^N <= 4608 states)."""
+    return {"corridor:8 static": corridor(8), "corridor:8 p_change=0.02": corridor(8, p_change=0.02),
+            "grid 3x3 K=2 static": grid_model(3, 3, 2)}
+
+
+def tv_to_exact(trajectory, exact) -> float:
+    """Location TV + mean cell TV to exact, averaged over the steps."""
+    return float(np.mean(total_variation(trajectory.location, exact.location)
+                         + total_variation(trajectory.map, exact.map).mean(axis=-1)))
+
+
+def accuracy_table(particle_counts=(30, 100, 300, 1000), n_runs: int = 20, n_steps: int = ACCURACY_STEPS,
+                   progress: bool = False) -> pd.DataFrame:
+    """One row per (world, scheme, particles): ``tv`` (mean over runs of :func:`tv_to_exact`),
+    ``tv_se`` (its standard error), ``ms`` (median over runs of ms per step, update and belief).
+    Run r of every world uses seed r for the run and for the filter; schemes alternate within a
+    run so that machine load hits both alike. Cost: O(runs * sum(P) * steps * schemes)."""
+    rows = []
+    worlds = accuracy_worlds()
+    with tqdm(total=len(worlds) * n_runs, desc="rbpf accuracy", disable=not progress, leave=False) as bar:
+        for name, model in worlds.items():
+            tv, ms = {}, {}
+            for seed in range(n_runs):
+                rng = np.random.default_rng(seed)
+                run = simulate(model, None, random_walk(model, n_steps - 1, rng), rng)
+                exact = run_estimator(make_estimator("exact", model), run.actions, run.observations)
+                for n_particles in particle_counts:
+                    for scheme, options in SCHEMES.items():
+                        est = make_estimator("rbpf", model, n_particles=n_particles, seed=seed, **options)
+                        start = time.perf_counter()
+                        trajectory = run_estimator(est, run.actions, run.observations)
+                        seconds = time.perf_counter() - start
+                        tv.setdefault((scheme, n_particles), []).append(tv_to_exact(trajectory, exact))
+                        ms.setdefault((scheme, n_particles), []).append(1e3 * seconds / run.n_steps)
+                bar.update()
+            for (scheme, n_particles), values in tv.items():
+                rows.append({"world": name, "scheme": scheme, "n_particles": n_particles, "tv": np.mean(values),
+                             "tv_se": np.std(values, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else np.nan,
+                             "ms": float(np.median(ms[scheme, n_particles]))})
+    return pd.DataFrame(rows)
+
+
+def _interpolated_tv(curve: pd.DataFrame, ms: float) -> float:
+    """TV of a scheme at ``ms`` per step: its (ms, tv) points interpolated in log-log (NaN
+    outside the measured range)."""
+    curve = curve.sort_values("ms")
+    x, y = np.log(curve["ms"].to_numpy()), np.log(curve["tv"].to_numpy())
+    if not x[0] <= np.log(ms) <= x[-1]:
+        return np.nan
+    return float(np.exp(np.interp(np.log(ms), x, y)))
+
+
+def accuracy_rows(table: pd.DataFrame) -> list[dict]:
+    """Benchmark rows from :func:`accuracy_table`: each scheme's ms per step against residual's
+    at the same particles, with ``tv``, ``tv_ratio`` (target 0.6 at 100 and 1000 particles, in
+    ``tv_target``) and ``tv_ratio_equal_ms``."""
+    rows = []
+    for (world, n_particles), group in table.groupby(["world", "n_particles"], sort=False):
+        base = group[group["scheme"] == "residual"].iloc[0]
+        for row in group.itertuples():
+            ratio = row.tv / base.tv
+            residual_curve = table[(table["world"] == world) & (table["scheme"] == "residual")]
+            rows.append({"case": f"accuracy {world} P={n_particles}: {row.scheme}", "ms": row.ms,
+                         "reference": "optimal proposal + residual, same runs and P", "reference_ms": base.ms,
+                         "target": np.nan, "tv": row.tv, "tv_se": row.tv_se, "tv_ratio": ratio,
+                         "tv_target": TV_TARGET if row.scheme != "residual" and n_particles in (100, 1000) else np.nan,
+                         "tv_ratio_equal_ms": row.tv / _interpolated_tv(residual_curve, row.ms)})
+    return rows
+
+
+def accuracy_figure(table: pd.DataFrame):
+    """TV to exact against particles (top) and against ms per step (bottom), one column per
+    world, one line per scheme (error bars: 2 standard errors)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
+
+    worlds = list(dict.fromkeys(table["world"]))
+    fig, axes = plt.subplots(2, len(worlds), figsize=(4.2 * len(worlds), 7), squeeze=False)
+    for column, world in enumerate(worlds):
+        for scheme, curve in table[table["world"] == world].groupby("scheme", sort=False):
+            curve = curve.sort_values("n_particles")
+            for ax, x in zip(axes[:, column], ("n_particles", "ms")):
+                ax.errorbar(curve[x], curve["tv"], yerr=2 * curve["tv_se"], marker="o", capsize=2, label=scheme)
+        for ax, xlabel in zip(axes[:, column], ("particles", "ms per step (update + belief)")):
+            ax.set(xscale="log", yscale="log", xlabel=xlabel, ylabel="TV to exact")
+            ax.xaxis.set_minor_formatter(NullFormatter())  # minor labels of a short log axis overlap
+            ax.grid(True, which="both", alpha=0.3)
+        axes[0, column].set_title(world)
+    axes[0, 0].legend()
+    fig.tight_layout()
+    return fig
+
+
+@figure("rbpf")
+def rbpf_figures(table: pd.DataFrame) -> dict:
+    """``{"rbpf_accuracy": Figure}`` from the accuracy rows of a ``bench rbpf`` table."""
+    accuracy = table[table["case"].str.startswith("accuracy ")]
+    if accuracy.empty:
+        return {}
+    parsed = accuracy["case"].str.extract(r"^accuracy (?P<world>.+) P=(?P<n_particles>\d+): (?P<scheme>\S+)$")
+    frame = parsed.assign(n_particles=parsed["n_particles"].astype(int), tv=accuracy["tv"].to_numpy(),
+                          tv_se=accuracy["tv_se"].to_numpy(), ms=accuracy["ms"].to_numpy())
+    return {"rbpf_accuracy": accuracy_figure(frame)}
+
+
+def _tightest(*targets: float) -> float:
+    """The smallest of the finite targets (NaN if none)."""
+    finite = [t for t in targets if np.isfinite(t)]
+    return min(finite) if finite else np.nan
+
+
 @benchmark("rbpf")
 def bench_rbpf(quick: bool) -> list[dict]:
-    rows = []
+    rows = accuracy_rows(accuracy_table(n_runs=3 if quick else 20,
+                                        particle_counts=(30, 100, 1000) if quick else (30, 100, 300, 1000, 3000)))
     particle_counts = (100, 1000) if quick else (100, 1000, 10_000)
     for name, model, true_map in _worlds(quick):
         rng = np.random.default_rng(1)
@@ -86,8 +235,9 @@ def bench_rbpf(quick: bool) -> list[dict]:
             common = {"reference": f"copy of P*N*K = {size:.3g} floats", "reference_ms": reference}
             case = f"{name} K={model.n_labels} P={n_particles}"
             amortised_target = 1.0 / reference if (n_particles == 1000 and name.startswith("door 32x32")) else np.nan
+            scale_target = 10.0 / reference if (n_particles == 10_000 and name == "door 64x64 dynamic") else np.nan
             pass_target = 1.0 if size >= 1e6 else np.nan
-            times, resampled, belief_s = _step_times(model, run, n_particles, 0.5, n_steps)
+            times, resampled, belief_s = _step_times(model, run, n_particles, n_steps, resampling="residual")
             quiet = times[~resampled]
             if quiet.size:
                 ms = 1e3 * np.median(quiet)
@@ -97,12 +247,20 @@ def bench_rbpf(quick: bool) -> list[dict]:
             ms = 1e3 * sum(np.median(times[resampled == kind]) * np.mean(resampled == kind)
                            for kind in (False, True) if np.any(resampled == kind))
             rows.append({"case": f"{case}: update, ESS < 0.5 P ({fraction:.0%} resample)", "ms": ms, **common,
-                         "target": amortised_target, "mean_ms": 1e3 * times.mean()})
-            every, _, _ = _step_times(model, run, n_particles, 1.0, n_steps)
+                         "target": _tightest(amortised_target, scale_target), "mean_ms": 1e3 * times.mean()})
+            every, _, _ = _step_times(model, run, n_particles, n_steps, resampling="residual", resample_threshold=1.0)
             ms = 1e3 * np.median(every)
             rows.append({"case": f"{case}: update, resample every step", "ms": ms, **common,
                          "target": pass_target, "mean_ms": 1e3 * every.mean()})
-            ms = 1e3 * belief_s
-            rows.append({"case": f"{case}: belief.map mixture", "ms": ms, **common,
-                         "target": pass_target if model.is_static else np.nan})
+            rows.append({"case": f"{case}: belief.map mixture", "ms": 1e3 * belief_s, **common,
+                         "target": _tightest(pass_target if model.is_static else np.nan, scale_target)})
+            # Fearnhead-Clifford starts from one particle and doubles at most each step: time it
+            # once all P slots can be live
+            enumerated, _, enumerated_belief_s = _step_times(model, run, n_particles, n_steps,
+                                                             warmup=5 + math.ceil(math.log2(n_particles)),
+                                                             resampling="fearnhead_clifford")
+            rows.append({"case": f"{case}: update, fearnhead_clifford", "ms": 1e3 * np.median(enumerated), **common,
+                         "target": scale_target, "mean_ms": 1e3 * enumerated.mean()})
+            rows.append({"case": f"{case}: belief.map mixture, fearnhead_clifford", "ms": 1e3 * enumerated_belief_s,
+                         **common, "target": scale_target})
     return rows

@@ -11,8 +11,9 @@ import numpy as np
 import pandas as pd
 
 from ..bench import _COLUMNS as _STANDARD
-from ..bench import available_benchmarks, benchmark_record, run_benchmarks
-from .common import print_table
+from ..bench import available_benchmarks, benchmark_figures, benchmark_record, run_benchmarks
+from ..progress import show_progress
+from .common import add_out_argument, check_table_format, print_table, write_tables
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -21,12 +22,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "(those needing a missing optional peer library are skipped). "
                                    "ratio = ms / reference_ms; a row meets its target when "
                                    f"ratio <= target. Available: {', '.join(available_benchmarks())}.")
-    p.add_argument("names", nargs="*", metavar="NAME", help="benchmarks to run (default: all)")
+    p.add_argument("names", nargs="*", metavar="NAME", type=benchmark_name, help="benchmarks to run (default: all)")
     p.add_argument("--quick", action="store_true", help="small sizes, for a smoke test")
     p.add_argument("--json", metavar="FILE",  # every column, as the benchmarks gave them
                    help="also write the table with machine info, versions, time and git commit as "
                         "JSON; a .jsonl FILE gets one line appended per run (a history)")
+    add_out_argument(p, "bench.csv (the table, every column), bench.json (the same with machine info) and "
+                        "the figures of benchmarks that draw some (rbpf: rbpf_accuracy.png, TV to exact "
+                        "against particles and against ms per step)")
     p.set_defaults(func=bench)
+
+
+def benchmark_name(text: str) -> str:
+    """A registered benchmark's name (argparse type)."""
+    if text not in available_benchmarks():
+        raise argparse.ArgumentTypeError(f"unknown benchmark {text!r}; available: {', '.join(available_benchmarks())}")
+    return text
 
 
 def readable(table: pd.DataFrame) -> pd.DataFrame:
@@ -44,7 +55,10 @@ def readable(table: pd.DataFrame) -> pd.DataFrame:
 
 
 def bench(args: argparse.Namespace) -> int:
-    table = run_benchmarks(args.names, quick=args.quick, progress=True)
+    check_table_format(args.out, args.format)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    table = run_benchmarks(args.names, quick=args.quick, progress=show_progress())
     print_table(readable(table))
     judged = table["meets_target"].dropna()
     if len(judged):
@@ -54,9 +68,17 @@ def bench(args: argparse.Namespace) -> int:
               (f"; missed: {', '.join(missed)}" if len(missed) else ""))
     for name, reason in table.attrs.get("skipped", {}).items():
         print(f"skipped {name}: {reason}", file=sys.stderr)
+    record = benchmark_record(table, args.quick) if args.out is not None or args.json else None
+    if args.out is not None:
+        write_tables({"bench": table}, args.out, args.format)
+        (args.out / "bench.json").write_text(json.dumps(record, indent=2))
+        print(f"wrote {args.out / 'bench.json'}")
+        from ..plots import save
+
+        for stem, fig in benchmark_figures(table).items():
+            print(f"wrote {save(fig, args.out / f'{stem}.png')}")
     if args.json:
         path = Path(args.json)
-        record = benchmark_record(table, args.quick)
         if path.suffix == ".jsonl":
             with path.open("a") as stream:
                 stream.write(json.dumps(record) + "\n")

@@ -9,6 +9,7 @@ from .. import plots
 from ..compare import (DEFAULT_PARTICLES, DEFAULT_WORLDS, accuracy_study, error_over_time_figure,
                        error_vs_particles_figure, summarise)
 from ..errors import OnlineMapError
+from ..evaluate import TIMING_NOTE
 from .common import print_table, split_list, write_table
 
 
@@ -29,7 +30,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--particles", default=",".join(map(str, DEFAULT_PARTICLES)),
                    help="comma-separated particle counts for rbpf (default 10,50,100,1000)")
     p.add_argument("--seed", type=int, default=0, help="seed of maps, walks, noise and particle filters")
-    p.add_argument("--out", metavar="DIR", help="directory for compare_steps.csv, compare_summary.csv and figures")
+    p.add_argument("--workers", type=int, default=0,
+                   help="0 (default): run in this process; N: on a local dask cluster of N processes")
+    p.add_argument("--out", metavar="DIR", help="directory for compare_steps.csv, compare_summary.csv and figures "
+                                                "(and compare.parts/, the finished runs: a rerun resumes)")
     p.set_defaults(func=compare)
 
 
@@ -41,13 +45,17 @@ def compare(args: argparse.Namespace) -> int:
         raise OnlineMapError(f"--particles must be comma-separated integers, got {args.particles!r}") from None
     if args.runs < 1 or args.steps < 1 or not particles or min(particles) < 1:
         raise OnlineMapError("--runs, --steps and every particle count must be at least 1")
+    if args.workers < 0:
+        raise OnlineMapError(f"--workers must be >= 0, got {args.workers}")
+    out = Path(args.out) if args.out else None
     print(f"{args.runs} runs x {args.steps} steps on {', '.join(worlds)}; rbpf with {particles} particles; "
           f"seed {args.seed}")
-    per_step = accuracy_study(worlds, args.runs, args.steps, particles, args.seed)
+    per_step = accuracy_study(worlds, args.runs, args.steps, particles, args.seed, workers=args.workers or None,
+                              out=None if out is None else out / "compare.parquet")
     summary = summarise(per_step)
     print_table(summary)
-    if args.out:
-        out = Path(args.out)
+    print(TIMING_NOTE)
+    if out is not None:
         written = [write_table(per_step, out / "compare_steps.csv"), write_table(summary, out / "compare_summary.csv"),
                    plots.save(error_vs_particles_figure(summary), out / "compare_error_vs_particles.png"),
                    plots.save(error_over_time_figure(per_step), out / "compare_error_over_time.png")]

@@ -1,4 +1,5 @@
-"""``onlinemap explore``: active exploration runs, planners compared on the same seeds."""
+"""``onlinemap explore``: active exploration runs, planners compared on the same seeds, run as a
+sweep on the one experiment engine and scored by :mod:`onlinemap.evaluate`."""
 
 from __future__ import annotations
 
@@ -6,70 +7,96 @@ import argparse
 from pathlib import Path
 
 from ..errors import ModelError
-from ..plots import save
+from ..evaluate import TIMING_NOTE, from_steps
 from ..worlds import parse_world
 from .common import OPTION_HELP, parse_options, print_table, split_list, write_table
 
-DEFAULT_WORLD = "door,p_door=0.01,p_move=0.9"
+#: the paper's world: the built-in 10 x 10 door world, uniform label prior, p_move 0.8
+DEFAULT_WORLD = "door,p_move=0.8"
+DEFAULT_PLANNERS = "entropy,random,sweep"
+SUMMARY_METRICS = ("final_map_error", "wrong_cells", "mean_location_error", "late_door_error", "ms_per_step")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    from policies import PLANNERS
+
     p = sub.add_parser(
-        "explore", help="let planners explore a world (entropy policy vs random walk vs sweep)",
+        "explore", help="let planners explore a world (entropy policy vs random walk vs sweep, ...)",
         description="Closed-loop exploration: each planner chooses actions from the estimator's belief, "
-                    "the simulated world moves and is observed, the estimator updates. Prints one summary "
-                    "row per planner (averaged over seeds) and writes two figures: map and door-state "
-                    "error over time, and the world with the visit counts.")
+                    "the simulated world moves and is observed, the estimator updates. Every planner runs on "
+                    "the same seeds (paired), as a sweep (onlinemap.sweeps). Prints, per planner, the final "
+                    "map error, the wrong cells (most probable label wrong) at the end, the mean location "
+                    "error and, in a world with doors, the late door-state error (mean over the last two "
+                    "thirds of the run), each with a confidence interval over seeds. With --out DIR, writes "
+                    "explore_steps.csv, explore_runs.csv, explore_summary.csv, explore_errors.png and "
+                    "explore_visits.png there (and explore.parts/: a rerun resumes).")
     p.add_argument("--world", default=DEFAULT_WORLD,
-                   help=f"world spec (see `onlinemap run --help`); default {DEFAULT_WORLD}")
-    p.add_argument("--floor-plan", default=None, metavar="CONFIDENCE",
-                   help="label prior from the world's own map: CONFIDENCE on each cell's label, door state "
-                        "unknown (policies.floor_plan_prior), or 'none' for the uniform prior; default 0.8 "
-                        "for door worlds, none otherwise")
-    p.add_argument("--planner", default="entropy,random,sweep",
-                   help="comma-separated: entropy, entropy_collect, random, sweep (default entropy,random,sweep)")
+                   help=f"world spec (see `onlinemap run --help`); default {DEFAULT_WORLD} (the paper's: the "
+                        f"built-in door world, uniform label prior)")
+    p.add_argument("--floor-plan", type=float, default=None, metavar="CONFIDENCE",
+                   help="give the robot a label prior from the world's own map: CONFIDENCE on each cell's "
+                        "label, door states unknown (policies.with_floor_plan); default: the uniform prior")
+    p.add_argument("--planner", default=DEFAULT_PLANNERS,
+                   help=f"comma-separated registered planners: {', '.join(PLANNERS)} (default {DEFAULT_PLANNERS})")
     p.add_argument("--estimator", default="rbpf", help="registry name of the estimator (default rbpf)")
-    p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
-                   help=f"estimator option, repeatable (e.g. --option n_particles=200); {OPTION_HELP}")
+    p.add_argument("-o", "--option", action="append", default=[], metavar="KEY=VALUE",
+                   help=f"estimator option, repeatable (e.g. -o n_particles=200); {OPTION_HELP}")
     p.add_argument("--steps", type=int, default=500, help="steps per run, first observation included (default 500)")
     p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     p.add_argument("--repeats", type=int, default=1, help="runs per planner, seeds seed..seed+repeats-1 (default 1)")
-    p.add_argument("--out", help="write the per-step table (planner, seed, t, ...) to .csv or .parquet")
-    p.add_argument("--figures", default=".", metavar="DIR",
-                   help="directory for explore_errors.png and explore_visits.png (default: current directory)")
-    p.add_argument("--no-figures", action="store_true", help="do not write figures")
+    p.add_argument("--confidence", type=float, default=0.95, help="confidence of the intervals (default 0.95)")
+    p.add_argument("--workers", type=int, default=0,
+                   help="0 (default): run in this process; N: on a local dask cluster of N processes")
+    p.add_argument("--out", metavar="DIR", help="directory for the tables and figures (nothing is written without it)")
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    from policies import PLANNERS, compare_planners, plot_errors, plot_visits, summarize, with_floor_plan
+def exploration_spec(args: argparse.Namespace, planners: list[str]) -> dict:
+    """The sweep spec of an ``explore`` command line."""
+    options = {key: list(value) if isinstance(value, tuple) else value
+               for key, value in parse_options(args.option).items()}
+    options = {key: [value] if isinstance(value, list) else value for key, value in options.items()}
+    spec = {"name": "explore", "worlds": [args.world], "seeds": list(range(args.seed, args.seed + args.repeats)),
+            "steps": args.steps, "rows": "step", "planners": {name: {} for name in planners},
+            "estimators": {args.estimator: options}}
+    if args.floor_plan is not None:
+        spec["floor_plan"] = args.floor_plan
+    return spec
 
-    if args.steps < 1 or args.repeats < 1:
-        raise ModelError("--steps and --repeats must be at least 1")
+
+def run(args: argparse.Namespace) -> int:
+    from policies import PLANNERS, plot_errors, plot_visits
+
+    from .. import plots
+    from ..sweeps import summarize, summary_table, sweep
+
+    if args.steps < 1 or args.repeats < 1 or args.workers < 0:
+        raise ModelError("--steps and --repeats must be at least 1, --workers at least 0")
+    if not 0 < args.confidence < 1:
+        raise ModelError(f"--confidence must be in (0, 1), got {args.confidence}")
     planners = split_list(args.planner)
     unknown = [name for name in planners if name not in PLANNERS]
     if unknown or not planners:
         raise ModelError(f"--planner: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(PLANNERS)}")
     world = parse_world(args.world)
-    model, true_map = world.model, world.initial_map(args.seed)
-    floor_plan = args.floor_plan
-    if floor_plan is None:
-        floor_plan = "0.8" if world.true_map is not None and model.rows > 1 else "none"
-    if floor_plan != "none":
-        try:
-            model = with_floor_plan(model, true_map, float(floor_plan))
-        except ValueError as error:
-            raise ModelError(f"--floor-plan {floor_plan}: {error}") from None
-    seeds = list(range(args.seed, args.seed + args.repeats))
-    print(f"world {args.world} (floor plan: {floor_plan}): {model}; estimator {args.estimator}, "
-          f"{args.steps} steps, seeds {seeds[0]}..{seeds[-1]}")
-    table = compare_planners(model, true_map, planners, args.estimator, args.steps, seeds,
-                             estimator_options=parse_options(args.option))
-    print_table(summarize(table, model, true_map))
-    if args.out:
-        print(f"wrote {write_table(table, args.out)}")
-    if not args.no_figures:
-        for name, figure in (("explore_errors.png", plot_errors(table)),
-                             ("explore_visits.png", plot_visits(model, true_map, table))):
-            print(f"wrote {save(figure, Path(args.figures) / name, dpi=110)}")
+    out = Path(args.out) if args.out else None
+    print(f"world {args.world} (floor plan: {args.floor_plan or 'none, uniform prior'}); estimator {args.estimator}"
+          f" {parse_options(args.option) or ''}, {args.steps} steps, seeds {args.seed}..{args.seed + args.repeats - 1}")
+    steps = sweep(exploration_spec(args, planners), workers=args.workers or None, progress=True,
+                  results_dir=None if out is None else out / "explore.parts")
+    runs = from_steps(steps, ["planner", "seed"])
+    runs.insert(1, "kind", "explore")
+    metrics = [m for m in SUMMARY_METRICS if m in runs]
+    summary = summarize(runs, metrics, args.confidence)
+    print(f"mean [{args.confidence:.0%} confidence interval] over {args.repeats} seed(s), per planner:")
+    print_table(summary_table(summary))
+    print(TIMING_NOTE + "; wrong_cells: cells whose most probable label is wrong at the end")
+    if out is not None:
+        written = [write_table(steps, out / "explore_steps.csv"), write_table(runs, out / "explore_runs.csv"),
+                   write_table(summary, out / "explore_summary.csv")]
+        true_map = world.initial_map(0)
+        columns = [c for c in ("map_error", "door_error") if c in steps]
+        written += [plots.save(plot_errors(steps, columns=columns), out / "explore_errors.png", dpi=110),
+                    plots.save(plot_visits(world.model, true_map, steps), out / "explore_visits.png", dpi=110)]
+        print(f"wrote {', '.join(str(p) for p in written)}")
     return 0

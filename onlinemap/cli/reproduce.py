@@ -9,10 +9,13 @@ import numpy as np
 import pandas as pd
 
 from .. import metrics, plots, reproduce as reproductions
-from ..reproduce import ASTRAY_BELOW, LOST_BELOW, corridor_table, random_corridor_study, with_intervals
+from ..errors import OnlineMapError
+from ..evaluate import ASTRAY_BELOW, LOST_BELOW, TIMING_NOTE
+from ..reproduce import corridor_table, random_corridor_study, with_intervals
 from ..scenarios import murphy_corridor
 from .common import print_table, write_table
 
+MAPPING_STUDIES = ("loop", "anneal", "blocking")  # onlinemap.mapping_studies.STUDIES, imported lazily
 OVERVIEW_ONLINE_EM = "online_em W=max decay=1.0"  # the one online EM row of the overview figure
 
 
@@ -26,16 +29,27 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "P(true location) on the way back, the final P(true location) and the time per step. "
                     "With --out, also write CSV tables and PNG figures (location posterior and map "
                     "marginals over time per estimator). With --random N, instead run N random "
-                    "corridors (6-12 cells, random labels and slip time) and report how often each "
+                    "corridors on the sweep engine (6-12 cells, each length equally often, so N is rounded up to "
+                    "a multiple of 7; random labels and slip time) and report how often each "
                     "estimator goes astray on the way back (P(true location) < 0.05), ends lost (< 0.5) or "
                     "with a wrong map, with Wilson confidence intervals.")
-    p.add_argument("scenario", choices=["corridor"], help="which reproduction")
+    p.add_argument("scenario", choices=["corridor", *MAPPING_STUDIES],
+                   help="which reproduction; loop, anneal and blocking are the EM-mapping studies of "
+                        "onlinemap.mapping_studies (a table with intervals over --runs random runs)")
     p.add_argument("--out", metavar="DIR", help="directory for CSV tables and PNG figures")
     p.add_argument("--random", metavar="N_RUNS", type=_positive_int, default=0,
-                   help="run the random-corridor study over N_RUNS runs instead of the scripted run")
-    p.add_argument("--seed", type=int, default=0, help="seed of the random study (default 0)")
+                   help="run the random-corridor study over N_RUNS runs (rounded up to a multiple of 7) "
+                        "instead of the scripted run")
+    p.add_argument("--seed", type=int, default=0, help="first seed of the random study (default 0)")
+    p.add_argument("--workers", type=int, default=0,
+                   help="random study: 0 (default) runs in this process, N on a local dask cluster of N processes")
     p.add_argument("--confidence", type=_probability, default=0.95,
                    help="confidence of the intervals, in (0, 1) (default 0.95)")
+    p.add_argument("--runs", type=_positive_int, default=200,
+                   help="loop, anneal, blocking: number of random runs (default 200)")
+    p.add_argument("--planners", default="",
+                   help="blocking: comma-separated planners of policies.explore run besides the random walk "
+                        "(e.g. entropy,sweep; default none)")
     p.set_defaults(func=reproduce)
 
 
@@ -69,6 +83,7 @@ def scripted(out: Path | None) -> None:
           f"slip at step {int(np.flatnonzero(run.slipped)[0]) + 1}; p_obs 0.9, p_move 0.8")
     table, trajectories = corridor_table(run)
     print_table(table)
+    print(TIMING_NOTE)
     if out is None:
         return
     written = [write_table(table, out / "corridor_summary.csv"),
@@ -82,9 +97,11 @@ def scripted(out: Path | None) -> None:
     print(f"wrote {len(written)} files to {out}/ (corridor_overview.png first)")
 
 
-def study(n_runs: int, seed: int, confidence: float, out: Path | None) -> None:
-    print(f"{n_runs} random corridors (6-12 cells, uniform binary labels, one slip on the way out), seed {seed}")
-    per_run, summary = random_corridor_study(n_runs, seed, confidence=confidence)
+def study(n_runs: int, seed: int, confidence: float, out: Path | None, workers: int | None) -> None:
+    per_run, summary = random_corridor_study(n_runs, seed, confidence=confidence, workers=workers,
+                                             out=None if out is None else out / "corridor_random.parquet")
+    print(f"{per_run['seed'].nunique() * per_run['n_cells'].nunique()} random corridors (each length 6-12 "
+          f"equally often, uniform binary labels, one slip on the way out), seeds from {seed}")
     print(f"fraction of runs [{confidence:.0%} Wilson interval]; lost: P(true location) < {LOST_BELOW}, "
           f"astray: < {ASTRAY_BELOW}; wrong map: a visited cell's most likely label is wrong")
     print_table(with_intervals(summary))
@@ -96,10 +113,32 @@ def study(n_runs: int, seed: int, confidence: float, out: Path | None) -> None:
     print(f"wrote {', '.join(str(p) for p in written)}")
 
 
+def mapping_study(name: str, args: argparse.Namespace, out: Path | None) -> None:
+    """Run one study of :mod:`onlinemap.mapping_studies`, print its table, write CSVs under ``out``."""
+    from .. import mapping_studies
+
+    study_function, measures, description = mapping_studies.STUDIES[name]
+    options = {"confidence": args.confidence}
+    if name == "blocking":
+        options["policies"] = ("random walk", *[p.strip() for p in args.planners.split(",") if p.strip()])
+    result = study_function(args.runs, args.seed, **options)
+    print(f"{name}: {description}; {args.runs} runs from seed {args.seed}; mean [{args.confidence:.0%} interval]")
+    print_table(mapping_studies.with_intervals(result.summary, measures))
+    if out is not None:
+        written = [write_table(result.per_run, out / f"{name}_runs.csv"),
+                   write_table(result.summary, out / f"{name}_summary.csv")]
+        print(f"wrote {', '.join(str(p) for p in written)}")
+
+
 def reproduce(args: argparse.Namespace) -> int:
+    if args.scenario in MAPPING_STUDIES:
+        mapping_study(args.scenario, args, Path(args.out) if args.out else None)
+        return 0
+    if args.workers < 0:
+        raise OnlineMapError(f"--workers must be >= 0, got {args.workers}")
     out = Path(args.out) if args.out else None
     if args.random:
-        study(args.random, args.seed, args.confidence, out)
+        study(args.random, args.seed, args.confidence, out, args.workers or None)
     else:
         scripted(out)
     return 0

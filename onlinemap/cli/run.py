@@ -3,61 +3,126 @@
 from __future__ import annotations
 
 import argparse
+import logging
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
-from tqdm.auto import tqdm
 
 from .. import metrics
-from ..errors import MemoryLimitError
-from ..estimators import make_estimator, run_estimator
-from ..worlds import parse_world
-from .common import print_table, split_list, write_table
+from ..arrays import DEFAULT_MAX_BYTES
+from ..errors import MemoryLimitError, UnknownEstimatorError
+from ..estimators import available_estimators, estimator_options, make_estimator, run_estimator
+from ..progress import show_progress, tqdm
+from ..rng import ESTIMATOR_STREAM, derived_seed
+from .common import (OPTION_HELP, add_out_argument, check_table_format, name_list,
+                     non_negative_int, parse_options, positive_int, print_table, world, write_tables)
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+log = logging.getLogger(__name__)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="simulate a world and compare estimators on it",
-                       description="Simulate a random-walk run and run estimators side by side; "
-                                   "prints final map error, mean location error and time per step.")
-    p.add_argument("--world", default="corridor:8",
+                       description="Simulate a random-walk run and run estimators side by side; prints the "
+                                   "final map error and the mean and final location error, then the time per "
+                                   "step. The same --seed gives the same run and the same tables (estimators "
+                                   "that sample, such as rbpf, are seeded from it too).")
+    p.add_argument("--world", default="corridor:8", type=world,
                    help="world spec: corridor:N[,p_change=..,n_labels=..], grid:RxC, door[,p_door=..] "
                         "(default corridor:8)")
-    p.add_argument("--estimators", default="exact,dead_reckoning",
-                   help="comma-separated registry names (default exact,dead_reckoning)")
-    p.add_argument("--steps", type=int, default=60, help="number of steps, first observation included")
-    p.add_argument("--seed", type=int, default=0, help="seed of the map, the walk and the noise")
-    p.add_argument("--out", help="write per-step metrics (one row per estimator and step) to .csv or .parquet")
+    p.add_argument("--estimators", default="exact,dead_reckoning", type=name_list,
+                   help=f"comma-separated registry names (default exact,dead_reckoning; available: "
+                        f"{', '.join(available_estimators())})")
+    p.add_argument("--steps", type=positive_int, default=60, help="number of steps, first observation included")
+    p.add_argument("--seed", type=non_negative_int, default=0,
+                   help="seed of the map, the walk, the noise and the estimators (default 0)")
+    p.add_argument("-o", "--option", action="append", default=[], metavar="[NAME.]KEY=VALUE",
+                   help="estimator option, repeatable: KEY=VALUE goes to every listed estimator that has "
+                        f"option KEY, NAME.KEY=VALUE to estimator NAME only; {OPTION_HELP}")
+    add_out_argument(p, "summary.csv (one row per estimator) and steps.csv (one row per estimator and step)")
     p.set_defaults(func=run)
 
 
+def options_per_estimator(names: list[str], pairs: list[str]) -> dict[str, dict[str, object]]:
+    """Route ``-o`` options: ``KEY=V`` to every estimator in ``names`` with option KEY, ``NAME.KEY=V``
+    to NAME. Unknown names and keys that no listed estimator takes raise ``UnknownEstimatorError``."""
+    known = {name: estimator_options(name) for name in names}  # raises for an unknown name
+    routed: dict[str, dict[str, object]] = {name: {} for name in names}
+    for key, value in parse_options(pairs).items():
+        target, dot, option = key.rpartition(".")
+        if dot and target not in known:
+            raise UnknownEstimatorError(f"--option {key}: {target!r} is not one of the estimators run "
+                                        f"({', '.join(names)})")
+        takers = [target] if dot else [name for name in names if option in known[name]]
+        if not takers or option not in known[takers[0]]:
+            raise UnknownEstimatorError(f"--option {key}: no estimator in {', '.join(takers or names)} "
+                                        f"has an option {option!r}")
+        for name in takers:
+            routed[name][option] = value
+    return routed
+
+
 def compare_on_run(run, names: list[str], options: dict[str, dict] | None = None,
-                   progress: bool = True) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Run each estimator over ``run``; returns (summary table, per-step table)."""
+                   progress: bool = True, seed: int | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Run each estimator over ``run``; returns (summary table, per-step table). Both depend only
+    on the run and the seeds; the time per step, which does not, is ``summary.attrs["ms_per_step"]``.
+
+    An estimator with a ``seed`` option that ``options`` leaves unset gets
+    ``derived_seed(seed, ESTIMATOR_STREAM)`` when ``seed`` is given (as in a sweep task with that
+    seed), so the tables are reproducible.
+    Estimators that would exceed their memory limit are skipped (logged as a warning).
+    Cost: T steps of each estimator; memory O(T N K) per estimator.
+    """
+    import pandas as pd  # here, so that `onlinemap run --help` does not load it
+
     options = options or {}
-    rows, steps = [], []
-    for name in tqdm(names, desc="estimators", disable=not progress, leave=False):
+    rows, steps, times = [], [], {}
+    for name in tqdm(names, desc="estimators", disable=not show_progress(progress), leave=False):
+        chosen = dict(options.get(name, {}))
+        if seed is not None and "seed" in estimator_options(name) and chosen.get("seed") is None:
+            chosen["seed"] = derived_seed(seed, ESTIMATOR_STREAM)
         try:
-            estimator = make_estimator(name, run.model, **options.get(name, {}))
+            estimator = make_estimator(name, run.model, **chosen)
         except MemoryLimitError as error:
-            print(f"{name}: skipped: {error}")
+            log.warning("%s: skipped: %s", name, error)
             continue
         trajectory = run_estimator(estimator, run.actions, run.observations)
         map_err = metrics.map_error(trajectory.map, run.maps)
         loc_err = metrics.location_error(trajectory.location, run.locations)
         rows.append({"estimator": name, "final_map_error": map_err[-1],
-                     "mean_location_error": loc_err.mean(), "final_location_error": loc_err[-1],
-                     "ms_per_step": 1e3 * trajectory.seconds_per_step})
+                     "mean_location_error": loc_err.mean(), "final_location_error": loc_err[-1]})
+        times[name] = 1e3 * trajectory.seconds_per_step
         steps.append(pd.DataFrame({"estimator": name, "t": np.arange(run.n_steps), "map_error": map_err,
                                    "location_error": loc_err, "log_evidence": trajectory.log_evidence}))
-    return pd.DataFrame(rows), pd.concat(steps, ignore_index=True) if steps else pd.DataFrame()
+    summary = pd.DataFrame(rows)
+    summary.attrs["ms_per_step"] = times
+    return summary, pd.concat(steps, ignore_index=True) if steps else pd.DataFrame()
+
+
+def check_run_size(model, n_steps: int, max_bytes: int = DEFAULT_MAX_BYTES) -> None:
+    """Refuse a run whose stacked beliefs, (T, N, K + 2) floats per estimator, exceed ``max_bytes``."""
+    need = 8 * n_steps * model.n_cells * (model.n_labels + 2)
+    if need > max_bytes:
+        raise MemoryLimitError(f"{n_steps} steps of {model.n_cells} cells x {model.n_labels} labels need "
+                               f"{need / 2**30:.1f} GiB per estimator (limit {max_bytes / 2**30:.0f} GiB); "
+                               "use fewer steps or a smaller world")
 
 
 def run(args: argparse.Namespace) -> int:
-    world = parse_world(args.world)
-    sim = world.simulate(args.steps, args.seed)
-    print(f"world {args.world}: {world.model}; {sim.n_steps} steps, {int(sim.slipped.sum())} slips, seed {args.seed}")
-    summary, per_step = compare_on_run(sim, split_list(args.estimators))
+    check_table_format(args.out, args.format)
+    options = options_per_estimator(args.estimators, args.option)
+    spec = args.world
+    check_run_size(spec.model, args.steps)
+    sim = spec.simulate(args.steps, args.seed)
+    print(f"world {spec.spec}: {spec.model}; {sim.n_steps} steps, {int(sim.slipped.sum())} slips, seed {args.seed}")
+    summary, per_step = compare_on_run(sim, args.estimators, options, seed=args.seed)
+    if not len(summary):
+        raise MemoryLimitError(f"none of {', '.join(args.estimators)} fits in memory on {spec.spec} (see the "
+                               "warnings above); use an approximate estimator (bk, rbpf)")
     print_table(summary)
-    if args.out:
-        print(f"wrote {write_table(per_step, args.out)}")
+    print("ms per step: " + ", ".join(f"{name} {ms:.3g}" for name, ms in summary.attrs["ms_per_step"].items()))
+    if args.out is not None:
+        write_tables({"summary": summary, "steps": per_step}, args.out, args.format)
     return 0

@@ -10,8 +10,10 @@ from pathlib import Path
 import pandas as pd
 
 from ..errors import OnlineMapError
-from ..sweeps import (default_results_dir, finished_tasks, load_spec, plot_sweep, summarize, summary_table,
-                      sweep)
+from ..evaluate import TIMING_NOTE
+from ..sweeps import (MAX_TASKS, default_results_dir, finished_tasks, load_spec, plot_sweep, summarize,
+                      summary_table, sweep)
+from ..tables import check_writable
 from .common import print_table, split_list
 
 
@@ -38,13 +40,27 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--metrics", type=split_list,
                    help="comma-separated metrics for the summary (default: map and location errors, "
                         "failed, distances to the reference, door error, ms per step, those present)")
-    p.add_argument("--confidence", type=float, default=0.95, help="confidence level (default 0.95)")
+    p.add_argument("--confidence", type=confidence_level, default=0.95,
+                   help="confidence level, in (0, 1) (default 0.95)")
+    p.add_argument("--max-tasks", type=int, default=MAX_TASKS,
+                   help=f"refuse specs with more tasks than this (default {MAX_TASKS:,})")
     p.add_argument("--plot", metavar="PNG", help="with --summary (or after a run): plot the metrics "
                                                  "against --x with confidence intervals")
     p.add_argument("--x", help="for --plot: an option (e.g. n_particles) or column (world, steps) on "
                                "the horizontal axis")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
+
+
+def confidence_level(text: str) -> float:
+    """argparse type: a confidence level strictly between 0 and 1 (refuses nan, 2, 0)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
+    if not 0 < value < 1:  # also false for nan
+        raise argparse.ArgumentTypeError(f"must be in (0, 1), got {text}")
+    return value
 
 
 def _read(path: str) -> pd.DataFrame:
@@ -57,7 +73,7 @@ def _read(path: str) -> pd.DataFrame:
 
 # printed when --metrics is not given (those the table has): per-task and per-step names
 DEFAULT_METRICS = ("final_map_error", "final_location_error", "failed", "mean_map_tv", "mean_location_tv",
-                   "final_door_error", "map_error", "location_error", "map_tv", "location_tv", "door_error",
+                   "late_door_error", "map_error", "location_error", "map_tv", "location_tv", "door_error",
                    "ms_per_step")
 
 
@@ -68,11 +84,18 @@ def _print_summary(table: pd.DataFrame, args: argparse.Namespace) -> None:
     step_note = " at each task's last step" if "t" in table.columns else ""
     print(f"mean [{args.confidence:.0%} confidence interval] over seeds, per configuration{step_note}:")
     print_table(summary_table(summary))
+    if "ms_per_step" in args.metrics:
+        print(TIMING_NOTE)
     if args.plot:
         if not args.x:
             raise OnlineMapError("--plot needs --x (an option such as n_particles, or world, steps)")
         plot_sweep(table, args.x, args.metrics or ["final_map_error"], args.plot, args.confidence)
         print(f"wrote {args.plot}")
+
+
+def check_writable_figure(path: str) -> None:
+    if Path(path).suffix.lower() not in (".png", ".pdf", ".svg"):
+        raise OnlineMapError(f"--plot {path}: use a .png, .pdf or .svg file name")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -87,8 +110,10 @@ def run(args: argparse.Namespace) -> int:
         raise OnlineMapError(f"--workers must be >= 0, got {args.workers}")
     if args.scheduler and args.workers is not None:
         raise OnlineMapError("--workers sizes a local cluster; with --scheduler the cluster is already there")
-    spec = load_spec(args.spec)
-    out = Path(args.out or f"{Path(args.spec).stem}.parquet")
+    out = check_writable(Path(args.out or f"{Path(args.spec).stem}.parquet"))
+    if args.plot:
+        check_writable_figure(args.plot)
+    spec = load_spec(args.spec, args.max_tasks)
     results_dir = Path(args.results_dir) if args.results_dir else default_results_dir(out)
     done = len(finished_tasks(spec.tasks, results_dir)) if results_dir.exists() else 0
     print(f"sweep {spec.name!r}: {len(spec.tasks)} tasks" +
@@ -97,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     try:
         table = sweep(spec, args.scheduler, workers=args.workers, out=out, results_dir=results_dir,
-                      progress=not args.no_progress)
+                      progress=not args.no_progress, max_tasks=args.max_tasks)
     except KeyboardInterrupt:
         done = len(finished_tasks(spec.tasks, results_dir))
         print(f"\ninterrupted: {done} of {len(spec.tasks)} tasks finished and kept in {results_dir}; "

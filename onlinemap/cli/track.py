@@ -13,18 +13,31 @@ observation) gets one JSON line on stderr, ``{"line": n, "error": type, "message
 changes nothing, and the process keeps reading. Informational events (start, resume,
 checkpoint written) are JSON lines on stderr too.
 
+A line longer than :data:`MAX_LINE` characters, with more than :data:`MAX_BRACKETS` brackets,
+or not UTF-8 is refused the same way (memory stays bounded; messages quote at most a short
+excerpt of the input). If stdout is closed (``| head -1``), the process exits quietly with
+status 0; the step whose output could not be written is not saved.
+
 With ``--checkpoint FILE``, the state is saved atomically every ``--every K`` steps, at the
-end of the input and on SIGTERM or SIGINT (which stop the loop between steps, never inside
-one); a restarted process finds the file and resumes from it (the next line is step ``t + 1``),
-after checking that the world, estimator and options are the ones it was saved with. Cost per
-line: one ``step`` plus O(N K) for the summary (O(N K) more output with ``--full``).
+end of the input and on SIGTERM or SIGINT. Signals stop the loop between steps, never inside
+one nor inside a save (a second signal does the same as the first); every step printed is in
+the final checkpoint. The path is checked writable at start-up; a save that fails later (full
+disk) reports one JSON error line, keeps the previous file and the loop goes on (the exit
+status is 1 if the final save failed). A restarted process finds the file and resumes from it
+(the next line is step ``t + 1``), after checking that the world, estimator and options are the
+ones it was saved with; a file from another onlinemap version of the same checkpoint format
+loads, one of a newer format only with ``--allow-newer-checkpoint``. Cost per line: one
+``step`` plus O(N K) for the summary (O(N K) more output with ``--full``).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import math
+import os
 import signal
 import sys
 import threading
@@ -40,6 +53,8 @@ from ..worlds import parse_world
 from .common import OPTION_HELP, parse_options
 
 _KEYS = ("action", "observation")
+MAX_LINE = 65536  # characters of one input line (a record is a few dozen)
+MAX_BRACKETS = 32  # '[' and '{' in one line: a record needs one
 
 
 class MalformedLineError(OnlineMapError):
@@ -61,15 +76,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--every", type=int, metavar="K",
                    help="save the checkpoint every K steps (default 100; needs --checkpoint)")
     p.add_argument("--full", action="store_true", help="also print the full location and map marginals")
+    p.add_argument("--allow-newer-checkpoint", action="store_true",
+                   help="try to resume from a checkpoint written in a newer format than this onlinemap reads")
     p.set_defaults(func=track)
 
 
 def parse_line(text: str) -> tuple[object, object]:
     """One input line -> ``(action, observation)``, unvalidated (the estimator checks them)."""
+    brackets = text.count("[") + text.count("{")
+    if brackets > MAX_BRACKETS:
+        raise MalformedLineError(f"{brackets} brackets; a record is one object like "
+                                 "{\"action\": 1, \"observation\": 0}")
     try:
         record = json.loads(text)
-    except ValueError as error:
-        raise MalformedLineError(f"invalid JSON: {error}") from None
+    except (ValueError, RecursionError) as error:
+        raise MalformedLineError(f"invalid JSON: {_excerpt(str(error))}") from None
     if not isinstance(record, dict):
         raise MalformedLineError(f"expected a JSON object like {{\"action\": 1, \"observation\": 0}}, "
                                  f"got {type(record).__name__}")
@@ -117,9 +138,14 @@ def _emit(stream, record: dict) -> None:
     stream.flush()
 
 
-def _resume(path: Path, name: str, world, options: dict[str, object]):
+def _excerpt(text: str, limit: int = 200) -> str:
+    """At most ``limit`` characters of an error message (a value may be megabytes long)."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def _resume(path: Path, name: str, world, options: dict[str, object], allow_newer: bool = False):
     """Load the checkpoint at ``path`` and check it is for this world, estimator and options."""
-    est = load(path)
+    est = load(path, allow_newer=allow_newer)
     if est.name != name:
         raise CheckpointError(f"checkpoint {path} holds a {est.name!r} estimator, not {name!r}")
     field = model_difference(est.model, world.model)
@@ -132,6 +158,36 @@ def _resume(path: Path, name: str, world, options: dict[str, object]):
     return est
 
 
+def read_lines(stream, stop: "_GracefulStop", limit: int = MAX_LINE):
+    """Yield ``(line number, text or error)`` for every line of ``stream`` (text, or binary
+    decoded as UTF-8), reading at most ``limit + 1`` characters at a time: a longer line is
+    skipped to its end without being stored and yields a :class:`MalformedLineError`. Only the
+    wait for input can be interrupted by a stop signal (see :class:`_GracefulStop`)."""
+    source = getattr(stream, "buffer", stream)
+    number = 0
+    while not stop.requested:
+        with stop.interruptible():
+            line = source.readline(limit + 1)
+        if not line:
+            return
+        number += 1
+        if len(line) > limit and not line.endswith(b"\n" if isinstance(line, bytes) else "\n"):
+            skipped = len(line)
+            while line and not line.endswith(b"\n" if isinstance(line, bytes) else "\n"):
+                with stop.interruptible():
+                    line = source.readline(limit + 1)
+                skipped += len(line)
+            yield number, MalformedLineError(f"line longer than {limit} characters ({skipped}); skipped")
+            continue
+        if isinstance(line, bytes):
+            try:
+                line = line.decode("utf-8")
+            except UnicodeDecodeError as error:
+                yield number, MalformedLineError(f"not UTF-8 text: {error.reason} at byte {error.start}")
+                continue
+        yield number, line
+
+
 def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int:
     stdin, stdout, stderr = stdin or sys.stdin, stdout or sys.stdout, stderr or sys.stderr
     if args.every is not None and (args.checkpoint is None or args.every < 1):
@@ -142,43 +198,60 @@ def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int
     est = make_estimator(args.estimator, world.model, **given)  # validates the names and values
     options = est.options
     event = "start"
-    if args.checkpoint is not None and args.checkpoint.exists():
-        est, event = _resume(args.checkpoint, args.estimator, world, options), "resume"
+    if args.checkpoint is not None:
+        checkpoint.check_writable(args.checkpoint)  # fail now, not after the first K steps
+        if os.path.lexists(args.checkpoint):
+            est, event = _resume(args.checkpoint, args.estimator, world, options, args.allow_newer_checkpoint), \
+                "resume"
     model = world.model
     _emit(stderr, {"event": event, "t": est.t, "world": args.world, "estimator": est.name,
                    "options": options,
                    "actions": list(model.action_names), "labels": list(model.label_names)})
-    unsaved = 0
+    saved, status = [est.t], 0
     with _GracefulStop() as stop:
         try:
-            for number, line in enumerate(stdin, 1):
-                text = line.strip()
-                if not text:
-                    continue
-                stop.busy = True
-                try:
-                    belief = est.step(*parse_line(text))
-                except OnlineMapError as error:
-                    _emit(stderr, {"line": number, "error": type(error).__name__, "message": str(error)})
-                else:
-                    unsaved += 1
-                    _emit(stdout, summarize(belief, args.full))
-                    if args.checkpoint is not None and (belief.t + 1) % every == 0:
-                        _save(est, args.checkpoint, stderr)
-                        unsaved = 0
-                finally:
-                    stop.busy = False
-                if stop.requested:
-                    break
-        except _Stopped:
-            pass
-        finally:
-            if args.checkpoint is not None and unsaved:
-                _save(est, args.checkpoint, stderr)
+            _loop(est, args, every, stop, stdin, stdout, stderr, saved)
+        except BrokenPipeError:  # the reader is gone: the last step was not delivered, so it is not saved
+            _quiet_stdout(stdout)
+            _emit(stderr, {"event": "stdout closed", "t": saved[0], "unsaved": est.t - saved[0]})
+            return 0
+        if args.checkpoint is not None and est.t != saved[0] and not _save(est, args.checkpoint, stderr):
+            status = 1
     if stop.requested is not None:
         _emit(stderr, {"event": "stopped", "signal": signal.Signals(stop.requested).name, "t": est.t})
-        return 130 if stop.requested == signal.SIGINT else 0
-    return 0
+        return 130 if stop.requested == signal.SIGINT else status
+    return status
+
+
+def _loop(est, args, every: int, stop: "_GracefulStop", stdin, stdout, stderr, saved: list[int]) -> None:
+    """Step through the input until its end or a stop signal; ``saved[0]`` is the step of the
+    last checkpoint written. Every step is printed before any checkpoint that includes it."""
+    try:
+        for number, line in read_lines(stdin, stop):
+            if isinstance(line, OnlineMapError):
+                _emit(stderr, {"line": number, "error": type(line).__name__, "message": str(line)})
+                continue
+            text = line.strip()
+            if not text:
+                continue
+            try:
+                belief = est.step(*parse_line(text))
+            except OnlineMapError as error:
+                _emit(stderr, {"line": number, "error": type(error).__name__, "message": _excerpt(str(error))})
+                continue
+            _emit(stdout, summarize(belief, args.full))  # a closed stdout raises BrokenPipeError here
+            if args.checkpoint is not None and (belief.t + 1) % every == 0 and _save(est, args.checkpoint, stderr):
+                saved[0] = est.t
+    except _Stopped:  # a signal while waiting for input
+        pass
+
+
+def _quiet_stdout(stdout) -> None:
+    """Point a broken stdout at /dev/null, so that the interpreter's last flush does not fail."""
+    try:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), stdout.fileno())
+    except (OSError, ValueError, AttributeError, io.UnsupportedOperation):
+        pass
 
 
 class _Stopped(Exception):
@@ -186,14 +259,17 @@ class _Stopped(Exception):
 
 
 class _GracefulStop:
-    """SIGTERM and SIGINT end the loop between steps, never inside one: a step cut half-way
-    through its commit could leave an inconsistent state to be checkpointed. While waiting for
-    input the loop stops at once; during a step, right after it. Handlers are restored on exit
-    (installed only in the main thread, where Python delivers signals)."""
+    """SIGTERM and SIGINT end the loop between steps, never inside one, and never inside a
+    save: the handler only records the signal, except while the loop waits for input (then it
+    raises :class:`_Stopped` to end the wait). A second signal does the same as the first. The
+    final checkpoint is then written with the signals still recorded, not acted on. Handlers are
+    installed only in the main thread (where Python delivers signals) and restored on exit,
+    unless a stop was requested: then both signals are ignored from there on, so that one
+    arriving while the interpreter shuts down cannot kill it or print a traceback."""
 
     def __init__(self) -> None:
-        self.busy = False
         self.requested: int | None = None
+        self._waiting = False
         self._previous: dict[int, object] = {}
 
     def __enter__(self) -> "_GracefulStop":
@@ -203,15 +279,34 @@ class _GracefulStop:
         return self
 
     def __exit__(self, *exc) -> None:
-        for number, handler in self._previous.items():
-            signal.signal(number, handler)
+        for number, handler in self._previous.items():  # once stopping, ignored until the process exits
+            signal.signal(number, handler if self.requested is None else signal.SIG_IGN)
+
+    @contextlib.contextmanager
+    def interruptible(self):
+        """The block (a wait for input) ends with :class:`_Stopped` when a stop signal arrives."""
+        if self.requested:
+            raise _Stopped
+        self._waiting = True
+        try:
+            yield
+        finally:
+            self._waiting = False
 
     def _handle(self, number, frame) -> None:
         self.requested = number
-        if not self.busy:
+        if self._waiting:
+            self._waiting = False
             raise _Stopped
 
 
-def _save(est, path: Path, stderr) -> None:
-    checkpoint.save(est, path)
+def _save(est, path: Path, stderr) -> bool:
+    """Checkpoint ``est``; on failure report one JSON error line (the previous file is kept).
+    Returns whether it was saved."""
+    try:
+        checkpoint.save(est, path)
+    except CheckpointError as error:
+        _emit(stderr, {"error": "CheckpointError", "t": est.t, "message": _excerpt(str(error), 400)})
+        return False
     _emit(stderr, {"event": "checkpoint", "t": est.t, "path": str(path)})
+    return True

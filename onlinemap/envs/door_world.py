@@ -1,7 +1,9 @@
 """The door world as a gymnasium environment.
 
-The agent sees only the label of the cell it is in (``Discrete(K)``) and chooses among the
-model's moves (``Discrete(A)``); the world moves, changes and is observed exactly as in
+The agent sees only the label of the cell it is in (``Discrete(K)``), or with a sensor footprint
+of F offsets one reading per offset (``MultiDiscrete``, values -1..K-1, -1 off the grid), and
+chooses among the model's moves (``Discrete(A)``); blocking labels (``blocking=True``: walls and
+closed doors) cannot be entered; the world moves, changes and is observed exactly as in
 :func:`onlinemap.simulate` (:func:`onlinemap.simulate.world_step`). The true location and map
 are in ``info`` for evaluation, not for the agent.
 
@@ -39,11 +41,13 @@ class DoorWorldEnv(gym.Env):
 
     def __init__(self, layout: str | None = None, *, p_obs: float = 0.9, p_move: float = 0.8,
                  p_door: float = 0.01, start: int | None = None, model: GridModel | None = None,
-                 true_map=None, render_mode: str | None = None, cell_pixels: int = 16):
+                 true_map=None, render_mode: str | None = None, cell_pixels: int = 16,
+                 blocking: bool = False, footprint=None):
         if model is None:
             if true_map is not None:
                 raise ModelError("true_map goes with model=...; a layout defines its own map")
-            model, true_map = door_world(layout, p_obs=p_obs, p_move=p_move, p_door=p_door, start=start)
+            model, true_map = door_world(layout, p_obs=p_obs, p_move=p_move, p_door=p_door, start=start,
+                                         blocking=blocking, footprint=footprint)
         elif layout is not None or true_map is None:
             raise ModelError("pass either a layout, or a model together with its true_map")
         initial = check_map(model, true_map)
@@ -53,7 +57,12 @@ class DoorWorldEnv(gym.Env):
         self.initial_map = read_only(initial)
         self.render_mode = render_mode
         self.cell_pixels = int(cell_pixels)
-        self.observation_space = gym.spaces.Discrete(model.n_labels)
+        off_grid = bool(model.off_grid_patterns.any())  # readings may be -1
+        if model.n_readings == 1:
+            self.observation_space = gym.spaces.Discrete(model.n_labels + off_grid, start=-int(off_grid))
+        else:
+            self.observation_space = gym.spaces.MultiDiscrete(np.full(model.n_readings, model.n_labels + 1),
+                                                              start=np.full(model.n_readings, -1))
         self.action_space = gym.spaces.Discrete(model.n_actions)
         self._location: int | None = None
         self._labels = initial
@@ -71,7 +80,10 @@ class DoorWorldEnv(gym.Env):
         self._location, self._labels, observation = world_step(
             self.model, self.model.start, self.initial_map, None, self.np_random)
         self._visited[self._location] = True
-        return np.int64(observation), self._info()
+        return self._observation(observation), self._info()
+
+    def _observation(self, observation):
+        return np.int64(observation) if self.model.n_readings == 1 else np.asarray(observation, dtype=np.int64)
 
     def step(self, action):
         if self._location is None:
@@ -82,7 +94,7 @@ class DoorWorldEnv(gym.Env):
         self._t += 1
         reward = 0.0 if self._visited[self._location] else 1.0
         self._visited[self._location] = True
-        return np.int64(observation), reward, False, False, self._info()
+        return self._observation(observation), reward, False, False, self._info()
 
     def render(self):
         if self.render_mode == "ansi":

@@ -17,8 +17,8 @@ from typing import Callable, NamedTuple, Protocol, runtime_checkable
 import numpy as np
 
 from .. import checkpoint
-from ..belief import Belief
-from ..errors import CheckpointError, UnknownEstimatorError
+from ..belief import Belief, beliefs_frame
+from ..errors import CheckpointError, ModelError, OnlineMapError, UnknownEstimatorError
 from ..model import GridModel
 
 _REGISTRY: dict[str, type] = {}
@@ -47,9 +47,10 @@ class Estimator(Protocol):
     def state_dict(self) -> dict:
         """Everything needed to continue bit for bit (default: :func:`onlinemap.checkpoint.state_dict`)."""
 
-    def load_state_dict(self, state: dict, *, strict_version: bool = True) -> None:
-        """Restore a :meth:`state_dict` (checked against this estimator's name, model and options;
-        with ``strict_version``, also against this onlinemap's version)."""
+    def load_state_dict(self, state: dict, *, strict_version: bool = False, allow_newer: bool = False) -> None:
+        """Restore a :meth:`state_dict` (checked against this estimator's name, model, options and
+        state invariants; refused if its format is newer than this onlinemap reads, unless
+        ``allow_newer``; with ``strict_version``, also against this onlinemap's version)."""
 
 
 def register(name: str) -> Callable[[type], type]:
@@ -57,9 +58,9 @@ def register(name: str) -> Callable[[type], type]:
 
     It also records the keyword options every instance is built with as ``est.options``
     (defaults filled in) and, unless the class defines its own, gives it the read-only
-    properties ``t`` (from ``self._t``) and ``belief`` (from ``self._belief``) and the generic
-    checkpoint methods ``state_dict()`` / ``load_state_dict(state, strict_version=True)`` of
-    :mod:`onlinemap.checkpoint`.
+    properties ``t`` (from ``self._t``) and ``belief`` (from ``self._belief``), the generic
+    checkpoint methods ``state_dict()`` / ``load_state_dict(state, ...)`` of
+    :mod:`onlinemap.checkpoint`, and a ``repr`` naming the estimator, its model, options and t.
     """
 
     def decorate(cls: type) -> type:
@@ -69,13 +70,20 @@ def register(name: str) -> Callable[[type], type]:
         _record_options(cls)
         for member, default in (("t", _step_index), ("belief", _last_belief),
                                 ("state_dict", checkpoint.state_dict),
-                                ("load_state_dict", checkpoint.load_state_dict)):
+                                ("load_state_dict", checkpoint.load_state_dict),
+                                ("__repr__", _estimator_repr)):
             if member not in vars(cls):
                 setattr(cls, member, default)
         _REGISTRY[name] = cls
         return cls
 
     return decorate
+
+
+def _estimator_repr(self) -> str:
+    """``rbpf(t=3, model=GridModel(...), n_particles=100, ...)``: registry name, last step, model, options."""
+    options = ", ".join(f"{key}={value!r}" for key, value in getattr(self, "options", {}).items())
+    return f"{self.name}(t={self.t}, model={self.model!r}{', ' + options if options else ''})"
 
 
 _step_index = property(lambda self: self._t, doc="Index of the last step taken (-1 before the first).")
@@ -113,7 +121,7 @@ def estimator_options(name: str) -> dict[str, object]:
 def _lookup(name: str) -> type:
     try:
         return _REGISTRY[name]
-    except KeyError:
+    except (KeyError, TypeError):  # TypeError: an unhashable name
         raise UnknownEstimatorError(
             f"unknown estimator {name!r}; available: {', '.join(_REGISTRY)}") from None
 
@@ -122,7 +130,7 @@ def make_estimator(name: str, model: GridModel, **options) -> Estimator:
     """Build the estimator registered as ``name`` for ``model`` with keyword ``options``."""
     cls = _lookup(name)
     if not isinstance(model, GridModel):
-        raise TypeError(f"model must be a GridModel, got {type(model).__name__}")
+        raise ModelError(f"model must be a GridModel, got {type(model).__name__}")
     known = estimator_options(name)
     unknown = sorted(set(options) - set(known))
     if unknown:
@@ -139,6 +147,11 @@ class Trajectory(NamedTuple):
     map: np.ndarray  # (T, N, K)
     log_evidence: np.ndarray  # (T,)
     seconds_per_step: float
+
+    def to_frame(self, model: GridModel | None = None):
+        """The beliefs over time in long format, one row per step and cell (see
+        :func:`onlinemap.belief.beliefs_frame`), for pandas / seaborn. Cost O(T N K)."""
+        return beliefs_frame(self.location, self.map, model)
 
 
 def run_estimator(estimator: Estimator, actions, observations) -> Trajectory:
@@ -181,18 +194,27 @@ def fork(estimator: Estimator) -> Estimator:
     return copy.deepcopy(estimator, memo)
 
 
-def load(path: str | os.PathLike, *, strict_version: bool = True):
+def load(path: str | os.PathLike, *, strict_version: bool = False, allow_newer: bool = False):
     """Build the estimator saved in ``path`` (same name, model and options) and restore its state;
-    the next ``step`` continues exactly where the saved one left off."""
-    state = checkpoint.read(path)  # the header checked, all but the onlinemap version
-    model = checkpoint.decode_model(state["model"])
+    the next ``step`` continues exactly where the saved one left off. Refuses (with
+    :class:`CheckpointError`) a file of a newer format unless ``allow_newer``, and, with
+    ``strict_version``, one written by another onlinemap version."""
+    state = checkpoint.read(path)  # the file and its checksum verified
+    checkpoint.check_header(state, strict_version=strict_version, allow_newer=allow_newer)
+    try:
+        model = checkpoint.decode_model(state["model"])
+    except CheckpointError as error:
+        raise CheckpointError(f"{path}: {error}") from None
     try:
         options = checkpoint.decode_options(state["options"])
     except CheckpointError as error:
         raise CheckpointError(f"{path}: {error}") from None
     try:
-        est = make_estimator(state["estimator"], model, **options)
-    except UnknownEstimatorError as error:
+        est = make_estimator(str(state["estimator"]), model, **options)
+    except OnlineMapError as error:  # an unknown estimator or option, an invalid option value
         raise CheckpointError(f"{path}: {error}") from None
-    est.load_state_dict(state, strict_version=strict_version)  # the version and everything else
+    try:
+        est.load_state_dict(state, strict_version=strict_version, allow_newer=allow_newer)
+    except CheckpointError as error:
+        raise CheckpointError(f"{path}: {error}") from None
     return est

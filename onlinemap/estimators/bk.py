@@ -14,6 +14,14 @@ The projection forgets the correlation between the location and the cells (and b
 cells), which is exactly what map learning with an uncertain location needs: BK is cheap
 (O(N K) per step, O(N K^2) with map dynamics) and, on the corridor, poor.
 ``log_evidence`` sums ``log Z``: the evidence of the factored model, not of the true one.
+
+Blocking labels (DESIGN.md section 7): the prediction, exact from the product then projected,
+moves into cell j with ``p_move * P(m_j passable)`` under ``mu_j`` (the map marginals are not
+changed by motion). With blocking BK projects twice per step, after the prediction (which
+correlates L with the cells it tried to enter) and after the update; a bump therefore teaches
+the map nothing here (exact Bayes and the RBPF do learn from it). A footprint: ``lam_l = [off-grid readings fit l] prod_f mu_{c_f} . O[:, z_f]``
+and each read cell's marginal takes the leave-one-out product of the other readings
+(:func:`bk_footprint_update`). Cost O(N (K + F^2 + F K)) per step, O(N K^2) more when dynamic.
 """
 
 from __future__ import annotations
@@ -24,9 +32,11 @@ import numpy as np
 
 from ..belief import Belief
 from ..errors import ImpossibleObservationError
-from ..model import GridModel, apply_motion
+from ..model import GridModel, apply_motion, passable_probability
 from ..validation import check_step
 from .base import register
+
+_SMALLEST_NORMAL = np.finfo(np.float64).tiny
 
 
 def bk_update(location: np.ndarray, maps: np.ndarray, likelihood: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -40,12 +50,42 @@ def bk_update(location: np.ndarray, maps: np.ndarray, likelihood: np.ndarray) ->
         return location, maps, 0.0
     here = location[:, None] * likelihood[None, :]  # robot in cell i: label weighted by O[k, z]
     elsewhere = (total - joint_loc)[:, None]  # robot elsewhere: cell i's label untouched
-    return joint_loc / total, maps * (here + elsewhere) / total, total
+    return joint_loc / total, np.minimum(maps * (here + elsewhere) / total, 1.0), total  # rounding: <= 1
+
+
+def bk_footprint_update(model: GridModel, location: np.ndarray, maps: np.ndarray,
+                        readings: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`bk_update` for a sensor footprint: the product ``location (N,) x prod_i maps[i]``
+    updated by ``P(z | l, m) = prod_f O[m_{c_f(l)}, z_f]`` (0 where the -1 readings do not fit l),
+    projected onto marginals. readings (F,) or an int (F = 1). O(N F (F + K))."""
+    readings = np.atleast_1d(np.asarray(readings, dtype=np.int64))
+    cells = model.footprint_cells
+    fits = ((cells < 0) == (readings < 0)[None]).all(axis=1)
+    read = fits[:, None] & (cells >= 0)  # (N, F) offset f of location l reads a cell
+    columns = model.sensor[:, np.where(readings < 0, 0, readings)]  # (K, F) O[:, z_f]
+    factor = np.ones(cells.shape)  # (N, F) mu_{c_f(l)} . O[:, z_f]
+    on_l, on_f = np.nonzero(read)
+    factor[on_l, on_f] = np.einsum("ik,ik->i", maps[cells[on_l, on_f]], columns[:, on_f].T)
+    others = np.ones(cells.shape)  # (N, F) leave-one-out products: no division by a zero factor
+    for f in range(cells.shape[1]):
+        others[:, f] = np.prod(np.delete(factor, f, axis=1), axis=1)
+    lam = np.where(fits, factor[:, 0] * others[:, 0], 0.0)  # (N,) P(z | L = l) under the product
+    joint_loc = location * lam
+    total = float(joint_loc.sum())
+    if not total > 0 or not np.isfinite(total):
+        return location, maps, 0.0
+    weight = location[on_l] * others[on_l, on_f]  # q(l) prod_{f' != f}: how cell c_f(l) is weighted
+    target = cells[on_l, on_f]
+    reads_mass = np.bincount(target, weights=weight * factor[on_l, on_f], minlength=model.n_cells)
+    here = np.zeros(maps.shape)
+    np.add.at(here, target, weight[:, None] * columns[:, on_f].T)
+    return joint_loc / total, maps * (here + (total - reads_mass)[:, None]) / total, total
 
 
 @register("bk")
 class BoyenKoller:
-    """Boyen-Koller filter over ``P(L) prod_i P(m_i)``. No options. O(N K^2) per step."""
+    """Boyen-Koller filter over ``P(L) prod_i P(m_i)``. No options. O(N K^2) per step
+    (O(N (K^2 + F^2 + F K)) with a footprint of F offsets)."""
 
     def __init__(self, model: GridModel):
         self.model = model
@@ -59,16 +99,27 @@ class BoyenKoller:
         a, z = check_step(self.model, self._t + 1, action, observation)
         location, maps = self._location, self._maps
         if a is not None:
-            location = apply_motion(self.model, location, a)
+            passable = passable_probability(self.model, maps) if self.model.has_blocking else None
+            location = apply_motion(self.model, location, a, passable)
             if not self.model.is_static:
                 maps = maps @ self.model.change
-        location, maps, total = bk_update(location, maps, self.model.likelihood[z])
+        if self.model.has_footprint:
+            location, maps, total = bk_footprint_update(self.model, location, maps, z)
+            log_scale = 0.0
+        else:
+            likelihood, log_scale = self.model.likelihood[z], 0.0
+            updated = bk_update(location, maps, likelihood)
+            if not updated[2] >= _SMALLEST_NORMAL and likelihood.max() > 0:  # underflow: rescale O[:, z] by its max
+                log_scale = math.log(likelihood.max())
+                updated = bk_update(location, maps, likelihood / likelihood.max())
+            location, maps, total = updated
         if total == 0.0:
             raise ImpossibleObservationError(
-                f"observation {self.model.label_names[z]!r} has probability zero under the factored "
+                f"observation {np.asarray(z).tolist() if self.model.has_footprint else self.model.label_names[z]!r} "
+                f"has probability zero under the factored "
                 f"(Boyen-Koller) belief at step {self._t + 1}")
         self._location, self._maps = location, maps
-        self._log_evidence += math.log(total)
+        self._log_evidence += math.log(total) + log_scale
         self._t += 1
         self._belief = Belief(self._t, location, maps, self._log_evidence)
         return self._belief

@@ -2,13 +2,15 @@
 
 ``P(L_t) = P(L_{t-1}) T[a_t]``; the map belief is the label prior pushed through the map
 dynamics, ``prior C^t``. Observations are validated but carry no information here, so
-``log_evidence`` is NaN. Cost O(N + N K^2) per step.
+``log_evidence`` is NaN. With blocking labels the move into cell j succeeds with
+``p_move * P(m_j passable)`` under that map belief (the label prior pushed through C). Cost
+O(N + N K^2) per step, for any footprint.
 """
 
 from __future__ import annotations
 
 from ..belief import Belief
-from ..model import GridModel, apply_motion
+from ..model import GridModel, apply_motion, passable_probability
 from ..validation import check_step
 from .base import register
 
@@ -27,7 +29,8 @@ class DeadReckoning:
         if a is None:
             location, maps = self.model.location_prior(), self.model.label_prior
         else:
-            location = apply_motion(self.model, self._belief.location, a)
+            passable = passable_probability(self.model, self._belief.map) if self.model.has_blocking else None
+            location = apply_motion(self.model, self._belief.location, a, passable)
             maps = self._belief.map @ self.model.change
         self._t += 1
         self._belief = Belief(self._t, location, maps)

@@ -6,24 +6,33 @@ this is for tiny grids; a guard refuses before allocating more than ``max_bytes`
 
 Filter step cost: static world, one fused read+write pass over the tensor (numba); dynamic
 world, N + 2 passes (C applied along each map axis). Marginals cost about 4/N of a pass more.
+
+Blocking labels or a sensor footprint (DESIGN.md section 7) take a separate numpy path (the fused
+kernel of the paper's model is untouched): motion multiplies the move from ``l`` to its intended
+``j`` by the passability of map axis ``j``, and the update multiplies, for each location ``l``,
+the F footprint cells' axes by ``O[:, z_f]`` (zero where the off-grid readings do not fit ``l``).
+Cost per step O((F + 3) N K^N) plus N passes for a dynamic world; an (N, K^N) int8 table of
+labels (and, with blocking, a float table of passability) is cached per grid size.
 """
 
 from __future__ import annotations
 
 import math
-from functools import reduce
+from functools import lru_cache, reduce
 from typing import NamedTuple
 
 import numpy as np
 
-from ..arrays import DEFAULT_MAX_BYTES
+from .. import arguments
+from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
-from ..errors import ImpossibleObservationError, MemoryLimitError
+from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError
 from ..kernels.exact import change_every_axis, map_marginals as _map_marginals_kernel, motion_observe
 from ..model import GridModel, apply_motion, apply_motion_transpose
 from ..validation import check_sequence, check_step
 from .base import register
 
+_SMALLEST_NORMAL = np.finfo(np.float64).tiny  # below this a total has lost precision (subnormal)
 
 
 def tensor_bytes(model: GridModel, copies: int = 1) -> int:
@@ -64,6 +73,7 @@ class ExactFilter:
     scratch_attributes = ("_scratch", "_joint_map")  # overwritten by every step: not checkpointed
 
     def __init__(self, model: GridModel, *, max_bytes: int = DEFAULT_MAX_BYTES):
+        max_bytes = arguments.byte_limit("max_bytes", max_bytes, InvalidOptionError)
         check_memory(model, 2, max_bytes, "the exact filter (two belief tensors)")
         self.model = model
         self.max_bytes = max_bytes
@@ -80,32 +90,88 @@ class ExactFilter:
 
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
-        model, inv = self.model, 1.0 / self._norm
+        if self.model.has_blocking or self.model.has_footprint:
+            return self._general_step(a, z)
+        model = self.model
         likelihood = model.likelihood[z]
         location = np.empty(model.n_cells)
         out = self._scratch
+        total = self._predict_observe(a, likelihood, 0, out, location)
+        log_scale = 0.0
+        if not _SMALLEST_NORMAL <= total < math.inf:  # underflow: the rare branch
+            total, log_scale = self._rescaled(a, likelihood, out, location)
+        if not total > 0 or not np.isfinite(total):
+            raise ImpossibleObservationError(
+                f"observation {model.label_names[z]!r} has probability zero under the exact belief at step "
+                f"{self._t + 1} (or below float64's range even after rescaling)")
+        self._x, self._scratch = out, self._x
+        self._norm = total
+        self._log_evidence += math.log(total) + log_scale
+        self._t += 1
+        maps = np.minimum(map_marginals(self._joint_map, model.n_cells, model.n_labels) / total, 1.0)  # rounding
+        self._belief = Belief(self._t, location / total, maps, self._log_evidence)
+        return self._belief
+
+    def _predict_observe(self, a, likelihood: np.ndarray, exponent: int, out: np.ndarray,
+                         location: np.ndarray) -> float:
+        """``out`` <- the belief moved by ``a`` (None: no motion), its map changed by C, weighted by
+        ``likelihood`` and scaled by ``2**exponent / _norm``; fills ``location`` and the joint map.
+        Returns the total. One fused pass (static), N + 2 passes (dynamic)."""
+        model, inv = self.model, 1.0 / self._norm
         if a is None:
             self_prob, pred = self._no_motion
-            motion_observe(self._x, out, self_prob, pred, 0.0, inv, likelihood, self._joint_map, location)
+            motion_observe(self._x, out, self_prob, pred, 0.0, math.ldexp(inv, exponent), likelihood,
+                           self._joint_map, location)
         elif model.is_static:
-            motion_observe(self._x, out, model.self_prob[a], model.predecessor[a], model.p_move, inv,
-                           likelihood, self._joint_map, location)
+            motion_observe(self._x, out, model.self_prob[a], model.predecessor[a], model.p_move,
+                           math.ldexp(inv, exponent), likelihood, self._joint_map, location)
         else:
             motion_observe(self._x, out, model.self_prob[a], model.predecessor[a], model.p_move, inv,
                            self._flat, self._joint_map, location)
             change_every_axis(out, model.change)
             self_prob, pred = self._no_motion
-            motion_observe(out, out, self_prob, pred, 0.0, 1.0, likelihood, self._joint_map, location)
+            motion_observe(out, out, self_prob, pred, 0.0, math.ldexp(1.0, exponent), likelihood, self._joint_map,
+                           location)
+        return location.sum()
+
+    def _rescaled(self, a, likelihood: np.ndarray, out: np.ndarray, location: np.ndarray) -> tuple[float, float]:
+        """The step redone when its total is not a normal float (an observation of probability near
+        or below 1e-308): the likelihood divided by its maximum, then, if the total is still
+        subnormal, the belief scaled by a power of two that brings it near 1. Returns
+        ``(total, log of the factor taken out)``; total 0 when even that underflows. Costs one
+        or two more passes, only on this branch."""
+        top = float(likelihood.max())
+        if not top > 0:
+            return 0.0, 0.0
+        likelihood = likelihood / top
+        total = self._predict_observe(a, likelihood, 0, out, location)
+        exponent = -math.frexp(total)[1] if 0 < total < _SMALLEST_NORMAL else 0
+        if exponent and math.isfinite(math.ldexp(1.0 / self._norm, exponent)):
+            total = self._predict_observe(a, likelihood, exponent, out, location)
+        elif exponent:
+            return 0.0, 0.0
+        return total, math.log(top) - exponent * math.log(2.0)
+
+    def _general_step(self, a: int | None, z) -> Belief:
+        """The step with blocking labels or a footprint (numpy, fresh arrays). O((F + 3) N K^N)."""
+        model = self.model
+        x = self._x / self._norm
+        if a is not None:
+            x = blocking_motion(model, x, a)
+            if not model.is_static:
+                change_every_axis(x, model.change)
+        x *= footprint_likelihood(model, z)
+        location = x.sum(axis=1)
         total = location.sum()
         if not total > 0 or not np.isfinite(total):
             raise ImpossibleObservationError(
-                f"observation {model.label_names[z]!r} has probability zero under the exact belief at step "
+                f"observation {np.asarray(z).tolist()!r} has probability zero under the exact belief at step "
                 f"{self._t + 1}")
-        self._x, self._scratch = out, self._x
+        self._x = x
         self._norm = total
         self._log_evidence += math.log(total)
         self._t += 1
-        maps = map_marginals(self._joint_map, model.n_cells, model.n_labels) / total
+        maps = map_marginals(x.sum(axis=0), model.n_cells, model.n_labels) / total
         self._belief = Belief(self._t, location / total, maps, self._log_evidence)
         return self._belief
 
@@ -113,6 +179,67 @@ class ExactFilter:
         """A normalised copy of the joint belief, shape (N, K, ..., K) (N + 1 axes)."""
         shape = (self.model.n_cells,) + (self.model.n_labels,) * self.model.n_cells
         return (self._x / self._norm).reshape(shape)
+
+
+# --- blocking and footprints (numpy; DESIGN.md section 7) ---------------------------------
+@lru_cache(maxsize=4)
+def map_labels(n_cells: int, n_labels: int) -> np.ndarray:
+    """(N, K**N) int8, read-only and cached: label of cell i in the map of flat index m (cell 0
+    the leading axis)."""
+    index = np.arange(n_labels**n_cells)
+    powers = n_labels ** np.arange(n_cells - 1, -1, -1)
+    return read_only(((index[None, :] // powers[:, None]) % n_labels).astype(np.int8))
+
+
+def passable_tensor(model: GridModel) -> np.ndarray:
+    """(N, K**N) float, read-only and cached per (N, K, blocking labels): 1 where cell j's label
+    in map m does not block, else 0. O(N K^N) the first time."""
+    return _passable(model.n_cells, model.n_labels, model.blocking.tobytes())
+
+
+@lru_cache(maxsize=4)
+def _passable(n_cells: int, n_labels: int, blocking: bytes) -> np.ndarray:
+    mask = np.frombuffer(blocking, dtype=bool)
+    return read_only((~mask[map_labels(n_cells, n_labels)]).astype(np.float64))
+
+
+def blocking_motion(model: GridModel, x: np.ndarray, action: int, transpose: bool = False,
+                    passable: np.ndarray | None = None) -> np.ndarray:
+    """Map-dependent motion along axis 0 of x (N, K**N): from ``l`` the intended ``j`` is reached
+    with ``p_move [m_j passable]``, else stay. ``transpose`` for the backward pass
+    (``out[l] = sum_j T(l -> j | m) x[j]``). Fresh array; O(N K^N)."""
+    n = model.n_cells
+    if passable is None:
+        passable = passable_tensor(model) if model.has_blocking else np.ones((n, 1))
+    target = model.neighbors[:, action]
+    movers = np.flatnonzero(target != np.arange(n))
+    go = np.zeros((n, passable.shape[1]))
+    go[movers] = model.p_move * passable[target[movers]]  # (N, M) P(move | l, m)
+    out = (1.0 - go) * x
+    if transpose:
+        out[movers] += go[movers] * x[target[movers]]
+    else:
+        out[target[movers]] += go[movers] * x[movers]
+    return out
+
+
+def footprint_likelihood(model: GridModel, z) -> np.ndarray:
+    """(N, K**N) ``P(z | L = l, m)``: the product over offsets f of ``O[m_{c_f(l)}, z_f]`` for
+    on-grid cells, 0 where the observation's -1 readings are not exactly l's off-grid offsets.
+    z: an int (F = 1) or (F,) readings. O(F N K^N)."""
+    n, k = model.n_cells, model.n_labels
+    readings = np.atleast_1d(np.asarray(z, dtype=np.int64))
+    labels = map_labels(n, k)
+    cells = model.footprint_cells
+    out = np.ones((n, k**n))
+    fits = ((cells < 0) == (readings < 0)[None]).all(axis=1)
+    out[~fits] = 0.0
+    for f, reading in enumerate(readings):
+        if reading < 0:
+            continue
+        on = np.flatnonzero(fits & (cells[:, f] >= 0))
+        out[on] *= model.sensor[labels[cells[on, f]], reading]
+    return out
 
 
 # --- smoothing (numpy; tiny grids, offline) ---------------------------------------------
@@ -148,8 +275,9 @@ class SmoothResult(NamedTuple):
 def exact_smooth(model: GridModel, actions, observations, *, max_bytes: int = DEFAULT_MAX_BYTES) -> SmoothResult:
     """Forward filter and backward pass over a recorded run.
 
-    ``actions`` (T - 1,) (or (T,) with a leading None), ``observations`` (T,), by index or name.
-    Memory: T + 2 tensors of (N, K**N) float64; time O(T N K^N (N K)).
+    ``actions`` (T - 1,) (or (T,) with a leading None), ``observations`` (T,) (or (T, F) with a
+    footprint), by index or name. Memory: T + 2 tensors of (N, K**N) float64; time
+    O(T N K^N (N K + F)).
     """
     a_seq, z_seq = check_sequence(model, actions, observations)
     n_steps = len(z_seq)
@@ -158,12 +286,23 @@ def exact_smooth(model: GridModel, actions, observations, *, max_bytes: int = DE
     alphas = np.empty((n_steps, n, k**n))
     log_evidence = 0.0
     scales = np.empty(n_steps)
+    general = model.has_blocking or model.has_footprint
+    passable = passable_tensor(model) if model.has_blocking else None
+
+    def move(x, a, transpose=False):
+        if general:
+            return blocking_motion(model, x, a, transpose, passable)
+        return (apply_motion_transpose if transpose else apply_motion)(model, x, a)
+
+    def observe(x, z):
+        return x * footprint_likelihood(model, z) if general else observe_tensor(model, x, z)
+
     x = prior_tensor(model)
     for t in range(n_steps):
         if t > 0:
-            x = apply_motion(model, x, a_seq[t - 1])
+            x = move(x, a_seq[t - 1])
             x = change_tensor(model, x)
-        x = observe_tensor(model, x, z_seq[t])
+        x = observe(x, z_seq[t])
         total = x.sum()
         if not total > 0:
             raise ImpossibleObservationError(f"observation at step {t} has probability zero under the model")
@@ -180,7 +319,7 @@ def exact_smooth(model: GridModel, actions, observations, *, max_bytes: int = DE
         location[t] = post.sum(axis=1)
         maps[t] = map_marginals(post.sum(axis=0), n, k)
         if t > 0:
-            beta = observe_tensor(model, beta, z_seq[t])
+            beta = observe(beta, z_seq[t])
             beta = change_tensor(model, beta, transpose=True)
-            beta = apply_motion_transpose(model, beta, a_seq[t - 1]) / scales[t]
+            beta = move(beta, a_seq[t - 1], transpose=True) / scales[t]
     return SmoothResult(location, maps, log_evidence)

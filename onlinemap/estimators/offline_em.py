@@ -11,7 +11,11 @@ parameter), but every iteration runs forward-backward over all T steps from the 
 Without annealing this is EM for the MAP of B under a Dirichlet(c + 1) prior per row, so the
 objective ``log P(z | B) + c sum log B`` never decreases. Iterations stop when it rises by
 less than ``tol`` (and tau has reached tau_min) or after ``n_iter``. EM starts from
-``B0 = label_prior @ O``. Cost: O(T (N + E) + N K^2) per iteration, O(T N) memory.
+``B0 = label_prior @ O``. Cost: O(T (N F + E) + N K^2) per iteration, O(T N) memory.
+
+With a sensor footprint of F offsets B is per cell and the M-step counts every reading of each
+cell (the textbook's grid EM); with blocking labels the E-step uses the passability of the map
+read off the current B (a generalised EM step: the objective may then fall; see ``onlinemap.hmm``).
 """
 
 from __future__ import annotations
@@ -22,9 +26,11 @@ import numpy as np
 
 from ..arrays import read_only
 from ..belief import Belief
-from ..errors import ModelError
-from ..hmm import (emission_from_counts, expected_counts, forward_backward, log_dirichlet_prior,
-                   map_from_emission, prior_emission, sensor_inverse, temper)
+from .. import arguments
+from ..errors import InvalidOptionError, ModelError
+from ..hmm import (append_observation, emission_from_counts, expected_cell_counts, forward_backward,
+                   log_dirichlet_prior, map_from_emission, map_passability, prior_emission, sensor_inverse,
+                   temper)
 from ..model import GridModel
 from ..validation import check_sequence, check_step
 from .base import register
@@ -46,13 +52,22 @@ def check_anneal(anneal) -> Anneal | None:
     """None, or a valid ``(tau0, rate, tau_min)`` with tau0 >= tau_min > 0 and rate in (0, 1]."""
     if anneal is None:
         return None
-    try:
-        schedule = Anneal(*(float(x) for x in anneal))
-    except (TypeError, ValueError):
-        raise ModelError(f"anneal must be None or (tau0, rate, tau_min), got {anneal!r}") from None
+    if isinstance(anneal, (str, bytes)) or not isinstance(anneal, (tuple, list, np.ndarray)) or len(anneal) != 3:
+        raise InvalidOptionError(f"anneal must be None or (tau0, rate, tau_min), got {anneal!r}")
+    schedule = Anneal(*(arguments.real(f"anneal[{i}]", x, error=InvalidOptionError) for i, x in enumerate(anneal)))
     if not (np.isfinite(schedule).all() and schedule.tau0 >= schedule.tau_min > 0 and 0 < schedule.rate <= 1):
-        raise ModelError(f"anneal (tau0, rate, tau_min) needs tau0 >= tau_min > 0 and 0 < rate <= 1, got {anneal!r}")
+        raise InvalidOptionError(f"anneal (tau0, rate, tau_min) needs tau0 >= tau_min > 0 and 0 < rate <= 1, got {anneal!r}")
     return schedule
+
+
+def check_n_iter(n_iter) -> int:
+    """An iteration count >= 1, or InvalidOptionError."""
+    return arguments.integer("n_iter", n_iter, minimum=1, error=InvalidOptionError)
+
+
+def check_tol(tol) -> float:
+    """A finite tolerance >= 0 (NaN or a negative tol would never stop EM early), or InvalidOptionError."""
+    return arguments.real("tol", tol, low=0.0, high=float("inf"), high_open=True, error=InvalidOptionError)
 
 
 class EMFit(NamedTuple):
@@ -81,7 +96,7 @@ def baum_welch(model: GridModel, actions, observations, *, n_iter: int = 200, to
     if emission.shape != fallback.shape:
         raise ModelError(f"initial B must have shape {fallback.shape}, got {emission.shape}")
     return _baum_welch(model, a_seq, z_seq, emission, fallback, model.location_prior(),
-                       sensor_inverse(model.sensor), n_iter=int(n_iter), tol=tol,
+                       sensor_inverse(model.sensor), n_iter=check_n_iter(n_iter), tol=check_tol(tol),
                        pseudo_count=check_pseudo_count(pseudo_count), schedule=check_anneal(anneal))
 
 
@@ -95,17 +110,19 @@ def _baum_welch(model: GridModel, a_seq: np.ndarray, z_seq: np.ndarray, emission
     converged = False
     fit = None
     for iteration in range(n_iter):
-        fit = forward_backward(model, prior, a_seq, z_seq, emission, out=fit)
+        fit = forward_backward(model, prior, a_seq, z_seq, emission, out=fit,
+                               passable=map_passability(model, emission, inverse))
         objectives.append(fit.log_likelihood + log_dirichlet_prior(emission, pseudo_count))
         tau = 1.0 if schedule is None else schedule.tau(iteration)
         if iteration > 0 and tau == (1.0 if schedule is None else schedule.tau_min) \
                 and abs(objectives[-1] - objectives[-2]) < tol:
             converged = True
             break
-        counts = expected_counts(temper(fit.posterior, tau), z_seq, model.n_labels)
+        counts = expected_cell_counts(model, temper(fit.posterior, tau), z_seq)
         emission = emission_from_counts(counts, pseudo_count, emission)
     else:
-        fit = forward_backward(model, prior, a_seq, z_seq, emission, out=fit)
+        fit = forward_backward(model, prior, a_seq, z_seq, emission, out=fit,
+                               passable=map_passability(model, emission, inverse))
     return EMFit(fit.posterior, map_from_emission(emission, inverse), emission, fit.log_likelihood,
                  np.array(objectives), converged)
 
@@ -125,11 +142,9 @@ class OfflineEM:
 
     def __init__(self, model: GridModel, *, n_iter: int = 200, tol: float = 1e-8, pseudo_count: float = 0.1,
                  anneal: tuple[float, float, float] | None = None):
-        if int(n_iter) < 1:
-            raise ModelError(f"n_iter must be at least 1, got {n_iter!r}")
         self.model = model
-        self.n_iter = int(n_iter)
-        self.tol = float(tol)
+        self.n_iter = check_n_iter(n_iter)
+        self.tol = check_tol(tol)
         self.pseudo_count = check_pseudo_count(pseudo_count)
         schedule = check_anneal(anneal)
         self.anneal = None if schedule is None else tuple(schedule)  # plain data (checkpoints)
@@ -138,7 +153,8 @@ class OfflineEM:
         self._location_prior = read_only(model.location_prior())
         self._sensor_inverse = read_only(sensor_inverse(model.sensor))
         self._actions = np.empty(0, dtype=np.int64)
-        self._observations = np.empty(0, dtype=np.int64)
+        self._observations = np.empty((0,) + model.observation_shape,
+                                      dtype=np.int64)
         self._t = -1
         self._belief: Belief | None = None
 
@@ -150,7 +166,7 @@ class OfflineEM:
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
         actions = self._actions if a is None else np.append(self._actions, a)
-        observations = np.append(self._observations, z)
+        observations = append_observation(self._observations, z)
         fit = _baum_welch(self.model, actions, observations, self._prior_emission, self._prior_emission,
                           self._location_prior, self._sensor_inverse, n_iter=self.n_iter, tol=self.tol,
                           pseudo_count=self.pseudo_count,

@@ -18,8 +18,12 @@ channel (clipped, renormalised); ``observation_matrix`` = ``B_t``; ``log_evidenc
 prequential log-likelihood ``sum_u log P(z_u | z_s(u)..u-1)``, each term under the parameters
 of its time ``B_{u-1}`` (a sequential score, not the likelihood of one fixed B).
 
-Cost per step: O(W (N + E) + N K^2) time (E motion edges, sparse), O(W N) memory; with
-``window="max"`` W = t + 1, so a run of T steps costs O(T^2 N) in all.
+A sensor footprint makes B per cell (the probability of each reading of that cell) and the
+emission a product over the F footprint cells; blocking labels move the E-step into cell j with
+``p_move P(m_j passable)`` under the map read off ``B_{t-1}`` (``onlinemap.hmm``).
+
+Cost per step: O(W (N F + E) + N K^2) time (E motion edges, sparse), O(W N) memory; with
+``window="max"`` W = t + 1, so a run of T steps costs O(T^2 N F) in all.
 """
 
 from __future__ import annotations
@@ -27,30 +31,27 @@ from __future__ import annotations
 import numpy as np
 
 from ..belief import Belief
-from ..errors import ModelError
-from ..hmm import (emission_from_counts, expected_counts, forward_backward, map_from_emission,
-                   prior_emission, sensor_inverse)
+from .. import arguments
+from ..errors import InvalidOptionError
+from ..hmm import (append_observation, emission_from_counts, expected_cell_counts, forward_backward,
+                   map_from_emission, map_passability, prior_emission, sensor_inverse)
 from ..model import GridModel, apply_motion
 from ..validation import check_step
 from .base import register
 
 
 def check_pseudo_count(pseudo_count: float) -> float:
-    """A finite pseudo-count >= 0, or ModelError."""
-    value = float(pseudo_count)
-    if not np.isfinite(value) or value < 0:
-        raise ModelError(f"pseudo_count must be a finite number >= 0, got {pseudo_count!r}")
-    return value
+    """A finite pseudo-count >= 0, or InvalidOptionError."""
+    return arguments.real("pseudo_count", pseudo_count, low=0.0, high=float("inf"), high_open=True,
+                          error=InvalidOptionError)
 
 
 def _check_window(window) -> int | None:
     if isinstance(window, str):
         if window != "max":
-            raise ModelError(f"window must be a positive int or 'max', got {window!r}")
+            raise InvalidOptionError(f"window must be a positive int or 'max', got {window!r}")
         return None
-    if isinstance(window, (bool, np.bool_)) or not float(window).is_integer() or int(window) < 1:
-        raise ModelError(f"window must be a positive int or 'max', got {window!r}")
-    return int(window)
+    return arguments.integer("window (a positive int or 'max')", window, minimum=1, error=InvalidOptionError)
 
 
 @register("online_em")
@@ -64,17 +65,15 @@ class OnlineEM:
         self.model = model
         self.window = window
         self._window = _check_window(window)
-        decay = float(decay)
-        if not 0.0 < decay <= 1.0:
-            raise ModelError(f"decay must be in (0, 1], got {decay!r}")
-        self.decay = decay
+        self.decay = arguments.real("decay", decay, low=0.0, high=1.0, low_open=True, error=InvalidOptionError)
         self.pseudo_count = check_pseudo_count(pseudo_count)
         self._prior_emission = prior_emission(model)
         self._sensor_inverse = sensor_inverse(model.sensor)
         self._emission = self._prior_emission.copy()
         self._stats = np.zeros((model.n_cells, model.n_labels))
         self._actions = np.empty(0, dtype=np.int64)  # a_u for the window's steps (and one before)
-        self._observations = np.empty(0, dtype=np.int64)  # z_s..z_t
+        self._observations = np.empty((0,) + model.observation_shape,
+                                      dtype=np.int64)  # z_s..z_t, (W,) or (W, F)
         self._filtered = np.empty((0, model.n_cells))  # filtered location of step u in row u % W (finite W)
         self._log_evidence = 0.0
         self._t = -1
@@ -83,16 +82,18 @@ class OnlineEM:
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
         model, t, w = self.model, self._t + 1, self._window
-        observations = np.append(self._observations, z)
+        observations = append_observation(self._observations, z)
         actions = self._actions if a is None else np.append(self._actions, a)
+        passable = map_passability(model, self._emission, self._sensor_inverse)
         if w is not None and t + 1 > w:  # the window s..t starts after step 0
             observations, actions = observations[-w:], actions[-w:]
-            prior = apply_motion(model, self._filtered[t % w], actions[0])  # filtered at s - 1 = t - W
+            prior = apply_motion(model, self._filtered[t % w], actions[0], passable)  # filtered at s - 1 = t - W
             inside = actions[1:]
         else:
             prior, inside = model.location_prior(), actions
-        fit = forward_backward(model, prior, inside, observations, self._emission, first_step=t + 1 - len(observations))
-        stats = self.decay * self._stats + expected_counts(fit.posterior, observations, model.n_labels)
+        fit = forward_backward(model, prior, inside, observations, self._emission,
+                               first_step=t + 1 - len(observations), passable=passable)
+        stats = self.decay * self._stats + expected_cell_counts(model, fit.posterior, observations)
         emission = emission_from_counts(stats, self.pseudo_count, self._prior_emission)
         location = fit.filtered[-1]
         log_evidence = self._log_evidence + float(fit.log_normalizers[-1])

@@ -10,43 +10,71 @@ import numpy as np
 from numba import njit
 
 _TINY = 1e-280  # messages below this are set to 0: subnormal floats would make every pass ~10x slower
+_RESCALE_BELOW = 1e-250  # a step whose normaliser falls below this is redone with its column of B rescaled
+
+
+@njit(cache=True, inline="always")
+def _forward_row(self_prob, predecessor, enter, prior, filtered, actions, emission, t, z, scale):
+    """Unnormalised filtered row t into ``filtered[t]`` with the column ``emission[:, z] / scale``;
+    returns its total. Entries below ``_TINY`` are set to 0 after the first step. O(N + E)."""
+    n = filtered.shape[1]
+    total = 0.0
+    if t == 0:
+        for j in range(n):
+            v = prior[j] * (emission[j, z] / scale)
+            filtered[0, j] = v
+            total += v
+        return total
+    a = actions[t - 1]
+    for j in range(n):
+        v = self_prob[a, j] * filtered[t - 1, j]
+        p = predecessor[a, j]
+        if p >= 0:
+            v += enter[j] * filtered[t - 1, p]
+        v *= emission[j, z] / scale
+        if v < _TINY:
+            v = 0.0
+        filtered[t, j] = v
+        total += v
+    return total
 
 
 @njit(cache=True)
-def forward_backward_pass(self_prob, predecessor, neighbors, p_move, prior, actions, observations, emission,
-                          filtered, posterior, normalizers):
+def forward_backward_pass(self_prob, predecessor, neighbors, enter, prior, actions, observations, emission,
+                          filtered, posterior, normalizers, log_scales):
     """Scaled forward-backward on the sparse motion model.
 
-    self_prob (A, N), predecessor (A, N), neighbors (N, A): the model's motion tables; prior (N,)
+    self_prob (A, N), predecessor (A, N), neighbors (N, A): the model's motion tables; enter (N,)
+    the probability that a move into cell j succeeds (``p_move`` everywhere for the paper's
+    motion, ``p_move P(m_j passable)`` with blocking labels); prior (N,)
     the distribution of the first step's location before its observation; actions (W - 1,);
     observations (W,); emission (N, K) B. Writes filtered (W, N) ``P(L_tau | z_0..tau)``, posterior
-    (W, N) ``P(L_tau | z_0..W-1)`` and normalizers (W,) ``P(z_tau | z_0..tau-1)``. Returns the
-    index of the first step whose observation has probability zero, or -1. O(W (N + E)).
-    Forward and backward messages below ``_TINY`` (relative to rows summing to 1) are set to 0.
+    (W, N) ``P(L_tau | z_0..W-1)``, normalizers (W,) and log_scales (W,) with
+    ``P(z_tau | z_0..tau-1) = normalizers[tau] exp(log_scales[tau])``. Returns the index of the
+    first step whose observation has probability zero (or too small for float64 even after
+    rescaling), or -1. O(W (N + E)).
+
+    Underflow: a step whose normaliser falls below ``_RESCALE_BELOW`` (observations B gives
+    probabilities near 1e-300) is redone with its column ``B[:, z]`` divided by the column's
+    maximum ``s`` (``log_scales = log s``, 0 for every other step), so its messages stay normal
+    floats. Forward and backward messages below ``_TINY`` (relative to rows summing to 1) are set to 0.
     """
     w, n = filtered.shape
+    scales = np.ones(w)
     for t in range(w):
         z = observations[t]
-        total = 0.0
-        if t == 0:
+        total = _forward_row(self_prob, predecessor, enter, prior, filtered, actions, emission, t, z, 1.0)
+        log_scales[t] = 0.0
+        if not total >= _RESCALE_BELOW:
+            top = 0.0
             for j in range(n):
-                v = prior[j] * emission[j, z]
-                filtered[0, j] = v
-                total += v
-        else:
-            a = actions[t - 1]
-            for j in range(n):
-                v = self_prob[a, j] * filtered[t - 1, j]
-                p = predecessor[a, j]
-                if p >= 0:
-                    v += p_move * filtered[t - 1, p]
-                v *= emission[j, z]
-                if v < _TINY:
-                    v = 0.0
-                filtered[t, j] = v
-                total += v
-        if not total > 0.0:
-            return t
+                top = max(top, emission[j, z])
+            if top > 0.0:
+                total = _forward_row(self_prob, predecessor, enter, prior, filtered, actions, emission, t, z, top)
+                scales[t] = top
+                log_scales[t] = np.log(top)
+            if not total >= _TINY:
+                return t
         normalizers[t] = total
         inverse = 1.0 / total
         for j in range(n):
@@ -60,13 +88,13 @@ def forward_backward_pass(self_prob, predecessor, neighbors, p_move, prior, acti
         z = observations[t]
         inverse = 1.0 / normalizers[t]
         for j in range(n):
-            scaled[j] = beta[j] * emission[j, z] * inverse
+            scaled[j] = beta[j] * (emission[j, z] / scales[t]) * inverse
         total = 0.0
         for i in range(n):
             v = self_prob[a, i] * scaled[i]
             nb = neighbors[i, a]
             if nb != i:
-                v += p_move * scaled[nb]
+                v += enter[nb] * scaled[nb]
             if v < _TINY:
                 v = 0.0
             beta[i] = v

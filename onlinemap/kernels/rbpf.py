@@ -27,25 +27,325 @@ from numba import njit
 
 
 @njit(cache=True, inline="always")
+def _age(pool_stamps, dynamic, t, r, j):
+    """Steps since slot j of block row r was last brought up to date (0 in a static world)."""
+    return t - pool_stamps[r, j] if dynamic else 0
+
+
+@njit(cache=True, inline="always")
+def _aged_label(pool, powers, d, r, j, b):
+    """P(label b) of slot j of block row r, ``d`` steps after its stamp: ``(row @ C^d)[b]``."""
+    if d == 0:
+        return pool[r, j, b]
+    acc = 0.0
+    for a in range(pool.shape[2]):
+        acc += pool[r, j, a] * powers[d, a, b]
+    return acc
+
+
+@njit(cache=True, inline="always")
 def _label(pool, pool_stamps, powers, dynamic, t, r, j, b):
     """Current P(label b) of slot j of block row r at step t (C^dt applied on the fly)."""
-    if dynamic:
-        d = t - pool_stamps[r, j]
-        if d != 0:
-            acc = 0.0
-            for a in range(pool.shape[2]):
-                acc += pool[r, j, a] * powers[d, a, b]
-            return acc
-    return pool[r, j, b]
+    return _aged_label(pool, powers, _age(pool_stamps, dynamic, t, r, j), r, j, b)
 
 
 @njit(cache=True, inline="always")
 def _evidence(pool, pool_stamps, powers, dynamic, t, r, j, likelihood):
     """``P(z | cell) = sum_b current(b) likelihood[b]`` for slot j of block row r."""
+    d = _age(pool_stamps, dynamic, t, r, j)
     acc = 0.0
     for b in range(likelihood.shape[0]):
-        acc += _label(pool, pool_stamps, powers, dynamic, t, r, j, b) * likelihood[b]
+        acc += _aged_label(pool, powers, d, r, j, b) * likelihood[b]
     return acc
+
+
+@njit(cache=True, inline="always")
+def _observed_cell(pool, pool_stamps, powers, dynamic, t, r, j, likelihood, lam, out):
+    """out (K,) <- the posterior of slot j of row r after seeing a label of likelihood ``likelihood``
+    (``lam`` = its evidence, from :func:`_evidence`); the prior unchanged where ``lam`` is 0."""
+    d = _age(pool_stamps, dynamic, t, r, j)
+    for b in range(likelihood.shape[0]):  # divide (1 / lam overflows for a subnormal lam)
+        current = _aged_label(pool, powers, d, r, j, b)
+        out[b] = current * likelihood[b] / lam if lam > 0.0 else current
+
+
+@njit(cache=True, inline="always")
+def _successor(l, n, p_move, s):
+    """(cell, probability) of successor s in {0, 1} of a robot at ``l`` whose action points at ``n``:
+    0 = stay (``1 - p_move``, or 1 where there is no move), 1 = the move (``p_move``; none where
+    ``n == l``). The one place the FC enumeration learns the motion model's successors."""
+    if s == 0:
+        return l, (1.0 if n == l else 1.0 - p_move)
+    return n, (0.0 if n == l else p_move)
+
+
+@njit(cache=True, inline="always")
+def _parent(locations, log_weights, neighbors, q):
+    """(live, l, n) of particle q: whether it has weight, its cell, the cell its action points at."""
+    l = locations[q]
+    return log_weights[q] != -np.inf, l, neighbors[l]
+
+
+@njit(cache=True)
+def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
+                   neighbors, p_move, likelihood, child_parent, child_location, child_log_weight, child_cells):
+    """Every successor of every live particle with its exact log weight; returns their number M.
+
+    For parent q at l (``log_weights[q] > -inf``) and each successor j of l with motion probability
+    ``T(l, j) > 0`` (:func:`_successor`; ``neighbors = arange(N)`` at step 0: stay only):
+    ``log w_q + log T(l, j) + log P(z | j, map_q)``, and the child's observed cell, the posterior
+    of cell j given z. Children with probability zero are left out. Writes the first M entries of
+    ``child_parent``, ``child_location``, ``child_log_weight`` and ``child_cells`` (M, K) (each at
+    least 2P long), grouped by parent in increasing order. O(P K^2)."""
+    k = likelihood.shape[0]
+    m = 0
+    for q in range(locations.shape[0]):
+        live, l, n = _parent(locations, log_weights, neighbors, q)
+        if not live:
+            continue
+        for s in range(2):
+            j, probability = _successor(l, n, p_move, s)
+            if probability <= 0.0:
+                continue
+            r = table[q, cell_block[j]]
+            slot = cell_slot[j]
+            d = _age(pool_stamps, dynamic, t, r, slot)
+            lam = 0.0  # P(z | cell j of map q), as _evidence sums it
+            for b in range(k):
+                current = _aged_label(pool, powers, d, r, slot, b)
+                child_cells[m, b] = current
+                lam += current * likelihood[b]
+            if lam <= 0.0:
+                continue
+            for b in range(k):  # as _observed_cell: divide (1 / lam overflows for a subnormal lam)
+                child_cells[m, b] = child_cells[m, b] * likelihood[b] / lam
+            joint = probability * lam  # one log per child; two where the product underflows
+            child_log_weight[m] = log_weights[q] + (math.log(joint) if joint > 0.0 else
+                                                    math.log(probability) + math.log(lam))
+            child_parent[m] = q
+            child_location[m] = j
+            m += 1
+    return m
+
+
+@njit(cache=True)
+def rbpf_enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic,
+                         t, neighbors, p_move, blocking, change, footprint_cells, sensor, readings, child_parent,
+                         child_location, child_log_weight, child_log_motion, child_ids, child_cells):
+    """:func:`rbpf_enumerate` for blocking labels and sensor footprints; returns M.
+
+    Blocking (``blocking`` (K,) bool, any True): from l the intended n != l is entered with
+    ``p_move * P(m_n passable)``, judged on n's marginal at step t - 1 (before this step's map
+    change); the move child's n is conditioned on passable, the stay child's on
+    ``(1 - p_move) + p_move [m_n blocks]``, then carried to step t by ``change`` (C). Footprint
+    (``footprint_cells`` (N, F), ``readings`` (F,), -1 off the grid): the likelihood is the product
+    over the offsets of ``sum_k current(c_f)[k] sensor[k, z_f]`` (1 where both cell and reading
+    are off the grid, 0 where only one is), and each read cell gets its posterior. Given the
+    trajectory the cells stay independent, so a child's map differs from its parent's in at most
+    W = F + 1 cells: ``child_ids`` (2P, W) (-1: none) and ``child_cells`` (2P, W, K), at step t;
+    ``child_log_motion`` (2P,) is each child's ``log T``. Cost O(P F K^2)."""
+    k = sensor.shape[0]
+    n_reads = footprint_cells.shape[1]
+    width = child_ids.shape[1]
+    has_blocking = False
+    for b in range(k):
+        has_blocking = has_blocking or blocking[b]
+    before = np.empty(k)
+    given = np.empty(k)
+    m = 0
+    for q in range(locations.shape[0]):
+        live, l, n = _parent(locations, log_weights, neighbors, q)
+        if not live:
+            continue
+        gated = has_blocking and n != l  # the move's success tells about cell n
+        passable = 1.0
+        if gated:
+            r = table[q, cell_block[n]]
+            d = t - 1 - pool_stamps[r, cell_slot[n]] if dynamic else 0
+            passable = 0.0
+            for b in range(k):
+                before[b] = _aged_label(pool, powers, d, r, cell_slot[n], b)
+                if not blocking[b]:
+                    passable += before[b]
+        for s in range(2):
+            j, probability = _successor(l, n, p_move, s)
+            if gated:
+                probability = probability * passable if s == 1 else 1.0 - p_move * passable
+            if probability <= 0.0:
+                continue
+            used = 0
+            if gated:  # n's marginal given the move's outcome (at t - 1), carried to step t by C
+                total = 0.0
+                for b in range(k):
+                    factor = (0.0 if blocking[b] else 1.0) if s == 1 else \
+                        (1.0 - p_move) + (p_move if blocking[b] else 0.0)
+                    given[b] = before[b] * factor
+                    total += given[b]
+                for b in range(k):
+                    given[b] /= total
+                for b in range(k):
+                    if dynamic:
+                        acc = 0.0
+                        for a in range(k):
+                            acc += given[a] * change[a, b]
+                        child_cells[m, 0, b] = acc
+                    else:
+                        child_cells[m, 0, b] = given[b]
+                child_ids[m, 0] = n
+                used = 1
+            likelihood = 1.0
+            log_likelihood = 0.0
+            possible = True
+            for f in range(n_reads):
+                c = footprint_cells[j, f]
+                z = readings[f]
+                if c < 0 or z < 0:  # off the grid reads -1 with probability 1, a cell never does
+                    if c < 0 and z < 0:
+                        continue
+                    possible = False
+                    break
+                w = used
+                for v in range(used):  # a cell this child already changed (the move's evidence)
+                    if child_ids[m, v] == c:
+                        w = v
+                if w == used:
+                    r = table[q, cell_block[c]]
+                    d = _age(pool_stamps, dynamic, t, r, cell_slot[c])
+                    for b in range(k):
+                        child_cells[m, w, b] = _aged_label(pool, powers, d, r, cell_slot[c], b)
+                    child_ids[m, w] = c
+                    used += 1
+                lam = 0.0
+                for b in range(k):
+                    lam += child_cells[m, w, b] * sensor[b, z]
+                if lam <= 0.0:
+                    possible = False
+                    break
+                for b in range(k):
+                    child_cells[m, w, b] = child_cells[m, w, b] * sensor[b, z] / lam
+                likelihood *= lam
+                log_likelihood += math.log(lam)
+            if not possible:
+                continue
+            for v in range(used, width):
+                child_ids[m, v] = -1
+            joint = probability * likelihood
+            child_log_weight[m] = log_weights[q] + (math.log(joint) if joint > 0.0 else
+                                                    math.log(probability) + log_likelihood)
+            child_log_motion[m] = math.log(probability)
+            child_parent[m] = q
+            child_location[m] = j
+            m += 1
+    return m
+
+
+@njit(cache=True)
+def rbpf_pick_children(ancestors, child_parent, child_location, child_log_weight, child_log_motion, child_ids,
+                       child_cells, m, optimal, uniforms, new_locations, new_ids, new_cells, log_increments):
+    """The sampling schemes on enumerated children (:func:`rbpf_enumerate_cells` with every
+    parent's log weight 0): slot p draws one child of its ancestor ``ancestors[p]`` with
+    ``uniforms[p]``. Optimal proposal: in proportion to ``T P(z | child)``, increment ``log sum``
+    of those; transition proposal: in proportion to ``T`` over every successor (one the
+    observation rules out, left out of the children, gives weight 0), increment ``log P(z |
+    child)``. A slot with weight 0 gets ``new_locations = -1`` (no write). O(P W K)."""
+    n_particles = ancestors.shape[0]
+    start = np.zeros(n_particles + 1, dtype=np.int64)
+    for c in range(m):
+        start[child_parent[c] + 1] += 1
+    for q in range(n_particles):
+        start[q + 1] += start[q]
+    new_locations[:] = -1
+    new_ids[:] = -1
+    new_cells[:] = 0.0
+    for p in range(n_particles):
+        q = ancestors[p]
+        log_increments[p] = -np.inf
+        chosen = -1
+        if optimal and start[q + 1] > start[q]:
+            top = -np.inf
+            for c in range(start[q], start[q + 1]):
+                top = max(top, child_log_weight[c])
+            total = 0.0
+            for c in range(start[q], start[q + 1]):
+                total += math.exp(child_log_weight[c] - top)
+            target = uniforms[p] * total
+            chosen = start[q + 1] - 1
+            for c in range(start[q], start[q + 1]):
+                target -= math.exp(child_log_weight[c] - top)
+                if target < 0.0:
+                    chosen = c
+                    break
+            log_increments[p] = top + math.log(total)
+        elif not optimal:
+            acc = 0.0
+            for c in range(start[q], start[q + 1]):
+                acc += math.exp(child_log_motion[c])
+                if uniforms[p] < acc:
+                    chosen = c
+                    log_increments[p] = child_log_weight[c] - child_log_motion[c]
+                    break
+        if chosen >= 0:
+            new_locations[p] = child_location[chosen]
+            new_ids[p] = child_ids[chosen]
+            new_cells[p] = child_cells[chosen]
+
+
+@njit(cache=True)
+def children_by_location(child_location, n_cells):
+    """(M,) the children's indices ordered by location (stable: by parent within a location), the
+    order in which Fearnhead-Clifford's strata walk them, so that the draws spread over the cells
+    in proportion to their weight. Counting sort, O(M + N)."""
+    starts = np.zeros(n_cells + 1, dtype=np.int64)
+    for c in range(child_location.shape[0]):
+        starts[child_location[c] + 1] += 1
+    for i in range(n_cells):
+        starts[i + 1] += starts[i]
+    order = np.empty(child_location.shape[0], dtype=np.int64)
+    for c in range(child_location.shape[0]):
+        i = child_location[c]
+        order[starts[i]] = c
+        starts[i] += 1
+    return order
+
+
+@njit(cache=True)
+def rbpf_place_children(child_parent, child_location, child_ids, child_cells, kept, kept_weights, ancestors,
+                        new_locations, new_ids, new_cells, new_log_weights):
+    """Put the kept children (``kept`` distinct indices into the children, any order;
+    ``kept_weights`` their weights) into the P particle slots, for :func:`rbpf_commit_cells`: a
+    parent's first kept child takes the parent's slot, a second one the next slot whose particle
+    has no kept child (``ancestors[slot]`` = the parent; ``ancestors[p] = p`` elsewhere). A
+    child's changed cells ``child_ids`` (M, W) and their marginals ``child_cells`` (M, W, K) go
+    with it. Slots left without a child (fewer children than P) get ``new_locations = -1`` (no
+    write) and weight 0. Outputs (P,) ancestors, (P,), (P, W), (P, W, K), (P,). O(P W K)."""
+    n_particles = ancestors.shape[0]
+    has_child = np.zeros(n_particles, dtype=np.bool_)
+    for i in range(kept.shape[0]):
+        has_child[child_parent[kept[i]]] = True
+    for p in range(n_particles):
+        ancestors[p] = p
+    new_locations[:] = -1
+    new_ids[:] = -1
+    new_log_weights[:] = -np.inf
+    new_cells[:] = 0.0
+    filled = np.zeros(n_particles, dtype=np.bool_)
+    extra = 0  # the next slot without a child of its own, for a second child
+    for i in range(kept.shape[0]):
+        c = kept[i]
+        q = child_parent[c]
+        if not filled[q]:
+            slot = q
+        else:
+            while has_child[extra]:
+                extra += 1
+            slot = extra
+            extra += 1
+            ancestors[slot] = q
+        filled[slot] = True
+        new_locations[slot] = child_location[c]
+        new_ids[slot] = child_ids[c]
+        new_cells[slot] = child_cells[c]
+        new_log_weights[slot] = math.log(kept_weights[i])
 
 
 @njit(cache=True)
@@ -63,7 +363,6 @@ def rbpf_propose(locations, pool, pool_stamps, table, cell_block, cell_slot, pow
     impossible). One uniform per particle. O(P K^2).
     """
     n_particles = ancestors.shape[0]
-    k = likelihood.shape[0]
     for p in range(n_particles):
         q = ancestors[p]
         l = locations[q]
@@ -84,26 +383,16 @@ def rbpf_propose(locations, pool, pool_stamps, table, cell_block, cell_slot, pow
             elif uniforms[p] < p_move:
                 target, lam, weight = n, lam_there, lam_there
         new_locations[p] = target
-        r = table[q, cell_block[target]]
-        j = cell_slot[target]
-        for b in range(k):  # divide (1 / lam overflows for a subnormal lam)
-            current = _label(pool, pool_stamps, powers, dynamic, t, r, j, b)
-            new_cells[p, b] = current * likelihood[b] / lam if lam > 0.0 else current
+        _observed_cell(pool, pool_stamps, powers, dynamic, t, table[q, cell_block[target]], cell_slot[target],
+                       likelihood, lam, new_cells[p])
         log_increments[p] = math.log(weight) if lam > 0.0 else -np.inf
 
 
 @njit(cache=True)
-def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
-                dynamic, powers, max_age, t, ancestors, new_locations, new_cells):
-    """Apply a validated proposal in place.
-
-    1. Slots taken over by a copy (``ancestors[p] != p``; such ancestors keep their own slot,
-       so sources are never overwritten) release their rows and share the ancestor's:
-       O(n_blocks) per copied particle.
-    2. Each particle writes its observed cell (stamped ``t``), first copying the block if it is
-       shared: O(B K) per shared write (cells of the copy older than ``max_age`` steps are
-       brought up to date, so a copy never extends a row's age). Needs ``free_top[0] >= P``.
-    """
+def _take_over_slots(refcount, free, free_top, table, ancestors):
+    """Slots taken over by a copy (``ancestors[p] != p``; such ancestors keep their own slot, so
+    sources are never overwritten) release their rows and share the ancestor's: O(n_blocks) per
+    copied particle."""
     n_particles, n_blocks = table.shape
     for p in range(n_particles):
         q = ancestors[p]
@@ -118,31 +407,68 @@ def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_to
             r = table[q, b]
             table[p, b] = r
             refcount[r] += 1
-    for p in range(n_particles):
-        cell = new_locations[p]
-        b = cell_block[cell]
-        r = table[p, b]
-        if refcount[r] > 1:
-            free_top[0] -= 1
-            fresh = free[free_top[0]]
-            pool[fresh] = pool[r]
-            if dynamic:
-                pool_stamps[fresh] = pool_stamps[r]
-                for slot in range(pool.shape[1]):
-                    if t - pool_stamps[fresh, slot] > max_age:
-                        for label in range(pool.shape[2]):
-                            pool[fresh, slot, label] = _label(pool, pool_stamps, powers, dynamic, t, r, slot, label)
-                        pool_stamps[fresh, slot] = t
-            row_block[fresh] = b
-            refcount[r] -= 1
-            refcount[fresh] = 1
-            table[p, b] = fresh
-            r = fresh
-        j = cell_slot[cell]
-        pool[r, j] = new_cells[p]
+
+
+@njit(cache=True, inline="always")
+def _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, dynamic,
+                powers, max_age, t, p, cell, values):
+    """Particle p's marginal of ``cell`` <- ``values`` (K,), stamped t; the block is first copied if
+    shared: O(B K) (cells of the copy older than ``max_age`` steps are brought up to date, so a copy
+    never extends a row's age). Takes a free row when it copies."""
+    b = cell_block[cell]
+    r = table[p, b]
+    if refcount[r] > 1:
+        free_top[0] -= 1
+        fresh = free[free_top[0]]
+        pool[fresh] = pool[r]
         if dynamic:
-            pool_stamps[r, j] = t
+            pool_stamps[fresh] = pool_stamps[r]
+            for slot in range(pool.shape[1]):
+                if t - pool_stamps[fresh, slot] > max_age:
+                    for label in range(pool.shape[2]):
+                        pool[fresh, slot, label] = _label(pool, pool_stamps, powers, dynamic, t, r, slot, label)
+                    pool_stamps[fresh, slot] = t
+        row_block[fresh] = b
+        refcount[r] -= 1
+        refcount[fresh] = 1
+        table[p, b] = fresh
+        r = fresh
+    j = cell_slot[cell]
+    pool[r, j] = values
+    if dynamic:
+        pool_stamps[r, j] = t
+
+
+@njit(cache=True)
+def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
+                dynamic, powers, max_age, t, ancestors, new_locations, new_cells):
+    """Apply a validated proposal in place: :func:`_take_over_slots`, then each particle writes
+    its observed cell ``new_cells[p]`` at ``new_locations[p]`` (:func:`_write_cell`; needs
+    ``free_top[0] >= P``). ``new_locations[p] = -1`` leaves slot p as it is (an empty slot)."""
+    _take_over_slots(refcount, free, free_top, table, ancestors)
+    for p in range(table.shape[0]):
+        cell = new_locations[p]
+        if cell < 0:  # an empty slot (Fearnhead-Clifford kept fewer children than P): no write
+            continue
+        _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, dynamic,
+                    powers, max_age, t, p, cell, new_cells[p])
         locations[p] = cell
+
+
+@njit(cache=True)
+def rbpf_commit_cells(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block,
+                      cell_slot, dynamic, powers, max_age, t, ancestors, new_locations, new_ids, new_cells):
+    """:func:`rbpf_commit` with up to W cells written per particle: ``new_ids`` (P, W) the cells
+    (-1: none), ``new_cells`` (P, W, K) their marginals at step t. Needs ``free_top[0] >= W P``."""
+    _take_over_slots(refcount, free, free_top, table, ancestors)
+    for p in range(table.shape[0]):
+        if new_locations[p] < 0:
+            continue
+        for w in range(new_ids.shape[1]):
+            if new_ids[p, w] >= 0:
+                _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
+                            dynamic, powers, max_age, t, p, new_ids[p, w], new_cells[p, w])
+        locations[p] = new_locations[p]
 
 
 @njit(cache=True)
@@ -213,8 +539,9 @@ def rbpf_map_mixture(pool, pool_stamps, row_block, table, block_members, powers,
             i = members[j]
             if i < 0:
                 continue
+            d = _age(pool_stamps, dynamic, t, r, j)
             for b in range(k):
-                out[i, b] += w * _label(pool, pool_stamps, powers, dynamic, t, r, j, b)
+                out[i, b] += w * _aged_label(pool, powers, d, r, j, b)
 
 
 @njit(cache=True)

@@ -1,0 +1,113 @@
+"""Checks of scalar arguments (sizes, probabilities, options), shared by the model constructors,
+the world specs and the estimators' options.
+
+Each returns the value in its canonical Python type or raises the given
+:class:`~onlinemap.errors.OnlineMapError` subclass naming the argument. Nothing is coerced
+silently: ``1.5`` is not a size, ``"0.5"`` is not a number, ``True`` is neither, NaN is
+refused wherever a number is expected. Imports numpy only.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+from .errors import ModelError, OnlineMapError
+
+MAX_CELLS = 2**24  # grid cells: the model's (N, A) tables stay below about 0.5 GB
+MAX_LABELS = 2**12  # labels K: (K, K) tables stay below 128 MB
+
+
+def _describe(value) -> str:
+    text = repr(value)
+    return f"{type(value).__name__} {text if len(text) <= 40 else text[:37] + '...'}"
+
+
+def integer(name: str, value, *, minimum: int | None = None, maximum: int | None = None,
+            error: type[OnlineMapError] = ModelError) -> int:
+    """``value`` as an int: an int, a numpy integer, or a float/Fraction that is a whole number;
+    never a bool or a str. Inside ``[minimum, maximum]`` where given."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise error(f"{name} must be an integer, got {_describe(value)}")
+    if isinstance(value, numbers.Integral):
+        number = int(value)
+    else:
+        if not math.isfinite(value) or value != math.floor(value):
+            raise error(f"{name} must be a whole number, got {value!r}")
+        number = int(value)
+    if minimum is not None and number < minimum:
+        raise error(f"{name} must be at least {minimum}, got {number}")
+    if maximum is not None and number > maximum:
+        raise error(f"{name} must be at most {maximum}, got {number}")
+    return number
+
+
+def real(name: str, value, *, low: float = -math.inf, high: float = math.inf, low_open: bool = False,
+         high_open: bool = False, error: type[OnlineMapError] = ModelError) -> float:
+    """``value`` as a float in the interval from ``low`` to ``high`` (closed unless ``*_open``);
+    never NaN, a bool or a str. Infinities only where the interval includes them."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise error(f"{name} must be a number, got {_describe(value)}")
+    try:
+        number = float(value)
+    except (OverflowError, ValueError):
+        raise error(f"{name} must be a float, got {_describe(value)}") from None
+    inside = (number > low if low_open else number >= low) and (number < high if high_open else number <= high)
+    if not inside:  # NaN is never inside
+        left, right = "(" if low_open else "[", ")" if high_open else "]"
+        raise error(f"{name} must be in {left}{low:g}, {high:g}{right}, got {value!r}")
+    return number
+
+
+def probability(name: str, value, error: type[OnlineMapError] = ModelError) -> float:
+    """A probability in [0, 1] as a float."""
+    return real(name, value, low=0.0, high=1.0, error=error)
+
+
+def flag(name: str, value, error: type[OnlineMapError] = ModelError) -> bool:
+    """A bool (Python or numpy), nothing else (``"false"`` is not False)."""
+    if type(value).__name__ not in ("bool", "bool_"):
+        raise error(f"{name} must be True or False, got {_describe(value)}")
+    return bool(value)
+
+
+def choice(name: str, value, allowed, error: type[OnlineMapError] = ModelError) -> str:
+    """One of the strings ``allowed``."""
+    if not isinstance(value, str) or value not in allowed:
+        raise error(f"{name} must be one of {tuple(allowed)}, got {_describe(value)}")
+    return value
+
+
+def byte_limit(name: str, value, error: type[OnlineMapError] = ModelError) -> int | float:
+    """A memory limit in bytes: a positive integer, or ``math.inf`` for none (never NaN)."""
+    if isinstance(value, float) and value == math.inf:
+        return value
+    return integer(name, value, minimum=1, error=error)
+
+
+def names(name: str, values, count: int, error: type[OnlineMapError] = ModelError) -> tuple[str, ...]:
+    """``count`` distinct non-empty strings (label or action names)."""
+    if isinstance(values, (str, bytes)) or not hasattr(values, "__iter__"):
+        raise error(f"{name} must be a sequence of {count} strings, got {_describe(values)}")
+    values = tuple(values)
+    if len(values) != count:
+        raise error(f"{name}: {len(values)} names for {count} entries")
+    for value in values:
+        if not isinstance(value, str) or not value:
+            raise error(f"{name} must be non-empty strings, got {_describe(value)}")
+    if len(set(values)) != count:
+        repeated = sorted({v for v in values if values.count(v) > 1})
+        raise error(f"{name} must be distinct, {repeated} repeated")
+    return values
+
+
+def seed(name: str, value, error: type[OnlineMapError] = ModelError):
+    """A seed: None (fresh entropy), an int >= 0, a sequence of ints >= 0 (entropy for
+    ``numpy.random.SeedSequence``, as a tuple), or a ``numpy.random.Generator`` (returned as is)."""
+    if value is None or type(value).__name__ == "Generator":
+        return value
+    if isinstance(value, (list, tuple)):
+        if not value:
+            raise error(f"{name} must not be an empty sequence")
+        return tuple(integer(f"{name}[{i}]", v, minimum=0, error=error) for i, v in enumerate(value))
+    return integer(name, value, minimum=0, error=error)

@@ -1,0 +1,177 @@
+"""The engines: run a spec's tasks serially in this process or on dask.distributed, keep each
+finished task in the part store as it finishes, and assemble the table.
+
+Imports: :mod:`.tasks`, :mod:`.spec`, :mod:`.runner`, :mod:`.store`, :mod:`onlinemap.tables`;
+dask.distributed lazily.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+import pandas as pd
+
+from ..errors import OnlineMapError
+from ..progress import show_progress, tqdm
+from ..tables import check_writable, write_table
+from . import runner
+from .spec import load_spec, spec_from_dict
+from .store import assemble, collect, default_results_dir, finished_tasks, open_store, write_part
+from .tasks import MAX_TASKS, SweepSpec, Task, options_text
+
+DASK_HINT = "install dask.distributed with: pip install 'onlinemap[sweeps]'"
+
+
+class SweepError(OnlineMapError):
+    """Some tasks of a sweep failed; the finished ones are kept (rerun to retry the rest)."""
+
+
+def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLike | None = None,
+          results_dir: str | os.PathLike | None = None, progress: bool = True,
+          max_tasks: int = MAX_TASKS) -> pd.DataFrame:
+    """Run every task of ``spec`` and return one table (one row per task, or per task and step).
+
+    spec: a path to a TOML file, a :class:`SweepSpec` or a dict. client: a
+    ``distributed.Client``, a scheduler address (``"tcp://host:8786"``) or None. With no
+    client, ``workers`` = 0 runs the tasks one by one in this process; otherwise a local
+    dask cluster of ``workers`` processes (default: one per CPU, at most one per task) is
+    started and closed afterwards. out: also write the table (.parquet or .csv).
+    results_dir: where finished tasks are kept (default ``OUT.parts`` beside ``out``; with
+    neither, results live only in memory and nothing resumes). Tasks already there are
+    skipped. Raises :class:`SweepError` (after keeping every finished task) if tasks failed.
+    """
+    if client is not None and workers is not None:
+        raise OnlineMapError("workers sizes a local cluster or picks serial mode (0); not with a client")
+    spec = _as_spec(spec, max_tasks)
+    if out is not None:
+        check_writable(out)
+    if results_dir is None and out is not None:
+        results_dir = default_results_dir(out)
+    store = open_store(results_dir) if results_dir is not None else None
+    memory: dict[str, pd.DataFrame] = {}
+    done = finished_tasks(spec.tasks, store) if store is not None else set()
+    todo = [t for t in spec.tasks if t.key not in done]
+    # tasks sharing a run one after the other, so the memoised run and reference are reused
+    first: dict[tuple, int] = {}
+    for task in todo:
+        first.setdefault(_run_key(task), len(first))
+    todo.sort(key=lambda task: first[_run_key(task)])
+    failures: list[tuple[Task, BaseException]] = []
+
+    def record(task: Task, frame: pd.DataFrame) -> None:
+        if store is not None:
+            write_part(store, task, frame)
+        else:
+            memory[task.key] = frame
+        bar.update()
+
+    bar = tqdm(total=len(spec.tasks), initial=len(spec.tasks) - len(todo), desc=f"sweep {spec.name}",
+               unit="task", disable=not show_progress(progress), smoothing=0.1)
+    try:
+        if todo and client is None and workers == 0:
+            for task in todo:
+                try:
+                    record(task, runner.run_task(task))
+                except Exception as error:  # keep going; report every failure at the end
+                    failures.append((task, error))
+        elif todo:
+            _run_dask(todo, client, workers, record, failures)
+    finally:
+        bar.close()
+    if store is not None:
+        table = collect(store, spec.tasks)
+    else:
+        table = assemble([memory[t.key] for t in spec.tasks if t.key in memory])
+    if out is not None:
+        write_table(table, out, source=spec.text or spec.source)
+    if failures:
+        position = {t.key: i for i, t in enumerate(spec.tasks)}
+        task, error = min(failures, key=lambda failure: position[failure[0].key])  # first in spec order
+        raise SweepError(f"{len(failures)} of {len(spec.tasks)} tasks failed (the others are kept; rerun to "
+                         f"retry); first: {task.estimator}({options_text(task.options)}) on {task.world}, "
+                         f"seed {task.seed}: {type(error).__name__}: {error}")
+    return table
+
+
+def _run_key(task: Task) -> tuple:
+    """What determines a task's simulated run (and its reference trajectory)."""
+    return task.world, task.steps, task.walk, task.seed, task.reference, task.planner is None
+
+
+def _as_spec(spec, max_tasks: int = MAX_TASKS) -> SweepSpec:
+    if isinstance(spec, SweepSpec):
+        return spec
+    if isinstance(spec, dict):
+        return spec_from_dict(spec, max_tasks=max_tasks)
+    if isinstance(spec, (str, os.PathLike)):
+        return load_spec(spec, max_tasks)
+    raise TypeError(f"spec must be a path, a dict or a SweepSpec, got {type(spec).__name__}")
+
+
+def _dask():
+    try:
+        import distributed
+    except ImportError:
+        raise OnlineMapError(f"running a sweep on dask needs dask.distributed; {DASK_HINT} "
+                             f"(or run serially with workers=0 / --workers 0)") from None
+    return distributed
+
+
+def local_cluster(workers: int | None = None, n_tasks: int | None = None):
+    """A dask ``LocalCluster`` of worker processes, one thread each (the numerics hold the GIL
+    or are numba kernels): ``workers`` processes, default one per CPU (at most one per task)."""
+    distributed = _dask()
+    count = workers or max(1, min(os.cpu_count() or 1, n_tasks or os.cpu_count() or 1))
+    with warnings.catch_warnings():  # another cluster on this machine holds the default HTTP port
+        warnings.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
+        return distributed.LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
+                                        dashboard_address=None, silence_logs=40)
+
+
+def _run_dask(todo: list[Task], client, workers: int | None, record, failures: list) -> None:
+    distributed = _dask()
+    owned, futures = [], []
+    if client is None:
+        cluster = local_cluster(workers, len(todo))
+        client = distributed.Client(cluster)
+        owned = [client, cluster]
+    elif isinstance(client, str):
+        client = connect(client)
+        owned = [client]
+    try:
+        futures = client.map(runner.run_task, todo, pure=False)
+        by_key = {future.key: task for future, task in zip(futures, todo)}
+        completed = distributed.as_completed(futures)
+        for future in completed:
+            task = by_key[future.key]
+            try:
+                frame = future.result()
+            except Exception as error:
+                if future.status in ("lost", "pending"):  # its worker died after it finished: recomputed
+                    completed.add(future)
+                    continue
+                failures.append((task, error))
+            else:
+                record(task, frame)
+            future.release()
+    except BaseException:
+        client.cancel(futures)
+        raise
+    finally:
+        for resource in owned:
+            resource.close()
+
+
+
+
+def connect(address: str, timeout: float = 10.0):
+    """A ``distributed.Client`` on the scheduler at ``address`` (``tcp://host:8786``); an
+    address that does not parse or answer within ``timeout`` seconds raises OnlineMapError."""
+    distributed = _dask()
+    if "://" not in address and ":" not in address:
+        raise OnlineMapError(f"--scheduler {address!r}: expected a scheduler address such as tcp://host:8786")
+    try:
+        return distributed.Client(address, timeout=timeout)
+    except Exception as error:  # ValueError, OSError, TimeoutError: whatever the comm layer raises
+        raise OnlineMapError(f"--scheduler {address!r}: cannot connect: {type(error).__name__}: {error}") from None

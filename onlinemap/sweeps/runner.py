@@ -1,0 +1,146 @@
+"""The task runner: simulate a task's run from its seed, run its estimator (and planner), score
+it with :mod:`onlinemap.evaluate`, and return its rows with the task's description and typed
+option columns (so a folder of parts assembles into the table without the spec).
+
+A task simulates its run exactly as ``onlinemap run --seed`` does (``default_rng(seed)`` draws
+the map, then the walk, then the noise); estimators with a ``seed`` option get one derived from
+the task's seed (unless the spec sets it). Each process parses a world string once
+(:func:`world`) and memoises the last runs and reference trajectories, so the tasks sharing a
+run (every estimator of a seed) simulate it once.
+
+Imports: :mod:`.tasks`, :mod:`onlinemap.evaluate`; ``policies`` lazily (exploration tasks).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pandas as pd
+
+from ..estimators import estimator_options
+from ..estimators.base import Trajectory
+from ..evaluate import RUN_METRICS, STEP_METRICS, run_metrics, step_metrics, timed_trajectory
+from ..model import GridModel
+from ..scenarios import one_slip_corridor
+from ..simulate import Run, random_walk, there_and_back
+from ..worlds import WorldSpec, parse_world
+from .tasks import OPTION_PREFIXES, Task, options_text
+
+
+def derived_seed(seed: int, stream: int) -> int:
+    """An independent 32-bit seed for stream ``stream`` of task seed ``seed``."""
+    return int(np.random.SeedSequence([seed, stream]).generate_state(1)[0])
+
+
+@functools.lru_cache(maxsize=64)
+def world(spec: str) -> WorldSpec:
+    """The parsed world spec (memoised: each process parses a world string once)."""
+    return parse_world(spec)
+
+
+def walk_actions(model: GridModel, walk: str, n_actions: int, rng: np.random.Generator) -> np.ndarray:
+    """``random``: uniform actions; ``there_and_back``: right N - 1 times, left N - 1 times,
+    repeated and cut to ``n_actions``."""
+    if walk == "random":
+        return random_walk(model, n_actions, rng)
+    return np.resize(there_and_back(model), n_actions)
+
+
+def scripted_trip(model: GridModel, labels: np.ndarray, rng: np.random.Generator) -> Run:
+    """The literature's corridor run (DESIGN.md section 5.1) on a static corridor ``model`` with
+    the given labels: right N - 1 times, left N - 1 times, exactly one slip at an outward move
+    drawn uniformly in 1..N-1, every observation the true label
+    (:func:`onlinemap.scenarios.scripted_corridor`, with ``model`` as the robot's model)."""
+    return one_slip_corridor(labels, rng, model=model)[0]
+
+
+@functools.lru_cache(maxsize=16)
+def simulated_run(world_spec: str, steps: int | str, walk: str, seed: int) -> Run:
+    """The run of a task (memoised per process: every estimator of a sweep sees the same run):
+    ``default_rng(seed)`` draws the map, then the walk (``steps`` - 1 actions, or one trip),
+    then the noise (:meth:`WorldSpec.simulate`); ``scripted_trip`` draws its slip instead."""
+    spec = world(world_spec)
+    model = spec.model
+    if walk == "scripted_trip":
+        rng = np.random.default_rng(seed)
+        return scripted_trip(model, spec.initial_map(rng), rng)
+    n_steps = 2 * (model.n_cells - 1) + 1 if steps == "trip" else steps
+    return spec.simulate(n_steps, seed, walk=lambda model, n_actions, rng: walk_actions(model, walk, n_actions, rng))
+
+
+def _options(name: str, options: tuple, seed: int) -> dict:
+    """The task's estimator options, with a seed derived from the task's if it takes one."""
+    options = dict(options)
+    if "seed" in estimator_options(name):
+        options.setdefault("seed", derived_seed(seed, 1))
+    return options
+
+
+@functools.lru_cache(maxsize=16)
+def reference_trajectory(world_spec: str, steps: int | str, walk: str, seed: int, reference: str) -> Trajectory:
+    """The reference estimator's trajectory on the task's run (memoised per process, so a
+    sweep runs it once per run and process, not once per task)."""
+    run = simulated_run(world_spec, steps, walk, seed)
+    return timed_trajectory(reference, run.model, _options(reference, (), seed), run)
+
+
+def run_task(task: Task) -> pd.DataFrame:
+    """Simulate the task's run and return its metrics (:mod:`onlinemap.evaluate`): one row of
+    :data:`~onlinemap.evaluate.RUN_METRICS`, or one row per step of
+    :data:`~onlinemap.evaluate.STEP_METRICS` (``rows = "step"``); with a reference estimator,
+    the total variation to its beliefs too. Timing is measured after a warm-up run.
+    Cost: the estimator's run, plus (unless this process has just had them for another task)
+    one simulation and the reference's run (:func:`simulated_run`, :func:`reference_trajectory`).
+    """
+    if task.kind == "explore":
+        run, trajectory = _explore(task)
+        reference = None
+    else:
+        run = simulated_run(task.world, task.steps, task.walk, task.seed)
+        trajectory = timed_trajectory(task.estimator, run.model, _options(task.estimator, task.options, task.seed),
+                                      run)
+        reference = None
+        if task.reference is not None:
+            # the reference estimator itself, unconfigured: its own trajectory (distance 0)
+            reference = trajectory if (task.estimator, task.options) == (task.reference, ()) else \
+                reference_trajectory(task.world, task.steps, task.walk, task.seed, task.reference)
+    steps = step_metrics(run, trajectory, reference)
+    if task.per_step:
+        frame = steps[["t", "true_location", *(c for c in STEP_METRICS if c in steps)]].assign(
+            ms_per_step=1e3 * trajectory.seconds_per_step)
+    else:
+        row = run_metrics(run, trajectory, reference, steps, trip=task.walk != "random")
+        frame = pd.DataFrame([{name: row[name] for name in RUN_METRICS if name in row}])
+    return describe(task, frame, run.n_steps)
+
+
+def _explore(task: Task) -> tuple[Run, Trajectory]:
+    import policies
+
+    spec = world(task.world)
+    true_map = spec.initial_map(np.random.default_rng(derived_seed(task.seed, 3)))
+    model = spec.model if task.floor_plan is None else policies.with_floor_plan(spec.model, true_map, task.floor_plan)
+    result = policies.exploration(model, true_map, task.planner, task.estimator, task.steps, task.seed,
+                                  estimator_options=dict(task.options),
+                                  planner_options=dict(task.planner_options), progress=False)
+    return result.run, result.trajectory
+
+
+def describe(task: Task, frame: pd.DataFrame, n_steps: int) -> pd.DataFrame:
+    """Prefix the task's description columns (those of its kind; ``steps``: the run's actual
+    number of steps) and append one typed ``opt_NAME`` (``planner_opt_NAME``) column per option."""
+    described = {"task": task.key, "kind": task.kind, "world": task.world}
+    if task.kind == "explore":
+        described.update(planner=task.planner, planner_options=options_text(task.planner_options),
+                         floor_plan=np.nan if task.floor_plan is None else task.floor_plan)
+    described.update(estimator=task.estimator, options=options_text(task.options), steps=n_steps)
+    if task.kind == "estimate":
+        described.update(walk=task.walk, reference=task.reference or "")
+    described["seed"] = task.seed
+    for position, (column, value) in enumerate(described.items()):
+        frame.insert(position, column, value)
+    for field, prefix in OPTION_PREFIXES.items():
+        for name, value in getattr(task, field):
+            frame[prefix + name] = [value] * len(frame)
+    return frame

@@ -1,0 +1,142 @@
+"""Summaries of a sweep table: means over seeds with confidence intervals per configuration,
+a readable pivot, and plots against an option.
+
+Intervals (:func:`onlinemap.stats.mean_interval`): Wilson for yes/no outcomes, Student t for
+the rest, intersected with the metric's range (:func:`onlinemap.evaluate.metric_bounds`: errors,
+distances and entropies lie in [0, 1]), which keeps the interval's coverage (the true mean lies
+in the range) and never prints an impossible bound.
+
+Imports: :mod:`.tasks`, :mod:`onlinemap.evaluate`, :mod:`onlinemap.stats`; matplotlib lazily.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+from typing import Iterable
+
+import numpy as np
+import pandas as pd
+
+from ..errors import OnlineMapError
+from ..evaluate import RUN_METRICS, STEP_METRICS, metric_bounds
+from ..stats import mean_interval
+from .tasks import CONFIG_COLUMNS
+
+
+def _interval(column: pd.Series, metric: str, confidence: float):
+    return mean_interval(column.to_numpy(dtype=np.float64, na_value=np.nan), confidence,
+                         proportion=pd.api.types.is_bool_dtype(column), bounds=metric_bounds(metric))
+
+
+def last_steps(table: pd.DataFrame) -> pd.DataFrame:
+    """A per-step table (with a ``t`` column) cut to each task's last step; others unchanged."""
+    if "t" in table.columns:
+        table = table.sort_values("t").groupby("task", sort=False).tail(1)
+    return table
+
+
+def summarize(table: pd.DataFrame, metrics_: Iterable[str] | None = None, confidence: float = 0.95) -> pd.DataFrame:
+    """Per configuration (every task column but the seed), for each metric: n, mean and a
+    ``confidence`` interval over seeds (see :func:`mean_interval`). A per-step table is
+    summarised at each task's last step. One row per configuration and metric."""
+    table = last_steps(table)
+    known = tuple(dict.fromkeys(RUN_METRICS + STEP_METRICS))
+    chosen = [m for m in dict.fromkeys(metrics_ or known) if m in table.columns]
+    missing = [m for m in (metrics_ or ()) if m not in table.columns]
+    if missing:
+        raise OnlineMapError(f"no metric {', '.join(missing)} in the table; it has: "
+                             f"{', '.join(m for m in known if m in table.columns)}")
+    config = [c for c in CONFIG_COLUMNS if c in table.columns and table[c].nunique(dropna=False) > 1] or \
+        [c for c in ("estimator",) if c in table.columns]
+    rows = []
+    for keys, group in table.groupby(config, sort=False, dropna=False):
+        keys = keys if isinstance(keys, tuple) else (keys,)
+        for metric in chosen:
+            interval = _interval(group[metric], metric, confidence)
+            if math.isnan(interval.mean):
+                continue
+            rows.append({**dict(zip(config, keys)), "metric": metric, "n": len(group),
+                         "mean": interval.mean, "low": interval.low, "high": interval.high})
+    return pd.DataFrame(rows)
+
+
+def summary_table(summary: pd.DataFrame) -> pd.DataFrame:
+    """The long summary pivoted for reading: one row per configuration, one column per metric
+    holding ``mean [low, high]``."""
+    if summary.empty:
+        return summary
+    config = [c for c in summary.columns if c not in ("metric", "n", "mean", "low", "high")]
+
+    def cell(row) -> str:
+        if np.isnan(row["low"]):
+            return f"{row['mean']:.4g}"
+        return f"{row['mean']:.4g} [{row['low']:.4g}, {row['high']:.4g}]"
+
+    summary = summary.assign(cell=summary.apply(cell, axis=1))
+    wide = summary.pivot_table(index=config + ["n"], columns="metric", values="cell", aggfunc="first", sort=False)
+    order = [m for m in dict.fromkeys(summary["metric"]) if m in wide.columns]
+    return wide[order].reset_index().rename_axis(columns=None)
+
+
+def plot_sweep(table: pd.DataFrame, x: str, metrics_: Iterable[str], path: str | os.PathLike | None = None,
+               confidence: float = 0.95):
+    """One panel per metric: its mean over seeds against ``x`` (an option name, e.g.
+    ``n_particles``, or a task column such as ``world`` or ``steps``) with ``confidence``
+    intervals as error bars, one line per remaining configuration. A per-step table is read at
+    each task's last step. Saves to ``path`` if given; returns the matplotlib figure."""
+    import matplotlib.pyplot as plt
+
+    table = last_steps(table)
+    column = x if x in table.columns else f"opt_{x}"
+    if column not in table.columns:
+        options = sorted(c[4:] for c in table.columns if c.startswith("opt_"))
+        raise OnlineMapError(f"--x {x!r}: not an option or column of the table; options: {', '.join(options)}")
+    metrics_ = [m for m in metrics_ if m in table.columns] or ["final_map_error"]
+    varying = [c for c in ("world", "estimator", "planner", "walk", "steps", "reference")
+               if c in table.columns and c != column and table[c].nunique() > 1]
+    varying += [c for c in table.columns if c.startswith(("opt_", "planner_opt_")) and c != column
+                and table[c].nunique() > 1]
+
+    def label(row) -> str:
+        parts = [f"{c.removeprefix('planner_opt_').removeprefix('opt_')}={row[c]}" if c.startswith(("opt_", "planner_opt_"))
+                 else str(row[c]) for c in varying if pd.notna(row[c]) and row[c] != ""]
+        return ", ".join(parts) or "all"
+
+    table = table.assign(_line=table.apply(label, axis=1) if len(table) else [])
+    flat = table[table[column].isna()]  # configurations without that option: horizontal lines
+    table = table[table[column].notna()]
+    numeric = pd.api.types.is_numeric_dtype(table[column])
+    positions = None if numeric else {v: i for i, v in enumerate(dict.fromkeys(table[column]))}
+    figure, axes = plt.subplots(1, len(metrics_), figsize=(5 * len(metrics_), 3.8), squeeze=False)
+    for axis, metric in zip(axes[0], metrics_):
+        for line, group in table.groupby("_line", sort=False):
+            points = [(value, _interval(g[metric], metric, confidence)) for value, g in group.groupby(column, sort=True)]
+            xs = np.array([v if numeric else positions[v] for v, _ in points], dtype=np.float64)
+            means = np.array([i.mean for _, i in points])
+            errors = np.array([[i.mean - i.low, i.high - i.mean] for _, i in points]).T
+            # bounds can round a hair past the mean (a Wilson bound at 0 or 1 successes): never negative
+            axis.errorbar(xs, means, yerr=np.maximum(np.nan_to_num(errors), 0.0), marker="o", capsize=3, label=line)
+        for style, (line, group) in zip(itertools.cycle(("--", ":", "-.")), flat.groupby("_line", sort=False)):
+            level = _interval(group[metric], metric, confidence)
+            axis.axhline(level.mean, linestyle=style, color="gray", label=f"{line} (no {x})")
+        if numeric and table[column].min() > 0 and table[column].max() / table[column].min() >= 20:
+            axis.set_xscale("log")
+        if positions is not None:
+            axis.set_xticks(range(len(positions)), list(positions), rotation=20)
+        axis.set_xlabel(x)
+        axis.set_ylabel(metric)
+        axis.grid(alpha=0.3)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    columns = min(3, max(1, len(labels)))
+    rows = math.ceil(len(labels) / columns)
+    figure.set_figheight(3.8 + 0.2 * rows)
+    figure.legend(handles, labels, loc="lower center", ncol=columns, fontsize=7, frameon=False)
+    figure.suptitle(f"mean over seeds with {confidence:.0%} intervals")
+    figure.tight_layout(rect=(0, 0.2 * rows / (3.8 + 0.2 * rows) + 0.02, 1, 1))
+    if path is not None:
+        from .. import plots
+
+        plots.save(figure, path, dpi=120)
+    return figure

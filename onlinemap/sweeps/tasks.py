@@ -1,0 +1,108 @@
+"""Sweep tasks: one cell of the product (world, estimator configuration[, planner
+configuration], floor plan, steps, walk, seed), its stable key, and the expansion of a
+validated spec into tasks (counted before any is built, against a cap).
+
+Imports: nothing of the sweeps package (every other module of it imports this one).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+from dataclasses import dataclass
+from typing import NamedTuple, Sequence
+
+from ..errors import OnlineMapError
+
+#: default cap on the tasks of one sweep (raise it with ``max_tasks`` / ``--max-tasks``)
+MAX_TASKS = 100_000
+# Columns describing a task (the configuration and the seed); everything else is a metric.
+TASK_COLUMNS = ("task", "kind", "world", "estimator", "options", "planner", "planner_options", "floor_plan",
+                "steps", "walk", "reference", "seed")
+CONFIG_COLUMNS = tuple(c for c in TASK_COLUMNS if c not in ("task", "seed"))
+OPTION_PREFIXES = {"options": "opt_", "planner_options": "planner_opt_"}
+
+
+@dataclass(frozen=True)
+class Task:
+    """One cell of a sweep. ``options`` and ``planner_options`` are sorted (name, value) pairs."""
+
+    world: str
+    estimator: str
+    options: tuple
+    seed: int
+    steps: int | str  # "trip": one there-and-back trip, 2 (N - 1) + 1 steps
+    walk: str = "random"
+    reference: str | None = None
+    per_step: bool = False
+    planner: str | None = None
+    planner_options: tuple = ()
+    floor_plan: float | None = None
+
+    @property
+    def kind(self) -> str:
+        return "explore" if self.planner else "estimate"
+
+    @property
+    def key(self) -> str:
+        """A stable hash of everything that determines the task's result (16 hex digits); fields
+        left at None are not hashed, so adding an optional field keeps existing keys."""
+        fields = {k: v for k, v in self.__dict__.items() if v is not None}
+        return hashlib.sha256(json.dumps(plain(fields), sort_keys=True).encode()).hexdigest()[:16]
+
+
+class SweepSpec(NamedTuple):
+    """A validated spec: its tasks in order (seeds innermost), where it came from and its text
+    (recorded in the results table's provenance)."""
+
+    name: str
+    tasks: tuple[Task, ...]
+    source: str
+    text: str = ""
+
+
+def plain(value):
+    """Tuples to lists, recursively (JSON and the hash see the same structure)."""
+    if isinstance(value, dict):
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, (tuple, list)):
+        return [plain(v) for v in value]
+    return value
+
+
+def frozen(value):
+    """Lists to tuples, recursively (hashable option values)."""
+    return tuple(frozen(v) for v in value) if isinstance(value, (list, tuple)) else value
+
+
+def options_text(options: tuple) -> str:
+    """``(("n_particles", 10), ("proposal", "optimal"))`` -> ``n_particles=10, proposal="optimal"``."""
+    return ", ".join(f"{k}={json.dumps(plain(v))}" for k, v in options)
+
+
+def count_tasks(*axes: Sequence) -> int:
+    """The size of the product of ``axes`` (before duplicates are merged), without building it."""
+    return math.prod(len(axis) for axis in axes)
+
+
+def expand(worlds: Sequence[str], estimators: Sequence[tuple], planners: Sequence[tuple],
+           floor_plans: Sequence, steps: Sequence, walks: Sequence[str], seeds: Sequence[int],
+           reference: str | None, per_step: bool, max_tasks: int = MAX_TASKS) -> tuple[Task, ...]:
+    """Every task of the product, seeds innermost, each distinct task once (a repeated world or
+    grid value runs once). ``estimators`` / ``planners``: (name, options) pairs. Raises
+    OnlineMapError, before building anything, if the product exceeds ``max_tasks``.
+    Cost: O(number of tasks)."""
+    total = count_tasks(worlds, estimators, planners, floor_plans, steps, walks, seeds)
+    if total > max_tasks:
+        raise OnlineMapError(f"{total:,} tasks exceed the cap of {max_tasks:,} (max_tasks / --max-tasks "
+                             f"raises it); fewer seeds or a smaller grid?")
+    tasks, seen = [], set()
+    for world, (est, options), (planner, planner_opts), plan, n_steps, walk, seed in itertools.product(
+            worlds, estimators, planners, floor_plans, steps, walks, seeds):
+        task = Task(world, est, options, int(seed), n_steps, walk, reference, per_step, planner, planner_opts, plan)
+        if task.key not in seen:
+            seen.add(task.key)
+            tasks.append(task)
+    return tuple(tasks)

@@ -1,0 +1,91 @@
+"""Everyday helpers: readable reprs, beliefs as tables (one row per cell; over time, long format)
+and ``plots.plot_belief``."""
+
+import matplotlib
+import numpy as np
+import pytest
+
+import onlinemap as om
+
+matplotlib.use("Agg")
+
+
+@pytest.fixture(scope="module")
+def door_run():
+    model, true_map = om.door_world()
+    run = om.simulate(model, true_map, om.random_walk(model, 12, 3), seed=3)
+    estimator = om.make_estimator("bk", model)
+    return run, estimator, om.run_estimator(estimator, run.actions, run.observations)
+
+
+def test_belief_to_frame_has_one_row_per_cell_with_its_marginals(door_run):
+    run, estimator, _ = door_run
+    belief, model = estimator.belief, run.model
+    frame = belief.to_frame(model)
+    assert len(frame) == model.n_cells and (frame["t"] == belief.t).all()
+    for cell in range(model.n_cells):  # every row, read back by hand
+        row = frame.iloc[cell]
+        assert (row["cell"], row["row"], row["col"]) == (cell, cell // model.cols, cell % model.cols)
+        assert row["location"] == belief.location[cell]
+        assert [row[f"map_{name}"] for name in model.label_names] == list(belief.map[cell])
+        assert row["most_likely_label"] == model.label_names[int(np.argmax(belief.map[cell]))]
+    bare = belief.to_frame()  # without the model: labels by index, no row/col
+    assert list(bare.columns) == ["t", "cell", "location", "map_0", "map_1", "map_2", "map_3",
+                                  "most_likely_label"]
+    assert (bare["most_likely_label"] == belief.map_estimate).all()
+
+
+def test_trajectory_to_frame_is_long_format_over_time(door_run):
+    run, _, trajectory = door_run
+    frame = trajectory.to_frame(run.model)
+    steps, cells = trajectory.location.shape
+    assert len(frame) == steps * cells
+    for t, cell in [(0, 0), (5, 17), (steps - 1, cells - 1)]:
+        row = frame[(frame["t"] == t) & (frame["cell"] == cell)].iloc[0]
+        assert row["location"] == trajectory.location[t, cell]
+        assert row["map_wall"] == trajectory.map[t, cell, 1]
+    sums = frame.groupby("t")["location"].sum().to_numpy()
+    np.testing.assert_allclose(sums, 1.0, atol=1e-12)
+    with pytest.raises(ValueError, match="do not match"):
+        om.belief.beliefs_frame(trajectory.location[:, :3], trajectory.map)
+
+
+def test_reprs_name_what_matters():
+    model = om.corridor(5)
+    estimator = om.make_estimator("rbpf", model, n_particles=7, seed=1)
+    assert repr(estimator).startswith("rbpf(t=-1, model=GridModel(1x5")
+    assert "n_particles=7" in repr(estimator) and "seed=1" in repr(estimator)
+    belief = estimator.step(None, 1)
+    assert repr(estimator).startswith("rbpf(t=0,")
+    assert repr(belief).startswith("Belief(t=0, most likely cell 0 with p=1.000, N=5, K=2")
+    assert f"ess={belief.effective_sample_size:.1f}" in repr(belief)
+    assert "ess=" not in repr(om.make_estimator("bk", model).step(None, 1))
+    for name in om.available_estimators():
+        text = repr(om.make_estimator(name, model))
+        assert text.startswith(f"{name}(t=-1, model=GridModel(") and "object at 0x" not in text
+
+
+def test_plot_belief_draws_a_corridor_as_bars():
+    from onlinemap import plots
+    run = om.scenarios.murphy_corridor()
+    estimator = om.make_estimator("exact", run.model)
+    om.run_estimator(estimator, run.actions, run.observations)
+    belief = estimator.belief
+    fig = plots.plot_belief(run.model, belief, run.final_map, run.locations[-1])
+    ax_loc, ax_map = fig.axes[:2]
+    np.testing.assert_allclose([p.get_height() for p in ax_loc.patches], belief.location)
+    heights = np.array([p.get_height() for p in ax_map.patches]).reshape(run.model.n_labels, -1)
+    np.testing.assert_allclose(heights.T, belief.map)
+
+
+def test_plot_belief_draws_a_grid_as_images(door_run):
+    from onlinemap import plots
+    run, estimator, _ = door_run
+    belief = estimator.belief
+    fig = plots.plot_belief(run.model, belief, run.final_map, run.locations[-1])
+    location_image = fig.axes[0].images[0].get_array()
+    np.testing.assert_allclose(location_image, belief.location.reshape(run.model.shape))
+    rgba = np.asarray(fig.axes[1].images[0].get_array())
+    np.testing.assert_allclose(rgba[..., 3], belief.map.max(axis=1).reshape(run.model.shape))
+    with pytest.raises(ValueError, match="does not fit"):
+        plots.plot_belief(om.corridor(4), belief)

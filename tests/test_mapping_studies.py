@@ -1,0 +1,64 @@
+"""The EM-mapping studies (onlinemap.mapping_studies) on a few runs: their tables hold what they
+say (intervals around the means, failures reported), and `onlinemap reproduce loop|anneal|blocking`
+prints and writes them."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from onlinemap import mapping_studies as ms
+from onlinemap.stats import mean_interval
+
+
+def test_loop_world_never_reads_off_the_grid_on_its_ring():
+    model = ms.loop_world()
+    run = ms.loop_run(model, 2, seed=0)
+    ring = np.unique(run.locations[~np.r_[False, run.slipped]])
+    assert model.start == 6 and (model.footprint_cells[[6, 7, 8, 11, 13, 16, 17, 18]] >= 0).all()
+    assert run.n_steps == 17 and len(ring) >= 5
+
+
+def test_loop_study_summary_matches_its_runs():
+    estimators = [("offline grid EM", "offline_em", {}), ("bk", "bk", {}), ("exact", "exact", {})]
+    per_run, summary = ms.loop_study(4, seed=1, estimators=estimators, progress=False)
+    assert len(per_run) == 12 and list(summary["estimator"]) == ["offline grid EM", "bk", "exact"]
+    em = per_run[per_run["estimator"] == "offline grid EM"]
+    expected = mean_interval(em["map_error"].to_numpy(), 0.95)
+    row = summary.iloc[0]
+    assert (row["map_error"], row["map_error_low"], row["map_error_high"]) == pytest.approx(tuple(expected))
+    assert row["runs"] == 4 and row["error"] == ""
+    exact = summary.iloc[2]  # 25 cells: exact Bayes refuses, and the table says why
+    assert exact["runs"] == 0 and "MemoryLimitError" in exact["error"]
+    # the read cells of a run: every cell offset by the footprint from where the robot was
+    run = ms.loop_run(ms.loop_world(), 3, int(per_run["seed"].iloc[0]))
+    read = {int(c) for l in run.locations for c in run.model.footprint_cells[l] if c >= 0}
+    assert set(ms.read_cells(run).tolist()) == read
+
+
+def test_anneal_study_compares_against_the_best_restart():
+    per_run, summary = ms.anneal_study(3, seed=2, restarts=2, progress=False)
+    assert len(per_run) == 6 and (per_run["objective_gap"] >= -1e-9).all()
+    assert (per_run["local_maximum"] == (per_run["objective_gap"] > 1e-3)).all()
+    assert (per_run["best_objective"] >= per_run["objective"] - 1e-9).all()
+    assert list(summary["estimator"]) == ["plain EM", f"annealed EM {ms.ANNEAL}"]
+    stuck = per_run.pivot(index="run", columns="estimator", values="local_maximum")
+    plain, annealed = stuck["plain EM"], stuck[f"annealed EM {ms.ANNEAL}"]
+    assert list(summary["stuck_alone"]) == [int((plain > annealed).sum()), int((annealed > plain).sum())]
+
+
+def test_blocking_study_runs_every_estimator_on_the_same_runs():
+    estimators = [("bk", "bk", {}), ("dead_reckoning", "dead_reckoning", {})]
+    per_run, summary = ms.blocking_study(2, seed=3, steps=20, estimators=estimators, progress=False)
+    assert list(per_run["seed"][::2]) == list(per_run["seed"][1::2])
+    assert (summary["policy"] == "random walk").all() and (summary["runs"] == 2).all()
+    dead = per_run[per_run["estimator"] == "dead_reckoning"]
+    assert np.allclose(dead["map_error"], 0.75)  # the uniform prior over 4 labels
+
+
+def test_cli_prints_and_writes_the_table(tmp_path, capsys):
+    from onlinemap.cli import main
+
+    assert main(["reproduce", "anneal", "--runs", "2", "--out", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert "plain EM" in text and "local_maximum" in text
+    assert len(pd.read_csv(tmp_path / "anneal_runs.csv")) == 4

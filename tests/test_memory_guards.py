@@ -1,0 +1,85 @@
+"""Options that used to hang or blow up memory (issue 14 item 8), and the RBPF's memory estimate
+against the peak resident memory actually measured in a fresh process."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+import onlinemap as om
+from onlinemap.estimators.rbpf import peak_bytes
+
+MEASURE = r"""
+import json, sys
+import numpy as np
+import onlinemap as om
+
+def peak():
+    # peak resident memory since the last reset (VmHWM, Linux), in bytes
+    with open("/proc/self/status") as status:
+        return next(int(line.split()[1]) * 1024 for line in status if line.startswith("VmHWM:"))
+
+n, p, p_change = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
+options = dict(seed=0, resampling="residual", resample_threshold=0.0)  # never resampling: the worst case
+warm = om.make_estimator("rbpf", om.corridor(8, p_change=p_change), n_particles=4, **options)  # compile first
+warm.step(None, 0), warm.step(1, 1), warm.belief
+with open("/proc/self/clear_refs", "w") as clear:
+    clear.write("5")  # reset the peak to the current resident size (Linux >= 4.0)
+before = peak()
+model = om.corridor(n, p_change=p_change, p_move=1.0)
+est = om.make_estimator("rbpf", model, n_particles=p, **options)
+rng = np.random.default_rng(0)
+est.step(None, 0)
+for t in range(1, 2 * n):  # there and back without resampling: every particle ends up owning every block
+    est.step(1 if t < n else 0, int(rng.integers(2)))
+est.belief
+print(json.dumps({"measured": peak() - before, "owned": int((est._refcount > 0).sum())}))
+"""
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/clear_refs"), reason="needs Linux /proc to measure peak RSS")
+@pytest.mark.parametrize("p_change", [0.0, 0.01], ids=["static", "dynamic"])
+def test_rbpf_memory_estimate_bounds_the_measured_peak(p_change):
+    """Regression: the guard counted 8 P N (K + 1) bytes, 2.1x less than the peak measured here
+    (the block pool grows by doubling, and the old pool lives on while it is copied). Now the
+    estimate bounds the measured peak RSS and is within 2x of it."""
+    n, p = 200, 2000
+    done = subprocess.run([sys.executable, "-c", MEASURE, str(n), str(p), str(p_change)], capture_output=True,
+                          text=True, timeout=300, check=True)
+    result = json.loads(done.stdout)
+    model = om.corridor(n, p_change=p_change)
+    estimate = peak_bytes(model, p)
+    assert result["owned"] >= p * 20  # the worst case was reached: every particle owns its 20 blocks
+    assert result["measured"] <= estimate <= 2 * result["measured"], (result, estimate)
+    old = 8 * p * n * (model.n_labels + (0 if model.is_static else 1))
+    assert old < result["measured"] / 1.5  # what the old guard missed
+
+
+def test_rbpf_guard_counts_block_cells():
+    """Regression: block_cells = 10**7 on a 3 x 3 grid tried to allocate 30 GiB."""
+    with pytest.raises(om.InvalidOptionError, match="block_cells must be at most 9"):
+        om.make_estimator("rbpf", om.grid_model(3, 3), block_cells=10**7)
+    with pytest.raises(om.MemoryLimitError, match="may need"):
+        om.make_estimator("rbpf", om.corridor(50), n_particles=10**6, block_cells=50)
+
+
+@pytest.mark.parametrize("name", ["exact", "rbpf"])
+@pytest.mark.parametrize("max_bytes", [float("nan"), -1, 0, "1e9", 1.5, None, True])
+def test_max_bytes_must_be_a_positive_limit(name, max_bytes):
+    """Regression: max_bytes=nan switched the memory guards off."""
+    with pytest.raises(om.InvalidOptionError, match="max_bytes"):
+        om.make_estimator(name, om.corridor(4), max_bytes=max_bytes)
+    assert om.make_estimator(name, om.corridor(4), max_bytes=float("inf")).step(None, 0).t == 0
+
+
+@pytest.mark.parametrize("tol", [float("nan"), -1e-8, float("inf"), "1e-8", None])
+def test_offline_em_tolerance_must_be_finite_and_non_negative(tol):
+    """Regression: tol=nan or a negative tol was accepted, and EM then never converged."""
+    with pytest.raises(om.InvalidOptionError, match="tol"):
+        om.make_estimator("offline_em", om.corridor(4), tol=tol)
+    with pytest.raises(om.InvalidOptionError, match="tol"):
+        om.estimators.offline_em.baum_welch(om.corridor(4), [], [0], tol=tol)
