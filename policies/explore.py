@@ -122,7 +122,8 @@ def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
     Each step: the planner chooses an action from the estimator's belief, the true world moves
     (:func:`onlinemap.simulate.world_step`: move, map change, observe), the estimator takes the
     action and observation. ``planner`` is a :class:`~policies.planners.Planner` or a name
-    (``entropy``, ``random``, ``sweep``); ``estimator`` a fresh estimator or a registry name,
+    (``entropy``, ``random``, ``sweep``, ``info_gain``; a planner with a ``bind`` method is given
+    the estimator before the first step); ``estimator`` a fresh estimator or a registry name,
     built with ``estimator_options`` (and a ``seed`` derived from ``seed`` if it takes one).
     A named planner is built with ``planner_options`` (:func:`~policies.planners.make_planner`
     keywords, e.g. ``gamma`` or ``replan_every``) and the planner stream of ``seed``.
