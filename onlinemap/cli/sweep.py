@@ -13,7 +13,7 @@ from ..errors import OnlineMapError
 from ..evaluate import TIMING_NOTE
 from ..sweeps import MAX_TASKS, collect, finished_tasks, load_spec, plot_sweep, summarize, summary_table, sweep
 from ..tables import check_writable
-from .common import print_table, split_list
+from .common import open_unit_interval, print_table, split_list
 
 
 RESULTS = "results"  # DIR/results.parquet or DIR/results.csv
@@ -45,7 +45,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--metrics", type=split_list,
                    help="comma-separated metrics for the summary (default: map and location errors, "
                         "failed, distances to the reference, door error, ms per step, those present)")
-    p.add_argument("--confidence", type=confidence_level, default=0.95,
+    p.add_argument("--confidence", type=open_unit_interval, default=0.95,
                    help="confidence level, in (0, 1) (default 0.95)")
     p.add_argument("--max-tasks", type=int, default=MAX_TASKS,
                    help=f"refuse specs with more tasks than this (default {MAX_TASKS:,})")
@@ -55,17 +55,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                "the horizontal axis")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
-
-
-def confidence_level(text: str) -> float:
-    """argparse type: a confidence level strictly between 0 and 1 (refuses nan, 2, 0)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
-    if not 0 < value < 1:  # also false for nan
-        raise argparse.ArgumentTypeError(f"must be in (0, 1), got {text}")
-    return value
 
 
 def _read(path: str) -> pd.DataFrame:
