@@ -105,13 +105,15 @@ step measures that directly."""),
 
 The same comparison on random walks (`onlinemap compare` runs it from the command line): a
 10-cell corridor and a 3 x 3 grid, static and with labels that change (p_change = 0.02), against
-exact Bayes. Mean distance to exact over runs and steps, per estimator (`rbpf optimal` is the
-default, Fearnhead-Clifford; `rbpf transition` samples the motion model with residual
-resampling)."""),
+exact Bayes. Mean distance to exact over runs and steps, per estimator and rbpf scheme: `rbpf FC`
+is the default (optimal proposal, Fearnhead-Clifford resampling), `rbpf optimal+residual` samples
+the same proposal with residual resampling, `rbpf transition+residual` samples the motion model.
+The second figure puts the distance against the milliseconds per step."""),
     ("code", """per_step = compare.accuracy_study(compare.DEFAULT_WORLDS, n_runs=N_RUNS, n_steps=N_STEPS,
                                   particles=(10, 100, 1000), progress=False)
 summary = compare.summarise(per_step)
 display(compare.error_vs_particles_figure(summary))
+display(compare.error_vs_time_figure(summary))
 display(compare.error_over_time_figure(per_step))
 summary.pivot(index="estimator", columns="world", values="mean_map_tv").round(4)"""),
     ("md", """## Conclusion

@@ -19,18 +19,26 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from .estimators import available_estimators
-from .estimators.rbpf import PROPOSALS
 
 DEFAULT_WORLDS = ("corridor:10", "corridor:10,p_change=0.02", "grid:3x3", "grid:3x3,p_change=0.02")
 DEFAULT_PARTICLES = (10, 50, 100, 1000)
+# (label, proposal, resampling) of the rbpf schemes compared: the default (optimal proposal with
+# Fearnhead-Clifford resampling), the optimal proposal sampled with residual resampling, and the
+# transition proposal (the default for it) with residual resampling
+RBPF_SCHEMES = (("FC", "optimal", "fearnhead_clifford"), ("optimal+residual", "optimal", "residual"),
+                ("transition+residual", "transition", "residual"))
+_SCHEME_LABELS = {(proposal, resampling): name for name, proposal, resampling in RBPF_SCHEMES}
+_DEFAULT_RESAMPLING = {"optimal": "fearnhead_clifford", "transition": "residual"}  # rbpf's resampling=None
 
 
 def compare_estimators(particles: Sequence[int] = DEFAULT_PARTICLES) -> list[tuple[str, str, dict]]:
     """(label, registry name, options) of the estimators compared with exact: bk, rbpf with each
-    proposal and particle count, online_em (only if registered), dead_reckoning."""
+    scheme of :data:`RBPF_SCHEMES` and particle count (``rbpf FC P=100``), online_em (only if
+    registered), dead_reckoning."""
     entries = [("bk", "bk", {})]
-    entries += [(f"rbpf {proposal} P={n}", "rbpf", {"n_particles": int(n), "proposal": proposal})
-                for proposal in PROPOSALS for n in particles]
+    entries += [(label("rbpf", proposal, n, resampling), "rbpf",
+                 {"n_particles": int(n), "proposal": proposal, "resampling": resampling})
+                for _, proposal, resampling in RBPF_SCHEMES for n in particles]
     if "online_em" in available_estimators():
         entries.append(("online_em", "online_em", {}))
     entries.append(("dead_reckoning", "dead_reckoning", {}))
@@ -44,17 +52,32 @@ def study_spec(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_steps
     Bayes as the reference, and every estimator of :func:`compare_estimators`."""
     estimators: dict[str, object] = {"exact": {}}
     for _, name, options in compare_estimators(particles):
-        if name == "rbpf":
-            estimators["rbpf"] = {"n_particles": [int(n) for n in particles], "proposal": list(PROPOSALS)}
+        if name == "rbpf":  # one grid per scheme: the schemes are not a product of proposals and resamplers
+            estimators["rbpf"] = [{"n_particles": [int(n) for n in particles], "proposal": proposal,
+                                   "resampling": resampling} for _, proposal, resampling in RBPF_SCHEMES]
         else:
             estimators[name] = {}
     return {"name": "compare", "worlds": list(worlds), "seeds": list(range(int(seed), int(seed) + int(n_runs))),
             "steps": int(n_steps), "rows": "step", "reference": "exact", "estimators": estimators}
 
 
-def label(estimator: str, proposal, n_particles) -> str:
-    """The study's label of a configuration: ``rbpf optimal P=100``, or the registry name."""
-    return f"rbpf {proposal} P={int(n_particles)}" if estimator == "rbpf" else estimator
+def label(estimator: str, proposal, n_particles, resampling=None) -> str:
+    """The study's label of a configuration: ``rbpf FC P=100``, ``rbpf optimal+residual P=100``,
+    ``rbpf transition+residual P=100`` (:data:`RBPF_SCHEMES`; ``resampling`` None: the rbpf's
+    default for the proposal; another pair: ``rbpf PROPOSAL+RESAMPLING P=n``), or the registry name."""
+    if estimator != "rbpf":
+        return estimator
+    proposal = proposal if isinstance(proposal, str) else "optimal"
+    resampling = resampling if isinstance(resampling, str) else _DEFAULT_RESAMPLING[proposal]
+    return f"rbpf {_SCHEME_LABELS.get((proposal, resampling), f'{proposal}+{resampling}')} P={int(n_particles)}"
+
+
+def scheme_of(estimator_label: str) -> tuple[str, int] | None:
+    """``rbpf SCHEME P=n`` -> (SCHEME, n); None for an estimator without particles."""
+    parts = estimator_label.split(" ")
+    if len(parts) != 3 or parts[0] != "rbpf" or not parts[2].startswith("P="):
+        return None
+    return parts[1], int(parts[2][2:])
 
 
 def accuracy_study(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_steps: int = 100,
@@ -64,8 +87,8 @@ def accuracy_study(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_s
     ``out`` as in :func:`onlinemap.sweeps.sweep`: 0 runs serially here, None on a local dask
     cluster). One row per (world, run, estimator, t): the sweep's per-step columns
     (:mod:`onlinemap.evaluate`: ``location_tv``, ``map_tv``, ``map_error``, ``ms_per_step``, ...)
-    plus ``run`` (the seed), ``particles`` (NaN unless rbpf), ``proposal`` and ``estimator``
-    relabelled by :func:`label`. Cost: n_runs * n_steps steps of exact and of every estimator,
+    plus ``run`` (the seed), ``particles`` (NaN unless rbpf), ``proposal``, ``resampling`` and
+    ``estimator`` relabelled by :func:`label`. Cost: n_runs * n_steps steps of exact and of every estimator,
     per world."""
     from .sweeps import sweep
 
@@ -73,8 +96,10 @@ def accuracy_study(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_s
                   progress=progress)
     proposal = table["opt_proposal"] if "opt_proposal" in table else pd.Series(None, index=table.index)
     count = table["opt_n_particles"] if "opt_n_particles" in table else pd.Series(None, index=table.index)
-    table["estimator"] = [label(e, p, n) for e, p, n in zip(table["estimator"], proposal, count)]
+    resampling = table["opt_resampling"] if "opt_resampling" in table else pd.Series(None, index=table.index)
+    table["estimator"] = [label(e, p, n, r) for e, p, n, r in zip(table["estimator"], proposal, count, resampling)]
     table["run"], table["particles"], table["proposal"] = table["seed"], count.astype("Float64"), proposal
+    table["resampling"] = resampling
     return table
 
 
@@ -102,35 +127,69 @@ def _world_axes(fig: Figure, worlds: list[str], rows: int = 1):
     return axes
 
 
+def _scheme_rows(rows: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """The rbpf rows of a :func:`summarise` table per scheme, by increasing particle count."""
+    parsed = rows["estimator"].map(scheme_of)
+    out = {}
+    for name, _, _ in RBPF_SCHEMES:
+        mask = parsed.map(lambda p: p is not None and p[0] == name).astype(bool)
+        sub = rows[mask].assign(particles=[p[1] for p in parsed[mask]])
+        if len(sub):
+            out[name] = sub.sort_values("particles")
+    return out
+
+
+def _others(rows: pd.DataFrame) -> pd.DataFrame:
+    """The estimators of a :func:`summarise` table without particles, exact left out."""
+    return rows[rows["estimator"].map(scheme_of).isna() & (rows["estimator"] != "exact")]
+
+
 def error_vs_particles_figure(summary: pd.DataFrame) -> Figure:
     """Per world: mean map (solid) and location (dotted) distance to exact against the number of
-    particles for each proposal; horizontal lines for the estimators without particles."""
+    particles for each rbpf scheme (:data:`RBPF_SCHEMES`); horizontal lines for the estimators
+    without particles."""
     worlds = list(dict.fromkeys(summary["world"]))
     fig = Figure(figsize=(3.6 * len(worlds), 3.4), layout="constrained")
-    rbpf = summary["estimator"].str.startswith("rbpf ")
     for ax, world in zip(_world_axes(fig, worlds)[0], worlds):
         rows = summary[summary["world"] == world]
-        for proposal, color in zip(PROPOSALS, ("C0", "C1")):
-            sub = rows[rows["estimator"].str.startswith(f"rbpf {proposal} ")]
-            n = sub["estimator"].str.extract(r"P=(\d+)")[0].astype(int)
-            order = np.argsort(n.to_numpy())
-            ax.plot(n.to_numpy()[order], sub["mean_map_tv"].to_numpy()[order], "o-", color=color,
-                    label=f"rbpf {proposal}: map")
-            ax.plot(n.to_numpy()[order], sub["mean_location_tv"].to_numpy()[order], "o:", color=color,
-                    label=f"rbpf {proposal}: location")
-        others = rows[~rbpf.loc[rows.index] & (rows["estimator"] != "exact")]
-        for (label, value), color in zip(others[["estimator", "mean_map_tv"]].itertuples(index=False),
-                                         ("C3", "C4", "C5", "C6")):
-            ax.axhline(value, color=color, linestyle="--", linewidth=1, label=f"{label}: map")
+        for (scheme, sub), color in zip(_scheme_rows(rows).items(), ("C0", "C1", "C2")):
+            ax.plot(sub["particles"], sub["mean_map_tv"], "o-", color=color, label=f"rbpf {scheme}: map")
+            ax.plot(sub["particles"], sub["mean_location_tv"], "o:", color=color, label=f"rbpf {scheme}: location")
+        for (name, value), color in zip(_others(rows)[["estimator", "mean_map_tv"]].itertuples(index=False),
+                                        ("C3", "C4", "C5", "C6")):
+            ax.axhline(value, color=color, linestyle="--", linewidth=1, label=f"{name}: map")
         ax.set(xscale="log", yscale="log", xlabel="particles")
     fig.axes[0].set_ylabel("mean TV distance to exact")
     fig.axes[-1].legend(fontsize="x-small", loc="best")
     return fig
 
 
+def error_vs_time_figure(summary: pd.DataFrame) -> Figure:
+    """Per world: mean map distance to exact against milliseconds per step, one line per rbpf
+    scheme through its particle counts (annotated), one point per estimator without particles:
+    which scheme buys accuracy cheapest."""
+    worlds = list(dict.fromkeys(summary["world"]))
+    fig = Figure(figsize=(3.6 * len(worlds), 3.4), layout="constrained")
+    for ax, world in zip(_world_axes(fig, worlds)[0], worlds):
+        rows = summary[summary["world"] == world]
+        for (scheme, sub), color in zip(_scheme_rows(rows).items(), ("C0", "C1", "C2")):
+            ax.plot(sub["ms_per_step"], sub["mean_map_tv"], "o-", color=color, label=f"rbpf {scheme}")
+            for x, y, n in zip(sub["ms_per_step"], sub["mean_map_tv"], sub["particles"]):
+                ax.annotate(f"{n}", (x, y), fontsize="xx-small", color=color, xytext=(2, 2),
+                            textcoords="offset points")
+        for (name, ms, value), color in zip(
+                _others(rows)[["estimator", "ms_per_step", "mean_map_tv"]].itertuples(index=False),
+                ("C3", "C4", "C5", "C6")):
+            ax.plot([ms], [value], "s", color=color, label=name)
+        ax.set(xscale="log", yscale="log", xlabel="ms per step")
+    fig.axes[0].set_ylabel("mean map TV distance to exact")
+    fig.axes[-1].legend(fontsize="x-small", loc="best")
+    return fig
+
+
 def error_over_time_figure(per_step: pd.DataFrame, estimators: Sequence[str] | None = None) -> Figure:
     """Per world: map (top) and location (bottom) distance to exact over time, mean over runs,
-    for ``estimators`` (default: all but exact and the transition-proposal filters)."""
+    for ``estimators`` (default: all but exact and the transition+residual filters)."""
     worlds = list(dict.fromkeys(per_step["world"]))
     if estimators is None:
         names = dict.fromkeys(per_step["estimator"])

@@ -27,8 +27,15 @@ from .planners import Planner, make_planner
 COLUMNS = ("t", "action", "true_location", "map_error", "location_error", "location_entropy",
            "map_entropy", "door_error")
 
-# (observation, true location, true labels (N,)) after a step
-WorldState = tuple[int, int, np.ndarray]
+# (observation: an int, or (F,) readings for a footprint model; true location; true labels (N,))
+WorldState = tuple[int | np.ndarray, int, np.ndarray]
+
+
+def _observation(model: GridModel, observation) -> int | np.ndarray:
+    """An environment's observation as the estimators take it: an int, or ``model.observation_shape``."""
+    if model.observation_shape == ():
+        return int(observation)
+    return np.asarray(observation, dtype=np.int64).reshape(model.observation_shape)
 
 
 def _seeds(seed: SeedLike) -> tuple[np.random.Generator, np.random.Generator, int]:
@@ -80,7 +87,7 @@ def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[
         raise ModelError(f"steps must be at least 1 (the first observation), got {steps}")
     actions = np.full(steps, -1, dtype=np.int64)
     locations = np.empty(steps, dtype=np.int64)
-    observations = np.empty(steps, dtype=np.int64)
+    observations = np.empty((steps,) + model.observation_shape, dtype=np.int64)
     location_belief = np.empty((steps, model.n_cells))
     map_belief = np.empty((steps, model.n_cells, model.n_labels))
     evidence = np.empty(steps)
@@ -174,14 +181,14 @@ def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estima
 
     def reset() -> WorldState:
         observation, info = env.reset(seed=int(world_seed.integers(2**31)))
-        return int(observation), info["location"], info["map"]
+        return _observation(model, observation), info["location"], info["map"]
 
     def advance(action: int) -> WorldState:
         observation, _, terminated, truncated, info = env.step(int(action))
         if terminated or truncated:
             raise ModelError(f"the environment ended the episode at step {info['t']}; "
                              f"ask for fewer steps or raise its max_episode_steps")
-        return int(observation), info["location"], info["map"]
+        return _observation(model, observation), info["location"], info["map"]
 
     return _loop(model, reset, advance, chooser, est, steps, progress).frame
 

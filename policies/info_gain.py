@@ -50,6 +50,7 @@ Backends (who plays "a copy of the filter"):
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import NamedTuple
 
@@ -131,7 +132,7 @@ def expected_uncertainty(estimator: Estimator, actions, *, hypotheses: int | Non
     """(H + 1,) the expected :func:`uncertainty` after each prefix of ``actions`` (H,), entry 0 now.
 
     ``hypotheses=None``: exact expectation over every observation sequence (K^H forks of the
-    estimator, each outcome weighted by its predictive probability ``exp(log_evidence after -
+    estimator, K^(F H) for a footprint of F readings, each outcome weighted by its predictive probability ``exp(log_evidence after -
     log_evidence before)``). An integer S: the mean over S worlds drawn by :func:`sample_states`
     and simulated with :func:`onlinemap.simulate.world_step` (S forks, S H steps).
     The estimator itself (state and random generator) is left exactly as it was.
@@ -160,7 +161,10 @@ def _enumerate(node: Estimator, actions: np.ndarray, depth: int, probability: fl
     if depth == len(actions) or probability == 0.0:
         return
     before = node.belief.log_evidence
-    for z in range(node.model.n_labels):
+    model = node.model
+    outcomes = (range(model.n_labels) if model.observation_shape == ()
+                else (np.array(z) for z in itertools.product(range(model.n_labels), repeat=model.n_readings)))
+    for z in outcomes:
         child = fork(node)
         try:
             belief = child.step(int(actions[depth]), z)
@@ -220,6 +224,14 @@ class RolloutTables(NamedTuple):
     sensor_cdf: np.ndarray  # (K, K)
     change_cdf: np.ndarray  # (K, K)
     powers: np.ndarray  # (H + 1, K, K) C^d
+
+
+def particle_rollouts_fit(model: GridModel) -> bool:
+    """Whether the numba rollouts simulate ``model`` exactly: they read one cell per step and move
+    the robot without looking at the map, so a footprint (``n_readings > 1``) or blocking labels
+    send the planner to the forks of :func:`expected_uncertainty` instead (simulated by
+    :func:`onlinemap.simulate.world_step`, slower but exact)."""
+    return model.n_readings == 1 and not model.has_blocking
 
 
 def rollout_tables(model: GridModel, horizon: int) -> RolloutTables:
@@ -393,7 +405,7 @@ class InfoGainExplorer:
         checkpoints = np.zeros(horizon + 1, dtype=np.bool_)
         checkpoints[0] = True
         checkpoints[lengths] = True
-        if est.name == "rbpf" and self.hypotheses is not None:
+        if est.name == "rbpf" and self.hypotheses is not None and particle_rollouts_fit(self.model):
             snapshot = particle_snapshot(est)
             weights = np.exp(snapshot.log_weights)
             chosen = self.rng.choice(len(weights), size=self.hypotheses, p=weights / weights.sum())

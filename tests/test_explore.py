@@ -12,7 +12,7 @@ import onlinemap as om
 from onlinemap.cli import main
 from policies import (COLUMNS, EntropyExplorer, compare_planners, door_cells, explore, explore_env,
                       exploration_world, floor_plan_prior, summarize)
-from policies.explore import _seeds
+from policies.explore import _seeds, exploration
 from estimator_cases import exact_trajectory
 
 TINY = ".o.\n#c.\n"  # 2 x 3 door world: small enough for exact Bayes (4^6 maps)
@@ -53,6 +53,25 @@ def test_explore_matches_a_replay_through_simulate(tiny, planner):
     assert (run.maps != run.maps[0]).any()  # the doors did change (p_door = 0.05)
     for column in expected:
         np.testing.assert_allclose(frame[column], expected[column], atol=1e-9, err_msg=column)
+
+
+@pytest.mark.parametrize("planner", ["random", "sweep", "entropy", "info_gain"])
+def test_every_planner_explores_a_blocking_world_with_a_cross_footprint(planner):
+    """(F,) observations (F = 5 readings) and blocking walls: the loop stores what the world
+    emitted (a replay through onlinemap.simulate with the world's stream gives the same run), and
+    info_gain plans on estimator forks (its numba rollouts model neither footprints nor blocking)."""
+    from policies.info_gain import particle_rollouts_fit
+
+    model, true_map = om.door_world(blocking=True, footprint="cross")
+    assert model.observation_shape == (5,) and not particle_rollouts_fit(model)
+    found = exploration(model, true_map, planner, "rbpf", steps=5, seed=3, progress=False,
+                        estimator_options={"n_particles": 20},
+                        planner_options={"hypotheses": 2} if planner == "info_gain" else None)
+    assert found.run.observations.shape == (5, 5) and np.isfinite(found.frame["map_error"]).all()
+    world_rng, _, _ = _seeds(3)
+    replay = om.simulate(model, true_map, found.run.actions, seed=world_rng)
+    np.testing.assert_array_equal(found.run.observations, replay.observations)
+    np.testing.assert_array_equal(found.run.locations, replay.locations)
 
 
 def test_same_seed_same_run(tiny):
