@@ -12,12 +12,12 @@ must be small enough for ``exact``.
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Mapping, Sequence
 
-import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from .errors import ModelError
 from .estimators import available_estimators
 
 DEFAULT_WORLDS = ("corridor:10", "corridor:10,p_change=0.02", "grid:3x3", "grid:3x3,p_change=0.02")
@@ -46,17 +46,26 @@ def compare_estimators(particles: Sequence[int] = DEFAULT_PARTICLES) -> list[tup
 
 
 def study_spec(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_steps: int = 100,
-               particles: Sequence[int] = DEFAULT_PARTICLES, seed: int = 0) -> dict:
+               particles: Sequence[int] = DEFAULT_PARTICLES, seed: int = 0,
+               options: Mapping[str, Mapping[str, object]] | None = None) -> dict:
     """The accuracy study as a sweep spec (:mod:`onlinemap.sweeps`): every world, seeds
     ``seed .. seed + n_runs - 1``, ``n_steps`` steps of a random walk, one row per step, exact
-    Bayes as the reference, and every estimator of :func:`compare_estimators`."""
-    estimators: dict[str, object] = {"exact": {}}
-    for _, name, options in compare_estimators(particles):
+    Bayes as the reference, and every estimator of :func:`compare_estimators`. ``options``:
+    extra options per registry name (e.g. ``{"rbpf": {"block_cells": 4}}``), added to each of
+    that estimator's configurations; the rbpf's scheme keys (``n_particles``, ``proposal``,
+    ``resampling``) are the study's own and cannot be overridden."""
+    options = {name: dict(extra) for name, extra in (options or {}).items()}
+    fixed = {"n_particles", "proposal", "resampling"} & set(options.get("rbpf", ()))
+    if fixed:
+        raise ModelError(f"compare sets the rbpf's {', '.join(sorted(fixed))} itself (its schemes and --particles)")
+    estimators: dict[str, object] = {"exact": options.get("exact", {})}
+    for _, name, _ in compare_estimators(particles):
         if name == "rbpf":  # one grid per scheme: the schemes are not a product of proposals and resamplers
             estimators["rbpf"] = [{"n_particles": [int(n) for n in particles], "proposal": proposal,
-                                   "resampling": resampling} for _, proposal, resampling in RBPF_SCHEMES]
+                                   "resampling": resampling, **options.get("rbpf", {})}
+                                  for _, proposal, resampling in RBPF_SCHEMES]
         else:
-            estimators[name] = {}
+            estimators[name] = options.get(name, {})
     return {"name": "compare", "worlds": list(worlds), "seeds": list(range(int(seed), int(seed) + int(n_runs))),
             "steps": int(n_steps), "rows": "step", "reference": "exact", "estimators": estimators}
 
@@ -82,17 +91,18 @@ def scheme_of(estimator_label: str) -> tuple[str, int] | None:
 
 def accuracy_study(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_steps: int = 100,
                    particles: Sequence[int] = DEFAULT_PARTICLES, seed: int = 0, progress: bool = True, *,
-                   workers: int | None = 0, out=None) -> pd.DataFrame:
+                   workers: int | None = 0, out=None,
+                   options: Mapping[str, Mapping[str, object]] | None = None) -> pd.DataFrame:
     """Per-step distances to exact, run on the sweep engine (:func:`study_spec`; ``workers`` and
     ``out`` as in :func:`onlinemap.sweeps.sweep`: 0 runs serially here, None on a local dask
-    cluster). One row per (world, run, estimator, t): the sweep's per-step columns
+    cluster; ``options`` as in :func:`study_spec`). One row per (world, run, estimator, t): the sweep's per-step columns
     (:mod:`onlinemap.evaluate`: ``location_tv``, ``map_tv``, ``map_error``, ``ms_per_step``, ...)
     plus ``run`` (the seed), ``particles`` (NaN unless rbpf), ``proposal``, ``resampling`` and
     ``estimator`` relabelled by :func:`label`. Cost: n_runs * n_steps steps of exact and of every estimator,
     per world."""
     from .sweeps import sweep
 
-    table = sweep(study_spec(worlds, n_runs, n_steps, particles, seed), workers=workers, out=out,
+    table = sweep(study_spec(worlds, n_runs, n_steps, particles, seed, options), workers=workers, out=out,
                   progress=progress)
     proposal = table["opt_proposal"] if "opt_proposal" in table else pd.Series(None, index=table.index)
     count = table["opt_n_particles"] if "opt_n_particles" in table else pd.Series(None, index=table.index)

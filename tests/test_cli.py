@@ -127,7 +127,7 @@ def test_options_go_to_the_estimators_that_take_them(tmp_path):
     code, out, err = cli(["run", "--estimators", "online_em,rbpf", "--steps", "5", "-o", "window=2",
                           "-o", "rbpf.n_particles=3", "-o", "seed=1", "--out", str(tmp_path)])
     assert code == 0, err
-    from onlinemap.cli.run import options_per_estimator
+    from onlinemap.cli.common import options_per_estimator
     routed = options_per_estimator(["online_em", "rbpf"], ["window=2", "rbpf.n_particles=3", "seed=1"])
     assert routed == {"online_em": {"window": 2}, "rbpf": {"n_particles": 3, "seed": 1}}
 

@@ -64,3 +64,18 @@ def test_cli_refuses_bad_arguments(capsys):
     assert "--particles" in capsys.readouterr().err
     assert main(["compare", "--world", "corridor:30", "--runs", "1", "--steps", "2"]) == 2
     assert "max_bytes" in capsys.readouterr().err  # too big for exact: a clear error
+
+
+def test_cli_options_reach_the_estimators_they_name(capsys):
+    """`-o` as in `run`: KEY=VALUE to every compared estimator with that option, NAME.KEY=VALUE to one;
+    the rbpf's scheme keys belong to the study and are refused."""
+    spec = compare.study_spec(["corridor:4"], 1, 3, (5,), options={"rbpf": {"block_cells": 2}, "online_em": {"window": 3}})
+    assert all(grid["block_cells"] == 2 for grid in spec["estimators"]["rbpf"])
+    assert spec["estimators"]["online_em"] == {"window": 3} and spec["estimators"]["bk"] == {}
+    assert main(["compare", "--world", "corridor:4", "--runs", "1", "--steps", "3", "--particles", "5",
+                 "-o", "rbpf.block_cells=2", "-o", "window=3"]) == 0
+    assert "rbpf FC P=5" in capsys.readouterr().out
+    assert main(["compare", "--world", "corridor:4", "--runs", "1", "--steps", "3", "-o", "n_particles=7"]) == 2
+    assert "sets the rbpf's n_particles itself" in capsys.readouterr().err
+    assert main(["compare", "--world", "corridor:4", "--runs", "1", "--steps", "3", "-o", "nope=1"]) == 2
+    assert "no estimator" in capsys.readouterr().err

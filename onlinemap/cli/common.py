@@ -25,7 +25,7 @@ from importlib.util import find_spec
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..errors import OnlineMapError
+from ..errors import OnlineMapError, UnknownEstimatorError
 from ..progress import PROGRESS_ENV, show_progress
 
 if TYPE_CHECKING:
@@ -190,3 +190,24 @@ def write_table(frame: pd.DataFrame, path: str | Path) -> Path:
 def print_table(frame: pd.DataFrame, float_format: str = "{:.4g}") -> None:
     print(frame.to_string(index=False, float_format=float_format.format))
     sys.stdout.flush()
+
+
+def options_per_estimator(names: list[str], pairs: list[str]) -> dict[str, dict[str, object]]:
+    """Route ``-o`` options: ``KEY=V`` to every estimator in ``names`` with option KEY, ``NAME.KEY=V``
+    to NAME. Unknown names and keys that no listed estimator takes raise ``UnknownEstimatorError``."""
+    from ..estimators import estimator_options  # lazily: ``onlinemap --help`` imports no estimator
+
+    known = {name: estimator_options(name) for name in names}  # raises for an unknown name
+    routed: dict[str, dict[str, object]] = {name: {} for name in names}
+    for key, value in parse_options(pairs).items():
+        target, dot, option = key.rpartition(".")
+        if dot and target not in known:
+            raise UnknownEstimatorError(f"--option {key}: {target!r} is not one of the estimators run "
+                                        f"({', '.join(names)})")
+        takers = [target] if dot else [name for name in names if option in known[name]]
+        if not takers or option not in known[takers[0]]:
+            raise UnknownEstimatorError(f"--option {key}: no estimator in {', '.join(takers or names)} "
+                                        f"has an option {option!r}")
+        for name in takers:
+            routed[name][option] = value
+    return routed

@@ -6,11 +6,12 @@ import argparse
 from pathlib import Path
 
 from .. import plots
-from ..compare import (DEFAULT_PARTICLES, DEFAULT_WORLDS, accuracy_study, error_over_time_figure,
-                       error_vs_particles_figure, error_vs_time_figure, summarise)
+from ..compare import (DEFAULT_PARTICLES, DEFAULT_WORLDS, accuracy_study, compare_estimators,
+                       error_over_time_figure, error_vs_particles_figure, error_vs_time_figure, summarise)
 from ..errors import OnlineMapError
 from ..evaluate import TIMING_NOTE
-from .common import non_negative_int, print_table, split_list, write_table
+from .common import (OPTION_HELP, non_negative_int, options_per_estimator, positive_int, print_table, split_list,
+                     write_table)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -26,13 +27,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--world", action="append", metavar="SPEC",
                    help="world spec, repeatable; small enough for exact (default: "
                         f"{' and '.join(DEFAULT_WORLDS)})")
-    p.add_argument("--runs", type=int, default=20, help="random runs per world (default 20)")
-    p.add_argument("--steps", type=int, default=100, help="steps per run, first observation included (default 100)")
+    p.add_argument("--runs", type=positive_int, default=20, help="random runs per world (default 20)")
+    p.add_argument("--steps", type=positive_int, default=100, help="steps per run, first observation included (default 100)")
     p.add_argument("--particles", default=",".join(map(str, DEFAULT_PARTICLES)),
                    help="comma-separated particle counts for rbpf (default 10,50,100,1000)")
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of maps, walks, noise and particle filters")
-    p.add_argument("--workers", type=int, default=0,
+    p.add_argument("--workers", type=non_negative_int, default=0,
                    help="0 (default): run in this process; N: on a local dask cluster of N processes")
+    p.add_argument("-o", "--option", action="append", default=[], metavar="[NAME.]KEY=VALUE",
+                   help="estimator option, repeatable: KEY=VALUE to every compared estimator that has the "
+                        f"option KEY, NAME.KEY=VALUE to estimator NAME only; {OPTION_HELP}")
     p.add_argument("--out", metavar="DIR", help="directory for compare_steps.csv, compare_summary.csv and figures "
                                                 "(and compare.parts/, the finished runs: a rerun resumes)")
     p.set_defaults(func=compare)
@@ -48,11 +52,13 @@ def compare(args: argparse.Namespace) -> int:
         raise OnlineMapError("--runs, --steps and every particle count must be at least 1")
     if args.workers < 0:
         raise OnlineMapError(f"--workers must be >= 0, got {args.workers}")
+    names = ["exact", *dict.fromkeys(name for _, name, _ in compare_estimators(particles))]
+    options = options_per_estimator(names, args.option)
     out = Path(args.out) if args.out else None
     print(f"{args.runs} runs x {args.steps} steps on {', '.join(worlds)}; rbpf with {particles} particles; "
           f"seed {args.seed}")
     per_step = accuracy_study(worlds, args.runs, args.steps, particles, args.seed, workers=args.workers or None,
-                              out=None if out is None else out / "compare.parquet")
+                              out=None if out is None else out / "compare.parquet", options=options)
     summary = summarise(per_step)
     print_table(summary)
     print(TIMING_NOTE)

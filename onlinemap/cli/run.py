@@ -10,12 +10,12 @@ import numpy as np
 
 from .. import metrics
 from ..arrays import DEFAULT_MAX_BYTES
-from ..errors import MemoryLimitError, UnknownEstimatorError
+from ..errors import MemoryLimitError
 from ..estimators import available_estimators, estimator_options, make_estimator, run_estimator
 from ..progress import show_progress, tqdm
 from ..rng import ESTIMATOR_STREAM, derived_seed
-from .common import (OPTION_HELP, add_out_argument, check_table_format, name_list,
-                     non_negative_int, parse_options, positive_int, print_table, world, write_tables)
+from .common import (OPTION_HELP, add_out_argument, check_table_format, name_list, options_per_estimator,
+                     non_negative_int, positive_int, print_table, world, write_tables)
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -43,25 +43,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         f"option KEY, NAME.KEY=VALUE to estimator NAME only; {OPTION_HELP}")
     add_out_argument(p, "summary.csv (one row per estimator) and steps.csv (one row per estimator and step)")
     p.set_defaults(func=run)
-
-
-def options_per_estimator(names: list[str], pairs: list[str]) -> dict[str, dict[str, object]]:
-    """Route ``-o`` options: ``KEY=V`` to every estimator in ``names`` with option KEY, ``NAME.KEY=V``
-    to NAME. Unknown names and keys that no listed estimator takes raise ``UnknownEstimatorError``."""
-    known = {name: estimator_options(name) for name in names}  # raises for an unknown name
-    routed: dict[str, dict[str, object]] = {name: {} for name in names}
-    for key, value in parse_options(pairs).items():
-        target, dot, option = key.rpartition(".")
-        if dot and target not in known:
-            raise UnknownEstimatorError(f"--option {key}: {target!r} is not one of the estimators run "
-                                        f"({', '.join(names)})")
-        takers = [target] if dot else [name for name in names if option in known[name]]
-        if not takers or option not in known[takers[0]]:
-            raise UnknownEstimatorError(f"--option {key}: no estimator in {', '.join(takers or names)} "
-                                        f"has an option {option!r}")
-        for name in takers:
-            routed[name][option] = value
-    return routed
 
 
 def compare_on_run(run, names: list[str], options: dict[str, dict] | None = None,
