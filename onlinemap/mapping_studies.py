@@ -33,6 +33,7 @@ import pandas as pd
 from . import metrics
 from .estimators import make_estimator, run_estimator
 from .estimators.offline_em import baum_welch
+from .evaluate import metric_bounds
 from .hmm import log_dirichlet_prior
 from .model import GridModel, door_world, grid_model
 from .progress import tqdm
@@ -58,7 +59,8 @@ def summarize(per_run: pd.DataFrame, by: list[str], measures: dict[str, bool],
         row = dict(zip(by, key if isinstance(key, tuple) else (key,)))
         row["runs"] = int(group[measures and next(iter(measures))].notna().sum()) if measures else len(group)
         for name, proportion in measures.items():
-            interval = mean_interval(group[name].to_numpy(dtype=np.float64), confidence, proportion=proportion)
+            interval = mean_interval(group[name].to_numpy(dtype=np.float64), confidence, proportion=proportion,
+                                     bounds=metric_bounds(name))
             row[name], row[f"{name}_low"], row[f"{name}_high"] = interval
         if "error" in group:  # failed runs: how many, and the kinds of error (details in per_run)
             failed = group["error"].dropna()

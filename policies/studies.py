@@ -17,11 +17,12 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 import pandas as pd
-from scipy import stats
-from tqdm import tqdm
+from onlinemap.progress import tqdm
 
+from onlinemap.evaluate import metric_bounds
 from onlinemap.model import GridModel, door_cells, grid_model
 from onlinemap.simulate import sample_map
+from onlinemap.stats import mean_interval
 
 from .explore import explore
 from .worlds import exploration_world
@@ -59,17 +60,14 @@ def run_metrics(frame: pd.DataFrame, final_map: np.ndarray, model: GridModel, tr
 
 
 def summarize_study(runs: pd.DataFrame) -> pd.DataFrame:
-    """Mean and 95% t-interval over seeds of each metric, per planner (in order of appearance)."""
+    """Mean and 95% t-interval over seeds of each metric (cut to the metric's range), per planner
+    (in order of appearance)."""
     rows = []
     for planner, group in runs.groupby("planner", sort=False):
         row = {"planner": planner, "runs": len(group)}
         for metric in (*METRICS, "ms_per_step"):
-            values = group[metric].to_numpy(dtype=float)
-            values = values[np.isfinite(values)]
-            mean = values.mean() if len(values) else np.nan
-            half = (stats.t.ppf(0.975, len(values) - 1) * values.std(ddof=1) / np.sqrt(len(values))
-                    if len(values) > 1 else np.nan)
-            row.update({metric: mean, f"{metric}_ci_low": mean - half, f"{metric}_ci_high": mean + half})
+            interval = mean_interval(group[metric].to_numpy(dtype=float), 0.95, bounds=metric_bounds(metric))
+            row.update({metric: interval.mean, f"{metric}_ci_low": interval.low, f"{metric}_ci_high": interval.high})
         rows.append(row)
     return pd.DataFrame(rows)
 

@@ -138,24 +138,29 @@ def test_malformed_spec_is_refused_before_any_task_runs_naming_the_line(tmp_path
 
 def test_malformed_spec_on_the_command_line_exits_2_with_the_line(tmp_path, capsys):
     path = write_spec(tmp_path, SPEC.replace("[estimators.rbpf]", "[estimators.nope]"))
-    assert main(["sweep", str(path), "--workers", "0", "--out", str(tmp_path / "r.parquet")]) == 2
+    assert main(["sweep", str(path), "--workers", "0", "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err
     assert f"{path}, line 11: estimators.nope: unknown estimator 'nope'" in err
-    assert not (tmp_path / "r.parts").exists()
+    assert not (tmp_path / "r" / "parts").exists()
 
 
 def test_command_line_runs_a_spec_writes_csv_and_summarises(tmp_path, capsys):
     path = write_spec(tmp_path, SPEC.replace("seeds = 3", "seeds = 2"))
     assert main(["sweep", str(path), "--check"]) == 0
     assert f"{N_TASKS // 3 * 2} tasks" in capsys.readouterr().out
-    out = tmp_path / "r.csv"
-    assert main(["sweep", str(path), "--workers", "0", "--out", str(out), "--no-progress"]) == 0
+    out = tmp_path / "r"
+    command = ["sweep", str(path), "--workers", "0", "--out", str(out), "--format", "csv", "--no-progress"]
+    assert main(command) == 0
     printed = capsys.readouterr().out
     assert "final_map_error" in printed and "mean_map_tv" in printed and "n_particles=10" in printed
-    table = pd.read_csv(out)
-    assert len(table) == N_TASKS // 3 * 2 and (tmp_path / "r.parts").is_dir()
-    assert main(["sweep", str(path), "--workers", "0", "--out", str(out), "--no-progress"]) == 0
+    table = pd.read_csv(out / "results.csv")
+    assert len(table) == N_TASKS // 3 * 2 and (out / "parts").is_dir()
+    assert main(command) == 0
     assert f"{N_TASKS // 3 * 2} already finished" in capsys.readouterr().out
+    assert main(["sweep", "--summary", str(out), "--metrics", "final_map_error"]) == 0  # a sweep's DIR
+    assert "final_map_error" in capsys.readouterr().out
+    (tmp_path / "file").write_text("")
+    assert "a directory is expected" in _one_error_line(capsys, ["sweep", str(path), "--out", str(tmp_path / "file")])
 
 
 def test_array_of_tables_errors_name_the_right_table(tmp_path):
@@ -202,8 +207,8 @@ def test_killed_sweep_resumes_and_finishes_every_task_exactly_once(tmp_path, ser
     spec_path = write_spec(tmp_path, SPEC.replace(
         "[estimators.exact]", "[estimators.offline_em]\nn_iter = 30\n\n[estimators.exact]"))
     spec = sweeps.load_spec(spec_path)
-    out = tmp_path / "r.parquet"
-    parts = sweeps.default_results_dir(out)
+    out = tmp_path / "r"
+    parts = out / "parts"
     process = subprocess.Popen([sys.executable, "-m", "onlinemap", "sweep", str(spec_path), "--workers", "0",
                                 "--out", str(out), "--no-progress"], stdout=subprocess.DEVNULL,
                                stderr=subprocess.DEVNULL)
@@ -214,13 +219,13 @@ def test_killed_sweep_resumes_and_finishes_every_task_exactly_once(tmp_path, ser
     process.wait()
     kept = {p.name: p.stat().st_mtime_ns for p in parts.glob("*.parquet")}
     assert 5 <= len(kept) < len(spec.tasks), "the sweep was not stopped midway"
-    table = om.sweep(spec_path, workers=0, out=out, progress=False)
+    table = om.sweep(spec_path, workers=0, out=out / "results.parquet", results_dir=parts, progress=False)
     assert {p.name: p.stat().st_mtime_ns for p in parts.glob("*.parquet") if p.name in kept} == kept  # not rerun
     assert len(table) == len(spec.tasks) and table["task"].is_unique
     assert set(table["task"]) == {t.key for t in spec.tasks}
     fresh = om.sweep(spec, workers=0, progress=False)
     pd.testing.assert_frame_equal(without_timing(table), without_timing(fresh))
-    pd.testing.assert_frame_equal(without_timing(pd.read_parquet(out)), without_timing(fresh))
+    pd.testing.assert_frame_equal(without_timing(pd.read_parquet(out / "results.parquet")), without_timing(fresh))
 
 
 def test_rerunning_a_finished_sweep_runs_nothing_and_ignores_stale_results(tmp_path, monkeypatch):
@@ -438,7 +443,7 @@ def test_bad_command_lines_print_one_error_line_and_exit_2(tmp_path, capsys):
     for value in ("2", "nan"):
         assert "confidence" in _one_error_line(capsys, ["sweep", "--summary", str(table), "--confidence", value])
     assert "--scheduler 'nonsense'" in _one_error_line(
-        capsys, ["sweep", str(path), "--scheduler", "nonsense", "--out", str(tmp_path / "r.parquet")])
+        capsys, ["sweep", str(path), "--scheduler", "nonsense", "--out", str(tmp_path / "r")])
     bad_world = write_spec(tmp_path, SPEC.replace('"corridor:5"', '"corridor:5,p_obs=abc"'), "w.toml")
     assert "line 2: worlds: world spec 'corridor:5,p_obs=abc': p_obs must be a number" in _one_error_line(
         capsys, ["sweep", str(bad_world), "--check"])
@@ -500,6 +505,5 @@ def test_parquet_output_without_pyarrow_is_refused_before_any_work(tmp_path, mon
     monkeypatch.setitem(sys.modules, "pyarrow", None)  # import pyarrow now raises ImportError
     path = write_spec(tmp_path)
     monkeypatch.setattr(sweeps.runner, "run_task", lambda task: pytest.fail("a task ran"))
-    line = _one_error_line(capsys, ["sweep", str(path), "--workers", "0", "--out", str(tmp_path / "r.parquet")])
-    assert "needs pyarrow" in line and not (tmp_path / "r.parts").exists()
-    assert "use a .csv or .parquet" in _one_error_line(capsys, ["sweep", str(path), "--out", str(tmp_path / "r.txt")])
+    line = _one_error_line(capsys, ["sweep", str(path), "--workers", "0", "--out", str(tmp_path / "r")])
+    assert "needs pyarrow" in line and not (tmp_path / "r" / "parts").exists()

@@ -9,7 +9,7 @@ from pathlib import Path
 from ..errors import ModelError
 from ..evaluate import TIMING_NOTE, from_steps
 from ..worlds import parse_world
-from .common import OPTION_HELP, non_negative_int, parse_options, print_table, split_list, write_table
+from .common import OPTION_HELP, non_negative_int, open_unit_interval, parse_options, positive_int, print_table, split_list, write_table
 
 #: the paper's world: the built-in 10 x 10 door world, uniform label prior, p_move 0.8
 DEFAULT_WORLD = "door,p_move=0.8"
@@ -41,11 +41,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--estimator", default="rbpf", help="registry name of the estimator (default rbpf)")
     p.add_argument("-o", "--option", action="append", default=[], metavar="KEY=VALUE",
                    help=f"estimator option, repeatable (e.g. -o n_particles=200); {OPTION_HELP}")
-    p.add_argument("--steps", type=int, default=500, help="steps per run, first observation included (default 500)")
+    p.add_argument("--steps", type=positive_int, default=500, help="steps per run, first observation included (default 500)")
     p.add_argument("--seed", type=non_negative_int, default=0, help="first seed (default 0)")
-    p.add_argument("--repeats", type=int, default=1, help="runs per planner, seeds seed..seed+repeats-1 (default 1)")
-    p.add_argument("--confidence", type=float, default=0.95, help="confidence of the intervals (default 0.95)")
-    p.add_argument("--workers", type=int, default=0,
+    p.add_argument("--repeats", type=positive_int, default=1, help="runs per planner, seeds seed..seed+repeats-1 (default 1)")
+    p.add_argument("--confidence", type=open_unit_interval, default=0.95, help="confidence of the intervals (default 0.95)")
+    p.add_argument("--workers", type=non_negative_int, default=0,
                    help="0 (default): run in this process; N: on a local dask cluster of N processes")
     p.add_argument("--out", metavar="DIR", help="directory for the tables and figures (nothing is written without it)")
     p.set_defaults(func=run)

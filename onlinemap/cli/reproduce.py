@@ -13,7 +13,7 @@ from ..errors import OnlineMapError
 from ..evaluate import ASTRAY_BELOW, LOST_BELOW, TIMING_NOTE
 from ..reproduce import corridor_table, random_corridor_study, with_intervals
 from ..scenarios import murphy_corridor
-from .common import non_negative_int, print_table, write_table
+from .common import non_negative_int, open_unit_interval, positive_int, print_table, write_table
 
 MAPPING_STUDIES = ("loop", "anneal", "blocking")  # onlinemap.mapping_studies.STUDIES, imported lazily
 OVERVIEW_ONLINE_EM = "online_em W=max decay=1.0"  # the one online EM row of the overview figure
@@ -37,15 +37,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="which reproduction; loop, anneal and blocking are the EM-mapping studies of "
                         "onlinemap.mapping_studies (a table with intervals over --runs random runs)")
     p.add_argument("--out", metavar="DIR", help="directory for CSV tables and PNG figures")
-    p.add_argument("--random", metavar="N_RUNS", type=_positive_int, default=0,
+    p.add_argument("--random", metavar="N_RUNS", type=positive_int, default=0,
                    help="run the random-corridor study over N_RUNS runs (rounded up to a multiple of 7) "
                         "instead of the scripted run")
     p.add_argument("--seed", type=non_negative_int, default=0, help="first seed of the random study (default 0)")
-    p.add_argument("--workers", type=int, default=0,
+    p.add_argument("--workers", type=non_negative_int, default=0,
                    help="random study: 0 (default) runs in this process, N on a local dask cluster of N processes")
-    p.add_argument("--confidence", type=_probability, default=0.95,
+    p.add_argument("--confidence", type=open_unit_interval, default=0.95,
                    help="confidence of the intervals, in (0, 1) (default 0.95)")
-    p.add_argument("--runs", type=_positive_int, default=200,
+    p.add_argument("--runs", type=positive_int, default=200,
                    help="loop, anneal, blocking: number of random runs (default 200)")
     p.add_argument("--planners", default="",
                    help="blocking: comma-separated planners of policies.explore run besides the random walk "
@@ -53,20 +53,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=_positive_int, default=150,
                    help="blocking: steps per run, first observation included (default 150)")
     p.set_defaults(func=reproduce)
-
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"needs a number of runs >= 1, got {text}")
-    return value
-
-
-def _probability(text: str) -> float:
-    value = float(text)
-    if not 0 < value < 1:
-        raise argparse.ArgumentTypeError(f"must be in (0, 1), got {text}")
-    return value
 
 
 def steps_table(run, trajectories) -> pd.DataFrame:

@@ -11,10 +11,13 @@ import pandas as pd
 
 from ..errors import OnlineMapError
 from ..evaluate import TIMING_NOTE
-from ..sweeps import (MAX_TASKS, default_results_dir, finished_tasks, load_spec, plot_sweep, summarize,
-                      summary_table, sweep)
+from ..sweeps import MAX_TASKS, collect, finished_tasks, load_spec, plot_sweep, summarize, summary_table, sweep
 from ..tables import check_writable
-from .common import print_table, split_list
+from .common import open_unit_interval, print_table, split_list
+
+
+RESULTS = "results"  # DIR/results.parquet or DIR/results.csv
+PARTS = "parts"  # DIR/parts/: one file per finished task
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -22,12 +25,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "sweep", help="run a grid of experiments from a TOML spec (local dask cluster or a scheduler)",
         description="Run every task of a sweep spec (see examples/*.toml and onlinemap/sweeps.py): "
                     "one per world, estimator configuration, steps, walk and seed. Finished tasks are "
-                    "kept in OUT's .parts directory as they finish, so an interrupted sweep resumes "
-                    "where it stopped; the table (one row per task, or per task and step with "
-                    "rows = \"step\") is written to OUT and summarised.")
+                    "kept in OUT/parts/ as they finish, so an interrupted sweep resumes where it "
+                    "stopped; the table (one row per task, or per task and step with rows = \"step\") "
+                    "is written to OUT/results.parquet (or .csv) and summarised.")
     p.add_argument("spec", nargs="?", help="the sweep spec (.toml)")
-    p.add_argument("--out", help="results table, .parquet or .csv (default: SPEC_NAME.parquet here)")
-    p.add_argument("--results-dir", help="where finished tasks are kept (default: OUT with suffix .parts)")
+    p.add_argument("--out", metavar="DIR", help="directory for results.parquet (or results.csv with --format "
+                   "csv) and the finished tasks (DIR/parts/); default: SPEC_NAME/ in the current directory")
+    p.add_argument("--format", choices=("parquet", "csv"), default="parquet",
+                   help="format of DIR/results (default parquet)")
     p.add_argument("--workers", type=int,
                    help="worker processes of the local dask cluster (default: one per CPU); "
                         "0 runs the tasks one by one in this process, without dask")
@@ -35,12 +40,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="use an existing dask scheduler (e.g. tcp://10.0.0.5:8786) instead of a local "
                         "cluster; its workers need onlinemap installed")
     p.add_argument("--check", action="store_true", help="validate the spec, count the tasks, run nothing")
-    p.add_argument("--summary", metavar="RESULTS",
+    p.add_argument("--summary", metavar="RESULTS",  # a table file, or a sweep's --out DIR
                    help="print means with confidence intervals per configuration from a results table")
     p.add_argument("--metrics", type=split_list,
                    help="comma-separated metrics for the summary (default: map and location errors, "
                         "failed, distances to the reference, door error, ms per step, those present)")
-    p.add_argument("--confidence", type=confidence_level, default=0.95,
+    p.add_argument("--confidence", type=open_unit_interval, default=0.95,
                    help="confidence level, in (0, 1) (default 0.95)")
     p.add_argument("--max-tasks", type=int, default=MAX_TASKS,
                    help=f"refuse specs with more tasks than this (default {MAX_TASKS:,})")
@@ -52,21 +57,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def confidence_level(text: str) -> float:
-    """argparse type: a confidence level strictly between 0 and 1 (refuses nan, 2, 0)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
-    if not 0 < value < 1:  # also false for nan
-        raise argparse.ArgumentTypeError(f"must be in (0, 1), got {text}")
-    return value
-
-
 def _read(path: str) -> pd.DataFrame:
-    suffix = Path(path).suffix
+    """A results table: a .csv / .parquet file, or a sweep's ``--out`` directory (its results
+    table, or, for an unfinished sweep, the parts finished so far)."""
+    path = Path(path)
+    if path.is_dir():
+        tables = [path / f"{RESULTS}{suffix}" for suffix in (".parquet", ".csv")]
+        existing = [table for table in tables if table.exists()]
+        if existing:
+            path = existing[0]
+        elif (path / PARTS).is_dir():
+            return collect(path / PARTS)
+        else:
+            raise OnlineMapError(f"{path} holds no sweep results ({RESULTS}.parquet, {RESULTS}.csv or {PARTS}/)")
     try:
-        return pd.read_csv(path) if suffix == ".csv" else pd.read_parquet(path)
+        return pd.read_csv(path) if path.suffix == ".csv" else pd.read_parquet(path)
     except (OSError, ValueError) as error:
         raise OnlineMapError(f"cannot read results table {path}: {error}") from None
 
@@ -110,11 +115,15 @@ def run(args: argparse.Namespace) -> int:
         raise OnlineMapError(f"--workers must be >= 0, got {args.workers}")
     if args.scheduler and args.workers is not None:
         raise OnlineMapError("--workers sizes a local cluster; with --scheduler the cluster is already there")
-    out = check_writable(Path(args.out or f"{Path(args.spec).stem}.parquet"))
+    directory = Path(args.out or Path(args.spec).stem)
+    if directory.exists() and not directory.is_dir():
+        raise OnlineMapError(f"--out {directory}: a directory is expected (the sweep writes "
+                             f"{RESULTS}.{args.format} and {PARTS}/ in it)")
+    out = check_writable(directory / f"{RESULTS}.{args.format}")
     if args.plot:
         check_writable_figure(args.plot)
     spec = load_spec(args.spec, args.max_tasks)
-    results_dir = Path(args.results_dir) if args.results_dir else default_results_dir(out)
+    results_dir = directory / PARTS
     done = len(finished_tasks(spec.tasks, results_dir)) if results_dir.exists() else 0
     print(f"sweep {spec.name!r}: {len(spec.tasks)} tasks" +
           (f", {done} already finished in {results_dir}" if done else ""))
