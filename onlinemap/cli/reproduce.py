@@ -50,7 +50,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--planners", default="",
                    help="blocking: comma-separated planners of policies.explore run besides the random walk "
                         "(e.g. entropy,info_gain; default none), each closed on rbpf P=200")
-    p.add_argument("--steps", type=_positive_int, default=150,
+    p.add_argument("--steps", type=positive_int, default=150,
                    help="blocking: steps per run, first observation included (default 150)")
     p.set_defaults(func=reproduce)
 
