@@ -242,6 +242,9 @@ BLOCKING_ESTIMATORS: list[tuple[str, str, dict]] = [
     ("rbpf P=200", "rbpf", {"n_particles": 200}),
     ("dead_reckoning", "dead_reckoning", {}),
 ]
+# the estimators a planner's loop is closed on (the planners read its belief each step; info_gain
+# rolls hypotheses out on forks of it)
+PLANNER_ESTIMATORS: list[tuple[str, str, dict]] = [("rbpf P=200", "rbpf", {"n_particles": 200})]
 BLOCKING_MEASURES = {"map_error": False, "wrong_cells": False, "location_error": False, "lost": True}
 
 
@@ -253,15 +256,19 @@ def blocking_world(p_obs: float = 0.9, p_move: float = 0.8, footprint="cross") -
 
 
 def blocking_study(n_runs: int = 200, seed: SeedLike = 0, *, steps: int = 150, policies=("random walk",),
-                   estimators=None, p_obs: float = 0.9, p_move: float = 0.8, footprint="cross",
+                   estimators=None, planner_estimators=None, planner_options: dict | None = None,
+                   p_obs: float = 0.9, p_move: float = 0.8, footprint="cross",
                    confidence: float = 0.95, progress: bool = True) -> StudyResult:
-    """Every estimator of ``estimators`` (default :data:`BLOCKING_ESTIMATORS`) in
-    :func:`blocking_world` for ``n_runs`` seeded runs of ``steps`` steps per policy: ``"random
-    walk"`` (the same runs for every estimator) or a planner name of ``policies.explore`` (the
-    loop closed on that estimator). Scored at the last step: map error, wrong cells, location
-    error, lost. An estimator or planner that refuses the model is reported in ``error``.
+    """Map and location error in :func:`blocking_world` over ``n_runs`` seeded runs of ``steps``
+    steps per policy: ``"random walk"`` (the same runs for every estimator of ``estimators``,
+    default :data:`BLOCKING_ESTIMATORS`) or a planner name of ``policies.explore`` (the loop
+    closed on each estimator of ``planner_estimators``, default :data:`PLANNER_ESTIMATORS`,
+    the planner built with ``planner_options[name]``; the same run seeds as the random walk).
+    Scored alike at the last step over the cells read: map error, wrong cells, location error,
+    lost. An estimator or planner that refuses the model is reported in ``error``.
     Cost: n_runs x policies x estimators x steps x one step (BK O(N F^2), online EM
-    O(W N F), offline EM one fit of O(iterations T N F))."""
+    O(W N F), offline EM one fit of O(iterations T N F)), plus each planner's choices
+    (info_gain: ~S C H estimator steps per plan on forks, S hypotheses, C candidates, H horizon)."""
     model, true_map = blocking_world(p_obs, p_move, footprint)
     rng = as_generator(seed)
     rows = []
@@ -274,8 +281,8 @@ def blocking_study(n_runs: int = 200, seed: SeedLike = 0, *, steps: int = 150, p
                     run = simulate(model, true_map, steps=steps, seed=run_seed)
                     scored = _score_estimators(model, run, estimators or BLOCKING_ESTIMATORS, run_seed)
                 else:
-                    scored = _explore_scores(model, true_map, policy, estimators or BLOCKING_ESTIMATORS,
-                                             steps, run_seed)
+                    scored = _explore_scores(model, true_map, policy, planner_estimators or PLANNER_ESTIMATORS,
+                                             steps, run_seed, (planner_options or {}).get(policy))
                 for row in scored:
                     rows.append({"policy": policy, "run": index, "seed": run_seed, **row})
                 bar.update()
@@ -283,21 +290,21 @@ def blocking_study(n_runs: int = 200, seed: SeedLike = 0, *, steps: int = 150, p
     return StudyResult(per_run, summarize(per_run, ["policy", "estimator"], BLOCKING_MEASURES, confidence))
 
 
-def _explore_scores(model, true_map, planner: str, estimators, steps: int, seed: int) -> list[dict]:
-    """Close the loop with ``policies.explore``: the planner acts on each (online) estimator."""
-    from policies import explore
+def _explore_scores(model, true_map, planner: str, estimators, steps: int, seed: int,
+                    planner_options: dict | None = None) -> list[dict]:
+    """Close the loop with ``policies.exploration``: the planner acts on each (online) estimator;
+    scored like the random walk (:func:`_final_scores`, over the cells read)."""
+    from policies.explore import exploration
 
     rows = []
     for label, name, options in estimators:
         if name == "offline_em":  # refits from scratch every step: O(T^2) in a closed loop
             continue
         try:
-            frame = explore(model, true_map, planner, name, steps, seed, estimator_options=options or None,
-                            progress=False)
-            last = frame.iloc[-1]
-            row = {"map_error": float(last["map_error"]), "wrong_cells": np.nan,
-                   "location_error": float(last["location_error"]),
-                   "lost": float(last["location_error"] > 1 - LOST_BELOW), "error": None}
+            found = exploration(model, true_map, planner, name, steps, seed, estimator_options=options or None,
+                                planner_options=planner_options, progress=False)
+            row = _final_scores(found.run, found.trajectory.location[-1], found.trajectory.map[-1])
+            row["error"] = None
         except Exception as error:  # noqa: BLE001 - a planner or estimator that fails on the model: reported
             row = {measure: np.nan for measure in BLOCKING_MEASURES} | {"error": _short_error(error)}
         rows.append({"estimator": label, **row})
@@ -319,5 +326,6 @@ STUDIES: dict[str, Study] = {
                     "than 1e-3 below the best of both and 10 random restarts"),
     "blocking": Study(blocking_study, BLOCKING_MEASURES,
                       "10 x 10 door world, walls and closed doors blocking, cross footprint, uniform label "
-                      "prior, 150 steps; scored at the last step over the cells read"),
+                      "prior; random walk (every estimator) and the --planners closed on rbpf P=200; scored at the "
+                      "last step over the cells read"),
 }

@@ -55,6 +55,28 @@ def test_blocking_study_runs_every_estimator_on_the_same_runs():
     assert np.allclose(dead["map_error"], 0.75)  # the uniform prior over 4 labels
 
 
+def test_blocking_study_planners_half_scores_like_the_random_walk():
+    """Planners closed on the rbpf, scored over the cells read as the random walk is: the study's
+    row equals _final_scores recomputed by hand from policies.exploration with the same seed."""
+    from policies.explore import exploration
+
+    estimators = [("rbpf P=20", "rbpf", {"n_particles": 20})]
+    per_run, summary = ms.blocking_study(2, seed=4, steps=8, policies=("random walk", "entropy", "info_gain"),
+                                         estimators=estimators, planner_estimators=estimators,
+                                         planner_options={"info_gain": {"hypotheses": 2}}, progress=False)
+    assert list(summary["policy"]) == ["random walk", "entropy", "info_gain"] and (summary["runs"] == 2).all()
+    assert per_run["error"].isna().all() and np.isfinite(per_run[list(ms.BLOCKING_MEASURES)].to_numpy()).all()
+    row = per_run[per_run["policy"] == "info_gain"].iloc[0]
+    model, true_map = ms.blocking_world()
+    found = exploration(model, true_map, "info_gain", "rbpf", 8, int(row["seed"]), progress=False,
+                        estimator_options={"n_particles": 20}, planner_options={"hypotheses": 2})
+    seen = ms.read_cells(found.run)
+    p_true = found.trajectory.map[-1][seen, found.run.final_map[seen]]
+    assert row["map_error"] == pytest.approx(1 - p_true.mean())
+    assert row["wrong_cells"] == (found.trajectory.map[-1][seen].argmax(1) != found.run.final_map[seen]).sum()
+    assert row["location_error"] == pytest.approx(1 - found.trajectory.location[-1, found.run.locations[-1]])
+
+
 def test_cli_prints_and_writes_the_table(tmp_path, capsys):
     from onlinemap.cli import main
 

@@ -49,7 +49,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="loop, anneal, blocking: number of random runs (default 200)")
     p.add_argument("--planners", default="",
                    help="blocking: comma-separated planners of policies.explore run besides the random walk "
-                        "(e.g. entropy,sweep; default none)")
+                        "(e.g. entropy,info_gain; default none), each closed on rbpf P=200")
+    p.add_argument("--steps", type=positive_int, default=150,
+                   help="blocking: steps per run, first observation included (default 150)")
     p.set_defaults(func=reproduce)
 
 
@@ -107,8 +109,10 @@ def mapping_study(name: str, args: argparse.Namespace, out: Path | None) -> None
     options = {"confidence": args.confidence}
     if name == "blocking":
         options["policies"] = ("random walk", *[p.strip() for p in args.planners.split(",") if p.strip()])
+        options["steps"] = args.steps
     result = study_function(args.runs, args.seed, **options)
-    print(f"{name}: {description}; {args.runs} runs from seed {args.seed}; mean [{args.confidence:.0%} interval]")
+    steps = f"; {args.steps} steps" if name == "blocking" else ""
+    print(f"{name}: {description}{steps}; {args.runs} runs from seed {args.seed}; mean [{args.confidence:.0%} interval]")
     print_table(mapping_studies.with_intervals(result.summary, measures))
     if out is not None:
         written = [write_table(result.per_run, out / f"{name}_runs.csv"),
