@@ -32,6 +32,16 @@ Candidates (each scored at several lengths, the prefixes of one rollout):
 The chosen macro-action is executed for at most ``commit`` steps, then the planner re-plans.
 A macro-action whose first press most probably meets a wall is never chosen.
 
+*Re-anchoring.* An expected-entropy score trusts the belief: once every particle agrees on a
+wrong trajectory (P particles cannot hold the 2^T trajectories a slipping robot may have taken),
+it sees nothing to learn about the location. So every ``anchor_every`` steps the planner checks
+the belief against the grid itself: it presses into the corner nearest the expected location
+(``press_lengths[-1]`` presses along each axis, enough to cross the grid with slips), which puts
+the true robot in a known cell whatever the particles believed. Measured on the paper's world
+(20 seeds, 1000 particles, 1000 steps; ``policies.studies``): anchoring every 60 steps takes the
+mean location error from 0.70 to 0.50 at the same map error (0.25); every 40 steps, 0.39 but map
+error 0.35; every 30, 0.27 but the robot does little else (map error 0.64).
+
 Backends (who plays "a copy of the filter"):
 
 - ``rbpf``: a thinned copy of the particle belief (``rollout_particles`` particles drawn by
@@ -291,6 +301,30 @@ def greedy_path(model: GridModel, q: np.ndarray, start: int, length: int) -> np.
     return path
 
 
+def anchor_actions(model: GridModel, belief: Belief, presses: int) -> np.ndarray:
+    """(2 presses,) actions that press into the grid corner nearest the belief's expected location:
+    ``presses`` times towards the nearer of the two column edges, then as many towards the nearer
+    row edge. An action "goes towards" an edge when it moves every cell off that edge and keeps
+    the edge's cells in place (found from ``model.neighbors``, so any 4-connected grid works).
+    O(N A)."""
+    rows, cols = np.divmod(np.arange(model.n_cells), model.cols)
+    expected = (belief.location @ rows, belief.location @ cols)
+    sequence = []
+    for axis, coordinate, size in ((1, cols, model.cols), (0, rows, model.rows)):
+        if size == 1:  # a corridor has no second axis to anchor
+            continue
+        edge = 0 if expected[axis] <= (size - 1) / 2 else size - 1
+        on_edge = coordinate == edge
+        towards = [a for a in range(model.n_actions)
+                   if np.all(model.neighbors[on_edge, a] == np.flatnonzero(on_edge))
+                   and np.all(np.abs(coordinate[model.neighbors[~on_edge, a]] - edge)
+                              < np.abs(coordinate[~on_edge] - edge))]
+        if not towards:
+            raise ModelError("anchor_actions needs a grid whose actions move along its rows and columns")
+        sequence += [towards[0]] * presses
+    return np.asarray(sequence, dtype=np.int64)
+
+
 class MacroScore(NamedTuple):
     """The scores of one plan. C candidate sequences, H their common length."""
 
@@ -311,8 +345,9 @@ class InfoGainExplorer:
     ``ceil((max(rows, cols) - 1) / p_move) + 1``); ``step_cost`` the cost of a step, in units of
     the information one observation gives about a cell of unknown label (``I0`` above);
     ``location_weight`` the weight of ``H(L)`` in ``U``, also in units of ``I0``; ``commit`` the most steps of a chosen
-    macro-action executed before re-planning; ``gamma`` the discount of the policy-iteration
-    plan; ``seed`` (int, None or Generator) the planner's own random stream.
+    macro-action executed before re-planning; ``anchor_every`` the steps from the start of one press into
+    the nearest corner to the start of the next (None: never; see the module docstring); ``gamma`` the discount of the
+    policy-iteration plan; ``seed`` (int, None or Generator) the planner's own random stream.
 
     The planner rolls hypotheses out on copies of the live estimator, so it must see it:
     :func:`policies.explore` calls :meth:`bind` before the first decision. Planning never
@@ -321,7 +356,8 @@ class InfoGainExplorer:
 
     def __init__(self, model: GridModel, seed: SeedLike = None, *, hypotheses: int | None = 12,
                  rollout_particles: int | None = 64, press_lengths=None, step_cost: float = 0.05,
-                 location_weight: float = 4.0, commit: int = 8, gamma: float = 0.95):
+                 location_weight: float = 4.0, commit: int = 8, anchor_every: int | None = 60,
+                 gamma: float = 0.95):
         if hypotheses is not None and (isinstance(hypotheses, bool) or int(hypotheses) < 1):
             raise ModelError(f"hypotheses must be a positive integer or None, got {hypotheses!r}")
         if rollout_particles is not None and (isinstance(rollout_particles, bool) or int(rollout_particles) < 1):
@@ -345,11 +381,17 @@ class InfoGainExplorer:
         self.step_cost = float(step_cost)
         self.location_weight = float(location_weight)
         self.commit = int(commit)
+        self._anchor_length = int(press_lengths[-1]) * ((model.rows > 1) + (model.cols > 1))
+        if anchor_every is not None and (isinstance(anchor_every, bool) or int(anchor_every) <= self._anchor_length):
+            raise ModelError(f"anchor_every must be None or longer than the {self._anchor_length} presses of an "
+                             f"anchor (the robot would do nothing else), got {anchor_every!r}")
+        self.anchor_every = None if anchor_every is None else int(anchor_every)
         self.gamma = float(gamma)
         self.rng = as_generator(seed)
         self.estimator: Estimator | None = None
         self.last_plan: MacroScore | None = None
         self._queue: list[int] = []
+        self._since_anchor = 0
         self._pi: PolicyIterationResult | None = None
         self._tables = rollout_tables(model, int(press_lengths[-1]))
         uniform = np.full((1, model.n_labels), 1.0 / model.n_labels)
@@ -363,15 +405,21 @@ class InfoGainExplorer:
             raise ModelError("the estimator was built for a different model than the planner")
         self.estimator = estimator
         self._queue = []
+        self._since_anchor = 0
 
     def choose(self, belief: Belief) -> int:
         if self.estimator is None:
             raise ModelError("info_gain plans on the live estimator: call planner.bind(estimator) first "
                              "(policies.explore does)")
         if not self._queue:
-            plan = self.plan(belief)
-            c, j = plan.chosen
-            self._queue = plan.sequences[c, :min(int(plan.lengths[j]), self.commit)].tolist()
+            if self.anchor_every is not None and self._since_anchor >= self.anchor_every:
+                self._queue = anchor_actions(self.model, belief, int(self.press_lengths[-1])).tolist()
+                self._since_anchor = 0
+            else:
+                plan = self.plan(belief)
+                c, j = plan.chosen
+                self._queue = plan.sequences[c, :min(int(plan.lengths[j]), self.commit)].tolist()
+        self._since_anchor += 1
         return int(self._queue.pop(0))
 
     def candidates(self, belief: Belief) -> tuple[tuple[str, ...], np.ndarray]:
@@ -429,4 +477,4 @@ class InfoGainExplorer:
     def __repr__(self) -> str:
         return (f"InfoGainExplorer(hypotheses={self.hypotheses}, rollout_particles={self.rollout_particles}, "
                 f"press_lengths={self.press_lengths.tolist()}, step_cost={self.step_cost}, "
-                f"location_weight={self.location_weight}, commit={self.commit})")
+                f"location_weight={self.location_weight}, commit={self.commit}, anchor_every={self.anchor_every})")

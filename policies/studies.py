@@ -21,14 +21,17 @@ from onlinemap.progress import tqdm
 
 from onlinemap.evaluate import metric_bounds
 from onlinemap.model import GridModel, door_cells, grid_model
-from onlinemap.simulate import sample_map
+from onlinemap.errors import ModelError
+from onlinemap.simulate import Run, sample_map
 from onlinemap.stats import mean_interval
 
-from .explore import explore
+from .explore import Exploration, exploration
 from .worlds import exploration_world
 
-METRICS = ("final_map_error", "wrong_cells", "mean_location_error", "late_door_error")
-CONFIDENT = 0.55  # a cell counts as right only if its true label is the most probable, with at least this
+METRICS = ("final_map_error", "wrong_cells", "unsure_or_wrong", "confidently_wrong", "mean_location_error",
+           "late_door_error", "told_location_map_error", "told_location_wrong", "told_location_unsure_or_wrong",
+           "told_location_confidently_wrong")
+CONFIDENT = 0.55  # the probability a most probable label needs to count as known (the peer's rule)
 
 
 class Study(NamedTuple):
@@ -38,24 +41,69 @@ class Study(NamedTuple):
     summary: pd.DataFrame  # one row per planner: runs, then mean, ci_low, ci_high of each metric
 
 
-def wrong_cells(map_belief: np.ndarray, true_map: np.ndarray, confident: float = CONFIDENT) -> int:
-    """Cells whose true label is not the most probable one with probability >= ``confident``
-    (a cell left at an uninformed 1/2 counts as wrong). (N, K), (N,) -> int."""
-    p_true = map_belief[np.arange(len(true_map)), true_map]
-    return int(np.sum(~((np.argmax(map_belief, axis=1) == true_map) & (p_true >= confident))))
+class CellCounts(NamedTuple):
+    """Three readings of "wrong cells" of a map belief (N, K) against the true labels (N,)."""
+
+    wrong: int  # the most probable label is not the true one (ties: the lowest label wins)
+    unsure_or_wrong: int  # not (the true label is the most probable, with probability >= confident)
+    confidently_wrong: int  # the most probable label is wrong and has probability >= confident
 
 
-def run_metrics(frame: pd.DataFrame, final_map: np.ndarray, model: GridModel, true_map: np.ndarray) -> dict:
-    """The study's metrics of one :func:`~policies.explore` run whose final map marginals are
-    ``final_map`` (N, K): final map error, wrong cells (against ``true_map``, the initial map:
-    exact in a static world), mean location error and the mean door error over the last two
-    thirds of the run (NaN without doors)."""
+def cell_counts(map_belief: np.ndarray, true_map: np.ndarray, confident: float = CONFIDENT) -> CellCounts:
+    """The peer's rule ("count a cell wrong when its most probable label, with probability >=
+    0.55, is wrong") read both ways: ``confidently_wrong`` leaves an unsure cell out, so a robot
+    that learns nothing scores 0; ``unsure_or_wrong`` counts it, so a cell never seen counts
+    as wrong. O(N K)."""
+    true_map = np.asarray(true_map)
+    guess = np.argmax(map_belief, axis=1)
+    sure = map_belief[np.arange(len(true_map)), guess] >= confident
+    wrong = guess != true_map
+    return CellCounts(int(wrong.sum()), int(np.sum(wrong | ~sure)), int(np.sum(wrong & sure)))
+
+
+def told_location_map(model: GridModel, run: Run) -> np.ndarray:
+    """(N, K) the map belief of a robot told its true location at every step of ``run``, from the
+    same observations: given the trajectory the cells are independent hidden Markov chains
+    (motion ignores the map), each filtered exactly (predict by C, weigh the cells read by the
+    sensor). What the data of a run could teach at best, the yardstick of the peer's "a robot
+    told its location would get about 8 wrong". O(T N K^2)."""
+    if model.has_blocking:
+        raise ModelError("told_location_map needs motion that ignores the map (no blocking labels): with "
+                         "blocking labels the trajectory itself depends on the map")
+    belief = np.array(np.broadcast_to(model.label_prior, (model.n_cells, model.n_labels)))
+    for t, (location, observation) in enumerate(zip(run.locations, run.observations)):
+        if t > 0 and not model.is_static:
+            belief = belief @ model.change
+        if model.n_readings == 1 and model.footprint == ((0, 0),):
+            cells, readings = np.array([location]), np.array([observation])
+        else:
+            cells = model.footprint_cells[location]
+            readings = np.atleast_1d(observation)
+            cells, readings = cells[readings >= 0], readings[readings >= 0]
+        for cell, z in zip(cells, readings):
+            belief[cell] *= model.sensor[:, z]
+            belief[cell] /= belief[cell].sum()
+    return belief
+
+
+def run_metrics(found: Exploration, final_map: np.ndarray, model: GridModel, true_map: np.ndarray) -> dict:
+    """The study's metrics of one :func:`~policies.exploration` run whose final map marginals are
+    ``final_map`` (N, K): final map error, the :func:`cell_counts` (against the final true map),
+    mean location error, the mean door error over the last two thirds of the run (NaN without
+    doors), and the map error and wrong cells of :func:`told_location_map` on the same run."""
+    frame, final_truth = found.frame, found.run.maps[-1]
     late = frame["t"] >= frame["t"].max() / 3
+    told = told_location_map(model, found.run)
+    counts, told_counts = cell_counts(final_map, final_truth), cell_counts(told, final_truth)
     return {"final_map_error": float(frame["map_error"].iloc[-1]),
-            "wrong_cells": wrong_cells(final_map, np.asarray(true_map)),
+            "wrong_cells": counts.wrong, "unsure_or_wrong": counts.unsure_or_wrong,
+            "confidently_wrong": counts.confidently_wrong,
             "mean_location_error": float(frame["location_error"].mean()),
             "late_door_error": float(frame.loc[late, "door_error"].mean()) if len(door_cells(model, true_map))
             else float("nan"),
+            "told_location_map_error": float(1.0 - told[np.arange(model.n_cells), final_truth].mean()),
+            "told_location_wrong": told_counts.wrong, "told_location_unsure_or_wrong": told_counts.unsure_or_wrong,
+            "told_location_confidently_wrong": told_counts.confidently_wrong,
             "ms_per_step": 1e3 * frame.attrs["seconds_per_step"]}
 
 
@@ -96,8 +144,8 @@ def _explore(model, true_map, planner, steps, seed, estimator_options, planner_o
 
     est = make_estimator("rbpf", model, seed=int(np.random.SeedSequence(seed).generate_state(1)[0]),
                          **estimator_options)
-    frame = explore(model, true_map, planner, est, steps, seed, planner_options=planner_options, progress=False)
-    return run_metrics(frame, est.belief.map, model, true_map)
+    found = exploration(model, true_map, planner, est, steps, seed, planner_options=planner_options, progress=False)
+    return run_metrics(found, est.belief.map, model, true_map)
 
 
 def paper_world_study(planners: Sequence[str] = ("info_gain", "entropy", "random", "sweep"), *,

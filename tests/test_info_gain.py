@@ -270,3 +270,61 @@ def test_bench_planning_reports_ms_per_decision():
     table = run_benchmarks(["planning"], quick=True)
     assert list(table["case"].str.contains("per decision")) == [True, False]
     assert (table["ms"] > 0).all() and (table["reference_ms"] > 0).all()
+
+
+def corner_of(model, cell):
+    """The grid corner nearest ``cell`` (ties to the north and west), by brute force."""
+    r, c = divmod(cell, model.cols)
+    row = 0 if r <= (model.rows - 1) / 2 else model.rows - 1
+    col = 0 if c <= (model.cols - 1) / 2 else model.cols - 1
+    return row * model.cols + col
+
+
+@pytest.mark.parametrize("shape", [(4, 5), (5, 4), (1, 6), (3, 3)])
+def test_anchor_actions_press_into_the_nearest_corner(shape):
+    """From a known cell, the anchor presses end in the nearest corner on a floor that never slips,
+    and stay there on one that slips (every press only moves towards the corner)."""
+    from policies.info_gain import anchor_actions
+
+    model = om.grid_model(*shape, 2, p_move=1.0)
+    for cell in range(model.n_cells):
+        location = np.zeros(model.n_cells)
+        location[cell] = 1.0
+        belief = om.Belief(0, location, np.full((model.n_cells, 2), 0.5))
+        actions = anchor_actions(model, belief, max(shape))
+        end = cell
+        for a in actions:
+            end = int(model.neighbors[end, a])
+        assert end == corner_of(model, cell)
+
+
+def test_info_gain_re_anchors_every_anchor_every_steps():
+    """With commit 1 and anchor_every = 2 H + 3: 2 H + 3 plans, then 2 H presses into the corner
+    nearest the expected location (no plan meanwhile), 3 plans, and the next anchor."""
+    from policies.info_gain import anchor_actions
+
+    model, _ = exploration_world(p_door=0.0, p_move=0.8, floor_plan=None)
+    est = make_estimator("rbpf", model, n_particles=50, seed=0)
+    belief = est.step(None, 0)
+    presses = 13
+    planner = make_planner("info_gain", model, seed=0, hypotheses=2, commit=1, anchor_every=2 * presses + 3)
+    planner.bind(est)
+    plans = []
+
+    def calls(n):
+        out = []
+        for _ in range(n):
+            out.append(planner.choose(belief))
+            plans.append(planner.last_plan)
+        return out
+
+    calls(2 * presses + 3)
+    assert len({id(p) for p in plans}) == 2 * presses + 3  # a plan every call
+    anchor = anchor_actions(model, belief, presses).tolist()
+    assert calls(2 * presses) == anchor and all(p is plans[2 * presses + 2] for p in plans[-2 * presses:])
+    calls(3)
+    assert len({id(p) for p in plans[-3:]}) == 3
+    assert calls(2 * presses) == anchor
+    for too_short in (0, 2 * presses, True):
+        with pytest.raises(ModelError, match="anchor_every"):
+            make_planner("info_gain", model, anchor_every=too_short)

@@ -1,0 +1,46 @@
+"""policies.studies: the three readings of "wrong cells" against a per-cell loop, and the map of a
+robot told its location against the exact joint filter on a floor that never slips (where the
+location is known, so the exact map marginals are exactly that map)."""
+
+import numpy as np
+import pytest
+
+import onlinemap as om
+from onlinemap.errors import ModelError
+from onlinemap.estimators import make_estimator
+from policies.studies import CONFIDENT, cell_counts, told_location_map
+
+
+def test_cell_counts_match_a_per_cell_loop():
+    rng = np.random.default_rng(0)
+    for k in (2, 3, 4):
+        beliefs = rng.dirichlet(np.full(k, 0.7), size=60)
+        beliefs[:5] = 1.0 / k  # uninformed cells
+        truth = rng.integers(k, size=60)
+        wrong = unsure = confident_wrong = 0
+        for p, label in zip(beliefs, truth):
+            best = int(np.argmax(p))
+            wrong += best != label
+            unsure += not (best == label and p[best] >= CONFIDENT)
+            confident_wrong += best != label and p[best] >= CONFIDENT
+        assert cell_counts(beliefs, truth) == (wrong, unsure, confident_wrong)
+
+
+@pytest.mark.parametrize("footprint", ["cell", "cross"])
+@pytest.mark.parametrize("static", [True, False])
+def test_told_location_map_equals_the_exact_filter_when_the_floor_never_slips(footprint, static):
+    change = None if static else om.model.symmetric_channel(2, 0.9)
+    model = om.grid_model(2, 3, 2, p_obs=0.8, p_move=1.0, change=change, footprint=footprint)
+    true_map = np.array([0, 1, 1, 0, 0, 1])
+    run = om.simulate(model, true_map, np.random.default_rng(1).integers(4, size=12), seed=2)
+    exact = make_estimator("exact", model)
+    for t in range(run.n_steps):
+        exact.step(None if t == 0 else int(run.actions[t - 1]), run.observations[t])
+    np.testing.assert_allclose(told_location_map(model, run), exact.belief.map, atol=1e-12)
+
+
+def test_told_location_map_refuses_blocking_worlds():
+    model, true_map = om.door_world(".o.\n#c.\n", blocking=True)
+    run = om.simulate(model, true_map, [1, 2], seed=0)
+    with pytest.raises(ModelError, match="blocking"):
+        told_location_map(model, run)
