@@ -4,6 +4,8 @@
 - :func:`paper_world_study`: the built-in 10 x 10 door world at the paper's settings (uniform
   label prior, ``p_move`` 0.8, ``p_obs`` 0.9; static or with doors flipping at ``p_door``),
   RBPF with 1000 particles, 1000 steps.
+- :func:`replay_study`: how much of a planner's map error is the particle filter's: its runs
+  replayed (same actions and observations) through filters with more particles.
 - :func:`binary_task_study`: the binary 10 x 10 task of the C++ belief-tracking peer (2 labels,
   ``p_move`` 0.9, ``p_obs`` 0.8, 300 steps, 100 particles), a fresh random map per seed.
 
@@ -165,3 +167,37 @@ def binary_task_study(planners: Sequence[str] = ("info_gain", "random"), *, seed
     model = grid_model(10, 10, 2, p_obs=0.8, p_move=0.9)
     return compare(lambda seed: (model, sample_map(model, 10_000 + seed)), planners, seeds, steps,
                    {"n_particles": n_particles}, planner_options, progress)
+
+
+def replay_study(planner: str = "info_gain", *, seeds: Sequence[int] = range(5), steps: int = 1000,
+                 n_particles: int = 1000, replay_particles: Sequence[int] = (1000, 5000, 20000), replays: int = 2,
+                 p_door: float = 0.0, progress: bool = True) -> pd.DataFrame:
+    """The paper's world explored by ``planner`` with an RBPF of ``n_particles`` (one run per seed),
+    then each run's actions and observations fed to fresh RBPFs of every size in
+    ``replay_particles`` (``replays`` estimator seeds each) and to :func:`told_location_map`.
+    One row per (seed, filter): ``seed``, ``filter`` ("live", "rbpf P", "told location"),
+    ``final_map_error`` (mean over replays). The data are the same in a row group, so the
+    differences are the filters': what a better filter would make of the planner's data.
+    Cost: ``len(seeds)`` runs plus ``len(seeds) * replays * sum(replay_particles) * steps`` particle
+    steps (about 40 s a seed at the defaults)."""
+    from onlinemap.estimators import make_estimator, run_estimator
+
+    model, true_map = exploration_world(p_door=p_door, p_move=0.8, floor_plan=None)
+    rows = []
+    for seed in tqdm(list(seeds), desc="replay study", disable=not progress):
+        est = make_estimator("rbpf", model, seed=seed, n_particles=n_particles)
+        found = exploration(model, true_map, planner, est, steps, seed, progress=False)
+        truth = found.run.maps[-1]
+        rows.append({"seed": seed, "filter": "live", "final_map_error": float(found.frame["map_error"].iloc[-1])})
+        for size in replay_particles:
+            errors = []
+            for replay in range(replays):
+                replayed = make_estimator("rbpf", model, seed=10_000 + replay, n_particles=int(size),
+                                          max_bytes=2**36)
+                final = run_estimator(replayed, found.run.actions, found.run.observations).map[-1]
+                errors.append(1.0 - final[np.arange(model.n_cells), truth].mean())
+            rows.append({"seed": seed, "filter": f"rbpf {int(size)}", "final_map_error": float(np.mean(errors))})
+        told = told_location_map(model, found.run)
+        rows.append({"seed": seed, "filter": "told location",
+                     "final_map_error": float(1.0 - told[np.arange(model.n_cells), truth].mean())})
+    return pd.DataFrame(rows)

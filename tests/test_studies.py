@@ -44,3 +44,23 @@ def test_told_location_map_refuses_blocking_worlds():
     run = om.simulate(model, true_map, [1, 2], seed=0)
     with pytest.raises(ModelError, match="blocking"):
         told_location_map(model, run)
+
+
+def test_replay_study_feeds_the_live_runs_data_to_fresh_filters():
+    """Each replay row is a fresh RBPF (seed 10000 + replay) fed the live run's actions and
+    observations; the told-location row is told_location_map of the same run."""
+    from policies import exploration, exploration_world
+    from policies.studies import replay_study
+    from onlinemap.estimators import run_estimator
+
+    table = replay_study(seeds=[3], steps=40, n_particles=64, replay_particles=(32,), replays=1, progress=False)
+    assert table["filter"].tolist() == ["live", "rbpf 32", "told location"]
+    model, true_map = exploration_world(p_door=0.0, p_move=0.8, floor_plan=None)
+    found = exploration(model, true_map, "info_gain", make_estimator("rbpf", model, seed=3, n_particles=64), 40, 3)
+    truth = found.run.maps[-1]
+    replayed = run_estimator(make_estimator("rbpf", model, seed=10_000, n_particles=32), found.run.actions,
+                             found.run.observations).map[-1]
+    told = told_location_map(model, found.run)
+    expected = [found.frame["map_error"].iloc[-1], 1 - replayed[np.arange(100), truth].mean(),
+                1 - told[np.arange(100), truth].mean()]
+    np.testing.assert_allclose(table["final_map_error"], expected, rtol=1e-12)
