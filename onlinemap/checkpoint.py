@@ -14,6 +14,8 @@ tuple, list, dict with str keys           JSON containers of the above
 ``numpy.random.Generator``                its ``bit_generator.state`` (PCG64, MT19937, ...)
 :class:`~onlinemap.belief.Belief`         its fields
 :class:`~onlinemap.model.GridModel`       its tables, rebuilt through the validating constructor
+a registered state class (a dataclass,     its fields, by these same rules (e.g. the RBPF's
+:func:`state_class`)                      :class:`~onlinemap.estimators.block_pool.BlockPool`)
 ``numpy.dtype`` or numpy scalar type      its name
 function / numba dispatcher / own method  its name only: configuration, re-derived from the options
                                           on construction and checked to be the same on load
@@ -71,8 +73,10 @@ from .errors import CheckpointError, OnlineMapError
 from .model import DEFINING_FIELDS, OPTIONAL_FIELDS, GridModel, model_difference
 
 FORMAT = "onlinemap-checkpoint"
-FORMAT_VERSION = 1  # bump when the file layout or an estimator's state changes incompatibly
+FORMAT_VERSION = 2  # bump when the file layout or an estimator's state changes incompatibly
 OLDEST_FORMAT_VERSION = 1  # the oldest format this code still reads
+# version 2: the RBPF's block pool is one attribute (``_blocks``, a BlockPool); version 1 files
+# are read through RaoBlackwellisedPF.upgrade_attributes.
 _TAG = "$"
 _SEPARATE = ("model", "options")  # attributes stored apart from the state tree
 _ARRAY_KINDS = "biufcUSmM"  # numpy dtype kinds that npy stores without pickling
@@ -84,6 +88,26 @@ def _package_version() -> str:
     from . import __version__
 
     return __version__
+
+
+#: dataclasses stored field by field: qualified name -> class (see :func:`state_class`)
+STATE_CLASSES: dict[str, type] = {}
+
+
+def state_class(cls: type) -> type:
+    """Class decorator: checkpoints store instances of the dataclass ``cls`` field by field (each
+    field by the rules of the module docstring) and rebuild them with ``cls(**fields)``; the
+    estimator's state checks then validate them. Nothing else about the class is trusted."""
+    if not dataclasses.is_dataclass(cls):
+        raise TypeError(f"state_class needs a dataclass, got {cls!r}")
+    STATE_CLASSES[cls.__qualname__] = cls
+    return cls
+
+
+def state_node(cls: type, fields: dict) -> dict:
+    """The encoded-tree node of a :func:`state_class` instance from its fields' nodes (for
+    ``upgrade_attributes``)."""
+    return {_TAG: "object", "class": cls.__qualname__, "fields": fields}
 
 
 # --- encoding: Python objects -> tree (JSON values, raw ndarrays, tagged dicts) ----------------------
@@ -117,6 +141,9 @@ class _Encoder:
                                               for f in dataclasses.fields(Belief)}}
         if kind is GridModel:
             return encode_model(value)
+        if STATE_CLASSES.get(kind.__qualname__) is kind:
+            return state_node(kind, {f.name: self.encode(getattr(value, f.name), f"{path}.{f.name}")
+                                     for f in dataclasses.fields(value)})
         if isinstance(value, np.dtype):
             return {_TAG: "dtype", "name": value.str}
         if isinstance(value, type) and issubclass(value, np.generic):
@@ -210,6 +237,8 @@ class _Decoder:
                 return Belief(**{k: self.decode(v, f"{path}.{k}") for k, v in node["fields"].items()})
             if tag == "model":
                 return decode_model(node)
+            if tag == "object":
+                return self._object(node, path)
             if tag == "dtype":
                 return _dtype(node["name"])
             if tag == "scalar_type":
@@ -223,6 +252,20 @@ class _Decoder:
         except (KeyError, TypeError, ValueError, AttributeError, OverflowError, IndexError) as error:
             raise CheckpointError(f"attribute {path}: malformed {tag!r} entry: {_short(str(error))}") from None
         raise CheckpointError(f"attribute {path}: unknown entry type {tag!r}")
+
+
+    def _object(self, node: dict, path: str):
+        cls = STATE_CLASSES.get(node["class"]) if isinstance(node["class"], str) else None
+        if cls is None:
+            raise CheckpointError(f"attribute {path}: unknown state class {_short(node['class'])}")
+        names = [f.name for f in dataclasses.fields(cls)]
+        given = node["fields"]
+        if type(given) is not dict or sorted(given) != sorted(names):
+            raise CheckpointError(f"attribute {path}: a {cls.__name__} needs the fields {names}")
+        fields = {name: self.decode(given[name], f"{path}.{name}") for name in names}
+        if any(isinstance(value, _KeepFresh) for value in fields.values()):
+            raise CheckpointError(f"attribute {path}: a {cls.__name__} holds only values, not functions")
+        return cls(**fields)
 
 
 def _short(node) -> str:
@@ -317,7 +360,10 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
     """Restore ``est`` from :func:`state_dict`'s output. Checks the format version (see
     :func:`check_header`), the estimator name, the model (bitwise), the options and the attribute
     names and kinds, then the restored state's invariants (see :mod:`onlinemap.state_checks`);
-    refuses with :class:`CheckpointError` and leaves ``est`` untouched on any mismatch."""
+    refuses with :class:`CheckpointError` and leaves ``est`` untouched on any mismatch. An older
+    format version's attributes first go through the class's ``upgrade_attributes(attributes,
+    version)`` if it has one (it rewrites the encoded tree; :func:`state_node` builds the node of
+    a :func:`state_class` instance)."""
     check_header(state, strict_version=strict_version, allow_newer=allow_newer)
     if state["estimator"] != est.name:
         raise CheckpointError(f"checkpoint is for estimator {state['estimator']!r}, not {est.name!r}")
@@ -329,6 +375,9 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
         raise CheckpointError(f"checkpoint was written with options {options}, the estimator has {est.options}")
     if type(state["attributes"]) is not dict:
         raise CheckpointError("checkpoint's attributes entry is malformed")
+    upgrade = getattr(type(est), "upgrade_attributes", None)
+    if upgrade is not None and state["format_version"] < FORMAT_VERSION:
+        state = {**state, "attributes": upgrade(dict(state["attributes"]), state["format_version"])}
     current = {name: value for name, value in vars(est).items() if name not in _SEPARATE}
     missing, extra = sorted(set(current) - set(state["attributes"])), sorted(set(state["attributes"]) - set(current))
     if missing or extra:
@@ -355,9 +404,14 @@ def check_state(est, restored: dict) -> None:
     define its own ``check_state(view)``). Raises :class:`CheckpointError`."""
     from . import state_checks
 
-    for name in state_checks.CONSTANT.get(est.name, ()):
-        if name in restored and not same_tree(_Encoder().encode(restored[name], name),
-                                              _Encoder().encode(vars(est)[name], name)):
+    for name in state_checks.CONSTANT.get(est.name, ()):  # "attribute" or "attribute.field"
+        head, _, field = name.partition(".")
+        if head not in restored:
+            continue
+        mine, theirs = vars(est)[head], restored[head]
+        if field:
+            mine, theirs = getattr(mine, field), getattr(theirs, field)
+        if not same_tree(_Encoder().encode(theirs, name), _Encoder().encode(mine, name)):
             raise CheckpointError(f"invalid state: attribute {name} differs from what the model and options give")
     check = getattr(type(est), "check_state", None) or state_checks.STATE_CHECKS.get(est.name)
     if check is not None:

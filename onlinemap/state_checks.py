@@ -10,8 +10,8 @@ estimator hand out an invalid belief.
 Two kinds of checks, both on a read-only view of the candidate state (attribute access like
 the estimator's; nothing is changed until every check has passed):
 
-- :data:`CONSTANT`: attributes fixed by the model and options (tables, layouts, the options
-  themselves); they must equal, bit for bit, those of the estimator the state is loaded into,
+- :data:`CONSTANT`: attributes (or ``attribute.field`` of a state object) fixed by the model and
+  options (tables, layouts, the options themselves); they must equal, bit for bit, those of the estimator the state is loaded into,
   which was built from the same model and options.
 - :data:`STATE_CHECKS`: one function per estimator for the attributes that change as it steps.
 
@@ -37,12 +37,12 @@ CONSTANT: dict[str, tuple[str, ...]] = {
     "online_em": ("window", "_window", "decay", "pseudo_count", "_prior_emission", "_sensor_inverse"),
     "offline_em": ("n_iter", "tol", "pseudo_count", "anneal", "_prior_emission", "_location_prior",
                    "_sensor_inverse"),
-    "rbpf": ("n_particles", "proposal", "resampling", "resample_threshold", "lazy_dynamics", "_stamped",
-             "_cell_block", "_cell_slot", "_block_members", "_powers"),
+    "rbpf": ("n_particles", "proposal", "resampling", "resample_threshold", "lazy_dynamics", "_blocks.stamped",
+             "_blocks.cell_block", "_blocks.cell_slot", "_blocks.block_members", "_blocks.powers"),
 }
 
 
-def _fail(name: str, problem: str) -> None:
+def fail(name: str, problem: str) -> None:
     raise CheckpointError(f"invalid state: attribute {name} {problem}")
 
 
@@ -52,36 +52,36 @@ def array(state, name: str, shape: tuple[int, ...] | None, dtype, *, ndim: int |
     estimator ``written`` into it in place. (``checkpoint`` checks every array's memory order.)"""
     value = getattr(state, name)
     if type(value) is not np.ndarray or value.dtype != np.dtype(dtype):
-        _fail(name, f"must be an array of {np.dtype(dtype)}, got {type(value).__name__} "
+        fail(name, f"must be an array of {np.dtype(dtype)}, got {type(value).__name__} "
                     f"{getattr(value, 'dtype', '')}")
     if shape is not None and value.shape != tuple(shape):
-        _fail(name, f"must have shape {tuple(shape)}, got {value.shape}")
+        fail(name, f"must have shape {tuple(shape)}, got {value.shape}")
     if ndim is not None and value.ndim != ndim:
-        _fail(name, f"must have {ndim} dimensions, got {value.ndim}")
+        fail(name, f"must have {ndim} dimensions, got {value.ndim}")
     if written and not value.flags.writeable:
-        _fail(name, "must be writable (the estimator updates it in place)")
+        fail(name, "must be writable (the estimator updates it in place)")
     return value
 
 
 def indices(name: str, values: np.ndarray, stop: int, start: int = 0) -> None:
     """Every entry in ``start .. stop - 1``."""
     if values.size and (values.min() < start or values.max() >= stop):
-        _fail(name, f"holds indices {values.min()}..{values.max()} outside {start}..{stop - 1}")
+        fail(name, f"holds indices {values.min()}..{values.max()} outside {start}..{stop - 1}")
 
 
 def probabilities(name: str, values: np.ndarray, *, rows: bool = True) -> None:
     """Finite, in [0, 1]; with ``rows``, each row (last axis) sums to 1 within 1e-6."""
     if not np.all(np.isfinite(values)) or np.any(values < 0) or np.any(values > 1 + _ATOL):
-        _fail(name, "must hold probabilities in [0, 1]")
+        fail(name, "must hold probabilities in [0, 1]")
     if rows and values.size and np.max(np.abs(values.sum(axis=-1) - 1)) > _ATOL:
-        _fail(name, "rows must sum to 1")
+        fail(name, "rows must sum to 1")
 
 
 def integer(state, name: str, low: int, high: int) -> int:
     """``state.name``: an int (Python or numpy, not a bool) in ``low .. high``."""
     value = getattr(state, name)
     if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or not low <= value <= high:
-        _fail(name, f"must be an int in {low}..{high}, got {value!r}")
+        fail(name, f"must be an int in {low}..{high}, got {value!r}")
     return value
 
 
@@ -89,7 +89,7 @@ def real(state, name: str, *, low: float = -math.inf, high: float = math.inf, na
     """``state.name``: a float (Python or numpy) in [low, high] (NaN only if ``nan``)."""
     value = getattr(state, name)
     if not isinstance(value, (float, np.floating)) or not (low <= value <= high or (nan and math.isnan(value))):
-        _fail(name, f"must be a float in [{low}, {high}], got {value!r}")
+        fail(name, f"must be a float in [{low}, {high}], got {value!r}")
     return value
 
 
@@ -103,20 +103,20 @@ def belief(state, *, required: bool) -> None:
     value, t, model = state._belief, state._t, state.model
     if value is None:
         if required and t >= 0:
-            _fail("_belief", f"is missing after step {t}")
+            fail("_belief", f"is missing after step {t}")
         return
     if type(value) is not Belief or t < 0 or value.t != t:
-        _fail("_belief", f"must be the Belief of step {t}")
+        fail("_belief", f"must be the Belief of step {t}")
     for field, shape in (("location", (model.n_cells,)), ("map", (model.n_cells, model.n_labels)),
                          ("observation_matrix", (model.n_cells, model.n_labels))):
         values = getattr(value, field)
         if values is None and field == "observation_matrix":
             continue
         if type(values) is not np.ndarray or values.shape != shape or values.dtype != np.float64:
-            _fail(f"_belief.{field}", f"must be a float64 array of shape {shape}")
+            fail(f"_belief.{field}", f"must be a float64 array of shape {shape}")
         probabilities(f"_belief.{field}", values)
     if math.isinf(value.log_evidence) and value.log_evidence > 0:
-        _fail("_belief.log_evidence", "is +inf")
+        fail("_belief.log_evidence", "is +inf")
 
 
 def log_evidence(state) -> None:
@@ -132,9 +132,9 @@ def check_exact(state) -> None:
     x = array(state, "_x", (n, k**n), np.float64, written=True)
     norm = real(state, "_norm", low=np.finfo(float).tiny)
     if not np.all(np.isfinite(x)) or np.any(x < 0):
-        _fail("_x", "must be finite and non-negative")
+        fail("_x", "must be finite and non-negative")
     if abs(x.sum() / norm - 1) > _ATOL:
-        _fail("_x", f"sums to {x.sum()!r}, not to _norm = {norm!r}")
+        fail("_x", f"sums to {x.sum()!r}, not to _norm = {norm!r}")
     log_evidence(state)
     belief(state, required=True)
 
@@ -176,7 +176,7 @@ def check_online_em(state) -> None:
     probabilities("_emission", array(state, "_emission", (n, k), np.float64))
     stats = array(state, "_stats", (n, k), np.float64)
     if not np.all(np.isfinite(stats)) or np.any(stats < 0):
-        _fail("_stats", "must be finite and non-negative")
+        fail("_stats", "must be finite and non-negative")
     log_evidence(state)
     belief(state, required=True)
 
@@ -187,50 +187,26 @@ def check_offline_em(state) -> None:
 
 
 def check_rbpf(state) -> None:
-    """The particles, their weights and the copy-on-write block pool (see ``kernels/rbpf.py``)."""
+    """The particles, their weights and the copy-on-write block pool (:meth:`BlockPool.check
+    <onlinemap.estimators.block_pool.BlockPool.check>`)."""
     model = state.model
     n, k, p = model.n_cells, model.n_labels, state.n_particles
     t = step_index(state)
     indices("_locations", array(state, "_locations", (p,), np.int64, written=True), n)
     log_weights = array(state, "_log_weights", (p,), np.float64)
     if np.any(np.isnan(log_weights)) or np.any(log_weights == math.inf) or not np.any(np.isfinite(log_weights)):
-        _fail("_log_weights", "must be finite or -inf, at least one finite")
+        fail("_log_weights", "must be finite or -inf, at least one finite")
     top = float(log_weights.max())
     if abs(top + math.log(float(np.exp(log_weights - top).sum()))) > _ATOL:
-        _fail("_log_weights", "must be normalised (log-sum-exp 0)")
+        fail("_log_weights", "must be normalised (log-sum-exp 0)")
     weights = array(state, "_weights", (p,), np.float64)
     if weights.tobytes() != np.exp(log_weights).tobytes():
-        _fail("_weights", "must equal exp(_log_weights)")
+        fail("_weights", "must equal exp(_log_weights)")
     real(state, "_ess", low=0.0, high=float(p))
     log_evidence(state)
     if type(state._resampled) is not bool:
-        _fail("_resampled", "must be a bool")
-    n_blocks, block = state._block_members.shape
-    pool = array(state, "_pool", None, np.float64, ndim=3, written=True)
-    rows = pool.shape[0]
-    if pool.shape[1:] != (block, k) or rows < n_blocks + p:
-        _fail("_pool", f"must have shape (R >= {n_blocks + p}, {block}, {k}), got {pool.shape}")
-    table = array(state, "_table", (p, n_blocks), np.int64, written=True)
-    indices("_table", table, rows)
-    row_block = array(state, "_row_block", (rows,), np.int64, written=True)
-    indices("_row_block", row_block, n_blocks)
-    if np.any(row_block[table] != np.arange(n_blocks)):
-        _fail("_row_block", "must name the block each table entry's row holds")
-    refcount = array(state, "_refcount", (rows,), np.int64, written=True)
-    if np.any(refcount != np.bincount(table.ravel(), minlength=rows)):
-        _fail("_refcount", "must count the table's references to every row")
-    free = array(state, "_free", (rows,), np.int64, written=True)
-    free_top = array(state, "_free_top", (1,), np.int64, written=True)
-    unused = np.flatnonzero(refcount == 0)
-    if not 0 <= free_top[0] <= rows or not np.array_equal(np.sort(free[:free_top[0]]), unused):
-        _fail("_free", "must list exactly the rows no particle uses")
-    used = refcount > 0
-    probabilities("_pool", pool[used])
-    stamps = array(state, "_pool_stamps", (rows, block if state._stamped else 0), np.int64, written=True)
-    if state._stamped:  # ages at this step and the next index the table of powers of C
-        ages = stamps[used]
-        indices("_pool_stamps", ages, max(t, 0) + 1, start=t + 2 - len(state._powers))
-    integer(state, "_refresh_cursor", 0, rows - 1)
+        fail("_resampled", "must be a bool")
+    state._blocks.check(p, k, t)  # the copy-on-write pool (estimators/block_pool.py); its kind was checked
     belief(state, required=False)
 
 

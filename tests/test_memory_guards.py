@@ -37,7 +37,7 @@ est.step(None, 0)
 for t in range(1, 2 * n):  # there and back without resampling: every particle ends up owning every block
     est.step(1 if t < n else 0, int(rng.integers(2)))
 est.belief
-print(json.dumps({"measured": peak() - before, "owned": int((est._refcount > 0).sum())}))
+print(json.dumps({"measured": peak() - before, "owned": int((est._blocks.refcount > 0).sum())}))
 """
 
 

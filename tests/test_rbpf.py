@@ -109,28 +109,6 @@ def test_block_size_does_not_change_results(resampling, threshold):
             np.testing.assert_allclose(a.map, b.map, atol=1e-14, rtol=0)
 
 
-def test_block_pool_bookkeeping():
-    """After many resampling steps: every row's reference count equals its uses in the table,
-    free rows are exactly the unused ones, rows hold the block they are used for, and the pool
-    grew beyond its initial size without changing the beliefs."""
-    model = om.corridor(30, 2, p_obs=0.9, p_move=0.8, p_change=0.01)
-    run = random_run(model, 80, seed=11)
-    est = om.make_estimator("rbpf", model, n_particles=50, block_cells=4, resample_threshold=1.0,
-                            resampling="multinomial", seed=1)
-    initial_rows = len(est._pool)
-    for t in range(run.n_steps):
-        est.update(None if t == 0 else run.actions[t - 1], run.observations[t])
-        uses = np.bincount(est._table.ravel(), minlength=len(est._pool))
-        np.testing.assert_array_equal(est._refcount, uses)
-        free = est._free[:est._free_top[0]]
-        assert sorted(free) == sorted(np.flatnonzero(uses == 0)) and len(set(free)) == len(free)
-        blocks = np.broadcast_to(np.arange(est._table.shape[1]), est._table.shape)
-        np.testing.assert_array_equal(est._row_block[est._table], blocks)
-    assert len(est._pool) > initial_rows
-    maps = est.particle_maps()
-    np.testing.assert_allclose(np.exp(est._log_weights) @ maps.reshape(50, -1), est.belief.map.ravel(), atol=1e-14)
-
-
 def test_refresh_keeps_ages_bounded_and_values_unchanged(monkeypatch):
     """Lazy dynamics needs C^age for the age of every stamp; rows are refreshed in turn (and
     old copies on copy) so ages stay <= 2 h + 1 and the table of powers stays fixed however
@@ -138,23 +116,23 @@ def test_refresh_keeps_ages_bounded_and_values_unchanged(monkeypatch):
     (Systematic resampling: refreshing changes rounding, and the binomial draws inside numpy's
     multinomial, which residual resampling uses, can turn a 1e-16 change of exactly tied
     weights into a different draw; the filters would then differ by chance, not by error.)"""
-    import onlinemap.estimators.rbpf as rbpf_module
+    import onlinemap.estimators.block_pool as block_pool
 
-    monkeypatch.setattr(rbpf_module, "REFRESH_STEPS", 4)
+    monkeypatch.setattr(block_pool, "REFRESH_STEPS", 4)
     model = om.grid_model(1, 12, 3, p_obs=0.8, p_move=0.8, change=DYNAMIC_3X3["change"])
     run = random_run(model, 300, seed=12)
     options = dict(n_particles=30, resample_threshold=1.0, resampling="systematic", block_cells=3, seed=6)
     lazy = om.make_estimator("rbpf", model, **options)
     eager = om.make_estimator("rbpf", model, lazy_dynamics=False, **options)
-    powers = lazy._powers.shape
+    powers = lazy._blocks.powers.shape
     for t in range(run.n_steps):
         args = (None if t == 0 else run.actions[t - 1], run.observations[t])
         a, b = lazy.step(*args), eager.step(*args)
-        live = lazy._refcount > 0
-        assert t - lazy._pool_stamps[live].min() <= 2 * 4 + 1
+        live = lazy._blocks.refcount > 0
+        assert t - lazy._blocks.stamps[live].min() <= 2 * 4 + 1
         np.testing.assert_allclose(a.map, b.map, atol=1e-12, rtol=0)
         np.testing.assert_allclose(a.location, b.location, atol=1e-12, rtol=0)
-    assert lazy._powers.shape == powers == (17, 3, 3)
+    assert lazy._blocks.powers.shape == powers == (17, 3, 3)
 
 
 def test_optimal_proposal_has_lower_weight_variance():

@@ -74,19 +74,31 @@ def write_forged(path, meta_bytes, arrays):
         np.savez(file, meta=np.frombuffer(meta_bytes, np.uint8), sha256=np.frombuffer(digest, np.uint8), **arrays)
 
 
-def set_array(meta, arrays, attribute, value):
+def node_at(meta, path):
+    """The encoded node of an attribute, or of a field of a state object (``_blocks.table``)."""
+    attribute, *fields = path.split(".")
     node = meta["attributes"][attribute]
+    for field in fields:
+        node = node["fields"][field]
+    return node
+
+
+def set_array(meta, arrays, attribute, value):
+    node = node_at(meta, attribute)
     arrays[node["key"]] = value
     node.update(dtype=value.dtype.str, shape=list(value.shape))
 
 
 @pytest.mark.parametrize("name,attribute,change,words", [
-    ("rbpf", "_table", lambda a: a + 10**6, "_table holds indices"),
-    ("rbpf", "_table", lambda a: a - 10**6, "_table holds indices"),
+    ("rbpf", "_blocks.table", lambda a: a + 10**6, "_blocks.table holds indices"),
+    ("rbpf", "_blocks.table", lambda a: a - 10**6, "_blocks.table holds indices"),
     ("rbpf", "_locations", lambda a: a * 0 - 1, "_locations holds indices"),
-    ("rbpf", "_refcount", lambda a: a + 1, "_refcount must count"),
-    ("rbpf", "_free_top", lambda a: a + 10**6, "_free must list"),
-    ("rbpf", "_pool", lambda a: a[:-1], "must have shape"),
+    ("rbpf", "_blocks.refcount", lambda a: a + 1, "_blocks.refcount must count"),
+    ("rbpf", "_blocks.free_top", lambda a: a + 10**6, "_blocks.free must list"),
+    ("rbpf", "_blocks.rows", lambda a: a[:-1], "_blocks.row_block must have shape"),
+    ("rbpf", "_blocks.row_block", lambda a: a[::-1], "_blocks.row_block"),
+    ("rbpf", "_blocks.rows", lambda a: a * 2, "_blocks.rows"),
+    ("rbpf", "_blocks.cell_slot", lambda a: a + 1, "_blocks.cell_slot differs"),
     ("rbpf", "_log_weights", lambda a: a * np.nan, "_log_weights must be finite"),
     ("exact", "_x", lambda a: a[:, :-1], "_x must have shape"),
     ("exact", "_x", lambda a: -a, "_x must be finite and non-negative"),
@@ -103,7 +115,7 @@ def test_crafted_checkpoint_is_refused(name, attribute, change, words, tmp_path)
     est = stepped(name)
 
     def edit(meta, arrays):
-        key = meta["attributes"][attribute]["key"]
+        key = node_at(meta, attribute)["key"]
         set_array(meta, arrays, attribute, np.ascontiguousarray(change(arrays[key])))
 
     path = tmp_path / "forged.npz"
@@ -132,11 +144,17 @@ def test_scalar_and_constant_attributes_are_checked():
     est = stepped("rbpf")
     state = est.state_dict()
     fresh = om.make_estimator("rbpf", est.model, **options("rbpf"))
-    for attribute, value, words in [("_refresh_cursor", 10**9, "_refresh_cursor must be an int"),
-                                    ("_t", -7, "_t must be an int"),
-                                    ("n_particles", 10**6, "n_particles differs"),
-                                    ("_ess", float("nan"), "_ess must be a float")]:
-        bad = json.loads(json.dumps(state, default=lambda a: None))  # structure only
+    blocks = state["attributes"]["_blocks"]
+    for attribute, value, words in [
+            ("_blocks", {**blocks, "fields": {**blocks["fields"], "refresh_cursor": 10**9}},
+             "_blocks.refresh_cursor must be an int"),
+            ("_blocks", {**blocks, "fields": {**blocks["fields"], "stamped": False}}, "_blocks.stamped differs"),
+            ("_blocks", {**blocks, "fields": {k: v for k, v in blocks["fields"].items() if k != "free"}},
+             "BlockPool needs the fields"),
+            ("_blocks", {**blocks, "class": "Belief"}, "unknown state class"),
+            ("_t", -7, "_t must be an int"),
+            ("n_particles", 10**6, "n_particles differs"),
+            ("_ess", float("nan"), "_ess must be a float")]:
         bad = {**state, "attributes": {**state["attributes"], attribute: value}}
         with pytest.raises(om.CheckpointError, match=words):
             fresh.load_state_dict(bad)

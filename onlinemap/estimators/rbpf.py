@@ -15,11 +15,12 @@ samples one successor from a proposal and the population is resampled when the e
 sample size drops (residual, systematic, stratified or multinomial).
 
 State (plain attributes): locations (P,), normalised log weights (P,), the particles' map
-marginals as shared copy-on-write blocks of B cells (see ``onlinemap/kernels/rbpf.py``: a pool
-of (B, K) block rows with reference counts and a (P, N / B) table of row indices; stamps per
-cell for lazy dynamics), the powers of C, a ``numpy.random.Generator``. To keep the table of
-powers bounded however long the run, each step also refreshes a few block rows in turn (brings
-them up to date: the same values), so that no stamp is more than ``REFRESH_STEPS`` old:
+marginals as shared copy-on-write blocks of B cells (``_blocks``, a
+:class:`~onlinemap.estimators.block_pool.BlockPool`: a pool of (B, K) block rows with
+reference counts, a (P, N / B) table of row indices, stamps per cell for lazy dynamics and the
+powers of C, with its invariants), a ``numpy.random.Generator``. To keep the table of powers
+bounded however long the run, each step also refreshes a few block rows in turn (brings them up
+to date: the same values), so that no stamp is more than ``REFRESH_STEPS`` old:
 O(R_used B K^2 / REFRESH_STEPS) per step.
 
 Cost per step: O(P K^2) for the proposal and weighting (a particle reads its cell and the
@@ -38,7 +39,6 @@ bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 
@@ -46,19 +46,19 @@ from .. import arguments
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
-from ..kernels.rbpf import (children_by_location, in_place_ancestors, particle_maps, rbpf_commit, rbpf_commit_cells,
-                             rbpf_enumerate, rbpf_enumerate_cells, rbpf_map_mixture, rbpf_pick_children,
-                             rbpf_place_children, rbpf_propose, rbpf_refresh)
+from ..kernels.rbpf import (children_by_location, in_place_ancestors, rbpf_enumerate, rbpf_enumerate_cells,
+                             rbpf_pick_children, rbpf_place_children, rbpf_propose)
 from ..resampling import RESAMPLERS, effective_sample_size, optimal_keep
 from ..rng import SeedLike, as_generator
 from ..model import GridModel
 from ..validation import check_step
 from .base import register
+from ..checkpoint import state_node
+from .block_pool import FORMAT_1_ATTRIBUTES, REFRESH_STEPS, BlockPool, block_layout
 
 PROPOSALS = ("optimal", "transition")
 FEARNHEAD_CLIFFORD = "fearnhead_clifford"
 RESAMPLING = (*RESAMPLERS, FEARNHEAD_CLIFFORD)
-REFRESH_STEPS = 256  # every block row is brought up to date at least this often (lazy dynamics)
 
 
 def _logsumexp(x: np.ndarray) -> float:
@@ -66,41 +66,6 @@ def _logsumexp(x: np.ndarray) -> float:
     if top == -math.inf:
         return -math.inf
     return top + math.log(float(np.exp(x - top).sum()))
-
-
-class BlockLayout(NamedTuple):
-    """How cells are grouped into the shared map blocks of the RBPF."""
-
-    cell_block: np.ndarray  # (N,) block of each cell
-    cell_slot: np.ndarray  # (N,) position of each cell in its block
-    members: np.ndarray  # (n_blocks, B) cells of each block, -1 for padding
-
-
-def block_layout(model: GridModel, block_cells: int | None = None) -> BlockLayout:
-    """Runs of ``block_cells`` consecutive cells in a corridor; square tiles of side
-    ``floor(sqrt(block_cells))`` in a 2D grid (a robot crosses a tile's edge less often than a
-    row's). Default ``block_cells`` about ``sqrt(N / K)``, which balances the copy of one block
-    (B K floats, on a write into a shared block) against the table row of a particle (N / B
-    indices, on resampling)."""
-    n = model.n_cells
-    if block_cells is None:
-        block_cells = max(1, round(math.sqrt(n / model.n_labels)))
-    if isinstance(block_cells, bool) or int(block_cells) != block_cells or block_cells < 1:
-        raise ModelError(f"block_cells must be a positive integer, got {block_cells!r}")
-    cells = np.arange(n)
-    if model.rows == 1:
-        size = min(int(block_cells), n)
-        cell_block, cell_slot = np.divmod(cells, size)
-    else:
-        side = max(1, math.isqrt(int(block_cells)))
-        row, col = np.divmod(cells, model.cols)
-        tiles_across = -(-model.cols // side)
-        cell_block = (row // side) * tiles_across + col // side
-        cell_slot = (row % side) * side + col % side
-        size = side * side
-    members = np.full((int(cell_block.max()) + 1, size), -1, dtype=np.int64)
-    members[cell_block, cell_slot] = cells
-    return BlockLayout(cell_block, cell_slot, members)
 
 
 def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = None, lazy_dynamics: bool = True) -> int:
@@ -138,13 +103,6 @@ def cells_written(model: GridModel) -> int:
     """W, the most cells one particle's map changes in a step: the F read cells, plus the intended
     cell of a move with blocking labels (its success or failure tells about it)."""
     return model.n_readings + int(model.has_blocking)
-
-
-def _grown(array: np.ndarray, rows: int) -> np.ndarray:
-    """``array`` with zero rows appended up to ``rows`` along axis 0."""
-    out = np.zeros((rows, *array.shape[1:]), dtype=array.dtype)
-    out[:len(array)] = array
-    return out
 
 
 @register("rbpf")
@@ -216,34 +174,22 @@ class RaoBlackwellisedPF:
             self._log_weights[:] = -math.inf
             self._log_weights[0] = 0.0
         self._weights = np.exp(self._log_weights)  # exp(_log_weights), kept beside them
-        self._stamped = not model.is_static and self.lazy_dynamics
-        self._cell_block, self._cell_slot, self._block_members = layout
-        n_blocks, block = layout.members.shape
-        self._pool = np.zeros((n_blocks + 2 * n_particles, block, k))
-        self._pool[:n_blocks] = 1.0 / k  # padding slots, never read
-        self._pool[layout.cell_block, layout.cell_slot] = model.label_prior  # every particle shares the prior
-        self._pool_stamps = np.zeros((len(self._pool), block if self._stamped else 0), dtype=np.int64)
-        self._row_block = np.zeros(len(self._pool), dtype=np.int64)
-        self._row_block[:n_blocks] = np.arange(n_blocks)
-        self._refcount = np.zeros(len(self._pool), dtype=np.int64)
-        self._refcount[:n_blocks] = n_particles
-        unused = np.arange(len(self._pool) - 1, n_blocks - 1, -1)  # a stack, the lowest row on top
-        self._free = np.zeros(len(self._pool), dtype=np.int64)
-        self._free[:len(unused)] = unused
-        self._free_top = np.array([len(unused)])
-        self._table = np.tile(np.arange(n_blocks), (n_particles, 1))
-        self._powers = np.eye(k)[None].copy()  # powers[d] = C^d for every age d a stamp can have
-        if self._stamped:
-            self._powers = np.empty((4 * REFRESH_STEPS + 1, k, k))  # ages stay <= 2 REFRESH_STEPS + 1
-            self._powers[0] = np.eye(k)
-            for d in range(1, len(self._powers)):
-                self._powers[d] = self._powers[d - 1] @ model.change
-        self._refresh_cursor = 0
+        self._blocks = BlockPool.new(model, layout, n_particles, not model.is_static and self.lazy_dynamics)
         self._log_evidence = 0.0
         self._ess = float(n_particles)
         self._resampled = False
         self._t = -1
         self._belief: Belief | None = None
+
+    @staticmethod
+    def upgrade_attributes(attributes: dict, version: int) -> dict:
+        """A checkpoint's encoded attributes of format ``version`` as the current format has them:
+        version 1 kept the block pool as 13 loose attributes (``_pool``, ``_table``...), gathered
+        here into ``_blocks`` (the checks on load then validate it as any other). O(1)."""
+        if version == 1 and all(name in attributes for name in FORMAT_1_ATTRIBUTES):
+            fields = {field: attributes.pop(name) for name, field in FORMAT_1_ATTRIBUTES.items()}
+            attributes["_blocks"] = state_node(BlockPool, fields)
+        return attributes
 
     @property
     def resampled(self) -> bool:
@@ -256,12 +202,9 @@ class RaoBlackwellisedPF:
         the module docstring; at most one pass over P N K floats)."""
         if self._belief is None and self._t >= 0:
             weights = self._weights / self._weights.sum()
-            n, k = self.model.n_cells, self.model.n_labels
-            location = np.bincount(self._locations, weights=weights, minlength=n)
+            location = np.bincount(self._locations, weights=weights, minlength=self.model.n_cells)
             location /= location.sum()  # rounding: keep every probability <= 1
-            maps = np.empty((n, k))
-            rbpf_map_mixture(self._pool, self._pool_stamps, self._row_block, self._table, self._block_members,
-                             self._powers, self._stamped, self._t, weights, maps)
+            maps = self._blocks.mixture(self._t, weights)
             maps /= maps.sum(axis=1, keepdims=True)
             self._belief = Belief(self._t, location, maps, self._log_evidence,
                                   effective_sample_size=self._ess)
@@ -269,35 +212,12 @@ class RaoBlackwellisedPF:
 
     def particle_maps(self) -> np.ndarray:
         """(P, N, K) every particle's current map marginals (a fresh array; O(P N K^2))."""
-        out = np.empty((self.n_particles, self.model.n_cells, self.model.n_labels))
-        particle_maps(self._pool, self._pool_stamps, self._table, self._cell_block, self._cell_slot, self._powers,
-                      self._stamped, max(self._t, 0), out)
-        return out
+        return self._blocks.particle_maps(max(self._t, 0))
 
     def step(self, action, observation) -> Belief:
         """``update`` then ``belief``."""
         self.update(action, observation)
         return self.belief
-
-    def _reserved_rows(self, need: int | None = None) -> tuple[np.ndarray, ...]:
-        """(pool, pool_stamps, row_block, refcount, free, free_top): the current block pool, or a
-        copy grown by doubling if fewer than ``need`` rows (default P; a commit may need one per
-        cell it writes) are free. Contents unchanged; the caller stores it once the step is
-        committed."""
-        rows = (self._pool, self._pool_stamps, self._row_block, self._refcount, self._free, self._free_top)
-        top = int(self._free_top[0])
-        need = self.n_particles if need is None else need
-        if top >= need:
-            return rows
-        have = len(self._pool)
-        size = 2 * have
-        while size - have + top < need:
-            size *= 2
-        free = np.zeros(size, dtype=np.int64)
-        added = np.arange(size - 1, have - 1, -1)  # new rows, the lowest on top of the stack
-        free[:top] = self._free[:top]
-        free[top:top + len(added)] = added
-        return (*(_grown(x, size) for x in rows[:4]), free, np.array([top + len(added)]))
 
     def update(self, action, observation) -> None:
         """Advance the particles by one action (None at step 0) and observation.
@@ -324,22 +244,20 @@ class RaoBlackwellisedPF:
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
             log_weights = np.full(n_particles, -math.log(n_particles))
         one_cell = reads_one_cell(model)
-        pool, pool_stamps, row_block, refcount, free, free_top = self._reserved_rows(
-            n_particles * cells_written(model))
+        blocks = self._blocks.reserved(n_particles * cells_written(model))
         if a is not None and not model.is_static and not self.lazy_dynamics:
-            pool = pool @ model.change  # eager: every cell of every block row, fresh array
+            blocks = blocks.with_rows(blocks.rows @ model.change)  # eager: every cell of every block row, fresh array
         neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
         new_locations = np.empty(n_particles, dtype=np.int64)
         log_increments = np.empty(n_particles)
         new_ids = None
         if one_cell:
             new_cells = np.empty((n_particles, model.n_labels))
-            rbpf_propose(self._locations, pool, pool_stamps, self._table, self._cell_block, self._cell_slot,
-                         self._powers, self._stamped, t, ancestors, neighbors,
+            rbpf_propose(self._locations, *blocks.reads(), t, ancestors, neighbors,
                          model.p_move, model.likelihood[z], self.proposal == "optimal",
                          self._rng.random(n_particles), new_locations, new_cells, log_increments)
         else:  # the same children Fearnhead-Clifford enumerates, one drawn per particle
-            m, children = self._enumerate_cells(pool, pool_stamps, t, neighbors, z, np.zeros(n_particles))
+            m, children = self._enumerate_cells(blocks, t, neighbors, z, np.zeros(n_particles))
             width = cells_written(model)
             new_ids = np.empty((n_particles, width), dtype=np.int64)
             new_cells = np.empty((n_particles, width, model.n_labels))
@@ -351,18 +269,17 @@ class RaoBlackwellisedPF:
             self._rng.bit_generator.state = rng_state
             raise ImpossibleObservationError(
                 f"observation {_describe(model, z)} has probability zero for every particle at step {t}")
-        self._commit(t, (pool, pool_stamps, row_block, refcount, free, free_top), ancestors, new_locations, new_cells,
-                     log_weights - increment, increment, resample, new_ids)
+        self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - increment, increment, resample,
+                     new_ids)
 
-    def _enumerate_cells(self, pool, pool_stamps, t, neighbors, z, log_weights):
+    def _enumerate_cells(self, blocks: BlockPool, t, neighbors, z, log_weights):
         """(M, (parent, location, log weight, log motion, ids, cells)): :func:`rbpf_enumerate_cells`
         on the current particles with ``log_weights``, the observation ``z`` an int or (F,)."""
         model = self.model
         size, width = 2 * self.n_particles, cells_written(model)
         children = (np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size), np.empty(size),
                     np.empty((size, width), dtype=np.int64), np.empty((size, width, model.n_labels)))
-        m = rbpf_enumerate_cells(self._locations, log_weights, pool, pool_stamps, self._table, self._cell_block,
-                                 self._cell_slot, self._powers, self._stamped, t, neighbors, model.p_move,
+        m = rbpf_enumerate_cells(self._locations, log_weights, *blocks.reads(), t, neighbors, model.p_move,
                                  model.blocking, model.change, model.footprint_cells, model.sensor,
                                  np.atleast_1d(np.asarray(z, dtype=np.int64)), *children)
         return m, children
@@ -378,11 +295,9 @@ class RaoBlackwellisedPF:
         model = self.model
         n_particles = self.n_particles
         width = cells_written(model)
-        rows = self._reserved_rows(width * n_particles)
-        pool, pool_stamps = rows[:2]
+        blocks = self._blocks.reserved(width * n_particles)
         if a is not None and not model.is_static and not self.lazy_dynamics:
-            pool = pool @ model.change
-            rows = (pool, *rows[1:])
+            blocks = blocks.with_rows(blocks.rows @ model.change)
         neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
         if reads_one_cell(model):
             child_parent = np.empty(2 * n_particles, dtype=np.int64)
@@ -390,13 +305,12 @@ class RaoBlackwellisedPF:
             child_log_weight = np.empty(2 * n_particles)
             child_cells = np.empty((2 * n_particles, 1, model.n_labels))
             child_ids = child_location.reshape(-1, 1)  # the one cell a child changes is where it stands
-            m = rbpf_enumerate(self._locations, self._log_weights, pool, pool_stamps, self._table, self._cell_block,
-                               self._cell_slot, self._powers, self._stamped, t, neighbors, model.p_move,
+            m = rbpf_enumerate(self._locations, self._log_weights, *blocks.reads(), t, neighbors, model.p_move,
                                model.likelihood[z], child_parent, child_location, child_log_weight,
                                child_cells.reshape(2 * n_particles, model.n_labels))
         else:
             m, (child_parent, child_location, child_log_weight, _, child_ids, child_cells) = self._enumerate_cells(
-                pool, pool_stamps, t, neighbors, z, self._log_weights)
+                blocks, t, neighbors, z, self._log_weights)
         if m == 0:
             raise ImpossibleObservationError(
                 f"observation {_describe(model, z)} has probability zero for every particle at step {t}")
@@ -411,29 +325,16 @@ class RaoBlackwellisedPF:
         log_weights = np.empty(n_particles)
         rbpf_place_children(child_parent, child_location, child_ids, child_cells, kept, kept_weights, ancestors,
                             new_locations, new_ids, new_cells, log_weights)
-        self._commit(t, rows, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights), increment,
-                     threshold > 0, new_ids)
+        self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights),
+                     increment, threshold > 0, new_ids)
 
-    def _commit(self, t, rows, ancestors, new_locations, new_cells, log_weights, increment, resampled,
+    def _commit(self, t, blocks: BlockPool, ancestors, new_locations, new_cells, log_weights, increment, resampled,
                 new_ids=None) -> None:
-        """Write a validated step: the particles' slots (:func:`rbpf_commit`, or
-        :func:`rbpf_commit_cells` for the cells ``new_ids``), the block pool ``rows`` (possibly
-        grown), the normalised ``log_weights`` and the evidence ``increment``."""
-        pool, pool_stamps, row_block, refcount, free, free_top = rows
-        if new_ids is None:
-            rbpf_commit(self._locations, pool, pool_stamps, row_block, refcount, free, free_top, self._table,
-                        self._cell_block, self._cell_slot, self._stamped, self._powers, REFRESH_STEPS, t, ancestors,
-                        new_locations, new_cells)
-        else:
-            rbpf_commit_cells(self._locations, pool, pool_stamps, row_block, refcount, free, free_top, self._table,
-                              self._cell_block, self._cell_slot, self._stamped, self._powers, REFRESH_STEPS, t,
-                              ancestors, new_locations, new_ids, new_cells)
-        self._pool, self._pool_stamps, self._row_block, self._refcount = pool, pool_stamps, row_block, refcount
-        self._free, self._free_top = free, free_top
-        if self._stamped:
-            count = -(-len(pool) // REFRESH_STEPS)
-            rbpf_refresh(pool, pool_stamps, refcount, self._powers, t, self._refresh_cursor, count)
-            self._refresh_cursor = (self._refresh_cursor + count) % len(pool)
+        """Write a validated step: the particles' slots and maps into ``blocks`` (this filter's
+        pool, or its grown copy, which the filter then keeps; :meth:`BlockPool.commit`), the
+        normalised ``log_weights`` and the evidence ``increment``."""
+        blocks.commit(self._locations, t, ancestors, new_locations, new_cells, new_ids)
+        self._blocks = blocks
         self._log_weights = log_weights
         self._log_evidence += increment
         self._weights = np.exp(self._log_weights)

@@ -1,0 +1,278 @@
+"""The RBPF's particle maps: copy-on-write blocks of cells shared between particles.
+
+P particles each carry N cell marginals of K labels, but they descend from few ancestors and
+share most of them. :class:`BlockPool` stores the maps as blocks of B cells (a run of a
+corridor, a square tile of a grid: :func:`block_layout`) in a pool of block rows; a table maps
+(particle, block) to the row holding it, and a row is shared by every particle whose table
+names it. Resampling copies table rows (N / B indices), not maps; a particle writing a cell of
+a shared block first copies that block (B K floats). The numba kernels of
+``onlinemap/kernels/rbpf.py`` read and write the pool's arrays; this class owns them, grows the
+pool, keeps the table of powers of C for lazy dynamics and states (and checks) what must hold
+between two steps.
+
+Cost: memory O(R B K) for R block rows in use (at most P N / B rows: P N K floats, far fewer
+while particles share), O(P N / B) for the table, O(K^2 REFRESH_STEPS) for the powers of C.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from .. import state_checks as checks
+from ..checkpoint import state_class
+from ..errors import ModelError
+from ..kernels.rbpf import particle_maps, rbpf_commit, rbpf_commit_cells, rbpf_map_mixture, rbpf_refresh
+from ..model import GridModel
+
+REFRESH_STEPS = 256  # every block row is brought up to date at least this often (lazy dynamics)
+
+
+class BlockLayout(NamedTuple):
+    """How cells are grouped into the shared map blocks of the RBPF."""
+
+    cell_block: np.ndarray  # (N,) block of each cell
+    cell_slot: np.ndarray  # (N,) position of each cell in its block
+    members: np.ndarray  # (n_blocks, B) cells of each block, -1 for padding
+
+
+def block_layout(model: GridModel, block_cells: int | None = None) -> BlockLayout:
+    """Runs of ``block_cells`` consecutive cells in a corridor; square tiles of side
+    ``floor(sqrt(block_cells))`` in a 2D grid (a robot crosses a tile's edge less often than a
+    row's). Default ``block_cells`` about ``sqrt(N / K)``, which balances the copy of one block
+    (B K floats, on a write into a shared block) against the table row of a particle (N / B
+    indices, on resampling)."""
+    n = model.n_cells
+    if block_cells is None:
+        block_cells = max(1, round(math.sqrt(n / model.n_labels)))
+    if isinstance(block_cells, bool) or int(block_cells) != block_cells or block_cells < 1:
+        raise ModelError(f"block_cells must be a positive integer, got {block_cells!r}")
+    cells = np.arange(n)
+    if model.rows == 1:
+        size = min(int(block_cells), n)
+        cell_block, cell_slot = np.divmod(cells, size)
+    else:
+        side = max(1, math.isqrt(int(block_cells)))
+        row, col = np.divmod(cells, model.cols)
+        tiles_across = -(-model.cols // side)
+        cell_block = (row // side) * tiles_across + col // side
+        cell_slot = (row % side) * side + col % side
+        size = side * side
+    members = np.full((int(cell_block.max()) + 1, size), -1, dtype=np.int64)
+    members[cell_block, cell_slot] = cells
+    return BlockLayout(cell_block, cell_slot, members)
+
+
+def _grown(array: np.ndarray, rows: int) -> np.ndarray:
+    """``array`` with zero rows appended up to ``rows`` along axis 0."""
+    out = np.zeros((rows, *array.shape[1:]), dtype=array.dtype)
+    out[:len(array)] = array
+    return out
+
+
+@state_class
+@dataclasses.dataclass(eq=False)
+class BlockPool:
+    """The particles' maps as shared copy-on-write blocks. R block rows, P particles, N cells in
+    ``n_blocks`` blocks of B slots, K labels.
+
+    Block rows (the pool grows by doubling; :meth:`reserved`):
+
+    - ``rows (R, B, K)``: each row's slot marginals;
+    - ``stamps (R, B)``: the step at which each slot was last brought up to date (lazy dynamics;
+      ``(R, 0)`` and never read when not ``stamped``): the marginal at step t is
+      ``rows[r, j] @ powers[t - stamps[r, j]]``;
+    - ``row_block (R,)``: which block of the map a row holds;
+    - ``refcount (R,)``: how many table entries name the row;
+    - ``free (R,)``, ``free_top (1,)``: a stack of the rows no particle uses, ``free[:free_top[0]]``.
+
+    ``table (P, n_blocks)``: the row holding block b of particle p's map, so cell i of particle
+    p is ``rows[table[p, cell_block[i]], cell_slot[i]]``. The layout (``cell_block (N,)``,
+    ``cell_slot (N,)``, ``block_members (n_blocks, B)``, -1 padding), ``powers (D, K, K)``
+    (``C^d``) and ``stamped`` are fixed by the model and options; ``refresh_cursor`` is the next
+    row :meth:`refresh` brings up to date.
+
+    Invariants between two steps (:meth:`check`): the shapes above, with ``R >= n_blocks + P``;
+    every table entry a row index, and the row holds that entry's block
+    (``row_block[table[p, b]] == b``); ``refcount`` equals the number of table entries naming
+    each row; the free stack holds exactly the rows with ``refcount == 0``, once each; the rows
+    in use hold probabilities (each slot's marginal in [0, 1], summing to 1); with stamps, every
+    in-use slot's age at this step and the next indexes ``powers``; ``0 <= refresh_cursor < R``.
+    """
+
+    rows: np.ndarray
+    stamps: np.ndarray
+    row_block: np.ndarray
+    refcount: np.ndarray
+    free: np.ndarray
+    free_top: np.ndarray
+    table: np.ndarray
+    cell_block: np.ndarray
+    cell_slot: np.ndarray
+    block_members: np.ndarray
+    powers: np.ndarray
+    stamped: bool
+    refresh_cursor: int = 0
+
+    #: the fields fixed by the model and options (checked bit for bit against a fresh filter's)
+    CONSTANT = ("cell_block", "cell_slot", "block_members", "powers", "stamped")
+
+    @classmethod
+    def new(cls, model: GridModel, layout: BlockLayout, n_particles: int, stamped: bool) -> BlockPool:
+        """Every particle shares one row per block holding the label prior; P free rows to spare
+        and P more (a step writes at most one block per particle before the pool grows).
+        ``stamped``: lazy dynamics in a dynamic world (powers of C up to 4 REFRESH_STEPS).
+        O((n_blocks + P) B K + P n_blocks)."""
+        k = model.n_labels
+        n_blocks, block = layout.members.shape
+        rows = np.zeros((n_blocks + 2 * n_particles, block, k))
+        rows[:n_blocks] = 1.0 / k  # padding slots, never read
+        rows[layout.cell_block, layout.cell_slot] = model.label_prior  # every particle shares the prior
+        row_block = np.zeros(len(rows), dtype=np.int64)
+        row_block[:n_blocks] = np.arange(n_blocks)
+        refcount = np.zeros(len(rows), dtype=np.int64)
+        refcount[:n_blocks] = n_particles
+        unused = np.arange(len(rows) - 1, n_blocks - 1, -1)  # a stack, the lowest row on top
+        free = np.zeros(len(rows), dtype=np.int64)
+        free[:len(unused)] = unused
+        powers = np.eye(k)[None].copy()  # powers[d] = C^d for every age d a stamp can have
+        if stamped:
+            powers = np.empty((4 * REFRESH_STEPS + 1, k, k))  # ages stay <= 2 REFRESH_STEPS + 1
+            powers[0] = np.eye(k)
+            for d in range(1, len(powers)):
+                powers[d] = powers[d - 1] @ model.change
+        return cls(rows, np.zeros((len(rows), block if stamped else 0), dtype=np.int64), row_block, refcount, free,
+                   np.array([len(unused)]), np.tile(np.arange(n_blocks), (n_particles, 1)), layout.cell_block,
+                   layout.cell_slot, layout.members, powers, bool(stamped))
+
+    def reserved(self, need: int) -> BlockPool:
+        """A pool with at least ``need`` free rows: this one, or a copy whose row arrays are grown
+        by doubling (the contents unchanged; the table, layout and powers shared). The caller
+        keeps the copy only once its step is committed. O(1), or O(R B K) to grow."""
+        top = int(self.free_top[0])
+        if top >= need:
+            return self
+        have = len(self.rows)
+        size = 2 * have
+        while size - have + top < need:
+            size *= 2
+        free = np.zeros(size, dtype=np.int64)
+        added = np.arange(size - 1, have - 1, -1)  # new rows, the lowest on top of the stack
+        free[:top] = self.free[:top]
+        free[top:top + len(added)] = added
+        return dataclasses.replace(self, rows=_grown(self.rows, size), stamps=_grown(self.stamps, size),
+                                   row_block=_grown(self.row_block, size), refcount=_grown(self.refcount, size),
+                                   free=free, free_top=np.array([top + len(added)]))
+
+    def with_rows(self, rows: np.ndarray) -> BlockPool:
+        """This pool with new row contents (R, B, K) (eager dynamics: ``rows @ C``). O(1)."""
+        return dataclasses.replace(self, rows=rows)
+
+    def reads(self) -> tuple:
+        """(rows, stamps, table, cell_block, cell_slot, powers, stamped): the arguments the kernels
+        that read particle maps take (``rbpf_propose``, ``rbpf_enumerate``...), in their order."""
+        return self.rows, self.stamps, self.table, self.cell_block, self.cell_slot, self.powers, self.stamped
+
+    def commit(self, locations: np.ndarray, t: int, ancestors: np.ndarray, new_locations: np.ndarray,
+               new_cells: np.ndarray, new_ids: np.ndarray | None = None) -> None:
+        """Write a step into this pool: particle p takes over ``ancestors[p]``'s table row (and
+        ``locations[p] = new_locations[p]``) and its new marginals ``new_cells`` (P, K) of the cell
+        it stands on (:func:`~onlinemap.kernels.rbpf.rbpf_commit`), or (P, W, K) of the cells
+        ``new_ids`` (P, W) (:func:`~onlinemap.kernels.rbpf.rbpf_commit_cells`), copying a shared
+        block before writing it; then :meth:`refresh`. Needs P W free rows (:meth:`reserved`).
+        O(P n_blocks) for the table rows of resampled particles plus O(P W B K) for the copies."""
+        if new_ids is None:
+            rbpf_commit(locations, self.rows, self.stamps, self.row_block, self.refcount, self.free, self.free_top,
+                        self.table, self.cell_block, self.cell_slot, self.stamped, self.powers, REFRESH_STEPS, t,
+                        ancestors, new_locations, new_cells)
+        else:
+            rbpf_commit_cells(locations, self.rows, self.stamps, self.row_block, self.refcount, self.free,
+                              self.free_top, self.table, self.cell_block, self.cell_slot, self.stamped, self.powers,
+                              REFRESH_STEPS, t, ancestors, new_locations, new_ids, new_cells)
+        self.refresh(t)
+
+    def refresh(self, t: int) -> None:
+        """Bring the next ``ceil(R / REFRESH_STEPS)`` rows up to date (the same values, stamped
+        ``t``), so that no stamp is more than ``REFRESH_STEPS`` old and ``powers`` stays bounded
+        however long the run. O(R B K^2 / REFRESH_STEPS); nothing without stamps."""
+        if not self.stamped:
+            return
+        count = -(-len(self.rows) // REFRESH_STEPS)
+        rbpf_refresh(self.rows, self.stamps, self.refcount, self.powers, t, self.refresh_cursor, count)
+        self.refresh_cursor = (self.refresh_cursor + count) % len(self.rows)
+
+    def mixture(self, t: int, weights: np.ndarray) -> np.ndarray:
+        """(N, K) ``sum_p weights[p] * map_p`` at step t (unnormalised). O(P n_blocks) plus one pass
+        over the rows in use (K^2 flops per out-of-date slot)."""
+        out = np.empty((len(self.cell_block), self.rows.shape[2]))
+        rbpf_map_mixture(self.rows, self.stamps, self.row_block, self.table, self.block_members, self.powers,
+                         self.stamped, t, weights, out)
+        return out
+
+    def particle_maps(self, t: int) -> np.ndarray:
+        """(P, N, K) every particle's map marginals at step t (a fresh array). O(P N K^2)."""
+        out = np.empty((len(self.table), len(self.cell_block), self.rows.shape[2]))
+        particle_maps(self.rows, self.stamps, self.table, self.cell_block, self.cell_slot, self.powers,
+                      self.stamped, t, out)
+        return out
+
+    def check(self, n_particles: int, n_labels: int, t: int, name: str = "_blocks") -> None:
+        """Raise :class:`~onlinemap.errors.CheckpointError` naming the first broken invariant (see
+        the class docstring) of a pool at step ``t`` (-1 before the first); ``name`` prefixes the
+        fields in the message. O(R B K + P n_blocks)."""
+        if type(self.stamped) is not bool:
+            checks.fail(f"{name}.stamped", "must be a bool")
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if type(value) is np.ndarray and not value.flags.c_contiguous:
+                checks.fail(f"{name}.{field.name}", "must be a C-contiguous array (the kernels' layout)")
+        fields, at = _Named(self, name), f"{name}."
+        members = checks.array(fields, at + "block_members", None, np.int64, ndim=2)
+        n_blocks, block = members.shape
+        p, k = n_particles, n_labels
+        rows = checks.array(fields, at + "rows", None, np.float64, ndim=3, written=True)
+        r = rows.shape[0]
+        if rows.shape[1:] != (block, k) or r < n_blocks + p:
+            checks.fail(at + "rows", f"must have shape (R >= {n_blocks + p}, {block}, {k}), got {rows.shape}")
+        table = checks.array(fields, at + "table", (p, n_blocks), np.int64, written=True)
+        checks.indices(at + "table", table, r)
+        row_block = checks.array(fields, at + "row_block", (r,), np.int64, written=True)
+        checks.indices(at + "row_block", row_block, n_blocks)
+        if np.any(row_block[table] != np.arange(n_blocks)):
+            checks.fail(at + "row_block", "must name the block each table entry's row holds")
+        refcount = checks.array(fields, at + "refcount", (r,), np.int64, written=True)
+        if np.any(refcount != np.bincount(table.ravel(), minlength=r)):
+            checks.fail(at + "refcount", "must count the table's references to every row")
+        free = checks.array(fields, at + "free", (r,), np.int64, written=True)
+        free_top = checks.array(fields, at + "free_top", (1,), np.int64, written=True)
+        unused = np.flatnonzero(refcount == 0)
+        if not 0 <= free_top[0] <= r or not np.array_equal(np.sort(free[:free_top[0]]), unused):
+            checks.fail(at + "free", "must list exactly the rows no particle uses")
+        used = refcount > 0
+        checks.probabilities(at + "rows", rows[used])
+        stamps = checks.array(fields, at + "stamps", (r, block if self.stamped else 0), np.int64, written=True)
+        if self.stamped:  # ages at this step and the next index the table of powers of C
+            checks.indices(at + "stamps", stamps[used], max(t, 0) + 1, start=t + 2 - len(self.powers))
+        checks.integer(fields, at + "refresh_cursor", 0, r - 1)
+
+
+class _Named:
+    """Attribute access to a pool's fields under the names ``NAME.field`` (for the messages of
+    :mod:`onlinemap.state_checks`)."""
+
+    def __init__(self, pool: BlockPool, name: str):
+        self._pool, self._name = pool, name
+
+    def __getattr__(self, attribute: str):
+        prefix = self._name + "."
+        return getattr(self._pool, attribute.removeprefix(prefix))
+
+
+#: version-1 checkpoints kept the pool as loose RBPF attributes: attribute -> BlockPool field
+FORMAT_1_ATTRIBUTES = {"_pool": "rows", "_pool_stamps": "stamps", "_row_block": "row_block", "_refcount": "refcount",
+                       "_free": "free", "_free_top": "free_top", "_table": "table", "_cell_block": "cell_block",
+                       "_cell_slot": "cell_slot", "_block_members": "block_members", "_powers": "powers",
+                       "_stamped": "stamped", "_refresh_cursor": "refresh_cursor"}
