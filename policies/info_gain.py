@@ -346,7 +346,8 @@ class InfoGainExplorer:
     the information one observation gives about a cell of unknown label (``I0`` above);
     ``location_weight`` the weight of ``H(L)`` in ``U``, also in units of ``I0``; ``commit`` the most steps of a chosen
     macro-action executed before re-planning; ``anchor_every`` the steps from the start of one press into
-    the nearest corner to the start of the next (None: never; see the module docstring); ``gamma`` the discount of the
+    the nearest corner to the start of the next (None: never; ``"auto"``: twice the anchor's
+    presses plus 8, 60 in the 10 x 10 world; see the module docstring); ``gamma`` the discount of the
     policy-iteration plan; ``seed`` (int, None or Generator) the planner's own random stream.
 
     The planner rolls hypotheses out on copies of the live estimator, so it must see it:
@@ -356,7 +357,7 @@ class InfoGainExplorer:
 
     def __init__(self, model: GridModel, seed: SeedLike = None, *, hypotheses: int | None = 12,
                  rollout_particles: int | None = 64, press_lengths=None, step_cost: float = 0.05,
-                 location_weight: float = 4.0, commit: int = 8, anchor_every: int | None = 60,
+                 location_weight: float = 4.0, commit: int = 8, anchor_every: int | str | None = "auto",
                  gamma: float = 0.95):
         if hypotheses is not None and (isinstance(hypotheses, bool) or int(hypotheses) < 1):
             raise ModelError(f"hypotheses must be a positive integer or None, got {hypotheses!r}")
@@ -381,9 +382,11 @@ class InfoGainExplorer:
         self.step_cost = float(step_cost)
         self.location_weight = float(location_weight)
         self.commit = int(commit)
-        self._anchor_length = int(press_lengths[-1]) * ((model.rows > 1) + (model.cols > 1))
-        if anchor_every is not None and (isinstance(anchor_every, bool) or int(anchor_every) <= self._anchor_length):
-            raise ModelError(f"anchor_every must be None or longer than the {self._anchor_length} presses of an "
+        anchor_length = int(press_lengths[-1]) * ((model.rows > 1) + (model.cols > 1))
+        if anchor_every == "auto":
+            anchor_every = 2 * anchor_length + 8  # 60 in the 10 x 10 world: under half the steps anchoring
+        if anchor_every is not None and (isinstance(anchor_every, (bool, str)) or int(anchor_every) <= anchor_length):
+            raise ModelError(f"anchor_every must be 'auto', None or longer than the {anchor_length} presses of an "
                              f"anchor (the robot would do nothing else), got {anchor_every!r}")
         self.anchor_every = None if anchor_every is None else int(anchor_every)
         self.gamma = float(gamma)
