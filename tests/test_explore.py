@@ -244,3 +244,17 @@ def test_dynamic_door_world_entropy_planner_spends_more_time_at_doors(dynamic_ru
     share = dynamic_runs.assign(at_door=np.isin(dynamic_runs["true_location"], doors)) \
         .groupby(["planner", "seed"])["at_door"].mean().unstack(0)
     assert one_sided_p(-share["entropy"], -share["random"]) < 0.05, share.round(3).to_dict()
+
+
+def test_cli_explore_on_dask_keeps_stderr_free_of_dask_logs(tmp_path):
+    """dask's scheduler runs in the CLI's process and used to log 30 INFO lines (starts, stops,
+    worker registrations) through the CLI's one-line log handler; and one planner alone used to
+    fail in the summary (no configuration column varied, so nothing to group by)."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "onlinemap", "explore", "--planner", "random", "--repeats", "2",
+                           "--steps", "10", "--workers", "1", "--no-progress"], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "random" in done.stdout and "INFO" not in done.stderr, done.stderr

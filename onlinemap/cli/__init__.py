@@ -87,6 +87,9 @@ def main(argv: list[str] | None = None) -> int:
         os.environ[PROGRESS_ENV] = "0"
     if not logging.getLogger().handlers:  # library warnings (e.g. an estimator skipped) as one line each
         logging.basicConfig(level=logging.WARNING, format="onlinemap: %(levelname)s: %(message)s")
+    # dask's scheduler runs in this process and logs every start and stop at INFO through the
+    # handler above; a sweep reports its own progress. Read by dask when a sweep first imports it.
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
     try:
         return int(args.func(args) or 0)
     except OnlineMapError as error:

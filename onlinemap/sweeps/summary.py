@@ -38,9 +38,10 @@ def last_steps(table: pd.DataFrame) -> pd.DataFrame:
 
 
 def summarize(table: pd.DataFrame, metrics_: Iterable[str] | None = None, confidence: float = 0.95) -> pd.DataFrame:
-    """Per configuration (every task column but the seed), for each metric: n, mean and a
-    ``confidence`` interval over seeds (see :func:`mean_interval`). A per-step table is
-    summarised at each task's last step. One row per configuration and metric."""
+    """Per configuration (every task column that varies but the seed; with one configuration,
+    its estimator or planner), for each metric: n, mean and a ``confidence`` interval over seeds
+    (see :func:`mean_interval`). A per-step table is summarised at each task's last step. One
+    row per configuration and metric."""
     table = last_steps(table)
     known = tuple(dict.fromkeys(RUN_METRICS + STEP_METRICS))
     chosen = [m for m in dict.fromkeys(metrics_ or known) if m in table.columns]
@@ -49,9 +50,10 @@ def summarize(table: pd.DataFrame, metrics_: Iterable[str] | None = None, confid
         raise OnlineMapError(f"no metric {', '.join(missing)} in the table; it has: "
                              f"{', '.join(m for m in known if m in table.columns)}")
     config = [c for c in CONFIG_COLUMNS if c in table.columns and table[c].nunique(dropna=False) > 1] or \
-        [c for c in ("estimator",) if c in table.columns]
+        [c for c in ("estimator", "planner") if c in table.columns][:1]  # one configuration: name it
     rows = []
-    for keys, group in table.groupby(config, sort=False, dropna=False):
+    groups = table.groupby(config, sort=False, dropna=False) if config else [((), table)]
+    for keys, group in groups:
         keys = keys if isinstance(keys, tuple) else (keys,)
         for metric in chosen:
             interval = _interval(group[metric], metric, confidence)
