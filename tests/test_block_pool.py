@@ -128,20 +128,29 @@ def test_reserved_grows_by_doubling_and_changes_nothing_else():
     np.testing.assert_array_equal(grown.particle_maps(t), pool.particle_maps(t))
 
 
-def test_a_format_1_checkpoint_loads_and_continues_bit_for_bit():
+def test_a_format_1_checkpoint_loads_and_continues_as_it_did(tmp_path):
     """tests/data/rbpf_format1.npz was written before the pool was a class (13 loose attributes):
-    it loads (its attributes gathered into ``_blocks``) and the next 5 steps equal, bit for bit,
-    those the writing filter took (tests/data/rbpf_format1_next.npz)."""
+    it loads (its attributes gathered into ``_blocks``) and the next 5 steps equal those the
+    writing filter took (tests/data/rbpf_format1_next.npz) to a few ulps: numpy, OpenBLAS and
+    numba pick their kernels by CPU, so sums may differ in the last bit from one machine to
+    another (seen: 3 of 6 location probabilities, 1 ulp each). On one machine it is bit for
+    bit: the upgraded filter, saved in the current format and loaded again, continues exactly
+    like the one that was not."""
     state = om.checkpoint.read(DATA / "rbpf_format1.npz")
     assert state["format_version"] == 1 and "_pool" in state["attributes"]
     est = om.load(DATA / "rbpf_format1.npz")
     est._blocks.check(est.n_particles, est.model.n_labels, est.t)
+    om.save(est, tmp_path / "format2.npz")
+    twin = om.load(tmp_path / "format2.npz")
+    assert om.checkpoint.read(tmp_path / "format2.npz")["format_version"] == om.checkpoint.FORMAT_VERSION
     expected = np.load(DATA / "rbpf_format1_next.npz")
     for i, t in enumerate(range(10, 15)):
-        belief = est.step(int(expected["actions"][i]), int(expected["observations"][i]))
-        np.testing.assert_array_equal(belief.location, expected[f"location{t}"])
-        np.testing.assert_array_equal(belief.map, expected[f"map{t}"])
-        assert belief.log_evidence == expected[f"evidence{t}"]
-    again = om.make_estimator("rbpf", est.model, **est.options)
-    again.load_state_dict(est.state_dict())  # and it saves in the current format
+        action, observation = int(expected["actions"][i]), int(expected["observations"][i])
+        belief, again = est.step(action, observation), twin.step(action, observation)
+        np.testing.assert_allclose(belief.location, expected[f"location{t}"], rtol=1e-13, atol=1e-15)
+        np.testing.assert_allclose(belief.map, expected[f"map{t}"], rtol=1e-13, atol=1e-15)
+        assert belief.log_evidence == pytest.approx(float(expected[f"evidence{t}"]), rel=1e-13)
+        for got, want in ((again.location, belief.location), (again.map, belief.map)):
+            np.testing.assert_array_equal(got, want)
+        assert again.log_evidence == belief.log_evidence
     assert est.state_dict()["format_version"] == om.checkpoint.FORMAT_VERSION

@@ -4,6 +4,9 @@ and re-executing it gives the stored text outputs (numbers to 1e-6 relative; ima
 compared, they may differ by pixels). Each ends with its conclusion in words."""
 
 import copy
+import json
+import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -19,6 +22,21 @@ STORED = sorted(path.stem for path in NOTEBOOKS.glob("*.ipynb"))
 
 def test_every_notebook_has_a_generator_and_every_generator_a_notebook():
     assert STORED and STORED == nbbuild.names()
+
+
+@pytest.mark.skipif(not nbbuild.same_code_paths(), reason="nothing is pinned on a CPU without AVX2 and FMA")
+def test_the_kernel_runs_the_pinned_code_paths():
+    """A process started with the notebooks' environment runs numpy without its AVX-512 kernels,
+    OpenBLAS with its Haswell kernels and numba compiling for Haswell, whatever the CPU."""
+    script = ("import json, numpy, numba; from numpy._core._multiarray_umath import __cpu_features__ as f; "
+              "from threadpoolctl import threadpool_info as t; "
+              "print(json.dumps([sorted(k for k, on in f.items() if on and 'AVX512' in k), "
+              "[i.get('architecture') for i in t() if i['internal_api'] == 'openblas'], "
+              "numba.config.CPU_NAME]))")
+    environment = {**os.environ, **nbbuild.ENVIRONMENT}
+    out = subprocess.run([sys.executable, "-c", script], env=environment, capture_output=True, text=True, check=True)
+    avx512, openblas, numba_cpu = json.loads(out.stdout)
+    assert avx512 == [] and set(openblas) <= {"Haswell"} and numba_cpu == "haswell"
 
 
 def test_same_text_compares_words_exactly_and_numbers_with_a_tolerance():

@@ -189,12 +189,37 @@ def test_impossible_observation_keeps_everything(proposal, p_change):
         e.step(None, 0)
         e.step("right", 0)
     snap = snapshot(est)
-    with pytest.raises(om.ImpossibleObservationError, match="every particle"):
+    with pytest.raises(om.ImpossibleObservationError, match="every one of the 30 particles"):
         est.step("right", 1)
     assert_state_unchanged(est, snap)
     for action in ("right", "left", "right"):
         np.testing.assert_array_equal(est.step(action, 0).location, twin.step(action, 0).location)
     np.testing.assert_array_equal(est.particle_maps(), twin.particle_maps())
+
+
+def test_depletion_is_told_apart_in_the_message():
+    """A perfect sensor, one particle drawn by motion alone: after "right, saw 0" the particle
+    either stayed (then "right, saw 1" is impossible for it) or moved. The exact filter accepts
+    the observation either way, so when the particle refuses it the message must say the
+    particles may have lost the trajectory, not only that the observation is impossible."""
+    model = om.corridor(4, 2, p_obs=1.0, p_move=0.5)
+    refused = 0
+    for seed in range(40):  # it stays at both presses with probability >= 1/4: P(no refusal) < 1e-4
+        exact = om.make_estimator("exact", model)
+        est = om.make_estimator("rbpf", model, n_particles=1, proposal="transition", resampling="multinomial",
+                                seed=seed)
+        for action, z in ((None, 0), ("right", 0)):
+            exact.step(action, z)
+            est.step(action, z)
+        exact.step("right", 1)  # possible under the model
+        snap = snapshot(est)
+        try:
+            est.step("right", 1)
+        except om.ImpossibleObservationError as error:
+            refused += 1
+            assert "particle depletion" in str(error) and "every one of the 1 particles" in str(error)
+            assert_state_unchanged(est, snap)
+    assert refused > 0
 
 
 def test_subnormal_likelihood_gives_a_valid_belief():
@@ -335,7 +360,7 @@ def test_fearnhead_clifford_bad_or_impossible_input_keeps_everything():
             e.step(action, z)
     assert est.resampled  # 8 trajectories after 3 moves, 4 slots: children were dropped
     snap = snapshot(est)
-    with pytest.raises(om.ImpossibleObservationError, match="every particle"):
+    with pytest.raises(om.ImpossibleObservationError, match="every one of the 4 particles"):
         est.step("right", 1)
     for action, observation in [(2, 0), (None, 0), (1, 2), ("up", 0)]:
         with pytest.raises((om.InvalidActionError, om.InvalidObservationError)):

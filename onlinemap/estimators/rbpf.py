@@ -268,7 +268,7 @@ class RaoBlackwellisedPF:
         if increment == -math.inf:
             self._rng.bit_generator.state = rng_state
             raise ImpossibleObservationError(
-                f"observation {_describe(model, z)} has probability zero for every particle at step {t}")
+                _no_particle_explains(model, z, t, self.n_particles))
         self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - increment, increment, resample,
                      new_ids)
 
@@ -313,7 +313,7 @@ class RaoBlackwellisedPF:
                 blocks, t, neighbors, z, self._log_weights)
         if m == 0:
             raise ImpossibleObservationError(
-                f"observation {_describe(model, z)} has probability zero for every particle at step {t}")
+                _no_particle_explains(model, z, t, self.n_particles))
         increment = _logsumexp(child_log_weight[:m])
         kept, kept_weights, threshold = optimal_keep(np.exp(child_log_weight[:m] - increment), n_particles,
                                                      self._rng.random(),
@@ -342,6 +342,15 @@ class RaoBlackwellisedPF:
         self._resampled = resampled
         self._t = t
         self._belief = None
+
+
+def _no_particle_explains(model: GridModel, z, t: int, n_particles: int) -> str:
+    """The message of an observation no particle explains: the filter cannot tell an observation
+    impossible under the model from one only its lost trajectories explained (depletion)."""
+    return (f"observation {_describe(model, z)} has probability zero for every one of the {n_particles} "
+            f"particles at step {t}: either it is impossible under the model given the past, or the particles "
+            f"have lost every trajectory that explains it (particle depletion; more particles, the optimal "
+            f"proposal or a sensor with no zero entries make that rarer). The filter is unchanged")
 
 
 def _describe(model: GridModel, z) -> str:
