@@ -80,8 +80,10 @@ def run(args: argparse.Namespace) -> int:
         raise ModelError(f"--planner: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(PLANNERS)}")
     world = parse_world(args.world)
     out = Path(args.out) if args.out else None
+    given = parse_options(args.option)
+    options = ", ".join(f"{key}={value}" for key, value in given.items()) or "its default options"
     print(f"world {args.world} (floor plan: {args.floor_plan or 'none, uniform prior'}); estimator {args.estimator}"
-          f" {parse_options(args.option) or ''}, {args.steps} steps, seeds {args.seed}..{args.seed + args.repeats - 1}")
+          f" with {options}; {args.steps} steps, seeds {args.seed}..{args.seed + args.repeats - 1}")
     steps = sweep(exploration_spec(args, planners), workers=args.workers or None, progress=True,
                   results_dir=None if out is None else out / "explore.parts")
     runs = from_steps(steps, ["planner", "seed"])
