@@ -35,8 +35,9 @@ def same_code_paths() -> dict[str, str]:
     kernels by CPU (AVX-512 ones on x86-64-v4), OpenBLAS its matrix kernels, numba compiles for
     the host; one ulp of difference in a particle weight flips a resampling draw and the run
     diverges (seen here: an exploration table's 0.399 became 0.410 when the notebook written
-    on one machine was re-run on another, an AMD EPYC with X86_V3 only). Pinning every machine to the v3 code paths makes the stored outputs reproducible.
-    Elsewhere (no AVX2, not x86) nothing is pinned. Costs a few percent of speed on v4 machines."""
+    on one machine was re-run on another, an AMD EPYC with X86_V3 only). Pinning every machine
+    to the v3 code paths makes the stored outputs reproducible. Elsewhere (no AVX2, not x86,
+    no /proc/cpuinfo) nothing is pinned. Costs a few percent of speed on v4 machines."""
     try:
         with open("/proc/cpuinfo") as info:
             flags = set(next((line for line in info if line.startswith("flags")), "").split())

@@ -224,8 +224,10 @@ class RaoBlackwellisedPF:
 
         Resample first if the effective sample size is below ``resample_threshold * P``; then
         propose, weight and update each particle's observed cell. If the observation has
-        probability zero for every particle, raise :class:`ImpossibleObservationError` and
-        leave everything (particles, weights, random generator) as it was.
+        probability zero for every particle (impossible under the model, or every trajectory that
+        explains it was lost: depletion; the filter cannot tell which), raise
+        :class:`ImpossibleObservationError` saying both and leave everything (particles, weights,
+        random generator) as it was.
         """
         model = self.model
         a, z = check_step(model, self._t + 1, action, observation)
