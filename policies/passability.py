@@ -1,0 +1,113 @@
+"""The belief's passability and shortest expected paths over it (DESIGN.md sections 7 and 8).
+
+In a world with blocking labels (``model.has_blocking``) a move into cell ``j`` succeeds with
+probability ``p_move`` times ``[m_j passable]``. Planners see only the belief's marginals, so they
+use the *expected* passability ``passable[j] = P(m_j not blocking)`` (from the map belief) and, for
+paths, this expected-cost model:
+
+    entering j costs c(j) = 1 / (p_move * passable[j])      (expected presses until one succeeds)
+
+the mean of a geometric number of independent presses, each succeeding with ``p_move * passable[j]``.
+It is exact for slips and optimistic about a label that stays blocking (pressing again into a closed
+door never succeeds); planners re-plan every step, and a failed press lowers ``passable[j]`` in the
+next belief, which raises c(j). A cell with ``passable[j] < min_passable`` (or ``p_move = 0``)
+cannot be entered: c(j) = inf. The expected steps ``d(i, S)`` from cell ``i`` to a set of cells
+``S`` is the cheapest path's total c (Dijkstra, :func:`onlinemap.kernels.planning.shortest_paths`);
+it satisfies ``d(i) = min over moves i -> j of (1 / q_j + d(j))``, ``q_j = p_move passable[j]``,
+i.e. ``d(i) = min_a [1 + q_j d(j) + (1 - q_j) d(i)]``, the one-step rule planners act by.
+
+Without blocking labels ``passable`` is all ones and every move costs ``1 / p_move``.
+Pure functions of (model, belief); N cells, A actions, K labels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from onlinemap import arguments
+from onlinemap.belief import Belief
+from onlinemap.errors import ModelError
+from onlinemap.kernels.planning import shortest_paths
+from onlinemap.model import GridModel, passable_probability
+
+#: a move the belief says blocks with more than this probability is not pressed when another exists
+BLOCKED_ABOVE = 0.99
+
+
+def expected_passability(model: GridModel, belief: Belief) -> np.ndarray:
+    """(N,) ``P(m_j not blocking)`` under the belief's map marginals (N, K); ones when no label
+    blocks. O(N K)."""
+    if not model.has_blocking:
+        return np.ones(model.n_cells)
+    return passable_probability(model, belief.map)
+
+
+def enter_costs(model: GridModel, passable: np.ndarray, min_passable: float = 0.05) -> np.ndarray:
+    """(N,) ``c(j) = 1 / (p_move passable[j])``, inf where ``passable[j] < min_passable`` or
+    ``p_move = 0``. ``passable`` (N,) in [0, 1]. O(N)."""
+    passable = _passable(model, passable)
+    min_passable = arguments.real("min_passable", min_passable, low=0.0, high=1.0, low_open=True)
+    go = model.p_move * passable
+    with np.errstate(divide="ignore"):
+        return np.where((passable >= min_passable) & (go > 0), 1.0 / go, np.inf)
+
+
+def distances_to(model: GridModel, passable: np.ndarray, targets, min_passable: float = 0.05) -> np.ndarray:
+    """(N,) expected steps ``d(i, S)`` from every cell to the nearest of ``targets`` S (cell
+    indices), by :func:`enter_costs`; 0 on S, inf where S cannot be reached. Dijkstra over reversed
+    moves: O(N A log(N A))."""
+    distance = np.full(model.n_cells, np.inf)
+    distance[_cells("targets", model, targets)] = 0.0
+    return shortest_paths(model.predecessor, enter_costs(model, passable, min_passable), distance, False)
+
+
+def distances_from(model: GridModel, passable: np.ndarray, sources, min_passable: float = 0.05) -> np.ndarray:
+    """(M, N) expected steps ``d(s, j)`` from each of ``sources`` (M,) to every cell, by
+    :func:`enter_costs`; inf where j cannot be reached from s. M Dijkstras: O(M N A log(N A))."""
+    sources = _cells("sources", model, sources)
+    costs = enter_costs(model, passable, min_passable)
+    out = np.full((len(sources), model.n_cells), np.inf)
+    for row, source in zip(out, sources):
+        row[source] = 0.0
+        shortest_paths(model.moves, costs, row, True)
+    return out
+
+
+def blocked_probability(model: GridModel, belief: Belief) -> np.ndarray:
+    """(A,) ``P(the intended cell of action a holds a blocking label)`` under the belief's marginals:
+    ``sum_l P(l) [j != l] (1 - passable[j])``, ``j = neighbors[l, a]``. A move off the grid edge
+    (``j == l``) holds no label and counts 0; all zeros when no label blocks. O(N A)."""
+    if not model.has_blocking:
+        return np.zeros(model.n_actions)
+    blocked = 1.0 - expected_passability(model, belief)[model.neighbors]  # (N, A)
+    blocked[model.neighbors == np.arange(model.n_cells)[:, None]] = 0.0
+    return belief.location @ blocked
+
+
+def unblocked_actions(model: GridModel, belief: Belief, limit: float = BLOCKED_ABOVE) -> np.ndarray:
+    """(A,) bool: the actions whose :func:`blocked_probability` is at most ``limit``; every action
+    when none is (the robot must press something). O(N A)."""
+    allowed = blocked_probability(model, belief) <= limit
+    return allowed if allowed.any() else np.ones(model.n_actions, dtype=bool)
+
+
+def _passable(model: GridModel, passable) -> np.ndarray:
+    passable = np.asarray(passable, dtype=np.float64)
+    if passable.shape != (model.n_cells,):
+        raise ModelError(f"passable must have shape ({model.n_cells},) (one probability per cell), "
+                         f"got {passable.shape}")
+    if not np.all((passable >= 0.0) & (passable <= 1.0)):
+        raise ModelError("passable must hold probabilities in [0, 1]")
+    return passable
+
+
+def _cells(name: str, model: GridModel, cells) -> np.ndarray:
+    cells = np.atleast_1d(np.asarray(cells))
+    if cells.ndim != 1 or cells.size == 0 or cells.dtype.kind not in "iu" \
+            or np.any(cells < 0) or np.any(cells >= model.n_cells):
+        raise ModelError(f"{name} must be a non-empty sequence of cell indices in 0..{model.n_cells - 1}")
+    return cells.astype(np.int64)
+
+
+__all__ = ["BLOCKED_ABOVE", "expected_passability", "enter_costs", "distances_to", "distances_from",
+           "blocked_probability", "unblocked_actions"]
