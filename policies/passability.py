@@ -35,11 +35,11 @@ BLOCKED_ABOVE = 0.99
 
 
 def expected_passability(model: GridModel, belief: Belief) -> np.ndarray:
-    """(N,) ``P(m_j not blocking)`` under the belief's map marginals (N, K); ones when no label
-    blocks. O(N K)."""
+    """(N,) ``P(m_j not blocking)`` under the belief's map marginals (N, K), clipped to [0, 1]
+    (rounding); ones when no label blocks. O(N K)."""
     if not model.has_blocking:
         return np.ones(model.n_cells)
-    return passable_probability(model, belief.map)
+    return np.clip(passable_probability(model, belief.map), 0.0, 1.0)
 
 
 def enter_costs(model: GridModel, passable: np.ndarray, min_passable: float = 0.05) -> np.ndarray:

@@ -1,0 +1,200 @@
+"""Frontier exploration on the belief (Yamauchi 1997; DESIGN.md section 8): the classical baseline.
+
+Every step, from the belief's marginals (N cells, K labels, A actions, F footprint offsets):
+
+1. *Uncertain cells*: ``u_i`` = the normalised label entropy of cell i (in [0, 1]); cell i is
+   uncertain when ``u_i > threshold``.
+2. *Gain* of standing in cell c: ``g(c) = sum_f u_{c_f} [u_{c_f} > threshold]`` over the on-grid
+   cells ``c_f = footprint_cells[c, f]`` the sensor would read there (in cells' worth of
+   uncertainty). The *frontier* is the cells with ``g(c) > 0``.
+3. *Expected distance* to c under the location belief: ``E(c) = sum_l P(l) d(l, c)`` with ``d`` the
+   expected steps of :mod:`policies.passability` (entering j costs ``1 / (p_move passable_j)``), over
+   the ``hypotheses`` most probable cells ``l`` (the smallest set holding all but 1e-9 of the mass,
+   or the ``hypotheses`` most probable; renormalised). A pair that no path joins counts
+   ``N / (p_move min_passable)``, more than any path; c is *reachable* when some hypothesis reaches it.
+4. *Target*: the reachable frontier cell of highest score ``g(c) - distance_cost * E(c)`` (ties: all
+   of them). ``distance_cost`` is in cells of uncertainty per step: large, the nearest frontier
+   (Yamauchi's rule, the gain only breaking ties); 0, the most informative reachable place.
+5. *Action*: with ``D(x)`` the expected steps from x to the nearest target,
+   ``argmin_a sum_l P(l) [1 + q D(j) + (1 - q) D(l)]``, ``j = neighbors[l, a]``, ``q = p_move
+   passable_j`` (0 off the grid edge or into an impassable cell): the expected steps to the target
+   after pressing a, averaged over where the robot may be (not only its most likely cell). Ties go
+   to the lowest action index; a press the belief says blocks (:func:`~policies.passability.
+   unblocked_actions`) is never chosen while another exists.
+6. *Inaccessible targets* (Yamauchi's list of inaccessible frontiers): when ``E`` of the first
+   target has not fallen for ``patience`` decisions in a row, that target goes on a blacklist and is
+   no target while any other frontier cell is reachable; when none is, the list is cleared. This is
+   what gets a robot out of a belief it cannot resolve by pressing on: two location hypotheses whose
+   maps are shifted copies both explain every failed press into a wall, so the marginal map keeps
+   showing a way through it (``patience`` None: never blacklist).
+
+Corner cases. *No frontier left* (every reachable cell's footprint is certain, or the rest cannot be
+reached): the gain drops the threshold, ``g(c) = sum_f u_{c_f}``, and the robot revisits the most
+uncertain reachable places (in a dynamic world, where doors' uncertainty grows back). *A lost robot*
+(location spread over many cells): the expected distance and the action average over the location
+hypotheses, so it heads where most of them agree; with ``lost_entropy`` set, a robot whose
+normalised location entropy exceeds it re-localises instead: the gain counts the footprint's
+*certain* cells, ``sum_f (1 - u_{c_f})``, so it returns to mapped places whose readings tell the
+hypotheses apart. *Corridors*: the same rules with two actions.
+
+Cost per decision: ``M`` = at most ``hypotheses`` Dijkstras plus one, O((M + 1) N A log(N A)),
+plus O(N (F + K + A)) for the entropies, gains and action values.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from onlinemap import arguments
+from onlinemap.belief import Belief
+from onlinemap.errors import ModelError
+from onlinemap.metrics import normalized_entropy
+from onlinemap.model import GridModel
+
+from .passability import distances_from, distances_to, expected_passability, unblocked_actions
+
+_LEFT_OUT = 1e-9  # location mass the hypotheses may leave out
+
+
+def _same(a: Belief, b: Belief) -> bool:
+    """Whether two beliefs' marginals agree to 1e-12. O(N K)."""
+    return bool(np.allclose(a.location, b.location, rtol=0, atol=1e-12)
+                and np.allclose(a.map, b.map, rtol=0, atol=1e-12))
+
+
+class FrontierPlan(NamedTuple):
+    """One decision of :class:`FrontierExplorer`. N cells, A actions."""
+
+    gain: np.ndarray  # (N,) g(c) as used (after the fallbacks)
+    expected_distance: np.ndarray  # (N,) E(c), unreachable pairs at the penalty
+    reachable: np.ndarray  # (N,) bool
+    targets: np.ndarray  # (T,) the chosen cells
+    distance: np.ndarray  # (N,) D(x) to the nearest target, unreachable at the penalty
+    action_cost: np.ndarray  # (A,) sum_l P(l) [1 + q D(j) + (1 - q) D(l)]
+    mode: str  # "frontier", "revisit" (no frontier left) or "relocalise" (lost)
+
+
+def location_hypotheses(location: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """The most probable cells of ``location`` (N,) holding all but 1e-9 of the mass, at most
+    ``size`` of them, and their renormalised probabilities: (M,) cells, (M,) weights. O(N log N)."""
+    order = np.argsort(-location, kind="stable")
+    mass = np.cumsum(location[order])
+    count = min(int(np.searchsorted(mass, mass[-1] * (1.0 - _LEFT_OUT))) + 1, size, len(order))
+    cells = order[:count]
+    return cells, location[cells] / location[cells].sum()
+
+
+class FrontierExplorer:
+    """Nearest-frontier exploration on the belief (see the module docstring for the rules).
+
+    Options: ``threshold`` in (0, 1), the normalised label entropy above which a cell is uncertain;
+    ``distance_cost`` >= 0, cells of uncertainty one expected step is worth; ``min_passable`` in
+    (0, 1], the expected passability below which a cell cannot be entered; ``hypotheses`` >= 1, the
+    most location hypotheses the expected distance averages over; ``lost_entropy`` in (0, 1] or
+    None, the normalised location entropy above which the robot re-localises (None: never);
+    ``patience`` >= 1 or None, the decisions without progress after which a target is blacklisted.
+    Re-plans at every call; never touches an estimator. Needs ``p_move > 0``.
+    """
+
+    def __init__(self, model: GridModel, *, threshold: float = 0.5, distance_cost: float = 0.1,
+                 min_passable: float = 0.05, hypotheses: int = 16, lost_entropy: float | None = None,
+                 patience: int | None = 8):
+        self.threshold = arguments.real("threshold", threshold, low=0.0, high=1.0, low_open=True, high_open=True)
+        self.distance_cost = arguments.real("distance_cost", distance_cost, low=0.0, high=math.inf, high_open=True)
+        self.min_passable = arguments.real("min_passable", min_passable, low=0.0, high=1.0, low_open=True)
+        self.hypotheses = arguments.integer("hypotheses", hypotheses, minimum=1)
+        self.lost_entropy = None if lost_entropy is None else arguments.real(
+            "lost_entropy", lost_entropy, low=0.0, high=1.0, low_open=True)
+        self.patience = None if patience is None else arguments.integer("patience", patience, minimum=1)
+        if model.p_move <= 0:
+            raise ModelError("frontier needs p_move > 0: with p_move = 0 the robot never reaches a frontier")
+        self.model = model
+        self.penalty = model.n_cells / (model.p_move * self.min_passable)  # above any path's cost
+        self.last_plan: FrontierPlan | None = None
+        self.blacklist = np.zeros(model.n_cells, dtype=bool)  # (N,) targets found inaccessible
+        self._target = -1  # the first target of the last decision, its E then, decisions without progress
+        self._last_distance = math.inf
+        self._stalled = 0
+        self._previous: Belief | None = None  # the belief of the last decision and the action taken
+        self._action = -1
+        self.futile = np.zeros(model.n_actions, dtype=bool)  # (A,) presses that left the belief unchanged
+
+    def choose(self, belief: Belief) -> int:
+        plan = self.plan(belief)
+        self._track(int(plan.targets[0]), float(plan.expected_distance[plan.targets[0]]))
+        if self._previous is not None and _same(belief, self._previous):
+            self.futile[self._action] = True
+        else:
+            self.futile[:] = False
+        allowed = unblocked_actions(self.model, belief)
+        if (allowed & ~self.futile).any():
+            allowed &= ~self.futile
+        self._previous = belief
+        self._action = int(np.argmin(np.where(allowed, plan.action_cost, np.inf)))
+        return self._action
+
+    def plan(self, belief: Belief) -> FrontierPlan:
+        """Targets, distances and the expected cost of every action (module docstring, steps 1-5)."""
+        model = self.model
+        passable = expected_passability(model, belief)
+        cells, weights = location_hypotheses(belief.location, self.hypotheses)
+        paths = distances_from(model, passable, cells, self.min_passable)  # (M, N)
+        expected = weights @ np.where(np.isfinite(paths), paths, self.penalty)
+        reachable = np.isfinite(paths).any(axis=0)
+        gain, mode = self._gain(belief, reachable)
+        candidates = reachable & (gain > 0)
+        if (candidates & self.blacklist).any():
+            if (candidates & ~self.blacklist).any():
+                candidates &= ~self.blacklist
+            else:
+                self.blacklist[:] = False
+        score = np.where(candidates if candidates.any() else reachable, gain - self.distance_cost * expected, -np.inf)
+        best = score.max()
+        targets = np.flatnonzero(score >= best - 1e-12 * (1.0 + abs(best)))
+        to_target = distances_to(model, passable, targets, self.min_passable)
+        to_target = np.where(np.isfinite(to_target), to_target, self.penalty)
+        self.last_plan = FrontierPlan(gain, expected, reachable, targets, to_target,
+                                      belief.location @ self._action_values(passable, to_target), mode)
+        return self.last_plan
+
+    def _track(self, target: int, distance: float) -> None:
+        """Count the decisions in a row without progress towards ``target``; blacklist it at ``patience``."""
+        if target != self._target or distance < self._last_distance - 1e-9:
+            self._stalled = 0
+        else:
+            self._stalled += 1
+            if self.patience is not None and self._stalled >= self.patience:
+                self.blacklist[target] = True
+                self._stalled = 0
+        self._target, self._last_distance = target, distance
+
+    def _gain(self, belief: Belief, reachable: np.ndarray) -> tuple[np.ndarray, str]:
+        """(N,) the gain of standing in each cell, and the mode it was computed in."""
+        model = self.model
+        unknown = normalized_entropy(belief.map)
+        on_grid = model.footprint_cells >= 0
+        seen = model.footprint_cells.clip(0)
+        if self.lost_entropy is not None and model.n_cells > 1 \
+                and float(normalized_entropy(belief.location)) > self.lost_entropy:
+            return np.where(on_grid, 1.0 - unknown[seen], 0.0).sum(axis=1), "relocalise"
+        uncertain = np.where(unknown > self.threshold, unknown, 0.0)
+        gain = np.where(on_grid, uncertain[seen], 0.0).sum(axis=1)
+        if (gain[reachable] > 0).any():
+            return gain, "frontier"
+        return np.where(on_grid, unknown[seen], 0.0).sum(axis=1), "revisit"
+
+    def _action_values(self, passable: np.ndarray, to_target: np.ndarray) -> np.ndarray:
+        """(N, A) ``1 + q D(j) + (1 - q) D(l)``, the expected steps to the target after pressing a in l."""
+        model = self.model
+        moves = model.neighbors != np.arange(model.n_cells)[:, None]
+        enter = passable[model.neighbors]
+        q = np.where(moves & (enter >= self.min_passable), model.p_move * enter, 0.0)
+        return 1.0 + q * to_target[model.neighbors] + (1.0 - q) * to_target[:, None]
+
+    def __repr__(self) -> str:
+        return (f"FrontierExplorer(threshold={self.threshold}, distance_cost={self.distance_cost}, "
+                f"min_passable={self.min_passable}, hypotheses={self.hypotheses}, "
+                f"lost_entropy={self.lost_entropy}, patience={self.patience})")
