@@ -75,6 +75,7 @@ from onlinemap.rng import SeedLike, as_generator
 from onlinemap.simulate import world_step
 
 from .mdp import PolicyIterationResult, policy_iteration
+from .passability import expected_passability, unblocked_actions
 
 
 def _entropy(p: np.ndarray) -> np.ndarray:
@@ -414,6 +415,8 @@ class InfoGainExplorer:
         if self.estimator is None:
             raise ModelError("info_gain plans on the live estimator: call planner.bind(estimator) first "
                              "(policies.explore does)")
+        if self._queue and self.model.has_blocking and not unblocked_actions(self.model, belief)[self._queue[0]]:
+            self._queue = []  # the belief now says the next press blocks: re-plan
         if not self._queue:
             if self.anchor_every is not None and self._since_anchor >= self.anchor_every:
                 self._queue = anchor_actions(self.model, belief, int(self.press_lengths[-1])).tolist()
@@ -428,13 +431,14 @@ class InfoGainExplorer:
     def candidates(self, belief: Belief) -> tuple[tuple[str, ...], np.ndarray]:
         """Names (C,) and action sequences (C, H): press each direction H times, and the
         :func:`greedy_path` on the policy-iteration ``Q`` of :func:`information_reward` from the
-        most probable location.
+        most probable location (with blocking labels, on the belief's expected passability).
         Cost: one warm-started policy iteration over N cells."""
         model, horizon = self.model, int(self.press_lengths[-1])
         names = [f"press {name}" for name in model.action_names]
         sequences = [np.full(horizon, a, dtype=np.int64) for a in range(model.n_actions)]
         reward = information_reward(belief, model.sensor)
-        self._pi = policy_iteration(model, reward, self.gamma,
+        passable = expected_passability(model, belief) if model.has_blocking else None
+        self._pi = policy_iteration(model, reward, self.gamma, passable=passable,
                                     initial_policy=None if self._pi is None else self._pi.policy)
         path = greedy_path(model, self._pi.q, int(np.argmax(belief.location)), horizon)
         if not any(np.array_equal(path, s) for s in sequences):
@@ -447,7 +451,9 @@ class InfoGainExplorer:
         (ties: the shorter, then the earlier candidate), leaving out macro-actions whose first
         action leaves the robot in place with probability >= 1/2 (pressing into a wall it is
         known to stand against; otherwise, when nothing pays its cost, such a press costs least
-        and the robot would stand still).
+        and the robot would stand still); with blocking labels, also those whose first press the
+        belief says blocks (:func:`~policies.passability.unblocked_actions`), and a queued press it
+        says blocks ends the queue.
         Never changes the live estimator."""
         est = self.estimator
         names, sequences = self.candidates(belief)
@@ -471,7 +477,11 @@ class InfoGainExplorer:
         utility = gain - self._nats_per_step * lengths[None, :]
         # a macro-action whose first press most probably hits a wall only re-reads the same cell
         stays = belief.location @ (self.model.neighbors[:, sequences[:, 0]] == np.arange(self.model.n_cells)[:, None])
-        allowed = np.where((stays < 0.5)[:, None] | np.all(stays >= 0.5), utility, -np.inf)
+        through = (stays < 0.5) | np.all(stays >= 0.5)
+        if self.model.has_blocking:  # nor one whose first press the belief says blocks
+            through &= unblocked_actions(self.model, belief)[sequences[:, 0]]
+            through = through if through.any() else np.ones_like(through)
+        allowed = np.where(through[:, None], utility, -np.inf)
         best = np.flatnonzero(allowed.T.ravel() == allowed.max())[0]  # length-major: shorter first
         j, c = divmod(int(best), len(names))
         self.last_plan = MacroScore(names, sequences, lengths, gain, utility, (c, j))

@@ -8,6 +8,11 @@ Reward convention: ``R(j)`` is the reward for *being in* cell ``j`` after a move
     Q(l, a) = sum_j T[a, l, j] (R(j) + gamma V(j)),    V(l) = max_a Q(l, a).
 
 The reward of the cell the robot starts in is not counted (it has been collected already).
+
+``passable`` (N,), optional everywhere: the probability that each cell can be entered (the belief's
+expected passability in a world with blocking labels, :mod:`policies.passability`); the move from
+``l`` to its neighbour ``j`` then succeeds with ``p_move * passable[j]`` and the robot stays
+otherwise. None: the design's motion (every cell enterable), bit for bit as before.
 """
 
 from __future__ import annotations
@@ -31,14 +36,25 @@ class PolicyIterationResult(NamedTuple):
     iterations: int  # number of policy evaluations performed
 
 
-def action_values(model: GridModel, reward: np.ndarray, value: np.ndarray, gamma: float) -> np.ndarray:
+def move_probabilities(model: GridModel, passable: np.ndarray) -> np.ndarray:
+    """(N, A) ``p_move * passable[neighbors[l, a]]``, 0 where the move leaves the grid. O(N A)."""
+    moves = model.neighbors != np.arange(model.n_cells)[:, None]
+    return np.where(moves, model.p_move * np.asarray(passable, dtype=np.float64)[model.neighbors], 0.0)
+
+
+def action_values(model: GridModel, reward: np.ndarray, value: np.ndarray, gamma: float,
+                  passable: np.ndarray | None = None) -> np.ndarray:
     """(N, A) ``Q(l, a) = sum_j T[a, l, j] (R(j) + gamma V(j))`` for every cell and action, O(N A)."""
     future = reward + gamma * value  # (N,)
+    if passable is not None:
+        go = move_probabilities(model, passable)
+        return (1.0 - go) * future[:, None] + go * future[model.neighbors]
     # a blocked move leaves the robot in place (neighbors[l, a] == l): both terms are future[l]
     return (1.0 - model.p_move) * future[:, None] + model.p_move * future[model.neighbors]
 
 
-def _policy_rows(model: GridModel, policy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _policy_rows(model: GridModel, policy: np.ndarray,
+                 passable: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Row l of ``T_pi`` as two (column, probability) pairs: (N, 2) columns sorted within each
     row, (N, 2) probabilities, (N, 2) mask of the pairs that exist (a cell that cannot move
     has only its diagonal)."""
@@ -46,7 +62,11 @@ def _policy_rows(model: GridModel, policy: np.ndarray) -> tuple[np.ndarray, np.n
     targets = model.neighbors[cells, policy]
     moves = targets != cells
     cols = np.stack([cells, targets], axis=1)
-    probs = np.stack([model.self_prob[policy, cells], np.where(moves, model.p_move, 0.0)], axis=1)
+    if passable is None:
+        probs = np.stack([model.self_prob[policy, cells], np.where(moves, model.p_move, 0.0)], axis=1)
+    else:
+        go = move_probabilities(model, passable)[cells, policy]
+        probs = np.stack([1.0 - go, go], axis=1)
     keep = np.stack([np.ones_like(moves), moves], axis=1)
     swap = targets < cells
     return (np.where(swap[:, None], cols[:, ::-1], cols), np.where(swap[:, None], probs[:, ::-1], probs),
@@ -61,22 +81,32 @@ def _csr(cols: np.ndarray, values: np.ndarray, keep: np.ndarray) -> sp.csr_array
     return sp.csr_array((values[keep], cols[keep], indptr), shape=(n, n))
 
 
-def policy_motion(model: GridModel, policy: np.ndarray) -> sp.csr_array:
+def policy_motion(model: GridModel, policy: np.ndarray, passable: np.ndarray | None = None) -> sp.csr_array:
     """Sparse (N, N) ``T_pi[l, j] = T[policy[l], l, j]``; at most 2 entries per row. O(N)."""
-    cols, probs, keep = _policy_rows(model, np.asarray(policy))
+    cols, probs, keep = _policy_rows(model, np.asarray(policy), passable)
     return _csr(cols, probs, keep)
 
 
-def evaluate_policy(model: GridModel, reward: np.ndarray, policy: np.ndarray, gamma: float) -> np.ndarray:
+def evaluate_policy(model: GridModel, reward: np.ndarray, policy: np.ndarray, gamma: float,
+                    passable: np.ndarray | None = None) -> np.ndarray:
     """(N,) exact ``V_pi``: solves ``(I - gamma T_pi) V = T_pi R`` with a sparse LU (``spsolve``).
 
     The system is built directly in CSR form (at most 2 N non-zeros); on grids the
     factorisation costs about O(N^1.5)."""
     policy = np.asarray(policy)
-    cols, probs, keep = _policy_rows(model, policy)
+    cols, probs, keep = _policy_rows(model, policy, passable)
     diagonal = cols == np.arange(model.n_cells)[:, None]
     system = _csr(cols, diagonal - gamma * probs, keep)
     return np.asarray(spsolve(system, (probs * reward[cols]).sum(axis=1)), dtype=np.float64)
+
+
+def _check_passable(model: GridModel, passable) -> np.ndarray | None:
+    if passable is None:
+        return None
+    passable = np.asarray(passable, dtype=np.float64)
+    if passable.shape != (model.n_cells,) or not np.all((passable >= 0.0) & (passable <= 1.0)):
+        raise ModelError(f"passable must be ({model.n_cells},) probabilities in [0, 1] (one per cell)")
+    return passable
 
 
 def _check(model: GridModel, reward, gamma: float, initial_policy) -> tuple[np.ndarray, float, np.ndarray]:
@@ -97,7 +127,8 @@ def _check(model: GridModel, reward, gamma: float, initial_policy) -> tuple[np.n
 
 
 def policy_iteration(model: GridModel, reward, gamma: float = 0.95, *, initial_policy=None,
-                     max_iterations: int = 1000, tolerance: float = 1e-10) -> PolicyIterationResult:
+                     max_iterations: int = 1000, tolerance: float = 1e-10,
+                     passable: np.ndarray | None = None) -> PolicyIterationResult:
     """Solve the cell MDP: exact evaluation of the current policy (one sparse linear solve),
     greedy improvement, until the policy no longer changes.
 
@@ -108,20 +139,22 @@ def policy_iteration(model: GridModel, reward, gamma: float = 0.95, *, initial_p
     sweep (O(N A), vectorised) costs about a tenth of a sparse solve, so a 64 x 64 grid with a
     single rewarding cell takes 1 evaluation instead of 126. This only chooses the start; the
     result is the exact optimum either way. An action is replaced only if another is better
-    by more than ``tolerance * (1 + |Q|)``, so ties cannot make it cycle.
+    by more than ``tolerance * (1 + |Q|)``, so ties cannot make it cycle. ``passable`` (N,):
+    the motion of a world with blocking labels (module docstring); None: the design's motion.
 
     Cost per iteration: one sparse LU solve plus O(N A); a handful of iterations in practice.
     """
     reward, gamma, policy = _check(model, reward, gamma, initial_policy)
+    passable = _check_passable(model, passable)
     if policy is None:
         value = np.zeros_like(reward)
         for _ in range(model.rows + model.cols):
-            value = action_values(model, reward, value, gamma).max(axis=1)
-        policy = np.argmax(action_values(model, reward, value, gamma), axis=1)
+            value = action_values(model, reward, value, gamma, passable).max(axis=1)
+        policy = np.argmax(action_values(model, reward, value, gamma, passable), axis=1)
     cells = np.arange(model.n_cells)
     for iteration in range(1, int(max_iterations) + 1):
-        value = evaluate_policy(model, reward, policy, gamma)
-        q = action_values(model, reward, value, gamma)
+        value = evaluate_policy(model, reward, policy, gamma, passable)
+        q = action_values(model, reward, value, gamma, passable)
         best = np.argmax(q, axis=1)
         current = q[cells, policy]
         better = q[cells, best] > current + tolerance * (1.0 + np.abs(current))

@@ -6,6 +6,12 @@
 - :class:`RandomWalk` draws actions uniformly.
 - :class:`Sweep` follows a fixed boustrophedon (lawn-mower) pattern and ignores beliefs.
 
+In a world with blocking labels (``model.has_blocking``) every planner plans with the belief's
+passability (:mod:`policies.passability`): the entropy planner's MDP moves into cell j with
+``p_move * P(m_j passable)``, and no planner presses a move the belief says blocks with
+probability above 0.99 (:func:`~policies.passability.unblocked_actions`) while another exists.
+Without blocking labels nothing of this runs: the planners are bit for bit the design's.
+
 :data:`PLANNERS` is the registry (name -> class and fixed options; the exploration planner
 ``info_gain`` lives in :mod:`policies.info_gain`, the baseline ``frontier`` in
 :mod:`policies.frontier`); :func:`make_planner` builds one by name and
@@ -28,6 +34,7 @@ from onlinemap.rng import SeedLike, as_generator
 from .frontier import FrontierExplorer
 from .info_gain import InfoGainExplorer
 from .mdp import PolicyIterationResult, policy_iteration
+from .passability import expected_passability, unblocked_actions
 from .rewards import RewardFunction, collected_entropy_reward, entropy_reward
 
 
@@ -46,8 +53,9 @@ class EntropyExplorer:
 
     Every ``replan_every`` calls: reward ``R = reward(belief)`` (default
     :func:`~policies.rewards.entropy_reward`), ``Q`` by :func:`~policies.mdp.policy_iteration`
-    with discount ``gamma`` (warm-started from the previous plan). Every call: the action
-    maximising ``sum_l P(l) Q(l, a)`` (ties go to the lowest action index).
+    with discount ``gamma`` (warm-started from the previous plan; with blocking labels, on the
+    belief's expected passability). Every call: the action maximising ``sum_l P(l) Q(l, a)``
+    (ties go to the lowest action index) among those the belief does not say block.
     Cost per re-plan: a few sparse solves over N cells; per call O(N A).
     """
 
@@ -67,10 +75,14 @@ class EntropyExplorer:
     def choose(self, belief: Belief) -> int:
         if self.plan is None or self._calls % self.replan_every == 0:
             previous = None if self.plan is None else self.plan.policy
+            passable = expected_passability(self.model, belief) if self.model.has_blocking else None
             self.plan = policy_iteration(self.model, self.reward(belief), self.gamma,
-                                         initial_policy=previous)
+                                         initial_policy=previous, passable=passable)
         self._calls += 1
-        return int(np.argmax(belief.location @ self.plan.q))
+        value = belief.location @ self.plan.q
+        if self.model.has_blocking:
+            value = np.where(unblocked_actions(self.model, belief), value, -np.inf)
+        return int(np.argmax(value))
 
     def __repr__(self) -> str:
         return (f"EntropyExplorer(gamma={self.gamma}, replan_every={self.replan_every}, "
@@ -78,13 +90,19 @@ class EntropyExplorer:
 
 
 class RandomWalk:
-    """Uniformly random actions from ``seed`` (an int, None or a Generator); ignores beliefs."""
+    """Uniformly random actions from ``seed`` (an int, None or a Generator). With blocking labels,
+    uniform over the actions the belief does not say block when it says some do
+    (:func:`~policies.passability.unblocked_actions`); otherwise it ignores beliefs."""
 
     def __init__(self, model: GridModel, seed: SeedLike = None):
         self.model = model
         self.rng = as_generator(seed)
 
     def choose(self, belief: Belief) -> int:
+        if self.model.has_blocking:
+            allowed = np.flatnonzero(unblocked_actions(self.model, belief))
+            if len(allowed) < self.model.n_actions:
+                return int(allowed[self.rng.integers(len(allowed))])
         return int(self.rng.integers(self.model.n_actions))
 
     def __repr__(self) -> str:
@@ -119,7 +137,13 @@ def sweep_actions(model: GridModel) -> np.ndarray:
 
 
 class Sweep:
-    """Coverage sweep: repeats :func:`sweep_actions` open loop, whatever the belief."""
+    """Coverage sweep: repeats :func:`sweep_actions` open loop, whatever the belief.
+
+    With blocking labels, a press the belief says blocks
+    (:func:`~policies.passability.unblocked_actions`) is skipped, and so are the presses after it
+    in the cycle up to the first one the belief lets through: a row cut by a wall ends at the
+    wall, and the sweep goes on with the step to the next row. (Every press of the cycle blocked:
+    nothing is skipped.)"""
 
     def __init__(self, model: GridModel):
         self.model = model
@@ -127,6 +151,11 @@ class Sweep:
         self._calls = 0
 
     def choose(self, belief: Belief) -> int:
+        if self.model.has_blocking:
+            allowed = unblocked_actions(self.model, belief)
+            cycle = np.roll(self.actions, -(self._calls % len(self.actions)))
+            through = np.flatnonzero(allowed[cycle])
+            self._calls += int(through[0]) if len(through) else 0
         action = int(self.actions[self._calls % len(self.actions)])
         self._calls += 1
         return action

@@ -13,13 +13,15 @@ from onlinemap.belief import Belief
 from onlinemap.errors import ModelError
 from onlinemap.model import GridModel, symmetric_channel
 from estimator_cases import binomial_ok
-from policies import (EntropyExplorer, RandomWalk, Sweep, collected_entropy_reward, entropy_reward,
+from policies import (PLANNERS, EntropyExplorer, RandomWalk, Sweep, collected_entropy_reward, entropy_reward,
                       evaluate_policy, make_planner, policy_iteration, policy_motion, sweep_actions)
 
 
-def dense_motion(model: GridModel) -> np.ndarray:
-    """(A, N, N) T[a, i, j] straight from DESIGN.md section 1, one entry at a time."""
+def dense_motion(model: GridModel, passable=None) -> np.ndarray:
+    """(A, N, N) T[a, i, j] straight from DESIGN.md section 1, one entry at a time; with
+    ``passable`` (N,), the move into j succeeds with p_move * passable[j] (section 7)."""
     n, a_count = model.n_cells, model.n_actions
+    passable = np.ones(n) if passable is None else passable
     motion = np.zeros((a_count, n, n))
     for a in range(a_count):
         for i in range(n):
@@ -27,8 +29,8 @@ def dense_motion(model: GridModel) -> np.ndarray:
             if j == i:
                 motion[a, i, i] = 1.0
             else:
-                motion[a, i, j] += model.p_move
-                motion[a, i, i] += 1.0 - model.p_move
+                motion[a, i, j] += model.p_move * passable[j]
+                motion[a, i, i] += 1.0 - model.p_move * passable[j]
     return motion
 
 
@@ -69,6 +71,26 @@ def test_policy_iteration_equals_value_iteration_on_random_mdps(seed):
     np.testing.assert_allclose(result.value, result.q[cells, result.policy], atol=1e-9 * scale)
     # started from its own answer it finds nothing to improve and stops after one evaluation
     assert policy_iteration(model, reward, gamma, initial_policy=result.policy).iterations == 1
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_policy_iteration_on_the_beliefs_passability_equals_value_iteration(seed):
+    model, reward, gamma = random_mdp(200 + seed)
+    rng = np.random.default_rng(seed)
+    passable = rng.uniform(0, 1, model.n_cells) * (rng.random(model.n_cells) > 0.3)
+    motion = dense_motion(model, passable)
+    result = policy_iteration(model, reward, gamma, passable=passable)
+    v_star, q_star = value_iteration(motion, reward, gamma)
+    scale = 1.0 + np.abs(v_star).max()
+    np.testing.assert_allclose(result.value, v_star, atol=1e-9 * scale)
+    np.testing.assert_allclose(result.q, q_star, atol=1e-9 * scale)
+    policy = rng.integers(model.n_actions, size=model.n_cells)
+    t_pi = motion[policy, np.arange(model.n_cells)]
+    np.testing.assert_allclose(policy_motion(model, policy, passable).toarray(), t_pi, atol=1e-15)
+    exact = np.linalg.solve(np.eye(model.n_cells) - gamma * t_pi, t_pi @ reward)
+    np.testing.assert_allclose(evaluate_policy(model, reward, policy, gamma, passable), exact, rtol=1e-10, atol=1e-10)
+    with pytest.raises(ModelError, match="passable"):
+        policy_iteration(model, reward, gamma, passable=np.full(model.n_cells, 1.5))
 
 
 @pytest.mark.parametrize("seed", range(10))
@@ -227,3 +249,83 @@ def test_sweep_in_a_corridor_and_unknown_planners():
             Sweep(stuck)
         with pytest.raises(ModelError, match="p_move > 0"):
             make_planner("sweep", stuck)
+
+
+# --- every planner in a world with blocking labels ------------------------------------------------
+def blocking_runs(planner: str, prior: str, steps: int):
+    """An exploration of the blocking, cross-footprint door world, and the belief each decision saw."""
+    from policies import with_floor_plan
+    from policies.explore import exploration
+
+    model, true_map = om.door_world(blocking=True, footprint="cross")
+    if prior == "floor plan":  # walls known at 0.999 from the start, door states unknown
+        model = with_floor_plan(model, true_map, 0.999)
+    options = {"hypotheses": 2, "rollout_particles": 16} if planner == "info_gain" else None
+    return model, exploration(model, true_map, planner, "rbpf", steps=steps, seed=5, progress=False,
+                              estimator_options={"n_particles": 50}, planner_options=options)
+
+
+@pytest.mark.parametrize("prior", ["floor plan", "uniform"])
+@pytest.mark.parametrize("planner", sorted(PLANNERS))
+def test_no_planner_presses_twice_in_a_row_into_what_the_belief_says_blocks(planner, prior):
+    """A move whose intended cell holds a blocking label with probability > 0.99 under the belief
+    (summed over the location belief; a move off the grid edge holds no label and does not count)
+    is not chosen at two decisions in a row while another move is possible. Before planners read
+    the belief's passability, ``entropy`` pressed ``south`` into a closed door 115 times of 120."""
+    from onlinemap.belief import Belief
+    from policies.passability import BLOCKED_ABOVE, blocked_probability
+
+    steps = 30 if planner == "info_gain" else 120
+    model, found = blocking_runs(planner, prior, steps)
+    trajectory, actions = found.trajectory, found.run.actions
+    bad = []
+    for t, action in enumerate(actions):  # action t was chosen from the belief after step t
+        blocked = blocked_probability(model, Belief(t, trajectory.location[t], trajectory.map[t]))
+        bad.append(bool(blocked[action] > BLOCKED_ABOVE and (blocked <= BLOCKED_ABOVE).any()))
+    twice = [t for t in range(1, len(bad)) if bad[t] and bad[t - 1]]
+    assert not twice, (planner, twice[:5])
+    if prior == "floor plan":  # the walls are known: the check had something to catch
+        assert max(blocked_probability(model, Belief(t, trajectory.location[t], trajectory.map[t])).max()
+                   for t in range(len(actions))) > BLOCKED_ABOVE
+
+
+@pytest.mark.parametrize("planner", sorted(PLANNERS))
+def test_planning_leaves_the_live_estimator_bit_identical_in_a_blocking_world(planner):
+    from onlinemap import checkpoint
+    from onlinemap.estimators import make_estimator
+
+    model, true_map = om.door_world(blocking=True, footprint="cross")
+    est = make_estimator("rbpf", model, n_particles=40, seed=1)
+    run = om.simulate(model, true_map, np.random.default_rng(0).integers(4, size=12), seed=2)
+    for t in range(run.n_steps):
+        est.step(None if t == 0 else int(run.actions[t - 1]), run.observations[t])
+    before, rng_before = checkpoint.state_dict(est), est._rng.bit_generator.state
+    options = {"hypotheses": 2, "rollout_particles": 8} if planner == "info_gain" else {}
+    chooser = make_planner(planner, model, seed=0, **options)
+    if hasattr(chooser, "bind"):
+        chooser.bind(est)
+    for _ in range(3):
+        assert 0 <= chooser.choose(est.belief) < model.n_actions
+    assert checkpoint.same_tree(before, checkpoint.state_dict(est))
+    assert est._rng.bit_generator.state == rng_before
+
+
+def test_random_and_sweep_skip_presses_the_belief_says_block():
+    """Robot certain to be in the middle of the top row of a 3 x 3 blocking world whose middle row
+    is known to be wall: south is out; west and east are open."""
+    model, _ = om.door_world("...\n###\n...\n", blocking=True)
+    maps = np.tile([1.0, 0.0, 0.0, 0.0], (9, 1))
+    maps[3:6] = [0.0, 1.0, 0.0, 0.0]
+    b = belief(np.eye(9)[1], maps)
+    south = model.action_names.index("south")
+    walk = RandomWalk(model, seed=3)
+    draws = np.array([walk.choose(b) for _ in range(3000)])
+    counts = np.bincount(draws, minlength=4)
+    assert counts[south] == 0 and np.all(binomial_ok(np.delete(counts, south), 3000, 1 / 3))
+    sweep = Sweep(model)
+    expected = [a for a in sweep_actions(model) if a != south]  # the belief stays: every south is skipped
+    assert [sweep.choose(b) for _ in range(len(expected))] == expected
+    # nothing blocks without blocking labels: the same belief leaves both planners as they were
+    plain, _ = om.door_world("...\n###\n...\n")
+    walk_a, walk_b = RandomWalk(plain, seed=3), RandomWalk(plain, seed=3)
+    assert [walk_a.choose(b) for _ in range(50)] == [int(walk_b.rng.integers(4)) for _ in range(50)]
