@@ -6,11 +6,14 @@
 >>> frame = policies.explore(model, true_map, "entropy", "rbpf", steps=200, seed=0)  # doctest: +SKIP
 """
 
+from .frontier import FrontierExplorer, FrontierPlan
 from .info_gain import (InfoGainExplorer, MacroScore, expected_information_gain, expected_uncertainty,
                         information_reward, uncertainty)
 from .explore import COLUMNS, Exploration, compare_planners, door_cells, explore, exploration, explore_env, summarize
-from .mdp import (PolicyIterationResult, action_values, evaluate_policy, policy_iteration,
+from .mdp import (PolicyIterationResult, action_values, evaluate_policy, move_probabilities, policy_iteration,
                   policy_motion)
+from .passability import (blocked_probability, distances_from, distances_to, enter_costs, expected_passability,
+                          unblocked_actions)
 from .planners import (PLANNERS, EntropyExplorer, Planner, PlannerEntry, RandomWalk, Sweep, make_planner,
                        planner_class, planner_options, sweep_actions)
 from .plots import plot_errors, plot_visits
@@ -20,6 +23,8 @@ from .worlds import exploration_world, floor_plan_prior, with_floor_plan
 __all__ = [
     "entropy_reward", "collected_entropy_reward", "RewardFunction",
     "policy_iteration", "PolicyIterationResult", "action_values", "evaluate_policy", "policy_motion",
+    "move_probabilities", "expected_passability", "enter_costs", "distances_to", "distances_from",
+    "blocked_probability", "unblocked_actions", "FrontierExplorer", "FrontierPlan",
     "Planner", "EntropyExplorer", "RandomWalk", "Sweep", "make_planner", "sweep_actions", "PLANNERS", "PlannerEntry",
     "planner_options", "planner_class",
     "InfoGainExplorer", "MacroScore", "expected_information_gain", "expected_uncertainty",

@@ -114,3 +114,140 @@ def test_passability_refuses_bad_input():
         distances_from(model, np.ones(6), [0.5])
     with pytest.raises(ModelError, match="min_passable"):
         distances_to(model, np.ones(6), [0], min_passable=0.0)
+
+
+# --- the frontier planner -------------------------------------------------------------------------
+from policies import make_planner  # noqa: E402
+from policies.frontier import FrontierExplorer, location_hypotheses  # noqa: E402
+
+
+def known_map(model: GridModel, labels, unknown) -> np.ndarray:
+    """(N, K) map belief: ``labels`` (N,) certain, the cells ``unknown`` uniform."""
+    maps = np.eye(model.n_labels)[np.asarray(labels)]
+    maps[list(unknown)] = 1.0 / model.n_labels
+    return maps
+
+
+@pytest.mark.parametrize("blocking", [None, 1])
+def test_frontier_goes_to_the_unknown_end_of_a_corridor(blocking):
+    model = om.corridor(8, blocking=blocking)
+    left, right = model.action_names.index("left"), model.action_names.index("right")
+    maps = known_map(model, np.zeros(8, dtype=int), [7])
+    for cell in range(7):
+        planner = make_planner("frontier", model)
+        assert planner.choose(Belief(0, np.eye(8)[cell], maps.copy())) == right, cell
+        assert planner.last_plan.targets.tolist() == [7] and planner.last_plan.mode == "frontier"
+    mirrored = known_map(model, np.zeros(8, dtype=int), [0])
+    assert make_planner("frontier", model).choose(Belief(0, np.eye(8)[5], mirrored)) == left
+    # a robot unsure where it is (cells 1-4) still heads for the unknown end
+    assert make_planner("frontier", model).choose(Belief(0, np.r_[0, .25, .25, .25, .25, 0, 0, 0], maps.copy())) == right
+
+
+ROOM = """\
+.....#####
+.....#...#
+.....#...#
+.....##o##
+..........
+"""
+
+
+def test_frontier_leaves_a_room_by_its_only_door():
+    """The room (rows 1-2, columns 6-8), its walls and its open door (row 3, column 7) are known;
+    everything outside is unknown. From every room cell the robot moves closer to the door, and
+    the targets lie outside the room, through the door."""
+    model, true_map = om.door_world(ROOM, blocking=True, footprint="cross")
+    rows, cols = np.divmod(np.arange(model.n_cells), model.cols)
+    room = (rows <= 3) & (cols >= 5)
+    maps = known_map(model, true_map, np.flatnonzero(~room))
+    door = 3 * model.cols + 7
+    for cell in np.flatnonzero(room & (true_map == 0)):
+        planner = FrontierExplorer(model)
+        action = planner.choose(Belief(0, np.eye(model.n_cells)[cell], maps.copy()))
+        after = model.neighbors[cell, action]
+        assert abs(rows[after] - 3) + abs(cols[after] - 7) < abs(rows[cell] - 3) + abs(cols[cell] - 7), \
+            (cell, model.action_names[action])
+        assert not room[planner.last_plan.targets].any() or set(planner.last_plan.targets) == {door}
+    # the door closed for sure: no way out, every reachable footprint is known, so the robot
+    # revisits the most uncertain reachable places (the walls next to the unknown) instead
+    closed = maps.copy()
+    closed[door] = np.eye(4)[3]
+    planner = FrontierExplorer(model)
+    planner.choose(Belief(0, np.eye(model.n_cells)[model.cols + 6], closed))
+    assert planner.last_plan.mode == "revisit" and room[planner.last_plan.targets].all()
+
+
+def test_frontier_blacklists_a_target_it_makes_no_progress_towards():
+    """The same belief over and over (the robot's presses change nothing): after ``patience``
+    decisions without progress the target is blacklisted and another chosen; a press that left
+    the belief unchanged is not repeated while the belief stays the same."""
+    model = om.corridor(8)
+    maps = known_map(model, np.zeros(8, dtype=int), [0, 7])
+    b = Belief(0, np.eye(8)[5], maps)  # the unknown end 7 is nearer than 0
+    planner = FrontierExplorer(model, patience=3)
+    first = planner.choose(b)
+    assert planner.last_plan.targets.tolist() == [7] and model.action_names[first] == "right"
+    second = planner.choose(b)  # unchanged belief after "right": "right" was futile
+    assert model.action_names[second] == "left" and planner.futile.tolist() == [False, True]
+    for _ in range(3):
+        planner.choose(b)
+    assert planner.blacklist.tolist() == [False] * 7 + [True]
+    assert planner.plan(b).targets.tolist() == [0]
+    # when every frontier cell is blacklisted, the list is cleared
+    planner.blacklist[0] = True
+    assert planner.plan(b).targets.tolist() == [7] and not planner.blacklist.any()
+
+
+def test_location_hypotheses_keep_the_most_probable_cells():
+    cells, weights = location_hypotheses(np.array([0.1, 0.0, 0.6, 0.3]), 16)
+    assert cells.tolist() == [2, 3, 0] and np.allclose(weights, [0.6, 0.3, 0.1])
+    cells, weights = location_hypotheses(np.array([0.1, 0.0, 0.6, 0.3]), 2)
+    assert cells.tolist() == [2, 3] and np.allclose(weights, [2 / 3, 1 / 3])
+
+
+def test_frontier_action_costs_equal_their_definition():
+    """sum_l P(l) [1 + q D(j) + (1 - q) D(l)] recomputed here with Floyd-Warshall distances."""
+    model, true_map = om.door_world(ROOM, blocking=True, footprint="cross")
+    rng = np.random.default_rng(3)
+    maps = rng.dirichlet(np.ones(4), size=model.n_cells)
+    location = rng.dirichlet(np.full(model.n_cells, 0.1))
+    planner = FrontierExplorer(model, hypotheses=model.n_cells)
+    plan = planner.plan(Belief(0, location, maps.copy()))
+    passable = maps[:, 0] + maps[:, 2]
+    brute = floyd_warshall(model, passable, planner.min_passable)
+    d = np.where(np.isfinite(brute[:, plan.targets].min(1)), brute[:, plan.targets].min(1), planner.penalty)
+    np.testing.assert_allclose(plan.distance, d, rtol=1e-12)
+    expected = np.zeros(4)
+    for cell in range(model.n_cells):
+        for a in range(4):
+            j = model.neighbors[cell, a]
+            q = model.p_move * passable[j] if j != cell and passable[j] >= planner.min_passable else 0.0
+            expected[a] += location[cell] * (1 + q * d[j] + (1 - q) * d[cell])
+    np.testing.assert_allclose(plan.action_cost, expected, rtol=1e-12)
+    keep = location > 0
+    e = (location[keep] / location[keep].sum()) @ np.where(np.isfinite(brute[keep]), brute[keep], planner.penalty)
+    np.testing.assert_allclose(plan.expected_distance, e, rtol=1e-9)
+
+
+@pytest.mark.parametrize("option,value", [("threshold", 0.0), ("threshold", 1.0), ("threshold", "x"),
+                                          ("distance_cost", -1.0), ("distance_cost", float("nan")),
+                                          ("min_passable", 0.0), ("min_passable", 1.5), ("hypotheses", 0),
+                                          ("hypotheses", 1.5), ("lost_entropy", 0.0), ("patience", 0),
+                                          ("patience", True)])
+def test_frontier_bad_options_raise_model_errors_naming_them(option, value):
+    model = om.corridor(5)
+    with pytest.raises(ModelError, match=option):
+        make_planner("frontier", model, **{option: value})
+    with pytest.raises(ModelError, match="p_move"):
+        make_planner("frontier", om.corridor(5, p_move=0.0))
+
+
+def test_frontier_relocalises_when_lost():
+    """lost_entropy set and the location spread over the whole corridor: the gain counts the
+    footprint's certain cells, so the robot heads for the mapped half (cells 0-3)."""
+    model = om.corridor(8)
+    maps = known_map(model, np.zeros(8, dtype=int), [4, 5, 6, 7])
+    lost = Belief(0, np.full(8, 1 / 8), maps)
+    planner = FrontierExplorer(model, lost_entropy=0.8)
+    assert model.action_names[planner.choose(lost)] == "left" and planner.last_plan.mode == "relocalise"
+    assert model.action_names[FrontierExplorer(model).choose(lost)] == "right"
