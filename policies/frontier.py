@@ -27,6 +27,10 @@ Every step, from the belief's marginals (N cells, K labels, A actions, F footpri
    what gets a robot out of a belief it cannot resolve by pressing on: two location hypotheses whose
    maps are shifted copies both explain every failed press into a wall, so the marginal map keeps
    showing a way through it (``patience`` None: never blacklist).
+7. *Futile presses*: when the belief after a press equals the belief before it (to 1e-12), every
+   hypothesis predicted the outcome (typically a press into what each hypothesis's own map holds
+   as a wall) and, the planner being a function of the belief, it would press again forever; that
+   action is left out until the belief changes.
 
 Corner cases. *No frontier left* (every reachable cell's footprint is certain, or the rest cannot be
 reached): the gain drops the threshold, ``g(c) = sum_f u_{c_f}``, and the robot revisits the most
@@ -36,6 +40,16 @@ hypotheses, so it heads where most of them agree; with ``lost_entropy`` set, a r
 normalised location entropy exceeds it re-localises instead: the gain counts the footprint's
 *certain* cells, ``sum_f (1 - u_{c_f})``, so it returns to mapped places whose readings tell the
 hypotheses apart. *Corridors*: the same rules with two actions.
+
+Defaults (``threshold`` 0.5, ``distance_cost`` 0.2, ``patience`` 3, ``min_passable`` 0.05,
+``hypotheses`` 16, ``lost_entropy`` None) were tuned on the 10 x 10 door world with blocking walls
+and a cross footprint, uniform label prior, ``p_move`` 0.8, RBPF with 1000 particles, 12 seeds
+(100-111, apart from the seeds of any reported study), 300 steps, for the fewest steps to map
+error 0.1: ``distance_cost`` 0.1-0.3 is best (0: the robot wanders to far-off gains and gets lost;
+1 or more, the pure nearest frontier, it gets lost too, median never reaching 0.1); ``patience``
+3 beats 5, 8 and never; ``threshold`` 0.2-0.7 and ``min_passable`` 0.05-0.15 made no difference
+beyond the noise; one hypothesis (the most likely cell) instead of 16 was slower; re-localising
+at ``lost_entropy`` 0.3 was slower (mean steps to 0.1 from 138 to 161-174), so it is off.
 
 Cost per decision: ``M`` = at most ``hypotheses`` Dijkstras plus one, O((M + 1) N A log(N A)),
 plus O(N (F + K + A)) for the entropies, gains and action values.
@@ -99,9 +113,9 @@ class FrontierExplorer:
     Re-plans at every call; never touches an estimator. Needs ``p_move > 0``.
     """
 
-    def __init__(self, model: GridModel, *, threshold: float = 0.5, distance_cost: float = 0.1,
+    def __init__(self, model: GridModel, *, threshold: float = 0.5, distance_cost: float = 0.2,
                  min_passable: float = 0.05, hypotheses: int = 16, lost_entropy: float | None = None,
-                 patience: int | None = 8):
+                 patience: int | None = 3):
         self.threshold = arguments.real("threshold", threshold, low=0.0, high=1.0, low_open=True, high_open=True)
         self.distance_cost = arguments.real("distance_cost", distance_cost, low=0.0, high=math.inf, high_open=True)
         self.min_passable = arguments.real("min_passable", min_passable, low=0.0, high=1.0, low_open=True)
