@@ -20,17 +20,16 @@ Every step, from the belief's marginals (N cells, K labels, A actions, F footpri
    passable_j`` (0 off the grid edge or into an impassable cell): the expected steps to the target
    after pressing a, averaged over where the robot may be (not only its most likely cell). Ties go
    to the lowest action index; a press the belief says blocks (:func:`~policies.passability.
-   unblocked_actions`) is never chosen while another exists.
+   unblocked_actions`) is never chosen while another exists, nor a futile one (rule 7).
 6. *Inaccessible targets* (Yamauchi's list of inaccessible frontiers): when ``E`` of the first
    target has not fallen for ``patience`` decisions in a row, that target goes on a blacklist and is
    no target while any other frontier cell is reachable; when none is, the list is cleared. This is
    what gets a robot out of a belief it cannot resolve by pressing on: two location hypotheses whose
    maps are shifted copies both explain every failed press into a wall, so the marginal map keeps
    showing a way through it (``patience`` None: never blacklist).
-7. *Futile presses*: when the belief after a press equals the belief before it (to 1e-12), every
-   hypothesis predicted the outcome (typically a press into what each hypothesis's own map holds
-   as a wall) and, the planner being a function of the belief, it would press again forever; that
-   action is left out until the belief changes.
+7. *Futile presses* (:class:`~policies.passability.PressMemory`): a press after which the belief
+   did not change at all is left out until it changes (the planner, a function of the belief,
+   would otherwise press it forever).
 
 Corner cases. *No frontier left* (every reachable cell's footprint is certain, or the rest cannot be
 reached): the gain drops the threshold, ``g(c) = sum_f u_{c_f}``, and the robot revisits the most
@@ -68,15 +67,9 @@ from onlinemap.errors import ModelError
 from onlinemap.metrics import normalized_entropy
 from onlinemap.model import GridModel
 
-from .passability import distances_from, distances_to, expected_passability, unblocked_actions
+from .passability import PressMemory, distances_from, distances_to, expected_passability
 
 _LEFT_OUT = 1e-9  # location mass the hypotheses may leave out
-
-
-def _same(a: Belief, b: Belief) -> bool:
-    """Whether two beliefs' marginals agree to 1e-12. O(N K)."""
-    return bool(np.allclose(a.location, b.location, rtol=0, atol=1e-12)
-                and np.allclose(a.map, b.map, rtol=0, atol=1e-12))
 
 
 class FrontierPlan(NamedTuple):
@@ -132,23 +125,14 @@ class FrontierExplorer:
         self._target = -1  # the first target of the last decision, its E then, decisions without progress
         self._last_distance = math.inf
         self._stalled = 0
-        self._previous: Belief | None = None  # the belief of the last decision and the action taken
-        self._action = -1
-        self.futile = np.zeros(model.n_actions, dtype=bool)  # (A,) presses that left the belief unchanged
+        self.presses = PressMemory(model)  # blocked and futile presses
 
     def choose(self, belief: Belief) -> int:
         plan = self.plan(belief)
         self._track(int(plan.targets[0]), float(plan.expected_distance[plan.targets[0]]))
-        if self._previous is not None and _same(belief, self._previous):
-            self.futile[self._action] = True
-        else:
-            self.futile[:] = False
-        allowed = unblocked_actions(self.model, belief)
-        if (allowed & ~self.futile).any():
-            allowed &= ~self.futile
-        self._previous = belief
-        self._action = int(np.argmin(np.where(allowed, plan.action_cost, np.inf)))
-        return self._action
+        action = int(np.argmin(np.where(self.presses.allowed(belief), plan.action_cost, np.inf)))
+        self.presses.pressed(belief, action)
+        return action
 
     def plan(self, belief: Belief) -> FrontierPlan:
         """Targets, distances and the expected cost of every action (module docstring, steps 1-5)."""

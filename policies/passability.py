@@ -91,6 +91,40 @@ def unblocked_actions(model: GridModel, belief: Belief, limit: float = BLOCKED_A
     return allowed if allowed.any() else np.ones(model.n_actions, dtype=bool)
 
 
+class PressMemory:
+    """Which actions a planner may press: :func:`unblocked_actions`, less the *futile* ones.
+
+    A press is futile when the belief after it equals the belief before it (marginals to 1e-12):
+    every hypothesis predicted its outcome, typically a failed press into what each hypothesis's
+    own map holds as a wall, which the marginals need not show (two hypotheses whose maps are
+    shifted copies of each other each block the press, yet mix to a marginal map with a way
+    through). A planner that is a function of the belief would press it forever; the memory
+    leaves it out until the belief changes (unless nothing else is left). Call :meth:`allowed`
+    at each decision and :meth:`pressed` with the action taken. O(N K + N A) per decision.
+    """
+
+    def __init__(self, model: GridModel):
+        self.model = model
+        self.futile = np.zeros(model.n_actions, dtype=bool)  # (A,) presses that left the belief as it was
+        self._belief: Belief | None = None
+        self._action = -1
+
+    def allowed(self, belief: Belief) -> np.ndarray:
+        """(A,) bool: the actions the planner may take now."""
+        previous = self._belief
+        if previous is not None and np.allclose(belief.location, previous.location, rtol=0, atol=1e-12) \
+                and np.allclose(belief.map, previous.map, rtol=0, atol=1e-12):
+            self.futile[self._action] = True
+        else:
+            self.futile[:] = False
+        allowed = unblocked_actions(self.model, belief)
+        return allowed & ~self.futile if (allowed & ~self.futile).any() else allowed
+
+    def pressed(self, belief: Belief, action: int) -> None:
+        """Remember the belief the last decision saw and the action it took."""
+        self._belief, self._action = belief, int(action)
+
+
 def _passable(model: GridModel, passable) -> np.ndarray:
     passable = np.asarray(passable, dtype=np.float64)
     if passable.shape != (model.n_cells,):
@@ -110,4 +144,4 @@ def _cells(name: str, model: GridModel, cells) -> np.ndarray:
 
 
 __all__ = ["BLOCKED_ABOVE", "expected_passability", "enter_costs", "distances_to", "distances_from",
-           "blocked_probability", "unblocked_actions"]
+           "blocked_probability", "unblocked_actions", "PressMemory"]

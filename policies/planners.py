@@ -34,7 +34,7 @@ from onlinemap.rng import SeedLike, as_generator
 from .frontier import FrontierExplorer
 from .info_gain import InfoGainExplorer
 from .mdp import PolicyIterationResult, policy_iteration
-from .passability import expected_passability, unblocked_actions
+from .passability import PressMemory, expected_passability, unblocked_actions
 from .rewards import RewardFunction, collected_entropy_reward, entropy_reward
 
 
@@ -55,7 +55,9 @@ class EntropyExplorer:
     :func:`~policies.rewards.entropy_reward`), ``Q`` by :func:`~policies.mdp.policy_iteration`
     with discount ``gamma`` (warm-started from the previous plan; with blocking labels, on the
     belief's expected passability). Every call: the action maximising ``sum_l P(l) Q(l, a)``
-    (ties go to the lowest action index) among those the belief does not say block.
+    (ties go to the lowest action index); with blocking labels, among those the belief does not
+    say block and that are not futile (:class:`~policies.passability.PressMemory`: a press after
+    which the belief did not change is not repeated until it changes).
     Cost per re-plan: a few sparse solves over N cells; per call O(N A).
     """
 
@@ -70,6 +72,7 @@ class EntropyExplorer:
         self.replan_every = int(replan_every)
         self.reward = reward
         self.plan: PolicyIterationResult | None = None
+        self.presses = PressMemory(model)  # with blocking labels: blocked and futile presses
         self._calls = 0
 
     def choose(self, belief: Belief) -> int:
@@ -80,9 +83,11 @@ class EntropyExplorer:
                                          initial_policy=previous, passable=passable)
         self._calls += 1
         value = belief.location @ self.plan.q
-        if self.model.has_blocking:
-            value = np.where(unblocked_actions(self.model, belief), value, -np.inf)
-        return int(np.argmax(value))
+        if not self.model.has_blocking:
+            return int(np.argmax(value))
+        action = int(np.argmax(np.where(self.presses.allowed(belief), value, -np.inf)))
+        self.presses.pressed(belief, action)
+        return action
 
     def __repr__(self) -> str:
         return (f"EntropyExplorer(gamma={self.gamma}, replan_every={self.replan_every}, "

@@ -188,7 +188,7 @@ def test_frontier_blacklists_a_target_it_makes_no_progress_towards():
     first = planner.choose(b)
     assert planner.last_plan.targets.tolist() == [7] and model.action_names[first] == "right"
     second = planner.choose(b)  # unchanged belief after "right": "right" was futile
-    assert model.action_names[second] == "left" and planner.futile.tolist() == [False, True]
+    assert model.action_names[second] == "left" and planner.presses.futile.tolist() == [False, True]
     for _ in range(3):
         planner.choose(b)
     assert planner.blacklist.tolist() == [False] * 7 + [True]

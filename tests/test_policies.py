@@ -329,3 +329,22 @@ def test_random_and_sweep_skip_presses_the_belief_says_block():
     plain, _ = om.door_world("...\n###\n...\n")
     walk_a, walk_b = RandomWalk(plain, seed=3), RandomWalk(plain, seed=3)
     assert [walk_a.choose(b) for _ in range(50)] == [int(walk_b.rng.integers(4)) for _ in range(50)]
+
+
+def test_entropy_planner_does_not_repeat_a_press_that_left_the_belief_unchanged():
+    """A blocking corridor, robot certain at cell 1 facing an uncertain cell 2 to the right: it
+    presses right; shown the same belief again (every hypothesis predicted the failure), it
+    presses left instead, and right again once the belief has changed. Without blocking labels
+    it is the paper's planner: the same belief, the same action."""
+    model = om.corridor(5, blocking=1)
+    maps = np.tile([1.0, 0.0], (5, 1))
+    maps[2:] = [0.5, 0.5]
+    b = belief(np.eye(5)[1], maps)
+    right, left = model.action_names.index("right"), model.action_names.index("left")
+    planner = EntropyExplorer(model)
+    assert [planner.choose(b), planner.choose(b)] == [right, left]
+    changed = maps.copy()
+    changed[2] = [0.6, 0.4]
+    assert planner.choose(belief(np.eye(5)[1], changed)) == right
+    plain = EntropyExplorer(om.corridor(5))
+    assert [plain.choose(b), plain.choose(b)] == [right, right]
