@@ -85,7 +85,7 @@ _ZIP_MAGIC = b"PK\x03\x04"
 
 
 def _package_version() -> str:
-    from . import __version__
+    from ._version import __version__
 
     return __version__
 
