@@ -25,11 +25,16 @@ from .simulate import Run, random_walk, sample_map, simulate, there_and_back
 # Heavy parts (sweeps: pandas I/O, dask, matplotlib; plots) load on first use, so that
 # ``import onlinemap`` stays fast and never imports matplotlib, dask, the CLI or ``policies``.
 _LAZY = {"sweep": "sweeps", "load_spec": "sweeps", "summarize": "sweeps", "SpecError": "sweeps",
-         "SweepError": "sweeps", "sweeps": None, "plots": None, "compare": None, "reproduce": None,
+         "SweepError": "sweeps", "sweeps": None, "plots": None, "studies": None,
          "peers": None, "bench": None, "cli": None, "envs": None}
+#: modules that moved into the studies layer: the error says where
+MOVED = {"compare": "onlinemap.studies.accuracy", "reproduce": "onlinemap.studies.corridor",
+         "mapping_studies": "onlinemap.studies.mapping"}
 
 
 def __getattr__(name: str):
+    if name in MOVED:
+        raise AttributeError(f"onlinemap.{name} moved to {MOVED[name]} (every study lives in onlinemap.studies)")
     if name not in _LAZY:
         raise AttributeError(f"module 'onlinemap' has no attribute {name!r}")
     module = importlib.import_module(f".{_LAZY[name] or name}", __name__)

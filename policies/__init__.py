@@ -8,7 +8,9 @@
 
 from .info_gain import (InfoGainExplorer, MacroScore, expected_information_gain, expected_uncertainty,
                         information_reward, uncertainty)
-from .explore import COLUMNS, Exploration, compare_planners, door_cells, explore, exploration, explore_env, summarize
+from onlinemap.model import door_cells
+
+from .explore import COLUMNS, Exploration, explore, exploration, explore_env
 from .mdp import (PolicyIterationResult, action_values, evaluate_policy, policy_iteration,
                   policy_motion)
 from .planners import (PLANNERS, EntropyExplorer, Planner, PlannerEntry, RandomWalk, Sweep, make_planner,
@@ -25,5 +27,17 @@ __all__ = [
     "InfoGainExplorer", "MacroScore", "expected_information_gain", "expected_uncertainty",
     "information_reward", "uncertainty",
     "explore", "exploration", "Exploration", "explore_env", "door_cells", "COLUMNS", "exploration_world", "floor_plan_prior",
-    "with_floor_plan", "compare_planners", "summarize", "plot_errors", "plot_visits",
+    "with_floor_plan", "plot_errors", "plot_visits",
 ]
+
+#: names that moved to the studies layer: the error says where
+MOVED = {"compare_planners": "onlinemap.studies.exploration.compare_planners",
+         "summarize": "onlinemap.studies.exploration.summarize_planners",
+         "studies": "onlinemap.studies.exploration"}
+
+
+def __getattr__(name: str):
+    if name in MOVED:
+        raise AttributeError(f"policies.{name} moved to {MOVED[name]} (studies live in onlinemap.studies, "
+                             f"above the planners)")
+    raise AttributeError(f"module 'policies' has no attribute {name!r}")

@@ -59,6 +59,14 @@ from .block_pool import FORMAT_1_ATTRIBUTES, REFRESH_STEPS, BlockPool, block_lay
 PROPOSALS = ("optimal", "transition")
 FEARNHEAD_CLIFFORD = "fearnhead_clifford"
 RESAMPLING = (*RESAMPLERS, FEARNHEAD_CLIFFORD)
+#: the filter's named schemes (the options that make each), which studies, benchmarks and figures
+#: compare: the default (optimal proposal, Fearnhead-Clifford resampling), the optimal proposal
+#: sampled with residual resampling, and the transition proposal with residual resampling
+SCHEMES: dict[str, dict[str, str]] = {
+    "FC": {"proposal": "optimal", "resampling": FEARNHEAD_CLIFFORD},
+    "optimal+residual": {"proposal": "optimal", "resampling": "residual"},
+    "transition+residual": {"proposal": "transition", "resampling": "residual"},
+}
 
 
 def _logsumexp(x: np.ndarray) -> float:
