@@ -57,7 +57,8 @@ SCORES = {"read_map_error": "map_error", "read_wrong_cells": "wrong_cells", "fin
 
 def _scored(runs: pd.DataFrame, groups: list[str]) -> pd.DataFrame:
     """A sweep's runs as the study's rows: ``run`` (the seed), ``seed``, the groups, the measures."""
-    table = runs.drop(columns="estimator").rename(columns={**SCORES, "label": "estimator"})
+    replaced = [c for c in ("estimator", *SCORES.values()) if c in runs]
+    table = runs.drop(columns=replaced).rename(columns={**SCORES, "label": "estimator"})
     table.insert(0, "run", table["seed"])
     return table[["run", "seed", *groups, *SCORES.values()]]
 

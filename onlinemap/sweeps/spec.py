@@ -154,7 +154,7 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
         planners = []
         for key in ("floor_plan", "goals"):
             if key in data:
-                raise where.error((key,), "applies to exploration and navigation sweeps (with [planners]) only")
+                raise where.error((key,), "applies to exploration sweeps (with [planners]) only")
         floor_plans, goals = [None], [None]
     estimators = _configs(data, "estimators", where, estimator_options, _estimator_class, max_tasks)
     if "trip" in steps and not set(walks) <= {"there_and_back", "scripted_trip"}:
