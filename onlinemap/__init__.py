@@ -14,6 +14,7 @@ import importlib
 
 from . import checkpoint, errors, metrics, scenarios
 from .belief import Belief
+from .buildings import building
 from .checkpoint import save
 from .errors import (CheckpointError, ImpossibleObservationError, InvalidActionError, InvalidObservationError,
                      InvalidOptionError, MemoryLimitError, ModelError, OnlineMapError, UnknownEstimatorError)
@@ -39,7 +40,7 @@ def __getattr__(name: str):
 
 __all__ = [
     "Belief", "Estimator", "GridModel", "Run", "SmoothResult", "Trajectory",
-    "corridor", "door_world", "grid_model", "DOOR_WORLD_10X10",
+    "corridor", "door_world", "grid_model", "DOOR_WORLD_10X10", "building",
     "simulate", "random_walk", "there_and_back", "sample_map",
     "make_estimator", "register", "available_estimators", "estimator_options", "run_estimator",
     "exact_smooth", "metrics", "scenarios", "errors", "checkpoint", "save", "load",
