@@ -39,6 +39,18 @@ def test_door_world_default_and_layout():
     assert small.shape == (2, 3)
     np.testing.assert_array_equal(small_map, [0, 0, 1, 2, 0, 3])
     assert om.DOOR_WORLD_10X10.count("\n") == 10
+    from_array, array_map = om.door_world(np.array([[0, 0, 1], [2, 0, 3]], dtype=np.uint8), start=4)
+    assert from_array.shape == (2, 3) and from_array.start == 4
+    np.testing.assert_array_equal(array_map, small_map)
+
+
+@pytest.mark.parametrize("layout, match", [
+    (np.arange(3), "2D int array"), (np.zeros((2, 2)), "float64 array"), (np.zeros((0, 3), dtype=int), "non-empty"),
+    (np.array([[0, 4], [0, 0]]), "0..3"), (np.array([[0, -1], [0, 0]]), "0..3"), ([[0, 1], [1, 0]], "got list"),
+])
+def test_door_world_refuses_bad_label_arrays(layout, match):
+    with pytest.raises(om.ModelError, match=match):
+        om.door_world(layout)
 
 
 @pytest.mark.parametrize("kwargs,match", [
