@@ -101,3 +101,28 @@ def test_world_specs():
         parse_world("corridor:5,foo=1")
     with pytest.raises(om.ModelError, match="unknown kind"):
         parse_world("maze:5")
+
+
+def test_building_world_specs():
+    from onlinemap.worlds import parse_world
+
+    world = parse_world("building:32x32,seed=3")
+    model, true_map = om.building(32, 32, seed=3)
+    np.testing.assert_array_equal(world.true_map, true_map)
+    np.testing.assert_array_equal(world.initial_map(7), true_map)
+    assert world.model.start == model.start and world.model.has_blocking and world.model.n_readings == 5
+    np.testing.assert_array_equal(parse_world("building").true_map, om.building(32, 32, seed=0)[1])
+    options = dict(seed=1, p_obs=0.7, p_move=0.6, p_door=0.01, extra_doors=0.5, closed_share=0.2)
+    world = parse_world("building:20x40," + ",".join(f"{k}={v}" for k, v in options.items())
+                        + ",blocking=0,footprint=cell")
+    model, true_map = om.building(20, 40, blocking=False, footprint="cell", **options)
+    np.testing.assert_array_equal(world.true_map, true_map)
+    assert om.model.model_difference(world.model, model) is None
+    start = int(np.flatnonzero(true_map == 0)[0])
+    assert parse_world(f"building:20x40,seed=1,start={start}").model.start == start
+    for spec, match in [("building:32", "RxC"), ("building:9x32", "rows must be at least 10"),
+                        ("building:32x32,seed=x", "seed must be a whole number"),
+                        ("building:32x32,blocking=2", "0 or 1"), ("building:32x32,start=0", "start must be a free"),
+                        ("building:32x32,extra_doors=2", "extra_doors")]:
+        with pytest.raises(om.ModelError, match=match):
+            parse_world(spec)
