@@ -37,7 +37,7 @@ import numpy as np
 
 from . import arguments
 from .errors import ModelError
-from .model import CLOSED_DOOR, DOOR_LABELS, FREE, OPEN_DOOR, WALL, GridModel, door_world
+from .model import CLOSED_DOOR, FREE, OPEN_DOOR, WALL, GridModel, door_world, passable_start
 
 MIN_SIDE, MAX_SIDE = 10, 64  # a building's rows and cols
 ROOM_SIZE = (2, 6)  # default (min, max) interior side of a room, in cells
@@ -229,10 +229,7 @@ def building(rows: int, cols: int, *, seed, room_size: Sequence[int] = ROOM_SIZE
         cells = np.flatnonzero(corridor)
         start = int(cells[rng.integers(len(cells))])
     else:
-        start = arguments.integer("start", start, minimum=0, maximum=labels.size - 1)
-        if labels.flat[start] not in (FREE, OPEN_DOOR):
-            raise ModelError(f"start must be a free cell or an open door of the building, cell {start} is "
-                             f"{DOOR_LABELS[labels.flat[start]]}")
+        start = passable_start(labels, start)
     return door_world(labels, p_obs=p_obs, p_move=p_move, p_door=p_door, start=start, label_prior=label_prior,
                       blocking=blocking, footprint=footprint)
 

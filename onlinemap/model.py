@@ -538,6 +538,15 @@ def _flag(name: str, value) -> bool:
     return bool(value)
 
 
+def passable_start(labels: np.ndarray, start) -> int:
+    """``start`` checked against a door-world layout (rows, cols): a cell index, free or an open door."""
+    start = arguments.integer("start", start, minimum=0, maximum=labels.size - 1)
+    if labels.flat[start] not in (FREE, OPEN_DOOR):
+        raise ModelError(f"start must be a free cell or an open door, cell {start} is "
+                         f"{DOOR_LABELS[labels.flat[start]]}")
+    return start
+
+
 def door_world(layout: str | np.ndarray | None = None, p_obs: float = 0.9, p_move: float = 0.8,
                p_door: float = 0.0, start: int | None = None,
                label_prior=None, *, blocking: bool = False,
@@ -567,5 +576,5 @@ __all__ = [
     "GridModel", "grid_model", "corridor", "door_world", "parse_layout", "layout_grid", "door_change",
     "symmetric_channel", "apply_motion", "apply_motion_transpose", "grid_neighbors",
     "DOOR_WORLD_10X10", "DOOR_LABELS", "CORRIDOR_ACTIONS", "GRID_ACTIONS", "door_cells",
-    "FOOTPRINTS", "footprint_table", "blocking_mask", "passable_probability",
+    "passable_start", "FOOTPRINTS", "footprint_table", "blocking_mask", "passable_probability",
 ]

@@ -1,14 +1,17 @@
 """World specs for the command line: ``corridor:8``, ``corridor:10,p_change=0.01,n_labels=3``,
 ``grid:2x3``, ``door``, ``door,p_door=0.01``, ``door,blocking=1,footprint=cross``,
 ``grid:3x3,blocking=1,footprint=square``, ``building:32x32,seed=3``,
-``building:20x40,seed=1,p_door=0.01,extra_doors=0.5``.
+``building:20x40,seed=1,p_door=0.01,extra_doors=0.5``, ``layout:floors/office.map``,
+``layout:maps/lab.yaml,cell_size=0.5``.
 
 ``footprint`` takes a preset (cell, cross, square); ``blocking`` is 0/1 (false/true) for door
 worlds and buildings (walls and closed doors block) and the blocking labels, joined by ``+``, for
 corridors and grids (``blocking=1``, ``blocking=1+2``). A building
 (:func:`onlinemap.buildings.building`; default 32x32, seed 0) blocks and reads a cross unless
 told otherwise (``blocking=0``, ``footprint=cell``) and takes ``seed``, ``extra_doors`` and
-``closed_share``.
+``closed_share``. A layout (:func:`onlinemap.layouts.read_layout`) reads the file named after
+``layout:`` (a ``.map``, ``.yaml`` or ``.pgm``; a relative path from the working directory; no
+commas in it), with the same defaults and ``cell_size``.
 
 ``parse_world(spec) -> WorldSpec`` holds the model and, for door worlds and buildings, the map.
 """
@@ -22,6 +25,7 @@ import numpy as np
 from . import arguments
 from .errors import ModelError
 from .buildings import building
+from .layouts import read_layout
 from .model import GridModel, corridor, door_world, grid_model, symmetric_channel
 from .rng import SeedLike
 from .simulate import Run, random_walk, sample_map
@@ -29,7 +33,8 @@ from .simulate import simulate as _simulate
 
 _FLOAT_KEYS = {"p_obs", "p_move", "p_change", "p_door", "extra_doors", "closed_share"}
 _INT_KEYS = {"n_labels", "start", "seed"}
-_FLAG_KINDS = ("door", "building")  # kinds whose blocking option is a flag
+_REAL_KEYS = {"cell_size"}
+_FLAG_KINDS = ("door", "building", "layout")  # kinds whose blocking option is a flag
 _TEXT_KEYS = {"blocking", "footprint"}
 
 
@@ -78,6 +83,11 @@ def _value(spec: str, key: str, text: str) -> int | float | str:
         return text.strip()
     if key in _INT_KEYS:
         return _whole(spec, key, text)
+    if key in _REAL_KEYS:
+        try:
+            return float(text)
+        except ValueError:
+            raise ModelError(f"world spec {spec!r}: {key} must be a number, got {text!r}") from None
     try:
         value = float(text)
     except ValueError:
@@ -97,7 +107,7 @@ def _blocking(spec: str, kind: str, value: str):
 
 def parse_world(spec: str) -> WorldSpec:
     """Parse ``kind[:size][,key=value...]``; kinds: corridor (size N), grid (size RxC), door,
-    building (size RxC).
+    building (size RxC), layout (a file name).
     Anything malformed raises :class:`ModelError` naming the part at fault."""
     if not isinstance(spec, str) or not spec.strip() or len(spec) > _MAX_SPEC:
         raise ModelError(f"a world spec is a str of at most {_MAX_SPEC} characters like 'corridor:8', "
@@ -110,9 +120,9 @@ def parse_world(spec: str) -> WorldSpec:
         key = key.strip()
         if not eq:
             raise ModelError(f"world spec {spec!r}: expected key=value, got {pair!r}")
-        if key not in _FLOAT_KEYS | _INT_KEYS | _TEXT_KEYS:
+        if key not in _FLOAT_KEYS | _INT_KEYS | _TEXT_KEYS | _REAL_KEYS:
             raise ModelError(f"world spec {spec!r}: unknown option {key!r} "
-                             f"(known: {', '.join(sorted(_FLOAT_KEYS | _INT_KEYS | _TEXT_KEYS))})")
+                             f"(known: {', '.join(sorted(_FLOAT_KEYS | _INT_KEYS | _TEXT_KEYS | _REAL_KEYS))})")
         if key in options:
             raise ModelError(f"world spec {spec!r}: option {key!r} given twice")
         options[key] = _value(spec, key, value)
@@ -136,8 +146,14 @@ def parse_world(spec: str) -> WorldSpec:
             model, true_map = building(*_rows_cols(spec, "building", size or "32x32"),
                                        **{"seed": 0} | options)
             return WorldSpec(spec, model, true_map)
+        if kind == "layout":
+            if not size:
+                raise ModelError(f"world spec {spec!r}: a layout names its file, layout:PATH")
+            model, true_map = read_layout(size, **options)
+            return WorldSpec(spec, model, true_map)
     except (TypeError, ValueError) as error:
         if str(error).startswith("world spec"):
             raise
         raise ModelError(f"world spec {spec!r}: {error}") from None
-    raise ModelError(f"world spec {spec!r}: unknown kind {kind!r} (corridor:N, grid:RxC, door, building:RxC)")
+    raise ModelError(f"world spec {spec!r}: unknown kind {kind!r} (corridor:N, grid:RxC, door, building:RxC, "
+                     "layout:PATH)")

@@ -99,9 +99,9 @@ def test_building_refuses_with_model_errors(rows, cols, seed, room_size, width, 
 
 WORLD_TEXT = st.one_of(
     st.text(max_size=30),
-    st.tuples(st.sampled_from(["corridor", "grid", "door", "building", "maze", ""]), st.sampled_from(["", ":"]),
+    st.tuples(st.sampled_from(["corridor", "grid", "door", "building", "layout", "maze", ""]), st.sampled_from(["", ":"]),
               st.one_of(st.text(alphabet="0123456789x-.e", max_size=8), st.sampled_from(["8", "2x3", "3x3x", "10**9", "12x10"])),
-              st.lists(st.tuples(st.sampled_from(["p_obs", "p_move", "p_change", "p_door", "n_labels", "start", "seed", "extra_doors", "zz"]),
+              st.lists(st.tuples(st.sampled_from(["p_obs", "p_move", "p_change", "p_door", "n_labels", "start", "seed", "extra_doors", "cell_size", "zz"]),
                                  st.sampled_from(["0.5", "abc", "nan", "inf", "-1", "1", "2.5", "", "1e400"])),
                        max_size=3))
     .map(lambda p: p[0] + p[1] + p[2] + "".join(f",{key}={value}" for key, value in p[3])),
