@@ -153,3 +153,32 @@ def test_bad_arguments_raise_model_errors_naming_them(kwargs, match):
     arguments = dict(rows=16, cols=16, seed=0) | kwargs
     with pytest.raises(ModelError, match=match):
         om.building(arguments.pop("rows"), arguments.pop("cols"), **arguments)
+
+
+def test_plot_building_draws_the_labels_with_a_legend():
+    from matplotlib.colors import to_rgb
+    from matplotlib.figure import Figure
+
+    from onlinemap import plots
+
+    model, true_map = om.building(12, 20, seed=2, extra_doors=1.0)
+    fig = plots.plot_building(model, true_map, title="a building")
+    assert isinstance(fig, Figure)
+    (ax,) = fig.axes
+    image = np.asarray(ax.images[0].get_array())
+    palette = {FREE: "white", WALL: "#404040", OPEN: "tab:green", CLOSED: "tab:red"}
+    expected = np.array([[to_rgb(palette[label]) for label in row] for row in true_map.reshape(12, 20)])
+    np.testing.assert_allclose(image, expected)
+    legend = [text.get_text() for text in ax.get_legend().get_texts()]
+    assert legend == ["free", "wall", "open_door", "closed_door", "start"]
+    (star,) = ax.lines
+    assert (star.get_xdata()[0], star.get_ydata()[0]) == divmod(model.start, 20)[::-1]
+    assert ax.get_title() == "a building"
+    without_start = plots.plot_building(model, true_map.reshape(12, 20), start=False).axes[0]
+    assert not without_start.lines
+    grid = om.grid_model(3, 4, 3)  # another label set: matplotlib's cycle colours
+    image = np.asarray(plots.plot_building(grid, np.arange(12) % 3).axes[0].images[0].get_array())
+    np.testing.assert_allclose(image[0, :3], [to_rgb("C0"), to_rgb("C1"), to_rgb("C2")])
+    for bad in (true_map[:-1], true_map + 4, true_map.astype(float)):
+        with pytest.raises(ValueError, match="plot_building draws a 2D map"):
+            plots.plot_building(model, bad)
