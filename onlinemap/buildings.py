@@ -6,7 +6,9 @@ one cell thick:
 
 1. **Corridors.** The interior is cut by a corridor (``corridor_width`` free rows or columns
    between two wall lines) across its longer side, at a uniformly drawn place, and each part is
-   cut again while it is more than two rooms deep (``2 room_max + 1`` cells) and a cut fits. The
+   cut again while it is more than ``rooms_deep`` rooms deep (``rooms_deep (room_max + 1) - 1``
+   cells; the corridor layout: 1 puts nearly every room on a corridor, more leaves suites of
+   rooms reached through other rooms and fewer corridors) and a cut fits. The
    first cut always happens (the start is a corridor cell). A corridor runs from side to side of
    its part and opens (free cells through the wall line) into the corridors at its ends; a part
    is only cut by a corridor whose end meets a corridor, so the corridors form one network.
@@ -64,11 +66,12 @@ def _seed(value) -> np.random.Generator:
 
 
 def _corridors(rows: int, cols: int, rng: np.random.Generator, room_min: int, room_max: int, width: int,
-               labels: np.ndarray, region: np.ndarray) -> list[tuple[int, int, int, int, frozenset]]:
+               rooms_deep: int, labels: np.ndarray,
+               region: np.ndarray) -> list[tuple[int, int, int, int, frozenset]]:
     """Cut the interior by corridors (step 1 of the module's docstring), writing them into ``labels``
     and ``region``; returns the blocks ``(r0, r1, c0, c1, sides)``: interior cells ``[r0, r1) x
     [c0, c1)``, ``sides`` the subset of ``"NESW"`` bordered by a corridor."""
-    deep, fits = 2 * room_max + 1, 2 * room_min + width + 2  # a cut leaves two parts >= room_min
+    deep, fits = rooms_deep * (room_max + 1) - 1, 2 * room_min + width + 2  # a cut leaves two parts >= room_min
     blocks = []
     stack = [(1, rows - 1, 1, cols - 1, frozenset())]
     while stack:
@@ -182,7 +185,8 @@ def _doors(candidates: dict[tuple[int, int], np.ndarray], n_regions: int, rng: n
 
 
 def building_layout(rows: int, cols: int, *, seed, room_size: Sequence[int] = ROOM_SIZE, corridor_width: int = 1,
-                    extra_doors: float = 0.3, closed_share: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+                    rooms_deep: int = 2, extra_doors: float = 0.3,
+                    closed_share: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
     """A generated floor (the module's docstring): ``(labels, corridor)``, (rows, cols) int64 door
     labels and a (rows, cols) bool mask of the corridor cells (free). Options as in :func:`building`.
     Cost O(N) array work plus O(R) Python steps for R rooms (R <= N / (room_min + 1)^2)."""
@@ -190,12 +194,13 @@ def building_layout(rows: int, cols: int, *, seed, room_size: Sequence[int] = RO
     cols = arguments.integer("cols", cols, minimum=MIN_SIDE, maximum=MAX_SIDE)
     room_min, room_max = _room_size(room_size)
     width = arguments.integer("corridor_width", corridor_width, minimum=1)
+    rooms_deep = arguments.integer("rooms_deep", rooms_deep, minimum=1, maximum=MAX_SIDE)
     extra_doors = arguments.probability("extra_doors", extra_doors)
     closed_share = arguments.probability("closed_share", closed_share)
     rng = _seed(seed)
     labels = np.full((rows, cols), WALL, dtype=np.int64)
     region = np.full((rows, cols), -1, dtype=np.int64)  # -1 wall, 0 corridor network, 1.. rooms
-    blocks = _corridors(rows, cols, rng, room_min, room_max, width, labels, region)
+    blocks = _corridors(rows, cols, rng, room_min, room_max, width, rooms_deep, labels, region)
     _rooms(blocks, rng, room_min, room_max, labels, region)
     opened, closed = _doors(_door_candidates(labels, region), int(region.max()) + 1, rng, extra_doors,
                             closed_share, cols)
@@ -205,14 +210,15 @@ def building_layout(rows: int, cols: int, *, seed, room_size: Sequence[int] = RO
 
 
 def building(rows: int, cols: int, *, seed, room_size: Sequence[int] = ROOM_SIZE, corridor_width: int = 1,
-             extra_doors: float = 0.3, closed_share: float = 0.5, p_obs: float = 0.9, p_move: float = 0.8,
+             rooms_deep: int = 2, extra_doors: float = 0.3, closed_share: float = 0.5, p_obs: float = 0.9, p_move: float = 0.8,
              p_door: float = 0.0, start: int | None = None, label_prior=None, blocking: bool = True,
              footprint="cross") -> tuple[GridModel, np.ndarray]:
     """A generated building (the module's docstring) as a door world: ``(model, true_map)``.
 
     ``rows``, ``cols``: 10..64. ``seed``: an int (or sequence of ints) or a ``numpy.random.Generator``,
     required; the same seed gives the same building. ``room_size``: (min, max) interior side of a
-    room in cells, max >= 2 min; ``corridor_width``: cells across a corridor; ``extra_doors``: the
+    room in cells, max >= 2 min; ``corridor_width``: cells across a corridor; ``rooms_deep``: the
+    most rooms back to back between corridors where a corridor fits; ``extra_doors``: the
     probability that a pair of adjacent regions gets a door beyond the spanning tree's;
     ``closed_share``: the probability that such an extra door is closed. ``start``: a free cell or
     open door (default: a corridor cell drawn after the floor). The model options go to
@@ -220,11 +226,12 @@ def building(rows: int, cols: int, *, seed, room_size: Sequence[int] = ROOM_SIZE
     by default. true_map (N,) read-only.
 
     Cost: the floor O(N) array work and O(R) Python steps for R rooms (R <= N / (room_min + 1)^2),
-    about 1 ms at 10 x 10 and a few ms at 64 x 64; then the model, O(N F) for F footprint offsets.
+    about 1 ms at 10 x 10, 2-4 ms at 32 x 32 and 10 ms at 64 x 64; then the model, O(N F) for F
+    footprint offsets (15 ms at 64 x 64).
     """
     rng = _seed(seed)
     labels, corridor = building_layout(rows, cols, seed=rng, room_size=room_size, corridor_width=corridor_width,
-                                       extra_doors=extra_doors, closed_share=closed_share)
+                                       rooms_deep=rooms_deep, extra_doors=extra_doors, closed_share=closed_share)
     if start is None:
         cells = np.flatnonzero(corridor)
         start = int(cells[rng.integers(len(cells))])

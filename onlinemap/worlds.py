@@ -8,8 +8,8 @@
 worlds and buildings (walls and closed doors block) and the blocking labels, joined by ``+``, for
 corridors and grids (``blocking=1``, ``blocking=1+2``). A building
 (:func:`onlinemap.buildings.building`; default 32x32, seed 0) blocks and reads a cross unless
-told otherwise (``blocking=0``, ``footprint=cell``) and takes ``seed``, ``extra_doors`` and
-``closed_share``. A layout (:func:`onlinemap.layouts.read_layout`) reads the file named after
+told otherwise (``blocking=0``, ``footprint=cell``) and takes ``seed``, ``corridor_width``,
+``rooms_deep``, ``extra_doors`` and ``closed_share``. A layout (:func:`onlinemap.layouts.read_layout`) reads the file named after
 ``layout:`` (a ``.map``, ``.yaml`` or ``.pgm``; a relative path from the working directory; no
 commas in it), with the same defaults and ``cell_size``.
 
@@ -32,7 +32,7 @@ from .simulate import Run, random_walk, sample_map
 from .simulate import simulate as _simulate
 
 _FLOAT_KEYS = {"p_obs", "p_move", "p_change", "p_door", "extra_doors", "closed_share"}
-_INT_KEYS = {"n_labels", "start", "seed"}
+_INT_KEYS = {"n_labels", "start", "seed", "corridor_width", "rooms_deep"}
 _REAL_KEYS = {"cell_size"}
 _FLAG_KINDS = ("door", "building", "layout")  # kinds whose blocking option is a flag
 _TEXT_KEYS = {"blocking", "footprint"}

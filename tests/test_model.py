@@ -112,7 +112,8 @@ def test_building_world_specs():
     np.testing.assert_array_equal(world.initial_map(7), true_map)
     assert world.model.start == model.start and world.model.has_blocking and world.model.n_readings == 5
     np.testing.assert_array_equal(parse_world("building").true_map, om.building(32, 32, seed=0)[1])
-    options = dict(seed=1, p_obs=0.7, p_move=0.6, p_door=0.01, extra_doors=0.5, closed_share=0.2)
+    options = dict(seed=1, p_obs=0.7, p_move=0.6, p_door=0.01, extra_doors=0.5, closed_share=0.2, rooms_deep=3,
+                   corridor_width=2)
     world = parse_world("building:20x40," + ",".join(f"{k}={v}" for k, v in options.items())
                         + ",blocking=0,footprint=cell")
     model, true_map = om.building(20, 40, blocking=False, footprint="cell", **options)
