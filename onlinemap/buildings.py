@@ -210,9 +210,9 @@ def building_layout(rows: int, cols: int, *, seed, room_size: Sequence[int] = RO
 
 
 def building(rows: int, cols: int, *, seed, room_size: Sequence[int] = ROOM_SIZE, corridor_width: int = 1,
-             rooms_deep: int = 2, extra_doors: float = 0.3, closed_share: float = 0.5, p_obs: float = 0.9, p_move: float = 0.8,
-             p_door: float = 0.0, start: int | None = None, label_prior=None, blocking: bool = True,
-             footprint="cross") -> tuple[GridModel, np.ndarray]:
+             rooms_deep: int = 2, extra_doors: float = 0.3, closed_share: float = 0.5, p_obs: float = 0.9,
+             p_move: float = 0.8, p_door: float = 0.0, start: int | None = None, label_prior=None,
+             blocking: bool = True, footprint="cross") -> tuple[GridModel, np.ndarray]:
     """A generated building (the module's docstring) as a door world: ``(model, true_map)``.
 
     ``rows``, ``cols``: 10..64. ``seed``: an int (or sequence of ints) or a ``numpy.random.Generator``,

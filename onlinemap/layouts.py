@@ -157,10 +157,12 @@ def read_pgm(path) -> tuple[np.ndarray, int]:
                 pixels[filled] = int(token)
                 filled += 1
         if filled < pixels.size:
-            raise ModelError(f"{path}, line {line}: {filled} pixel values, a {width} x {height} image needs {pixels.size}")
+            raise ModelError(f"{path}, line {line}: {filled} pixel values, a {width} x {height} image needs "
+                             f"{pixels.size}")
     if pixels.max() > maxval:
         index = int(np.argmax(pixels > maxval))
-        raise ModelError(f"{path}: pixel {divmod(index, width)} (row, column) is {pixels[index]}, above maxval {maxval}")
+        raise ModelError(f"{path}: pixel {divmod(index, width)} (row, column) is {pixels[index]}, above maxval "
+                         f"{maxval}")
     return pixels.reshape(height, width), maxval
 
 

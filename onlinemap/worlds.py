@@ -9,11 +9,13 @@ worlds and buildings (walls and closed doors block) and the blocking labels, joi
 corridors and grids (``blocking=1``, ``blocking=1+2``). A building
 (:func:`onlinemap.buildings.building`; default 32x32, seed 0) blocks and reads a cross unless
 told otherwise (``blocking=0``, ``footprint=cell``) and takes ``seed``, ``corridor_width``,
-``rooms_deep``, ``extra_doors`` and ``closed_share``. A layout (:func:`onlinemap.layouts.read_layout`) reads the file named after
-``layout:`` (a ``.map``, ``.yaml`` or ``.pgm``; a relative path from the working directory; no
-commas in it), with the same defaults and ``cell_size``.
+``rooms_deep``, ``extra_doors`` and ``closed_share``. A layout
+(:func:`onlinemap.layouts.read_layout`) reads the file named after ``layout:`` (a ``.map``,
+``.yaml`` or ``.pgm``; a relative path from the working directory; no commas in it), with the
+same defaults and ``cell_size``.
 
-``parse_world(spec) -> WorldSpec`` holds the model and, for door worlds and buildings, the map.
+``parse_world(spec) -> WorldSpec`` holds the model and, for door worlds, buildings and layouts,
+the map.
 """
 
 from __future__ import annotations
@@ -23,8 +25,8 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from . import arguments
-from .errors import ModelError
 from .buildings import building
+from .errors import ModelError
 from .layouts import read_layout
 from .model import GridModel, corridor, door_world, grid_model, symmetric_channel
 from .rng import SeedLike
@@ -41,7 +43,7 @@ _TEXT_KEYS = {"blocking", "footprint"}
 class WorldSpec(NamedTuple):
     spec: str
     model: GridModel
-    true_map: np.ndarray | None  # fixed map (door worlds, buildings); None = draw one from the prior
+    true_map: np.ndarray | None  # fixed map (door worlds, buildings, layouts); None = draw one from the prior
 
     def initial_map(self, seed: SeedLike = None) -> np.ndarray:
         """The fixed map, or one drawn from the label prior with ``seed``."""
@@ -139,7 +141,7 @@ def parse_world(spec: str) -> WorldSpec:
                                               **options), None)
         if kind == "door":
             if size:
-                raise ModelError("door worlds take no size; pass a layout through the Python API")
+                raise ModelError("door worlds take no size; read a floor from a file with layout:PATH")
             model, true_map = door_world(**options)
             return WorldSpec(spec, model, true_map)
         if kind == "building":

@@ -55,7 +55,7 @@ def components(mask):
 @pytest.mark.parametrize("rows, cols", SIZES)
 @pytest.mark.parametrize("seed", range(6))
 def test_every_cell_is_reachable_through_free_cells_and_open_doors(rows, cols, seed):
-    model, true_map = om.building(rows, cols, seed=seed, rooms_deep=1 + seed % 3)
+    model, true_map = om.building(rows, cols, seed=seed, rooms_deep=1 + seed % 3, corridor_width=1 + seed // 4)
     grid = true_map.reshape(rows, cols)
     assert model.shape == (rows, cols) and true_map.shape == (rows * cols,) and not true_map.flags.writeable
     assert set(np.unique(grid)) <= {FREE, WALL, OPEN, CLOSED}
