@@ -14,11 +14,13 @@ import importlib
 
 from . import checkpoint, errors, metrics, scenarios
 from .belief import Belief
+from .buildings import building
 from .checkpoint import save
 from .errors import (CheckpointError, ImpossibleObservationError, InvalidActionError, InvalidObservationError,
                      InvalidOptionError, MemoryLimitError, ModelError, OnlineMapError, UnknownEstimatorError)
 from .estimators import (Estimator, SmoothResult, Trajectory, available_estimators,
                          estimator_options, exact_smooth, load, make_estimator, register, run_estimator)
+from .layouts import read_layout
 from .model import DOOR_WORLD_10X10, GridModel, corridor, door_world, grid_model
 from .simulate import Run, random_walk, sample_map, simulate, there_and_back
 
@@ -44,7 +46,7 @@ def __getattr__(name: str):
 
 __all__ = [
     "Belief", "Estimator", "GridModel", "Run", "SmoothResult", "Trajectory",
-    "corridor", "door_world", "grid_model", "DOOR_WORLD_10X10",
+    "corridor", "door_world", "grid_model", "DOOR_WORLD_10X10", "building", "read_layout",
     "simulate", "random_walk", "there_and_back", "sample_map",
     "make_estimator", "register", "available_estimators", "estimator_options", "run_estimator",
     "exact_smooth", "metrics", "scenarios", "errors", "checkpoint", "save", "load",

@@ -18,8 +18,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "step. The same --seed gives the same run and the same tables (estimators "
                                    "that sample, such as rbpf, are seeded from it too).")
     p.add_argument("--world", default="corridor:8", type=world,
-                   help="world spec: corridor:N[,p_change=..,n_labels=..], grid:RxC, door[,p_door=..] "
-                        "(default corridor:8)")
+                   help="world spec: corridor:N[,p_change=..,n_labels=..], grid:RxC, door[,p_door=..], "
+                        "building:RxC[,seed=..], layout:PATH[,cell_size=..] (default corridor:8)")
     p.add_argument("--estimators", default="exact,dead_reckoning", type=name_list,
                    help=f"comma-separated registry names (default exact,dead_reckoning; available: "
                         f"{', '.join(available_estimators())})")

@@ -67,7 +67,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "name, omitted on the first line), write one JSON belief summary per step "
                                    "on stdout; errors and events go to stderr as JSON lines.")
     p.add_argument("--world", required=True,
-                   help="world spec: corridor:N[,p_change=..,n_labels=..], grid:RxC, door[,p_door=..]")
+                   help="world spec: corridor:N[,p_change=..,n_labels=..], grid:RxC, door[,p_door=..], "
+                        "building:RxC[,seed=..], layout:PATH[,cell_size=..]")
     p.add_argument("--estimator", required=True, help="registry name (exact, dead_reckoning, bk, rbpf, ...)")
     p.add_argument("-o", "--option", action="append", default=[], metavar="KEY=VALUE",
                    help=f"estimator option, repeatable; {OPTION_HELP}")
