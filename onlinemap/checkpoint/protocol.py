@@ -2,18 +2,19 @@
 :func:`load_state_dict`), with every check a state passes before an estimator takes it.
 
 The state is the estimator's instance attributes (``vars(est)``), encoded by
-:mod:`onlinemap.checkpoint.codec`; ``est.model`` and ``est.options`` (the keyword options it
-was built with, recorded by :func:`~onlinemap.estimators.register`) are stored apart and checked
-on load. Loading checks the format version (:func:`check_header`; compatibility rests on
+:mod:`onlinemap.checkpoint.codec`; ``est.model`` and ``est.options`` (the keyword options it was
+built with, recorded by :func:`~onlinemap.estimators.register`) are stored apart and checked on
+load. Loading checks the format version (:func:`check_header`; compatibility rests on
 :data:`FORMAT_VERSION`, not the package version), the estimator name, the model (bitwise), the
 options, the attribute names and kinds, then the restored state's invariants
-(:func:`check_state`, :mod:`onlinemap.state_checks`: the attributes fixed by the model and
-options equal the estimator's own bit for bit, and the rest satisfy its invariants), so that no
-crafted state can make a kernel index outside its arrays. A class may name buffers whose contents are dead between steps
-(fully overwritten before being read) in a class attribute ``scratch_attributes = ("_buffer",
-...)``: their dtype and shape are recorded and checked, their contents are neither saved nor
-restored (the fresh instance's own buffers are kept), so they cost nothing in a checkpoint and do
-not count as state when comparing two state dicts.
+(:func:`check_state`: the attributes the estimator's class names in ``CONSTANT_STATE`` equal its
+own bit for bit, and the class's ``check_state`` accepts the rest; see
+:mod:`onlinemap.state_checks`), so that no crafted state can make a kernel index outside its
+arrays. A class may name buffers whose contents are dead between steps (fully overwritten before
+being read) in a class attribute ``scratch_attributes = ("_buffer", ...)``: their dtype and
+shape are recorded and checked, their contents are neither saved nor restored (the fresh
+instance's own buffers are kept), so they cost nothing in a checkpoint and do not count as state
+when comparing two state dicts.
 
 Cost: one copy of every array of the state (O(state size)) for ``state_dict``, and one pass over
 it for ``load_state_dict``'s checks.
@@ -134,12 +135,12 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
 
 def check_state(est, restored: dict) -> None:
     """Check the attributes ``restored`` (name -> value) as ``est``'s new state, without changing
-    ``est``: the attributes fixed by the model and options equal ``est``'s own, bit for bit, and
-    the rest satisfy the estimator's invariants (:mod:`onlinemap.state_checks`; a class may
-    define its own ``check_state(view)``). Raises :class:`CheckpointError`."""
-    from .. import state_checks
-
-    for name in state_checks.CONSTANT.get(est.name, ()):  # "attribute" or "attribute.field"
+    ``est``: the attributes its class names in ``CONSTANT_STATE`` (fixed by the model and options)
+    equal ``est``'s own, bit for bit, and the class's ``check_state(view)`` accepts the rest (the
+    estimator's invariants, written with :mod:`onlinemap.state_checks`). A class that defines
+    neither is loaded unchecked. Raises :class:`CheckpointError`."""
+    cls = type(est)
+    for name in getattr(cls, "CONSTANT_STATE", ()):  # "attribute" or "attribute.field"
         head, _, field = name.partition(".")
         if head not in restored:
             continue
@@ -148,7 +149,7 @@ def check_state(est, restored: dict) -> None:
             mine, theirs = getattr(mine, field), getattr(theirs, field)
         if not same_tree(_Encoder().encode(theirs, name), _Encoder().encode(mine, name)):
             raise CheckpointError(f"invalid state: attribute {name} differs from what the model and options give")
-    check = getattr(type(est), "check_state", None) or state_checks.STATE_CHECKS.get(est.name)
+    check = getattr(cls, "check_state", None)
     if check is not None:
         check(types.SimpleNamespace(**{**vars(est), **restored}))
 
