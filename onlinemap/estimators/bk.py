@@ -30,6 +30,7 @@ import math
 
 import numpy as np
 
+from .. import state_checks as checks
 from ..belief import Belief
 from ..errors import ImpossibleObservationError
 from ..model import GridModel, apply_motion, passable_probability
@@ -87,6 +88,9 @@ class BoyenKoller:
     """Boyen-Koller filter over ``P(L) prod_i P(m_i)``. No options. O(N K^2) per step
     (O(N (K^2 + F^2 + F K)) with a footprint of F offsets)."""
 
+    #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
+    CONSTANT_STATE = ()
+
     def __init__(self, model: GridModel):
         self.model = model
         self._t = -1
@@ -94,6 +98,17 @@ class BoyenKoller:
         self._maps = np.array(model.label_prior)
         self._log_evidence = 0.0
         self._belief: Belief | None = None
+
+    @staticmethod
+    def check_state(state) -> None:
+        """The invariants of a restored state (:mod:`onlinemap.state_checks`): the factored
+        location (N,) and maps (N, K) are distributions; the belief of step ``_t``."""
+        model = state.model
+        checks.step_index(state)
+        checks.probabilities("_location", checks.array(state, "_location", (model.n_cells,), np.float64))
+        checks.probabilities("_maps", checks.array(state, "_maps", (model.n_cells, model.n_labels), np.float64))
+        checks.log_evidence(state)
+        checks.belief(state, required=True)
 
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)

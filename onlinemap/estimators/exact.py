@@ -24,6 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import arguments
+from .. import state_checks as checks
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError
@@ -71,6 +72,8 @@ class ExactFilter:
     """Exact filtering of ``P(L_t, M_t | z_0:t, a_1:t)``. Options: ``max_bytes`` (memory guard)."""
 
     scratch_attributes = ("_scratch", "_joint_map")  # overwritten by every step: not checkpointed
+    #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
+    CONSTANT_STATE = ("max_bytes", "_no_motion", "_flat")
 
     def __init__(self, model: GridModel, *, max_bytes: int = DEFAULT_MAX_BYTES):
         max_bytes = arguments.byte_limit("max_bytes", max_bytes, InvalidOptionError)
@@ -87,6 +90,22 @@ class ExactFilter:
         self._belief: Belief | None = None
         self._no_motion = (np.ones(n), np.full(n, -1, dtype=np.int64))
         self._flat = np.ones(k)  # the likelihood of "no observation" (dynamic steps)
+
+    @staticmethod
+    def check_state(state) -> None:
+        """The invariants of a restored state (:mod:`onlinemap.state_checks`): the joint ``_x``
+        (N, K**N) finite, non-negative, summing to ``_norm``; the belief of step ``_t``."""
+        model = state.model
+        n, k = model.n_cells, model.n_labels
+        checks.step_index(state)
+        x = checks.array(state, "_x", (n, k**n), np.float64, written=True)
+        norm = checks.real(state, "_norm", low=np.finfo(float).tiny)
+        if not np.all(np.isfinite(x)) or np.any(x < 0):
+            checks.fail("_x", "must be finite and non-negative")
+        if abs(x.sum() / norm - 1) > checks.ATOL:
+            checks.fail("_x", f"sums to {x.sum()!r}, not to _norm = {norm!r}")
+        checks.log_evidence(state)
+        checks.belief(state, required=True)
 
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
