@@ -296,9 +296,11 @@ class GridModel:
         return bool(self.blocking.any())
 
     @property
-    def has_footprint(self) -> bool:
-        """True when the sensor is not the paper's (one reading of the robot's own cell)."""
-        return self.footprint != FOOTPRINTS["cell"]
+    def reads_own_cell(self) -> bool:
+        """True for the paper's sensor: one reading, of the robot's own cell (an observation is
+        then one label, never -1). The one answer to "what does the sensor read?": anything else
+        reads a footprint (``footprint_cells``), with -1 where an offset leaves the grid."""
+        return self.footprint == FOOTPRINTS["cell"]
 
     @cached_property
     def off_grid_patterns(self) -> np.ndarray:

@@ -118,7 +118,7 @@ class BoyenKoller:
             location = apply_motion(self.model, location, a, passable)
             if not self.model.is_static:
                 maps = maps @ self.model.change
-        if self.model.has_footprint:
+        if not self.model.reads_own_cell:
             location, maps, total = bk_footprint_update(self.model, location, maps, z)
             log_scale = 0.0
         else:
@@ -130,7 +130,7 @@ class BoyenKoller:
             location, maps, total = updated
         if total == 0.0:
             raise ImpossibleObservationError(
-                f"observation {np.asarray(z).tolist() if self.model.has_footprint else self.model.label_names[z]!r} "
+                f"observation {self.model.label_names[z] if self.model.reads_own_cell else np.asarray(z).tolist()!r} "
                 f"has probability zero under the factored "
                 f"(Boyen-Koller) belief at step {self._t + 1}")
         self._location, self._maps = location, maps

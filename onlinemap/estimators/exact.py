@@ -109,7 +109,7 @@ class ExactFilter:
 
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
-        if self.model.has_blocking or self.model.has_footprint:
+        if self.model.has_blocking or not self.model.reads_own_cell:
             return self._general_step(a, z)
         model = self.model
         likelihood = model.likelihood[z]
@@ -305,7 +305,7 @@ def exact_smooth(model: GridModel, actions, observations, *, max_bytes: int = DE
     alphas = np.empty((n_steps, n, k**n))
     log_evidence = 0.0
     scales = np.empty(n_steps)
-    general = model.has_blocking or model.has_footprint
+    general = model.has_blocking or not model.reads_own_cell
     passable = passable_tensor(model) if model.has_blocking else None
 
     def move(x, a, transpose=False):
