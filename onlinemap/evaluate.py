@@ -24,6 +24,13 @@ its numbers here, with the same names and thresholds:
   (``read_map_error``, ``read_wrong_cells``: :func:`read_cells`); and the yardstick of a robot
   told its location (:func:`told_location_map`: ``told_location_map_error`` and its three
   counts; NaN with blocking labels, where the trajectory itself depends on the map).
+- coverage (how fast an explorer maps): ``known_cells`` per step (cells whose true label has
+  probability >= :data:`KNOWN_ABOVE`), ``observable_map_error`` per step (the map error over the
+  cells a robot could ever read: :func:`observable_cells`; with blocking walls some walls are
+  read from no reachable cell); per run ``map_error_area`` (the area under the map-error curve:
+  the sum over steps), ``steps_to_map_error_20`` / ``_10`` / ``_05`` (the first step at which the
+  map error is at most 0.20 / 0.10 / 0.05, NaN if never: :func:`coverage`), ``final_known_cells``
+  and ``final_observable_map_error``.
 
 Cost: O(T N K) for T steps, N cells, K labels (one pass over the stacked beliefs).
 """
@@ -52,14 +59,17 @@ LOST_BELOW = 0.5  # a robot whose P(true location) is below this is "lost"
 ASTRAY_BELOW = 0.05  # ... and below this, confidently in the wrong place ("astray")
 LATE_FROM = 1 / 3  # late_door_error: steps t >= LATE_FROM * (T - 1)
 CONFIDENT = 0.55  # the probability a most probable label needs to count as known (cell_counts)
+KNOWN_ABOVE = 0.9  # known_cells: cells whose true label has at least this probability
+COVERAGE_THRESHOLDS = {"steps_to_map_error_20": 0.20, "steps_to_map_error_10": 0.10, "steps_to_map_error_05": 0.05}
 
 STEP_METRICS = ("map_error", "location_error", "log_evidence", "location_entropy", "map_entropy",
-                "wrong_cells", "door_error", "location_tv", "map_tv")
+                "wrong_cells", "known_cells", "observable_map_error", "door_error", "location_tv", "map_tv")
 RUN_METRICS = ("final_map_error", "mean_map_error", "final_location_error", "mean_location_error",
                "max_location_error", "wrong_cells", "unsure_or_wrong", "confidently_wrong", "wrong_visited",
                "read_map_error", "read_wrong_cells", "ends_lost", "failed", "min_p_true_way_back",
                "astray_way_back", "told_location_map_error", "told_location_wrong", "told_location_unsure_or_wrong",
-               "told_location_confidently_wrong", "final_log_evidence", "final_location_tv", "mean_location_tv", "final_map_tv",
+               "told_location_confidently_wrong", "final_known_cells", "final_observable_map_error",
+               "map_error_area", *COVERAGE_THRESHOLDS, "final_log_evidence", "final_location_tv", "mean_location_tv", "final_map_tv",
                "mean_map_tv", "final_map_entropy", "final_location_entropy", "final_door_error",
                "mean_door_error", "late_door_error", "ms_per_step")
 UNIT_METRICS = ("error", "_tv", "entropy", "p_true")  # names containing these lie in [0, 1]
@@ -94,6 +104,7 @@ def from_steps(steps: pd.DataFrame, by: list[str]) -> pd.DataFrame:
         if "wrong_cells" in run:
             row["wrong_cells"] = int(run["wrong_cells"].iloc[-1])
         row["mean_location_error"] = float(run["location_error"].mean())
+        row.update(coverage(run["map_error"]))
         if "door_error" in run and run["door_error"].notna().any():
             row["late_door_error"] = late_mean(run["t"].reset_index(drop=True),
                                                run["door_error"].reset_index(drop=True))
@@ -160,6 +171,37 @@ def told_location_map(model: GridModel, run: Run) -> np.ndarray:
     return belief
 
 
+def observable_cells(model: GridModel, true_map: np.ndarray) -> np.ndarray:
+    """The cells a robot could ever read (sorted): those its footprint covers from some cell
+    reachable from the start through cells ``true_map`` does not block (every cell without
+    blocking labels). A wall read from no reachable cell stays at its prior whatever the
+    explorer does. O(N A + N F)."""
+    passable = ~model.blocking[np.asarray(true_map)]
+    reached = np.zeros(model.n_cells, dtype=bool)
+    reached[model.start] = True
+    frontier = [model.start]
+    while frontier:
+        cell = frontier.pop()
+        for target in model.neighbors[cell]:
+            if passable[target] and not reached[target]:
+                reached[target] = True
+                frontier.append(int(target))
+    cells = model.footprint_cells[reached]
+    return np.unique(cells[cells >= 0])
+
+
+def coverage(map_error: np.ndarray) -> dict[str, float]:
+    """Per run from its (T,) map errors: ``map_error_area`` (their sum: the area under the
+    map-error curve, in steps) and ``steps_to_map_error_XX`` (the first step t at which the map
+    error is at most each of :data:`COVERAGE_THRESHOLDS`, NaN if never). O(T)."""
+    map_error = np.asarray(map_error, dtype=np.float64)
+    row = {"map_error_area": float(map_error.sum())}
+    for name, threshold in COVERAGE_THRESHOLDS.items():
+        below = np.flatnonzero(map_error <= threshold)
+        row[name] = float(below[0]) if len(below) else math.nan
+    return row
+
+
 def way_back(run: Run) -> np.ndarray:
     """(T,) True at the steps after the robot turned (after its first action that differs
     from the first action); all False if it never turns."""
@@ -174,14 +216,18 @@ def step_metrics(run: Run, trajectory: Trajectory, reference: Trajectory | None 
     """One row per step of ``run``: ``t`` and the per-step metrics (module docstring) of
     ``trajectory`` (location (T, N), map (T, N, K)); ``door_error`` if the true initial map has
     doors, ``location_tv`` / ``map_tv`` if a ``reference`` trajectory is given."""
+    p_true = np.take_along_axis(trajectory.map, run.maps[..., None], axis=-1)[..., 0]  # (T, N)
+    seen = observable_cells(run.model, run.initial_map)
     columns = {
         "t": np.arange(run.n_steps),
-        "map_error": metrics.map_error(trajectory.map, run.maps),
+        "map_error": 1.0 - p_true.mean(axis=-1),
         "location_error": metrics.location_error(trajectory.location, run.locations),
         "log_evidence": np.asarray(trajectory.log_evidence, dtype=np.float64),
         "location_entropy": metrics.normalized_entropy(trajectory.location),
         "map_entropy": metrics.map_entropy(trajectory.map),
         "wrong_cells": (np.argmax(trajectory.map, axis=-1) != run.maps).sum(axis=-1),
+        "known_cells": (p_true >= KNOWN_ABOVE).sum(axis=-1),
+        "observable_map_error": 1.0 - p_true[:, seen].mean(axis=-1),
         "true_location": run.locations,
     }
     doors = door_cells(run.model, run.initial_map)
@@ -223,6 +269,8 @@ def run_metrics(run: Run, trajectory: Trajectory, reference: Trajectory | None =
         row.update(told_location_map_error=float(metrics.map_error(told, run.final_map)),
                    told_location_wrong=told_counts.wrong, told_location_unsure_or_wrong=told_counts.unsure_or_wrong,
                    told_location_confidently_wrong=told_counts.confidently_wrong)
+    row.update(final_known_cells=int(final["known_cells"]),
+               final_observable_map_error=float(final["observable_map_error"]), **coverage(steps["map_error"]))
     row["final_log_evidence"] = float(final["log_evidence"])
     if "location_tv" in steps:
         row.update(final_location_tv=float(final["location_tv"]), mean_location_tv=float(steps["location_tv"].mean()),
