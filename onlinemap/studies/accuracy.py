@@ -122,6 +122,13 @@ def _world_axes(fig: Figure, worlds: list[str], rows: int = 1):
     return axes
 
 
+def _world_panels(summary: pd.DataFrame) -> tuple[Figure, list[tuple[object, pd.DataFrame]]]:
+    """A figure with one panel per world of a :func:`summarise` table, and (axis, rows) per panel."""
+    worlds = list(dict.fromkeys(summary["world"]))
+    fig = Figure(figsize=(3.6 * len(worlds), 3.4), layout="constrained")
+    return fig, [(ax, summary[summary["world"] == world]) for ax, world in zip(_world_axes(fig, worlds)[0], worlds)]
+
+
 def _scheme_rows(rows: pd.DataFrame) -> dict[str, pd.DataFrame]:
     """The rbpf rows of a :func:`summarise` table per scheme, by increasing particle count."""
     return {scheme: group.sort_values("particles") for scheme, group in
@@ -137,10 +144,8 @@ def error_vs_particles_figure(summary: pd.DataFrame) -> Figure:
     """Per world: mean map (solid) and location (dotted) distance to exact against the number of
     particles for each rbpf scheme (:data:`onlinemap.estimators.rbpf.SCHEMES`); horizontal lines
     for the estimators without particles."""
-    worlds = list(dict.fromkeys(summary["world"]))
-    fig = Figure(figsize=(3.6 * len(worlds), 3.4), layout="constrained")
-    for ax, world in zip(_world_axes(fig, worlds)[0], worlds):
-        rows = summary[summary["world"] == world]
+    fig, panels = _world_panels(summary)
+    for ax, rows in panels:
         for (scheme, sub), color in zip(_scheme_rows(rows).items(), ("C0", "C1", "C2")):
             ax.plot(sub["particles"], sub["mean_map_tv"], "o-", color=color, label=f"rbpf {scheme}: map")
             ax.plot(sub["particles"], sub["mean_location_tv"], "o:", color=color, label=f"rbpf {scheme}: location")
@@ -157,10 +162,8 @@ def error_vs_time_figure(summary: pd.DataFrame) -> Figure:
     """Per world: mean map distance to exact against milliseconds per step, one line per rbpf
     scheme through its particle counts (annotated), one point per estimator without particles:
     which scheme buys accuracy cheapest."""
-    worlds = list(dict.fromkeys(summary["world"]))
-    fig = Figure(figsize=(3.6 * len(worlds), 3.4), layout="constrained")
-    for ax, world in zip(_world_axes(fig, worlds)[0], worlds):
-        rows = summary[summary["world"] == world]
+    fig, panels = _world_panels(summary)
+    for ax, rows in panels:
         for (scheme, sub), color in zip(_scheme_rows(rows).items(), ("C0", "C1", "C2")):
             ax.plot(sub["ms_per_step"], sub["mean_map_tv"], "o-", color=color, label=f"rbpf {scheme}")
             for x, y, n in zip(sub["ms_per_step"], sub["mean_map_tv"], sub["particles"]):
