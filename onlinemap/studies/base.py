@@ -1,5 +1,5 @@
-"""What every study shares: a spec run on the sweep engine, one row per run, and one summary
-with intervals over seeds (:func:`onlinemap.sweeps.summarize`, Student t intersected with the
+"""What every study shares: one row per run (a sweep task), and one summary with intervals over
+seeds (:func:`onlinemap.sweeps.summarize`, Student t intersected with the
 metric's range, Wilson for yes/no outcomes).
 
 Imports: :mod:`onlinemap.sweeps`, :mod:`onlinemap.evaluate`.
@@ -7,13 +7,12 @@ Imports: :mod:`onlinemap.sweeps`, :mod:`onlinemap.evaluate`.
 
 from __future__ import annotations
 
-import os
 from typing import NamedTuple, Sequence
 
 import numpy as np
 import pandas as pd
 
-from ..sweeps import summarize, summary_wide, sweep
+from ..sweeps import summarize, summary_wide
 
 
 class Study(NamedTuple):
@@ -34,15 +33,6 @@ def summary_of(runs: pd.DataFrame, metrics: Sequence[str], by: Sequence[str], co
         long.loc[rows, "low"] = long.loc[rows, "low"].clip(lower=low)
         long.loc[rows, "high"] = long.loc[rows, "high"].clip(upper=high)
     return summary_wide(long)
-
-
-def run_study(spec: dict, metrics: Sequence[str], by: Sequence[str], *, confidence: float = 0.95,
-              workers: int | None = 0, out: str | os.PathLike | None = None, progress: bool = True,
-              bounds: dict[str, tuple[float, float]] | None = None) -> Study:
-    """Run ``spec`` on the sweep engine (``workers`` 0: in this process; None or N: on a local dask
-    cluster; ``out``: a folder of parts, so a rerun resumes) and summarise it by ``by``."""
-    runs = sweep(spec, workers=workers, results_dir=out, progress=progress)
-    return Study(runs, summary_of(runs, metrics, by, confidence, bounds))
 
 
 def with_intervals(summary: pd.DataFrame, metrics: Sequence[str], digits: int = 3) -> pd.DataFrame:

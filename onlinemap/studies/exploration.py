@@ -33,30 +33,33 @@ from policies.tasks import EXPLORE, build_planner
 
 from .. import metrics as metric_functions
 from ..estimators import make_estimator, run_estimator
-from ..evaluate import from_steps
+from ..evaluate import COVERAGE_THRESHOLDS, from_steps
 from ..model import GridModel, door_cells
 from ..rng import ESTIMATOR_STREAM, derived_seed
 from ..sweeps import sweep
 from ..sweeps.kinds import Played, TaskKind
 from ..sweeps.tasks import Task
 from ..worlds import parse_world
-from .base import Study, ordered, run_study
+from .base import Study, ordered, summary_of
 
 METRICS = ("final_map_error", "wrong_cells", "unsure_or_wrong", "confidently_wrong", "mean_location_error",
            "late_door_error", "told_location_map_error", "told_location_wrong", "told_location_unsure_or_wrong",
-           "told_location_confidently_wrong", "ms_per_step")
+           "told_location_confidently_wrong", "final_observable_map_error", "final_known_cells", "map_error_area",
+           "steps_to_map_error_20", "steps_to_map_error_10", "steps_to_map_error_05", "reached_map_error_20",
+           "reached_map_error_10", "reached_map_error_05", "ms_per_step")
 PAPER_WORLD = "door,p_move=0.8"  # the built-in 10 x 10 door world, uniform label prior
 BINARY_WORLD = "grid:10x10,n_labels=2,p_obs=0.8,p_move=0.9"  # the peer's binary task
+BLOCKING_WORLD = "door,blocking=1,footprint=cross"  # the door world a robot would recognise, uniform prior
 
 
-def exploration_spec(world: str, planners: Sequence[str], steps: int, seeds: Sequence[int], *,
+def exploration_spec(world: str | Sequence[str], planners: Sequence[str], steps: int, seeds: Sequence[int], *,
                      estimator: str = "rbpf", estimator_options: dict | None = None,
                      planner_options: dict | None = None, floor_plan: float | None = None,
                      rows: str = "task", name: str = "explore") -> dict:
-    """The sweep spec of planners exploring ``world`` (a world spec) on the same ``seeds``:
-    ``planner_options`` per planner name, ``estimator_options`` for the one estimator (a tuple
-    is one value; a list is a grid)."""
-    spec = {"name": name, "worlds": [world], "seeds": [int(seed) for seed in seeds], "steps": int(steps),
+    """The sweep spec of planners exploring ``world`` (a world spec, or several) on the same
+    ``seeds``: ``planner_options`` per planner name, ``estimator_options`` for the one estimator
+    (a tuple is one value; a list is a grid)."""
+    spec = {"name": name, "worlds": [world] if isinstance(world, str) else list(world), "seeds": [int(seed) for seed in seeds], "steps": int(steps),
             "rows": rows, "planners": {planner: dict((planner_options or {}).get(planner, {}))
                                        for planner in planners},
             "estimators": {estimator: dict(estimator_options or {})}}
@@ -106,19 +109,22 @@ def summarize_planners(table: pd.DataFrame, model: GridModel, true_map) -> pd.Da
     return summary
 
 
-def planners_study(world: str, planners: Sequence[str], *, seeds: Sequence[int] = range(20), steps: int = 1000,
-                   estimator_options: dict | None = None, planner_options: dict | None = None,
+def planners_study(world: str | Sequence[str], planners: Sequence[str], *, seeds: Sequence[int] = range(20),
+                   steps: int = 1000, estimator_options: dict | None = None, planner_options: dict | None = None,
                    floor_plan: float | None = None, confidence: float = 0.95, workers: int | None = 0,
                    out: str | os.PathLike | None = None, progress: bool = True) -> Study:
-    """Every planner on every seed of ``world`` (paired), one row per run; the summary per planner
-    (and planner options) holds the mean and interval of every metric of :data:`METRICS`."""
-    n_cells = parse_world(world).model.n_cells
+    """Every planner on every seed of ``world`` (a world spec, or several of one size: every
+    planner runs in each, paired), one row per run; the summary per planner (and planner
+    options) holds the mean and interval of every metric of :data:`METRICS`."""
+    n_cells = parse_world(world if isinstance(world, str) else world[0]).model.n_cells
     spec = exploration_spec(world, planners, steps, seeds, estimator_options=estimator_options,
                             planner_options=planner_options, floor_plan=floor_plan)
-    counts = {m: (0, n_cells) for m in METRICS if "wrong" in m}
-    study = run_study(spec, METRICS, ["planner", "planner_options"], confidence=confidence, workers=workers,
-                      out=out, progress=progress, bounds=counts)
-    return Study(ordered(study.runs, "planner", list(planners)), study.summary)
+    counts = {m: (0, n_cells) for m in METRICS if "wrong" in m or "known" in m}
+    runs = sweep(spec, workers=workers, results_dir=out, progress=progress)
+    for name in COVERAGE_THRESHOLDS:  # how many runs got there at all (the mean steps count only those)
+        runs[name.replace("steps_to", "reached")] = runs[name].notna()
+    runs = ordered(runs, "planner", list(planners))
+    return Study(runs, summary_of(runs, METRICS, ["planner", "planner_options"], confidence, counts))
 
 
 def paper_world_study(planners: Sequence[str] = ("info_gain", "entropy", "random", "sweep"), *,
@@ -128,6 +134,28 @@ def paper_world_study(planners: Sequence[str] = ("info_gain", "entropy", "random
     """Issue 11's main study: the 10 x 10 door world, uniform prior, ``p_move`` 0.8, ``p_obs`` 0.9."""
     world = PAPER_WORLD + (f",p_door={p_door}" if p_door else "")
     return planners_study(world, planners, seeds=seeds, steps=steps, estimator_options={"n_particles": n_particles},
+                          planner_options=planner_options, workers=workers, progress=progress)
+
+
+def blocking_world_study(planners: Sequence[str] = ("info_gain", "frontier", "random", "sweep", "entropy"), *,
+                         seeds: Sequence[int] = range(20), steps: int = 300, n_particles: int = 1000,
+                         p_door: float = 0.0, planner_options: dict | None = None, workers: int | None = 0,
+                         progress: bool = True) -> Study:
+    """The 10 x 10 door world as a robot would meet it: walls and closed doors block, a cross
+    footprint, a uniform label prior, ``p_move`` 0.8, ``p_obs`` 0.9 (doors flipping at ``p_door``)."""
+    world = BLOCKING_WORLD + (f",p_door={p_door}" if p_door else "")
+    return planners_study(world, planners, seeds=seeds, steps=steps, estimator_options={"n_particles": n_particles},
+                          planner_options=planner_options, workers=workers, progress=progress)
+
+
+def building_study(planners: Sequence[str] = ("info_gain", "frontier", "random", "sweep"), *, rows: int = 32,
+                   cols: int = 32, seeds: Sequence[int] = range(20), steps: int = 2000, n_particles: int = 1000,
+                   planner_options: dict | None = None, workers: int | None = 0, progress: bool = True) -> Study:
+    """Generated buildings (:func:`onlinemap.buildings.building`, blocking walls and closed doors,
+    a cross footprint, a uniform label prior): one building per seed (``building:RxC,seed=S``),
+    every planner in each."""
+    worlds = [f"building:{rows}x{cols},seed={int(seed)}" for seed in seeds]
+    return planners_study(worlds, planners, seeds=[0], steps=steps, estimator_options={"n_particles": n_particles},
                           planner_options=planner_options, workers=workers, progress=progress)
 
 
