@@ -1,0 +1,265 @@
+"""policies.navigation: the goal planners against references written here (Dijkstra with heapq,
+a brute-force minimum over every policy with itertools.product, passabilities from matrix
+powers), hand-checkable detours and waits, bad goals, and the navigation loop."""
+
+import heapq
+import itertools
+
+import numpy as np
+import pytest
+
+import onlinemap as om
+from onlinemap.belief import Belief
+from onlinemap.errors import ModelError
+from onlinemap.model import CLOSED_DOOR, DOOR_LABELS, FREE, OPEN_DOOR, WALL, door_change
+from policies import make_planner, planner_options, with_floor_plan
+from policies.navigation import GoTo, StaticGoTo, goal_cell, plan_to_goal
+
+
+def heap_dijkstra(model, step_cost, goal):
+    """(N,) cheapest total cost to ``goal``, a move from l into j = neighbors[l, a] != l costing
+    ``step_cost[j]`` (inf: no move), by the textbook heap algorithm on the reversed moves."""
+    n = model.n_cells
+    into = {j: [] for j in range(n)}
+    for l in range(n):
+        for a in range(model.n_actions):
+            j = int(model.neighbors[l, a])
+            if j != l and np.isfinite(step_cost[j]):
+                into[j].append(l)
+    best = np.full(n, np.inf)
+    best[goal] = 0.0
+    heap = [(0.0, goal)]
+    while heap:
+        d, j = heapq.heappop(heap)
+        if d > best[j]:
+            continue
+        for l in into[j]:
+            if d + step_cost[j] < best[l]:
+                best[l] = d + step_cost[j]
+                heapq.heappush(heap, (best[l], l))
+    return best
+
+
+def known(model, labels, location=None, t=0) -> Belief:
+    """A belief certain of the map ``labels`` and of the location (default the start)."""
+    where = np.eye(model.n_cells)[model.start if location is None else location]
+    return Belief(t, where, np.eye(model.n_labels)[np.asarray(labels)])
+
+
+def random_door_map(rng, rows, cols):
+    labels = rng.choice([FREE, WALL, OPEN_DOOR, CLOSED_DOOR], p=[0.6, 0.2, 0.1, 0.1], size=rows * cols)
+    labels[0] = FREE
+    return labels
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_plan_on_a_known_static_map_is_the_shortest_path(seed):
+    """p_move = 1 and a certain map: expected steps = steps of the shortest path (walls and
+    closed doors block), and the chosen action starts a shortest path."""
+    rng = np.random.default_rng(seed)
+    rows, cols = int(rng.integers(2, 7)), int(rng.integers(2, 7))
+    labels = random_door_map(rng, rows, cols)
+    model = om.grid_model(rows, cols, 4, p_move=1.0, label_names=DOOR_LABELS, blocking=("wall", "closed_door"))
+    goal = int(rng.integers(model.n_cells))
+    steps = heap_dijkstra(model, np.where(model.blocking[labels], np.inf, 1.0), goal)
+    plan = plan_to_goal(model, np.eye(4)[labels], goal)
+    assert plan.horizon == 0  # static: one Dijkstra, nothing varies over time
+    np.testing.assert_array_equal(plan.value, steps)
+    if not model.blocking[labels[goal]]:
+        planner = GoTo(om.grid_model(rows, cols, 4, p_move=1.0, label_names=DOOR_LABELS,
+                                     blocking=("wall", "closed_door"), label_prior=[0.25] * 4), goal=goal)
+        for location in np.flatnonzero(np.isfinite(steps) & (steps > 0)):
+            action = planner.choose(known(model, labels, location))
+            assert steps[model.neighbors[location, action]] == steps[location] - 1
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_plan_with_uncertain_passability_in_a_static_world_is_dijkstra_on_expected_attempts(seed):
+    """With nothing changing, a move into j takes 1 / (p_move P(j passable)) attempts on average
+    (geometric), and retrying is optimal: the plan is Dijkstra on those costs."""
+    rng = np.random.default_rng(100 + seed)
+    rows, cols = int(rng.integers(2, 6)), int(rng.integers(2, 6))
+    model = om.grid_model(rows, cols, 3, p_move=float(rng.uniform(0.3, 1.0)), blocking=[2])
+    maps = rng.dirichlet([1.0, 1.0, 1.0], size=model.n_cells)
+    maps[rng.random(model.n_cells) < 0.2] = [0.0, 0.0, 1.0]  # some certain walls
+    passable = maps[:, 0] + maps[:, 1]
+    goal = int(rng.integers(model.n_cells))
+    with np.errstate(divide="ignore"):
+        expected = heap_dijkstra(model, 1.0 / (model.p_move * passable), goal)
+    np.testing.assert_allclose(plan_to_goal(model, maps, goal).value, expected, rtol=1e-12)
+
+
+def future_passability(model, maps, horizon):
+    """(H + 1, N): P(cell passable) tau steps ahead, from matrix powers of C."""
+    open_labels = (~model.blocking).astype(float)
+    return np.stack([maps @ np.linalg.matrix_power(model.change, tau) @ open_labels for tau in range(horizon + 1)])
+
+
+def mix(p, moved, stayed):
+    """p moved + (1 - p) stayed, with 0 x inf = 0 (a move that cannot happen costs nothing)."""
+    return (p * moved if p > 0 else 0.0) + ((1 - p) * stayed if p < 1 else 0.0)
+
+
+def policy_cost(model, q, goal, policy):
+    """(N,) expected steps to ``goal`` of a policy: actions ``policy[tau]`` (N,) at steps
+    tau < H, then the stationary ``policy[H]`` with passability q[H]."""
+    horizon, n = len(q) - 1, model.n_cells
+    tail = np.full(n, np.inf)  # stationary: follow the chain of intended cells to the goal
+    for l in range(n):
+        cost, cell = 0.0, l
+        for _ in range(n):
+            if cell == goal:
+                tail[l] = cost
+                break
+            j = model.neighbors[cell, policy[horizon][cell]]
+            p = model.p_move * q[horizon][j] if j != cell else 0.0
+            if p == 0:
+                break
+            cost, cell = cost + 1.0 / p, j
+    value = tail
+    for tau in range(horizon - 1, -1, -1):
+        before = np.empty(n)
+        for l in range(n):
+            j = model.neighbors[l, policy[tau][l]]
+            p = model.p_move * q[tau][j] if j != l else 0.0
+            before[l] = 0.0 if l == goal else 1.0 + mix(p, value[j], value[l])
+        value = before
+    return value
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_time_dependent_plan_is_the_best_of_every_policy(seed):
+    """Doors that open and close (door dynamics on a 1 x 4 corridor, horizon 2): the plan's
+    expected steps from every cell equal the minimum over all 2^(3 x 3) policies (time-dependent
+    actions at steps 0 and 1, a stationary one after), each evaluated by hand."""
+    rng = np.random.default_rng(200 + seed)
+    model = om.grid_model(1, 4, 4, p_move=float(rng.uniform(0.5, 1.0)), change=door_change(rng.uniform(0.05, 0.4)),
+                          label_names=DOOR_LABELS, blocking=("wall", "closed_door"))
+    maps = rng.dirichlet([0.5] * 4, size=4)
+    goal = int(rng.integers(4))
+    horizon = 2
+    q = future_passability(model, maps, horizon)
+    others = [l for l in range(4) if l != goal]
+    best = np.full(4, np.inf)
+    best_first = np.full((4, 2), np.inf)
+    for choice in itertools.product(range(2), repeat=len(others) * (horizon + 1)):
+        policy = np.zeros((horizon + 1, 4), dtype=int)
+        policy[:, others] = np.reshape(choice, (horizon + 1, len(others)))
+        cost = policy_cost(model, q, goal, policy)
+        best = np.minimum(best, cost)
+        for l in others:
+            best_first[l, policy[0, l]] = min(best_first[l, policy[0, l]], cost[l])
+    plan = plan_to_goal(model, maps, goal, horizon)
+    assert plan.horizon == horizon
+    np.testing.assert_allclose(plan.value, best, rtol=1e-12)
+    np.testing.assert_allclose(plan.q[others], best_first[others], rtol=1e-12)
+    assert np.all(plan.q[goal] == 0)
+
+
+def test_plan_is_the_minimum_over_locations_weighted_by_the_belief():
+    """The action minimises sum_l P(l) Q(l, a). A free 1 x 5 corridor, p_move 0.8, goal cell 2,
+    the robot in cell 1 with probability p or in cell 4. By hand: one step costs 1 / 0.8 = 1.25
+    expected steps, so Q(1, right) = 1.25, Q(1, left) = 1 + 0.8 V(0) + 0.2 V(1) = 1 + 2 + 0.25,
+    Q(4, left) = 1 + 0.8 V(3) + 0.2 V(4) = 1 + 1 + 0.5, Q(4, right) = 1 + V(4) = 3.5: right costs
+    1.25 p + 3.5 (1 - p), left 3.25 p + 2.5 (1 - p), equal at p = 1/3."""
+    model = om.grid_model(1, 5, 2, p_move=0.8, label_names=("free", "wall"), blocking=["wall"])
+    maps = np.eye(2)[np.zeros(5, dtype=int)]
+    planner = GoTo(model, goal=2)
+    for p in (0.2, 0.3, 0.36, 0.8):
+        chosen = planner.choose(Belief(0, np.array([0, p, 0, 0, 1 - p]), maps))
+        assert model.action_names[chosen] == ("right" if p > 1 / 3 else "left")
+    np.testing.assert_allclose(planner.plan.q[[1, 4]], [[3.25, 1.25], [2.5, 3.5]], rtol=1e-12)
+
+
+# --- hand-checkable: detour or wait -------------------------------------------------------------
+def door_ahead(detour_rows: int, p_door: float):
+    """Start (0, 0), goal (0, 2), a door between them at (0, 1) believed closed; the detour goes
+    down column 0, across the bottom row and up column 2: 2 detour_rows + 2 steps."""
+    layout = ".c.\n" + ".#.\n" * (detour_rows - 1) + "...\n"
+    model, true_map = om.door_world(layout, p_move=1.0, p_door=p_door, blocking=True, start=0)
+    return model, true_map
+
+
+def test_a_short_detour_beats_waiting_at_a_closed_door():
+    model, true_map = door_ahead(1, p_door=0.05)  # ".c.\n...": the detour is south, east, east, north
+    planner = GoTo(model, goal=(0, 2))
+    assert model.action_names[planner.choose(known(model, true_map))] == "south"
+    assert planner.plan.q[0, 1] > planner.plan.q[0, 2] == 4.0  # east = waiting at the door
+
+
+def test_a_long_detour_loses_to_a_door_that_reopens_quickly():
+    model, true_map = door_ahead(19, p_door=0.3)  # detour 2 x 19 + 2 = 40 steps
+    planner = GoTo(model, goal=(0, 2))
+    # it waits: north (into the grid's edge) and east (into the door, certainly closed now) both
+    # leave it where it is, equally cheap; ties go to the lowest action index
+    assert model.action_names[planner.choose(known(model, true_map))] == "north"
+    assert planner.plan.q[0, 0] == planner.plan.q[0, 1] == planner.plan.q[0].min()
+    # the expected wait by hand: the door, closed now, is open tau steps later with
+    # (1 - (1 - 2 p)^tau) / 2; each press is one independent try, then one step to the goal
+    open_at = [(1 - (1 - 2 * 0.3) ** tau) / 2 for tau in range(planner.plan.horizon + 1)]
+    wait, still_closed = 0.0, 1.0
+    for tau in range(planner.plan.horizon):
+        wait += still_closed * open_at[tau] * (tau + 2)
+        still_closed *= 1 - open_at[tau]
+    wait += still_closed * (planner.plan.horizon + 1 / open_at[-1] + 1)  # frozen beyond the horizon
+    assert planner.plan.q[0, 1] == pytest.approx(wait, rel=1e-9)
+    assert wait < 10 and planner.plan.q[0, 2] > wait  # south: a step away and (at best) one back
+    # the same door changing rarely: the detour wins
+    slow, true_map = door_ahead(19, p_door=0.001)
+    assert slow.action_names[GoTo(slow, goal=(0, 2)).choose(known(slow, true_map))] == "south"
+
+
+def test_static_goto_ignores_what_the_robot_has_seen():
+    model, true_map = door_ahead(1, p_door=0.05)
+    model = with_floor_plan(model, true_map, 0.95)  # the door: open or closed, 1/2 each
+    static, learned = StaticGoTo(model, goal=(0, 2)), GoTo(model, goal=(0, 2))
+    closed = known(model, true_map)
+    opened = known(model, np.where(true_map == CLOSED_DOOR, OPEN_DOOR, true_map))
+    assert model.action_names[learned.choose(closed)] == "south"
+    assert model.action_names[learned.choose(opened)] == "east"
+    assert model.action_names[static.choose(closed)] == model.action_names[static.choose(opened)] == "east"
+    prior_plan = plan_to_goal(model, model.label_prior, goal_cell(model, (0, 2)))
+    np.testing.assert_array_equal(static.plan.q, prior_plan.q)
+
+
+# --- bad goals -------------------------------------------------------------------------------------
+def test_bad_goals_raise_model_errors_naming_the_goal():
+    model, true_map = om.door_world(blocking=True, footprint="cross", p_door=0.05)
+    model = with_floor_plan(model, true_map, 0.95)
+    for goal in (100, -1, (10, 0), (0, 10), (-1, 3)):
+        with pytest.raises(ModelError, match=rf"goal {__import__('re').escape(repr(goal))} .*off the"):
+            make_planner("goto", model, goal=goal)
+    for goal in ("north", 2.5, (1, 2, 3), True, None):
+        with pytest.raises(ModelError, match="goal"):
+            make_planner("goto", model, goal=goal)
+    wall = int(np.flatnonzero(true_map == WALL)[0])
+    with pytest.raises(ModelError, match=rf"goal {wall} \(cell {wall}\) is a wall under the prior.* 0.95"):
+        make_planner("goto", model, goal=wall)
+    with pytest.raises(ModelError, match=r"goal \(3, 0\) \(cell 30\) is a wall"):
+        make_planner("static_goto", model, goal=(3, 0))
+    enclosed, enclosed_map = om.door_world("..#.\n..#.\n", blocking=True)
+    enclosed = with_floor_plan(enclosed, enclosed_map, 0.95)
+    with pytest.raises(ModelError, match=r"goal \(0, 3\) \(cell 3\) cannot be reached from the start cell 0"):
+        make_planner("goto", enclosed, goal=(0, 3))
+    assert make_planner("goto", enclosed, goal=(1, 1)).goal == 5
+    stuck, stuck_map = om.door_world("...\n...\n", blocking=True, p_move=0.0)
+    with pytest.raises(ModelError, match="p_move = 0"):
+        make_planner("goto", stuck, goal=2)
+    with pytest.raises(ModelError, match="horizon"):
+        make_planner("goto", model, goal=0, horizon=-1)
+    assert planner_options("goto") == planner_options("static_goto") == {"goal": None, "horizon": None}
+
+
+def test_a_door_the_prior_believes_closed_is_a_wall_only_if_it_never_opens():
+    layout = "..c..\n"
+    for p_door, fails in ((0.0, True), (0.05, False)):
+        model, true_map = om.door_world(layout + "#####\n", blocking=True, p_door=p_door)
+        model = with_floor_plan(model, true_map, 0.95)
+        prior = np.array(model.label_prior)
+        prior[2] = [0, 0, 0.05, 0.95]  # the door: believed closed
+        model = om.GridModel(**{**{f: getattr(model, f) for f in om.model.DEFINING_FIELDS}, "label_prior": prior})
+        if fails:
+            with pytest.raises(ModelError, match=r"goal \(0, 4\) \(cell 4\) cannot be reached"):
+                GoTo(model, goal=(0, 4))
+        else:
+            assert GoTo(model, goal=(0, 4)).goal == 4
