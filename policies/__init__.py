@@ -1,5 +1,5 @@
 """Active exploration for onlinemap: entropy rewards, policy iteration, exploration loops
-(DESIGN.md section 4).
+(DESIGN.md section 4); navigation to a goal through a changing building (section 8).
 
 >>> import onlinemap as om, policies
 >>> model, true_map = policies.exploration_world(p_door=0.01)
@@ -9,6 +9,8 @@
 from .info_gain import (InfoGainExplorer, MacroScore, expected_information_gain, expected_uncertainty,
                         information_reward, uncertainty)
 from .explore import COLUMNS, Exploration, compare_planners, door_cells, explore, exploration, explore_env, summarize
+from .navigate import NAVIGATION_COLUMNS, Navigation, navigate, oracle_steps, true_distances
+from .navigation import GoalPlan, GoTo, StaticGoTo, check_goal, goal_cell, plan_to_goal
 from .mdp import (PolicyIterationResult, action_values, evaluate_policy, policy_iteration,
                   policy_motion)
 from .planners import (PLANNERS, EntropyExplorer, Planner, PlannerEntry, RandomWalk, Sweep, make_planner,
@@ -26,4 +28,6 @@ __all__ = [
     "information_reward", "uncertainty",
     "explore", "exploration", "Exploration", "explore_env", "door_cells", "COLUMNS", "exploration_world", "floor_plan_prior",
     "with_floor_plan", "compare_planners", "summarize", "plot_errors", "plot_visits",
+    "GoTo", "StaticGoTo", "GoalPlan", "plan_to_goal", "goal_cell", "check_goal",
+    "navigate", "Navigation", "NAVIGATION_COLUMNS", "oracle_steps", "true_distances",
 ]

@@ -81,7 +81,10 @@ class Exploration(NamedTuple):
 
 
 def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[int], WorldState],
-          planner: Planner, estimator: Estimator, steps: int, progress: bool | None) -> Exploration:
+          planner: Planner, estimator: Estimator, steps: int, progress: bool | None,
+          until: Callable[[int], bool] | None = None) -> Exploration:
+    """At most ``steps`` steps; ``until(true location)``, if given, ends the run after the first
+    step at which it holds (that step recorded)."""
     steps = int(steps)
     if steps < 1:
         raise ModelError(f"steps must be at least 1 (the first observation), got {steps}")
@@ -107,7 +110,14 @@ def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[
         locations[t], true_maps[t], observations[t] = location, labels, observation
         location_belief[t], map_belief[t], evidence[t] = belief.location, belief.map, belief.log_evidence
         bar.update()
+        if until is not None and until(location):
+            break
     bar.close()
+    if t + 1 < steps:  # stopped early: keep the steps taken
+        steps = t + 1
+        actions, locations, observations = actions[:steps], locations[:steps], observations[:steps]
+        location_belief, map_belief, evidence = location_belief[:steps], map_belief[:steps], evidence[:steps]
+        true_maps = true_maps[:steps]
     seconds = (time.perf_counter() - started) / steps
     run = Run(model, actions[1:], locations, true_maps, observations)
     trajectory = Trajectory(location_belief, map_belief, evidence, seconds)
@@ -151,8 +161,10 @@ def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
 def exploration(model: GridModel, true_map, planner: str | Planner = "entropy",
                 estimator: str | Estimator = "rbpf", steps: int = 500, seed: SeedLike = None, *,
                 estimator_options: dict | None = None, planner_options: dict | None = None,
-                progress: bool | None = None) -> Exploration:
-    """:func:`explore` returning the whole :class:`Exploration` (table, true run, beliefs)."""
+                progress: bool | None = None, until: Callable[[int], bool] | None = None) -> Exploration:
+    """:func:`explore` returning the whole :class:`Exploration` (table, true run, beliefs).
+    ``until``: a test of the true location; the run ends after the first step at which it holds
+    (None: after ``steps`` steps)."""
     world_rng, planner_rng, estimator_seed = _seeds(seed)
     labels = check_map(model, true_map)
     est = _estimator(model, estimator, estimator_options, estimator_seed)
@@ -165,7 +177,7 @@ def exploration(model: GridModel, true_map, planner: str | Planner = "entropy",
         state["location"] = location
         return observation, location, state["labels"]
 
-    return _loop(model, lambda: advance(None), advance, chooser, est, steps, progress)
+    return _loop(model, lambda: advance(None), advance, chooser, est, steps, progress, until)
 
 
 def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estimator = "rbpf",

@@ -6,13 +6,16 @@ import heapq
 import itertools
 
 import numpy as np
+import pandas as pd
 import pytest
 
 import onlinemap as om
 from onlinemap.belief import Belief
 from onlinemap.errors import ModelError
 from onlinemap.model import CLOSED_DOOR, DOOR_LABELS, FREE, OPEN_DOOR, WALL, door_change
-from policies import make_planner, planner_options, with_floor_plan
+from policies import (COLUMNS, NAVIGATION_COLUMNS, explore, make_planner, navigate, oracle_steps, planner_options,
+                      true_distances, with_floor_plan)
+from estimator_cases import assert_state_unchanged, snapshot
 from policies.navigation import GoTo, StaticGoTo, goal_cell, plan_to_goal
 
 
@@ -263,3 +266,86 @@ def test_a_door_the_prior_believes_closed_is_a_wall_only_if_it_never_opens():
                 GoTo(model, goal=(0, 4))
         else:
             assert GoTo(model, goal=(0, 4)).goal == 4
+
+
+# --- the navigation loop ---------------------------------------------------------------------------
+OPEN = "....\n....\n....\n"  # 3 x 4, no walls, no doors
+
+
+@pytest.fixture(scope="module")
+def open_world():
+    model, true_map = om.door_world(OPEN, blocking=True, footprint="cross", p_move=0.9)
+    return with_floor_plan(model, true_map, 0.95), true_map
+
+
+def test_navigate_reaches_the_goal_in_a_small_open_world(open_world):
+    model, true_map = open_world
+    found = navigate(model, true_map, (2, 3), max_steps=60, seed=4, estimator_options={"n_particles": 200})
+    frame = found.frame
+    assert tuple(frame.columns) == NAVIGATION_COLUMNS
+    assert found.reached_at is not None and len(frame) == found.reached_at + 1  # stops on the goal
+    assert frame["true_location"].iloc[-1] == 11 and (frame["true_location"].iloc[:-1] != 11).all()
+    rows, cols = np.divmod(frame["true_location"].to_numpy(), 4)
+    np.testing.assert_array_equal(frame["distance_to_goal"], (2 - rows) + (3 - cols))  # Manhattan, no walls
+    # the loop is explore's, stopped: the same planner and seed without a stop give the same rows
+    again = explore(model, true_map, GoTo(model, goal=11), "rbpf", steps=len(frame), seed=4, progress=False,
+                    estimator_options={"n_particles": 200})
+    pd.testing.assert_frame_equal(frame[list(COLUMNS)], again)
+
+
+def test_navigate_stops_after_max_steps_and_takes_any_planner(open_world):
+    model, true_map = open_world
+    short = navigate(model, true_map, 11, "static_goto", max_steps=2, seed=0, estimator_options={"n_particles": 50})
+    assert short.reached_at is None and len(short.frame) == 3
+    home = navigate(model, true_map, 0, max_steps=5, seed=0, estimator_options={"n_particles": 50})
+    assert home.reached_at == 0 and len(home.frame) == 1 and home.frame["distance_to_goal"].iloc[0] == 0
+    walk = navigate(model, true_map, 5, "random", max_steps=300, seed=1, estimator_options={"n_particles": 50})
+    assert walk.reached_at is not None and walk.frame["true_location"].iloc[-1] == 5
+    with pytest.raises(ModelError, match="goal once"):
+        navigate(model, true_map, 5, max_steps=5, seed=0, planner_options={"goal": 6})
+    with pytest.raises(ModelError, match=r"goes to cell 6, not to the goal 5"):
+        navigate(model, true_map, 5, GoTo(model, goal=6), max_steps=5, seed=0)
+    with pytest.raises(ModelError, match=r"goal \(3, 0\) .*off the"):
+        navigate(model, true_map, (3, 0), max_steps=5, seed=0)
+    with pytest.raises(ModelError, match="max_steps"):
+        navigate(model, true_map, 5, max_steps=-1, seed=0)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_true_distances_are_shortest_paths_on_the_true_map(seed):
+    rng = np.random.default_rng(300 + seed)
+    labels = random_door_map(rng, 5, 6)
+    model = om.grid_model(5, 6, 4, label_names=DOOR_LABELS, blocking=("wall", "closed_door"))
+    goal = int(rng.integers(30))
+    expected = heap_dijkstra(model, np.where(model.blocking[labels], np.inf, 1.0), goal)
+    np.testing.assert_array_equal(true_distances(model, labels, goal), expected)
+
+
+def test_planning_leaves_the_live_estimator_bit_identical():
+    model, true_map = om.door_world(blocking=True, footprint="cross", p_door=0.05)
+    model = with_floor_plan(model, true_map, 0.95)
+    estimator = om.make_estimator("rbpf", model, n_particles=100, seed=3)
+    run = om.simulate(model, true_map, [1, 1, 2, 2, 1], seed=3)
+    for t, observation in enumerate(run.observations):
+        belief = estimator.step(None if t == 0 else int(run.actions[t - 1]), observation)
+    before = snapshot(estimator)
+    for name in ("goto", "static_goto"):
+        make_planner(name, model, goal=(9, 9)).choose(belief)
+    assert_state_unchanged(estimator, before)
+    # and the filter goes on exactly as one that never planned
+    twin = om.make_estimator("rbpf", model, n_particles=100, seed=3)
+    for t, observation in enumerate(run.observations):
+        twin.step(None if t == 0 else int(run.actions[t - 1]), observation)
+    going_on, twin_going_on = estimator.step(0, run.observations[-1]), twin.step(0, run.observations[-1])
+    assert going_on.location.tobytes() == twin_going_on.location.tobytes()
+    assert going_on.map.tobytes() == twin_going_on.map.tobytes()
+
+
+def test_oracle_walks_the_shortest_path_when_nothing_slips_or_changes(open_world):
+    model, true_map = om.door_world(".....\n.###.\n.....\n", blocking=True, p_move=1.0)
+    assert oracle_steps(model, true_map, (2, 4), max_steps=20, seed=0) == 6
+    assert oracle_steps(model, true_map, (2, 4), max_steps=5, seed=0) is None
+    assert oracle_steps(model, true_map, 0, max_steps=5, seed=0) == 0
+    # a closed door that never opens on the short way: the oracle sees it and goes round
+    model, true_map = om.door_world(".c...\n.#.#.\n.....\n", blocking=True, p_move=1.0)
+    assert oracle_steps(model, true_map, (0, 2), max_steps=20, seed=0) == 6
