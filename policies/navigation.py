@@ -1,40 +1,44 @@
 """Navigation through a changing building (Thrun, Burgard and Fox, section 4; DESIGN.md section 8):
-shortest expected paths to a goal by dynamic programming over the belief's passability,
+shortest expected paths to a goal by dynamic programming over the belief's map marginals,
 re-planned every step.
 
-The cost model. From cell ``l`` the action ``a`` aims at ``j = neighbors[l, a]``; the move
-succeeds with ``p_move`` times the probability that ``j`` is passable when the move is made,
-otherwise the robot stays (the model's blocking semantics, DESIGN.md section 7; a move off the
-grid always stays). Every step costs 1; standing on the goal ends the task. The move made ``tau``
-steps from now (``tau = 0``: the next action, judged on the labels of now) meets cell ``i``
-passable with
+The cost model. Every step costs 1; standing on the goal ends the task. From cell ``l`` the action
+``a`` aims at ``j = neighbors[l, a]``; an attempt succeeds with ``p_move`` if ``j``'s label lets
+the robot in, otherwise the robot stays (the model's blocking semantics, DESIGN.md section 7; a
+move off the grid always stays, which is how the robot waits in place). The plan treats a move as
+a commitment: press into ``j`` until entered. ``j``'s label when the robot arrives ``tau`` steps
+from now is drawn from the marginal brought forward by the map dynamics, ``M[j] C^tau`` (``M``
+(N, K) the belief's marginals), so a door believed closed now may have reopened by then; while
+the robot presses, the label moves on by C, conditioned on every failed attempt. A door seen
+closed therefore costs its expected time to reopen (``1 / p_door`` in the door world), not a
+fresh draw per attempt. A label that can never become passable (a wall: ``permanent_labels``)
+costs one failed step, after which the robot re-plans from where it is.
 
-    q[tau, i] = sum_k (M C^tau)[i, k] [k does not block],    M (N, K) the map marginals,
+Value iteration over (cell, step) (the kernel :func:`onlinemap.kernels.navigation.goal_value_iteration`):
+with ``G[tau](j, k)`` the expected steps of pressing into ``j`` from step ``tau`` on, its label
+being ``k``, and ``m = M[j] C^tau``, ``s`` its permanently blocking mass,
 
-so a door believed closed now may have reopened by the time the robot gets there, and a door far
-away counts with its long-run passability. Each attempt is one independent draw from these
-marginals (the expected-passability reading of the integrated occupancy map): the plan is
-optimistic about pressing again into a cell that just refused the robot, and the belief corrects
-it, because a failed move is evidence that the estimator folds into the map before the next plan.
+    G[tau](j, k) = 1 + p_k V[tau+1](j) + (1 - p_k) sum_k' C[k, k'] G[tau+1](j, k'),  p_k = p_move [k passable]
+    Q[tau](l, a) = s (1 + V[tau+1](l)) + sum_{k not permanent} m_k G[tau](j, k)     (j != l)
+    Q[tau](l, a) = 1 + V[tau+1](l)   (j == l: wait),   Q[tau](goal, .) = 0,   V[tau] = min_a Q[tau],
 
-Value iteration over (cell, time):
+from ``tau = H - 1`` down to 0. Beyond the horizon ``H`` arrival marginals are frozen at
+``M C^H``; that stationary problem is solved exactly: ``G(j, k) = alpha_k + V(j)`` with
+``alpha = (I - D C)^-1 1`` over the labels that are not permanent (``D = diag(1 - p_k)``:
+:func:`commitment_steps`), and ``V`` a shortest path with cost ``(s_j + sum_k m_k alpha_k) /
+(1 - s_j)`` per move into ``j`` (Dijkstra). The robot waits at a closed door (presses into it, or
+stays) exactly when that is expected to be cheaper than the detour. The action under location
+uncertainty is ``argmin_a sum_l P(l) Q[0](l, a)`` (``Q[0](goal, .) = 0``: a hypothesis that is
+already at the goal has nothing left to pay); ties go to the lowest action index.
 
-    V[tau](goal) = 0,
-    V[tau](l) = min_a Q[tau](l, a),   Q[tau](l, a) = 1 + p V[tau+1](j) + (1 - p) V[tau+1](l),
-                                       p = p_move q[tau, j] (0 where j == l),
+The approximations: cells are independent (the belief's marginals); the label found on arriving at
+a cell is a fresh draw from its marginal (a cell passed twice is not remembered); a commitment is
+kept to the end (the robot re-plans every step with its updated belief, so in fact it can give
+up); a wall's one failed step is then forgotten.
 
-with ``V[tau] = V[H]`` for ``tau >= H``: beyond the horizon ``H`` the passabilities are frozen at
-``q[H]``, and ``V[H]`` is that stationary problem's exact solution, a shortest path with edge cost
-``1 / (p_move q[H, j])`` into ``j`` (Dijkstra). Pressing into a door is how the robot waits: the
-move fails while the door is closed, so the robot waits exactly when that is expected to be
-cheaper than the detour. The action under location uncertainty is
-``argmin_a sum_l P(l) Q[0](l, a)`` with ``Q[0](goal, .) = 0`` (a hypothesis that is already at
-the goal has nothing left to pay); ties go to the lowest action index.
-
-Costs, N cells, A actions, K labels, H the horizon: passabilities O(H K^2 + H N K), Dijkstra
-O(N A log N), value iteration O(H N A); memory O(H N) for ``q`` plus O(N A). In a static world
-(C the identity) or wherever C leaves the labels' passability fixed, ``H`` drops to 0 and a plan
-is one Dijkstra.
+Costs, N cells, A actions, K labels, H the horizon: O(H K^3) for the powers of C, O(K^3) for
+``alpha``, O(N A log N) for the Dijkstra, O(H N (K^2 + A)) for the value iteration; memory
+O(H K^2 + N (K + A)). In a static world (C the identity) ``H`` drops to 0: a plan is one Dijkstra.
 """
 
 from __future__ import annotations
@@ -51,7 +55,7 @@ from onlinemap.errors import ModelError
 from onlinemap.kernels.navigation import goal_value_iteration
 from onlinemap.model import GridModel
 
-NEVER = 1e9  # steps charged, in the action choice, for a cell from which the goal cannot be reached
+NEVER = 1e9  # steps charged for what never ends (a cell from which the goal cannot be reached); values cap here
 
 
 def goal_cell(model: GridModel, goal) -> int:
@@ -75,40 +79,81 @@ def default_horizon(model: GridModel) -> int:
     return 2 * (model.rows + model.cols)
 
 
-def label_passability(model: GridModel, horizon: int) -> np.ndarray:
-    """(H + 1, K) ``v[tau] = C^tau [k not blocking]``: the probability that a cell of label ``k``
-    now is passable ``tau`` steps later. Stops early (fewer rows) once ``v`` is a fixed point of
-    C, which it then stays: 1 row in a static world. O(H K^2)."""
-    rows = [(~model.blocking).astype(np.float64)]
+def label_powers(model: GridModel, horizon: int) -> np.ndarray:
+    """(H' + 1, K, K) ``C^tau`` for ``tau = 0..H'``, ``H' <= horizon``: it stops early once a
+    power repeats (then every later one does): ``H' = 0`` in a static world. O(H K^3)."""
+    powers = [np.eye(model.n_labels)]
     for _ in range(int(horizon)):
-        following = model.change @ rows[-1]
-        if np.array_equal(following, rows[-1]):
+        following = powers[-1] @ model.change
+        if np.array_equal(following, powers[-1]):
             break
-        rows.append(following)
-    return np.stack(rows)
+        powers.append(following)
+    return np.stack(powers)
 
 
-def passability(model: GridModel, maps: np.ndarray, horizon: int) -> np.ndarray:
-    """(H' + 1, N) ``q[tau, i]``: the probability that cell ``i``, with label marginals ``maps``
-    (N, K) now, is passable for the move made ``tau`` steps from now; ``H' <= horizon`` (see
-    :func:`label_passability`). O(H K^2 + H N K)."""
-    return label_passability(model, horizon) @ np.asarray(maps, dtype=np.float64).T
+def permanent_labels(model: GridModel) -> np.ndarray:
+    """(K,) bool: the labels that never let the robot in, now or after any number of changes by C
+    (no passable label is reachable from them). Door world: wall, and closed door if p_door = 0.
+    O(K^3) at most."""
+    can_pass = ~model.blocking
+    while True:
+        more = can_pass | (model.change[:, can_pass] > 0).any(axis=1)
+        if np.array_equal(more, can_pass):
+            return ~can_pass
+        can_pass = more
 
 
-def _stationary_cost(model: GridModel, q: np.ndarray, goal: int) -> np.ndarray:
-    """(N,) expected steps to ``goal`` with passabilities ``q`` (N,) held forever: the shortest
-    path with cost ``1 / (p_move q[j])`` per move into ``j`` (retrying a failed move is optimal
-    when nothing changes, so each edge costs its geometric number of attempts). inf where the goal
-    cannot be reached. O(N A log N)."""
+def commitment_steps(model: GridModel) -> np.ndarray:
+    """(K,) ``alpha_k``: the expected steps of pressing into a cell whose label is ``k`` now until
+    the robot is in, the label changing by C meanwhile: ``alpha = 1 + D C alpha`` over the labels
+    that are not permanent (``D = diag(1 - p_move [k passable])``); :data:`NEVER` for permanent
+    labels, and ``NEVER`` times the probability of falling into one on the way. All ``NEVER`` if
+    ``p_move = 0``. O(K^3)."""
+    permanent = permanent_labels(model)
+    alpha = np.full(model.n_labels, NEVER)
+    if model.p_move == 0:
+        return alpha
+    keep = ~permanent
+    stay = 1.0 - model.p_move * (~model.blocking[keep])
+    system = np.eye(keep.sum()) - stay[:, None] * model.change[np.ix_(keep, keep)]
+    lost = stay * model.change[np.ix_(keep, permanent)].sum(axis=1)
+    alpha[keep] = np.minimum(np.linalg.solve(system, 1.0 + NEVER * lost), NEVER)
+    return alpha
+
+
+class LabelTables(NamedTuple):
+    """What a plan needs of the model's labels and dynamics (computed once per planner)."""
+
+    powers: np.ndarray  # (H + 1, K, K) C^tau (label_powers)
+    permanent: np.ndarray  # (K,) bool, labels that never let the robot in (permanent_labels)
+    alpha: np.ndarray  # (K,) expected steps pressing into a label until in (commitment_steps)
+    passable: np.ndarray  # (K,) float 1.0 for labels that let the robot in
+
+
+def label_tables(model: GridModel, horizon: int | None = None) -> LabelTables:
+    """The :class:`LabelTables` of ``model`` for ``horizon`` (None: :func:`default_horizon`)."""
+    horizon = default_horizon(model) if horizon is None else horizon
+    return LabelTables(label_powers(model, horizon), permanent_labels(model), commitment_steps(model),
+                       (~model.blocking).astype(np.float64))
+
+
+def _stationary_cost(model: GridModel, tables: LabelTables, arrival: np.ndarray, goal: int) -> np.ndarray:
+    """(N,) expected steps to ``goal`` when every cell's label on arrival is drawn from
+    ``arrival`` (N, K) for ever: the shortest path with cost ``(s_j + sum_k m_k alpha_k) /
+    (1 - s_j)`` per move into ``j`` (``s_j`` its permanently blocking mass, ``alpha``
+    :func:`commitment_steps`). inf where the goal cannot be reached. O(N A log N)."""
     n = model.n_cells
+    permanent, alpha = tables.permanent, tables.alpha
+    wall = arrival[:, permanent].sum(axis=1)
+    entering = arrival[:, ~permanent] @ alpha[~permanent]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cost = np.where(wall < 1.0, (wall + entering) / (1.0 - wall), np.inf)
     cells = np.repeat(np.arange(n), model.n_actions)
     targets = model.neighbors.ravel()
-    success = model.p_move * q[targets]
-    keep = (targets != cells) & (success > 0)
+    keep = (targets != cells) & np.isfinite(cost[targets]) & (cost[targets] < NEVER)
     # one edge per (from, to) pair: two actions into the same cell cost the same
-    pairs, first = np.unique(targets[keep] * n + cells[keep], return_index=True)
-    weight = 1.0 / success[keep][first]
-    reverse = sp.csr_array((weight, (pairs // n, pairs % n)), shape=(n, n))  # edge j -> l for a move l -> j
+    pairs = np.unique(targets[keep] * n + cells[keep])
+    reverse = sp.csr_array((cost[pairs // n], (pairs // n, pairs % n)), shape=(n, n))  # j -> l for l -> j
     return dijkstra(reverse, directed=True, indices=goal)
 
 
@@ -117,27 +162,30 @@ class GoalPlan(NamedTuple):
 
     value: np.ndarray  # (N,) expected steps from each cell now (0 at the goal, inf: never)
     q: np.ndarray  # (N, A) expected steps after taking action a now and acting optimally after
-    horizon: int  # H: passabilities vary over steps 0..H-1 and are frozen from H on
+    horizon: int  # H: arrival marginals M C^tau vary over steps 0..H-1 and are frozen from H on
 
 
-def plan_to_goal(model: GridModel, maps: np.ndarray, goal: int, horizon: int | None = None) -> GoalPlan:
+def plan_to_goal(model: GridModel, maps: np.ndarray, goal: int, horizon: int | None = None, *,
+                 tables: LabelTables | None = None) -> GoalPlan:
     """The value iteration of the module docstring for map marginals ``maps`` (N, K) and the goal
-    cell ``goal`` (an index). ``horizon`` None: :func:`default_horizon`. Costs: the module's."""
-    horizon = default_horizon(model) if horizon is None else horizon
-    q = passability(model, maps, horizon)
-    h = q.shape[0] - 1
-    terminal = np.minimum(_stationary_cost(model, q[h], goal), NEVER)  # finite: 0 * NEVER is 0
+    cell ``goal`` (an index). ``horizon`` None: :func:`default_horizon`; ``tables``: the model's
+    :func:`label_tables` for that horizon, if already computed. Costs: the module's."""
+    tables = label_tables(model, horizon) if tables is None else tables
+    maps = np.ascontiguousarray(maps, dtype=np.float64)
+    h = tables.powers.shape[0] - 1
+    terminal = np.minimum(_stationary_cost(model, tables, maps @ tables.powers[h], goal), NEVER)
+    commit = np.where(tables.permanent, NEVER, np.minimum(tables.alpha + terminal[:, None], NEVER))
     action_cost = np.empty((model.n_cells, model.n_actions))
-    value = goal_value_iteration(q, model.neighbors, model.p_move, goal, terminal, action_cost)
+    value = goal_value_iteration(maps, tables.powers, model.change, tables.passable, tables.permanent,
+                                 model.neighbors, model.p_move, goal, terminal, commit, NEVER, action_cost)
     return GoalPlan(np.where(value >= NEVER, np.inf, value), np.where(action_cost >= NEVER, np.inf, action_cost), h)
 
 
 def walls_under_prior(model: GridModel) -> np.ndarray:
     """(N,) bool: the cells that are walls under the label prior, i.e. hold with probability
-    above 1/2 a label that blocks and never changes (``C[k, k] = 1``). A door believed closed
-    that may reopen is not a wall; one that never changes is. O(N K)."""
-    permanent = model.blocking & (np.diag(model.change) == 1.0)
-    return model.label_prior[:, permanent].sum(axis=1) > 0.5
+    above 1/2 a label that never lets the robot in (:func:`permanent_labels`). A door believed
+    closed that may reopen is not a wall; one that never changes is. O(N K + K^3)."""
+    return model.label_prior[:, permanent_labels(model)].sum(axis=1) > 0.5
 
 
 def check_goal(model: GridModel, goal) -> int:
@@ -147,9 +195,8 @@ def check_goal(model: GridModel, goal) -> int:
     cell = goal_cell(model, goal)
     walls = walls_under_prior(model)
     if walls[cell]:
-        permanent = model.blocking & (np.diag(model.change) == 1.0)
-        raise ModelError(f"goal {goal!r} (cell {cell}) is a wall under the prior: it holds a blocking label "
-                         f"that never changes with probability {model.label_prior[cell, permanent].sum():.3g}")
+        raise ModelError(f"goal {goal!r} (cell {cell}) is a wall under the prior: it holds a label that never "
+                         f"lets the robot in with probability {model.label_prior[cell, permanent_labels(model)].sum():.3g}")
     n = model.n_cells
     cells = np.repeat(np.arange(n), model.n_actions)
     targets = model.neighbors.ravel()
@@ -167,8 +214,8 @@ class GoTo:
     :mod:`policies.navigation` on the belief's map marginals, re-planned at every call; the action
     minimises the expected steps under the location belief. ``horizon``: H (None:
     :func:`default_horizon`). A goal off the grid, a wall under the model's label prior or
-    unreachable from the start under it raises ModelError naming the goal (:func:`check_goal`). Cost per call: the
-    module's (a call whose marginals equal the last call's reuses its plan)."""
+    unreachable from the start under it raises ModelError naming the goal (:func:`check_goal`).
+    Cost per call: the module's (a call whose marginals equal the last call's reuses its plan)."""
 
     def __init__(self, model: GridModel, goal=None, horizon: int | None = None):
         if goal is None:
@@ -176,6 +223,7 @@ class GoTo:
         self.model = model
         self.goal = check_goal(model, goal)
         self.horizon = default_horizon(model) if horizon is None else _horizon(horizon)
+        self.tables = label_tables(model, self.horizon)
         self.plan: GoalPlan | None = None
         self._planned_on: np.ndarray | None = None
 
@@ -186,7 +234,7 @@ class GoTo:
     def choose(self, belief: Belief) -> int:
         maps = self.marginals(belief)
         if self._planned_on is None or not np.array_equal(maps, self._planned_on):
-            self.plan = plan_to_goal(self.model, maps, self.goal, self.horizon)
+            self.plan = plan_to_goal(self.model, maps, self.goal, tables=self.tables)
             self._planned_on = np.array(maps)
         costs = belief.location @ np.minimum(self.plan.q, NEVER)
         return int(np.argmin(costs))

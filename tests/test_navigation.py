@@ -77,78 +77,116 @@ def test_plan_on_a_known_static_map_is_the_shortest_path(seed):
 
 
 @pytest.mark.parametrize("seed", range(8))
-def test_plan_with_uncertain_passability_in_a_static_world_is_dijkstra_on_expected_attempts(seed):
-    """With nothing changing, a move into j takes 1 / (p_move P(j passable)) attempts on average
-    (geometric), and retrying is optimal: the plan is Dijkstra on those costs."""
+def test_plan_with_uncertain_walls_in_a_static_world_is_dijkstra_on_expected_steps(seed):
+    """Nothing changes: pressing into j finds a wall with probability s_j (one step lost, then the
+    robot tries again, s_j / (1 - s_j) lost steps on average) or a passable label, then enters
+    after 1 / p_move presses on average (geometric). The plan is Dijkstra on those costs."""
     rng = np.random.default_rng(100 + seed)
     rows, cols = int(rng.integers(2, 6)), int(rng.integers(2, 6))
     model = om.grid_model(rows, cols, 3, p_move=float(rng.uniform(0.3, 1.0)), blocking=[2])
     maps = rng.dirichlet([1.0, 1.0, 1.0], size=model.n_cells)
     maps[rng.random(model.n_cells) < 0.2] = [0.0, 0.0, 1.0]  # some certain walls
-    passable = maps[:, 0] + maps[:, 1]
+    wall = maps[:, 2]
     goal = int(rng.integers(model.n_cells))
     with np.errstate(divide="ignore"):
-        expected = heap_dijkstra(model, 1.0 / (model.p_move * passable), goal)
+        expected = heap_dijkstra(model, wall / (1 - wall) + 1 / model.p_move, goal)
     np.testing.assert_allclose(plan_to_goal(model, maps, goal).value, expected, rtol=1e-12)
 
 
-def future_passability(model, maps, horizon):
-    """(H + 1, N): P(cell passable) tau steps ahead, from matrix powers of C."""
-    open_labels = (~model.blocking).astype(float)
-    return np.stack([maps @ np.linalg.matrix_power(model.change, tau) @ open_labels for tau in range(horizon + 1)])
+def never_passable(model):
+    """(K,) bool: labels from which C never reaches a label that lets the robot in."""
+    can = ~model.blocking
+    for _ in range(model.n_labels):
+        can = can | ((model.change > 0) & can).any(axis=1)
+    return ~can
 
 
-def mix(p, moved, stayed):
-    """p moved + (1 - p) stayed, with 0 x inf = 0 (a move that cannot happen costs nothing)."""
-    return (p * moved if p > 0 else 0.0) + ((1 - p) * stayed if p < 1 else 0.0)
+def policy_cost(model, maps, goal, policy, cache):
+    """(N,) expected steps to ``goal`` from every cell at step 0 under ``policy`` ((H + 1, N)
+    actions: ``policy[tau]`` at steps tau < H, ``policy[H]`` from H on), by the rules the planner
+    assumes, written out as a Markov chain over states ("free", l) and ("press", l, a, k):
+    a free robot's move aims at j = neighbors[l, a] (j == l: it stays); j's label on arrival is
+    drawn from maps[j] C^min(tau, H); a label that never lets it in costs the step and leaves it
+    free where it was; otherwise each step is a press that enters with p_move [label passable],
+    the label moving by C after each failure. Every step costs 1; a free robot on the goal is done.
+    From step H the chain is time-homogeneous: a linear solve (inf where the goal is not sure).
+    ``cache``: a dict keeping the step matrices across calls for the same model, maps and goal."""
+    n, k_count = model.n_cells, model.n_labels
+    horizon = len(policy) - 1
+    change, enter = model.change, model.p_move * (~model.blocking)
+    wall = never_passable(model)
+    assert not change[np.ix_(~wall, wall)].any()  # nothing falls into a wall while pressed
+    arrival = [maps @ np.linalg.matrix_power(change, min(tau, horizon)) for tau in range(horizon + 1)]
+    states = [("free", l) for l in range(n)] + [("press", l, a, k) for l in range(n)
+                                                 for a in range(model.n_actions) for k in range(k_count)]
+    index = {state: i for i, state in enumerate(states)}
 
+    def press(l, a, k, weight, row):
+        """One press into neighbors[l, a] whose label is k, with probability ``weight``."""
+        row[index["free", model.neighbors[l, a]]] += weight * enter[k]
+        for k2 in range(k_count):
+            row[index["press", l, a, k2]] += weight * (1 - enter[k]) * change[k, k2]
 
-def policy_cost(model, q, goal, policy):
-    """(N,) expected steps to ``goal`` of a policy: actions ``policy[tau]`` (N,) at steps
-    tau < H, then the stationary ``policy[H]`` with passability q[H]."""
-    horizon, n = len(q) - 1, model.n_cells
-    tail = np.full(n, np.inf)  # stationary: follow the chain of intended cells to the goal
-    for l in range(n):
-        cost, cell = 0.0, l
-        for _ in range(n):
-            if cell == goal:
-                tail[l] = cost
-                break
-            j = model.neighbors[cell, policy[horizon][cell]]
-            p = model.p_move * q[horizon][j] if j != cell else 0.0
-            if p == 0:
-                break
-            cost, cell = cost + 1.0 / p, j
-    value = tail
+    def step_matrix(tau, actions):
+        key = (tau, tuple(actions))
+        if key not in cache:
+            cache[key] = build(tau, actions)
+        return cache[key]
+
+    def build(tau, actions):
+        matrix = np.zeros((len(states), len(states)))
+        for i, state in enumerate(states):
+            if state == ("free", goal):
+                continue
+            if state[0] == "press":
+                press(*state[1:], 1.0, matrix[i])
+                continue
+            l = state[1]
+            j = model.neighbors[l, actions[l]]
+            if j == l:
+                matrix[i, index["free", l]] = 1.0
+                continue
+            matrix[i, index["free", l]] = arrival[tau][j, wall].sum()
+            for k in np.flatnonzero(~wall):
+                press(l, actions[l], k, arrival[tau][j, k], matrix[i])
+        return matrix
+
+    done = np.array([state == ("free", goal) for state in states])
+    matrix = step_matrix(horizon, policy[horizon])
+    sure = done.copy()  # states from which the goal can be reached
+    for _ in states:
+        sure = sure | ((matrix > 0) & sure).any(axis=1)
+    for _ in states:  # ... and no state from which it cannot
+        sure = sure & ~((matrix > 0) & ~sure).any(axis=1)
+    inner = sure & ~done
+    value = np.where(done, 0.0, np.inf)
+    value[inner] = np.linalg.solve(np.eye(inner.sum()) - matrix[np.ix_(inner, inner)], np.ones(inner.sum()))
     for tau in range(horizon - 1, -1, -1):
-        before = np.empty(n)
-        for l in range(n):
-            j = model.neighbors[l, policy[tau][l]]
-            p = model.p_move * q[tau][j] if j != l else 0.0
-            before[l] = 0.0 if l == goal else 1.0 + mix(p, value[j], value[l])
-        value = before
-    return value
+        matrix = step_matrix(tau, policy[tau])
+        with np.errstate(invalid="ignore"):  # 0 x inf: a move that cannot happen costs nothing
+            value = np.where(done, 0.0, 1.0 + np.where(matrix > 0, matrix * value, 0.0).sum(axis=1))
+    return value[:n]
 
 
 @pytest.mark.parametrize("seed", range(6))
 def test_time_dependent_plan_is_the_best_of_every_policy(seed):
     """Doors that open and close (door dynamics on a 1 x 4 corridor, horizon 2): the plan's
     expected steps from every cell equal the minimum over all 2^(3 x 3) policies (time-dependent
-    actions at steps 0 and 1, a stationary one after), each evaluated by hand."""
+    actions at steps 0 and 1, a stationary one after), each evaluated as a Markov chain."""
     rng = np.random.default_rng(200 + seed)
     model = om.grid_model(1, 4, 4, p_move=float(rng.uniform(0.5, 1.0)), change=door_change(rng.uniform(0.05, 0.4)),
                           label_names=DOOR_LABELS, blocking=("wall", "closed_door"))
     maps = rng.dirichlet([0.5] * 4, size=4)
     goal = int(rng.integers(4))
     horizon = 2
-    q = future_passability(model, maps, horizon)
     others = [l for l in range(4) if l != goal]
     best = np.full(4, np.inf)
     best_first = np.full((4, 2), np.inf)
+    cache = {}
     for choice in itertools.product(range(2), repeat=len(others) * (horizon + 1)):
         policy = np.zeros((horizon + 1, 4), dtype=int)
         policy[:, others] = np.reshape(choice, (horizon + 1, len(others)))
-        cost = policy_cost(model, q, goal, policy)
+        cost = policy_cost(model, maps, goal, policy, cache)
         best = np.minimum(best, cost)
         for l in others:
             best_first[l, policy[0, l]] = min(best_first[l, policy[0, l]], cost[l])
@@ -161,17 +199,18 @@ def test_time_dependent_plan_is_the_best_of_every_policy(seed):
 
 def test_plan_is_the_minimum_over_locations_weighted_by_the_belief():
     """The action minimises sum_l P(l) Q(l, a). A free 1 x 5 corridor, p_move 0.8, goal cell 2,
-    the robot in cell 1 with probability p or in cell 4. By hand: one step costs 1 / 0.8 = 1.25
-    expected steps, so Q(1, right) = 1.25, Q(1, left) = 1 + 0.8 V(0) + 0.2 V(1) = 1 + 2 + 0.25,
-    Q(4, left) = 1 + 0.8 V(3) + 0.2 V(4) = 1 + 1 + 0.5, Q(4, right) = 1 + V(4) = 3.5: right costs
-    1.25 p + 3.5 (1 - p), left 3.25 p + 2.5 (1 - p), equal at p = 1/3."""
+    the robot in cell 1 with probability p or in cell 4. By hand: entering a free cell takes
+    1 / 0.8 = 1.25 presses on average, so V = (2.5, 1.25, 0, 1.25, 2.5) and Q(1, right) = 1.25,
+    Q(1, left) = 1.25 + V(0) = 3.75, Q(4, left) = 1.25 + V(3) = 2.5, Q(4, right) = 1 + V(4) = 3.5
+    (pressing into the end wall: one step in place): right costs 1.25 p + 3.5 (1 - p), left
+    3.75 p + 2.5 (1 - p), equal at p = 2/7."""
     model = om.grid_model(1, 5, 2, p_move=0.8, label_names=("free", "wall"), blocking=["wall"])
     maps = np.eye(2)[np.zeros(5, dtype=int)]
     planner = GoTo(model, goal=2)
-    for p in (0.2, 0.3, 0.36, 0.8):
+    for p in (0.2, 0.27, 0.3, 0.8):
         chosen = planner.choose(Belief(0, np.array([0, p, 0, 0, 1 - p]), maps))
-        assert model.action_names[chosen] == ("right" if p > 1 / 3 else "left")
-    np.testing.assert_allclose(planner.plan.q[[1, 4]], [[3.25, 1.25], [2.5, 3.5]], rtol=1e-12)
+        assert model.action_names[chosen] == ("right" if p > 2 / 7 else "left")
+    np.testing.assert_allclose(planner.plan.q[[1, 4]], [[3.75, 1.25], [2.5, 3.5]], rtol=1e-12)
 
 
 # --- hand-checkable: detour or wait -------------------------------------------------------------
@@ -197,24 +236,27 @@ def test_a_long_detour_loses_to_a_door_that_reopens_quickly():
     # leave it where it is, equally cheap; ties go to the lowest action index
     assert model.action_names[planner.choose(known(model, true_map))] == "north"
     assert planner.plan.q[0, 0] == planner.plan.q[0, 1] == planner.plan.q[0].min()
-    # the expected wait by hand: the door, closed now, is open tau steps later with
-    # (1 - (1 - 2 p)^tau) / 2; each press is one independent try, then one step to the goal
-    open_at = [(1 - (1 - 2 * 0.3) ** tau) / 2 for tau in range(planner.plan.horizon + 1)]
-    wait, still_closed = 0.0, 1.0
-    for tau in range(planner.plan.horizon):
-        wait += still_closed * open_at[tau] * (tau + 2)
-        still_closed *= 1 - open_at[tau]
-    wait += still_closed * (planner.plan.horizon + 1 / open_at[-1] + 1)  # frozen beyond the horizon
-    assert planner.plan.q[0, 1] == pytest.approx(wait, rel=1e-9)
-    assert wait < 10 and planner.plan.q[0, 2] > wait  # south: a step away and (at best) one back
-    # the same door changing rarely: the detour wins
-    slow, true_map = door_ahead(19, p_door=0.001)
+    # by hand: the closed door opens after 1 / p_door steps on average (geometric), the press
+    # that finds it open gets in (p_move = 1), one more step to the goal: 1 / 0.3 + 1 + 1
+    assert planner.plan.q[0, 1] == pytest.approx(1 / 0.3 + 2, rel=1e-12)
+    assert planner.plan.q[0, 2] > planner.plan.q[0, 1]  # south: a step away, and back or round
+    # a door that reopens after 1 / 0.05 = 20 steps on average: worth waiting for against a
+    # 40-step detour, not against a 12-step one
+    for rows, action in ((19, "north"), (5, "south")):
+        model, true_map = door_ahead(rows, p_door=0.05)
+        planner = GoTo(model, goal=(0, 2))
+        assert model.action_names[planner.choose(known(model, true_map))] == action
+        assert planner.plan.q[0, 1] == pytest.approx(1 / 0.05 + 2, rel=1e-12)
+    slow, true_map = door_ahead(19, p_door=0.001)  # the same 40-step detour, a door that stays shut
     assert slow.action_names[GoTo(slow, goal=(0, 2)).choose(known(slow, true_map))] == "south"
 
 
 def test_static_goto_ignores_what_the_robot_has_seen():
-    model, true_map = door_ahead(1, p_door=0.05)
-    model = with_floor_plan(model, true_map, 0.95)  # the door: open or closed, 1/2 each
+    """A 20-step detour; the door, under the floor plan, open or closed with 1/2 each: about
+    (2 + 22) / 2 = 12 steps through it, so the prior's plan goes through; seen closed (22 steps
+    by the door) the detour wins, seen open (2 steps) the door."""
+    model, true_map = door_ahead(9, p_door=0.05)
+    model = with_floor_plan(model, true_map, 0.95)
     static, learned = StaticGoTo(model, goal=(0, 2)), GoTo(model, goal=(0, 2))
     closed = known(model, true_map)
     opened = known(model, np.where(true_map == CLOSED_DOOR, OPEN_DOOR, true_map))
