@@ -161,10 +161,8 @@ def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
 def exploration(model: GridModel, true_map, planner: str | Planner = "entropy",
                 estimator: str | Estimator = "rbpf", steps: int = 500, seed: SeedLike = None, *,
                 estimator_options: dict | None = None, planner_options: dict | None = None,
-                progress: bool | None = None, until: Callable[[int], bool] | None = None) -> Exploration:
-    """:func:`explore` returning the whole :class:`Exploration` (table, true run, beliefs).
-    ``until``: a test of the true location; the run ends after the first step at which it holds
-    (None: after ``steps`` steps)."""
+                progress: bool | None = None) -> Exploration:
+    """:func:`explore` returning the whole :class:`Exploration` (table, true run, beliefs)."""
     world_rng, planner_rng, estimator_seed = _seeds(seed)
     labels = check_map(model, true_map)
     est = _estimator(model, estimator, estimator_options, estimator_seed)
@@ -177,7 +175,7 @@ def exploration(model: GridModel, true_map, planner: str | Planner = "entropy",
         state["location"] = location
         return observation, location, state["labels"]
 
-    return _loop(model, lambda: advance(None), advance, chooser, est, steps, progress, until)
+    return _loop(model, lambda: advance(None), advance, chooser, est, steps, progress)
 
 
 def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estimator = "rbpf",

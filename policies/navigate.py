@@ -1,6 +1,13 @@
 """Navigation runs (DESIGN.md section 8): the exploration loop of :mod:`policies.explore` with a
 goal planner, stopped when the true robot stands on the goal, and the true distance to the goal at
 every step; and the omniscient oracle a navigation study compares against.
+
+The true world of a navigation run (:class:`PairedWorld`) draws its map changes, its slips and its
+sensor readings from three separate streams of the seed, so that every run with one seed,
+whatever the robot does, meets the same doors and the same slips step by step: planners (and the
+oracle) are compared on the same building history (paired runs). The dynamics are the model's
+(:func:`onlinemap.simulate.world_step`); only the order of the random draws differs, so a
+navigation run is not the exploration run of the same seed.
 """
 
 from __future__ import annotations
@@ -17,15 +24,48 @@ from onlinemap.errors import ModelError
 from onlinemap.estimators import Estimator, Trajectory
 from onlinemap.model import GridModel
 from onlinemap.rng import SeedLike
-from onlinemap.simulate import Run, world_step
+from onlinemap.simulate import Run, _categorical, world_step
 from onlinemap.validation import check_map
 
-from .explore import COLUMNS, _seeds, exploration
+from .explore import COLUMNS, WorldState, _estimator, _loop, _planner, _seeds
 from .navigation import check_goal, plan_to_goal
 from .planners import Planner
 from .planners import planner_options as named_options
 
 NAVIGATION_COLUMNS = COLUMNS + ("distance_to_goal",)
+
+
+class PairedWorld:
+    """The true world of navigation runs: the order of DESIGN.md section 1 (the action moves the
+    robot, then the map changes, then the robot observes, :func:`onlinemap.simulate.world_step`'s
+    rules), each kind of draw from its own stream of ``rng``: one uniform per step for the slip,
+    whatever the action; N categorical draws per step for the map (a static world draws none);
+    the readings through ``world_step``. Two worlds built from equal generators therefore have the
+    same maps and slips at every step whatever their robots do. Cost per step O(N + F)."""
+
+    def __init__(self, model: GridModel, true_map, rng: np.random.Generator):
+        self.model = model
+        self.location, self.labels = model.start, check_map(model, true_map)
+        self._maps, self._slips, self._readings = rng.spawn(3)
+
+    def reset(self) -> WorldState:
+        """Step 0: the first observation."""
+        return self._observe()
+
+    def advance(self, action: int) -> WorldState:
+        """One step with ``action``: ``(observation, location, labels)`` after it."""
+        model = self.model
+        moves = self._slips.random() < model.p_move
+        target = int(model.neighbors[self.location, action])
+        if moves and not model.blocking[self.labels[target]]:
+            self.location = target
+        if not model.is_static:
+            self.labels = _categorical(self._maps, model.change[self.labels])
+        return self._observe()
+
+    def _observe(self) -> WorldState:
+        _, _, observation = world_step(self.model, self.location, self.labels, None, self._readings)
+        return observation, self.location, self.labels
 
 
 class Navigation(NamedTuple):
@@ -67,8 +107,9 @@ def navigate(model: GridModel, true_map, goal, planner: str | Planner = "goto", 
              *, max_steps: int, seed: SeedLike, estimator_options: dict | None = None,
              planner_options: dict | None = None, progress: bool | None = None) -> Navigation:
     """Drive the robot towards ``goal`` (a cell index or ``(row, col)``) in closed loop: the loop
-    of :func:`policies.explore.exploration` (the same world, estimator and planner streams from
-    ``seed``), ended when the true robot stands on the goal or after ``max_steps`` actions.
+    of :func:`policies.explore.exploration` (planner chooses, world moves, estimator updates) in a
+    :class:`PairedWorld`, ended when the true robot stands on the goal or after ``max_steps``
+    actions. ``seed`` fixes the world, a named planner and a named estimator, as in ``explore``.
 
     ``planner``: a registered name (``goto``, ``static_goto``; a named planner that takes a goal
     is given this one, others, e.g. ``random``, run as they are) or a planner instance (whose
@@ -94,8 +135,12 @@ def navigate(model: GridModel, true_map, goal, planner: str | Planner = "goto", 
         planner_options = options
     elif getattr(planner, "goal", cell) != cell:
         raise ModelError(f"the planner goes to cell {planner.goal}, not to the goal {goal!r} (cell {cell})")
-    found = exploration(model, true_map, planner, estimator, max_steps + 1, seed, estimator_options=estimator_options,
-                        planner_options=planner_options, progress=progress, until=lambda location: location == cell)
+    world_rng, planner_rng, estimator_seed = _seeds(seed)
+    world = PairedWorld(model, true_map, world_rng)
+    est = _estimator(model, estimator, estimator_options, estimator_seed)
+    chooser = _planner(model, planner, planner_options, planner_rng)
+    found = _loop(model, world.reset, world.advance, chooser, est, max_steps + 1, progress,
+                  until=lambda location: location == cell)
     frame = found.frame
     frame["distance_to_goal"] = _distances_to_goal(model, found.run, cell)
     frame.attrs["goal"] = cell
@@ -106,19 +151,18 @@ def navigate(model: GridModel, true_map, goal, planner: str | Planner = "goto", 
 def oracle_steps(model: GridModel, true_map, goal, *, max_steps: int, seed: SeedLike,
                  horizon: int | None = None) -> int | None:
     """The steps an omniscient robot needs to reach ``goal``, for comparison in a study (not a
-    planner: it reads the true state). At every step it knows its true location and the true map
-    of now, plans with :func:`~policies.navigation.plan_to_goal` on that map (certain marginals;
-    doors may still change by C on the way, so it waits or detours as :class:`GoTo` would with
-    perfect knowledge) and takes the cheapest action from its cell; the world moves by
-    :func:`onlinemap.simulate.world_step` from the world stream of ``seed``, as in
-    :func:`navigate` (the same draws while the two robots' sensors read the same number of cells).
-    Returns the step at which it first stands on the goal, or None after ``max_steps`` actions.
-    Cost: one plan per distinct true map met, O(max_steps (N + F)) for the world."""
+    planner: it reads the true state). It moves in the :class:`PairedWorld` of ``seed`` (the
+    doors and slips that :func:`navigate` with that seed meets, step by step); at every step it
+    knows its true location and the true map of now and plans with
+    :func:`~policies.navigation.plan_to_goal` on that map (certain marginals, the doors still
+    changing by C on the way: it waits or goes round as :class:`~policies.navigation.GoTo`
+    would, knowing what it knows), taking the cheapest action from its cell. Returns the step at
+    which it first stands on the goal, or None after ``max_steps`` actions. Cost: one plan per
+    distinct true map met, plus O(N + F) per step."""
     max_steps = arguments.integer("max_steps", max_steps, minimum=0)
     cell = check_goal(model, goal)
-    labels = check_map(model, true_map)
-    rng = _seeds(seed)[0]
-    location, labels, _ = world_step(model, model.start, labels, None, rng)
+    world = PairedWorld(model, true_map, _seeds(seed)[0])
+    _, location, labels = world.reset()
     plans: dict[bytes, np.ndarray] = {}
     for t in range(max_steps):
         if location == cell:
@@ -126,5 +170,5 @@ def oracle_steps(model: GridModel, true_map, goal, *, max_steps: int, seed: Seed
         key = labels.tobytes()
         if key not in plans:
             plans[key] = plan_to_goal(model, np.eye(model.n_labels)[labels], cell, horizon).q
-        location, labels, _ = world_step(model, location, labels, int(np.argmin(plans[key][location])), rng)
+        _, location, labels = world.advance(int(np.argmin(plans[key][location])))
     return max_steps if location == cell else None

@@ -29,7 +29,8 @@ from ``tau = H - 1`` down to 0. Beyond the horizon ``H`` arrival marginals are f
 (1 - s_j)`` per move into ``j`` (Dijkstra). The robot waits at a closed door (presses into it, or
 stays) exactly when that is expected to be cheaper than the detour. The action under location
 uncertainty is ``argmin_a sum_l P(l) Q[0](l, a)`` (``Q[0](goal, .) = 0``: a hypothesis that is
-already at the goal has nothing left to pay); ties go to the lowest action index.
+already at the goal has nothing left to pay) over the actions that are best at some cell the
+robot may be in (:func:`best_action`: no hedging); ties go to the lowest action index.
 
 The approximations: cells are independent (the belief's marginals); the label found on arriving at
 a cell is a fresh draw from its marginal (a cell passed twice is not remembered); a commitment is
@@ -55,6 +56,7 @@ from onlinemap.errors import ModelError
 from onlinemap.kernels.navigation import goal_value_iteration
 from onlinemap.model import GridModel
 
+CREDIBLE = 0.95  # the location hypotheses that vote for the actions the robot may take (best_action)
 NEVER = 1e9  # steps charged for what never ends (a cell from which the goal cannot be reached); values cap here
 
 
@@ -209,10 +211,36 @@ def check_goal(model: GridModel, goal) -> int:
     return cell
 
 
+def best_action(location: np.ndarray, q: np.ndarray, goal: int) -> int:
+    """The action minimising ``sum_l P(l) Q(l, a)`` among the actions that are optimal (within
+    1e-9 relative) at some cell of the location belief's :data:`CREDIBLE` set (the most likely
+    cells holding that much of the probability), the goal aside (every action is free there);
+    all actions if the set holds only the goal. Ties go to the lowest index.
+
+    The restriction stops the Q-MDP rule from hedging: with two location hypotheses that want
+    opposite moves, an action that neither wants (pressing into a wall, staying put) can have the
+    lowest expected cost, and taking it teaches the robot nothing, so it takes it for ever (seen
+    with the RBPF in the door world: two cells with the same view, 65% and 35%). Cells outside the
+    credible set do not vote, so stray particles cannot bring the hedge back. ``location`` (N,),
+    ``q`` (N, A). O(N log N + N A)."""
+    q = np.minimum(q, NEVER)
+    costs = location @ q
+    order = np.argsort(location, kind="stable")[::-1]
+    held = np.cumsum(location[order])
+    likely = order[:int(np.searchsorted(held, CREDIBLE * held[-1])) + 1]
+    likely = likely[(likely != goal) & (location[likely] > 0)]
+    if len(likely):
+        here = q[likely]
+        best = here.min(axis=1, keepdims=True)
+        candidates = (here <= best + 1e-9 * (1.0 + np.abs(best))).any(axis=0)
+        costs = np.where(candidates, costs, np.inf)
+    return int(np.argmin(costs))
+
+
 class GoTo:
     """Go to ``goal`` (a cell index or ``(row, col)``) by the value iteration of
     :mod:`policies.navigation` on the belief's map marginals, re-planned at every call; the action
-    minimises the expected steps under the location belief. ``horizon``: H (None:
+    minimises the expected steps under the location belief (:func:`best_action`). ``horizon``: H (None:
     :func:`default_horizon`). A goal off the grid, a wall under the model's label prior or
     unreachable from the start under it raises ModelError naming the goal (:func:`check_goal`).
     Cost per call: the module's (a call whose marginals equal the last call's reuses its plan)."""
@@ -236,8 +264,7 @@ class GoTo:
         if self._planned_on is None or not np.array_equal(maps, self._planned_on):
             self.plan = plan_to_goal(self.model, maps, self.goal, tables=self.tables)
             self._planned_on = np.array(maps)
-        costs = belief.location @ np.minimum(self.plan.q, NEVER)
-        return int(np.argmin(costs))
+        return best_action(belief.location, self.plan.q, self.goal)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(goal={self.goal}, horizon={self.horizon})"

@@ -16,6 +16,7 @@ from onlinemap.model import CLOSED_DOOR, DOOR_LABELS, FREE, OPEN_DOOR, WALL, doo
 from policies import (COLUMNS, NAVIGATION_COLUMNS, explore, make_planner, navigate, oracle_steps, planner_options,
                       true_distances, with_floor_plan)
 from estimator_cases import assert_state_unchanged, snapshot
+from policies.explore import _seeds
 from policies.navigation import GoTo, StaticGoTo, goal_cell, plan_to_goal
 
 
@@ -213,6 +214,29 @@ def test_plan_is_the_minimum_over_locations_weighted_by_the_belief():
     np.testing.assert_allclose(planner.plan.q[[1, 4]], [[3.75, 1.25], [2.5, 3.5]], rtol=1e-12)
 
 
+def test_the_robot_does_not_hedge_between_location_hypotheses():
+    """A free 2 x 5 grid, p_move 0.8, goal (0, 2); the robot at (0, 1) with p = 0.55, else at
+    (0, 3). Entering a free cell takes 1.25 presses, so from (0, 1): east 1.25, west
+    1.25 + V(0, 0) = 3.75, south 1.25 + V(1, 1) = 3.75, north (the edge: a step in place)
+    1 + 1.25 = 2.25; mirrored from (0, 3). Expected: north 2.25, east 0.55 x 1.25 + 0.45 x 3.75
+    = 2.375, west 2.625. The plain expected-cost rule stays north for ever (and learns nothing);
+    only east and west are best for some hypothesis, and east is the cheaper of the two."""
+    model, true_map = om.door_world(".....\n.....\n", blocking=True)
+    planner = GoTo(model, goal=(0, 2))
+
+    def choose(cells, probabilities):
+        location = np.zeros(10)
+        location[cells] = probabilities
+        return model.action_names[planner.choose(Belief(0, location, np.eye(4)[true_map]))], location
+
+    action, location = choose([1, 3], [0.55, 0.45])
+    assert action == "east"
+    np.testing.assert_allclose(location @ planner.plan.q, [2.25, 2.375, 3.75, 2.625], rtol=1e-12)
+    assert choose([1, 3], [0.45, 0.55])[0] == "west"
+    # a stray hypothesis outside the 95% most likely cells has no vote: still no hedging
+    assert choose([1, 3, 9], [0.55, 0.42, 0.03])[0] == "east"
+
+
 # --- hand-checkable: detour or wait -------------------------------------------------------------
 def door_ahead(detour_rows: int, p_door: float):
     """Start (0, 0), goal (0, 2), a door between them at (0, 1) believed closed; the detour goes
@@ -329,10 +353,33 @@ def test_navigate_reaches_the_goal_in_a_small_open_world(open_world):
     assert frame["true_location"].iloc[-1] == 11 and (frame["true_location"].iloc[:-1] != 11).all()
     rows, cols = np.divmod(frame["true_location"].to_numpy(), 4)
     np.testing.assert_array_equal(frame["distance_to_goal"], (2 - rows) + (3 - cols))  # Manhattan, no walls
-    # the loop is explore's, stopped: the same planner and seed without a stop give the same rows
-    again = explore(model, true_map, GoTo(model, goal=11), "rbpf", steps=len(frame), seed=4, progress=False,
-                    estimator_options={"n_particles": 200})
-    pd.testing.assert_frame_equal(frame[list(COLUMNS)], again)
+    # the estimator saw what the world emitted: a fresh filter fed the run's record agrees
+    replay = om.make_estimator("rbpf", model, n_particles=200, seed=_seeds(4)[2])
+    for t, observation in enumerate(found.run.observations):
+        belief = replay.step(None if t == 0 else int(found.run.actions[t - 1]), observation)
+        assert belief.location.tobytes() == found.trajectory.location[t].tobytes()
+
+
+def test_navigation_runs_with_one_seed_meet_the_same_doors_and_slips():
+    """Paired runs: whatever the robot does, the maps (door changes) and the slips of step t
+    are the same for every run with one seed; moves follow the blocking rule."""
+    model, true_map = om.door_world(blocking=True, footprint="cross", p_door=0.1)
+    runs = [navigate(model, true_map, (9, 9), planner, max_steps=40, seed=7,
+                     estimator_options={"n_particles": 30}).run for planner in ("goto", "random", "static_goto")]
+    slipped = []
+    for run in runs:
+        before, after = run.locations[:-1], run.locations[1:]
+        intended = model.neighbors[before, run.actions]
+        enters = ~model.blocking[run.maps[:-1][np.arange(len(before)), intended]]
+        assert np.all((after == before) | ((after == intended) & enters))  # stays or makes its move
+        moving = (intended != before) & enters  # the move is possible: it fails only by a slip
+        slipped.append(dict(zip(np.flatnonzero(moving), after[moving] == before[moving])))
+    steps = min(len(run.maps) for run in runs)
+    assert steps > 20 and all(np.array_equal(run.maps[:steps], runs[0].maps[:steps]) for run in runs)
+    assert (runs[0].maps[:steps] != runs[0].maps[0]).any()  # the doors did change
+    for t in set(slipped[0]) & set(slipped[1]):
+        assert slipped[0][t] == slipped[1][t]
+    assert len(set(slipped[0]) & set(slipped[1])) > 5
 
 
 def test_navigate_stops_after_max_steps_and_takes_any_planner(open_world):
