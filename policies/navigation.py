@@ -28,9 +28,8 @@ from ``tau = H - 1`` down to 0. Beyond the horizon ``H`` arrival marginals are f
 :func:`commitment_steps`), and ``V`` a shortest path with cost ``(s_j + sum_k m_k alpha_k) /
 (1 - s_j)`` per move into ``j`` (Dijkstra). The robot waits at a closed door (presses into it, or
 stays) exactly when that is expected to be cheaper than the detour. The action under location
-uncertainty is ``argmin_a sum_l P(l) Q[0](l, a)`` (``Q[0](goal, .) = 0``: a hypothesis that is
-already at the goal has nothing left to pay) over the actions that are best at some cell the
-robot may be in (:func:`best_action`: no hedging); ties go to the lowest action index.
+uncertainty is the one optimal at the most probable of the likely cells (voting; ties go to the
+lowest expected cost ``sum_l P(l) Q[0](l, a)``, ``Q[0](goal, .) = 0``: :func:`best_action`).
 
 The approximations: cells are independent (the belief's marginals); the label found on arriving at
 a cell is a fresh draw from its marginal (a cell passed twice is not remembered); a commitment is
@@ -56,7 +55,7 @@ from onlinemap.errors import ModelError
 from onlinemap.kernels.navigation import goal_value_iteration
 from onlinemap.model import GridModel
 
-CREDIBLE = 0.95  # the location hypotheses that vote for the actions the robot may take (best_action)
+CREDIBLE = 0.95  # the location hypotheses that vote for the action (best_action): the likeliest cells holding this
 NEVER = 1e9  # steps charged for what never ends (a cell from which the goal cannot be reached); values cap here
 
 
@@ -212,35 +211,38 @@ def check_goal(model: GridModel, goal) -> int:
 
 
 def best_action(location: np.ndarray, q: np.ndarray, goal: int) -> int:
-    """The action minimising ``sum_l P(l) Q(l, a)`` among the actions that are optimal (within
-    1e-9 relative) at some cell of the location belief's :data:`CREDIBLE` set (the most likely
-    cells holding that much of the probability), the goal aside (every action is free there);
-    all actions if the set holds only the goal. Ties go to the lowest index.
+    """The action most likely to be the best one: the largest total probability of the cells of
+    the location belief's :data:`CREDIBLE` set (its most likely cells holding that much of the
+    probability) at which it is optimal (within 1e-9 relative; the goal aside, where every action
+    is free); ties go to the lowest expected cost ``sum_l P(l) Q(l, a)``, then to the lowest index.
+    A sharp belief gives the MDP's action at the robot's cell.
 
-    The restriction stops the Q-MDP rule from hedging: with two location hypotheses that want
-    opposite moves, an action that neither wants (pressing into a wall, staying put) can have the
-    lowest expected cost, and taking it teaches the robot nothing, so it takes it for ever (seen
-    with the RBPF in the door world: two cells with the same view, 65% and 35%). Cells outside the
-    credible set do not vote, so stray particles cannot bring the hedge back. ``location`` (N,),
-    ``q`` (N, A). O(N log N + N A)."""
+    Why not the lowest expected cost alone (the Q-MDP rule): with location hypotheses that want
+    different moves, an action that no likely hypothesis wants can have it (pressing into a wall,
+    a compromise that keeps both hypotheses cheap), and taking it teaches the robot nothing, so it
+    takes it for ever. Seen with the RBPF in the door world: two cells with the same view (65%,
+    35%), and a minority hypothesis whose particles learned a shifted map while the plan runs on
+    the mixture of all particles' maps. Voting (Simmons and Koenig 1995) moves the way the likely
+    hypotheses want, and moving tells them apart. ``location`` (N,), ``q`` (N, A). O(N log N + N A)."""
     q = np.minimum(q, NEVER)
     costs = location @ q
     order = np.argsort(location, kind="stable")[::-1]
     held = np.cumsum(location[order])
     likely = order[:int(np.searchsorted(held, CREDIBLE * held[-1])) + 1]
     likely = likely[(likely != goal) & (location[likely] > 0)]
-    if len(likely):
-        here = q[likely]
-        best = here.min(axis=1, keepdims=True)
-        candidates = (here <= best + 1e-9 * (1.0 + np.abs(best))).any(axis=0)
-        costs = np.where(candidates, costs, np.inf)
-    return int(np.argmin(costs))
+    if not len(likely):
+        return int(np.argmin(costs))
+    here = q[likely]
+    best = here.min(axis=1, keepdims=True)
+    votes = location[likely] @ (here <= best + 1e-9 * (1.0 + np.abs(best)))
+    winners = votes >= votes.max() * (1 - 1e-12)
+    return int(np.argmin(np.where(winners, costs, np.inf)))
 
 
 class GoTo:
     """Go to ``goal`` (a cell index or ``(row, col)``) by the value iteration of
     :mod:`policies.navigation` on the belief's map marginals, re-planned at every call; the action
-    minimises the expected steps under the location belief (:func:`best_action`). ``horizon``: H (None:
+    is chosen under the location belief by :func:`best_action`. ``horizon``: H (None:
     :func:`default_horizon`). A goal off the grid, a wall under the model's label prior or
     unreachable from the start under it raises ModelError naming the goal (:func:`check_goal`).
     Cost per call: the module's (a call whose marginals equal the last call's reuses its plan)."""
