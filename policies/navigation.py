@@ -12,7 +12,10 @@ from now is drawn from the marginal brought forward by the map dynamics, ``M[j] 
 the robot presses, the label moves on by C, conditioned on every failed attempt. A door seen
 closed therefore costs its expected time to reopen (``1 / p_door`` in the door world), not a
 fresh draw per attempt. A label that can never become passable (a wall: ``permanent_labels``)
-costs one failed step, after which the robot re-plans from where it is.
+costs one failed step, after which the robot re-plans from where it is; a cell more likely than
+not to hold such a label is planned as a wall (a 5% chance that a wall is free is no reason to
+press into it again and again: the model forgets the failure, the belief may not learn from it when
+the chance comes from another location hypothesis's map).
 
 Value iteration over (cell, step) (the kernel :func:`onlinemap.kernels.navigation.goal_value_iteration`):
 with ``G[tau](j, k)`` the expected steps of pressing into ``j`` from step ``tau`` on, its label
@@ -161,7 +164,7 @@ def _stationary_cost(model: GridModel, tables: LabelTables, arrival: np.ndarray,
 class GoalPlan(NamedTuple):
     """A plan to one goal. N cells, A actions."""
 
-    value: np.ndarray  # (N,) expected steps from each cell now (0 at the goal, inf: never)
+    value: np.ndarray  # (N,) expected steps from each cell now (0 at the goal; inf: a chance >= 1e-3 of never)
     q: np.ndarray  # (N, A) expected steps after taking action a now and acting optimally after
     horizon: int  # H: arrival marginals M C^tau vary over steps 0..H-1 and are frozen from H on
 
@@ -172,14 +175,18 @@ def plan_to_goal(model: GridModel, maps: np.ndarray, goal: int, horizon: int | N
     cell ``goal`` (an index). ``horizon`` None: :func:`default_horizon`; ``tables``: the model's
     :func:`label_tables` for that horizon, if already computed. Costs: the module's."""
     tables = label_tables(model, horizon) if tables is None else tables
-    maps = np.ascontiguousarray(maps, dtype=np.float64)
+    maps = np.array(maps, dtype=np.float64)
+    wall = maps[:, tables.permanent].sum(axis=1)
+    walls = wall > 0.5  # planned as walls: their permanent part alone, renormalised
+    maps[walls] = np.where(tables.permanent, maps[walls], 0.0) / wall[walls, None]
     h = tables.powers.shape[0] - 1
     terminal = np.minimum(_stationary_cost(model, tables, maps @ tables.powers[h], goal), NEVER)
     commit = np.where(tables.permanent, NEVER, np.minimum(tables.alpha + terminal[:, None], NEVER))
     action_cost = np.empty((model.n_cells, model.n_actions))
     value = goal_value_iteration(maps, tables.powers, model.change, tables.passable, tables.permanent,
                                  model.neighbors, model.p_move, goal, terminal, commit, NEVER, action_cost)
-    return GoalPlan(np.where(value >= NEVER, np.inf, value), np.where(action_cost >= NEVER, np.inf, action_cost), h)
+    never = NEVER / 1000  # a chance of 1/1000 or more of never arriving
+    return GoalPlan(np.where(value >= never, np.inf, value), np.where(action_cost >= never, np.inf, action_cost), h)
 
 
 def walls_under_prior(model: GridModel) -> np.ndarray:

@@ -81,13 +81,15 @@ def test_plan_on_a_known_static_map_is_the_shortest_path(seed):
 def test_plan_with_uncertain_walls_in_a_static_world_is_dijkstra_on_expected_steps(seed):
     """Nothing changes: pressing into j finds a wall with probability s_j (one step lost, then the
     robot tries again, s_j / (1 - s_j) lost steps on average) or a passable label, then enters
-    after 1 / p_move presses on average (geometric). The plan is Dijkstra on those costs."""
+    after 1 / p_move presses on average (geometric); a cell with s_j > 1/2 is a wall. The plan
+    is Dijkstra on those costs."""
     rng = np.random.default_rng(100 + seed)
     rows, cols = int(rng.integers(2, 6)), int(rng.integers(2, 6))
     model = om.grid_model(rows, cols, 3, p_move=float(rng.uniform(0.3, 1.0)), blocking=[2])
     maps = rng.dirichlet([1.0, 1.0, 1.0], size=model.n_cells)
     maps[rng.random(model.n_cells) < 0.2] = [0.0, 0.0, 1.0]  # some certain walls
-    wall = maps[:, 2]
+    maps[rng.random(model.n_cells) < 0.2] = [0.2, 0.2, 0.6]  # some likely walls
+    wall = np.where(maps[:, 2] > 0.5, 1.0, maps[:, 2])
     goal = int(rng.integers(model.n_cells))
     with np.errstate(divide="ignore"):
         expected = heap_dijkstra(model, wall / (1 - wall) + 1 / model.p_move, goal)
@@ -109,7 +111,8 @@ def policy_cost(model, maps, goal, policy, cache):
     a free robot's move aims at j = neighbors[l, a] (j == l: it stays); j's label on arrival is
     drawn from maps[j] C^min(tau, H); a label that never lets it in costs the step and leaves it
     free where it was; otherwise each step is a press that enters with p_move [label passable],
-    the label moving by C after each failure. Every step costs 1; a free robot on the goal is done.
+    the label moving by C after each failure; a cell more likely than not to hold such a label is
+    a wall. Every step costs 1; a free robot on the goal is done.
     From step H the chain is time-homogeneous: a linear solve (inf where the goal is not sure).
     ``cache``: a dict keeping the step matrices across calls for the same model, maps and goal."""
     n, k_count = model.n_cells, model.n_labels
@@ -117,6 +120,7 @@ def policy_cost(model, maps, goal, policy, cache):
     change, enter = model.change, model.p_move * (~model.blocking)
     wall = never_passable(model)
     assert not change[np.ix_(~wall, wall)].any()  # nothing falls into a wall while pressed
+    maps = np.where((maps[:, wall].sum(axis=1) > 0.5)[:, None], wall / wall.sum(), maps)  # (one wall label here)
     arrival = [maps @ np.linalg.matrix_power(change, min(tau, horizon)) for tau in range(horizon + 1)]
     states = [("free", l) for l in range(n)] + [("press", l, a, k) for l in range(n)
                                                  for a in range(model.n_actions) for k in range(k_count)]
