@@ -39,9 +39,12 @@ a cell is a fresh draw from its marginal (a cell passed twice is not remembered)
 kept to the end (the robot re-plans every step with its updated belief, so in fact it can give
 up); a wall's one failed step is then forgotten.
 
-Costs, N cells, A actions, K labels, H the horizon: O(H K^3) for the powers of C, O(K^3) for
-``alpha``, O(N A log N) for the Dijkstra, O(H N (K^2 + A)) for the value iteration; memory
-O(H K^2 + N (K + A)). In a static world (C the identity) ``H`` drops to 0: a plan is one Dijkstra.
+Costs, N cells, A actions, K labels, H the horizon (at most ``horizon``, default
+``2 (rows + cols)``; shorter where C mixes faster: it ends once ``C^tau`` is within 1e-3 of its
+limit, about ``log(2000) / (2 p_door)`` steps in the door world, 0 in a static world, where a plan
+is one Dijkstra): O(H K^3) once per planner for the powers of C, then per plan O(H N K^2) for the
+arrival marginals (one matrix product), O(N A log N) for the Dijkstra and O(H N (K^2 + A)) for the
+value iteration; memory O(H N K).
 """
 
 from __future__ import annotations
@@ -58,6 +61,7 @@ from onlinemap.errors import ModelError
 from onlinemap.kernels.navigation import goal_value_iteration
 from onlinemap.model import GridModel
 
+MIXED = 1e-3  # the horizon ends where C^tau is this close to its limit (label_powers)
 CREDIBLE = 0.95  # the location hypotheses that vote for the action (best_action): the likeliest cells holding this
 NEVER = 1e9  # steps charged for what never ends (a cell from which the goal cannot be reached); values cap here
 
@@ -84,14 +88,21 @@ def default_horizon(model: GridModel) -> int:
 
 
 def label_powers(model: GridModel, horizon: int) -> np.ndarray:
-    """(H' + 1, K, K) ``C^tau`` for ``tau = 0..H'``, ``H' <= horizon``: it stops early once a
-    power repeats (then every later one does): ``H' = 0`` in a static world. O(H K^3)."""
-    powers = [np.eye(model.n_labels)]
-    for _ in range(int(horizon)):
-        following = powers[-1] @ model.change
-        if np.array_equal(following, powers[-1]):
+    """(H' + 1, K, K) ``C^tau`` for ``tau = 0..H'``, ``H' <= horizon``: it stops early at the
+    first power within :data:`MIXED` (entrywise) of the limit ``C^inf`` (when the powers converge;
+    found by repeated squaring), whose label distributions then hardly move any more; ``H' = 0``
+    in a static world. O(H K^3)."""
+    limit = model.change
+    for _ in range(64):  # C^(2^64): the limit of any aperiodic chain, to rounding
+        following = limit @ limit
+        following /= following.sum(axis=1, keepdims=True)  # rounding would grow with every squaring
+        if np.abs(following - limit).max() <= 1e-15:
             break
-        powers.append(following)
+        limit = following
+    converged = np.abs(limit @ model.change - limit).max() <= 1e-12
+    powers = [np.eye(model.n_labels)]
+    while len(powers) <= int(horizon) and not (converged and np.abs(powers[-1] - limit).max() <= MIXED):
+        powers.append(powers[-1] @ model.change)
     return np.stack(powers)
 
 
@@ -180,11 +191,12 @@ def plan_to_goal(model: GridModel, maps: np.ndarray, goal: int, horizon: int | N
     walls = wall > 0.5  # planned as walls: their permanent part alone, renormalised
     maps[walls] = np.where(tables.permanent, maps[walls], 0.0) / wall[walls, None]
     h = tables.powers.shape[0] - 1
-    terminal = np.minimum(_stationary_cost(model, tables, maps @ tables.powers[h], goal), NEVER)
+    arrival = np.matmul(maps[None], tables.powers)  # (H + 1, N, K): M C^tau
+    terminal = np.minimum(_stationary_cost(model, tables, arrival[h], goal), NEVER)
     commit = np.where(tables.permanent, NEVER, np.minimum(tables.alpha + terminal[:, None], NEVER))
     action_cost = np.empty((model.n_cells, model.n_actions))
-    value = goal_value_iteration(maps, tables.powers, model.change, tables.passable, tables.permanent,
-                                 model.neighbors, model.p_move, goal, terminal, commit, NEVER, action_cost)
+    value = goal_value_iteration(arrival, model.change, tables.passable, tables.permanent, model.neighbors,
+                                 model.p_move, goal, terminal, commit, NEVER, action_cost)
     never = NEVER / 1000  # a chance of 1/1000 or more of never arriving
     return GoalPlan(np.where(value >= never, np.inf, value), np.where(action_cost >= never, np.inf, action_cost), h)
 

@@ -13,14 +13,14 @@ from numba import njit
 
 
 @njit(cache=True)
-def goal_value_iteration(maps, powers, change, passable, permanent, neighbors, p_move, goal, terminal,
+def goal_value_iteration(arrival, change, passable, permanent, neighbors, p_move, goal, terminal,
                          terminal_commit, never, action_cost):
     """Backward value iteration to ``goal`` from step H (``terminal`` V (N,), ``terminal_commit``
     G (N, K)) down to step 0; writes Q of step 0 into ``action_cost`` (N, A), returns V of step 0.
 
-    ``maps`` (N, K) label marginals now, ``powers`` (H + 1, K, K) ``C^tau``, ``change`` C,
+    ``arrival`` (H + 1, N, K) the label marginals of each cell tau steps from now, ``change`` C,
     ``passable`` (K,) 1.0 for labels that let the robot in, ``permanent`` (K,) labels that never
-    become passable. For tau = H' - 1 .. 0 (H' = max(H, 1)), with m = maps[j] C^tau:
+    become passable. For tau = H' - 1 .. 0 (H' = max(H, 1)), with m = arrival[tau, j]:
 
     - ``G(j, k) = 1 + p_k V'(j) + (1 - p_k) sum_k' C[k, k'] G'(j, k')``, ``p_k = p_move passable[k]``:
       the expected steps of pressing into j until entered, j's label k now (``never`` for a
@@ -31,14 +31,14 @@ def goal_value_iteration(maps, powers, change, passable, permanent, neighbors, p
 
     Every value is capped at ``never``. O(H N (K^2 + A)) time, O(N K) extra memory."""
     n, a_count = neighbors.shape
-    k_count = maps.shape[1]
+    k_count = arrival.shape[2]
     value = terminal.copy()
     commit = terminal_commit.copy()
     new_value = np.empty(n)
     new_commit = np.empty((n, k_count))
     enter = np.empty(n)
     blocked = np.empty(n)
-    for tau in range(max(powers.shape[0] - 1, 1) - 1, -1, -1):
+    for tau in range(max(arrival.shape[0] - 1, 1) - 1, -1, -1):
         for j in range(n):
             for k in range(k_count):
                 if permanent[k]:
@@ -53,16 +53,12 @@ def goal_value_iteration(maps, powers, change, passable, permanent, neighbors, p
                 new_commit[j, k] = min(1.0 + p * value[j] + (1.0 - p) * acc, never)
             entering = 0.0
             wall = 0.0
-            for k2 in range(k_count):
-                m = 0.0
-                for k in range(k_count):
-                    x = maps[j, k]
-                    if x != 0.0:
-                        m += x * powers[tau, k, k2]
-                if permanent[k2]:
+            for k in range(k_count):
+                m = arrival[tau, j, k]
+                if permanent[k]:
                     wall += m
                 else:
-                    entering += m * new_commit[j, k2]
+                    entering += m * new_commit[j, k]
             enter[j] = entering
             blocked[j] = wall
         for l in range(n):
