@@ -4,6 +4,7 @@ powers), hand-checkable detours and waits, bad goals, and the navigation loop.""
 
 import heapq
 import itertools
+import math
 
 import numpy as np
 import pandas as pd
@@ -17,7 +18,7 @@ from policies import (COLUMNS, NAVIGATION_COLUMNS, explore, make_planner, naviga
                       true_distances, with_floor_plan)
 from estimator_cases import assert_state_unchanged, snapshot
 from policies.explore import _seeds
-from policies.navigation import GoTo, StaticGoTo, goal_cell, plan_to_goal
+from policies.navigation import GoTo, StaticGoTo, goal_cell, label_powers, plan_to_goal
 
 
 def heap_dijkstra(model, step_cost, goal):
@@ -443,3 +444,18 @@ def test_oracle_walks_the_shortest_path_when_nothing_slips_or_changes(open_world
     # a closed door that never opens on the short way: the oracle sees it and goes round
     model, true_map = om.door_world(".c...\n.#.#.\n.....\n", blocking=True, p_move=1.0)
     assert oracle_steps(model, true_map, (0, 2), max_steps=20, seed=0) == 6
+
+
+@pytest.mark.parametrize("p_door", [0.02, 0.05, 0.3])
+def test_the_horizon_ends_where_the_doors_have_mixed(p_door):
+    """Door dynamics: P(open at tau | open now) = 1/2 + (1 - 2 p)^tau / 2, the limit 1/2; the
+    powers stop at the first tau with (1 - 2 p)^tau / 2 <= 1e-3, within the given horizon."""
+    model, _ = om.door_world(p_door=p_door)
+    expected = math.ceil(math.log(2e-3) / math.log(1 - 2 * p_door))
+    powers = label_powers(model, 1000)
+    assert len(powers) - 1 == expected
+    for tau in (0, 1, expected):
+        np.testing.assert_allclose(powers[tau], np.linalg.matrix_power(model.change, tau), atol=1e-14)
+    assert len(label_powers(model, 5)) == min(expected, 5) + 1  # the horizon given caps it
+    assert len(label_powers(om.door_world(p_door=0.0)[0], 100)) == 1  # static: no time dependence
+    assert len(label_powers(om.door_world(p_door=1.0)[0], 30)) == 31  # periodic: never mixes
