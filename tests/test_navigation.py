@@ -17,7 +17,9 @@ from onlinemap.model import CLOSED_DOOR, DOOR_LABELS, FREE, OPEN_DOOR, WALL, doo
 from policies import (COLUMNS, NAVIGATION_COLUMNS, explore, make_planner, navigate, oracle_steps, planner_options,
                       true_distances, with_floor_plan)
 from estimator_cases import assert_state_unchanged, snapshot
+from onlinemap.worlds import parse_world
 from policies.explore import _seeds
+from policies.navigate import PairedWorld
 from policies.navigation import GoTo, StaticGoTo, goal_cell, label_powers, plan_to_goal
 
 
@@ -459,3 +461,49 @@ def test_the_horizon_ends_where_the_doors_have_mixed(p_door):
     assert len(label_powers(model, 5)) == min(expected, 5) + 1  # the horizon given caps it
     assert len(label_powers(om.door_world(p_door=0.0)[0], 100)) == 1  # static: no time dependence
     assert len(label_powers(om.door_world(p_door=1.0)[0], 30)) == 31  # periodic: never mixes
+
+
+def test_track_with_a_goal_planner_drives_a_simulated_robot_to_the_goal():
+    """``onlinemap track --planner goto --goal ROW,COL`` in a subprocess: every output line
+    carries an action; a simulated robot that takes those actions reaches the goal."""
+    import json
+    import subprocess
+    import sys
+
+    spec = "grid:3x4,blocking=1,footprint=cross"
+    model = parse_world(spec).model
+    true_map = np.array([0, 0, 0, 0, 0, 1, 1, 0, 0, 0, 0, 0])  # a wall in the middle: go round it
+    world = PairedWorld(model, true_map, np.random.default_rng(5))
+    proc = subprocess.Popen([sys.executable, "-m", "onlinemap", "track", "--world", spec, "--estimator", "exact",
+                             "--planner", "goto", "--goal", "2,3"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    observation, location, _ = world.reset()
+    record = {"observation": observation.tolist()}
+    for t in range(60):
+        proc.stdin.write(json.dumps(record) + "\n")
+        proc.stdin.flush()
+        line = json.loads(proc.stdout.readline())
+        assert line["t"] == t and line["action"] in model.action_names
+        if location == 11:
+            break
+        observation, location, _ = world.advance(model.action_names.index(line["action"]))
+        record = {"action": line["action"], "observation": observation.tolist()}
+    proc.stdin.close()
+    assert proc.wait(timeout=60) == 0, proc.stderr.read()
+    assert location == 11, t
+    assert '"planner": "GoTo(goal=11' in proc.stderr.read()
+
+
+def test_track_refuses_a_bad_goal_or_a_goal_without_planner(monkeypatch, capsys):
+    import io
+    import sys
+
+    from onlinemap.cli import main
+
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))
+    spec = ["track", "--world", "grid:3x4,blocking=1", "--estimator", "exact"]
+    assert main(spec + ["--goal", "3"]) == 2 and "--goal needs --planner" in capsys.readouterr().err
+    assert main(spec + ["--planner", "goto", "--goal", "9,9"]) == 2
+    assert "goal (9, 9) (row, col) is off the 3 x 4 grid" in capsys.readouterr().err
+    assert main(spec + ["--planner", "goto", "--goal", "x"]) == 2 and "--goal must be" in capsys.readouterr().err
+    assert main(spec + ["--planner", "goto"]) == 2 and "needs a goal" in capsys.readouterr().err
