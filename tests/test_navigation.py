@@ -1,23 +1,24 @@
-"""policies.navigation: the goal planners against references written here (Dijkstra with heapq,
-a brute-force minimum over every policy with itertools.product, passabilities from matrix
-powers), hand-checkable detours and waits, bad goals, and the navigation loop."""
+"""policies.navigation and policies.navigate: the goal planners against references written here
+(Dijkstra with heapq; the minimum over every policy, enumerated with itertools.product, of the
+Markov chain the planner's rules define, arrival marginals from matrix powers), hand-checkable
+detours, waits and votes, bad goals, the navigation loop and its paired world, and
+``onlinemap track --planner goto`` end to end in a subprocess."""
 
 import heapq
 import itertools
 import math
 
 import numpy as np
-import pandas as pd
 import pytest
 
 import onlinemap as om
 from onlinemap.belief import Belief
 from onlinemap.errors import ModelError
 from onlinemap.model import CLOSED_DOOR, DOOR_LABELS, FREE, OPEN_DOOR, WALL, door_change
-from policies import (COLUMNS, NAVIGATION_COLUMNS, explore, make_planner, navigate, oracle_steps, planner_options,
-                      true_distances, with_floor_plan)
-from estimator_cases import assert_state_unchanged, snapshot
 from onlinemap.worlds import parse_world
+from policies import (NAVIGATION_COLUMNS, make_planner, navigate, oracle_steps, planner_options, true_distances,
+                      with_floor_plan)
+from estimator_cases import assert_state_unchanged, snapshot
 from policies.explore import _seeds
 from policies.navigate import PairedWorld
 from policies.navigation import GoTo, StaticGoTo, goal_cell, label_powers, plan_to_goal
