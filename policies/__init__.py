@@ -1,5 +1,5 @@
 """Active exploration for onlinemap: entropy rewards, policy iteration, exploration loops
-(DESIGN.md section 4).
+(DESIGN.md section 4); navigation to a goal through a changing building (section 8).
 
 >>> import onlinemap as om, policies
 >>> model, true_map = policies.exploration_world(p_door=0.01)
@@ -11,6 +11,8 @@ from .info_gain import (InfoGainExplorer, MacroScore, expected_information_gain,
 from onlinemap.model import door_cells
 
 from .explore import COLUMNS, Exploration, explore, exploration, explore_env
+from .navigate import NAVIGATION_COLUMNS, Navigation, navigate, oracle_steps, true_distances
+from .navigation import GoalPlan, GoTo, StaticGoTo, check_goal, goal_cell, plan_to_goal
 from .mdp import (PolicyIterationResult, action_values, evaluate_policy, policy_iteration,
                   policy_motion)
 from .planners import (PLANNERS, EntropyExplorer, Planner, PlannerEntry, RandomWalk, Sweep, make_planner,
@@ -28,6 +30,8 @@ __all__ = [
     "information_reward", "uncertainty",
     "explore", "exploration", "Exploration", "explore_env", "door_cells", "COLUMNS", "exploration_world", "floor_plan_prior",
     "with_floor_plan", "plot_errors", "plot_visits",
+    "GoTo", "StaticGoTo", "GoalPlan", "plan_to_goal", "goal_cell", "check_goal",
+    "navigate", "Navigation", "NAVIGATION_COLUMNS", "oracle_steps", "true_distances",
 ]
 
 #: names that moved to the studies layer: the error says where

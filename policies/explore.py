@@ -82,9 +82,11 @@ class Exploration(NamedTuple):
 
 def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[int], WorldState],
           planner: Planner, estimator: Estimator, steps: int, progress: bool | None,
-          score: bool = True) -> Exploration:
-    """Play ``steps`` steps; the frame is scored by :func:`onlinemap.evaluate.step_metrics` unless
-    ``score`` is False (the sweep engine scores the run and trajectory itself: frame None)."""
+          until: Callable[[int], bool] | None = None, score: bool = True) -> Exploration:
+    """At most ``steps`` steps; ``until(true location)``, if given, ends the run after the first
+    step at which it holds (that step recorded). The frame is scored by
+    :func:`onlinemap.evaluate.step_metrics` unless ``score`` is False (the sweep engine scores the
+    run and trajectory itself: frame None)."""
     steps = int(steps)
     if steps < 1:
         raise ModelError(f"steps must be at least 1 (the first observation), got {steps}")
@@ -110,7 +112,14 @@ def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[
         locations[t], true_maps[t], observations[t] = location, labels, observation
         location_belief[t], map_belief[t], evidence[t] = belief.location, belief.map, belief.log_evidence
         bar.update()
+        if until is not None and until(location):
+            break
     bar.close()
+    if t + 1 < steps:  # stopped early: keep the steps taken
+        steps = t + 1
+        actions, locations, observations = actions[:steps], locations[:steps], observations[:steps]
+        location_belief, map_belief, evidence = location_belief[:steps], map_belief[:steps], evidence[:steps]
+        true_maps = true_maps[:steps]
     seconds = (time.perf_counter() - started) / steps
     run = Run(model, actions[1:], locations, true_maps, observations)
     trajectory = Trajectory(location_belief, map_belief, evidence, seconds)

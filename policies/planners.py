@@ -7,7 +7,8 @@
 - :class:`Sweep` follows a fixed boustrophedon (lawn-mower) pattern and ignores beliefs.
 
 :data:`PLANNERS` is the registry (name -> class and fixed options; the exploration planner
-``info_gain`` lives in :mod:`policies.info_gain`); :func:`make_planner` builds one by name and
+``info_gain`` lives in :mod:`policies.info_gain`, the goal planners ``goto`` and
+``static_goto`` in :mod:`policies.navigation`); :func:`make_planner` builds one by name and
 :func:`planner_options` lists a name's options without building anything.
 """
 
@@ -26,6 +27,7 @@ from onlinemap.rng import SeedLike, as_generator
 
 from .info_gain import InfoGainExplorer
 from .mdp import PolicyIterationResult, policy_iteration
+from .navigation import GoTo, StaticGoTo
 from .rewards import RewardFunction, collected_entropy_reward, entropy_reward
 
 
@@ -148,6 +150,8 @@ PLANNERS: dict[str, PlannerEntry] = {
     "random": PlannerEntry(RandomWalk, {}),
     "sweep": PlannerEntry(Sweep, {}),
     "info_gain": PlannerEntry(InfoGainExplorer, {}),
+    "goto": PlannerEntry(GoTo, {}),
+    "static_goto": PlannerEntry(StaticGoTo, {}),
 }
 
 
@@ -178,7 +182,9 @@ def make_planner(name: str, model: GridModel, seed: SeedLike = None, **options) 
     """Planner by registered name (:data:`PLANNERS`): ``entropy`` (:class:`EntropyExplorer`;
     options gamma, replan_every, reward), ``entropy_collect`` (the same with
     :func:`~policies.rewards.collected_entropy_reward`), ``random`` (:class:`RandomWalk`),
-    ``sweep`` (:class:`Sweep`), ``info_gain`` (:class:`~policies.info_gain.InfoGainExplorer`).
+    ``sweep`` (:class:`Sweep`), ``info_gain`` (:class:`~policies.info_gain.InfoGainExplorer`),
+    ``goto`` and ``static_goto`` (:class:`~policies.navigation.GoTo`, :class:`~policies.navigation.StaticGoTo`;
+    options goal (required), horizon).
     ``seed`` goes to planners that draw random numbers. Unknown options raise ModelError."""
     entry = _entry(name)
     known = planner_options(name)
