@@ -82,9 +82,11 @@ Every planner runs with the same seeds (paired: same world noise stream, same es
 Map error and location error over time, mean over seeds with a band of one standard error."""),
     new_code_cell("""\
 planners = ["info_gain", "entropy", "random", "sweep"]
-table = policies.compare_planners("door,p_move=0.8", planners, "rbpf", STEPS, SEEDS,  # the same world, by spec
-                                  estimator_options={"n_particles": N_PARTICLES}, progress=False)
-policies.summarize(table, model, true_map).drop(columns="ms_per_step")  # timings change from run to run"""),
+from onlinemap.studies.exploration import compare_planners, summarize_planners
+
+table = compare_planners("door,p_move=0.8", planners, "rbpf", STEPS, SEEDS,  # the same world, by spec
+                         estimator_options={"n_particles": N_PARTICLES}, progress=False)
+summarize_planners(table, model, true_map).drop(columns="ms_per_step")  # timings change from run to run"""),
     new_code_cell("""\
 fig, axes = plt.subplots(1, 2, figsize=(12, 4), layout="constrained")
 policies.plot_errors(table, axes=axes, columns=("map_error", "location_error"));"""),
@@ -99,12 +101,13 @@ policies.plot_visits(model, true_map, table, axes=axes);"""),
     new_markdown_cell("""\
 ## What the data could teach
 
-The same planners and seeds through `policies.studies.paper_world_study` (it seeds the
-estimator its own way, so the runs differ from those above), which also scores, for each run, the map a robot *told its location* at every step would build from the same observations
-(`told_location_map`): what the planner's data could teach at best. Wrong cells: the most
-probable label is not the true one."""),
+The same planners and seeds through `onlinemap.studies.exploration.paper_world_study` (the same
+sweep tasks, so the same runs as above, scored per run), which also scores, for each run, the map
+a robot *told its location* at every step would build from the same observations
+(`onlinemap.evaluate.told_location_map`): what the planner's data could teach at best. Wrong
+cells: the most probable label is not the true one."""),
     new_code_cell("""\
-from policies.studies import paper_world_study
+from onlinemap.studies.exploration import paper_world_study
 
 study = paper_world_study(planners, seeds=SEEDS, steps=STEPS, n_particles=N_PARTICLES, progress=False)
 study.summary[["planner", "final_map_error", "wrong_cells", "mean_location_error",
@@ -114,7 +117,7 @@ study.summary[["planner", "final_map_error", "wrong_cells", "mean_location_error
 
 Final map error per seed; one-sided paired t-test that `info_gain` ends lower than `entropy`.
 (The full-size study, 20 seeds of 1000 steps with 1000 particles, is
-`policies.studies.paper_world_study()`; its numbers are in the README.)"""),
+`onlinemap.studies.exploration.paper_world_study()`; its numbers are in the README.)"""),
     new_code_cell("""\
 final = table.groupby(["planner", "seed"])["map_error"].last().unstack(0)
 diff = final["info_gain"] - final["entropy"]

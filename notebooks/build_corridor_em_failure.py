@@ -30,7 +30,8 @@ from IPython.display import display
 from matplotlib.figure import Figure
 
 import onlinemap as om
-from onlinemap import plots, reproduce
+from onlinemap import plots
+from onlinemap.studies import corridor as reproduce
 from onlinemap.estimators.offline_em import baum_welch
 
 N_RUNS = int(os.environ.get("ONLINEMAP_NOTEBOOK_RUNS", "200"))  # random corridors in the last part"""),

@@ -33,7 +33,7 @@ import numpy as np
 import pandas as pd
 
 import onlinemap as om
-from onlinemap import mapping_studies as ms
+from onlinemap.studies import mapping as ms
 
 pd.set_option("display.width", 160)
 

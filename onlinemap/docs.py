@@ -34,15 +34,17 @@ def _resolve_named_tuples(module_names) -> None:
 
 
 def documented_modules() -> list[str]:
-    """Every module of :data:`MODULES`, subpackages included, but ``__main__`` (imported)."""
+    """Every module of :data:`MODULES`, subpackages included, but ``__main__`` and the modules
+    that only say where they moved (a package's ``MOVED``) (imported)."""
     import importlib
     import pkgutil
     names = []
     for top in MODULES:
         package = importlib.import_module(top)
+        moved = {f"{top}.{name}" for name in getattr(package, "MOVED", {})}
         names.append(top)
         names += [info.name for info in pkgutil.walk_packages(package.__path__, f"{top}.")
-                  if not info.name.endswith("__main__")]
+                  if not info.name.endswith("__main__") and info.name not in moved]
     for name in names:
         importlib.import_module(name)
     return names

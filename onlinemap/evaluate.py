@@ -18,33 +18,58 @@ its numbers here, with the same names and thresholds:
   error over the last two thirds of the run, after the first visits) and, when the run turns
   back (:func:`way_back`), ``min_p_true_way_back`` and ``astray_way_back`` (it fell below
   :data:`ASTRAY_BELOW`: confidently in the wrong place, the online-EM failure; an uncertain
-  Bayesian robot is often below 0.5 on the way back without being astray).
+  Bayesian robot is often below 0.5 on the way back without being astray); the three readings
+  of wrong cells at the end (:func:`cell_counts`: ``wrong_cells``, ``unsure_or_wrong``,
+  ``confidently_wrong``); the map error and wrong cells over the cells the sensor read
+  (``read_map_error``, ``read_wrong_cells``: :func:`read_cells`); and the yardstick of a robot
+  told its location (:func:`told_location_map`: ``told_location_map_error`` and its three
+  counts; NaN with blocking labels, where the trajectory itself depends on the map).
+- coverage (how fast an explorer maps): ``known_cells`` per step (cells whose true label has
+  probability >= :data:`KNOWN_ABOVE`), ``observable_map_error`` per step (the map error over the
+  cells a robot could ever read: :func:`observable_cells`; with blocking walls some walls are
+  read from no reachable cell); per run ``map_error_area`` (the area under the map-error curve:
+  the sum over steps), ``steps_to_map_error_20`` / ``_10`` / ``_05`` (the first step at which the
+  map error is at most 0.20 / 0.10 / 0.05, NaN if never: :func:`coverage`), ``final_known_cells``
+  and ``final_observable_map_error``.
 
 Cost: O(T N K) for T steps, N cells, K labels (one pass over the stacked beliefs).
 """
 
 from __future__ import annotations
 
+import logging
 import math
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
 from . import metrics
-from .estimators import make_estimator, run_estimator
+from .errors import MemoryLimitError, ModelError
+from .estimators import estimator_options, make_estimator, run_estimator
 from .estimators.base import Trajectory
-from .model import door_cells
+from .model import GridModel, door_cells
+from .progress import show_progress, tqdm
+from .rng import ESTIMATOR_STREAM, derived_seed
 from .simulate import Run
+
+log = logging.getLogger(__name__)
 
 LOST_BELOW = 0.5  # a robot whose P(true location) is below this is "lost"
 ASTRAY_BELOW = 0.05  # ... and below this, confidently in the wrong place ("astray")
 LATE_FROM = 1 / 3  # late_door_error: steps t >= LATE_FROM * (T - 1)
+CONFIDENT = 0.55  # the probability a most probable label needs to count as known (cell_counts)
+KNOWN_ABOVE = 0.9  # known_cells: cells whose true label has at least this probability
+COVERAGE_THRESHOLDS = {"steps_to_map_error_20": 0.20, "steps_to_map_error_10": 0.10, "steps_to_map_error_05": 0.05}
 
 STEP_METRICS = ("map_error", "location_error", "log_evidence", "location_entropy", "map_entropy",
-                "wrong_cells", "door_error", "location_tv", "map_tv")
+                "wrong_cells", "known_cells", "observable_map_error", "door_error", "location_tv", "map_tv")
 RUN_METRICS = ("final_map_error", "mean_map_error", "final_location_error", "mean_location_error",
-               "max_location_error", "wrong_cells", "wrong_visited", "ends_lost", "failed", "min_p_true_way_back",
-               "astray_way_back", "final_log_evidence", "final_location_tv", "mean_location_tv", "final_map_tv",
+               "max_location_error", "wrong_cells", "unsure_or_wrong", "confidently_wrong", "wrong_visited",
+               "read_map_error", "read_wrong_cells", "ends_lost", "failed", "min_p_true_way_back",
+               "astray_way_back", "told_location_map_error", "told_location_wrong", "told_location_unsure_or_wrong",
+               "told_location_confidently_wrong", "final_known_cells", "final_observable_map_error",
+               "map_error_area", *COVERAGE_THRESHOLDS, "final_log_evidence", "final_location_tv", "mean_location_tv", "final_map_tv",
                "mean_map_tv", "final_map_entropy", "final_location_entropy", "final_door_error",
                "mean_door_error", "late_door_error", "ms_per_step")
 UNIT_METRICS = ("error", "_tv", "entropy", "p_true")  # names containing these lie in [0, 1]
@@ -79,6 +104,7 @@ def from_steps(steps: pd.DataFrame, by: list[str]) -> pd.DataFrame:
         if "wrong_cells" in run:
             row["wrong_cells"] = int(run["wrong_cells"].iloc[-1])
         row["mean_location_error"] = float(run["location_error"].mean())
+        row.update(coverage(run["map_error"]))
         if "door_error" in run and run["door_error"].notna().any():
             row["late_door_error"] = late_mean(run["t"].reset_index(drop=True),
                                                run["door_error"].reset_index(drop=True))
@@ -86,6 +112,94 @@ def from_steps(steps: pd.DataFrame, by: list[str]) -> pd.DataFrame:
             row["ms_per_step"] = float(run["ms_per_step"].iloc[0])
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+class CellCounts(NamedTuple):
+    """Three readings of "wrong cells" of a map belief (N, K) against the true labels (N,)."""
+
+    wrong: int  # the most probable label is not the true one (ties: the lowest label wins)
+    unsure_or_wrong: int  # not (the true label is the most probable, with probability >= confident)
+    confidently_wrong: int  # the most probable label is wrong and has probability >= confident
+
+
+def cell_counts(map_belief: np.ndarray, true_map: np.ndarray, confident: float = CONFIDENT) -> CellCounts:
+    """The peer's rule ("count a cell wrong when its most probable label, with probability >=
+    0.55, is wrong") read both ways: ``confidently_wrong`` leaves an unsure cell out, so a robot
+    that learns nothing scores 0; ``unsure_or_wrong`` counts it, so a cell never seen counts
+    as wrong. O(N K)."""
+    true_map = np.asarray(true_map)
+    guess = np.argmax(map_belief, axis=1)
+    sure = map_belief[np.arange(len(true_map)), guess] >= confident
+    wrong = guess != true_map
+    return CellCounts(int(wrong.sum()), int(np.sum(wrong | ~sure)), int(np.sum(wrong & sure)))
+
+
+def read_cells(run: Run) -> np.ndarray:
+    """The cells the sensor read at least once during the run (sorted; with the paper's sensor,
+    the visited cells). O(T F)."""
+    cells = run.model.footprint_cells[run.locations]
+    return np.unique(cells[cells >= 0])
+
+
+def told_location_map(model: GridModel, run: Run) -> np.ndarray:
+    """(N, K) the map belief of a robot told its true location at every step of ``run``, from the
+    same observations: given the trajectory the cells are independent hidden Markov chains
+    (motion ignores the map), each filtered exactly (predict by C, weigh the cells read by the
+    sensor). What the data of a run could teach at best, the yardstick of the peer's "a robot
+    told its location would get about 8 wrong". O(T N K^2) in a dynamic world, O(T F K) in a
+    static one. Raises ModelError with blocking labels (the trajectory then depends on the map)."""
+    if model.has_blocking:
+        raise ModelError("told_location_map needs motion that ignores the map (no blocking labels): with "
+                         "blocking labels the trajectory itself depends on the map")
+    cells = model.footprint_cells[run.locations]  # (T, F)
+    readings = np.asarray(run.observations).reshape(cells.shape)
+    read = (cells >= 0) & (readings >= 0)
+    belief = np.array(np.broadcast_to(model.label_prior, (model.n_cells, model.n_labels)))
+    if model.is_static:  # every reading of a cell multiplies its belief by a column of O, in any order
+        with np.errstate(divide="ignore"):
+            log_belief = np.log(belief)
+            np.add.at(log_belief, cells[read], np.log(model.sensor[:, readings[read]].T))
+        log_belief -= log_belief.max(axis=1, keepdims=True)
+        belief = np.exp(log_belief)
+        return belief / belief.sum(axis=1, keepdims=True)
+    for t in range(run.n_steps):
+        if t > 0:
+            belief = belief @ model.change
+        for cell, z in zip(cells[t][read[t]], readings[t][read[t]]):
+            belief[cell] *= model.sensor[:, z]
+            belief[cell] /= belief[cell].sum()
+    return belief
+
+
+def observable_cells(model: GridModel, true_map: np.ndarray) -> np.ndarray:
+    """The cells a robot could ever read (sorted): those its footprint covers from some cell
+    reachable from the start through cells ``true_map`` does not block (every cell without
+    blocking labels). A wall read from no reachable cell stays at its prior whatever the
+    explorer does. O(N A + N F)."""
+    passable = ~model.blocking[np.asarray(true_map)]
+    reached = np.zeros(model.n_cells, dtype=bool)
+    reached[model.start] = True
+    frontier = [model.start]
+    while frontier:
+        cell = frontier.pop()
+        for target in model.neighbors[cell]:
+            if passable[target] and not reached[target]:
+                reached[target] = True
+                frontier.append(int(target))
+    cells = model.footprint_cells[reached]
+    return np.unique(cells[cells >= 0])
+
+
+def coverage(map_error: np.ndarray) -> dict[str, float]:
+    """Per run from its (T,) map errors: ``map_error_area`` (their sum: the area under the
+    map-error curve, in steps) and ``steps_to_map_error_XX`` (the first step t at which the map
+    error is at most each of :data:`COVERAGE_THRESHOLDS`, NaN if never). O(T)."""
+    map_error = np.asarray(map_error, dtype=np.float64)
+    row = {"map_error_area": float(map_error.sum())}
+    for name, threshold in COVERAGE_THRESHOLDS.items():
+        below = np.flatnonzero(map_error <= threshold)
+        row[name] = float(below[0]) if len(below) else math.nan
+    return row
 
 
 def way_back(run: Run) -> np.ndarray:
@@ -102,14 +216,18 @@ def step_metrics(run: Run, trajectory: Trajectory, reference: Trajectory | None 
     """One row per step of ``run``: ``t`` and the per-step metrics (module docstring) of
     ``trajectory`` (location (T, N), map (T, N, K)); ``door_error`` if the true initial map has
     doors, ``location_tv`` / ``map_tv`` if a ``reference`` trajectory is given."""
+    p_true = np.take_along_axis(trajectory.map, run.maps[..., None], axis=-1)[..., 0]  # (T, N)
+    seen = observable_cells(run.model, run.initial_map)
     columns = {
         "t": np.arange(run.n_steps),
-        "map_error": metrics.map_error(trajectory.map, run.maps),
+        "map_error": 1.0 - p_true.mean(axis=-1),
         "location_error": metrics.location_error(trajectory.location, run.locations),
         "log_evidence": np.asarray(trajectory.log_evidence, dtype=np.float64),
         "location_entropy": metrics.normalized_entropy(trajectory.location),
         "map_entropy": metrics.map_entropy(trajectory.map),
         "wrong_cells": (np.argmax(trajectory.map, axis=-1) != run.maps).sum(axis=-1),
+        "known_cells": (p_true >= KNOWN_ABOVE).sum(axis=-1),
+        "observable_map_error": 1.0 - p_true[:, seen].mean(axis=-1),
         "true_location": run.locations,
     }
     doors = door_cells(run.model, run.initial_map)
@@ -128,18 +246,31 @@ def run_metrics(run: Run, trajectory: Trajectory, reference: Trajectory | None =
     ``trip``). ``steps``: its :func:`step_metrics`, if already computed."""
     steps = step_metrics(run, trajectory, reference) if steps is None else steps
     final, location_error = steps.iloc[-1], steps["location_error"].to_numpy()
-    wrong = metrics.wrong_cells(trajectory.map[-1], run.final_map, np.unique(run.locations))
+    final_map = trajectory.map[-1]
+    wrong = metrics.wrong_cells(final_map, run.final_map, np.unique(run.locations))
+    counts = cell_counts(final_map, run.final_map)
+    seen = read_cells(run)
     row: dict[str, float | int | bool] = {
         "final_map_error": float(final["map_error"]), "mean_map_error": float(steps["map_error"].mean()),
         "final_location_error": float(location_error[-1]), "mean_location_error": float(location_error.mean()),
         "max_location_error": float(location_error.max()), "wrong_cells": int(final["wrong_cells"]),
-        "wrong_visited": wrong}
+        "unsure_or_wrong": counts.unsure_or_wrong, "confidently_wrong": counts.confidently_wrong,
+        "wrong_visited": wrong, "read_map_error": float(metrics.map_error(final_map[seen], run.final_map[seen])),
+        "read_wrong_cells": metrics.wrong_cells(final_map[seen], run.final_map[seen])}
     row["ends_lost"] = bool(1.0 - location_error[-1] < LOST_BELOW)
     row["failed"] = row["ends_lost"] or wrong > 0
     back = way_back(run) if trip else np.zeros(run.n_steps, dtype=bool)
     if back.any():
         lowest = float(1.0 - location_error[back].max())
         row.update(min_p_true_way_back=lowest, astray_way_back=bool(lowest < ASTRAY_BELOW))
+    if not run.model.has_blocking:
+        told = told_location_map(run.model, run)
+        told_counts = cell_counts(told, run.final_map)
+        row.update(told_location_map_error=float(metrics.map_error(told, run.final_map)),
+                   told_location_wrong=told_counts.wrong, told_location_unsure_or_wrong=told_counts.unsure_or_wrong,
+                   told_location_confidently_wrong=told_counts.confidently_wrong)
+    row.update(final_known_cells=int(final["known_cells"]),
+               final_observable_map_error=float(final["observable_map_error"]), **coverage(steps["map_error"]))
     row["final_log_evidence"] = float(final["log_evidence"])
     if "location_tv" in steps:
         row.update(final_location_tv=float(final["location_tv"]), mean_location_tv=float(steps["location_tv"].mean()),
@@ -168,3 +299,41 @@ def timed_trajectory(name: str, model, options: dict, run: Run) -> Trajectory:
         run_estimator(make_estimator(name, model, **options), run.actions[:steps - 1], run.observations[:steps])
         _WARMED.add(warm)
     return run_estimator(make_estimator(name, model, **options), run.actions, run.observations)
+
+
+def compare_on_run(run: Run, names: list[str], options: dict[str, dict] | None = None,
+                   progress: bool = True, seed: int | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Run each estimator over ``run`` (``onlinemap run``); returns (summary: one row per
+    estimator with ``final_map_error``, ``mean_location_error``, ``final_location_error``;
+    per-step table: ``estimator``, ``t``, ``map_error``, ``location_error``, ``log_evidence``), the
+    metrics of :func:`step_metrics` and :func:`run_metrics`. Both depend only on the run and the
+    seeds; the time per step (after a warm-up, :func:`timed_trajectory`), which does not, is
+    ``summary.attrs["ms_per_step"]``.
+
+    An estimator with a ``seed`` option that ``options`` leaves unset gets
+    ``derived_seed(seed, ESTIMATOR_STREAM)`` when ``seed`` is given (as in a sweep task with that
+    seed), so the tables are reproducible. Estimators that would exceed their memory limit are
+    skipped (logged as a warning). Cost: T steps of each estimator (plus its warm-up once per
+    process); memory O(T N K) per estimator.
+    """
+    options = options or {}
+    rows, steps, times = [], [], {}
+    for name in tqdm(names, desc="estimators", disable=not show_progress(progress), leave=False):
+        chosen = dict(options.get(name, {}))
+        if seed is not None and "seed" in estimator_options(name) and chosen.get("seed") is None:
+            chosen["seed"] = derived_seed(seed, ESTIMATOR_STREAM)
+        try:
+            trajectory = timed_trajectory(name, run.model, chosen, run)
+        except MemoryLimitError as error:
+            log.warning("%s: skipped: %s", name, error)
+            continue
+        scores = step_metrics(run, trajectory)
+        row = run_metrics(run, trajectory, steps=scores)
+        rows.append({"estimator": name, **{m: row[m] for m in ("final_map_error", "mean_location_error",
+                                                                 "final_location_error")}})
+        times[name] = 1e3 * trajectory.seconds_per_step
+        steps.append(scores[["t", "map_error", "location_error", "log_evidence"]].assign(estimator=name)[
+            ["estimator", "t", "map_error", "location_error", "log_evidence"]])
+    summary = pd.DataFrame(rows)
+    summary.attrs["ms_per_step"] = times
+    return summary, pd.concat(steps, ignore_index=True) if steps else pd.DataFrame()

@@ -65,7 +65,7 @@ def forward_backward(model: GridModel, prior: np.ndarray, actions: np.ndarray, o
         enter = model.p_move * np.asarray(passable, dtype=np.float64)
         movers = model.neighbors != np.arange(n)[:, None]  # (N, A)
         self_prob = np.ascontiguousarray(np.where(movers, 1.0 - enter[model.neighbors], 1.0).T)
-    if model.has_footprint:  # the kernel reads emission[j, observations[t]]: give it (N, W) and 0..W-1
+    if not model.reads_own_cell:  # the kernel reads emission[j, observations[t]]: give it (N, W) and 0..W-1
         kernel_emission = np.ascontiguousarray(footprint_emission(model, emission, observations).T)
         kernel_observations = np.arange(w, dtype=np.int64)
     else:
@@ -80,7 +80,7 @@ def forward_backward(model: GridModel, prior: np.ndarray, actions: np.ndarray, o
                                 np.ascontiguousarray(prior, dtype=np.float64), actions, kernel_observations,
                                 kernel_emission, filtered, posterior, normalizers, log_scales)
     if bad >= 0:
-        label = observations[bad].tolist() if model.has_footprint else model.label_names[observations[bad]]
+        label = model.label_names[observations[bad]] if model.reads_own_cell else observations[bad].tolist()
         raise ImpossibleObservationError(
             f"observation {label!r} at step {first_step + bad} has probability zero under the observation "
             f"matrix B in use (B starts as label_prior @ O; a learned B has no zeros when pseudo_count > 0)")
@@ -115,7 +115,7 @@ def expected_cell_counts(model: GridModel, posterior: np.ndarray, observations: 
     """The M-step's statistics per cell, ``E[c, k] = sum_t sum_{l, f: c_f(l) = c} P(L_t = l | z)
     [z_tf = k]`` (N, K): :func:`expected_counts` for the paper's sensor, a count over every
     footprint reading otherwise. posterior (W, N), observations (W,) or (W, F). O(W N F)."""
-    if not model.has_footprint:
+    if model.reads_own_cell:
         return expected_counts(posterior, observations, model.n_labels)
     n, k = model.n_cells, model.n_labels
     readings = np.asarray(observations, dtype=np.int64).reshape(len(observations), -1)

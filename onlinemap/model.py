@@ -296,9 +296,11 @@ class GridModel:
         return bool(self.blocking.any())
 
     @property
-    def has_footprint(self) -> bool:
-        """True when the sensor is not the paper's (one reading of the robot's own cell)."""
-        return self.footprint != FOOTPRINTS["cell"]
+    def reads_own_cell(self) -> bool:
+        """True for the paper's sensor: one reading, of the robot's own cell (an observation is
+        then one label, never -1). The one answer to "what does the sensor read?": anything else
+        reads a footprint (``footprint_cells``), with -1 where an offset leaves the grid."""
+        return self.footprint == FOOTPRINTS["cell"]
 
     @cached_property
     def off_grid_patterns(self) -> np.ndarray:
@@ -507,6 +509,22 @@ def parse_layout(layout: str) -> np.ndarray:
     return np.array([[DOOR_CHARS[ch] for ch in line] for line in lines], dtype=np.int64)
 
 
+def layout_grid(layout) -> np.ndarray:
+    """A door-world layout -> (rows, cols) int64 labels: a text layout (:func:`parse_layout`) or a
+    2D integer array of door labels in 0..3 (:data:`DOOR_LABELS`), copied."""
+    if isinstance(layout, str):
+        return parse_layout(layout)
+    if isinstance(layout, np.ndarray) and layout.ndim == 2 and layout.size and layout.dtype.kind in "iu":
+        if layout.min() < 0 or layout.max() >= len(DOOR_LABELS):
+            raise ModelError(f"layout labels must lie in 0..{len(DOOR_LABELS) - 1} {DOOR_LABELS}, "
+                             f"got {layout.min()}..{layout.max()}")
+        return layout.astype(np.int64)
+    described = f"{layout.dtype} array of shape {layout.shape}" if isinstance(layout, np.ndarray) \
+        else type(layout).__name__
+    raise ModelError(f"the layout must be a str of . # o c rows or a non-empty 2D int array of door labels "
+                     f"0..3, got {described}")
+
+
 def door_change(p_door: float) -> np.ndarray:
     """(4, 4) door-world dynamics: doors swap open/closed with ``p_door``; free and wall never change."""
     p_door = _probability("p_door", p_door)
@@ -522,17 +540,27 @@ def _flag(name: str, value) -> bool:
     return bool(value)
 
 
-def door_world(layout: str | None = None, p_obs: float = 0.9, p_move: float = 0.8,
+def passable_start(labels: np.ndarray, start) -> int:
+    """``start`` checked against a door-world layout (rows, cols): a cell index, free or an open door."""
+    start = arguments.integer("start", start, minimum=0, maximum=labels.size - 1)
+    if labels.flat[start] not in (FREE, OPEN_DOOR):
+        raise ModelError(f"start must be a free cell or an open door, cell {start} is "
+                         f"{DOOR_LABELS[labels.flat[start]]}")
+    return start
+
+
+def door_world(layout: str | np.ndarray | None = None, p_obs: float = 0.9, p_move: float = 0.8,
                p_door: float = 0.0, start: int | None = None,
                label_prior=None, *, blocking: bool = False,
                footprint=None) -> tuple[GridModel, np.ndarray]:
-    """A 2D door world read from a text layout (default :data:`DOOR_WORLD_10X10`).
+    """A 2D door world from a layout: a text layout (default :data:`DOOR_WORLD_10X10`) or a
+    (rows, cols) int array of door labels (:func:`layout_grid`).
 
     Returns ``(model, true_map)``, the map (N,) read from the layout. ``start`` defaults to the
     first free cell in row-major order. ``blocking=True``: walls and closed doors block motion;
     ``footprint`` as in :func:`grid_model`.
     """
-    grid = parse_layout(DOOR_WORLD_10X10 if layout is None else layout)
+    grid = layout_grid(DOOR_WORLD_10X10 if layout is None else layout)
     true_map = grid.ravel()
     if start is None:
         free = np.flatnonzero(true_map == FREE)
@@ -547,8 +575,8 @@ def door_world(layout: str | None = None, p_obs: float = 0.9, p_move: float = 0.
 
 
 __all__ = [
-    "GridModel", "grid_model", "corridor", "door_world", "parse_layout", "door_change",
+    "GridModel", "grid_model", "corridor", "door_world", "parse_layout", "layout_grid", "door_change",
     "symmetric_channel", "apply_motion", "apply_motion_transpose", "grid_neighbors",
     "DOOR_WORLD_10X10", "DOOR_LABELS", "CORRIDOR_ACTIONS", "GRID_ACTIONS", "door_cells",
-    "FOOTPRINTS", "footprint_table", "blocking_mask", "passable_probability",
+    "passable_start", "FOOTPRINTS", "footprint_table", "blocking_mask", "passable_probability",
 ]

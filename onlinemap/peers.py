@@ -1,18 +1,22 @@
 """Peer-library formulations of onlinemap's model, for independent checks and benchmarks
-(DESIGN.md section 6). pgmpy and hmmlearn are optional (``pip install onlinemap[peers]``):
-they are imported only when a function here is called.
+(DESIGN.md section 6). pgmpy, hmmlearn and filterpy are optional (``pip install
+onlinemap[peers]``): they are imported only when a function here is called.
 
 - :func:`unrolled_network`: the model as a pgmpy ``DiscreteBayesianNetwork`` unrolled over a
   run (variables ``L_t``, ``M{i}_t``, ``Z_t``); :func:`pgmpy_filter` queries it with
   ``VariableElimination`` for the filtering marginals at every step.
 - :func:`hmmlearn_categorical_hmm`: an hmmlearn ``CategoricalHMM`` that re-estimates only the
   emission matrix (``params="e", init_params=""``), for Baum-Welch on single-action runs.
+- :func:`filterpy_resamplers`: filterpy's four resamplers (``filterpy.monte_carlo``) under the
+  names of :data:`onlinemap.resampling.RESAMPLERS`; they draw from numpy's global random state,
+  which :func:`global_numpy_seed` seeds for one block and restores after.
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -23,7 +27,7 @@ PEERS_HINT = "install the peer libraries with: pip install 'onlinemap[peers]'"
 
 
 class PeerMissingError(OnlineMapError, ImportError):
-    """A peer library (pgmpy, hmmlearn) is needed but not installed."""
+    """A peer library (pgmpy, hmmlearn, filterpy) is needed but not installed."""
 
 
 def require(module: str):
@@ -137,3 +141,25 @@ def hmmlearn_categorical_hmm(start: np.ndarray, transition: np.ndarray, emission
     peer.transmat_ = np.asarray(transition, dtype=np.float64)
     peer.emissionprob_ = np.asarray(emission, dtype=np.float64)
     return peer
+
+
+def filterpy_resamplers() -> dict[str, Callable[[np.ndarray], np.ndarray]]:
+    """filterpy 2.0.0's resamplers, ``weights (P,) -> indices (P,)``, by the names of
+    :data:`onlinemap.resampling.RESAMPLERS`. They take no generator: they draw from numpy's
+    global random state (call them inside :func:`global_numpy_seed`), and ``residual_resample``
+    is biased (it takes the residuals as ``w - floor(P w)`` instead of ``P w - floor(P w)``)."""
+    monte_carlo = require("filterpy.monte_carlo")
+    return {"residual": monte_carlo.residual_resample, "systematic": monte_carlo.systematic_resample,
+            "stratified": monte_carlo.stratified_resample, "multinomial": monte_carlo.multinomial_resample}
+
+
+@contextlib.contextmanager
+def global_numpy_seed(seed: int):
+    """Seed numpy's global random state (``np.random.seed``) for the block, and restore the state
+    it had after it: for peers that draw from it (filterpy), never for onlinemap's own code."""
+    saved = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        yield
+    finally:
+        np.random.set_state(saved)

@@ -132,6 +132,44 @@ def plot_belief(model: GridModel, belief: Belief, true_map: np.ndarray | None = 
     return fig
 
 
+DOOR_COLOURS = {"free": "white", "wall": "#404040", "open_door": "tab:green",
+                "closed_door": "tab:red"}  # plot_building's palette for door-world labels
+
+
+def label_colours(model: GridModel) -> np.ndarray:
+    """(K, 3) RGB per label: :data:`DOOR_COLOURS` for door-world labels, matplotlib's C0, C1, ... otherwise."""
+    door = set(model.label_names) == set(DOOR_COLOURS)
+    return np.array([matplotlib.colors.to_rgb(DOOR_COLOURS[name] if door else f"C{k}")
+                     for k, name in enumerate(model.label_names)])
+
+
+def plot_building(model: GridModel, labels: np.ndarray, *, title: str = "", start: bool = True) -> Figure:
+    """A map drawn on its grid (a generated building, a read layout, any 2D world): one colour per
+    label (:func:`label_colours`: free white, walls dark grey, open doors green, closed doors red)
+    with a legend of the labels present, and the start cell starred unless ``start=False``.
+    labels (N,) or (rows, cols) ints in 0..K-1. Cost O(N)."""
+    labels = np.asarray(labels)
+    if model.rows == 1 or labels.size != model.n_cells or labels.dtype.kind not in "iu" or \
+            labels.min() < 0 or labels.max() >= model.n_labels:
+        raise ValueError(f"plot_building draws a 2D map of {model.n_cells} labels in 0..{model.n_labels - 1}, "
+                         f"got {labels.dtype} {labels.shape} for {model}")
+    labels = labels.reshape(model.shape)
+    colours = label_colours(model)
+    height = 5.0
+    fig = Figure(figsize=(min(14.0, height * model.cols / model.rows + 2.2), height), layout="constrained")
+    ax = fig.subplots()
+    ax.imshow(colours[labels], interpolation="nearest")
+    for k in np.unique(labels):
+        ax.scatter([], [], marker="s", s=60, color=colours[k], edgecolor="black", linewidth=0.5,
+                   label=model.label_names[k])
+    if start:
+        row, col = divmod(model.start, model.cols)
+        ax.plot(col, row, marker="*", color="tab:blue", markersize=12, linestyle="none", label="start")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1), fontsize="small")
+    ax.set(title=title or f"{model.rows} x {model.cols} floor", xlabel="column", ylabel="row")
+    return fig
+
+
 def slug(text: str) -> str:
     """A file-name-safe version of an estimator label."""
     return re.sub(r"[^A-Za-z0-9.]+", "_", text).strip("_")

@@ -150,7 +150,7 @@ def world_step(model: GridModel, location: int, labels: np.ndarray, action: int 
         if not model.is_static:
             labels = _categorical(rng, model.change[labels])
     if model.n_readings == 1:
-        cell = location if model.footprint == ((0, 0),) else int(model.footprint_cells[location, 0])
+        cell = location if model.reads_own_cell else int(model.footprint_cells[location, 0])
         if cell < 0:
             return location, labels, -1
         return location, labels, int(_categorical(rng, model.sensor[labels[cell]][None])[0])

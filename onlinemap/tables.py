@@ -41,7 +41,7 @@ def git_commit() -> str | None:
 def provenance(source: str | None = None) -> dict:
     """What produced a table: onlinemap version, git commit (or None) and ``source`` (a spec's
     text or a command line; default: this process's command line)."""
-    from . import __version__
+    from ._version import __version__
 
     return {"onlinemap_version": __version__, "git_commit": git_commit(),
             "source": source if source is not None else " ".join(["onlinemap", *sys.argv[1:]])}

@@ -58,7 +58,7 @@ def observation_value(model: GridModel, observation):
     exists and -1 where it is off the grid. A wrong length, or -1 readings that match no location's
     off-grid offsets (a -1 where a cell exists, a label where none exists), raise
     :class:`InvalidObservationError`. Cost O(F U), U the number of distinct off-grid patterns."""
-    if model.n_readings == 1 and not model.off_grid_patterns.any():
+    if model.reads_own_cell:
         return observation_index(model, observation)
     single = model.n_readings == 1
     if single:
@@ -126,7 +126,7 @@ def check_sequence(model: GridModel, actions, observations) -> tuple[np.ndarray,
     """Validate a whole run: ``observations`` (T,), ``actions`` (T - 1,) or (T,) with a leading
     None / -1 placeholder. Returns int arrays ``(actions (T - 1,), observations (T,))``, the
     observations (T, F) when the footprint reads F > 1 cells."""
-    if model.n_readings > 1 or model.off_grid_patterns.any():
+    if not model.reads_own_cell:
         observations = _footprint_observations(model, observations)
     else:
         observations = _as_sequence(observations)
@@ -141,7 +141,7 @@ def check_sequence(model: GridModel, actions, observations) -> tuple[np.ndarray,
     a = _indices(actions, model.action_names)
     if a is None:
         a = np.array([action_index(model, x) for x in actions], dtype=np.int64)
-    z = observations if model.n_readings > 1 or model.off_grid_patterns.any() else \
+    z = observations if not model.reads_own_cell else \
         _indices(observations, model.label_names)
     if z is None:
         z = np.array([observation_index(model, x) for x in observations], dtype=np.int64)

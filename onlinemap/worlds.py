@@ -1,12 +1,21 @@
 """World specs for the command line: ``corridor:8``, ``corridor:10,p_change=0.01,n_labels=3``,
 ``grid:2x3``, ``door``, ``door,p_door=0.01``, ``door,blocking=1,footprint=cross``,
-``grid:3x3,blocking=1,footprint=square``.
+``grid:3x3,blocking=1,footprint=square``, ``building:32x32,seed=3``,
+``building:20x40,seed=1,p_door=0.01,extra_doors=0.5``, ``layout:floors/office.map``,
+``layout:maps/lab.yaml,cell_size=0.5``.
 
 ``footprint`` takes a preset (cell, cross, square); ``blocking`` is 0/1 (false/true) for door
-worlds (walls and closed doors block) and the blocking labels, joined by ``+``, for corridors and
-grids (``blocking=1``, ``blocking=1+2``).
+worlds and buildings (walls and closed doors block) and the blocking labels, joined by ``+``, for
+corridors and grids (``blocking=1``, ``blocking=1+2``). A building
+(:func:`onlinemap.buildings.building`; default 32x32, seed 0) blocks and reads a cross unless
+told otherwise (``blocking=0``, ``footprint=cell``) and takes ``seed``, ``corridor_width``,
+``rooms_deep``, ``extra_doors`` and ``closed_share``. A layout
+(:func:`onlinemap.layouts.read_layout`) reads the file named after ``layout:`` (a ``.map``,
+``.yaml`` or ``.pgm``; a relative path from the working directory; no commas in it), with the
+same defaults and ``cell_size``.
 
-``parse_world(spec) -> WorldSpec`` holds the model and, for door worlds, the layout's map.
+``parse_world(spec) -> WorldSpec`` holds the model and, for door worlds, buildings and layouts,
+the map.
 """
 
 from __future__ import annotations
@@ -16,21 +25,25 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from . import arguments
+from .buildings import building
 from .errors import ModelError
+from .layouts import read_layout
 from .model import GridModel, corridor, door_world, grid_model, symmetric_channel
 from .rng import SeedLike
 from .simulate import Run, random_walk, sample_map
 from .simulate import simulate as _simulate
 
-_FLOAT_KEYS = {"p_obs", "p_move", "p_change", "p_door"}
-_INT_KEYS = {"n_labels", "start"}
+_FLOAT_KEYS = {"p_obs", "p_move", "p_change", "p_door", "extra_doors", "closed_share"}
+_INT_KEYS = {"n_labels", "start", "seed", "corridor_width", "rooms_deep"}
+_REAL_KEYS = {"cell_size"}
+_FLAG_KINDS = ("door", "building", "layout")  # kinds whose blocking option is a flag
 _TEXT_KEYS = {"blocking", "footprint"}
 
 
 class WorldSpec(NamedTuple):
     spec: str
     model: GridModel
-    true_map: np.ndarray | None  # fixed map (door worlds); None = draw one from the prior
+    true_map: np.ndarray | None  # fixed map (door worlds, buildings, layouts); None = draw one from the prior
 
     def initial_map(self, seed: SeedLike = None) -> np.ndarray:
         """The fixed map, or one drawn from the label prior with ``seed``."""
@@ -60,11 +73,23 @@ def _whole(spec: str, what: str, text: str) -> int:
     return int(text)
 
 
+def _rows_cols(spec: str, kind: str, size: str) -> tuple[int, int]:
+    rows, x, cols = size.partition("x")
+    if not x:
+        raise ModelError(f"world spec {spec!r}: a {kind}'s size is RxC, got {size!r}")
+    return _whole(spec, "rows", rows), _whole(spec, "cols", cols)
+
+
 def _value(spec: str, key: str, text: str) -> int | float | str:
     if key in _TEXT_KEYS:
         return text.strip()
     if key in _INT_KEYS:
         return _whole(spec, key, text)
+    if key in _REAL_KEYS:
+        try:
+            return float(text)
+        except ValueError:
+            raise ModelError(f"world spec {spec!r}: {key} must be a number, got {text!r}") from None
     try:
         value = float(text)
     except ValueError:
@@ -73,17 +98,18 @@ def _value(spec: str, key: str, text: str) -> int | float | str:
 
 
 def _blocking(spec: str, kind: str, value: str):
-    """A door world's flag (0/1/true/false) or the '+'-joined blocking labels of another world."""
-    if kind == "door":
+    """A door world's or building's flag (0/1/true/false) or the '+'-joined blocking labels of another world."""
+    if kind in _FLAG_KINDS:
         flags = {"1": True, "true": True, "0": False, "false": False}
         if value.lower() not in flags:
-            raise ModelError(f"world spec {spec!r}: blocking for a door world is 0 or 1, got {value!r}")
+            raise ModelError(f"world spec {spec!r}: blocking for a {kind} world is 0 or 1, got {value!r}")
         return flags[value.lower()]
     return [int(label) if label.strip().isdigit() else label.strip() for label in value.split("+")]
 
 
 def parse_world(spec: str) -> WorldSpec:
-    """Parse ``kind[:size][,key=value...]``; kinds: corridor (size N), grid (size RxC), door.
+    """Parse ``kind[:size][,key=value...]``; kinds: corridor (size N), grid (size RxC), door,
+    building (size RxC), layout (a file name).
     Anything malformed raises :class:`ModelError` naming the part at fault."""
     if not isinstance(spec, str) or not spec.strip() or len(spec) > _MAX_SPEC:
         raise ModelError(f"a world spec is a str of at most {_MAX_SPEC} characters like 'corridor:8', "
@@ -96,9 +122,9 @@ def parse_world(spec: str) -> WorldSpec:
         key = key.strip()
         if not eq:
             raise ModelError(f"world spec {spec!r}: expected key=value, got {pair!r}")
-        if key not in _FLOAT_KEYS | _INT_KEYS | _TEXT_KEYS:
+        if key not in _FLOAT_KEYS | _INT_KEYS | _TEXT_KEYS | _REAL_KEYS:
             raise ModelError(f"world spec {spec!r}: unknown option {key!r} "
-                             f"(known: {', '.join(sorted(_FLOAT_KEYS | _INT_KEYS | _TEXT_KEYS))})")
+                             f"(known: {', '.join(sorted(_FLOAT_KEYS | _INT_KEYS | _TEXT_KEYS | _REAL_KEYS))})")
         if key in options:
             raise ModelError(f"world spec {spec!r}: option {key!r} given twice")
         options[key] = _value(spec, key, value)
@@ -108,21 +134,28 @@ def parse_world(spec: str) -> WorldSpec:
         if kind == "corridor":
             return WorldSpec(spec, corridor(_whole(spec, "the corridor's length", size or "8"), **options), None)
         if kind == "grid":
-            rows, x, cols = (size or "2x3").partition("x")
-            if not x:
-                raise ModelError(f"world spec {spec!r}: a grid's size is RxC, got {size!r}")
-            rows, cols = _whole(spec, "rows", rows), _whole(spec, "cols", cols)
+            rows, cols = _rows_cols(spec, "grid", size or "2x3")
             change = options.pop("p_change", 0.0)
             k = arguments.integer("n_labels", options.pop("n_labels", 2), minimum=2, maximum=arguments.MAX_LABELS)
             return WorldSpec(spec, grid_model(rows, cols, k, change=symmetric_channel(k, 1 - change),
                                               **options), None)
         if kind == "door":
             if size:
-                raise ModelError("door worlds take no size; pass a layout through the Python API")
+                raise ModelError("door worlds take no size; read a floor from a file with layout:PATH")
             model, true_map = door_world(**options)
+            return WorldSpec(spec, model, true_map)
+        if kind == "building":
+            model, true_map = building(*_rows_cols(spec, "building", size or "32x32"),
+                                       **{"seed": 0} | options)
+            return WorldSpec(spec, model, true_map)
+        if kind == "layout":
+            if not size:
+                raise ModelError(f"world spec {spec!r}: a layout names its file, layout:PATH")
+            model, true_map = read_layout(size, **options)
             return WorldSpec(spec, model, true_map)
     except (TypeError, ValueError) as error:
         if str(error).startswith("world spec"):
             raise
         raise ModelError(f"world spec {spec!r}: {error}") from None
-    raise ModelError(f"world spec {spec!r}: unknown kind {kind!r} (corridor:N, grid:RxC, door)")
+    raise ModelError(f"world spec {spec!r}: unknown kind {kind!r} (corridor:N, grid:RxC, door, building:RxC, "
+                     "layout:PATH)")

@@ -15,8 +15,8 @@ import pandas as pd
 
 from onlinemap.errors import ModelError
 from onlinemap.estimators import Estimator, Trajectory, estimator_options, make_estimator
-from onlinemap.evaluate import from_steps, step_metrics
-from onlinemap.model import GridModel, door_cells
+from onlinemap.evaluate import step_metrics
+from onlinemap.model import GridModel
 from onlinemap.progress import tqdm
 from onlinemap.rng import SeedLike
 from onlinemap.simulate import Run, world_step
@@ -81,7 +81,12 @@ class Exploration(NamedTuple):
 
 
 def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[int], WorldState],
-          planner: Planner, estimator: Estimator, steps: int, progress: bool | None) -> Exploration:
+          planner: Planner, estimator: Estimator, steps: int, progress: bool | None,
+          until: Callable[[int], bool] | None = None, score: bool = True) -> Exploration:
+    """At most ``steps`` steps; ``until(true location)``, if given, ends the run after the first
+    step at which it holds (that step recorded). The frame is scored by
+    :func:`onlinemap.evaluate.step_metrics` unless ``score`` is False (the sweep engine scores the
+    run and trajectory itself: frame None)."""
     steps = int(steps)
     if steps < 1:
         raise ModelError(f"steps must be at least 1 (the first observation), got {steps}")
@@ -107,10 +112,19 @@ def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[
         locations[t], true_maps[t], observations[t] = location, labels, observation
         location_belief[t], map_belief[t], evidence[t] = belief.location, belief.map, belief.log_evidence
         bar.update()
+        if until is not None and until(location):
+            break
     bar.close()
+    if t + 1 < steps:  # stopped early: keep the steps taken
+        steps = t + 1
+        actions, locations, observations = actions[:steps], locations[:steps], observations[:steps]
+        location_belief, map_belief, evidence = location_belief[:steps], map_belief[:steps], evidence[:steps]
+        true_maps = true_maps[:steps]
     seconds = (time.perf_counter() - started) / steps
     run = Run(model, actions[1:], locations, true_maps, observations)
     trajectory = Trajectory(location_belief, map_belief, evidence, seconds)
+    if not score:
+        return Exploration(None, run, trajectory)
     scores = step_metrics(run, trajectory)
     frame = pd.DataFrame({"t": scores["t"], "action": [None] + [model.action_names[a] for a in actions[1:]],
                           "true_location": locations})
@@ -153,6 +167,14 @@ def exploration(model: GridModel, true_map, planner: str | Planner = "entropy",
                 estimator_options: dict | None = None, planner_options: dict | None = None,
                 progress: bool | None = None) -> Exploration:
     """:func:`explore` returning the whole :class:`Exploration` (table, true run, beliefs)."""
+    return _exploration(model, true_map, planner, estimator, steps, seed, estimator_options, planner_options,
+                        progress)
+
+
+def _exploration(model: GridModel, true_map, planner: str | Planner, estimator: str | Estimator, steps: int,
+                 seed: SeedLike, estimator_options: dict | None, planner_options: dict | None,
+                 progress: bool | None, score: bool = True) -> Exploration:
+    """:func:`exploration`, unscored when ``score`` is False (the sweep engine's explore tasks)."""
     world_rng, planner_rng, estimator_seed = _seeds(seed)
     labels = check_map(model, true_map)
     est = _estimator(model, estimator, estimator_options, estimator_seed)
@@ -165,7 +187,7 @@ def exploration(model: GridModel, true_map, planner: str | Planner = "entropy",
         state["location"] = location
         return observation, location, state["labels"]
 
-    return _loop(model, lambda: advance(None), advance, chooser, est, steps, progress)
+    return _loop(model, lambda: advance(None), advance, chooser, est, steps, progress, score)
 
 
 def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estimator = "rbpf",
@@ -191,50 +213,3 @@ def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estima
         return _observation(model, observation), info["location"], info["map"]
 
     return _loop(model, reset, advance, chooser, est, steps, progress).frame
-
-
-def compare_planners(world: str = "door,p_door=0.01,p_move=0.9", planners=("entropy", "random", "sweep"),
-                     estimator: str = "rbpf", steps: int = 500, seeds=(0,), *, floor_plan: float | None = None,
-                     estimator_options: dict | None = None, workers: int | None = 0,
-                     progress: bool = True) -> pd.DataFrame:
-    """:func:`explore` for every planner name and seed (the same seeds for every planner, so
-    the runs are paired), run as a sweep on :func:`onlinemap.sweeps.sweep` (``workers``: 0 in
-    this process, None or N on a local dask cluster). ``world``: a world spec
-    (:func:`onlinemap.worlds.parse_world`, e.g. ``door,p_door=0.01,p_move=0.9``); ``floor_plan``:
-    the confidence of :func:`~policies.worlds.with_floor_plan` (None: the world's own prior).
-    A run is exactly ``explore(model, true_map, planner, estimator, steps, seed)``.
-    One row per (planner, seed, step): ``planner``, ``seed``, ``t``, ``true_location`` and the
-    per-step metrics of :func:`onlinemap.evaluate.step_metrics`, and ``seconds_per_step``.
-    Cost: ``len(planners) * len(seeds)`` runs of ``steps`` steps."""
-    from onlinemap.sweeps import sweep
-
-    options = {k: [list(v)] if isinstance(v, tuple) else [v] if isinstance(v, list) else v
-               for k, v in (estimator_options or {}).items()}
-    spec = {"name": "compare-planners", "worlds": [world], "seeds": [int(seed) for seed in seeds],
-            "steps": int(steps), "rows": "step", "planners": {name: {} for name in planners},
-            "estimators": {estimator: options}}
-    if floor_plan is not None:
-        spec["floor_plan"] = float(floor_plan)
-    table = sweep(spec, workers=workers, progress=progress)
-    table["seconds_per_step"] = table["ms_per_step"] / 1e3
-    order = {name: i for i, name in enumerate(planners)}
-    return table.sort_values(["planner", "seed", "t"], key=lambda c: c.map(order) if c.name == "planner" else c,
-                             kind="stable").reset_index(drop=True)
-
-
-def summarize(table: pd.DataFrame, model: GridModel, true_map) -> pd.DataFrame:
-    """One row per planner from a :func:`compare_planners` table, averaged over seeds: the
-    per-run metrics of :func:`onlinemap.evaluate.from_steps` (final map error, mean door error
-    over the last two thirds of the run, mean location error), the share of steps spent on door
-    cells, distinct cells visited, and milliseconds per step (estimator + planner)."""
-    doors = door_cells(model, true_map)
-    table = table.assign(ms_per_step=1e3 * table["seconds_per_step"])
-    per_run = from_steps(table, ["planner", "seed"])
-    visits = table.groupby(["planner", "seed"], sort=False)["true_location"]
-    per_run["time_at_doors"] = visits.apply(lambda cells: np.isin(cells, doors).mean()).to_numpy()
-    per_run["cells_visited"] = visits.nunique().to_numpy()
-    columns = ["planner", "final_map_error", "late_door_error", "mean_location_error", "time_at_doors",
-               "cells_visited", "ms_per_step"]
-    summary = per_run[[c for c in columns if c in per_run]].groupby("planner", sort=False).mean().reset_index()
-    summary.insert(1, "runs", per_run.groupby("planner", sort=False).size().to_numpy())
-    return summary

@@ -14,7 +14,8 @@ Without blocking labels nothing of this runs: the planners are bit for bit the d
 
 :data:`PLANNERS` is the registry (name -> class and fixed options; the exploration planner
 ``info_gain`` lives in :mod:`policies.info_gain`, the baseline ``frontier`` in
-:mod:`policies.frontier`); :func:`make_planner` builds one by name and
+:mod:`policies.frontier`, the goal planners ``goto`` and ``static_goto`` in
+:mod:`policies.navigation`); :func:`make_planner` builds one by name and
 :func:`planner_options` lists a name's options without building anything.
 """
 
@@ -34,6 +35,7 @@ from onlinemap.rng import SeedLike, as_generator
 from .frontier import FrontierExplorer
 from .info_gain import InfoGainExplorer
 from .mdp import PolicyIterationResult, policy_iteration
+from .navigation import GoTo, StaticGoTo
 from .passability import PressMemory, expected_passability, unblocked_actions
 from .rewards import RewardFunction, collected_entropy_reward, entropy_reward
 
@@ -185,6 +187,8 @@ PLANNERS: dict[str, PlannerEntry] = {
     "sweep": PlannerEntry(Sweep, {}),
     "info_gain": PlannerEntry(InfoGainExplorer, {}),
     "frontier": PlannerEntry(FrontierExplorer, {}),
+    "goto": PlannerEntry(GoTo, {}),
+    "static_goto": PlannerEntry(StaticGoTo, {}),
 }
 
 
@@ -216,7 +220,9 @@ def make_planner(name: str, model: GridModel, seed: SeedLike = None, **options) 
     options gamma, replan_every, reward), ``entropy_collect`` (the same with
     :func:`~policies.rewards.collected_entropy_reward`), ``random`` (:class:`RandomWalk`),
     ``sweep`` (:class:`Sweep`), ``info_gain`` (:class:`~policies.info_gain.InfoGainExplorer`),
-    ``frontier`` (:class:`~policies.frontier.FrontierExplorer`).
+    ``frontier`` (:class:`~policies.frontier.FrontierExplorer`),
+    ``goto`` and ``static_goto`` (:class:`~policies.navigation.GoTo`, :class:`~policies.navigation.StaticGoTo`;
+    options goal (required), horizon).
     ``seed`` goes to planners that draw random numbers. Unknown options raise ModelError."""
     entry = _entry(name)
     known = planner_options(name)

@@ -1,6 +1,6 @@
 """Figures for exploration runs (matplotlib, no pyplot state: they work on any backend).
 
-Both take the long table of :func:`policies.explore.compare_planners` (columns ``planner``,
+Both take the long table of :func:`onlinemap.studies.exploration.compare_planners` (columns ``planner``,
 ``seed``, ``t``, ``map_error``, ``door_error``, ``true_location``, ...).
 """
 
@@ -11,9 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from onlinemap.model import DOOR_LABELS, GridModel, WALL
-
-from .explore import door_cells
+from onlinemap.model import DOOR_LABELS, GridModel, WALL, door_cells
 
 if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, not with the package
     from matplotlib.figure import Figure

@@ -49,10 +49,22 @@ def test_bench_with_no_name_runs_everything_else_and_writes_json(no_pgmpy, monke
     assert json.loads(single.read_text())["rows"][0]["benchmark"] == "tiny"
 
 
-def test_bench_peers_agrees_with_pgmpy_and_hmmlearn():
+def test_bench_peers_agrees_with_pgmpy_and_hmmlearn_and_shows_filterpys_residual_bias():
     pytest.importorskip("pgmpy")
     pytest.importorskip("hmmlearn")
+    pytest.importorskip("filterpy")
     table = run_benchmarks(["peers"], quick=True)
-    assert set(table["reference"]) == {"pgmpy VariableElimination", "hmmlearn CategoricalHMM"}
-    assert np.all(table["max_abs_diff"] < 1e-9)
+    assert set(table["reference"]) == {"pgmpy VariableElimination", "hmmlearn CategoricalHMM", "filterpy monte_carlo"}
+    exact = table[table["reference"] != "filterpy monte_carlo"]
+    assert np.all(exact["max_abs_diff"] < 1e-9)
     assert np.all(table["ms"] > 0) and np.all(table["reference_ms"] > 0)
+    # resampling: copy shares agree within the row's tolerance (5 standard deviations of the
+    # difference), but for filterpy's biased residual scheme (shares [.6875, .3125, 0, 0], not
+    # [.5, .3, .15, .05]: a difference of .1875 in particle 0's, against a tolerance of .11)
+    resampling = table[table["reference"] == "filterpy monte_carlo"]
+    resampling = resampling.set_index(resampling["case"].str.split().str[0])
+    assert sorted(resampling.index) == ["multinomial", "residual", "stratified", "systematic"]
+    unbiased = resampling.drop(index="residual")
+    assert np.all(unbiased["max_abs_diff"] <= unbiased["tolerance"])
+    assert resampling.loc["residual", "max_abs_diff"] > resampling.loc["residual", "tolerance"]
+    assert resampling.loc["residual", "copy_shares"].startswith("filterpy [0.69, 0.31, 0.0, 0.0]")

@@ -10,7 +10,7 @@ import pytest
 
 import onlinemap as om
 from onlinemap.cli import COMMANDS, main
-from onlinemap.cli.run import compare_on_run
+from onlinemap.evaluate import compare_on_run
 from onlinemap.progress import PROGRESS_ENV, show_progress
 from onlinemap.rng import ESTIMATOR_STREAM, derived_seed
 

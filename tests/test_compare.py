@@ -3,9 +3,10 @@
 import numpy as np
 import pandas as pd
 
-import onlinemap.compare as compare
+import onlinemap.studies.accuracy as compare
 from onlinemap.cli import main
-from onlinemap.compare import accuracy_study, compare_estimators, summarise
+from onlinemap.estimators.rbpf import SCHEMES
+from onlinemap.studies.accuracy import accuracy_study, compare_estimators, summarise
 
 
 def test_study_distances_and_ordering():
@@ -23,6 +24,7 @@ def test_study_distances_and_ordering():
         assert many["mean_map_tv"] < summary.loc["bk", "mean_map_tv"]
     fc = per_step[per_step["estimator"] == "rbpf FC P=10"]
     assert (fc["resampling"] == "fearnhead_clifford").all() and (fc["proposal"] == "optimal").all()
+    assert (fc["scheme"] == "FC").all() and (fc["particles"] == 10).all()  # read as data, not parsed
     # Fearnhead-Clifford keeps each child at most once: at equal particles it is closer to exact than
     # sampling the same (optimal) proposal with residual resampling. Fixed seeds; measured here 3.9x
     # (map) and 11x (location) closer at P=1000, 1.9x (location) at P=10: asserted with margins of 2 and 1.5
@@ -36,11 +38,11 @@ def test_online_em_only_if_registered(monkeypatch):
     names = [label for label, _, _ in compare_estimators((5,))]
     assert names == ["bk", "rbpf FC P=5", "rbpf optimal+residual P=5", "rbpf transition+residual P=5",
                      "online_em", "dead_reckoning"]
-    assert compare.label("rbpf", "optimal", 7) == "rbpf FC P=7"  # None: the rbpf's default for the proposal
-    assert compare.label("rbpf", "transition", 7.0) == "rbpf transition+residual P=7"
-    assert compare.label("rbpf", "optimal", 7, "systematic") == "rbpf optimal+systematic P=7"
-    assert compare.scheme_of("rbpf optimal+residual P=50") == ("optimal+residual", 50)
-    assert compare.scheme_of("bk") is None
+    assert compare.label("rbpf", "FC", 7.0) == "rbpf FC P=7" and compare.label("bk") == "bk"
+    # the schemes are the rbpf's own: the default proposal goes with Fearnhead-Clifford
+    assert SCHEMES["FC"] == {"proposal": "optimal", "resampling": "fearnhead_clifford"}
+    spec = compare.study_spec(["corridor:4"], 1, 3, (5, 7))
+    assert [grid["label"] for grid in spec["estimators"]["rbpf"]] == list(SCHEMES)
     monkeypatch.setattr(compare, "available_estimators", lambda: ("exact", "bk", "rbpf", "dead_reckoning"))
     assert "online_em" not in [label for label, _, _ in compare_estimators((5,))]
 

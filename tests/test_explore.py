@@ -10,8 +10,9 @@ from scipy import stats
 
 import onlinemap as om
 from onlinemap.cli import main
-from policies import (COLUMNS, EntropyExplorer, compare_planners, door_cells, explore, explore_env,
-                      exploration_world, floor_plan_prior, summarize)
+from onlinemap.studies.exploration import compare_planners, summarize_planners as summarize
+from policies import (COLUMNS, EntropyExplorer, door_cells, explore, explore_env, exploration_world,
+                      floor_plan_prior)
 from policies.explore import _seeds, exploration
 from estimator_cases import exact_trajectory
 

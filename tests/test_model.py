@@ -39,6 +39,18 @@ def test_door_world_default_and_layout():
     assert small.shape == (2, 3)
     np.testing.assert_array_equal(small_map, [0, 0, 1, 2, 0, 3])
     assert om.DOOR_WORLD_10X10.count("\n") == 10
+    from_array, array_map = om.door_world(np.array([[0, 0, 1], [2, 0, 3]], dtype=np.uint8), start=4)
+    assert from_array.shape == (2, 3) and from_array.start == 4
+    np.testing.assert_array_equal(array_map, small_map)
+
+
+@pytest.mark.parametrize("layout, match", [
+    (np.arange(3), "2D int array"), (np.zeros((2, 2)), "float64 array"), (np.zeros((0, 3), dtype=int), "non-empty"),
+    (np.array([[0, 4], [0, 0]]), "0..3"), (np.array([[0, -1], [0, 0]]), "0..3"), ([[0, 1], [1, 0]], "got list"),
+])
+def test_door_world_refuses_bad_label_arrays(layout, match):
+    with pytest.raises(om.ModelError, match=match):
+        om.door_world(layout)
 
 
 @pytest.mark.parametrize("kwargs,match", [
@@ -89,3 +101,29 @@ def test_world_specs():
         parse_world("corridor:5,foo=1")
     with pytest.raises(om.ModelError, match="unknown kind"):
         parse_world("maze:5")
+
+
+def test_building_world_specs():
+    from onlinemap.worlds import parse_world
+
+    world = parse_world("building:32x32,seed=3")
+    model, true_map = om.building(32, 32, seed=3)
+    np.testing.assert_array_equal(world.true_map, true_map)
+    np.testing.assert_array_equal(world.initial_map(7), true_map)
+    assert world.model.start == model.start and world.model.has_blocking and world.model.n_readings == 5
+    np.testing.assert_array_equal(parse_world("building").true_map, om.building(32, 32, seed=0)[1])
+    options = dict(seed=1, p_obs=0.7, p_move=0.6, p_door=0.01, extra_doors=0.5, closed_share=0.2, rooms_deep=3,
+                   corridor_width=2)
+    world = parse_world("building:20x40," + ",".join(f"{k}={v}" for k, v in options.items())
+                        + ",blocking=0,footprint=cell")
+    model, true_map = om.building(20, 40, blocking=False, footprint="cell", **options)
+    np.testing.assert_array_equal(world.true_map, true_map)
+    assert om.model.model_difference(world.model, model) is None
+    start = int(np.flatnonzero(true_map == 0)[0])
+    assert parse_world(f"building:20x40,seed=1,start={start}").model.start == start
+    for spec, match in [("building:32", "RxC"), ("building:9x32", "rows must be at least 10"),
+                        ("building:32x32,seed=x", "seed must be a whole number"),
+                        ("building:32x32,blocking=2", "0 or 1"), ("building:32x32,start=0", "start must be a free"),
+                        ("building:32x32,extra_doors=2", "extra_doors")]:
+        with pytest.raises(om.ModelError, match=match):
+            parse_world(spec)

@@ -86,11 +86,22 @@ def test_door_world_refuses_with_model_errors(layout, p_door, start):
     only_onlinemap_errors(lambda: om.door_world(layout, p_door=p_door, start=start))
 
 
+@settings(settings.get_profile(PROFILE))
+@given(rows=st.one_of(st.integers(8, 20), HOSTILE), cols=st.one_of(st.integers(8, 20), HOSTILE),
+       seed=st.one_of(st.integers(0, 3), HOSTILE), room_size=st.one_of(st.tuples(SIZE, SIZE), HOSTILE),
+       width=SIZE, extra=PROB, start=st.one_of(st.none(), SIZE))
+def test_building_refuses_with_model_errors(rows, cols, seed, room_size, width, extra, start):
+    built = only_onlinemap_errors(lambda: om.building(rows, cols, seed=seed, room_size=room_size, corridor_width=width,
+                                                      extra_doors=extra, start=start))
+    if built is not None:
+        assert built[0].shape == (rows, cols)
+
+
 WORLD_TEXT = st.one_of(
     st.text(max_size=30),
-    st.tuples(st.sampled_from(["corridor", "grid", "door", "maze", ""]), st.sampled_from(["", ":"]),
-              st.one_of(st.text(alphabet="0123456789x-.e", max_size=8), st.sampled_from(["8", "2x3", "3x3x", "10**9"])),
-              st.lists(st.tuples(st.sampled_from(["p_obs", "p_move", "p_change", "p_door", "n_labels", "start", "zz"]),
+    st.tuples(st.sampled_from(["corridor", "grid", "door", "building", "layout", "maze", ""]), st.sampled_from(["", ":"]),
+              st.one_of(st.text(alphabet="0123456789x-.e", max_size=8), st.sampled_from(["8", "2x3", "3x3x", "10**9", "12x10"])),
+              st.lists(st.tuples(st.sampled_from(["p_obs", "p_move", "p_change", "p_door", "n_labels", "start", "seed", "extra_doors", "cell_size", "zz"]),
                                  st.sampled_from(["0.5", "abc", "nan", "inf", "-1", "1", "2.5", "", "1e400"])),
                        max_size=3))
     .map(lambda p: p[0] + p[1] + p[2] + "".join(f",{key}={value}" for key, value in p[3])),

@@ -24,7 +24,7 @@ def test_api_reference_builds_without_warnings(tmp_path):
 def test_version_lives_in_one_place_and_the_changelog_names_it():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())
     assert "version" not in project["project"] and "version" in project["project"]["dynamic"]
-    assert project["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "onlinemap.__version__"}
+    assert project["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "onlinemap._version.__version__"}
     newest = re.search(r"^## (\S+)", (ROOT / "CHANGELOG.md").read_text(), re.MULTILINE).group(1)
     assert newest == onlinemap.__version__
 

@@ -1,4 +1,4 @@
-"""``onlinemap reproduce corridor`` and its building blocks (onlinemap.reproduce, onlinemap.plots)."""
+"""``onlinemap reproduce corridor`` and its building blocks (onlinemap.studies.corridor, onlinemap.plots)."""
 
 import math
 
@@ -8,7 +8,9 @@ import pytest
 from scipy.optimize import brentq
 
 import onlinemap as om
-from onlinemap import evaluate, reproduce
+from onlinemap import evaluate
+from onlinemap.stats import wilson_interval
+from onlinemap.studies import corridor as reproduce
 from onlinemap.cli import main
 
 SMALL = [("exact", "exact", {}), ("dead_reckoning", "dead_reckoning", {}),
@@ -27,13 +29,13 @@ def test_wilson_interval_solves_the_score_test(k, n, confidence):
 
     low = 0.0 if k == 0 else brentq(score, 1e-12, p_hat - 1e-12)
     high = 1.0 if k == n else brentq(score, p_hat + 1e-12, 1 - 1e-12)
-    ours = reproduce.wilson_interval(k, n, confidence)
+    ours = wilson_interval(k, n, confidence)
     assert ours[0] == pytest.approx(low, abs=1e-9)
     assert ours[1] == pytest.approx(high, abs=1e-9)
 
 
 def test_wilson_interval_is_vectorised():
-    low, high = reproduce.wilson_interval(np.array([0, 5]), np.array([10, 10]))
+    low, high = wilson_interval(np.array([0, 5]), np.array([10, 10]))
     assert low.shape == (2,) and np.all(low <= high)
 
 

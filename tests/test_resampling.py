@@ -1,9 +1,12 @@
 """Resamplers: unbiased copy counts (mean copies of particle i = P w_i) within a tolerance
-derived from the number of draws, reproducibility, and input checks."""
+derived from the number of draws, reproducibility, and input checks; filterpy's resamplers (the
+real package, ``filterpy.monte_carlo``) against ours: where they agree, and the bias of its
+residual resampling."""
 
 import numpy as np
 import pytest
 
+from onlinemap.peers import filterpy_resamplers, global_numpy_seed
 from onlinemap.resampling import RESAMPLERS, effective_sample_size, optimal_resampling
 
 WEIGHTS = {
@@ -30,20 +33,6 @@ def copy_tolerance(weights, draws, sigmas=5.0):
     return sigmas * np.sqrt((p * weights * (1 - weights) + 0.5) / draws)
 
 
-def filterpy_residual(weights, rng):
-    """filterpy 2.0.0's residual_resample (with an explicit generator): the residuals are taken
-    as ``w - floor(P w)`` instead of ``P w - floor(P w)``, which biases the copies."""
-    n = len(weights)
-    copies = np.floor(n * weights).astype(int)
-    indexes = np.repeat(np.arange(n), copies)
-    residual = weights - copies
-    residual = residual / residual.sum()
-    cumulative = np.cumsum(residual)
-    cumulative[-1] = 1.0
-    rest = np.searchsorted(cumulative, rng.random(n - len(indexes)))
-    return np.concatenate([indexes, rest])
-
-
 @pytest.mark.parametrize("scheme", sorted(RESAMPLERS))
 @pytest.mark.parametrize("case", sorted(WEIGHTS))
 def test_mean_copies_equal_p_times_weight(scheme, case):
@@ -55,11 +44,69 @@ def test_mean_copies_equal_p_times_weight(scheme, case):
     assert observed[weights == 0].max(initial=0) == 0  # a zero weight is never copied
 
 
-def test_the_check_catches_filterpy_biased_residual():
-    weights = WEIGHTS["design example"]
-    observed = mean_copies(filterpy_residual, weights, 2000, seed=1)
-    np.testing.assert_allclose(observed / 4, [0.69, 0.31, 0, 0], atol=0.02)  # DESIGN.md section 6
-    assert np.any(np.abs(observed - 4 * weights) > copy_tolerance(weights, 2000))
+@pytest.fixture
+def filterpy():
+    """filterpy's resamplers by our scheme names (the test extra installs filterpy)."""
+    pytest.importorskip("filterpy")
+    return filterpy_resamplers()
+
+
+def filterpy_copies(resample, weights, draws, seed):
+    """Mean copies of each particle over ``draws`` calls of a filterpy resampler. filterpy draws
+    from numpy's global random state (onlinemap never does): it is seeded here, for this test only,
+    and restored afterwards (``global_numpy_seed``), so no other test sees a change."""
+    with global_numpy_seed(seed):
+        return mean_copies(lambda w, _rng: resample(w), weights, draws, seed)
+
+
+@pytest.mark.parametrize("scheme", ["systematic", "stratified", "multinomial"])
+@pytest.mark.parametrize("case", sorted(WEIGHTS))
+def test_filterpy_unbiased_resamplers_agree_with_ours(scheme, case, filterpy):
+    """filterpy's systematic, stratified and multinomial resampling copy particle i P w_i times on
+    average, as ours do: its mean copies are within ``copy_tolerance`` (5 standard deviations of
+    the mean of DRAWS draws) of P w, and differ from ours by at most sqrt(2) times that (two
+    independent means: the variances add); a zero weight is never copied."""
+    weights = WEIGHTS[case]
+    theirs = filterpy_copies(filterpy[scheme], weights, DRAWS, seed=1)
+    ours = mean_copies(RESAMPLERS[scheme], weights, DRAWS, seed=1)
+    tolerance = copy_tolerance(weights, DRAWS)
+    assert np.all(np.abs(theirs - len(weights) * weights) <= tolerance), (theirs, weights, tolerance)
+    assert np.all(np.abs(theirs - ours) <= np.sqrt(2) * tolerance), (theirs, ours, tolerance)
+    assert theirs[weights == 0].max(initial=0) == 0
+
+
+def test_filterpy_and_ours_draw_the_same_where_nothing_is_left_to_chance(filterpy):
+    """Weights with every P w_i an integer: residual resampling makes floor(P w_i) = P w_i copies
+    and draws nothing; each stratum [j/P, (j+1)/P) of systematic and stratified resampling lies
+    inside one particle's share of [0, 1), so any uniform picks it. Both libraries: [0, 0, 1, 2]."""
+    weights = np.array([0.5, 0.25, 0.25, 0.0])
+    for scheme in ("residual", "systematic", "stratified"):
+        with global_numpy_seed(0):  # filterpy draws from numpy's global state: seeded here only, restored
+            theirs = filterpy[scheme](weights)
+        np.testing.assert_array_equal(theirs, [0, 0, 1, 2])
+        np.testing.assert_array_equal(RESAMPLERS[scheme](weights, np.random.default_rng(0)), [0, 0, 1, 2])
+
+
+def test_filterpy_residual_is_biased_and_the_check_catches_it(filterpy):
+    """filterpy's residual_resample takes the residuals as w - floor(P w) instead of P w - floor(P w).
+    With w = [.5, .3, .15, .05], P = 4 (DESIGN.md section 6): floor(P w) = [2, 1, 0, 0] copies, and
+    the one copy left is drawn from the "residuals" [-1.5, -.7, .15, .05] / -2 = [.75, .35, -.075,
+    -.025], cumulated to [.75, 1.1, 1.025, 1] (the last forced to 1) and binary-searched as if
+    sorted: particle 0 for a uniform below .75, particle 1 above. Mean copies [2.75, 1.25, 0, 0],
+    copy shares [.6875, .3125, 0, 0] instead of w. That copy is a Bernoulli(.75) between particles
+    0 and 1, so the share of each over ``draws`` draws has standard deviation sqrt(.75 .25 / draws)
+    / 4: the tolerance is 5 of them. The unbiasedness check of the tests above refuses it."""
+    weights, draws = WEIGHTS["design example"], 2000
+    before = np.random.get_state()
+    observed = filterpy_copies(filterpy["residual"], weights, draws, seed=1)
+    after = np.random.get_state()  # numpy's global state is as it was: the seeding stayed in the test
+    assert np.array_equal(before[1], after[1]) and before[2:] == after[2:]
+    np.testing.assert_allclose(observed / 4, [0.6875, 0.3125, 0, 0], rtol=0,
+                               atol=5 * np.sqrt(0.75 * 0.25 / draws) / 4)
+    assert np.all(observed[2:] == 0)  # particles 2 and 3 (P w = .6 and .2 copies) never survive
+    assert np.any(np.abs(observed - 4 * weights) > copy_tolerance(weights, draws))
+    ours = mean_copies(RESAMPLERS["residual"], weights, draws, seed=1)
+    assert np.all(np.abs(ours - 4 * weights) <= copy_tolerance(weights, draws))
 
 
 @pytest.mark.parametrize("scheme", sorted(RESAMPLERS))

@@ -19,7 +19,6 @@ import pytest
 import onlinemap as om
 from onlinemap import checkpoint
 from onlinemap.model import symmetric_channel
-from onlinemap.state_checks import CONSTANT, STATE_CHECKS
 from estimator_cases import CHEAP, NAMES, assert_valid_belief, beliefs, random_run
 
 EDITS = int(os.environ.get("ONLINEMAP_FUZZ", "60"))
@@ -42,8 +41,17 @@ def stepped(name, steps=9, seed=0):
     return est
 
 
-def test_every_registered_estimator_has_state_checks():
-    assert set(NAMES) <= set(STATE_CHECKS) and set(NAMES) <= set(CONSTANT)
+@pytest.mark.parametrize("name", NAMES)
+def test_every_registered_estimator_states_its_invariants(name):
+    """Each estimator class checks its own state (``check_state``) and names the attributes its
+    model and options fix (``CONSTANT_STATE``): each names an attribute (or a state object's field)
+    the estimator has."""
+    est = stepped(name)
+    cls = type(est)
+    assert callable(vars(cls)["check_state"]) and type(vars(cls)["CONSTANT_STATE"]) is tuple
+    for constant in cls.CONSTANT_STATE:
+        head, _, field = constant.partition(".")
+        assert head in vars(est) and (not field or hasattr(vars(est)[head], field)), constant
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -1,6 +1,7 @@
-"""policies.studies: the three readings of "wrong cells" against a per-cell loop, and the map of a
-robot told its location against the exact joint filter on a floor that never slips (where the
-location is known, so the exact map marginals are exactly that map)."""
+"""The exploration studies' yardsticks (onlinemap.evaluate): the three readings of "wrong cells"
+against a per-cell loop, and the map of a robot told its location against the exact joint filter
+on a floor that never slips (where the location is known, so the exact map marginals are exactly
+that map); and the replay study (onlinemap.studies.exploration) against a hand recomputation."""
 
 import numpy as np
 import pytest
@@ -8,7 +9,7 @@ import pytest
 import onlinemap as om
 from onlinemap.errors import ModelError
 from onlinemap.estimators import make_estimator
-from policies.studies import CONFIDENT, cell_counts, told_location_map
+from onlinemap.evaluate import CONFIDENT, cell_counts, told_location_map
 
 
 def test_cell_counts_match_a_per_cell_loop():
@@ -48,15 +49,16 @@ def test_told_location_map_refuses_blocking_worlds():
 
 def test_replay_study_feeds_the_live_runs_data_to_fresh_filters():
     """Each replay row is a fresh RBPF (seed 10000 + replay) fed the live run's actions and
-    observations; the told-location row is told_location_map of the same run."""
+    observations (the live run: policies.exploration of the same seed, 64 particles); the
+    told-location row is told_location_map of the same run."""
     from policies import exploration, exploration_world
-    from policies.studies import replay_study
+    from onlinemap.studies.exploration import replay_study
     from onlinemap.estimators import run_estimator
 
     table = replay_study(seeds=[3], steps=40, n_particles=64, replay_particles=(32,), replays=1, progress=False)
     assert table["filter"].tolist() == ["live", "rbpf 32", "told location"]
     model, true_map = exploration_world(p_door=0.0, p_move=0.8, floor_plan=None)
-    found = exploration(model, true_map, "info_gain", make_estimator("rbpf", model, seed=3, n_particles=64), 40, 3)
+    found = exploration(model, true_map, "info_gain", "rbpf", 40, 3, estimator_options={"n_particles": 64})
     truth = found.run.maps[-1]
     replayed = run_estimator(make_estimator("rbpf", model, seed=10_000, n_particles=32), found.run.actions,
                              found.run.observations).map[-1]
@@ -64,3 +66,17 @@ def test_replay_study_feeds_the_live_runs_data_to_fresh_filters():
     expected = [found.frame["map_error"].iloc[-1], 1 - replayed[np.arange(100), truth].mean(),
                 1 - told[np.arange(100), truth].mean()]
     np.testing.assert_allclose(table["final_map_error"], expected, rtol=1e-12)
+
+
+def test_the_told_location_map_of_a_static_world_equals_the_step_by_step_filter():
+    """The static shortcut (log-sum of the readings per cell) against the per-step filter it
+    replaces, on a footprint run with off-grid readings."""
+    model = om.grid_model(3, 3, 3, p_obs=0.7, p_move=0.8, footprint="cross")
+    run = om.simulate(model, None, np.random.default_rng(4).integers(4, size=30), seed=5)
+    belief = np.array(np.broadcast_to(model.label_prior, (model.n_cells, model.n_labels)))
+    for location, observation in zip(run.locations, run.observations):
+        for cell, z in zip(model.footprint_cells[location], np.atleast_1d(observation)):
+            if cell >= 0:
+                belief[cell] *= model.sensor[:, z]
+                belief[cell] /= belief[cell].sum()
+    np.testing.assert_allclose(told_location_map(model, run), belief, atol=1e-12)

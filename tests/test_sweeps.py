@@ -19,7 +19,7 @@ from scipy import stats
 import onlinemap as om
 from onlinemap import sweeps
 from onlinemap.cli import main
-from onlinemap.cli.run import compare_on_run
+from onlinemap.evaluate import compare_on_run
 from onlinemap.stats import mean_interval
 
 ROOT = Path(__file__).resolve().parents[1]

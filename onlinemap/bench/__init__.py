@@ -123,7 +123,7 @@ def machine_info() -> dict:
 
     import numba
 
-    from .. import __version__
+    from .._version import __version__
 
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5,

@@ -14,9 +14,14 @@ that the answers agree.
   Dirichlet prior of 1 adds nothing), 10 iterations per call; onlinemap's ``baum_welch`` also
   runs one more forward-backward after the last M-step (for the returned posteriors), which is
   counted against it. ``max_abs_diff`` compares the emission matrices after 10 iterations.
+- each resampling scheme vs filterpy's (``filterpy.monte_carlo``): ms per call on P = 1000
+  random weights (no target), and the mean copy shares of the weights [.5, .3, .15, .05] (P = 4,
+  DESIGN.md section 6) over many draws: ``max_abs_diff`` between filterpy's and ours beside
+  ``tolerance``, 5 standard deviations of that difference. The unbiased schemes agree within it;
+  filterpy's residual resampling does not (its shares are near [.69, .31, 0, 0]: ``copy_shares``).
 
-pgmpy and hmmlearn come with ``pip install 'onlinemap[peers]'``; without them this benchmark
-stops with :class:`onlinemap.peers.PeerMissingError`.
+pgmpy, hmmlearn and filterpy come with ``pip install 'onlinemap[peers]'``; without them this
+benchmark stops with :class:`onlinemap.peers.PeerMissingError`.
 """
 
 from __future__ import annotations
@@ -28,7 +33,9 @@ import numpy as np
 
 from ..estimators import make_estimator, run_estimator
 from ..model import corridor
-from ..peers import dense_motion, hmmlearn_categorical_hmm, pgmpy_filter, require
+from ..peers import (dense_motion, filterpy_resamplers, global_numpy_seed, hmmlearn_categorical_hmm, pgmpy_filter,
+                     require)
+from ..resampling import RESAMPLERS
 from ..simulate import random_walk, simulate
 from . import benchmark, seconds_per_call
 
@@ -89,10 +96,45 @@ def _baum_welch_rows(quick: bool) -> list[dict]:
     return rows
 
 
+DESIGN_WEIGHTS = np.array([0.5, 0.3, 0.15, 0.05])  # DESIGN.md section 6: filterpy's residual bias shows on them
+
+
+def _copy_shares(draw, n: int, draws: int) -> np.ndarray:
+    """(n,) each particle's mean share of the copies over ``draws`` calls of ``draw()`` (n indices each)."""
+    return np.bincount(np.concatenate([draw() for _ in range(draws)]), minlength=n) / (draws * n)
+
+
+def _filterpy_rows(quick: bool) -> list[dict]:
+    theirs = filterpy_resamplers()
+    draws = 400 if quick else 1000
+    w, p = DESIGN_WEIGHTS, len(DESIGN_WEIGHTS)
+    # per draw, the copies of particle i vary by at most P w (1 - w) + 1/2 (multinomial, plus a
+    # stratum-edge allowance, as tests/test_resampling.py derives); the shares of two independent
+    # runs of ``draws`` draws then differ by at most 5 standard deviations of sqrt(2 that / draws) / P
+    tolerance = float(np.max(5 * np.sqrt(2 * (p * w * (1 - w) + 0.5) / draws) / p))
+    timed = np.random.default_rng(8).dirichlet(np.ones(1000))
+    rows = []
+    for scheme, ours in RESAMPLERS.items():
+        peer = theirs[scheme]
+        rng = np.random.default_rng(9)
+        our_shares = _copy_shares(lambda: ours(w, rng), p, draws)  # also compiles
+        ms = 1e3 * seconds_per_call(lambda: ours(timed, rng), min_seconds=0.02)
+        with global_numpy_seed(9):  # filterpy draws from numpy's global state: seeded here only, then restored
+            their_shares = _copy_shares(lambda: peer(w), p, draws)
+            peer_ms = 1e3 * seconds_per_call(lambda: peer(timed), min_seconds=0.02)
+        rows.append({"case": f"{scheme} resampling P=1000, ms/call; copy shares of [.5, .3, .15, .05], {draws} draws",
+                     "ms": ms, "reference": "filterpy monte_carlo", "reference_ms": peer_ms, "target": np.nan,
+                     "max_abs_diff": float(np.abs(their_shares - our_shares).max()), "tolerance": tolerance,
+                     "copy_shares": f"filterpy {np.round(their_shares, 2).tolist()}, "
+                                    f"ours {np.round(our_shares, 2).tolist()}"})
+    return rows
+
+
 @benchmark("peers")
 def bench_peers(quick: bool) -> list[dict]:
     require("pgmpy")
     require("hmmlearn")
+    require("filterpy")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FutureWarning)  # pgmpy's deprecation notices on import
-        return _pgmpy_rows(quick) + _baum_welch_rows(quick)
+        return _pgmpy_rows(quick) + _baum_welch_rows(quick) + _filterpy_rows(quick)

@@ -57,7 +57,7 @@ def accept_global_options(parser: argparse.ArgumentParser) -> None:
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser; ``command``'s module is imported and adds its full parser, the other commands
     get a stub with their one-line help (``None``: stubs only, enough for ``onlinemap --help``)."""
-    from .. import __version__
+    from .._version import __version__
     parser = OneLineErrorParser(
         prog="onlinemap", epilog=EPILOG,
         description="Learn grid maps online with a robot that does not know where it is.")

@@ -121,7 +121,8 @@ def name_list(text: str) -> list[str]:
 
 
 def world(text: str) -> WorldSpec:
-    """A world spec (``corridor:8``, ``grid:2x3``, ``door,p_door=0.01``) parsed and checked."""
+    """A world spec (``corridor:8``, ``grid:2x3``, ``door,p_door=0.01``, ``building:32x32,seed=3``,
+    ``layout:PATH``) parsed and checked."""
     from ..worlds import parse_world
     try:
         return parse_world(text)

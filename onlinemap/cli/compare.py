@@ -6,8 +6,8 @@ import argparse
 from pathlib import Path
 
 from .. import plots
-from ..compare import (DEFAULT_PARTICLES, DEFAULT_WORLDS, accuracy_study, compare_estimators,
-                       error_over_time_figure, error_vs_particles_figure, error_vs_time_figure, summarise)
+from ..studies.accuracy import (DEFAULT_PARTICLES, DEFAULT_WORLDS, accuracy_study, compare_estimators,
+                                error_over_time_figure, error_vs_particles_figure, error_vs_time_figure, summarise)
 from ..errors import OnlineMapError
 from ..evaluate import TIMING_NOTE
 from .common import (OPTION_HELP, non_negative_int, options_per_estimator, positive_int, print_table, split_list,

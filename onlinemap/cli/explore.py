@@ -52,16 +52,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def exploration_spec(args: argparse.Namespace, planners: list[str]) -> dict:
-    """The sweep spec of an ``explore`` command line."""
-    options = {key: list(value) if isinstance(value, tuple) else value
+    """The sweep spec of an ``explore`` command line (:func:`onlinemap.studies.exploration.exploration_spec`;
+    an option's list value is one value, not a grid)."""
+    from ..studies.exploration import exploration_spec as spec
+
+    options = {key: tuple(value) if isinstance(value, list) else value
                for key, value in parse_options(args.option).items()}
-    options = {key: [value] if isinstance(value, list) else value for key, value in options.items()}
-    spec = {"name": "explore", "worlds": [args.world], "seeds": list(range(args.seed, args.seed + args.repeats)),
-            "steps": args.steps, "rows": "step", "planners": {name: {} for name in planners},
-            "estimators": {args.estimator: options}}
-    if args.floor_plan is not None:
-        spec["floor_plan"] = args.floor_plan
-    return spec
+    return spec(args.world, planners, args.steps, range(args.seed, args.seed + args.repeats),
+                estimator=args.estimator, estimator_options=options, floor_plan=args.floor_plan, rows="step")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -6,16 +6,16 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
-from .. import metrics, plots, reproduce as reproductions
+from .. import plots
 from ..errors import OnlineMapError
 from ..evaluate import ASTRAY_BELOW, LOST_BELOW, TIMING_NOTE
-from ..reproduce import corridor_table, random_corridor_study, with_intervals
 from ..scenarios import murphy_corridor
+from ..studies import corridor as reproductions
+from ..studies.corridor import corridor_table, random_corridor_study, steps_table, with_intervals
 from .common import non_negative_int, open_unit_interval, positive_int, print_table, write_table
 
-MAPPING_STUDIES = ("loop", "anneal", "blocking")  # onlinemap.mapping_studies.STUDIES, imported lazily
+MAPPING_STUDIES = ("loop", "anneal", "blocking")  # onlinemap.studies.mapping.STUDIES, imported lazily
 OVERVIEW_ONLINE_EM = "online_em W=max decay=1.0"  # the one online EM row of the overview figure
 
 
@@ -23,7 +23,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "reproduce", help="reproduce a claim of the literature (corridor: online EM gets lost)",
         description="corridor: run Murphy's scripted 8-cell corridor (one slip on the way out) through "
-                    "every entry of onlinemap.reproduce.CORRIDOR_ESTIMATORS: exact Bayes, dead reckoning, "
+                    "every entry of onlinemap.studies.corridor.CORRIDOR_ESTIMATORS: exact Bayes, dead reckoning, "
                     "online EM (windows 1, 2, 4, 8, max x decays 0.8, 0.9, 0.95, 1.0), offline EM, BK and "
                     "the RBPF (100 particles); print final map error, wrong visited cells, the lowest "
                     "P(true location) on the way back, the final P(true location) and the time per step. "
@@ -35,7 +35,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "with a wrong map, with Wilson confidence intervals.")
     p.add_argument("scenario", choices=["corridor", *MAPPING_STUDIES],
                    help="which reproduction; loop, anneal and blocking are the EM-mapping studies of "
-                        "onlinemap.mapping_studies (a table with intervals over --runs random runs)")
+                        "onlinemap.studies.mapping (a table with intervals over --runs random runs)")
     p.add_argument("--out", metavar="DIR", help="directory for CSV tables and PNG figures")
     p.add_argument("--random", metavar="N_RUNS", type=positive_int, default=0,
                    help="run the random-corridor study over N_RUNS runs (rounded up to a multiple of 7) "
@@ -53,16 +53,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=positive_int, default=150,
                    help="blocking: steps per run, first observation included (default 150)")
     p.set_defaults(func=reproduce)
-
-
-def steps_table(run, trajectories) -> pd.DataFrame:
-    """One row per estimator and step: P(true location) and map error."""
-    index = np.arange(run.n_steps)
-    return pd.concat([pd.DataFrame({
-        "estimator": label, "t": index, "true_location": run.locations,
-        "p_true_location": trajectory.location[index, run.locations],
-        "map_error": metrics.map_error(trajectory.map, run.maps)}) for label, trajectory in trajectories.items()],
-        ignore_index=True)
 
 
 def scripted(out: Path | None) -> None:
@@ -102,8 +92,8 @@ def study(n_runs: int, seed: int, confidence: float, out: Path | None, workers: 
 
 
 def mapping_study(name: str, args: argparse.Namespace, out: Path | None) -> None:
-    """Run one study of :mod:`onlinemap.mapping_studies`, print its table, write CSVs under ``out``."""
-    from .. import mapping_studies
+    """Run one study of :mod:`onlinemap.studies.mapping`, print its table, write CSVs under ``out``."""
+    from ..studies import mapping as mapping_studies
 
     study_function, measures, description = mapping_studies.STUDIES[name]
     options = {"confidence": args.confidence}
@@ -115,7 +105,7 @@ def mapping_study(name: str, args: argparse.Namespace, out: Path | None) -> None
     print(f"{name}: {description}{steps}; {args.runs} runs from seed {args.seed}; mean [{args.confidence:.0%} interval]")
     print_table(mapping_studies.with_intervals(result.summary, measures))
     if out is not None:
-        written = [write_table(result.per_run, out / f"{name}_runs.csv"),
+        written = [write_table(result.runs, out / f"{name}_runs.csv"),
                    write_table(result.summary, out / f"{name}_summary.csv")]
         print(f"wrote {', '.join(str(p) for p in written)}")
 

@@ -3,24 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import logging
-from typing import TYPE_CHECKING
 
-import numpy as np
-
-from .. import metrics
 from ..arrays import DEFAULT_MAX_BYTES
 from ..errors import MemoryLimitError
-from ..estimators import available_estimators, estimator_options, make_estimator, run_estimator
-from ..progress import show_progress, tqdm
-from ..rng import ESTIMATOR_STREAM, derived_seed
+from ..estimators import available_estimators
 from .common import (OPTION_HELP, add_out_argument, check_table_format, name_list, options_per_estimator,
                      non_negative_int, positive_int, print_table, world, write_tables)
-
-if TYPE_CHECKING:
-    import pandas as pd
-
-log = logging.getLogger(__name__)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -30,8 +18,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "step. The same --seed gives the same run and the same tables (estimators "
                                    "that sample, such as rbpf, are seeded from it too).")
     p.add_argument("--world", default="corridor:8", type=world,
-                   help="world spec: corridor:N[,p_change=..,n_labels=..], grid:RxC, door[,p_door=..] "
-                        "(default corridor:8)")
+                   help="world spec: corridor:N[,p_change=..,n_labels=..], grid:RxC, door[,p_door=..], "
+                        "building:RxC[,seed=..], layout:PATH[,cell_size=..] (default corridor:8)")
     p.add_argument("--estimators", default="exact,dead_reckoning", type=name_list,
                    help=f"comma-separated registry names (default exact,dead_reckoning; available: "
                         f"{', '.join(available_estimators())})")
@@ -45,43 +33,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def compare_on_run(run, names: list[str], options: dict[str, dict] | None = None,
-                   progress: bool = True, seed: int | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Run each estimator over ``run``; returns (summary table, per-step table). Both depend only
-    on the run and the seeds; the time per step, which does not, is ``summary.attrs["ms_per_step"]``.
-
-    An estimator with a ``seed`` option that ``options`` leaves unset gets
-    ``derived_seed(seed, ESTIMATOR_STREAM)`` when ``seed`` is given (as in a sweep task with that
-    seed), so the tables are reproducible.
-    Estimators that would exceed their memory limit are skipped (logged as a warning).
-    Cost: T steps of each estimator; memory O(T N K) per estimator.
-    """
-    import pandas as pd  # here, so that `onlinemap run --help` does not load it
-
-    options = options or {}
-    rows, steps, times = [], [], {}
-    for name in tqdm(names, desc="estimators", disable=not show_progress(progress), leave=False):
-        chosen = dict(options.get(name, {}))
-        if seed is not None and "seed" in estimator_options(name) and chosen.get("seed") is None:
-            chosen["seed"] = derived_seed(seed, ESTIMATOR_STREAM)
-        try:
-            estimator = make_estimator(name, run.model, **chosen)
-        except MemoryLimitError as error:
-            log.warning("%s: skipped: %s", name, error)
-            continue
-        trajectory = run_estimator(estimator, run.actions, run.observations)
-        map_err = metrics.map_error(trajectory.map, run.maps)
-        loc_err = metrics.location_error(trajectory.location, run.locations)
-        rows.append({"estimator": name, "final_map_error": map_err[-1],
-                     "mean_location_error": loc_err.mean(), "final_location_error": loc_err[-1]})
-        times[name] = 1e3 * trajectory.seconds_per_step
-        steps.append(pd.DataFrame({"estimator": name, "t": np.arange(run.n_steps), "map_error": map_err,
-                                   "location_error": loc_err, "log_evidence": trajectory.log_evidence}))
-    summary = pd.DataFrame(rows)
-    summary.attrs["ms_per_step"] = times
-    return summary, pd.concat(steps, ignore_index=True) if steps else pd.DataFrame()
-
-
 def check_run_size(model, n_steps: int, max_bytes: int = DEFAULT_MAX_BYTES) -> None:
     """Refuse a run whose stacked beliefs, (T, N, K + 2) floats per estimator, exceed ``max_bytes``."""
     need = 8 * n_steps * model.n_cells * (model.n_labels + 2)
@@ -92,6 +43,8 @@ def check_run_size(model, n_steps: int, max_bytes: int = DEFAULT_MAX_BYTES) -> N
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..evaluate import compare_on_run  # here: `onlinemap run --help` loads no pandas
+
     check_table_format(args.out, args.format)
     options = options_per_estimator(args.estimators, args.option)
     spec = args.world

@@ -6,7 +6,12 @@ Output, one JSON line per step on stdout: ``t``, the most likely ``location`` an
 probability ``p_location``, the normalised ``location_entropy``, the most likely label of every
 cell (``map``), the mean normalised ``map_entropy``, ``log_evidence`` (null where undefined) and
 ``effective_sample_size`` for particle filters; with ``--full`` also ``location_marginal`` (N,)
-and ``map_marginal`` (N x K). Floats are printed to full precision.
+and ``map_marginal`` (N x K). Floats are printed to full precision. With ``--planner NAME``
+(a registered planner of :mod:`policies`; ``--goal CELL``, an index or ``ROW,COL``, for the goal
+planners ``goto`` and ``static_goto``) every line also carries ``action``, the name of the action
+the planner chooses from that belief: the robot's next move. The planner is built afresh at
+start-up (also on resume) with seed 0; it sees only the beliefs (``info_gain`` is bound to the
+estimator, as in ``explore``).
 
 A malformed line (bad JSON, missing or unknown key, invalid or impossible action or
 observation) gets one JSON line on stderr, ``{"line": n, "error": type, "message": ...}``,
@@ -27,7 +32,8 @@ status is 1 if the final save failed). A restarted process finds the file and re
 (the next line is step ``t + 1``), after checking that the world, estimator and options are the
 ones it was saved with; a file from another onlinemap version of the same checkpoint format
 loads, one of a newer format only with ``--allow-newer-checkpoint``. Cost per line: one
-``step`` plus O(N K) for the summary (O(N K) more output with ``--full``).
+``step`` plus O(N K) for the summary (O(N K) more output with ``--full``), plus the planner's
+choice with ``--planner``.
 """
 
 from __future__ import annotations
@@ -45,7 +51,7 @@ from pathlib import Path
 
 from .. import checkpoint
 from ..belief import Belief
-from ..errors import CheckpointError, OnlineMapError
+from ..errors import CheckpointError, ModelError, OnlineMapError
 from ..estimators import load, make_estimator
 from ..metrics import map_entropy, normalized_entropy
 from ..model import model_difference
@@ -67,7 +73,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "name, omitted on the first line), write one JSON belief summary per step "
                                    "on stdout; errors and events go to stderr as JSON lines.")
     p.add_argument("--world", required=True,
-                   help="world spec: corridor:N[,p_change=..,n_labels=..], grid:RxC, door[,p_door=..]")
+                   help="world spec: corridor:N[,p_change=..,n_labels=..], grid:RxC, door[,p_door=..], "
+                        "building:RxC[,seed=..], layout:PATH[,cell_size=..]")
     p.add_argument("--estimator", required=True, help="registry name (exact, dead_reckoning, bk, rbpf, ...)")
     p.add_argument("-o", "--option", action="append", default=[], metavar="KEY=VALUE",
                    help=f"estimator option, repeatable; {OPTION_HELP}")
@@ -76,6 +83,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--every", type=int, metavar="K",
                    help="save the checkpoint every K steps (default 100; needs --checkpoint)")
     p.add_argument("--full", action="store_true", help="also print the full location and map marginals")
+    p.add_argument("--planner", metavar="NAME",
+                   help="a registered planner (goto, static_goto, entropy, ...): each output line carries its "
+                        "next action")
+    p.add_argument("--goal", metavar="CELL", help="the goal of a goal planner: a cell index or ROW,COL")
     p.add_argument("--allow-newer-checkpoint", action="store_true",
                    help="try to resume from a checkpoint written in a newer format than this onlinemap reads")
     p.set_defaults(func=track)
@@ -204,13 +215,15 @@ def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int
             est, event = _resume(args.checkpoint, args.estimator, world, options, args.allow_newer_checkpoint), \
                 "resume"
     model = world.model
+    planner = _planner(args, model, est)
     _emit(stderr, {"event": event, "t": est.t, "world": args.world, "estimator": est.name,
                    "options": options,
-                   "actions": list(model.action_names), "labels": list(model.label_names)})
+                   "actions": list(model.action_names), "labels": list(model.label_names),
+                   **({} if planner is None else {"planner": repr(planner)})})
     saved, status = [est.t], 0
     with _GracefulStop() as stop:
         try:
-            _loop(est, args, every, stop, stdin, stdout, stderr, saved)
+            _loop(est, planner, args, every, stop, stdin, stdout, stderr, saved)
         except BrokenPipeError:  # the reader is gone: the last step was not delivered, so it is not saved
             _quiet_stdout(stdout)
             _emit(stderr, {"event": "stdout closed", "t": saved[0], "unsaved": est.t - saved[0]})
@@ -223,9 +236,33 @@ def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int
     return status
 
 
-def _loop(est, args, every: int, stop: "_GracefulStop", stdin, stdout, stderr, saved: list[int]) -> None:
+def _goal(text: str) -> int | tuple[int, int]:
+    """``--goal``: ``CELL`` or ``ROW,COL`` (whole numbers), unchecked against the world."""
+    parts = text.split(",")
+    if len(parts) > 2 or not all(part.strip().isdigit() for part in parts):
+        raise ModelError(f"--goal must be a cell index or ROW,COL (whole numbers), got {text!r}")
+    numbers = tuple(int(part) for part in parts)
+    return numbers[0] if len(numbers) == 1 else numbers
+
+
+def _planner(args: argparse.Namespace, model, est):
+    """The ``--planner`` (with ``--goal``), bound to the estimator if it asks to be; None without."""
+    if args.planner is None:
+        if args.goal is not None:
+            raise OnlineMapError("--goal needs --planner (e.g. --planner goto)")
+        return None
+    from policies import make_planner
+
+    planner = make_planner(args.planner, model, seed=0, **({} if args.goal is None else {"goal": _goal(args.goal)}))
+    if hasattr(planner, "bind"):
+        planner.bind(est)
+    return planner
+
+
+def _loop(est, planner, args, every: int, stop: "_GracefulStop", stdin, stdout, stderr, saved: list[int]) -> None:
     """Step through the input until its end or a stop signal; ``saved[0]`` is the step of the
-    last checkpoint written. Every step is printed before any checkpoint that includes it."""
+    last checkpoint written. Every step is printed (with the ``planner``'s next action, if any)
+    before any checkpoint that includes it."""
     try:
         for number, line in read_lines(stdin, stop):
             if isinstance(line, OnlineMapError):
@@ -239,7 +276,10 @@ def _loop(est, args, every: int, stop: "_GracefulStop", stdin, stdout, stderr, s
             except OnlineMapError as error:
                 _emit(stderr, {"line": number, "error": type(error).__name__, "message": _excerpt(str(error))})
                 continue
-            _emit(stdout, summarize(belief, args.full))  # a closed stdout raises BrokenPipeError here
+            record = summarize(belief, args.full)
+            if planner is not None:
+                record["action"] = est.model.action_names[planner.choose(belief)]
+            _emit(stdout, record)  # a closed stdout raises BrokenPipeError here
             if args.checkpoint is not None and (belief.t + 1) % every == 0 and _save(est, args.checkpoint, stderr):
                 saved[0] = est.t
     except _Stopped:  # a signal while waiting for input

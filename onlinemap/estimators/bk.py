@@ -30,6 +30,7 @@ import math
 
 import numpy as np
 
+from .. import state_checks as checks
 from ..belief import Belief
 from ..errors import ImpossibleObservationError
 from ..model import GridModel, apply_motion, passable_probability
@@ -87,6 +88,9 @@ class BoyenKoller:
     """Boyen-Koller filter over ``P(L) prod_i P(m_i)``. No options. O(N K^2) per step
     (O(N (K^2 + F^2 + F K)) with a footprint of F offsets)."""
 
+    #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
+    CONSTANT_STATE = ()
+
     def __init__(self, model: GridModel):
         self.model = model
         self._t = -1
@@ -94,6 +98,17 @@ class BoyenKoller:
         self._maps = np.array(model.label_prior)
         self._log_evidence = 0.0
         self._belief: Belief | None = None
+
+    @staticmethod
+    def check_state(state) -> None:
+        """The invariants of a restored state (:mod:`onlinemap.state_checks`): the factored
+        location (N,) and maps (N, K) are distributions; the belief of step ``_t``."""
+        model = state.model
+        checks.step_index(state)
+        checks.probabilities("_location", checks.array(state, "_location", (model.n_cells,), np.float64))
+        checks.probabilities("_maps", checks.array(state, "_maps", (model.n_cells, model.n_labels), np.float64))
+        checks.log_evidence(state)
+        checks.belief(state, required=True)
 
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
@@ -103,7 +118,7 @@ class BoyenKoller:
             location = apply_motion(self.model, location, a, passable)
             if not self.model.is_static:
                 maps = maps @ self.model.change
-        if self.model.has_footprint:
+        if not self.model.reads_own_cell:
             location, maps, total = bk_footprint_update(self.model, location, maps, z)
             log_scale = 0.0
         else:
@@ -115,7 +130,7 @@ class BoyenKoller:
             location, maps, total = updated
         if total == 0.0:
             raise ImpossibleObservationError(
-                f"observation {np.asarray(z).tolist() if self.model.has_footprint else self.model.label_names[z]!r} "
+                f"observation {self.model.label_names[z] if self.model.reads_own_cell else np.asarray(z).tolist()!r} "
                 f"has probability zero under the factored "
                 f"(Boyen-Koller) belief at step {self._t + 1}")
         self._location, self._maps = location, maps

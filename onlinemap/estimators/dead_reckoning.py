@@ -9,6 +9,7 @@ O(N + N K^2) per step, for any footprint.
 
 from __future__ import annotations
 
+from .. import state_checks as checks
 from ..belief import Belief
 from ..model import GridModel, apply_motion, passable_probability
 from ..validation import check_step
@@ -19,10 +20,19 @@ from .base import register
 class DeadReckoning:
     """Motion-only location filter; map = prior. No options."""
 
+    #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
+    CONSTANT_STATE = ()
+
     def __init__(self, model: GridModel):
         self.model = model
         self._t = -1
         self._belief: Belief | None = None
+
+    @staticmethod
+    def check_state(state) -> None:
+        """The invariants of a restored state (:mod:`onlinemap.state_checks`): the belief of step ``_t``."""
+        checks.step_index(state)
+        checks.belief(state, required=True)
 
     def step(self, action, observation) -> Belief:
         a, _ = check_step(self.model, self._t + 1, action, observation)

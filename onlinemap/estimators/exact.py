@@ -24,6 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import arguments
+from .. import state_checks as checks
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError
@@ -71,6 +72,8 @@ class ExactFilter:
     """Exact filtering of ``P(L_t, M_t | z_0:t, a_1:t)``. Options: ``max_bytes`` (memory guard)."""
 
     scratch_attributes = ("_scratch", "_joint_map")  # overwritten by every step: not checkpointed
+    #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
+    CONSTANT_STATE = ("max_bytes", "_no_motion", "_flat")
 
     def __init__(self, model: GridModel, *, max_bytes: int = DEFAULT_MAX_BYTES):
         max_bytes = arguments.byte_limit("max_bytes", max_bytes, InvalidOptionError)
@@ -88,9 +91,25 @@ class ExactFilter:
         self._no_motion = (np.ones(n), np.full(n, -1, dtype=np.int64))
         self._flat = np.ones(k)  # the likelihood of "no observation" (dynamic steps)
 
+    @staticmethod
+    def check_state(state) -> None:
+        """The invariants of a restored state (:mod:`onlinemap.state_checks`): the joint ``_x``
+        (N, K**N) finite, non-negative, summing to ``_norm``; the belief of step ``_t``."""
+        model = state.model
+        n, k = model.n_cells, model.n_labels
+        checks.step_index(state)
+        x = checks.array(state, "_x", (n, k**n), np.float64, written=True)
+        norm = checks.real(state, "_norm", low=np.finfo(float).tiny)
+        if not np.all(np.isfinite(x)) or np.any(x < 0):
+            checks.fail("_x", "must be finite and non-negative")
+        if abs(x.sum() / norm - 1) > checks.ATOL:
+            checks.fail("_x", f"sums to {x.sum()!r}, not to _norm = {norm!r}")
+        checks.log_evidence(state)
+        checks.belief(state, required=True)
+
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
-        if self.model.has_blocking or self.model.has_footprint:
+        if self.model.has_blocking or not self.model.reads_own_cell:
             return self._general_step(a, z)
         model = self.model
         likelihood = model.likelihood[z]
@@ -286,7 +305,7 @@ def exact_smooth(model: GridModel, actions, observations, *, max_bytes: int = DE
     alphas = np.empty((n_steps, n, k**n))
     log_evidence = 0.0
     scales = np.empty(n_steps)
-    general = model.has_blocking or model.has_footprint
+    general = model.has_blocking or not model.reads_own_cell
     passable = passable_tensor(model) if model.has_blocking else None
 
     def move(x, a, transpose=False):

@@ -24,6 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import state_checks as checks
 from ..arrays import read_only
 from ..belief import Belief
 from .. import arguments
@@ -140,6 +141,10 @@ class OfflineEM:
     ``log_evidence`` = log P(z_0..t | a; B_t), the likelihood of the fitted B.
     """
 
+    #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
+    CONSTANT_STATE = ("n_iter", "tol", "pseudo_count", "anneal", "_prior_emission", "_location_prior",
+                      "_sensor_inverse")
+
     def __init__(self, model: GridModel, *, n_iter: int = 200, tol: float = 1e-8, pseudo_count: float = 0.1,
                  anneal: tuple[float, float, float] | None = None):
         self.model = model
@@ -157,6 +162,13 @@ class OfflineEM:
                                       dtype=np.int64)
         self._t = -1
         self._belief: Belief | None = None
+
+    @staticmethod
+    def check_state(state) -> None:
+        """The invariants of a restored state (:mod:`onlinemap.state_checks`): the record of
+        every action and observation so far; the belief of step ``_t``."""
+        checks.run_record(state, checks.step_index(state) + 1)
+        checks.belief(state, required=True)
 
     def fit(self, actions, observations) -> EMFit:
         """Batch use: Baum-Welch on a whole run with this estimator's options (state untouched)."""

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import state_checks as checks
 from ..belief import Belief
 from .. import arguments
 from ..errors import InvalidOptionError
@@ -60,6 +61,9 @@ class OnlineEM:
     forever; ``"max"`` for the whole history, O(t) per step), ``decay`` (lambda in (0, 1]: weight of the previous statistics), ``pseudo_count`` (c >= 0
     added to every count of the M-step)."""
 
+    #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
+    CONSTANT_STATE = ("window", "_window", "decay", "pseudo_count", "_prior_emission", "_sensor_inverse")
+
     def __init__(self, model: GridModel, *, window: int | str = 16, decay: float = 1.0,
                  pseudo_count: float = 0.1):
         self.model = model
@@ -78,6 +82,26 @@ class OnlineEM:
         self._log_evidence = 0.0
         self._t = -1
         self._belief: Belief | None = None
+
+    @staticmethod
+    def check_state(state) -> None:
+        """The invariants of a restored state (:mod:`onlinemap.state_checks`): the window's
+        record of actions and observations, its filtered locations, the emission table and the
+        sufficient statistics (N, K); the belief of step ``_t``."""
+        model = state.model
+        n, k = model.n_cells, model.n_labels
+        t = checks.step_index(state)
+        window = state._window
+        kept = t + 1 if window is None else min(t + 1, window)
+        checks.run_record(state, kept)
+        filtered = checks.array(state, "_filtered", (0 if window is None else kept, n), np.float64, written=True)
+        checks.probabilities("_filtered", filtered)
+        checks.probabilities("_emission", checks.array(state, "_emission", (n, k), np.float64))
+        stats = checks.array(state, "_stats", (n, k), np.float64)
+        if not np.all(np.isfinite(stats)) or np.any(stats < 0):
+            checks.fail("_stats", "must be finite and non-negative")
+        checks.log_evidence(state)
+        checks.belief(state, required=True)
 
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)

@@ -43,6 +43,7 @@ import math
 import numpy as np
 
 from .. import arguments
+from .. import state_checks as checks
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
@@ -59,6 +60,14 @@ from .block_pool import FORMAT_1_ATTRIBUTES, REFRESH_STEPS, BlockPool, block_lay
 PROPOSALS = ("optimal", "transition")
 FEARNHEAD_CLIFFORD = "fearnhead_clifford"
 RESAMPLING = (*RESAMPLERS, FEARNHEAD_CLIFFORD)
+#: the filter's named schemes (the options that make each), which studies, benchmarks and figures
+#: compare: the default (optimal proposal, Fearnhead-Clifford resampling), the optimal proposal
+#: sampled with residual resampling, and the transition proposal with residual resampling
+SCHEMES: dict[str, dict[str, str]] = {
+    "FC": {"proposal": "optimal", "resampling": FEARNHEAD_CLIFFORD},
+    "optimal+residual": {"proposal": "optimal", "resampling": "residual"},
+    "transition+residual": {"proposal": "transition", "resampling": "residual"},
+}
 
 
 def _logsumexp(x: np.ndarray) -> float:
@@ -130,6 +139,11 @@ class RaoBlackwellisedPF:
     the particle maps (worst case: every particle owning all its blocks).
     """
 
+    #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
+    CONSTANT_STATE = ("n_particles", "proposal", "resampling", "resample_threshold", "lazy_dynamics",
+                      "_blocks.stamped", "_blocks.cell_block", "_blocks.cell_slot", "_blocks.block_members",
+                      "_blocks.powers")
+
     def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
                  resampling: str | None = None, resample_threshold: float = 0.5, seed: SeedLike = None,
                  lazy_dynamics: bool = True, block_cells: int | None = None,
@@ -190,6 +204,31 @@ class RaoBlackwellisedPF:
             fields = {field: attributes.pop(name) for name, field in FORMAT_1_ATTRIBUTES.items()}
             attributes["_blocks"] = state_node(BlockPool, fields)
         return attributes
+
+    @staticmethod
+    def check_state(state) -> None:
+        """The invariants of a restored state (:mod:`onlinemap.state_checks`): the particles, their
+        weights and the copy-on-write block pool (:meth:`BlockPool.check
+        <onlinemap.estimators.block_pool.BlockPool.check>`)."""
+        model = state.model
+        n, k, p = model.n_cells, model.n_labels, state.n_particles
+        t = checks.step_index(state)
+        checks.indices("_locations", checks.array(state, "_locations", (p,), np.int64, written=True), n)
+        log_weights = checks.array(state, "_log_weights", (p,), np.float64)
+        if np.any(np.isnan(log_weights)) or np.any(log_weights == math.inf) or not np.any(np.isfinite(log_weights)):
+            checks.fail("_log_weights", "must be finite or -inf, at least one finite")
+        top = float(log_weights.max())
+        if abs(top + math.log(float(np.exp(log_weights - top).sum()))) > checks.ATOL:
+            checks.fail("_log_weights", "must be normalised (log-sum-exp 0)")
+        weights = checks.array(state, "_weights", (p,), np.float64)
+        if weights.tobytes() != np.exp(log_weights).tobytes():
+            checks.fail("_weights", "must equal exp(_log_weights)")
+        checks.real(state, "_ess", low=0.0, high=float(p))
+        checks.log_evidence(state)
+        if type(state._resampled) is not bool:
+            checks.fail("_resampled", "must be a bool")
+        state._blocks.check(p, k, t)  # the copy-on-write pool (estimators/block_pool.py); its kind was checked
+        checks.belief(state, required=False)
 
     @property
     def resampled(self) -> bool:

@@ -31,8 +31,9 @@ A list is always a grid; a list-valued option is written as a list of lists
 run instead (:func:`policies.explore`: the planner chooses the actions, the estimator tracks
 the belief); ``walk`` and ``reference`` do not apply there, and ``floor_plan = 0.8`` (or a
 list) gives the robot a label prior that puts that confidence on the true initial map
-(``policies.with_floor_plan``; door cells: a door, state unknown). Planner names and options
-come from the ``policies`` registry (``policies.PLANNERS``, ``policies.planner_options``).
+(``policies.with_floor_plan``; door cells: a door, state unknown); ``goals = [CELL, ...]`` makes
+every task a navigation run to each goal instead. Planner names and options come from the task
+kind that plays them (:mod:`.kinds`; ``policies.PLANNERS``), which the engine never imports.
 
 Every task is one cell of the product (world, estimator configuration[, planner
 configuration], steps, walk, seed). The spec is checked completely before any task runs:
@@ -56,7 +57,9 @@ The package, one job per module, imports running one way (``tasks`` <- ``spec``,
 - :mod:`.tasks`: :class:`Task`, :class:`SweepSpec`, expansion of a grid into tasks (counted and
   capped first);
 - :mod:`.spec`: reading and validating TOML specs (:func:`load_spec`, :class:`SpecError`);
-- :mod:`.runner`: one task (:func:`run_task`): simulate, estimate or explore, score;
+- :mod:`.kinds`: the kinds of task played by packages above the engine (``explore``,
+  ``navigate``: ``policies``), registered or found through entry points, never imported;
+- :mod:`.runner`: one task (:func:`run_task`): simulate and estimate, or play its kind; score;
 - :mod:`.store`: the part store (atomic parts, resume, :func:`collect` without the spec);
 - :mod:`.engines`: :func:`sweep` serially or on dask.distributed;
 - :mod:`.summary`: :func:`summarize`, :func:`summary_table`, :func:`plot_sweep`.
@@ -66,13 +69,15 @@ from .engines import SweepError, connect, local_cluster, sweep
 from .runner import derived_seed, run_task, scripted_trip, simulated_run, walk_actions, world
 from .spec import MAX_SEED, MAX_STEPS, SpecError, load_spec, matches_annotation, parse_spec, spec_from_dict
 from .store import assemble, collect, default_results_dir, finished_tasks, write_part
-from .summary import last_steps, plot_sweep, summarize, summary_table
+from .kinds import Played, TaskKind, register_kind, task_kind
+from .summary import last_steps, plot_sweep, summarize, summary_table, summary_wide
 from .tasks import CONFIG_COLUMNS, MAX_TASKS, TASK_COLUMNS, SweepSpec, Task, count_tasks, expand
 
 __all__ = [
     "sweep", "SweepError", "SpecError", "SweepSpec", "Task", "load_spec", "parse_spec", "spec_from_dict",
     "matches_annotation", "run_task", "simulated_run", "scripted_trip", "walk_actions", "derived_seed", "world",
     "collect", "assemble", "default_results_dir", "finished_tasks", "write_part", "local_cluster", "connect",
-    "summarize", "summary_table", "plot_sweep", "last_steps", "expand", "count_tasks",
+    "summarize", "summary_table", "summary_wide", "plot_sweep", "last_steps", "expand", "count_tasks",
+    "TaskKind", "Played", "register_kind", "task_kind",
     "TASK_COLUMNS", "CONFIG_COLUMNS", "MAX_TASKS", "MAX_SEED", "MAX_STEPS",
 ]

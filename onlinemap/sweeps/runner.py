@@ -8,7 +8,10 @@ the task's seed (unless the spec sets it). Each process parses a world string on
 (:func:`world`) and memoises the last runs and reference trajectories, so the tasks sharing a
 run (every estimator of a seed) simulate it once.
 
-Imports: :mod:`.tasks`, :mod:`onlinemap.evaluate`; ``policies`` lazily (exploration tasks).
+Tasks a planner plays (``explore``, ``navigate``) are run by their registered kind
+(:mod:`.kinds`); the engine scores them like any other.
+
+Imports: :mod:`.tasks`, :mod:`.kinds`, :mod:`onlinemap.evaluate`.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from ..rng import ESTIMATOR_STREAM, derived_seed
 from ..scenarios import one_slip_corridor
 from ..simulate import Run, random_walk, there_and_back
 from ..worlds import WorldSpec, parse_world
+from .kinds import Played, task_kind
 from .tasks import OPTION_PREFIXES, Task, options_text
 
 
@@ -36,10 +40,14 @@ def world(spec: str) -> WorldSpec:
 
 
 def walk_actions(model: GridModel, walk: str, n_actions: int, rng: np.random.Generator) -> np.ndarray:
-    """``random``: uniform actions; ``there_and_back``: right N - 1 times, left N - 1 times,
-    repeated and cut to ``n_actions``."""
+    """``random``: uniform actions; ``there_and_back``: right N - 1 times, left N - 1 times;
+    ``repeat:NAME,...``: those actions; each repeated and cut to ``n_actions`` (only ``random``
+    draws from ``rng``)."""
     if walk == "random":
         return random_walk(model, n_actions, rng)
+    if walk.startswith("repeat:"):
+        script = [model.action_names.index(name) for name in walk[len("repeat:"):].split(",")]
+        return np.resize(np.array(script, dtype=np.int64), n_actions)
     return np.resize(there_and_back(model), n_actions)
 
 
@@ -89,48 +97,56 @@ def run_task(task: Task) -> pd.DataFrame:
     Cost: the estimator's run, plus (unless this process has just had them for another task)
     one simulation and the reference's run (:func:`simulated_run`, :func:`reference_trajectory`).
     """
-    if task.kind == "explore":
-        run, trajectory = _explore(task)
-        reference = None
+    reference = None
+    if task.kind != "estimate":
+        played = _play(task)
     else:
         run = simulated_run(task.world, task.steps, task.walk, task.seed)
         trajectory = timed_trajectory(task.estimator, run.model, _options(task.estimator, task.options, task.seed),
                                       run)
-        reference = None
+        played = Played(run, trajectory, {}, {})
         if task.reference is not None:
             # the reference estimator itself, unconfigured: its own trajectory (distance 0)
             reference = trajectory if (task.estimator, task.options) == (task.reference, ()) else \
                 reference_trajectory(task.world, task.steps, task.walk, task.seed, task.reference)
+    run, trajectory = played.run, played.trajectory
     steps = step_metrics(run, trajectory, reference)
     if task.per_step:
         frame = steps[["t", "true_location", *(c for c in STEP_METRICS if c in steps)]].assign(
-            ms_per_step=1e3 * trajectory.seconds_per_step)
+            **played.step_columns, ms_per_step=1e3 * trajectory.seconds_per_step)
     else:
         row = run_metrics(run, trajectory, reference, steps, trip=task.walk != "random")
-        frame = pd.DataFrame([{name: row[name] for name in RUN_METRICS if name in row}])
+        frame = pd.DataFrame([{**{name: row[name] for name in RUN_METRICS if name in row}, **played.run_columns}])
     return describe(task, frame, run.n_steps)
 
 
-def _explore(task: Task) -> tuple[Run, Trajectory]:
-    import policies
-
+def _play(task: Task) -> Played:
+    """A task of a played kind, in its world: the true map drawn from the task's seed (stream 3),
+    the robot's model given the floor plan, then the kind's ``play``."""
+    kind = task_kind(task.kind)
     spec = world(task.world)
     true_map = spec.initial_map(np.random.default_rng(derived_seed(task.seed, 3)))
-    model = spec.model if task.floor_plan is None else policies.with_floor_plan(spec.model, true_map, task.floor_plan)
-    result = policies.exploration(model, true_map, task.planner, task.estimator, task.steps, task.seed,
-                                  estimator_options=dict(task.options),
-                                  planner_options=dict(task.planner_options), progress=False)
-    return result.run, result.trajectory
+    model = spec.model if task.floor_plan is None else kind.prior(spec.model, true_map, task.floor_plan)
+    return kind.play(model, true_map, task)
 
 
 def describe(task: Task, frame: pd.DataFrame, n_steps: int) -> pd.DataFrame:
-    """Prefix the task's description columns (those of its kind; ``steps``: the run's actual
-    number of steps) and append one typed ``opt_NAME`` (``planner_opt_NAME``) column per option."""
+    """Prefix the task's description columns (those of its kind, and its labels if the spec gave
+    them; ``steps``: the run's actual number of steps) and append one typed ``opt_NAME``
+    (``planner_opt_NAME``) column per option."""
     described = {"task": task.key, "kind": task.kind, "world": task.world}
-    if task.kind == "explore":
-        described.update(planner=task.planner, planner_options=options_text(task.planner_options),
+    if task.kind != "estimate":
+        described["planner"] = task.planner
+        if task.planner_label is not None:
+            described["planner_label"] = task.planner_label
+        described.update(planner_options=options_text(task.planner_options),
                          floor_plan=np.nan if task.floor_plan is None else task.floor_plan)
-    described.update(estimator=task.estimator, options=options_text(task.options), steps=n_steps)
+    if task.kind == "navigate":
+        described["goal"] = task.goal
+    described["estimator"] = task.estimator
+    if task.label is not None:
+        described["label"] = task.label
+    described.update(options=options_text(task.options), steps=n_steps)
     if task.kind == "estimate":
         described.update(walk=task.walk, reference=task.reference or "")
     described["seed"] = task.seed

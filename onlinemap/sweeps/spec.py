@@ -7,7 +7,10 @@ and every (world, configuration) pair is built once, so option values an estimat
 memory limits are caught too. Errors name the file, line and key path (:class:`SpecError`).
 Each world string is parsed once here; the task runner parses it once per process.
 
-Imports: :mod:`.tasks`; ``policies`` lazily, for exploration specs only.
+Specs with ``[planners.NAME]`` tables (exploration; navigation with ``goals``) are checked by
+the task kind that plays them (:mod:`.kinds`), which the engine finds without importing it.
+
+Imports: :mod:`.tasks`, :mod:`.kinds`.
 """
 
 from __future__ import annotations
@@ -29,12 +32,14 @@ from ..errors import OnlineMapError
 from ..estimators import available_estimators, estimator_options, make_estimator
 from ..estimators.base import _lookup as _estimator_class
 from ..worlds import WorldSpec, parse_world
+from .kinds import TaskKind, task_kind
 from .tasks import MAX_TASKS, SweepSpec, expand, frozen, options_text, plain
 
 WALKS = ("random", "there_and_back", "scripted_trip")
+REPEAT = "repeat:"  # walk = "repeat:east,east,south": those actions, over and over
 ROWS = ("task", "step")
-TOP_KEYS = ("name", "worlds", "seeds", "steps", "walk", "rows", "reference", "floor_plan", "estimators",
-            "planners")
+TOP_KEYS = ("name", "kind", "worlds", "seeds", "steps", "walk", "rows", "reference", "floor_plan", "goals",
+            "estimators", "planners")
 MAX_SEED = 2**63 - 1  # seeds go through numpy's SeedSequence as int64-sized integers
 MAX_STEPS = 10**7  # a run holds its T x N x K beliefs in memory: 10^7 steps of a 2-cell binary world is 320 MB
 
@@ -131,24 +136,26 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
     seeds = _seeds(data, where)
     steps = _steps(data, where)
     rows = _choice(data, "rows", ROWS, where, default="task")
-    explore = "planners" in data
-    if explore:
+    kind = _played_kind(data, where)
+    if kind is not None:
         for key in ("walk", "reference"):
             if key in data:
                 raise where.error((key,), "does not apply to exploration sweeps (with [planners])")
         walks, reference = ["random"], None
-        planners = _configs(data, "planners", where, _planner_options, _planner_class, max_tasks)
-        floor_plans = _floor_plans(data, worlds, where)
+        planners = _configs(data, "planners", where, kind.options, kind.option_class, max_tasks)
+        floor_plans = _floor_plans(data, worlds, kind, where)
+        goals = _goals(data, worlds, where) if kind.name == "navigate" else [None]
     else:
-        walks = _choices(data, "walk", WALKS, where, default="random")
+        walks = _walks(data, worlds, where)
         reference = data.get("reference")
         if reference is not None and reference not in available_estimators():
             raise where.error(("reference",), f"unknown estimator {reference!r}; "
                                               f"available: {', '.join(available_estimators())}")
-        planners = [(None, (), ())]
-        if "floor_plan" in data:
-            raise where.error(("floor_plan",), "applies to exploration sweeps (with [planners]) only")
-        floor_plans = [None]
+        planners = []
+        for key in ("floor_plan", "goals"):
+            if key in data:
+                raise where.error((key,), "applies to exploration sweeps (with [planners]) only")
+        floor_plans, goals = [None], [None]
     estimators = _configs(data, "estimators", where, estimator_options, _estimator_class, max_tasks)
     if "trip" in steps and not set(walks) <= {"there_and_back", "scripted_trip"}:
         raise where.error(("steps",), 'steps = "trip" (one there-and-back trip) needs walk = "there_and_back" '
@@ -161,12 +168,14 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
         if bad:
             raise where.error(("walk",), f"there_and_back needs corridor worlds (scripted_trip static ones), "
                                          f"not {', '.join(bad)}")
-    _check_builds(worlds, estimators, planners, where)
+    _check_builds(worlds, estimators, planners, kind, goals, where)
     if reference is not None:
-        _check_builds(worlds, [(reference, (), ("reference",))], [(None, (), ())], where)
+        _check_builds(worlds, [(reference, (), ("reference",), None)], [], None, [None], where)
     try:
-        tasks = expand([w.spec for w in worlds], [c[:2] for c in estimators], [c[:2] for c in planners],
-                       floor_plans, steps, walks, seeds, reference, rows == "step", max_tasks)
+        tasks = expand([w.spec for w in worlds], [(c[0], c[1], c[3]) for c in estimators],
+                       [(c[0], c[1], c[3]) for c in planners] or [(None, (), None)],
+                       floor_plans, steps, walks, seeds, reference, rows == "step", max_tasks, goals,
+                       kind.name if kind is not None and kind.name not in ("explore", "navigate") else None)
     except OnlineMapError as error:
         raise where.error((), str(error)) from None
     label = data.get("name", name)
@@ -175,9 +184,29 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
     return SweepSpec(label, tasks, where.source, json.dumps(plain(data), sort_keys=True, default=str))
 
 
-def _floor_plans(data: dict, worlds: list[WorldSpec], where: _Locator) -> list[float | None]:
-    """``floor_plan``: none, a confidence or a list of them (``policies.with_floor_plan``: the
-    robot's label prior puts that much on each cell's true label of the initial map)."""
+def _played_kind(data: dict, where: _Locator) -> TaskKind | None:
+    """The kind of a spec with ``[planners]`` tables: ``kind`` if given (a registered kind, e.g.
+    ``replay``), else ``navigate`` with ``goals``, else ``explore`` (None for a spec without
+    planners: the engine's own simulate-and-filter tasks)."""
+    if "planners" not in data:
+        if "kind" in data:
+            raise where.error(("kind",), "a task kind plays [planners.NAME] tables: add one")
+        return None
+    name = data.get("kind", "navigate" if "goals" in data else "explore")
+    if not isinstance(name, str):
+        raise where.error(("kind",), f"expected the name of a task kind, got {name!r}")
+    try:
+        kind = task_kind(name)
+    except OnlineMapError as error:
+        raise where.error(("kind",) if "kind" in data else ("planners",), str(error)) from None
+    if "goals" in data and kind.name != "navigate":
+        raise where.error(("goals",), f"goals are for navigation; kind {kind.name!r} has none")
+    return kind
+
+
+def _floor_plans(data: dict, worlds: list[WorldSpec], kind: TaskKind, where: _Locator) -> list[float | None]:
+    """``floor_plan``: none, a confidence or a list of them (the kind's ``prior``: the robot's
+    label prior puts that much on each cell's true label of the initial map)."""
     value = data.get("floor_plan")
     if value is None:
         return [None]
@@ -187,10 +216,35 @@ def _floor_plans(data: dict, worlds: list[WorldSpec], where: _Locator) -> list[f
     for world in worlds:
         for confidence in values:
             try:
-                _policies().with_floor_plan(world.model, world.initial_map(0), float(confidence))
+                kind.prior(world.model, world.initial_map(0), float(confidence))
             except OnlineMapError as error:
                 raise where.error(("floor_plan",), f"{world.spec}: {error}") from None
     return [float(v) for v in values]
+
+
+def _goals(data: dict, worlds: list[WorldSpec], where: _Locator) -> list[int]:
+    """``goals``: a cell index, ``[row, col]``, or a list of them (each a cell of every world)."""
+    value = data["goals"]
+    values = value if isinstance(value, list) and not (len(value) == 2 and all(map(_is_int, value))) else [value]
+    cells = []
+    for goal in values:
+        found = set()
+        for world in worlds:
+            model = world.model
+            if _is_int(goal) and 0 <= goal < model.n_cells:
+                found.add(goal)
+            elif isinstance(goal, list) and len(goal) == 2 and all(map(_is_int, goal)) \
+                    and 0 <= goal[0] < model.rows and 0 <= goal[1] < model.cols:
+                found.add(goal[0] * model.cols + goal[1])
+            else:
+                raise where.error(("goals",), f"expected cell indices or [row, col] pairs on {world.spec} "
+                                              f"({model.rows} x {model.cols}), got {goal!r}")
+        if len(found) > 1:
+            raise where.error(("goals",), f"{goal!r} is a different cell in each world; give a cell index")
+        cells.append(found.pop())
+    if not cells:
+        raise where.error(("goals",), "empty list: give at least one goal")
+    return cells
 
 
 def _worlds(data: dict, where: _Locator) -> list[WorldSpec]:
@@ -237,20 +291,32 @@ def _steps(data: dict, where: _Locator) -> list[int | str]:
     return values
 
 
+def _walks(data: dict, worlds: list[WorldSpec], where: _Locator) -> list[str]:
+    """``walk``: one of :data:`WALKS`, ``"repeat:NAME,NAME,..."`` (those actions over and over,
+    each name an action of every world), or a list of them."""
+    value = data.get("walk", "random")
+    values = value if isinstance(value, list) else [value]
+    for walk in values:
+        if isinstance(walk, str) and walk.startswith(REPEAT):
+            names = walk[len(REPEAT):].split(",")
+            for world in worlds:
+                unknown = [n for n in names if n not in world.model.action_names]
+                if unknown:
+                    raise where.error(("walk",), f"{walk!r}: {', '.join(map(repr, unknown))} not actions of "
+                                                 f"{world.spec} ({', '.join(world.model.action_names)})")
+        elif walk not in WALKS:
+            raise where.error(("walk",), f"expected one of {', '.join(map(repr, WALKS))}, \"{REPEAT}NAME,...\" "
+                                         f"or a list of them, got {value!r}")
+    if not values:
+        raise where.error(("walk",), "empty list: give at least one walk")
+    return values
+
+
 def _choice(data: dict, key: str, allowed: tuple, where: _Locator, default: str) -> str:
     value = data.get(key, default)
     if value not in allowed:
         raise where.error((key,), f"expected one of {', '.join(map(repr, allowed))}, got {value!r}")
     return value
-
-
-def _choices(data: dict, key: str, allowed: tuple, where: _Locator, default: str) -> list[str]:
-    value = data.get(key, default)
-    values = value if isinstance(value, list) else [value]
-    if not values or any(v not in allowed for v in values):
-        raise where.error((key,), f"expected one of {', '.join(map(repr, allowed))} or a list of them, "
-                                  f"got {value!r}")
-    return values
 
 
 # --- option grids and their types ------------------------------------------------------------
@@ -337,8 +403,10 @@ def _grid(table, path: tuple, known: dict, cls: type, where: _Locator, max_tasks
 
 
 def _configs(data: dict, section: str, where: _Locator, options_of: Callable[[str], dict],
-             builder: Callable[[str], type], max_tasks: int) -> list[tuple[str, tuple, tuple]]:
-    """[(name, options, key path)] for every configuration in ``[section.NAME]`` tables."""
+             builder: Callable[[str], type], max_tasks: int) -> list[tuple[str, tuple, tuple, str | None]]:
+    """[(name, options, key path, label)] for every configuration in ``[section.NAME]`` tables.
+    A table's ``label`` (a string, not an option) names its configurations in the results
+    (column ``label`` or ``planner_label``), so a study reads its groups as data."""
     tables = data.get(section)
     if not isinstance(tables, dict) or not tables:
         kind = section[:-1]
@@ -350,53 +418,35 @@ def _configs(data: dict, section: str, where: _Locator, options_of: Callable[[st
         except OnlineMapError as error:
             raise where.error((section, name), str(error)) from None
         cls = builder(name)
-        if isinstance(body, list):  # an array of tables: several grids
-            for index, table in enumerate(body):
-                path = (section, name, index)
-                configs += [(name, combo, path) for combo in _grid(table, path, known, cls, where, max_tasks)]
-        else:
-            path = (section, name)
-            configs += [(name, combo, path) for combo in _grid(body, path, known, cls, where, max_tasks)]
+        grids = [((section, name, index), table) for index, table in enumerate(body)] if isinstance(body, list) \
+            else [((section, name), body)]
+        for path, table in grids:
+            label = None
+            if isinstance(table, dict) and "label" in table and "label" not in known:
+                table = dict(table)
+                label = table.pop("label")
+                if not isinstance(label, str) or not label:
+                    raise where.error(path + ("label",), f"expected a non-empty string, got {label!r}")
+            configs += [(name, combo, path, label) for combo in _grid(table, path, known, cls, where, max_tasks)]
     return configs
 
 
-def _policies():
-    try:
-        import policies
-    except ImportError as error:  # pragma: no cover - policies ships with onlinemap
-        raise OnlineMapError(f"exploration sweeps need the policies package: {error}") from None
-    if not hasattr(policies, "explore"):
-        raise OnlineMapError("exploration sweeps need policies.explore, which this install lacks")
-    return policies
-
-
-def _planner_options(name: str) -> dict:
-    """A planner's options and defaults, from the ``policies`` registry (nothing is built)."""
-    policies = _policies()
-    try:
-        return policies.planner_options(name)
-    except OnlineMapError:
-        raise OnlineMapError(f"unknown planner {name!r}; available: {', '.join(policies.PLANNERS)}") from None
-
-
-def _planner_class(name: str) -> type:
-    return _policies().planner_class(name)
-
-
-def _check_builds(worlds: list[WorldSpec], estimators: list, planners: list, where: _Locator) -> None:
-    """Build every (world, configuration) once, so refused values and memory limits show now."""
+def _check_builds(worlds: list[WorldSpec], estimators: list, planners: list, kind: TaskKind | None,
+                  goals: list, where: _Locator) -> None:
+    """Build every (world, configuration) once, so refused values and memory limits show now
+    (a planner with every goal, which is one of its options)."""
     for world in worlds:
-        for name, options, path in estimators:
+        for name, options, path, _ in estimators:
             try:
                 make_estimator(name, world.model, **dict(options))
             except Exception as error:  # the estimator's own validation, whatever it raises
                 raise where.error(path, f"{name}({options_text(options)}) on {world.spec}: "
                                         f"{type(error).__name__}: {error}") from None
-        for name, options, path in planners:
-            if name is None:
-                continue
-            try:
-                _policies().make_planner(name, world.model, seed=0, **dict(options))
-            except Exception as error:
-                raise where.error(path, f"planner {name}({options_text(options)}) on {world.spec}: "
-                                        f"{type(error).__name__}: {error}") from None
+        for name, options, path, _ in planners:
+            for goal in goals:
+                chosen = dict(options) if goal is None else {**dict(options), "goal": goal}
+                try:
+                    kind.build(world.model, name, chosen)
+                except Exception as error:
+                    raise where.error(path, f"planner {name}({options_text(tuple(sorted(chosen.items())))}) on "
+                                            f"{world.spec}: {type(error).__name__}: {error}") from None

@@ -37,11 +37,14 @@ def last_steps(table: pd.DataFrame) -> pd.DataFrame:
     return table
 
 
-def summarize(table: pd.DataFrame, metrics_: Iterable[str] | None = None, confidence: float = 0.95) -> pd.DataFrame:
-    """Per configuration (every task column that varies but the seed; with one configuration,
-    its estimator or planner), for each metric: n, mean and a ``confidence`` interval over seeds
-    (see :func:`mean_interval`). A per-step table is summarised at each task's last step. One
-    row per configuration and metric."""
+def summarize(table: pd.DataFrame, metrics_: Iterable[str] | None = None, confidence: float = 0.95, *,
+              by: Iterable[str] | None = None) -> pd.DataFrame:
+    """Per configuration (the columns ``by``; default every task column that varies but the
+    seed; with one configuration, its estimator or planner), for each metric: n, mean and a
+    ``confidence`` interval over seeds (see :func:`mean_interval`; Wilson for boolean columns).
+    A per-step table is summarised at each task's last step. One row per configuration and
+    metric, configurations in order of appearance. Every study's summary is this one
+    (:func:`summary_wide` and :func:`summary_table` are views of it)."""
     table = last_steps(table)
     known = tuple(dict.fromkeys(RUN_METRICS + STEP_METRICS))
     chosen = [m for m in dict.fromkeys(metrics_ or known) if m in table.columns]
@@ -49,8 +52,11 @@ def summarize(table: pd.DataFrame, metrics_: Iterable[str] | None = None, confid
     if missing:
         raise OnlineMapError(f"no metric {', '.join(missing)} in the table; it has: "
                              f"{', '.join(m for m in known if m in table.columns)}")
-    config = [c for c in CONFIG_COLUMNS if c in table.columns and table[c].nunique(dropna=False) > 1] or \
-        [c for c in ("estimator", "planner") if c in table.columns][:1]  # one configuration: name it
+    if by is not None:
+        config = list(by)
+    else:
+        config = [c for c in CONFIG_COLUMNS if c in table.columns and table[c].nunique(dropna=False) > 1] or \
+            [c for c in ("estimator", "planner") if c in table.columns][:1]  # one configuration: name it
     rows = []
     groups = table.groupby(config, sort=False, dropna=False) if config else [((), table)]
     for keys, group in groups:
@@ -61,6 +67,20 @@ def summarize(table: pd.DataFrame, metrics_: Iterable[str] | None = None, confid
                 continue
             rows.append({**dict(zip(config, keys)), "metric": metric, "n": len(group),
                          "mean": interval.mean, "low": interval.low, "high": interval.high})
+    return pd.DataFrame(rows)
+
+
+def summary_wide(summary: pd.DataFrame) -> pd.DataFrame:
+    """The long summary with one row per configuration: ``runs`` (the largest n) and, per
+    metric, columns ``NAME``, ``NAME_low``, ``NAME_high``."""
+    config = [c for c in summary.columns if c not in ("metric", "n", "mean", "low", "high")]
+    rows = []
+    for keys, group in summary.groupby(config, sort=False, dropna=False) if config else [((), summary)]:
+        keys = keys if isinstance(keys, tuple) else (keys,)
+        row = {**dict(zip(config, keys)), "runs": int(group["n"].max())}
+        for metric, mean, low, high in group[["metric", "mean", "low", "high"]].itertuples(index=False):
+            row.update({metric: mean, f"{metric}_low": low, f"{metric}_high": high})
+        rows.append(row)
     return pd.DataFrame(rows)
 
 

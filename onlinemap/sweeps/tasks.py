@@ -1,5 +1,5 @@
 """Sweep tasks: one cell of the product (world, estimator configuration[, planner
-configuration], floor plan, steps, walk, seed), its stable key, and the expansion of a
+configuration, floor plan, goal], steps, walk, seed), its stable key, and the expansion of a
 validated spec into tasks (counted before any is built, against a cap).
 
 Imports: nothing of the sweeps package (every other module of it imports this one).
@@ -19,15 +19,18 @@ from ..errors import OnlineMapError
 #: default cap on the tasks of one sweep (raise it with ``max_tasks`` / ``--max-tasks``)
 MAX_TASKS = 100_000
 # Columns describing a task (the configuration and the seed); everything else is a metric.
-TASK_COLUMNS = ("task", "kind", "world", "estimator", "options", "planner", "planner_options", "floor_plan",
-                "steps", "walk", "reference", "seed")
+TASK_COLUMNS = ("task", "kind", "world", "estimator", "label", "options", "planner", "planner_label",
+                "planner_options", "floor_plan", "goal", "steps", "walk", "reference", "seed")
 CONFIG_COLUMNS = tuple(c for c in TASK_COLUMNS if c not in ("task", "seed"))
 OPTION_PREFIXES = {"options": "opt_", "planner_options": "planner_opt_"}
+UNHASHED = ("label", "planner_label")
 
 
 @dataclass(frozen=True)
 class Task:
-    """One cell of a sweep. ``options`` and ``planner_options`` are sorted (name, value) pairs."""
+    """One cell of a sweep. ``options`` and ``planner_options`` are sorted (name, value) pairs.
+    Its kind: ``estimate`` (simulate and filter), ``explore`` (a planner chooses the actions) or
+    ``navigate`` (a planner takes the robot to ``goal``); see :mod:`.kinds`."""
 
     world: str
     estimator: str
@@ -40,16 +43,25 @@ class Task:
     planner: str | None = None
     planner_options: tuple = ()
     floor_plan: float | None = None
+    goal: int | None = None
+    played: str | None = None  # the kind that plays the task when the fields above do not say it
+    label: str | None = None  # the spec's name for the estimator configuration (not hashed)
+    planner_label: str | None = None  # ... and for the planner configuration (not hashed)
 
     @property
     def kind(self) -> str:
+        if self.played is not None:
+            return self.played
+        if self.goal is not None:
+            return "navigate"
         return "explore" if self.planner else "estimate"
 
     @property
     def key(self) -> str:
         """A stable hash of everything that determines the task's result (16 hex digits); fields
-        left at None are not hashed, so adding an optional field keeps existing keys."""
-        fields = {k: v for k, v in self.__dict__.items() if v is not None}
+        left at None are not hashed, so adding an optional field keeps existing keys; labels
+        name a result and do not change it, so they are not hashed either."""
+        fields = {k: v for k, v in self.__dict__.items() if v is not None and k not in UNHASHED}
         return hashlib.sha256(json.dumps(plain(fields), sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -89,19 +101,21 @@ def count_tasks(*axes: Sequence) -> int:
 
 def expand(worlds: Sequence[str], estimators: Sequence[tuple], planners: Sequence[tuple],
            floor_plans: Sequence, steps: Sequence, walks: Sequence[str], seeds: Sequence[int],
-           reference: str | None, per_step: bool, max_tasks: int = MAX_TASKS) -> tuple[Task, ...]:
+           reference: str | None, per_step: bool, max_tasks: int = MAX_TASKS,
+           goals: Sequence = (None,), played: str | None = None) -> tuple[Task, ...]:
     """Every task of the product, seeds innermost, each distinct task once (a repeated world or
-    grid value runs once). ``estimators`` / ``planners``: (name, options) pairs. Raises
+    grid value runs once). ``estimators`` / ``planners``: (name, options, label) triples. Raises
     OnlineMapError, before building anything, if the product exceeds ``max_tasks``.
     Cost: O(number of tasks)."""
-    total = count_tasks(worlds, estimators, planners, floor_plans, steps, walks, seeds)
+    total = count_tasks(worlds, estimators, planners, floor_plans, goals, steps, walks, seeds)
     if total > max_tasks:
         raise OnlineMapError(f"{total:,} tasks exceed the cap of {max_tasks:,} (max_tasks / --max-tasks "
                              f"raises it); fewer seeds or a smaller grid?")
     tasks, seen = [], set()
-    for world, (est, options), (planner, planner_opts), plan, n_steps, walk, seed in itertools.product(
-            worlds, estimators, planners, floor_plans, steps, walks, seeds):
-        task = Task(world, est, options, int(seed), n_steps, walk, reference, per_step, planner, planner_opts, plan)
+    for world, (est, options, label), (planner, planner_opts, planner_label), plan, goal, n_steps, walk, seed in \
+            itertools.product(worlds, estimators, planners, floor_plans, goals, steps, walks, seeds):
+        task = Task(world, est, options, int(seed), n_steps, walk, reference, per_step, planner, planner_opts, plan,
+                    goal, played, label, planner_label)
         if task.key not in seen:
             seen.add(task.key)
             tasks.append(task)

@@ -1,0 +1,157 @@
+"""The structure the README's tour states, checked on the code: no import cycle among the modules
+of ``onlinemap`` and ``policies`` (lazy, in-function imports included), every module has a row
+in the tour, and imports run one way: a module imports only modules of its own row or of the
+rows above it.
+
+Imports are read from the source (``ast``), every ``import`` and ``from ... import`` statement
+wherever it stands, but those under ``if TYPE_CHECKING:`` (never executed) and a package face's
+own lazy re-exports (imports inside an ``__init__.py``'s module ``__getattr__``). An import of
+``a.b`` is an edge to the module ``a.b`` only (Python initialises the package ``a`` first, but
+that is how packages work, not a dependency of this module on the face's contents); ``from a
+import x`` is an edge to the module ``a.x`` when ``x`` is a module, else to ``a`` itself.
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("onlinemap", "policies")
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def moved(tree: ast.Module) -> bool:
+    """A module that only says where it moved: a docstring and ``raise ImportError(...)``."""
+    body = [node for node in tree.body if not (isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant))]
+    return len(body) == 1 and isinstance(body[0], ast.Raise)
+
+
+def modules() -> dict[str, Path]:
+    """Every module of the packages, but those that only say where they moved."""
+    return {module_name(path): path for package in PACKAGES for path in sorted((ROOT / package).rglob("*.py"))
+            if not moved(ast.parse(path.read_text()))}
+
+
+def _type_checking(node: ast.If) -> bool:
+    return isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+
+
+def _imports(tree: ast.AST, face: bool):
+    """Every import node of ``tree`` but those under ``if TYPE_CHECKING`` and, in a package face,
+    inside its ``__getattr__``."""
+    for node in ast.iter_child_nodes(tree):
+        if _type_checking(node) or (face and isinstance(node, ast.FunctionDef) and node.name == "__getattr__"):
+            continue
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            yield node
+        yield from _imports(node, face)
+
+
+def edges() -> dict[str, set[str]]:
+    """module -> the project modules it imports."""
+    known = modules()
+    graph: dict[str, set[str]] = {name: set() for name in known}
+    for name, path in known.items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        for node in _imports(ast.parse(path.read_text()), path.name == "__init__.py"):
+            if isinstance(node, ast.Import):
+                targets = [alias.name for alias in node.names]
+            else:
+                base = node.module or ""
+                if node.level:
+                    anchor = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                    base = ".".join(anchor + ([base] if base else []))
+                targets = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in known else base for alias in node.names]
+            graph[name] |= {t for t in targets if t in known and t != name}
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+    def visit(node):
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for target in graph[node]:
+            if target not in index:
+                visit(target)
+                low[node] = min(low[node], low[target])
+            elif target in on_stack:
+                low[node] = min(low[node], index[target])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return found
+
+
+def tour_rows() -> dict[str, int]:
+    """module -> the index of its row in the README's tour (a row names files ``onlinemap/x.py``,
+    ``y.py`` (beside the previous name) or folders ``onlinemap/sweeps/``; a module takes the row
+    that names it most closely)."""
+    text = (ROOT / "README.md").read_text()
+    table = text[text.index("## Tour"):]
+    table = table[:table.index("\n## ")]
+    rows = [line for line in table.splitlines() if line.startswith("| `")]
+    named: dict[str, int] = {}
+    for number, row in enumerate(rows):
+        folder = ""
+        for item in re.findall(r"`([^`]+)`", row.split(" | ")[0]):
+            path = item if "/" in item else folder + item
+            folder = path.rstrip("/").rpartition("/")[0] + "/"  # a bare name after it lies beside it
+            named[path] = number
+    places = {}
+    for name, path in modules().items():
+        relative = str(path.relative_to(ROOT))
+        candidates = [p for p in named if relative == p or (p.endswith("/") and relative.startswith(p))]
+        if candidates:
+            places[name] = named[max(candidates, key=len)]
+    return places
+
+
+def test_no_import_cycle_lazy_imports_included():
+    found = cycles(edges())
+    assert not found, "import cycles: " + "; ".join(" <-> ".join(c) for c in found)
+
+
+def test_the_cycle_check_sees_a_lazy_import():
+    """The checker itself: a lazy import back up closes a cycle."""
+    graph = {"a": {"b"}, "b": set()}
+    assert cycles(graph) == []
+    graph["b"].add("a")
+    assert cycles(graph) == [["a", "b"]]
+    tree = ast.parse("def f():\n    from .x import y\nif TYPE_CHECKING:\n    import z\n")
+    assert [ast.unparse(n) for n in _imports(tree, face=False)] == ["from .x import y"]
+
+
+def test_every_module_has_a_row_in_the_tour():
+    rows = tour_rows()
+    missing = sorted(set(modules()) - set(rows))
+    assert not missing, f"modules the README's tour does not list: {missing}"
+
+
+def test_imports_run_one_way_down_the_tour():
+    rows = tour_rows()
+    upward = sorted(f"{a} (row {rows[a]}) imports {b} (row {rows[b]})"
+                    for a, targets in edges().items() for b in targets if rows[b] > rows[a])
+    assert not upward, "imports against the tour's order:\n" + "\n".join(upward)
