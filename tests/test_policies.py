@@ -252,6 +252,11 @@ def test_sweep_in_a_corridor_and_unknown_planners():
 
 
 # --- every planner in a world with blocking labels ------------------------------------------------
+#: options that keep the registered planners quick here (info_gain) or that they need (a goal)
+PLANNER_OPTIONS = {"info_gain": {"hypotheses": 2, "rollout_particles": 16}, "goto": {"goal": 99},
+                   "static_goto": {"goal": 99}}
+
+
 def blocking_runs(planner: str, prior: str, steps: int):
     """An exploration of the blocking, cross-footprint door world, and the belief each decision saw."""
     from policies import with_floor_plan
@@ -260,7 +265,7 @@ def blocking_runs(planner: str, prior: str, steps: int):
     model, true_map = om.door_world(blocking=True, footprint="cross")
     if prior == "floor plan":  # walls known at 0.999 from the start, door states unknown
         model = with_floor_plan(model, true_map, 0.999)
-    options = {"hypotheses": 2, "rollout_particles": 16} if planner == "info_gain" else None
+    options = PLANNER_OPTIONS.get(planner)
     return model, exploration(model, true_map, planner, "rbpf", steps=steps, seed=5, progress=False,
                               estimator_options={"n_particles": 50}, planner_options=options)
 
@@ -300,8 +305,7 @@ def test_planning_leaves_the_live_estimator_bit_identical_in_a_blocking_world(pl
     for t in range(run.n_steps):
         est.step(None if t == 0 else int(run.actions[t - 1]), run.observations[t])
     before, rng_before = checkpoint.state_dict(est), est._rng.bit_generator.state
-    options = {"hypotheses": 2, "rollout_particles": 8} if planner == "info_gain" else {}
-    chooser = make_planner(planner, model, seed=0, **options)
+    chooser = make_planner(planner, model, seed=0, **PLANNER_OPTIONS.get(planner, {}))
     if hasattr(chooser, "bind"):
         chooser.bind(est)
     for _ in range(3):
