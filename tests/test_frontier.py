@@ -10,6 +10,8 @@ import onlinemap as om
 from onlinemap.belief import Belief
 from onlinemap.errors import ModelError
 from onlinemap.model import GridModel, symmetric_channel
+from policies import make_planner
+from policies.frontier import FrontierExplorer, location_hypotheses
 from policies.passability import (blocked_probability, distances_from, distances_to, enter_costs,
                                   expected_passability, unblocked_actions)
 
@@ -117,8 +119,6 @@ def test_passability_refuses_bad_input():
 
 
 # --- the frontier planner -------------------------------------------------------------------------
-from policies import make_planner  # noqa: E402
-from policies.frontier import FrontierExplorer, location_hypotheses  # noqa: E402
 
 
 def known_map(model: GridModel, labels, unknown) -> np.ndarray:
@@ -140,7 +140,8 @@ def test_frontier_goes_to_the_unknown_end_of_a_corridor(blocking):
     mirrored = known_map(model, np.zeros(8, dtype=int), [0])
     assert make_planner("frontier", model).choose(Belief(0, np.eye(8)[5], mirrored)) == left
     # a robot unsure where it is (cells 1-4) still heads for the unknown end
-    assert make_planner("frontier", model).choose(Belief(0, np.r_[0, .25, .25, .25, .25, 0, 0, 0], maps.copy())) == right
+    unsure = Belief(0, np.r_[0, .25, .25, .25, .25, 0, 0, 0], maps.copy())
+    assert make_planner("frontier", model).choose(unsure) == right
 
 
 ROOM = """\
