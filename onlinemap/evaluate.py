@@ -31,6 +31,10 @@ its numbers here, with the same names and thresholds:
   the sum over steps), ``steps_to_map_error_20`` / ``_10`` / ``_05`` (the first step at which the
   map error is at most 0.20 / 0.10 / 0.05, NaN if never: :func:`coverage`), ``final_known_cells``
   and ``final_observable_map_error``.
+- navigation (:func:`navigation_metrics`, per run): ``reached`` the goal, ``steps_to_goal``,
+  ``oracle_steps`` (an omniscient robot's, in the same world history), ``steps_over_oracle`` and
+  ``success`` (reached within :data:`SUCCESS_WITHIN` times the oracle's steps; counted over the
+  runs where the oracle reaches the goal, ``oracle_reached``).
 
 Cost: O(T N K) for T steps, N cells, K labels (one pass over the stacked beliefs).
 """
@@ -60,6 +64,7 @@ ASTRAY_BELOW = 0.05  # ... and below this, confidently in the wrong place ("astr
 LATE_FROM = 1 / 3  # late_door_error: steps t >= LATE_FROM * (T - 1)
 CONFIDENT = 0.55  # the probability a most probable label needs to count as known (cell_counts)
 KNOWN_ABOVE = 0.9  # known_cells: cells whose true label has at least this probability
+SUCCESS_WITHIN = 4  # a navigation succeeds when it reaches the goal within this many times the oracle's steps
 COVERAGE_THRESHOLDS = {"steps_to_map_error_20": 0.20, "steps_to_map_error_10": 0.10, "steps_to_map_error_05": 0.05}
 
 STEP_METRICS = ("map_error", "location_error", "log_evidence", "location_entropy", "map_entropy",
@@ -200,6 +205,17 @@ def coverage(map_error: np.ndarray) -> dict[str, float]:
         below = np.flatnonzero(map_error <= threshold)
         row[name] = float(below[0]) if len(below) else math.nan
     return row
+
+
+def navigation_metrics(reached_at: int | None, oracle: int | None) -> dict[str, float | bool]:
+    """A navigation run's metrics from the step it first stood on the goal (None: never) and the
+    oracle's (None: the oracle never got there either). O(1)."""
+    reached, oracle_reached = reached_at is not None, oracle is not None
+    both = reached and oracle_reached
+    return {"reached": reached, "steps_to_goal": float(reached_at) if reached else math.nan,
+            "oracle_reached": oracle_reached, "oracle_steps": float(oracle) if oracle_reached else math.nan,
+            "steps_over_oracle": reached_at / max(oracle, 1) if both else math.nan,
+            "success": bool(both and reached_at <= SUCCESS_WITHIN * max(oracle, 1))}
 
 
 def way_back(run: Run) -> np.ndarray:
