@@ -73,10 +73,11 @@ from .errors import CheckpointError, OnlineMapError
 from .model import DEFINING_FIELDS, OPTIONAL_FIELDS, GridModel, model_difference
 
 FORMAT = "onlinemap-checkpoint"
-FORMAT_VERSION = 2  # bump when the file layout or an estimator's state changes incompatibly
+FORMAT_VERSION = 3  # bump when the file layout or an estimator's state changes incompatibly
 OLDEST_FORMAT_VERSION = 1  # the oldest format this code still reads
-# version 2: the RBPF's block pool is one attribute (``_blocks``, a BlockPool); version 1 files
-# are read through RaoBlackwellisedPF.upgrade_attributes.
+# version 2: the RBPF's block pool is one attribute (``_blocks``, a BlockPool); version 3: the RBPF
+# counts its recoveries from depletion (``_recoveries``, ``_recovered``). Older files are read
+# through RaoBlackwellisedPF.upgrade_attributes.
 _TAG = "$"
 _SEPARATE = ("model", "options")  # attributes stored apart from the state tree
 _ARRAY_KINDS = "biufcUSmM"  # numpy dtype kinds that npy stores without pickling

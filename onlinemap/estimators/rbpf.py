@@ -38,6 +38,7 @@ bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of 
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -47,7 +48,8 @@ from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
 from ..kernels.rbpf import (children_by_location, in_place_ancestors, rbpf_enumerate, rbpf_enumerate_cells,
-                             rbpf_pick_children, rbpf_place_children, rbpf_propose)
+                             rbpf_pick_children, rbpf_place_children, rbpf_propose, rbpf_relocated_children,
+                             rbpf_relocation_weights)
 from ..resampling import RESAMPLERS, effective_sample_size, optimal_keep
 from ..rng import SeedLike, as_generator
 from ..model import GridModel
@@ -56,7 +58,10 @@ from .base import register
 from ..checkpoint import state_node
 from .block_pool import FORMAT_1_ATTRIBUTES, REFRESH_STEPS, BlockPool, block_layout
 
+logger = logging.getLogger(__name__)
+
 PROPOSALS = ("optimal", "transition")
+RELOCATION_SCALE = 3.0  # cells: the length scale of the recovery's relocation kernel exp(-d / scale)
 FEARNHEAD_CLIFFORD = "fearnhead_clifford"
 RESAMPLING = (*RESAMPLERS, FEARNHEAD_CLIFFORD)
 
@@ -72,7 +77,8 @@ def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = Non
     """Worst-case peak memory of the filter's state, in bytes (exact Python ints; allocates
     nothing): every particle owning every one of its map blocks, the block pool grown by doubling
     to hold them plus P free rows (old and new pool alive together while it grows), a fresh
-    copy of the pool for eager dynamics, the table, the powers of C and per-step temporaries."""
+    copy of the pool for eager dynamics, the table, the powers of C and per-step temporaries (or
+    those of a recovery from depletion, which weighs N P children)."""
     n, k, p = model.n_cells, model.n_labels, n_particles
     block_cells = block_cells or max(1, round(math.sqrt(n / k)))  # block_layout's default
     if model.rows == 1:
@@ -91,7 +97,8 @@ def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = Non
     eager = 0 if lazy_dynamics or model.is_static else rows * size * k * 8
     powers = 8 * k * k * (4 * REFRESH_STEPS + 1 if stamped else 1)
     per_step = 8 * p * (cells_written(model) * (k + 1) * 3 + k + 8) + 8 * n * k  # children, weights, the belief
-    return pool + eager + 8 * p * n_blocks + powers + per_step
+    recovery = 49 * n * p  # a recovery from depletion: N P children's weights, their order, a sort at worst
+    return pool + eager + 8 * p * n_blocks + powers + max(per_step, recovery)
 
 
 def reads_one_cell(model: GridModel) -> bool:
@@ -178,6 +185,8 @@ class RaoBlackwellisedPF:
         self._log_evidence = 0.0
         self._ess = float(n_particles)
         self._resampled = False
+        self._recoveries = 0
+        self._recovered = False
         self._t = -1
         self._belief: Belief | None = None
 
@@ -185,16 +194,26 @@ class RaoBlackwellisedPF:
     def upgrade_attributes(attributes: dict, version: int) -> dict:
         """A checkpoint's encoded attributes of format ``version`` as the current format has them:
         version 1 kept the block pool as 13 loose attributes (``_pool``, ``_table``...), gathered
-        here into ``_blocks`` (the checks on load then validate it as any other). O(1)."""
+        here into ``_blocks`` (the checks on load then validate it as any other); versions 1 and 2
+        had no recovery from depletion (a filter that never recovered: ``_recoveries`` 0,
+        ``_recovered`` False). O(1)."""
         if version == 1 and all(name in attributes for name in FORMAT_1_ATTRIBUTES):
             fields = {field: attributes.pop(name) for name, field in FORMAT_1_ATTRIBUTES.items()}
             attributes["_blocks"] = state_node(BlockPool, fields)
+        if version <= 2:
+            attributes.setdefault("_recoveries", 0)
+            attributes.setdefault("_recovered", False)
         return attributes
 
     @property
     def resampled(self) -> bool:
         """Whether the last step resampled before proposing."""
         return self._resampled
+
+    @property
+    def recoveries(self) -> int:
+        """How many steps so far recovered from depletion (see the class docstring)."""
+        return self._recoveries
 
     @property
     def belief(self) -> Belief | None:
@@ -207,7 +226,7 @@ class RaoBlackwellisedPF:
             maps = self._blocks.mixture(self._t, weights)
             maps /= maps.sum(axis=1, keepdims=True)
             self._belief = Belief(self._t, location, maps, self._log_evidence,
-                                  effective_sample_size=self._ess)
+                                  effective_sample_size=self._ess, recovered=self._recovered)
         return self._belief
 
     def particle_maps(self) -> np.ndarray:
@@ -224,10 +243,10 @@ class RaoBlackwellisedPF:
 
         Resample first if the effective sample size is below ``resample_threshold * P``; then
         propose, weight and update each particle's observed cell. If the observation has
-        probability zero for every particle (impossible under the model, or every trajectory that
-        explains it was lost: depletion; the filter cannot tell which), raise
-        :class:`ImpossibleObservationError` saying both and leave everything (particles, weights,
-        random generator) as it was.
+        probability zero for every particle (depletion), recover (:meth:`_recover`, see the class
+        docstring); if nothing explains it even then (impossible under the model), raise
+        :class:`ImpossibleObservationError` and leave everything (particles, weights, random
+        generator) as it was.
         """
         model = self.model
         a, z = check_step(model, self._t + 1, action, observation)
@@ -267,10 +286,13 @@ class RaoBlackwellisedPF:
                                new_locations, new_ids, new_cells, log_increments)
         log_weights = log_weights + log_increments
         increment = _logsumexp(log_weights)
-        if increment == -math.inf:
+        if increment == -math.inf:  # every draw missed: enumerate the particles' successors instead
             self._rng.bit_generator.state = rng_state
-            raise ImpossibleObservationError(
-                _no_particle_explains(model, z, t, self.n_particles))
+            logger.info("rbpf step %d: every particle's proposal has probability zero for observation %s; the "
+                        "step enumerates the particles' successors instead (as Fearnhead-Clifford does)", t,
+                        _describe(model, z))
+            self._update_fearnhead_clifford(a, z, t)
+            return
         self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - increment, increment, resample,
                      new_ids)
 
@@ -313,9 +335,9 @@ class RaoBlackwellisedPF:
         else:
             m, (child_parent, child_location, child_log_weight, _, child_ids, child_cells) = self._enumerate_cells(
                 blocks, t, neighbors, z, self._log_weights)
-        if m == 0:
-            raise ImpossibleObservationError(
-                _no_particle_explains(model, z, t, self.n_particles))
+        if m == 0:  # depletion
+            self._recover(a, z, t, blocks)
+            return
         increment = _logsumexp(child_log_weight[:m])
         kept, kept_weights, threshold = optimal_keep(np.exp(child_log_weight[:m] - increment), n_particles,
                                                      self._rng.random(),
@@ -330,11 +352,65 @@ class RaoBlackwellisedPF:
         self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights),
                      increment, threshold > 0, new_ids)
 
+    def _recover(self, a: int | None, z, t: int, blocks: BlockPool) -> None:
+        """The step when no particle explains ``z`` (depletion): the exact limit of the augmented
+        model of the class docstring from the particles before the step. Every live particle p and
+        cell l make a child weighted ``w_p K(l | l_p) P(z, l passable | l, map_p)``, with the fewest
+        read cells reset to their model marginal ``label_prior C^t`` that make it possible
+        (:func:`~onlinemap.kernels.rbpf.rbpf_relocation_weights`); P of them are kept by optimal
+        resampling (the strata walk them by location, as Fearnhead-Clifford's do) with one uniform,
+        their maps built (:func:`~onlinemap.kernels.rbpf.rbpf_relocated_children`) and committed.
+        Raises :class:`ImpossibleObservationError`, changing nothing, at step 0 (no motion, no
+        relocation) or when no child is possible. ``blocks``: the step's pool (reserved for P W
+        writes; advanced by C with eager dynamics). Cost O(P N U K^2 + min(P, N) N A) time, U <= W
+        the cells a child touches, A the actions; at most 49 P N bytes (:func:`peak_bytes`)."""
+        model = self.model
+        n_particles = self.n_particles
+        readings = np.atleast_1d(np.asarray(z, dtype=np.int64))
+        prior = model.label_prior if model.is_static else model.label_prior @ np.linalg.matrix_power(model.change, t)
+        child_log_weight = np.empty((model.n_cells, n_particles))
+        fewest = -1 if a is None else rbpf_relocation_weights(
+            self._locations, self._log_weights, *blocks.reads(), t, model.moves, RELOCATION_SCALE, model.blocking,
+            model.footprint_cells, model.sensor, readings, np.ascontiguousarray(prior), child_log_weight)
+        if fewest < 0:
+            raise ImpossibleObservationError(_impossible(model, z, t, n_particles))
+        child_log_weight = child_log_weight.ravel()  # children ordered by location, then parent
+        increment = _logsumexp(child_log_weight)
+        possible = np.flatnonzero(child_log_weight > -math.inf)
+        weights = child_log_weight[possible]
+        weights -= increment
+        np.exp(weights, out=weights)
+        kept, kept_weights, threshold = optimal_keep(weights, n_particles, self._rng.random(), np.arange(len(possible)))
+        kept = possible[kept]
+        width = cells_written(model)
+        child_location, child_parent = np.divmod(kept, n_particles)
+        child_ids = np.empty((len(kept), width), dtype=np.int64)
+        child_cells = np.empty((len(kept), width, model.n_labels))
+        rbpf_relocated_children(child_parent, child_location, *blocks.reads(), t, model.blocking, model.footprint_cells,
+                                model.sensor, readings, np.ascontiguousarray(prior), child_ids, child_cells)
+        ancestors = np.empty(n_particles, dtype=np.int64)
+        new_locations = np.empty(n_particles, dtype=np.int64)
+        new_ids = np.empty((n_particles, width), dtype=np.int64)
+        new_cells = np.empty((n_particles, width, model.n_labels))
+        log_weights = np.empty(n_particles)
+        rbpf_place_children(child_parent, child_location, child_ids, child_cells, np.arange(len(kept)), kept_weights,
+                            ancestors, new_locations, new_ids, new_cells, log_weights)
+        parents = int(np.count_nonzero(self._weights))
+        self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights), increment,
+                     threshold > 0, new_ids, recovered=True)
+        self._recoveries += 1
+        logger.warning("rbpf step %d: no particle explains observation %s (particle depletion); recovered by "
+                       "relocating the %d live particles near their last cells (kernel exp(-d / %g), d in moves)%s; "
+                       "%d children kept (recovery %d of this filter)", t, _describe(model, z), parents,
+                       RELOCATION_SCALE, f" and resetting {fewest} read cell(s) to their prior" if fewest else "",
+                       len(kept), self._recoveries)
+
     def _commit(self, t, blocks: BlockPool, ancestors, new_locations, new_cells, log_weights, increment, resampled,
-                new_ids=None) -> None:
+                new_ids=None, recovered: bool = False) -> None:
         """Write a validated step: the particles' slots and maps into ``blocks`` (this filter's
         pool, or its grown copy, which the filter then keeps; :meth:`BlockPool.commit`), the
-        normalised ``log_weights`` and the evidence ``increment``."""
+        normalised ``log_weights`` and the evidence ``increment``; ``recovered``: the step
+        recovered from depletion."""
         blocks.commit(self._locations, t, ancestors, new_locations, new_cells, new_ids)
         self._blocks = blocks
         self._log_weights = log_weights
@@ -342,17 +418,17 @@ class RaoBlackwellisedPF:
         self._weights = np.exp(self._log_weights)
         self._ess = min(float(self.n_particles), effective_sample_size(self._weights))  # rounding: <= P
         self._resampled = resampled
+        self._recovered = recovered
         self._t = t
         self._belief = None
 
 
-def _no_particle_explains(model: GridModel, z, t: int, n_particles: int) -> str:
-    """The message of an observation no particle explains: the filter cannot tell an observation
-    impossible under the model from one only its lost trajectories explained (depletion)."""
+def _impossible(model: GridModel, z, t: int, n_particles: int) -> str:
+    """The message of an observation nothing explains, even relocated (see _recover)."""
+    where = ("at the start cell (step 0: no motion yet)" if t == 0 else
+             "and no cell the robot could be relocated to explains it with labels the model allows at that step")
     return (f"observation {_describe(model, z)} has probability zero for every one of the {n_particles} "
-            f"particles at step {t}: either it is impossible under the model given the past, or the particles "
-            f"have lost every trajectory that explains it (particle depletion; more particles, the optimal "
-            f"proposal or a sensor with no zero entries make that rarer). The filter is unchanged")
+            f"particles at step {t}, {where}: it is impossible under the model. The filter is unchanged")
 
 
 def _describe(model: GridModel, z) -> str:
