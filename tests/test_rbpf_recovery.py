@@ -328,3 +328,28 @@ def test_a_checkpoint_from_before_recovery_loads_with_no_recoveries():
     twin = om.make_estimator("rbpf", model, n_particles=5, seed=0)
     twin.load_state_dict(old)
     assert twin.recoveries == 0 and checkpoint.first_difference(twin.state_dict(), state) is None
+
+
+def test_track_reports_recoveries_on_stdout_and_as_json_on_stderr(monkeypatch, capsys):
+    """``onlinemap track`` (a robot loop behind a pipe): a recovered step's record says
+    ``"recovered": true``, and the warning arrives on stderr as a JSON event naming the step,
+    like every other stderr line."""
+    import io
+    import json
+    import sys
+
+    from onlinemap.cli import main
+
+    run = depleting_run()
+    lines = [json.dumps({"observation": run.observations[t].tolist(),
+                         **({"action": int(run.actions[t - 1])} if t else {})}) for t in range(run.n_steps)]
+    monkeypatch.setattr(sys, "stdin", io.StringIO("\n".join(lines) + "\n"))
+    assert main(["track", "--world", "door,blocking=1,footprint=cross", "--estimator", "rbpf",
+                 "--option", "n_particles=1", "--option", "seed=38"]) == 0
+    out, err = capsys.readouterr()
+    recovered = [record["t"] for record in map(json.loads, out.splitlines()) if record.get("recovered")]
+    est = om.make_estimator("rbpf", DOOR[0], n_particles=1, seed=38)
+    assert recovered == [b.t for b in beliefs(est, run) if b.recovered] and recovered
+    events = [json.loads(line) for line in err.splitlines()]
+    warned = [e for e in events if e.get("event") == "log" and e["level"] == "WARNING"]
+    assert [int(re.search(r"step (\d+)", e["message"]).group(1)) for e in warned] == recovered
