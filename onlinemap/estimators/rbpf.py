@@ -33,7 +33,9 @@ O(P_dropped N / B) (table rows copied, not maps). Fearnhead-Clifford resamples e
 in a dynamic world). :meth:`RaoBlackwellisedPF.update` advances without building the belief;
 the ``belief`` property builds it on first access (then caches it), and :meth:`step` is
 ``update`` followed by ``belief``. Memory: the block rows in use (at most ``8 P N (K + 1)``
-bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of C.
+bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of C. A step that
+recovers from particle depletion (see the class docstring) weighs N P children instead: O(P N F
+K^2) time and at most 32 P N bytes.
 """
 
 from __future__ import annotations
@@ -97,7 +99,7 @@ def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = Non
     eager = 0 if lazy_dynamics or model.is_static else rows * size * k * 8
     powers = 8 * k * k * (4 * REFRESH_STEPS + 1 if stamped else 1)
     per_step = 8 * p * (cells_written(model) * (k + 1) * 3 + k + 8) + 8 * n * k  # children, weights, the belief
-    recovery = 49 * n * p  # a recovery from depletion: N P children's weights, their order, a sort at worst
+    recovery = 32 * n * p  # a recovery from depletion: N P children's weights, their order, a sort at worst
     return pool + eager + 8 * p * n_blocks + powers + max(per_step, recovery)
 
 
@@ -135,6 +137,36 @@ class RaoBlackwellisedPF:
     the reference the lazy scheme is tested against); ``block_cells`` B, the cells per shared
     map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes`` guard on
     the particle maps (worst case: every particle owning all its blocks).
+
+    **Recovery from depletion.** When no particle explains an observation the model allows (every
+    trajectory that did was dropped; in a blocking world with a footprint, the off-grid readings
+    -1 rule particles out exactly), the step does not raise. A sampling step whose draws all miss
+    first enumerates the particles' successors as Fearnhead-Clifford does (the same children, so
+    the model's own posterior given the particles); when those all have weight zero too (with
+    Fearnhead-Clifford, when its enumeration is empty) the filter *recovers*: it takes the exact
+    limit of an augmented model. In it the robot, with probability eps, is lifted and put down on
+    a passable cell l drawn from ``K(l | l') = exp(-d(l, l') / s) / Z(l')`` instead of following
+    T (d the fewest moves from its last cell l', labels ignored; ``s = RELOCATION_SCALE`` = 3
+    cells; Z sums over the cells reachable from l'); and, after such a relocation only, each cell
+    it then reads is, with probability delta, redrawn from its model marginal ``label_prior C^t``. Given the particle set
+    (weights w_p, cells l_p, maps m_p) the posterior is ``(1 - eps) R + eps sum_r delta^r S_r``:
+    R the regular children, S_r the relocated ones with r read cells redrawn. R = 0 here, so as
+    eps, delta -> 0 it tends to S_r for the smallest r with S_r > 0: children (p, l) weighted
+    ``w_p K(l | l_p) P(z, m_l passable | l, m_p)`` where each read cell keeps m_p's marginal
+    unless that marginal rules out its reading (then it takes the model marginal: r such cells).
+    P of these children (N P at most) are kept by optimal resampling, as Fearnhead-Clifford keeps
+    its children. The recovered belief is thus the filter's best account of the data given that
+    the robot was somewhere other than its particles say: it approximates ``P(L_t, M_t | data)``
+    under the augmented model, with the particles before the step standing in for the past; it is
+    not the model's posterior (which the lost trajectories carried). ``log_evidence`` adds the log
+    of the children's total weight, the evidence given the relocation (the vanishing ``log eps``
+    left out). The step's belief has ``recovered=True``, :attr:`recoveries` counts such steps
+    (checkpointed), and a warning on the logger ``onlinemap.estimators.rbpf`` names the step and
+    what was done. Only an observation nothing explains even so (step 0, where there is no motion;
+    or no cell of the grid, with labels the model allows at step t, sees it) raises
+    :class:`ImpossibleObservationError`, the state unchanged. Steps that do not deplete run exactly
+    as before recovery existed (same numbers, same random draws). A recovery costs O(P N U K^2)
+    time (U <= F + 1 the cells a child touches) and at most 32 P N bytes.
     """
 
     def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
@@ -363,7 +395,7 @@ class RaoBlackwellisedPF:
         Raises :class:`ImpossibleObservationError`, changing nothing, at step 0 (no motion, no
         relocation) or when no child is possible. ``blocks``: the step's pool (reserved for P W
         writes; advanced by C with eager dynamics). Cost O(P N U K^2 + min(P, N) N A) time, U <= W
-        the cells a child touches, A the actions; at most 49 P N bytes (:func:`peak_bytes`)."""
+        the cells a child touches, A the actions; at most 32 P N bytes (:func:`peak_bytes`)."""
         model = self.model
         n_particles = self.n_particles
         readings = np.atleast_1d(np.asarray(z, dtype=np.int64))
@@ -374,14 +406,11 @@ class RaoBlackwellisedPF:
             model.footprint_cells, model.sensor, readings, np.ascontiguousarray(prior), child_log_weight)
         if fewest < 0:
             raise ImpossibleObservationError(_impossible(model, z, t, n_particles))
-        child_log_weight = child_log_weight.ravel()  # children ordered by location, then parent
-        increment = _logsumexp(child_log_weight)
-        possible = np.flatnonzero(child_log_weight > -math.inf)
-        weights = child_log_weight[possible]
+        weights = child_log_weight.ravel()  # children ordered by location, then parent
+        increment = _logsumexp(weights)
         weights -= increment
-        np.exp(weights, out=weights)
-        kept, kept_weights, threshold = optimal_keep(weights, n_particles, self._rng.random(), np.arange(len(possible)))
-        kept = possible[kept]
+        np.exp(weights, out=weights)  # in place: N P floats are the recovery's largest array
+        kept, kept_weights, threshold = optimal_keep(weights, n_particles, self._rng.random(), np.arange(len(weights)))
         width = cells_written(model)
         child_location, child_parent = np.divmod(kept, n_particles)
         child_ids = np.empty((len(kept), width), dtype=np.int64)
