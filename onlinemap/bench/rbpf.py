@@ -268,7 +268,8 @@ def _depletion_rows(model, true_map, particle_counts, n_runs: int, n_steps: int)
                     exceptions += 1
                 recoveries += est.recoveries
                 recovered_runs += est.recoveries > 0
-            rows.append({"case": f"depletion door blocking+cross, {n_steps}-step random walks P={n_particles}: {scheme}",
+            case = f"depletion door blocking+cross, {n_steps}-step random walks P={n_particles}: {scheme}"
+            rows.append({"case": case,
                          "ms": 1e3 * np.median(recovered) if recovered else np.nan,
                          "reference": "median ordinary step of the same runs",
                          "reference_ms": 1e3 * np.median(ordinary), "target": np.nan, "runs": n_runs,

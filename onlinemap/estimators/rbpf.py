@@ -148,8 +148,9 @@ class RaoBlackwellisedPF:
     a passable cell l drawn from ``K(l | l') = exp(-d(l, l') / s) / Z(l')`` instead of following
     T (d the fewest moves from its last cell l', labels ignored; ``s = RELOCATION_SCALE`` = 3
     cells; Z sums over the cells reachable from l'); and, after such a relocation only, each cell
-    it then reads is, with probability delta, redrawn from its model marginal ``label_prior C^t``. Given the particle set
-    (weights w_p, cells l_p, maps m_p) the posterior is ``(1 - eps) R + eps sum_r delta^r S_r``:
+    it then reads is, with probability delta, redrawn from its model marginal ``label_prior C^t``.
+    Given the particle set (weights w_p, cells l_p, maps m_p) the posterior is ``(1 - eps) R + eps
+    sum_r delta^r S_r`` (up to factors ``1 - delta`` that tend to 1):
     R the regular children, S_r the relocated ones with r read cells redrawn. R = 0 here, so as
     eps, delta -> 0 it tends to S_r for the smallest r with S_r > 0: children (p, l) weighted
     ``w_p K(l | l_p) P(z, m_l passable | l, m_p)`` where each read cell keeps m_p's marginal
@@ -374,15 +375,8 @@ class RaoBlackwellisedPF:
         kept, kept_weights, threshold = optimal_keep(np.exp(child_log_weight[:m] - increment), n_particles,
                                                      self._rng.random(),
                                                      children_by_location(child_location[:m], model.n_cells))
-        ancestors = np.empty(n_particles, dtype=np.int64)
-        new_locations = np.empty(n_particles, dtype=np.int64)
-        new_ids = np.empty((n_particles, width), dtype=np.int64)
-        new_cells = np.empty((n_particles, width, model.n_labels))
-        log_weights = np.empty(n_particles)
-        rbpf_place_children(child_parent, child_location, child_ids, child_cells, kept, kept_weights, ancestors,
-                            new_locations, new_ids, new_cells, log_weights)
-        self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights),
-                     increment, threshold > 0, new_ids)
+        self._commit_children(t, blocks, (child_parent, child_location, child_ids, child_cells), kept, kept_weights,
+                              increment, threshold > 0)
 
     def _recover(self, a: int | None, z, t: int, blocks: BlockPool) -> None:
         """The step when no particle explains ``z`` (depletion): the exact limit of the augmented
@@ -399,11 +393,12 @@ class RaoBlackwellisedPF:
         model = self.model
         n_particles = self.n_particles
         readings = np.atleast_1d(np.asarray(z, dtype=np.int64))
-        prior = model.label_prior if model.is_static else model.label_prior @ np.linalg.matrix_power(model.change, t)
+        prior = np.ascontiguousarray(model.label_prior if model.is_static else
+                                     model.label_prior @ np.linalg.matrix_power(model.change, t))
         child_log_weight = np.empty((model.n_cells, n_particles))
         fewest = -1 if a is None else rbpf_relocation_weights(
             self._locations, self._log_weights, *blocks.reads(), t, model.moves, RELOCATION_SCALE, model.blocking,
-            model.footprint_cells, model.sensor, readings, np.ascontiguousarray(prior), child_log_weight)
+            model.footprint_cells, model.sensor, readings, prior, child_log_weight)
         if fewest < 0:
             raise ImpossibleObservationError(_impossible(model, z, t, n_particles))
         weights = child_log_weight.ravel()  # children ordered by location, then parent
@@ -416,23 +411,32 @@ class RaoBlackwellisedPF:
         child_ids = np.empty((len(kept), width), dtype=np.int64)
         child_cells = np.empty((len(kept), width, model.n_labels))
         rbpf_relocated_children(child_parent, child_location, *blocks.reads(), t, model.blocking, model.footprint_cells,
-                                model.sensor, readings, np.ascontiguousarray(prior), child_ids, child_cells)
-        ancestors = np.empty(n_particles, dtype=np.int64)
-        new_locations = np.empty(n_particles, dtype=np.int64)
-        new_ids = np.empty((n_particles, width), dtype=np.int64)
-        new_cells = np.empty((n_particles, width, model.n_labels))
-        log_weights = np.empty(n_particles)
-        rbpf_place_children(child_parent, child_location, child_ids, child_cells, np.arange(len(kept)), kept_weights,
-                            ancestors, new_locations, new_ids, new_cells, log_weights)
+                                model.sensor, readings, prior, child_ids, child_cells)
         parents = int(np.count_nonzero(self._weights))
-        self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights), increment,
-                     threshold > 0, new_ids, recovered=True)
+        self._commit_children(t, blocks, (child_parent, child_location, child_ids, child_cells), np.arange(len(kept)),
+                              kept_weights, increment, threshold > 0, recovered=True)
         self._recoveries += 1
         logger.warning("rbpf step %d: no particle explains observation %s (particle depletion); recovered by "
                        "relocating the %d live particles near their last cells (kernel exp(-d / %g), d in moves)%s; "
                        "%d children kept (recovery %d of this filter)", t, _describe(model, z), parents,
                        RELOCATION_SCALE, f" and resetting {fewest} read cell(s) to their prior" if fewest else "",
                        len(kept), self._recoveries)
+
+    def _commit_children(self, t, blocks: BlockPool, children, kept, kept_weights, increment, resampled,
+                         recovered: bool = False) -> None:
+        """Put the ``kept`` children (indices into ``children`` = (parent, location, ids (M, W),
+        cells (M, W, K)), with ``kept_weights``) into the P slots (:func:`rbpf_place_children`)
+        and :meth:`_commit` them. O(P W K)."""
+        model, n_particles = self.model, self.n_particles
+        width = cells_written(model)
+        ancestors = np.empty(n_particles, dtype=np.int64)
+        new_locations = np.empty(n_particles, dtype=np.int64)
+        new_ids = np.empty((n_particles, width), dtype=np.int64)
+        new_cells = np.empty((n_particles, width, model.n_labels))
+        log_weights = np.empty(n_particles)
+        rbpf_place_children(*children, kept, kept_weights, ancestors, new_locations, new_ids, new_cells, log_weights)
+        self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights), increment,
+                     resampled, new_ids, recovered)
 
     def _commit(self, t, blocks: BlockPool, ancestors, new_locations, new_cells, log_weights, increment, resampled,
                 new_ids=None, recovered: bool = False) -> None:
