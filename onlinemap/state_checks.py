@@ -206,6 +206,8 @@ def check_rbpf(state) -> None:
     log_evidence(state)
     if type(state._resampled) is not bool:
         fail("_resampled", "must be a bool")
+    if type(state.recover_from_depletion) is not bool:
+        fail("recover_from_depletion", "must be a bool")
     integer(state, "_recoveries", 0, max(t, 0))  # at most one per step, none at step 0
     if type(state._recovered) is not bool or (state._recovered and (t < 1 or state._recoveries < 1)):
         fail("_recovered", "must be a bool, True only after a step >= 1 that counted a recovery")

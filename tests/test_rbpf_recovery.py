@@ -353,3 +353,38 @@ def test_track_reports_recoveries_on_stdout_and_as_json_on_stderr(monkeypatch, c
     events = [json.loads(line) for line in err.splitlines()]
     warned = [e for e in events if e.get("event") == "log" and e["level"] == "WARNING"]
     assert [int(re.search(r"step (\d+)", e["message"]).group(1)) for e in warned] == recovered
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_with_recovery_off_a_depleted_step_raises_and_changes_nothing(scheme):
+    """``recover_from_depletion = False``: the step that recovers in the reset test raises instead,
+    saying the particles may have lost the trajectory, and the state is bit for bit unchanged; the
+    switch is part of the checkpointed state."""
+    model = om.corridor(5, 2, p_obs=1.0, p_move=1.0)
+    est = om.make_estimator("rbpf", model, n_particles=8, seed=0, **SCHEMES[scheme])
+    step_all(est, [(None, 0)] + [("right", 0)] * 4 + [("left", 0)] * 2)
+    est.recover_from_depletion = False
+    before = est.state_dict()
+    with pytest.raises(om.ImpossibleObservationError, match="particle depletion"):
+        est.step(0, 1)
+    assert checkpoint.first_difference(est.state_dict(), before) is None
+    assert before["attributes"]["recover_from_depletion"] is False
+
+
+def test_planning_gives_observations_the_particles_rule_out_probability_zero():
+    """``policies.expected_uncertainty`` enumerates every observation of the next steps through
+    forks of the filter, weighting each by the filter's predictive probability; those the particles
+    rule out must weigh zero (skipped), not be recovered from. With a perfect sensor some are ruled
+    out; with room for every trajectory the RBPF is exact Bayes, so its expectation equals the exact
+    estimator's (tested against brute force in test_info_gain)."""
+    from policies import expected_uncertainty
+
+    model = om.corridor(4, 2, p_obs=1.0, p_move=0.7)
+    rbpf = om.make_estimator("rbpf", model, n_particles=256, seed=0)
+    exact = om.make_estimator("exact", model)
+    for est in (rbpf, exact):
+        est.step(None, 0)  # at cell 0, which holds 0: "left" (into the wall) then reading 1 is ruled out
+    for actions in ([0], [0, 1], [1, 0, 0]):
+        np.testing.assert_allclose(expected_uncertainty(rbpf, actions), expected_uncertainty(exact, actions),
+                                   rtol=1e-10, atol=1e-12)
+    assert rbpf.recoveries == 0 and rbpf.recover_from_depletion

@@ -167,7 +167,11 @@ class RaoBlackwellisedPF:
     or no cell of the grid, with labels the model allows at step t, sees it) raises
     :class:`ImpossibleObservationError`, the state unchanged. Steps that do not deplete run exactly
     as before recovery existed (same numbers, same random draws). A recovery costs O(P N U K^2)
-    time (U <= F + 1 the cells a child touches) and at most 32 P N bytes.
+    time (U <= F + 1 the cells a child touches) and at most 32 P N bytes. Setting the attribute
+    ``recover_from_depletion = False`` (checkpointed with the state) makes a depleted step raise
+    :class:`ImpossibleObservationError` instead, the state unchanged, as before recovery existed:
+    for hypothetical steps (a planner enumerating observations gives those the particles rule out
+    probability zero) or to stop a run rather than relocate.
     """
 
     def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
@@ -218,6 +222,7 @@ class RaoBlackwellisedPF:
         self._log_evidence = 0.0
         self._ess = float(n_particles)
         self._resampled = False
+        self.recover_from_depletion = True  # False: raise on depletion (see the class docstring)
         self._recoveries = 0
         self._recovered = False
         self._t = -1
@@ -228,12 +233,13 @@ class RaoBlackwellisedPF:
         """A checkpoint's encoded attributes of format ``version`` as the current format has them:
         version 1 kept the block pool as 13 loose attributes (``_pool``, ``_table``...), gathered
         here into ``_blocks`` (the checks on load then validate it as any other); versions 1 and 2
-        had no recovery from depletion (a filter that never recovered: ``_recoveries`` 0,
-        ``_recovered`` False). O(1)."""
+        had no recovery from depletion (a filter that never recovered, with recovery on:
+        ``_recoveries`` 0, ``_recovered`` False, ``recover_from_depletion`` True). O(1)."""
         if version == 1 and all(name in attributes for name in FORMAT_1_ATTRIBUTES):
             fields = {field: attributes.pop(name) for name, field in FORMAT_1_ATTRIBUTES.items()}
             attributes["_blocks"] = state_node(BlockPool, fields)
         if version <= 2:
+            attributes.setdefault("recover_from_depletion", True)
             attributes.setdefault("_recoveries", 0)
             attributes.setdefault("_recovered", False)
         return attributes
@@ -387,11 +393,13 @@ class RaoBlackwellisedPF:
         resampling (the strata walk them by location, as Fearnhead-Clifford's do) with one uniform,
         their maps built (:func:`~onlinemap.kernels.rbpf.rbpf_relocated_children`) and committed.
         Raises :class:`ImpossibleObservationError`, changing nothing, at step 0 (no motion, no
-        relocation) or when no child is possible. ``blocks``: the step's pool (reserved for P W
+        relocation), when no child is possible, or when ``recover_from_depletion`` is False. ``blocks``: the step's pool (reserved for P W
         writes; advanced by C with eager dynamics). Cost O(P N U K^2 + min(P, N) N A) time, U <= W
         the cells a child touches, A the actions; at most 32 P N bytes (:func:`peak_bytes`)."""
         model = self.model
         n_particles = self.n_particles
+        if not self.recover_from_depletion:
+            raise ImpossibleObservationError(_no_particle_explains(model, z, t, n_particles))
         readings = np.atleast_1d(np.asarray(z, dtype=np.int64))
         prior = np.ascontiguousarray(model.label_prior if model.is_static else
                                      model.label_prior @ np.linalg.matrix_power(model.change, t))
@@ -454,6 +462,15 @@ class RaoBlackwellisedPF:
         self._recovered = recovered
         self._t = t
         self._belief = None
+
+
+def _no_particle_explains(model: GridModel, z, t: int, n_particles: int) -> str:
+    """The message of a depleted step with recovery off: the filter cannot tell an observation
+    impossible under the model from one only its lost trajectories explained."""
+    return (f"observation {_describe(model, z)} has probability zero for every one of the {n_particles} "
+            f"particles at step {t}: either it is impossible under the model given the past, or the particles "
+            f"have lost every trajectory that explains it (particle depletion; recover_from_depletion is False). "
+            f"The filter is unchanged")
 
 
 def _impossible(model: GridModel, z, t: int, n_particles: int) -> str:
