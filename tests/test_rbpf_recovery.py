@@ -213,6 +213,19 @@ def test_when_every_map_rules_the_reading_out_the_read_cell_is_reset(scheme):
         np.testing.assert_array_equal(maps[p], expected)
 
 
+@pytest.mark.parametrize("lazy", [True, False], ids=["lazy", "eager"])
+def test_a_reset_in_a_dynamic_world_takes_the_model_marginal_at_that_step(lazy):
+    """Label 0 is absorbing (C = [[1, 0], [0.1, 0.9]]) and the sensor perfect: after every cell read
+    0, reading 1 is ruled out by every particle's map but not by the model, whose marginal at step
+    t gives label 1 probability 0.5 * 0.9^t. The recovery equals the limit (the reset cell drawn
+    from that marginal), with lazy dynamics and with C applied to every cell every step."""
+    model = om.grid_model(1, 5, 2, p_obs=1.0, p_move=1.0, change=[[1.0, 0.0], [0.1, 0.9]], label_prior=[0.5, 0.5])
+    est = om.make_estimator("rbpf", model, n_particles=8, seed=0, lazy_dynamics=lazy)
+    step_all(est, [(None, 0)] + [(1, 0)] * 4 + [(0, 0)] * 2)
+    belief = assert_recovery_equals_reference(est, 0, 1)
+    assert belief.map[:, 1].max() == pytest.approx(belief.location.max(), abs=1e-12)  # label 1 where it stands
+
+
 # --- what the model rules out still raises, with everything unchanged ---------------------------------
 def impossible_cases():
     """(id, model, observation, action): a 3 x 3 grid with the cross footprint whose centre is a wall
