@@ -187,7 +187,7 @@ def _exploration(model: GridModel, true_map, planner: str | Planner, estimator: 
         state["location"] = location
         return observation, location, state["labels"]
 
-    return _loop(model, lambda: advance(None), advance, chooser, est, steps, progress, score)
+    return _loop(model, lambda: advance(None), advance, chooser, est, steps, progress, score=score)
 
 
 def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estimator = "rbpf",

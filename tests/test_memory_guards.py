@@ -46,7 +46,8 @@ print(json.dumps({"measured": peak() - before, "owned": int((est._blocks.refcoun
 def test_rbpf_memory_estimate_bounds_the_measured_peak(p_change):
     """Regression: the guard counted 8 P N (K + 1) bytes, 2.1x less than the peak measured here
     (the block pool grows by doubling, and the old pool lives on while it is copied). Now the
-    estimate bounds the measured peak RSS and is within 2x of it."""
+    estimate bounds the measured peak RSS and is within 2x of it, plus the 32 N P bytes of a
+    step that recovers from depletion (its N P children's weights)."""
     n, p = 200, 2000
     done = subprocess.run([sys.executable, "-c", MEASURE, str(n), str(p), str(p_change)], capture_output=True,
                           text=True, timeout=300, check=True)
@@ -54,7 +55,8 @@ def test_rbpf_memory_estimate_bounds_the_measured_peak(p_change):
     model = om.corridor(n, p_change=p_change)
     estimate = peak_bytes(model, p)
     assert result["owned"] >= p * 20  # the worst case was reached: every particle owns its 20 blocks
-    assert result["measured"] <= estimate <= 2 * result["measured"], (result, estimate)
+    recovery = 32 * n * p  # the estimate also covers a recovery from depletion, which this run does not reach
+    assert result["measured"] <= estimate <= 2 * result["measured"] + recovery, (result, estimate)
     old = 8 * p * n * (model.n_labels + (0 if model.is_static else 1))
     assert old < result["measured"] / 1.5  # what the old guard missed
 

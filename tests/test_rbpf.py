@@ -3,6 +3,8 @@ equal when the location is known (p_move = 1), within Monte-Carlo tolerance with
 particles, lazy map dynamics equal to eager, optimal proposal with lower weight variance,
 and bad or impossible input leaving everything (random generator included) unchanged."""
 
+import logging
+
 import numpy as np
 import pytest
 
@@ -197,29 +199,26 @@ def test_impossible_observation_keeps_everything(proposal, p_change):
     np.testing.assert_array_equal(est.particle_maps(), twin.particle_maps())
 
 
-def test_depletion_is_told_apart_in_the_message():
-    """A perfect sensor, one particle drawn by motion alone: after "right, saw 0" the particle
-    either stayed (then "right, saw 1" is impossible for it) or moved. The exact filter accepts
-    the observation either way, so when the particle refuses it the message must say the
-    particles may have lost the trajectory, not only that the observation is impossible."""
+def test_a_sampling_step_whose_draws_all_miss_enumerates_the_successors(caplog):
+    """A perfect sensor, one particle drawn by motion alone: after "right, saw 0" the particle at
+    cell c (0 or 1) knows cell c holds 0, so of its successors c (stay) and c + 1 (move) only the
+    move explains "right, saw 1". Where the draw stayed (the filter used to raise), the step
+    enumerates both successors instead, as Fearnhead-Clifford does: the particle ends at c + 1,
+    which holds 1, whatever was drawn; nothing is relocated (no recovery)."""
     model = om.corridor(4, 2, p_obs=1.0, p_move=0.5)
-    refused = 0
-    for seed in range(40):  # it stays at both presses with probability >= 1/4: P(no refusal) < 1e-4
-        exact = om.make_estimator("exact", model)
+    missed = 0
+    for seed in range(40):  # the draw stays with probability 1/2: P(no miss in 40) = 2^-40
         est = om.make_estimator("rbpf", model, n_particles=1, proposal="transition", resampling="multinomial",
                                 seed=seed)
-        for action, z in ((None, 0), ("right", 0)):
-            exact.step(action, z)
-            est.step(action, z)
-        exact.step("right", 1)  # possible under the model
-        snap = snapshot(est)
-        try:
-            est.step("right", 1)
-        except om.ImpossibleObservationError as error:
-            refused += 1
-            assert "particle depletion" in str(error) and "every one of the 1 particles" in str(error)
-            assert_state_unchanged(est, snap)
-    assert refused > 0
+        est.step(None, 0)
+        c = est.step("right", 0).most_likely_location
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger="onlinemap.estimators.rbpf"):
+            belief = est.step("right", 1)
+        missed += any("enumerates the particles' successors" in r.getMessage() for r in caplog.records)
+        assert belief.location[c + 1] == 1.0 and belief.map[c + 1, 1] == 1.0
+        assert not belief.recovered and est.recoveries == 0
+    assert missed > 0
 
 
 def test_subnormal_likelihood_gives_a_valid_belief():
