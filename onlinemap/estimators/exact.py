@@ -138,7 +138,8 @@ class ExactFilter:
         """The step redone when its total is not a normal float (an observation of probability near
         or below 1e-308): the likelihood divided by its maximum, then, if the total is still
         subnormal, the belief scaled by a power of two that brings it near 1. Returns
-        ``(total, log of the factor taken out)``; total 0 when even that underflows. Costs one
+        ``(total, log of the factor taken out)``; total 0 when even that underflows or when that
+        power of two (with the ``1 / _norm`` it multiplies) is beyond float64's range. Costs one
         or two more passes, only on this branch."""
         top = float(likelihood.max())
         if not top > 0:
@@ -146,10 +147,11 @@ class ExactFilter:
         likelihood = likelihood / top
         total = self._predict_observe(a, likelihood, 0, out, location)
         exponent = -math.frexp(total)[1] if 0 < total < _SMALLEST_NORMAL else 0
-        if exponent and math.isfinite(math.ldexp(1.0 / self._norm, exponent)):
-            total = self._predict_observe(a, likelihood, exponent, out, location)
-        elif exponent:
-            return 0.0, 0.0
+        if exponent:
+            try:
+                total = self._predict_observe(a, likelihood, exponent, out, location)
+            except OverflowError:  # 2**exponent / _norm beyond float64 (math.ldexp raises, never gives inf)
+                return 0.0, 0.0
         return total, math.log(top) - exponent * math.log(2.0)
 
     def _general_step(self, a: int | None, z) -> Belief:
