@@ -14,7 +14,7 @@ import numbers
 
 from .errors import ModelError, OnlineMapError
 
-MAX_CELLS = 2**24  # grid cells: the model's (N, A) tables stay below about 0.5 GB
+MAX_CELLS = 2**24  # bounds N, N x K and N x F (footprint offsets): the model's tables stay below about 0.5 GB
 MAX_LABELS = 2**12  # labels K: (K, K) tables stay below 128 MB
 
 

@@ -254,6 +254,9 @@ class GridModel:
                              f"{blocking.dtype} {blocking.shape}; grid_model(blocking=...) takes labels")
         set_(self, "blocking", read_only(blocking))
         footprint = _footprint(self.footprint)
+        if n * len(footprint) > arguments.MAX_CELLS:  # before the (N, F) tables are built
+            raise ModelError(f"a footprint of {len(footprint)} offsets on {n} cells reads {n * len(footprint)} "
+                             f"cells per map; at most {arguments.MAX_CELLS} are supported (cells x offsets)")
         set_(self, "footprint", footprint)
         set_(self, "footprint_cells", read_only(footprint_table(self.rows, self.cols, footprint)))
         stays = neighbors.T == np.arange(n)

@@ -3,6 +3,7 @@ against the peak resident memory actually measured in a fresh process."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -83,3 +84,23 @@ def test_offline_em_tolerance_must_be_finite_and_non_negative(tol):
         om.make_estimator("offline_em", om.corridor(4), tol=tol)
     with pytest.raises(om.InvalidOptionError, match="tol"):
         om.estimators.offline_em.baum_welch(om.corridor(4), [], [0], tol=tol)
+
+
+
+# --- issue 24 item 5: memory no guard bounded ---------------------------------------------------
+def test_footprint_cells_times_offsets_is_bounded():
+    """Regression: a footprint of 40,000 offsets on 300 x 300 cells built (N, F) tables of
+    3.6e9 entries (26.8 GiB) and died with a raw MemoryError. N x F is bounded like N x K
+    (``MAX_CELLS``), before anything of that size is built."""
+    from onlinemap.arguments import MAX_CELLS
+
+    offsets = [(dr, dc) for dr in range(-100, 100) for dc in range(-100, 100)]
+    with pytest.raises(om.ModelError, match=rf"footprint of 40000 offsets on 90000 cells.*at most {MAX_CELLS}"):
+        om.grid_model(300, 300, footprint=offsets)
+    row = [(0, dc) for dc in range(4096)]  # 4097 x 4096 = MAX_CELLS + 4096
+    with pytest.raises(om.ModelError, match="footprint of 4096 offsets on 4097 cells"):
+        om.corridor(4097, footprint=row)
+    small = om.corridor(4, footprint=row[:3])
+    with pytest.raises(om.ModelError, match="footprint of 4096 offsets on 4097 cells"):
+        dataclasses.replace(small, cols=4097, neighbors=om.corridor(4097).neighbors, label_prior=[0.5, 0.5],
+                            footprint=tuple(row))
