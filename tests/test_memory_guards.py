@@ -104,3 +104,55 @@ def test_footprint_cells_times_offsets_is_bounded():
     with pytest.raises(om.ModelError, match="footprint of 4096 offsets on 4097 cells"):
         dataclasses.replace(small, cols=4097, neighbors=om.corridor(4097).neighbors, label_prior=[0.5, 0.5],
                             footprint=tuple(row))
+
+
+@pytest.fixture
+def machine_of_1_gib(monkeypatch):
+    """This process sees a machine of 1 GiB, whatever the machine running the tests has (small,
+    so that a guard failing here allocates little)."""
+    from onlinemap import arguments
+
+    monkeypatch.setattr(arguments, "machine_memory", lambda: 2**30)
+
+
+@pytest.mark.parametrize("max_bytes", [float("inf"), 10**15])
+def test_no_limit_is_capped_at_the_machines_memory(machine_of_1_gib, max_bytes):
+    """Regression: max_bytes=inf switched the guards off, and exact on corridor(26) (2 x 14 GB
+    tensors) or the RBPF with 10^7 particles on the door world (77 GB at worst) ended in a raw
+    MemoryError (or the OOM killer). A limit above the machine's memory now means the machine's
+    memory: refused before anything is allocated."""
+    with pytest.raises(om.MemoryLimitError, match=r"27\.9 GB .* this machine has 1\.07 GB"):
+        om.make_estimator("exact", om.corridor(26), max_bytes=max_bytes)
+    with pytest.raises(om.MemoryLimitError, match=r"this machine has 1\.07 GB"):
+        om.exact_smooth(om.corridor(22), [1], [0, 0], max_bytes=max_bytes)  # 4 tensors of 0.74 GB
+    with pytest.raises(om.MemoryLimitError, match="rbpf with 10000000 particles"):
+        om.make_estimator("rbpf", om.door_world()[0], n_particles=10**7, max_bytes=max_bytes)
+    assert om.make_estimator("exact", om.corridor(4), max_bytes=max_bytes).step(None, 0).t == 0
+
+
+def test_machine_memory_against_proc_meminfo():
+    """The cap is at most the physical memory Linux reports (MemTotal, /proc/meminfo)."""
+    from onlinemap.arguments import machine_memory
+
+    if not os.path.exists("/proc/meminfo"):
+        pytest.skip("needs Linux /proc/meminfo")
+    with open("/proc/meminfo") as meminfo:
+        total = next(int(line.split()[1]) * 1024 for line in meminfo if line.startswith("MemTotal:"))
+    assert 0 < machine_memory() <= total
+
+
+def test_exact_smooth_validates_max_bytes():
+    """max_bytes=nan switched exact_smooth's guard off (the filter's was fixed, not the smoother's)."""
+    with pytest.raises(om.InvalidOptionError, match="max_bytes"):
+        om.exact_smooth(om.corridor(4), [1], [0, 0], max_bytes=float("nan"))
+
+
+def test_offline_em_iterations_are_bounded():
+    """Regression: offline_em(tol=0, n_iter=10**12) was accepted and never returned."""
+    from onlinemap.estimators.offline_em import MAX_ITERATIONS, baum_welch
+
+    with pytest.raises(om.InvalidOptionError, match=f"n_iter must be at most {MAX_ITERATIONS}"):
+        om.make_estimator("offline_em", om.corridor(4), tol=0, n_iter=10**12)
+    with pytest.raises(om.InvalidOptionError, match=f"n_iter must be at most {MAX_ITERATIONS}"):
+        baum_welch(om.corridor(4), [1], [0, 1], tol=0, n_iter=MAX_ITERATIONS + 1)
+    assert om.make_estimator("offline_em", om.corridor(4), tol=0, n_iter=MAX_ITERATIONS).n_iter == MAX_ITERATIONS

@@ -40,14 +40,19 @@ def tensor_bytes(model: GridModel, copies: int = 1) -> int:
     return 8 * copies * model.n_cells * model.n_labels ** model.n_cells
 
 
-def check_memory(model: GridModel, copies: int, max_bytes: int, what: str) -> None:
-    """Raise :class:`MemoryLimitError` if ``copies`` tensors exceed ``max_bytes``; allocate nothing."""
+def check_memory(model: GridModel, copies: int, max_bytes: int | float, what: str) -> None:
+    """Raise :class:`MemoryLimitError` if ``copies`` tensors exceed ``max_bytes`` (a positive int
+    or ``math.inf``, capped at the machine's memory: :func:`onlinemap.arguments.byte_limit`), or
+    :class:`InvalidOptionError` if ``max_bytes`` is not a limit; allocate nothing."""
+    limit = arguments.byte_limit("max_bytes", max_bytes, InvalidOptionError)
     need = tensor_bytes(model, copies)
-    if need > max_bytes:
+    if need > limit:
+        raised = ("pass max_bytes=... to raise it" if limit == max_bytes else
+                  f"this machine has {limit / 1e9:.3g} GB (max_bytes={max_bytes!r} cannot raise that)")
         raise MemoryLimitError(
             f"{what} for N={model.n_cells} cells and K={model.n_labels} labels needs "
-            f"{need / 1e9:.3g} GB ({copies} x N*K^N float64) but the limit is {max_bytes / 1e9:.3g} GB; "
-            f"pass max_bytes=... to raise it, or use an approximate estimator (bk, rbpf)")
+            f"{need / 1e9:.3g} GB ({copies} x N*K^N float64) but the limit is {limit / 1e9:.3g} GB; "
+            f"{raised}, or use an approximate estimator (bk, rbpf)")
 
 
 def prior_tensor(model: GridModel) -> np.ndarray:
@@ -73,7 +78,7 @@ class ExactFilter:
     scratch_attributes = ("_scratch", "_joint_map")  # overwritten by every step: not checkpointed
 
     def __init__(self, model: GridModel, *, max_bytes: int = DEFAULT_MAX_BYTES):
-        max_bytes = arguments.byte_limit("max_bytes", max_bytes, InvalidOptionError)
+        max_bytes = arguments.requested_bytes("max_bytes", max_bytes, InvalidOptionError)
         check_memory(model, 2, max_bytes, "the exact filter (two belief tensors)")
         self.model = model
         self.max_bytes = max_bytes

@@ -10,7 +10,8 @@ parameter), but every iteration runs forward-backward over all T steps from the 
 
 Without annealing this is EM for the MAP of B under a Dirichlet(c + 1) prior per row, so the
 objective ``log P(z | B) + c sum log B`` never decreases. Iterations stop when it rises by
-less than ``tol`` (and tau has reached tau_min) or after ``n_iter``. EM starts from
+less than ``tol`` (and tau has reached tau_min) or after ``n_iter`` (at most
+:data:`MAX_ITERATIONS`). EM starts from
 ``B0 = label_prior @ O``. Cost: O(T (N F + E) + N K^2) per iteration, O(T N) memory.
 
 With a sensor footprint of F offsets B is per cell and the M-step counts every reading of each
@@ -60,9 +61,13 @@ def check_anneal(anneal) -> Anneal | None:
     return schedule
 
 
+MAX_ITERATIONS = 10**4  # EM that has not converged in 10,000 iterations will not (the default is 200)
+
+
 def check_n_iter(n_iter) -> int:
-    """An iteration count >= 1, or InvalidOptionError."""
-    return arguments.integer("n_iter", n_iter, minimum=1, error=InvalidOptionError)
+    """An iteration count in 1..:data:`MAX_ITERATIONS`, or InvalidOptionError (with ``tol=0`` EM
+    runs every one of them: an unbounded count never returned)."""
+    return arguments.integer("n_iter", n_iter, minimum=1, maximum=MAX_ITERATIONS, error=InvalidOptionError)
 
 
 def check_tol(tol) -> float:
