@@ -178,7 +178,7 @@ class ExactFilter:
         self._norm = total
         self._log_evidence += math.log(total)
         self._t += 1
-        maps = map_marginals(x.sum(axis=0), model.n_cells, model.n_labels) / total
+        maps = np.minimum(map_marginals(x.sum(axis=0), model.n_cells, model.n_labels) / total, 1.0)  # rounding
         self._belief = Belief(self._t, location / total, maps, self._log_evidence)
         return self._belief
 
@@ -323,8 +323,8 @@ def exact_smooth(model: GridModel, actions, observations, *, max_bytes: int = DE
     for t in range(n_steps - 1, -1, -1):
         post = alphas[t] * beta
         post /= post.sum()
-        location[t] = post.sum(axis=1)
-        maps[t] = map_marginals(post.sum(axis=0), n, k)
+        location[t] = np.minimum(post.sum(axis=1), 1.0)  # rounding
+        maps[t] = np.minimum(map_marginals(post.sum(axis=0), n, k), 1.0)
         if t > 0:
             beta = observe(beta, z_seq[t])
             beta = change_tensor(model, beta, transpose=True)
