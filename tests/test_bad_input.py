@@ -140,6 +140,8 @@ def test_integral_values_of_other_types_are_accepted():
     ("corridor:8,p_obs=nan", "p_obs must be in"),
     ("corridor:8,p_obs=0.9,p_obs=0.8", "given twice"),
     ("corridor:8,n_labels=2.5", "n_labels must be a whole number"),
+    ("grid:3x3,blocking=\u0661", "unknown blocking label '\u0661'"),  # an Arabic-Indic 1 was label 1 (issue 24 item 11)
+    ("grid:3x3,blocking=\u00b9", "unknown blocking label '\u00b9'"),  # a superscript 1: a raw ValueError
 ])
 def test_world_specs_refuse_with_one_clear_error(spec, words):
     from onlinemap.worlds import parse_world
