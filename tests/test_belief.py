@@ -89,3 +89,14 @@ def test_plot_belief_draws_a_grid_as_images(door_run):
     np.testing.assert_allclose(rgba[..., 3], belief.map.max(axis=1).reshape(run.model.shape))
     with pytest.raises(ValueError, match="does not fit"):
         plots.plot_belief(om.corridor(4), belief)
+
+
+def test_dead_reckoning_log_evidence_is_undefined_and_says_so():
+    """Issue 24 item 18: dead reckoning's log_evidence=nan read as a bug. It is undefined (no
+    observation model); the belief's repr, the Belief docstring and the estimator's say so."""
+    est = om.make_estimator("dead_reckoning", om.corridor(4))
+    steps = [est.step(None, 0), est.step(1, 1), est.step(0, 0)]
+    assert all(np.isnan(belief.log_evidence) for belief in steps)
+    assert "log_evidence=nan (undefined)" in repr(steps[-1])
+    assert "log_evidence=nan" not in repr(om.make_estimator("bk", om.corridor(4)).step(None, 0))
+    assert "dead reckoning" in om.Belief.__doc__ and "undefined" in type(est).__doc__
