@@ -178,3 +178,18 @@ def test_fraction_action_is_an_index_or_a_specific_error():
     with pytest.raises(om.InvalidActionError, match="whole number"):
         est.step(Fraction(3, 2), 0)
     assert_same(est, snap)
+
+
+@pytest.mark.parametrize("n_actions", [0, 3, 5])
+def test_run_estimator_refuses_lengths_that_do_not_fit_naming_both(n_actions):
+    """Regression (issue 24 item 18): a length mismatch raised a bare ValueError."""
+    est = om.make_estimator("exact", om.corridor(4))
+    before = estimator_cases.snapshot(est)
+    with pytest.raises(om.InvalidActionError, match=f"5 observations need 4 actions, got {n_actions}"):
+        om.run_estimator(est, [1] * n_actions, [0] * 5)
+    estimator_cases.assert_state_unchanged(est, before)
+    with pytest.raises(om.InvalidObservationError, match="at least one observation"):
+        om.run_estimator(est, [], [])
+    with pytest.raises(om.InvalidObservationError, match="observations must be a sequence"):
+        om.run_estimator(est, [], iter([0]))
+    estimator_cases.assert_state_unchanged(est, before)

@@ -18,7 +18,8 @@ import numpy as np
 
 from .. import checkpoint
 from ..belief import Belief, beliefs_frame
-from ..errors import CheckpointError, ModelError, OnlineMapError, UnknownEstimatorError
+from ..errors import (CheckpointError, InvalidActionError, InvalidObservationError, ModelError, OnlineMapError,
+                      UnknownEstimatorError)
 from ..model import GridModel
 
 _REGISTRY: dict[str, type] = {}
@@ -157,11 +158,16 @@ class Trajectory(NamedTuple):
 def run_estimator(estimator: Estimator, actions, observations) -> Trajectory:
     """Feed a recorded run (``actions`` (T - 1,), ``observations`` (T,)) through ``step``.
 
+    Lengths that do not fit raise :class:`InvalidObservationError` (no observations, or no
+    sequence) or :class:`InvalidActionError` (not T - 1 actions) before any step.
     Cost: T calls of ``step``; memory O(T N K) for the stacked marginals.
     """
-    n_steps = len(observations)
-    if len(actions) != n_steps - 1:
-        raise ValueError(f"{n_steps} observations need {n_steps - 1} actions, got {len(actions)}")
+    n_steps = _length("observations", observations, InvalidObservationError)
+    n_actions = _length("actions", actions, InvalidActionError)
+    if n_steps == 0:
+        raise InvalidObservationError("a run needs at least one observation")
+    if n_actions != n_steps - 1:
+        raise InvalidActionError(f"{n_steps} observations need {n_steps - 1} actions, got {n_actions}")
     model = estimator.model
     location = np.empty((n_steps, model.n_cells))
     maps = np.empty((n_steps, model.n_cells, model.n_labels))
@@ -172,6 +178,13 @@ def run_estimator(estimator: Estimator, actions, observations) -> Trajectory:
         location[t], maps[t], evidence[t] = belief.location, belief.map, belief.log_evidence
     seconds = (time.perf_counter() - start) / n_steps
     return Trajectory(location, maps, evidence, seconds)
+
+
+def _length(name: str, values, error: type[OnlineMapError]) -> int:
+    try:
+        return len(values)
+    except TypeError:  # a generator, a number...
+        raise error(f"{name} must be a sequence (a list, tuple or array), got {type(values).__name__}") from None
 
 
 def fork(estimator: Estimator) -> Estimator:
