@@ -149,6 +149,17 @@ class Trajectory(NamedTuple):
     log_evidence: np.ndarray  # (T,)
     seconds_per_step: float
 
+    def __repr__(self) -> str:
+        """One line: T, the arrays' shapes and the last step's most likely cell and log evidence."""
+        text = (f"Trajectory(T={len(self.location)} steps: location {self.location.shape}, map {self.map.shape}, "
+                f"log_evidence {self.log_evidence.shape}")
+        if not len(self.location):
+            return text + ")"
+        last = self.location[-1]
+        best = int(np.argmax(last))
+        return (f"{text}; at t={len(self.location) - 1} most likely cell {best} with p={last[best]:.3f}, "
+                f"log_evidence={self.log_evidence[-1]:.4g}; {1e3 * self.seconds_per_step:.3g} ms per step)")
+
     def to_frame(self, model: GridModel | None = None):
         """The beliefs over time in long format, one row per step and cell (see
         :func:`onlinemap.belief.beliefs_frame`), for pandas / seaborn. Cost O(T N K)."""
