@@ -122,3 +122,14 @@ def test_run_and_trajectory_print_short_with_shapes_and_a_few_numbers(door_run):
     assert f"log_evidence={trajectory.log_evidence[-1]:.4g}" in text
     empty = om.Trajectory(np.empty((0, 3)), np.empty((0, 3, 2)), np.empty(0), 0.0)
     assert repr(empty) == "Trajectory(T=0 steps: location (0, 3), map (0, 3, 2), log_evidence (0,))"
+
+
+def test_help_of_make_estimator_points_to_the_names_and_their_options():
+    """Issue 24 item 18: help(om.make_estimator) said nothing of which names and options exist."""
+    import pydoc
+
+    text = pydoc.render_doc(om.make_estimator, renderer=pydoc.plaintext)
+    for pointer in ("available_estimators()", "estimator_options(name)", "help(type(est))"):
+        assert pointer in text
+    for name in om.available_estimators():
+        assert name in text

@@ -128,7 +128,15 @@ def _lookup(name: str) -> type:
 
 
 def make_estimator(name: str, model: GridModel, **options) -> Estimator:
-    """Build the estimator registered as ``name`` for ``model`` with keyword ``options``."""
+    """Build the estimator registered as ``name`` for ``model`` with keyword ``options``.
+
+    ``available_estimators()`` lists the names: ``exact``, ``dead_reckoning``, ``online_em``,
+    ``offline_em``, ``bk``, ``rbpf``. ``estimator_options(name)`` gives an estimator's options
+    with their defaults, and ``help(type(est))`` (the class's docstring) what each one means.
+    An unknown name or option raises :class:`UnknownEstimatorError` (listing the known ones), a
+    bad value :class:`InvalidOptionError`. Example:
+    ``make_estimator("rbpf", model, n_particles=500, seed=0)``.
+    """
     cls = _lookup(name)
     if not isinstance(model, GridModel):
         raise ModelError(f"model must be a GridModel, got {type(model).__name__}")
