@@ -16,7 +16,8 @@ from . import checkpoint, errors, metrics, scenarios
 from .belief import Belief
 from .checkpoint import save
 from .errors import (CheckpointError, ImpossibleObservationError, InvalidActionError, InvalidObservationError,
-                     InvalidOptionError, MemoryLimitError, ModelError, OnlineMapError, UnknownEstimatorError)
+                     InvalidOptionError, MemoryLimitError, ModelError, OnlineMapError, PerformanceWarning,
+                     UnknownEstimatorError)
 from .estimators import (Estimator, SmoothResult, Trajectory, available_estimators,
                          estimator_options, exact_smooth, load, make_estimator, register, run_estimator)
 from .model import DOOR_WORLD_10X10, GridModel, corridor, door_world, grid_model
@@ -45,5 +46,6 @@ __all__ = [
     "exact_smooth", "metrics", "scenarios", "errors", "checkpoint", "save", "load",
     "OnlineMapError", "CheckpointError", "ModelError", "InvalidActionError", "InvalidObservationError",
     "ImpossibleObservationError", "InvalidOptionError", "MemoryLimitError", "UnknownEstimatorError",
+    "PerformanceWarning",
     "sweep", "load_spec", "summarize", "SpecError", "SweepError",
 ]
