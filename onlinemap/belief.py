@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -30,7 +31,9 @@ class Belief:
 
     location: (N,) ``P(L_t = i | z_0:t, a_1:t)``
     map: (N, K) ``P(m_{i,t} = k | z_0:t, a_1:t)``
-    log_evidence: ``log P(z_0:t | a_1:t)`` under the estimator's model (NaN where undefined)
+    log_evidence: ``log P(z_0:t | a_1:t)`` under the estimator's model; NaN where undefined:
+    dead reckoning has no observation model (it never weighs an observation), so it gives the
+    observations no probability
     observation_matrix: (N, K) ``B[i, k] = P(Z = k | L = i)``, for estimators that learn it
     effective_sample_size: for particle filters, after the step's weighting
     recovered: True when a particle filter recovered from depletion at this step (no particle
@@ -82,9 +85,10 @@ class Belief:
     def __repr__(self) -> str:
         where = self.most_likely_location
         extra = "" if self.effective_sample_size is None else f", ess={self.effective_sample_size:.1f}"
+        undefined = " (undefined)" if math.isnan(self.log_evidence) else ""
         extra += ", recovered from depletion" if self.recovered else ""
         return (f"Belief(t={self.t}, most likely cell {where} with p={self.location[where]:.3f}, "
-                f"N={self.n_cells}, K={self.n_labels}, log_evidence={self.log_evidence:.4g}{extra})")
+                f"N={self.n_cells}, K={self.n_labels}, log_evidence={self.log_evidence:.4g}{undefined}{extra})")
 
 
 def beliefs_frame(location: np.ndarray, maps: np.ndarray, model: GridModel | None = None,
