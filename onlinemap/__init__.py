@@ -17,7 +17,8 @@ from .belief import Belief
 from .buildings import building
 from .checkpoint import save
 from .errors import (CheckpointError, ImpossibleObservationError, InvalidActionError, InvalidObservationError,
-                     InvalidOptionError, MemoryLimitError, ModelError, OnlineMapError, UnknownEstimatorError)
+                     InvalidOptionError, MemoryLimitError, ModelError, OnlineMapError, PerformanceWarning,
+                     UnknownEstimatorError)
 from .estimators import (Estimator, SmoothResult, Trajectory, available_estimators,
                          estimator_options, exact_smooth, load, make_estimator, register, run_estimator)
 from .layouts import read_layout
@@ -52,5 +53,6 @@ __all__ = [
     "exact_smooth", "metrics", "scenarios", "errors", "checkpoint", "save", "load",
     "OnlineMapError", "CheckpointError", "ModelError", "InvalidActionError", "InvalidObservationError",
     "ImpossibleObservationError", "InvalidOptionError", "MemoryLimitError", "UnknownEstimatorError",
+    "PerformanceWarning",
     "sweep", "load_spec", "summarize", "SpecError", "SweepError",
 ]

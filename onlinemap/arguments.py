@@ -4,17 +4,18 @@ the world specs and the estimators' options.
 Each returns the value in its canonical Python type or raises the given
 :class:`~onlinemap.errors.OnlineMapError` subclass naming the argument. Nothing is coerced
 silently: ``1.5`` is not a size, ``"0.5"`` is not a number, ``True`` is neither, NaN is
-refused wherever a number is expected. Imports numpy only.
+refused wherever a number is expected. Imports the standard library only.
 """
 
 from __future__ import annotations
 
 import math
 import numbers
+import os
 
 from .errors import ModelError, OnlineMapError
 
-MAX_CELLS = 2**24  # grid cells: the model's (N, A) tables stay below about 0.5 GB
+MAX_CELLS = 2**24  # bounds N, N x K and N x F (footprint offsets): the model's tables stay below about 0.5 GB
 MAX_LABELS = 2**12  # labels K: (K, K) tables stay below 128 MB
 
 
@@ -78,11 +79,41 @@ def choice(name: str, value, allowed, error: type[OnlineMapError] = ModelError) 
     return value
 
 
-def byte_limit(name: str, value, error: type[OnlineMapError] = ModelError) -> int | float:
-    """A memory limit in bytes: a positive integer, or ``math.inf`` for none (never NaN)."""
+def requested_bytes(name: str, value, error: type[OnlineMapError] = ModelError) -> int | float:
+    """A memory limit in bytes as given: a positive integer, or ``math.inf`` for none of the
+    caller's own (never NaN). What a guard compares with is :func:`byte_limit`."""
     if isinstance(value, float) and value == math.inf:
         return value
     return integer(name, value, minimum=1, error=error)
+
+
+def byte_limit(name: str, value, error: type[OnlineMapError] = ModelError) -> int | float:
+    """The bytes a memory guard lets through: :func:`requested_bytes` capped at this machine's
+    memory (:func:`machine_memory`), since an allocation beyond it can only end in a raw
+    ``MemoryError`` or the kernel's OOM killer. ``math.inf`` only where the machine's memory
+    is unknown."""
+    limit = requested_bytes(name, value, error)
+    memory = machine_memory()
+    return limit if memory is None or limit <= memory else memory
+
+
+def machine_memory() -> int | None:
+    """Bytes of memory this process can have: the machine's physical memory (``os.sysconf``),
+    or its control group's limit (Linux containers) where lower; None where neither is known."""
+    sizes = []
+    try:
+        sizes.append(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):  # no sysconf (Windows) or no such name
+        pass
+    for path in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):  # v2, v1
+        try:
+            with open(path) as limit:
+                text = limit.read().strip()
+        except OSError:
+            continue
+        if text.isdigit():  # "max": no limit
+            sizes.append(int(text))
+    return min(sizes) if sizes else None
 
 
 def names(name: str, values, count: int, error: type[OnlineMapError] = ModelError) -> tuple[str, ...]:

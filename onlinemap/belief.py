@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -30,9 +31,13 @@ class Belief:
 
     location: (N,) ``P(L_t = i | z_0:t, a_1:t)``
     map: (N, K) ``P(m_{i,t} = k | z_0:t, a_1:t)``
-    log_evidence: ``log P(z_0:t | a_1:t)`` under the estimator's model (NaN where undefined)
+    log_evidence: ``log P(z_0:t | a_1:t)`` under the estimator's model; NaN where undefined:
+    dead reckoning has no observation model (it never weighs an observation), so it gives the
+    observations no probability
     observation_matrix: (N, K) ``B[i, k] = P(Z = k | L = i)``, for estimators that learn it
     effective_sample_size: for particle filters, after the step's weighting
+    recovered: True when a particle filter recovered from depletion at this step (no particle
+    explained the observation; see the RBPF's class docstring for what the belief then is)
 
     Arrays are read-only copies; an estimator never hands out its own buffers.
     """
@@ -43,12 +48,14 @@ class Belief:
     log_evidence: float = float("nan")
     observation_matrix: np.ndarray | None = None
     effective_sample_size: float | None = None
+    recovered: bool = False
 
     def __post_init__(self) -> None:
         for name in ("location", "map", "observation_matrix"):
             object.__setattr__(self, name, _frozen(getattr(self, name)))
         object.__setattr__(self, "t", int(self.t))
         object.__setattr__(self, "log_evidence", float(self.log_evidence))
+        object.__setattr__(self, "recovered", bool(self.recovered))
 
     @property
     def n_cells(self) -> int:
@@ -78,8 +85,10 @@ class Belief:
     def __repr__(self) -> str:
         where = self.most_likely_location
         extra = "" if self.effective_sample_size is None else f", ess={self.effective_sample_size:.1f}"
+        undefined = " (undefined)" if math.isnan(self.log_evidence) else ""
+        extra += ", recovered from depletion" if self.recovered else ""
         return (f"Belief(t={self.t}, most likely cell {where} with p={self.location[where]:.3f}, "
-                f"N={self.n_cells}, K={self.n_labels}, log_evidence={self.log_evidence:.4g}{extra})")
+                f"N={self.n_cells}, K={self.n_labels}, log_evidence={self.log_evidence:.4g}{undefined}{extra})")
 
 
 def beliefs_frame(location: np.ndarray, maps: np.ndarray, model: GridModel | None = None,

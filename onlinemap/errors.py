@@ -1,4 +1,4 @@
-"""Exceptions raised by onlinemap.
+"""Exceptions raised by onlinemap, and the one warning it issues.
 
 Every error is a ``ValueError`` subclass (``MemoryLimitError`` is also a ``MemoryError``) so
 callers can catch broadly, or precisely by type. An estimator that raises one of these from
@@ -46,3 +46,9 @@ class UnknownEstimatorError(OnlineMapError, KeyError):
     """``make_estimator`` was given a name that is not in the registry, or an unknown option."""
 
     __str__ = ValueError.__str__
+
+
+class PerformanceWarning(UserWarning):
+    """An estimator is used in a way that costs far more than another way to the same answer
+    (``offline_em`` stepped through a recorded run re-fits on all data at every step; its
+    ``fit`` fits once). Silence it with ``warnings.simplefilter("ignore", PerformanceWarning)``."""

@@ -31,6 +31,10 @@ its numbers here, with the same names and thresholds:
   the sum over steps), ``steps_to_map_error_20`` / ``_10`` / ``_05`` (the first step at which the
   map error is at most 0.20 / 0.10 / 0.05, NaN if never: :func:`coverage`), ``final_known_cells``
   and ``final_observable_map_error``.
+- navigation (:func:`navigation_metrics`, per run): ``reached`` the goal, ``steps_to_goal``,
+  ``oracle_steps`` (an omniscient robot's, in the same world history), ``steps_over_oracle`` and
+  ``success`` (reached within :data:`SUCCESS_WITHIN` times the oracle's steps; counted over the
+  runs where the oracle reaches the goal, ``oracle_reached``).
 
 Cost: O(T N K) for T steps, N cells, K labels (one pass over the stacked beliefs).
 """
@@ -39,13 +43,14 @@ from __future__ import annotations
 
 import logging
 import math
+import warnings
 from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
 from . import metrics
-from .errors import MemoryLimitError, ModelError
+from .errors import MemoryLimitError, ModelError, PerformanceWarning
 from .estimators import estimator_options, make_estimator, run_estimator
 from .estimators.base import Trajectory
 from .model import GridModel, door_cells
@@ -60,6 +65,7 @@ ASTRAY_BELOW = 0.05  # ... and below this, confidently in the wrong place ("astr
 LATE_FROM = 1 / 3  # late_door_error: steps t >= LATE_FROM * (T - 1)
 CONFIDENT = 0.55  # the probability a most probable label needs to count as known (cell_counts)
 KNOWN_ABOVE = 0.9  # known_cells: cells whose true label has at least this probability
+SUCCESS_WITHIN = 4  # a navigation succeeds when it reaches the goal within this many times the oracle's steps
 COVERAGE_THRESHOLDS = {"steps_to_map_error_20": 0.20, "steps_to_map_error_10": 0.10, "steps_to_map_error_05": 0.05}
 
 STEP_METRICS = ("map_error", "location_error", "log_evidence", "location_entropy", "map_entropy",
@@ -202,6 +208,17 @@ def coverage(map_error: np.ndarray) -> dict[str, float]:
     return row
 
 
+def navigation_metrics(reached_at: int | None, oracle: int | None) -> dict[str, float | bool]:
+    """A navigation run's metrics from the step it first stood on the goal (None: never) and the
+    oracle's (None: the oracle never got there either). O(1)."""
+    reached, oracle_reached = reached_at is not None, oracle is not None
+    both = reached and oracle_reached
+    return {"reached": reached, "steps_to_goal": float(reached_at) if reached else math.nan,
+            "oracle_reached": oracle_reached, "oracle_steps": float(oracle) if oracle_reached else math.nan,
+            "steps_over_oracle": reached_at / max(oracle, 1) if both else math.nan,
+            "success": bool(both and reached_at <= SUCCESS_WITHIN * max(oracle, 1))}
+
+
 def way_back(run: Run) -> np.ndarray:
     """(T,) True at the steps after the robot turned (after its first action that differs
     from the first action); all False if it never turns."""
@@ -291,14 +308,17 @@ def timed_trajectory(name: str, model, options: dict, run: Run) -> Trajectory:
     """Run estimator ``name`` (built with ``options``) over ``run``. The first time in this
     process for (name, options, grid size), it first takes up to :data:`WARM_UP_STEPS` steps of
     ``run`` on a throwaway copy, so compiling or loading numba kernels is not counted in
-    ``seconds_per_step``. Cost: the run's T steps (plus the warm-up once)."""
+    ``seconds_per_step``. Steps every estimator on purpose, offline EM included: no
+    :class:`~onlinemap.errors.PerformanceWarning`. Cost: the run's T steps (plus the warm-up once)."""
     warm = (name, repr(sorted((k, v) for k, v in options.items() if k != "seed")), model.n_cells,
             model.n_labels, model.n_actions, model.is_static)
-    if warm not in _WARMED and run.n_steps > 1:
-        steps = min(run.n_steps, WARM_UP_STEPS)
-        run_estimator(make_estimator(name, model, **options), run.actions[:steps - 1], run.observations[:steps])
-        _WARMED.add(warm)
-    return run_estimator(make_estimator(name, model, **options), run.actions, run.observations)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PerformanceWarning)
+        if warm not in _WARMED and run.n_steps > 1:
+            steps = min(run.n_steps, WARM_UP_STEPS)
+            run_estimator(make_estimator(name, model, **options), run.actions[:steps - 1], run.observations[:steps])
+            _WARMED.add(warm)
+        return run_estimator(make_estimator(name, model, **options), run.actions, run.observations)
 
 
 def compare_on_run(run: Run, names: list[str], options: dict[str, dict] | None = None,

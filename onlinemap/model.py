@@ -30,7 +30,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Sequence
+from typing import Iterable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -110,11 +110,14 @@ def footprint_table(rows: int, cols: int, footprint) -> np.ndarray:
 
 
 def blocking_mask(blocking, label_names: Sequence[str]) -> np.ndarray:
-    """(K,) bool mask from blocking labels given by index or name (None: nothing blocks)."""
+    """(K,) bool mask from blocking labels given by index or name (None: nothing blocks): one
+    label, or an iterable of them; anything else (a bool, a float, a bytes...) is a ModelError."""
     mask = np.zeros(len(label_names), dtype=bool)
     if blocking is None:
         return mask
-    if isinstance(blocking, (str, int, np.integer)):
+    if isinstance(blocking, np.ndarray) and blocking.ndim == 0:
+        blocking = blocking[()]  # the numpy scalar it holds
+    if isinstance(blocking, (str, bytes)) or not isinstance(blocking, Iterable):
         blocking = [blocking]
     for label in blocking:
         if isinstance(label, (str, np.str_)):
@@ -254,6 +257,9 @@ class GridModel:
                              f"{blocking.dtype} {blocking.shape}; grid_model(blocking=...) takes labels")
         set_(self, "blocking", read_only(blocking))
         footprint = _footprint(self.footprint)
+        if n * len(footprint) > arguments.MAX_CELLS:  # before the (N, F) tables are built
+            raise ModelError(f"a footprint of {len(footprint)} offsets on {n} cells reads {n * len(footprint)} "
+                             f"cells per map; at most {arguments.MAX_CELLS} are supported (cells x offsets)")
         set_(self, "footprint", footprint)
         set_(self, "footprint_cells", read_only(footprint_table(self.rows, self.cols, footprint)))
         stays = neighbors.T == np.arange(n)

@@ -55,6 +55,15 @@ class Run:
     def n_steps(self) -> int:
         return len(self.observations)
 
+    def __repr__(self) -> str:
+        """One line: T, the model, the shapes, where the robot went, its slips and (dynamic
+        worlds) the label changes; not the arrays. O(T N)."""
+        t = self.n_steps
+        changes = "" if self.model.is_static else f", {int((self.maps[1:] != self.maps[:-1]).sum())} label changes"
+        return (f"Run(T={t} steps, model={self.model!r}, actions {self.actions.shape}, observations "
+                f"{self.observations.shape}, locations {self.locations[0]} -> {self.locations[-1]}, "
+                f"{int(self.slipped.sum())} of {t - 1} moves slipped{changes})")
+
     @property
     def initial_map(self) -> np.ndarray:
         return self.maps[0]

@@ -68,8 +68,10 @@ def observation_value(model: GridModel, observation):
             raise InvalidObservationError(
                 f"the footprint reads {model.n_readings} cells; an observation is a sequence of "
                 f"{model.n_readings} labels (-1 off the grid), got {observation!r}")
-        readings = list(np.asarray(observation, dtype=object).ravel()) if isinstance(observation, np.ndarray) \
-            else list(observation)
+        if isinstance(observation, np.ndarray) and observation.ndim != 1:  # as a nested list is refused
+            raise InvalidObservationError(f"an observation is ({model.n_readings},) readings, got an array of "
+                                          f"shape {observation.shape}")
+        readings = list(observation)
         if len(readings) != model.n_readings:
             raise InvalidObservationError(f"observation has {len(readings)} readings; the footprint "
                                           f"{model.footprint} reads {model.n_readings}")

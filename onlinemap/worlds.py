@@ -104,7 +104,8 @@ def _blocking(spec: str, kind: str, value: str):
         if value.lower() not in flags:
             raise ModelError(f"world spec {spec!r}: blocking for a {kind} world is 0 or 1, got {value!r}")
         return flags[value.lower()]
-    return [int(label) if label.strip().isdigit() else label.strip() for label in value.split("+")]
+    labels = [label.strip() for label in value.split("+")]
+    return [int(label) if label.isascii() and label.isdigit() else label for label in labels]  # else a name
 
 
 def parse_world(spec: str) -> WorldSpec:

@@ -177,6 +177,8 @@ def _enumerate(node: Estimator, actions: np.ndarray, depth: int, probability: fl
                 else (np.array(z) for z in itertools.product(range(model.n_labels), repeat=model.n_readings)))
     for z in outcomes:
         child = fork(node)
+        if hasattr(child, "recover_from_depletion"):  # an RBPF: an outcome its particles rule out has
+            child.recover_from_depletion = False  # probability zero here, not a relocation
         try:
             belief = child.step(int(actions[depth]), z)
         except ImpossibleObservationError:

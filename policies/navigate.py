@@ -124,6 +124,15 @@ def navigate(model: GridModel, true_map, goal, planner: str | Planner = "goto", 
     stands on the goal, or None. Cost: the steps taken x (estimator step + planner choice), plus
     O(N A) per distinct true map for the distances.
     """
+    return _navigation(model, true_map, goal, planner, estimator, max_steps, seed, estimator_options,
+                       planner_options, progress)
+
+
+def _navigation(model: GridModel, true_map, goal, planner: str | Planner, estimator: str | Estimator,
+                max_steps: int, seed: SeedLike, estimator_options: dict | None, planner_options: dict | None,
+                progress: bool | None, score: bool = True) -> Navigation:
+    """:func:`navigate`; unscored when ``score`` is False (the sweep engine's navigate tasks: the
+    frame is then only ``distance_to_goal``)."""
     max_steps = arguments.integer("max_steps", max_steps, minimum=0)
     cell = check_goal(model, goal)
     if isinstance(planner, str):
@@ -140,8 +149,8 @@ def navigate(model: GridModel, true_map, goal, planner: str | Planner = "goto", 
     est = _estimator(model, estimator, estimator_options, estimator_seed)
     chooser = _planner(model, planner, planner_options, planner_rng)
     found = _loop(model, world.reset, world.advance, chooser, est, max_steps + 1, progress,
-                  until=lambda location: location == cell)
-    frame = found.frame
+                  until=lambda location: location == cell, score=score)
+    frame = found.frame if score else pd.DataFrame(index=range(found.run.n_steps))
     frame["distance_to_goal"] = _distances_to_goal(model, found.run, cell)
     frame.attrs["goal"] = cell
     at_goal = np.flatnonzero(found.run.locations == cell)

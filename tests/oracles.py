@@ -8,6 +8,7 @@ enumerated with itertools.product.
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 
@@ -98,7 +99,8 @@ class BruteForce:
         """(K**N, K**N) P(m' | m) = prod_i C[m_i, m'_i], maps in the order of ``self.states``."""
         if not hasattr(self, "_map_change"):
             maps = list(itertools.product(range(self.k), repeat=self.n))
-            self._map_change = np.array([[np.prod([self.change[m[i], m2[i]] for i in range(self.n)])
+            change = self.change.tolist()  # Python floats: a product per pair without numpy's overhead
+            self._map_change = np.array([[math.prod(change[m[i]][m2[i]] for i in range(self.n))
                                           for m2 in maps] for m in maps])
         return self._map_change
 

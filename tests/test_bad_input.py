@@ -140,6 +140,8 @@ def test_integral_values_of_other_types_are_accepted():
     ("corridor:8,p_obs=nan", "p_obs must be in"),
     ("corridor:8,p_obs=0.9,p_obs=0.8", "given twice"),
     ("corridor:8,n_labels=2.5", "n_labels must be a whole number"),
+    ("grid:3x3,blocking=\u0661", "unknown blocking label '\u0661'"),  # an Arabic-Indic 1 was label 1 (issue 24 item 11)
+    ("grid:3x3,blocking=\u00b9", "unknown blocking label '\u00b9'"),  # a superscript 1: a raw ValueError
 ])
 def test_world_specs_refuse_with_one_clear_error(spec, words):
     from onlinemap.worlds import parse_world
@@ -176,3 +178,18 @@ def test_fraction_action_is_an_index_or_a_specific_error():
     with pytest.raises(om.InvalidActionError, match="whole number"):
         est.step(Fraction(3, 2), 0)
     assert_same(est, snap)
+
+
+@pytest.mark.parametrize("n_actions", [0, 3, 5])
+def test_run_estimator_refuses_lengths_that_do_not_fit_naming_both(n_actions):
+    """Regression (issue 24 item 18): a length mismatch raised a bare ValueError."""
+    est = om.make_estimator("exact", om.corridor(4))
+    before = estimator_cases.snapshot(est)
+    with pytest.raises(om.InvalidActionError, match=f"5 observations need 4 actions, got {n_actions}"):
+        om.run_estimator(est, [1] * n_actions, [0] * 5)
+    estimator_cases.assert_state_unchanged(est, before)
+    with pytest.raises(om.InvalidObservationError, match="at least one observation"):
+        om.run_estimator(est, [], [])
+    with pytest.raises(om.InvalidObservationError, match="observations must be a sequence"):
+        om.run_estimator(est, [], iter([0]))
+    estimator_cases.assert_state_unchanged(est, before)

@@ -89,3 +89,47 @@ def test_plot_belief_draws_a_grid_as_images(door_run):
     np.testing.assert_allclose(rgba[..., 3], belief.map.max(axis=1).reshape(run.model.shape))
     with pytest.raises(ValueError, match="does not fit"):
         plots.plot_belief(om.corridor(4), belief)
+
+
+def test_dead_reckoning_log_evidence_is_undefined_and_says_so():
+    """Issue 24 item 18: dead reckoning's log_evidence=nan read as a bug. It is undefined (no
+    observation model); the belief's repr, the Belief docstring and the estimator's say so."""
+    est = om.make_estimator("dead_reckoning", om.corridor(4))
+    steps = [est.step(None, 0), est.step(1, 1), est.step(0, 0)]
+    assert all(np.isnan(belief.log_evidence) for belief in steps)
+    assert "log_evidence=nan (undefined)" in repr(steps[-1])
+    assert "log_evidence=nan" not in repr(om.make_estimator("bk", om.corridor(4)).step(None, 0))
+    assert "dead reckoning" in om.Belief.__doc__ and "undefined" in type(est).__doc__
+
+
+def test_run_and_trajectory_print_short_with_shapes_and_a_few_numbers(door_run):
+    """Issue 24 item 18: print(run) and print(trajectory) dumped every array."""
+    run, _, trajectory = door_run
+    text = str(run)
+    assert text == repr(run) and "array(" not in text and "\n" not in text and len(text) < 400
+    slipped = int(run.slipped.sum())
+    assert text.startswith("Run(T=13 steps, model=GridModel(10x10")
+    assert f"locations {run.locations[0]} -> {run.locations[-1]}, {slipped} of 12 moves slipped" in text
+    assert "actions (12,), observations (13,)" in text and "label changes" not in text  # a static world
+    dynamic = om.simulate(om.corridor(6, p_change=0.2), steps=5, seed=0)
+    changes = int((dynamic.maps[1:] != dynamic.maps[:-1]).sum())
+    assert f"{changes} label changes" in repr(dynamic)
+    text = str(trajectory)
+    assert text == repr(trajectory) and "array(" not in text and "\n" not in text and len(text) < 400
+    best = int(np.argmax(trajectory.location[-1]))
+    assert text.startswith("Trajectory(T=13 steps: location (13, 100), map (13, 100, 4), log_evidence (13,)")
+    assert f"at t=12 most likely cell {best} with p={trajectory.location[-1, best]:.3f}" in text
+    assert f"log_evidence={trajectory.log_evidence[-1]:.4g}" in text
+    empty = om.Trajectory(np.empty((0, 3)), np.empty((0, 3, 2)), np.empty(0), 0.0)
+    assert repr(empty) == "Trajectory(T=0 steps: location (0, 3), map (0, 3, 2), log_evidence (0,))"
+
+
+def test_help_of_make_estimator_points_to_the_names_and_their_options():
+    """Issue 24 item 18: help(om.make_estimator) said nothing of which names and options exist."""
+    import pydoc
+
+    text = pydoc.render_doc(om.make_estimator, renderer=pydoc.plaintext)
+    for pointer in ("available_estimators()", "estimator_options(name)", "help(type(est))"):
+        assert pointer in text
+    for name in om.available_estimators():
+        assert name in text

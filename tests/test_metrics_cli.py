@@ -23,6 +23,20 @@ def test_metrics_by_hand():
     assert om.metrics.wrong_cells(maps, [1, 1, 0]) == 1
 
 
+def test_map_error_reads_the_true_label_not_the_most_likely_one():
+    """Every true label below is not the most likely one (argmax is [0, 2, 1]): a map_error that
+    ignored the true map (scoring the argmax, or the max probability) would give 1 - 1.9 / 3."""
+    maps = np.array([[0.6, 0.3, 0.1], [0.2, 0.2, 0.6], [0.1, 0.7, 0.2]])
+    truth = np.array([1, 0, 2])  # P(true label) = 0.3, 0.2, 0.2
+    assert om.metrics.map_error(maps, truth) == pytest.approx(1 - 0.7 / 3)
+    assert om.metrics.wrong_cells(maps, truth) == 3
+    # over time, a different true map at each step (the map changes): each step reads its own
+    binary = np.array([[0.9, 0.1], [0.25, 0.75], [0.5, 0.5]])
+    truths = np.array([[0, 1, 1], [1, 0, 0]])  # step 1: P(true) = 0.1, 0.25, 0.5
+    np.testing.assert_allclose(om.metrics.map_error(np.stack([binary, binary]), truths),
+                               [1 - 2.15 / 3, 1 - 0.85 / 3])
+
+
 def test_cli_run_table_and_out(tmp_path, capsys):
     assert main(["run", "--world", "corridor:6", "--steps", "30", "--seed", "1", "--out", str(tmp_path)]) == 0
     text = capsys.readouterr().out

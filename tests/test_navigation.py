@@ -508,3 +508,66 @@ def test_track_refuses_a_bad_goal_or_a_goal_without_planner(monkeypatch, capsys)
     assert "goal (9, 9) (row, col) is off the 3 x 4 grid" in capsys.readouterr().err
     assert main(spec + ["--planner", "goto", "--goal", "x"]) == 2 and "--goal must be" in capsys.readouterr().err
     assert main(spec + ["--planner", "goto"]) == 2 and "needs a goal" in capsys.readouterr().err
+
+
+# --- the navigation study on the sweep engine (onlinemap.studies.navigation) ------------------------
+def test_navigation_metrics_by_hand():
+    from onlinemap.evaluate import SUCCESS_WITHIN, navigation_metrics
+
+    assert SUCCESS_WITHIN == 4
+    row = navigation_metrics(30, 10)
+    assert row["reached"] and row["oracle_reached"] and row["steps_over_oracle"] == 3.0 and row["success"]
+    assert not navigation_metrics(41, 10)["success"]  # 4.1 times the oracle's steps
+    missed = navigation_metrics(None, 10)
+    assert not missed["reached"] and not missed["success"] and np.isnan(missed["steps_to_goal"])
+    assert np.isnan(navigation_metrics(12, None)["steps_over_oracle"])  # the oracle never got there
+
+
+def test_far_goals_are_the_free_cells_farthest_with_every_door_open():
+    from onlinemap.studies.navigation import far_goals
+
+    model, true_map = om.door_world("..#.\n.#c.\n....\n", blocking=True)
+    # from cell 0 round the wall: cell 3 is 7 moves (0 4 8 9 10 11 7 3, or through the door 6),
+    # cell 7 is 6, cell 11 is 5, cell 10 is 4; the door cell itself is no goal
+    assert far_goals(model, true_map, 3) == [3, 7, 11]
+    assert far_goals(model, true_map) == [3]
+
+
+def test_navigation_tasks_on_the_engine_record_the_oracle_and_the_distance():
+    """A navigate spec (goals): every planner to the goal on the same seeds, the oracle shared; a
+    planner without a goal (random) runs as it is; the per-step distance to the goal ends at 0."""
+    import policies
+
+    spec = {"worlds": ["door,blocking=1,footprint=cross,p_door=0.05"], "floor_plan": 0.95, "goals": [[2, 1]],
+            "seeds": 2, "steps": 60, "rows": "step", "planners": {"goto": {}, "random": {}},
+            "estimators": {"rbpf": {"n_particles": 50}}}
+    steps = om.sweep(spec, workers=0, progress=False)
+    assert set(steps["kind"]) == {"navigate"} and set(steps["goal"]) == {21}
+    goto = steps[steps["planner"] == "goto"]
+    for _, run in goto.groupby("seed"):
+        assert run["distance_to_goal"].iloc[-1] == 0 and (run["true_location"].iloc[-1] == 21)
+    runs = om.sweep({**spec, "rows": "task"}, workers=0, progress=False)
+    oracle = runs.groupby("seed")["oracle_steps"].nunique()
+    assert (oracle == 1).all()  # one oracle per (world, goal, seed), whatever the planner
+    model, true_map = om.door_world(blocking=True, footprint="cross", p_door=0.05)
+    model = policies.with_floor_plan(model, true_map, 0.95)
+    for seed in (0, 1):
+        expected = policies.oracle_steps(model, true_map, 21, max_steps=59, seed=seed)
+        assert runs.loc[runs["seed"] == seed, "oracle_steps"].iloc[0] == expected
+        found = policies.navigate(model, true_map, 21, "goto", max_steps=59, seed=seed,
+                                  estimator_options={"n_particles": 50})
+        row = runs[(runs["seed"] == seed) & (runs["planner"] == "goto")].iloc[0]
+        assert row["steps_to_goal"] == found.reached_at and row["success"] == (found.reached_at <= 4 * expected)
+
+
+def test_navigate_command_prints_and_writes(tmp_path, capsys):
+    from onlinemap.cli import main
+
+    assert main(["navigate", "--goal", "2,1", "--repeats", "2", "--steps", "60", "-o", "n_particles=50",
+                 "--out", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert "goal cell 21" in text and "static_goto" in text and "success" in text
+    for name in ("navigate_runs.csv", "navigate_summary.csv", "navigate_route.png", "navigate_vs_oracle.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert main(["navigate", "--goal", "0,5", "--repeats", "1"]) == 2  # a wall: refused, one line
+    assert "goal" in capsys.readouterr().err

@@ -3,8 +3,11 @@ equal when the location is known (p_move = 1), within Monte-Carlo tolerance with
 particles, lazy map dynamics equal to eager, optimal proposal with lower weight variance,
 and bad or impossible input leaving everything (random generator included) unchanged."""
 
+import logging
+
 import numpy as np
 import pytest
+from scipy import stats
 
 import onlinemap as om
 from estimator_cases import assert_state_unchanged, beliefs, exact_trajectory, random_run, snapshot
@@ -16,6 +19,36 @@ DYNAMIC_3X3 = dict(p_obs=0.8, p_move=0.7, change=[[0.9, 0.05, 0.05], [0.1, 0.8, 
 def rbpf_steps(run, **options):
     """Yield the RBPF's belief after each step of ``run``."""
     return beliefs(om.make_estimator("rbpf", run.model, **options), run)
+
+
+# Monte-Carlo tolerances of the 20,000-particle tests. A marginal p is a weighted mean of particle
+# values in [0, 1], so its standard error is at most SE = sqrt(p (1 - p) / ESS_t); resampling adds
+# variance inherited from earlier steps, so the error's standard deviation is r SE. Measured over 100
+# filter seeds (100-199) on the tests' runs, r is at most 1.24 with the optimal proposal, 1.72 with
+# the transition one (residual resampling) and 1.41 with Fearnhead-Clifford (max over steps and
+# entries, static or dynamic; the median is 0.4-0.7: particles carry marginals, not 0/1 values).
+# A test compares K = T (N + N K) entries; for a false-failure rate of 1e-3 (Bonferroni) each is held
+# to z = Phi^-1(1 - 1e-3 / (2 K)) standard deviations (4.6 for 15 steps, 4.8 for 30), plus 1 / ESS_t
+# for entries within one particle's weight of 0 or 1. The log evidence's error, in units of
+# sqrt(T / ESS_T), had standard deviation at most 0.15 / 0.35 / 0.10 over the same seeds; it is held to
+# z = 3.29 (two-sided 1e-3) of them.
+FALSE_FAILURE = 1e-3
+INFLATION = {"optimal": 1.25, "transition": 1.75, "fearnhead_clifford": 1.45}
+LOG_EVIDENCE_SD = {"optimal": 0.15, "transition": 0.35, "fearnhead_clifford": 0.10}
+
+
+def assert_within_monte_carlo_error(belief, exact, t, scheme):
+    """The step-t belief of a many-particle RBPF (``scheme``: its proposal, or fearnhead_clifford)
+    against ``exact`` (a Trajectory), with the tolerance derived above."""
+    n_steps, n_cells, n_labels = exact.map.shape
+    z = stats.norm.isf(FALSE_FAILURE / (2 * n_steps * (n_cells + n_cells * n_labels)))
+    ess = belief.effective_sample_size
+    for estimate, truth in ((belief.location, exact.location[t]), (belief.map, exact.map[t])):
+        tolerance = z * INFLATION[scheme] * np.sqrt(truth * (1 - truth) / ess) + 1 / ess
+        assert np.all(np.abs(estimate - truth) <= tolerance), (t, np.abs(estimate - truth).max())
+    if t == n_steps - 1:
+        tolerance = stats.norm.isf(FALSE_FAILURE / 2) * LOG_EVIDENCE_SD[scheme] * np.sqrt(n_steps / ess)
+        assert belief.log_evidence == pytest.approx(exact.log_evidence[-1], abs=tolerance)
 
 
 KNOWN_LOCATION = [
@@ -47,25 +80,22 @@ def test_known_location_equals_exact(name, make, n_particles, proposal, resampli
 @pytest.mark.parametrize("p_change", [0.0, 0.05], ids=["static", "dynamic"])
 @pytest.mark.parametrize("proposal", ["optimal", "transition"])
 def test_many_particles_match_exact_within_monte_carlo_tolerance(p_change, proposal):
-    """20000 particles on a 6-cell corridor with slips. Each marginal is a weighted mean of
-    particle values in [0, 1], so its standard error is at most sqrt(p (1 - p) / ESS_t) with
-    ESS_t the step's effective sample size; variance inherited through earlier resampling
-    adds to that (measured below 3.5 such errors on these runs), so the tolerance is 6 of them
-    plus 1 / ESS_t for entries near 0 or 1."""
+    """20000 particles on a 6-cell corridor with slips: every marginal and the log evidence within
+    the Monte-Carlo tolerance derived above (assert_within_monte_carlo_error)."""
     model = om.corridor(6, 2, p_change=p_change, **STATIC)
     run = random_run(model, 15, seed=4)
     exact = exact_trajectory(run)
     for t, belief in enumerate(rbpf_steps(run, n_particles=20_000, proposal=proposal, resampling="residual", seed=1)):
-        ess = belief.effective_sample_size
-        assert 0.2 * 20_000 < ess <= 20_000
-        for estimate, truth in ((belief.location, exact.location[t]), (belief.map, exact.map[t])):
-            tolerance = 6 * np.sqrt(truth * (1 - truth) / ess) + 1 / ess
-            assert np.all(np.abs(estimate - truth) <= tolerance), (t, np.abs(estimate - truth).max())
-    # log P(z_0:T) estimate: relative error of the evidence ~ sqrt(T / ESS)
-    assert belief.log_evidence == pytest.approx(exact.log_evidence[-1], abs=5 * np.sqrt(run.n_steps / ess))
+        assert 0.2 * 20_000 < belief.effective_sample_size <= 20_000
+        assert_within_monte_carlo_error(belief, exact, t, proposal)
 
 
 def test_few_particles_are_close_and_error_shrinks_with_particles():
+    """Mean map TV to exact over 4 filter seeds: a sampling filter's error falls as 1 / sqrt(P), so
+    100 times the particles divide it by 10 (the default, Fearnhead-Clifford, does far better: 0.016
+    with 10 particles, 4e-6 with 1000, means over filter seeds 100-139). The 4-seed mean at 10
+    particles has standard error 0.0026 (per-seed sd 0.0052) and stays above 0.0105 in 999 draws of
+    1000, so the check fails a correct filter by chance with probability below 1e-3."""
     run = om.scenarios.murphy_corridor()
     exact = exact_trajectory(run)
 
@@ -78,7 +108,7 @@ def test_few_particles_are_close_and_error_shrinks_with_particles():
         return np.mean(errors)
 
     small, large = error(10), error(1000)
-    assert large < small / 3 and large < 0.01
+    assert large < small / 10
 
 
 @pytest.mark.parametrize("resampling,threshold,block", [("residual", 0.5, None), ("systematic", 1.0, 2)])
@@ -139,7 +169,8 @@ def test_optimal_proposal_has_lower_weight_variance():
     """Resampling every step, the weights after a step are the incremental weights of one
     step; the optimal proposal minimises their variance given the ancestors. Over 10 seeds
     the optimal proposal's mean squared coefficient of variation (P / ESS - 1) must be lower
-    in every seed."""
+    in every seed. (Over seeds 100-139 the ratio optimal / transition was 0.41, sd 0.018, at
+    most 0.45: a seed where it reaches 1 is 33 standard deviations away.)"""
     model = om.corridor(10, 2, p_obs=0.9, p_move=0.7)
     run = random_run(model, 40, seed=6)
     for seed in range(10):
@@ -197,29 +228,26 @@ def test_impossible_observation_keeps_everything(proposal, p_change):
     np.testing.assert_array_equal(est.particle_maps(), twin.particle_maps())
 
 
-def test_depletion_is_told_apart_in_the_message():
-    """A perfect sensor, one particle drawn by motion alone: after "right, saw 0" the particle
-    either stayed (then "right, saw 1" is impossible for it) or moved. The exact filter accepts
-    the observation either way, so when the particle refuses it the message must say the
-    particles may have lost the trajectory, not only that the observation is impossible."""
+def test_a_sampling_step_whose_draws_all_miss_enumerates_the_successors(caplog):
+    """A perfect sensor, one particle drawn by motion alone: after "right, saw 0" the particle at
+    cell c (0 or 1) knows cell c holds 0, so of its successors c (stay) and c + 1 (move) only the
+    move explains "right, saw 1". Where the draw stayed (the filter used to raise), the step
+    enumerates both successors instead, as Fearnhead-Clifford does: the particle ends at c + 1,
+    which holds 1, whatever was drawn; nothing is relocated (no recovery)."""
     model = om.corridor(4, 2, p_obs=1.0, p_move=0.5)
-    refused = 0
-    for seed in range(40):  # it stays at both presses with probability >= 1/4: P(no refusal) < 1e-4
-        exact = om.make_estimator("exact", model)
+    missed = 0
+    for seed in range(40):  # the draw stays with probability 1/2: P(no miss in 40) = 2^-40
         est = om.make_estimator("rbpf", model, n_particles=1, proposal="transition", resampling="multinomial",
                                 seed=seed)
-        for action, z in ((None, 0), ("right", 0)):
-            exact.step(action, z)
-            est.step(action, z)
-        exact.step("right", 1)  # possible under the model
-        snap = snapshot(est)
-        try:
-            est.step("right", 1)
-        except om.ImpossibleObservationError as error:
-            refused += 1
-            assert "particle depletion" in str(error) and "every one of the 1 particles" in str(error)
-            assert_state_unchanged(est, snap)
-    assert refused > 0
+        est.step(None, 0)
+        c = est.step("right", 0).most_likely_location
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger="onlinemap.estimators.rbpf"):
+            belief = est.step("right", 1)
+        missed += any("enumerates the particles' successors" in r.getMessage() for r in caplog.records)
+        assert belief.location[c + 1] == 1.0 and belief.map[c + 1, 1] == 1.0
+        assert not belief.recovered and est.recoveries == 0
+    assert missed > 0
 
 
 def test_subnormal_likelihood_gives_a_valid_belief():
@@ -302,8 +330,7 @@ def test_fearnhead_clifford_with_room_for_every_child_equals_exact(name, make):
 @pytest.mark.parametrize("p_change", [0.0, 0.05], ids=["static", "dynamic"])
 def test_fearnhead_clifford_many_particles_match_exact_within_monte_carlo_tolerance(p_change):
     """20000 particles, 30 steps with slips (up to 2^29 trajectories, so it drops children once past
-    2^14 < 20000 < 2^15): the same tolerance as the sampling filters (6 standard errors at the step's
-    ESS, plus 1 / ESS)."""
+    2^14 < 20000 < 2^15): within the Monte-Carlo tolerance derived above."""
     model = om.corridor(6, 2, p_change=p_change, **STATIC)
     run = random_run(model, 30, seed=4)
     exact = exact_trajectory(run)
@@ -311,22 +338,20 @@ def test_fearnhead_clifford_many_particles_match_exact_within_monte_carlo_tolera
     dropped = False
     for t, belief in enumerate(beliefs(est, run)):
         dropped |= est.resampled
-        ess = belief.effective_sample_size
-        for estimate, truth in ((belief.location, exact.location[t]), (belief.map, exact.map[t])):
-            tolerance = 6 * np.sqrt(truth * (1 - truth) / ess) + 1 / ess
-            assert np.all(np.abs(estimate - truth) <= tolerance), (t, np.abs(estimate - truth).max())
-    assert dropped and ess > 1000
-    assert belief.log_evidence == pytest.approx(exact.log_evidence[-1], abs=5 * np.sqrt(run.n_steps / ess))
+        assert_within_monte_carlo_error(belief, exact, t, "fearnhead_clifford")
+    assert dropped and belief.effective_sample_size > 1000
 
 
 def test_fearnhead_clifford_is_closer_to_exact_than_residual_resampling():
     """At equal particles (100) on random 8-cell corridor runs: mean TV to exact (location +
-    mean cell) below 0.6 of the optimal proposal with residual resampling over 6 runs, the issue's
-    target (``onlinemap bench rbpf`` measures about 0.33 over 40 runs; the standard error of the
-    ratio over 6 runs is about 0.05)."""
+    mean cell) below 0.6 of the optimal proposal with residual resampling, the issue's target.
+    Runs from the false-failure rate wanted (1e-3, z = 3.09): over 40 runs (seeds 100-139) the ratio
+    of means is rho = 0.35 and a run's linearised ratio (FC - rho residual) / mean(residual) has sd
+    0.107, so n = (3.09 x 0.107 / (0.6 - 0.35))^2 = 1.75; the per-run ratios are skewed (up to 0.68),
+    and resampling the 40 runs puts P(ratio of means > 0.6) at 7e-3 for 2 runs and 8e-4 for 3: 3 runs."""
     model = om.corridor(8, p_change=0.02)
     tv = {"residual": [], "fearnhead_clifford": []}
-    for seed in range(6):
+    for seed in range(3):
         run = random_run(model, 60, seed=seed)
         exact = exact_trajectory(run)
         for scheme in tv:

@@ -2,6 +2,8 @@
 
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -14,15 +16,37 @@ def test_ci_runs_the_readme_test_command():
 
 
 def test_the_readme_door_world_example_gives_what_it_says():
-    """The door-world block of the README runs and prints the values its comments give."""
+    """The door-world block of the README runs and prints the values its comments give, and what
+    they claim holds by hand: the most likely cell (an argmax written here) is the true one, the
+    mean location error over steps 100-199 is 1 - P(true cell) averaged here, and the run's map
+    has the one wrong cell the text says."""
     readme = (ROOT / "README.md").read_text()
     blocks = [b.split("```", 1)[0] for b in readme.split("```python\n")[1:]]
     (block,) = [b for b in blocks if "exploration_world(p_door=0.0," in b]
     lines = block.strip().splitlines()
     namespace: dict = {}
     exec("\n".join(line for line in lines if "#" not in line), namespace)
+    claims = []
     for line in (line for line in lines if "  # " in line):
         expression, expected = line.split("  # ")
         value = eval(expression, namespace)
         assert f"{value:.2f}" == expected.strip() if isinstance(value, float) else \
             str(tuple(int(v) for v in value)) == expected.strip()
+        claims.append(expected.strip())
+    # What the two numbers claim, checked by hand rather than by the code that printed them.
+    run, est, trajectory = namespace["run"], namespace["est"], namespace["trajectory"]
+    model = run.model
+    moves = {"north": (-1, 0), "east": (0, 1), "south": (1, 0), "west": (0, -1)}
+    for t, action in enumerate(run.actions):  # the true path is a walk: stay, or one cell the action's way
+        (row, col), (dr, dc) = divmod(int(run.locations[t]), model.cols), moves[model.action_names[action]]
+        assert divmod(int(run.locations[t + 1]), model.cols) in {(row, col), (row + dr, col + dc)}
+    np.testing.assert_array_equal(trajectory.location[-1], est.belief.location)
+    final = est.belief.location  # "(61, 61)": the most likely cell is the true one
+    most_likely = max(range(model.n_cells), key=lambda cell: final[cell])
+    assert claims[0] == f"({most_likely}, {run.locations[-1]})" and most_likely == run.locations[-1]
+    errors = [1.0 - trajectory.location[t][run.locations[t]] for t in range(100, run.n_steps)]
+    assert claims[1] == f"{sum(errors) / len(errors):.2f}"  # "0.34": 1 - P(true cell), mean over steps 100-199
+    assert "in the run above one cell's most likely label is wrong" in " ".join(readme.split())
+    labels = est.belief.map
+    assert sum(max(range(model.n_labels), key=lambda k: labels[i][k]) != run.final_map[i]
+               for i in range(model.n_cells)) == 1

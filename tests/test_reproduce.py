@@ -69,6 +69,54 @@ def test_corridor_table_scores_match_a_direct_computation():
     assert em["wrong_visited"] >= 1 and em["astray_way_back"]
 
 
+
+def told_the_truth(run):
+    """A trajectory certain of the true location and the true labels at every step."""
+    steps = np.arange(run.n_steps)
+    location = np.zeros((run.n_steps, run.model.n_cells))
+    location[steps, run.locations] = 1.0
+    maps = np.eye(run.model.n_labels)[run.maps]  # (T, N, K) one-hot
+    return om.Trajectory(location, maps, np.zeros(run.n_steps), 0.0)
+
+
+def test_failed_means_ends_lost_or_a_wrong_visited_cell():
+    """``failed`` on trajectories edited by hand on the corridor run (visits cells 0-6, never 7):
+    a wrong label on a visited cell fails, on the unvisited cell it does not; a final P(true
+    location) of 0.4 fails (lost: below 0.5), 0.5 does not; and on real filters: dead reckoning
+    ends with 3 visited cells wrong but not lost (P 0.63), so it fails on the wrong cells alone."""
+    run = om.scenarios.murphy_corridor()
+    assert sorted(set(run.locations.tolist())) == list(range(7))
+
+    def outcome(edit):
+        trajectory = told_the_truth(run)
+        edit(trajectory.location[-1], trajectory.map[-1])
+        row = evaluate.run_metrics(run, trajectory)
+        return row["wrong_cells"], row["wrong_visited"], row["ends_lost"], row["failed"]
+
+    def relabel(cell):
+        def edit(location, cells):
+            cells[cell] = cells[cell, ::-1]  # binary labels: the wrong one is certain
+        return edit
+
+    def p_true(p):
+        def edit(location, cells):
+            location[:] = 0.0
+            location[run.locations[-1]], location[5] = p, 1.0 - p
+        return edit
+
+    assert outcome(lambda location, cells: None) == (0, 0, False, False)
+    assert outcome(relabel(3)) == (1, 1, False, True)  # a wrong visited cell
+    assert outcome(relabel(7)) == (1, 0, False, False)  # never visited: not a failure
+    assert outcome(p_true(0.4)) == (0, 0, True, True)  # ends lost
+    assert outcome(p_true(0.5)) == (0, 0, False, False)
+    for name, failed in (("exact", False), ("dead_reckoning", True)):
+        trajectory = om.run_estimator(om.make_estimator(name, run.model), run.actions, run.observations)
+        row = evaluate.run_metrics(run, trajectory)
+        wrong = np.argmax(trajectory.map[-1, :7], axis=1) != run.final_map[:7]  # visited cells, by hand
+        lost = trajectory.location[-1, run.locations[-1]] < 0.5
+        assert (row["wrong_visited"], row["ends_lost"], row["failed"]) == (wrong.sum(), lost, failed)
+    assert wrong.sum() == 3 and not lost  # dead reckoning fails on its wrong cells alone
+
 def test_random_study_summary_counts_the_per_run_table():
     per_run, summary = reproduce.random_corridor_study(4, seed=1, estimators=SMALL, progress=False)
     assert len(per_run) == 7 * len(SMALL)  # one run per length 6..12 (4 runs, rounded up to a multiple of 7)

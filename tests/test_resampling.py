@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from onlinemap.peers import filterpy_resamplers, global_numpy_seed
-from onlinemap.resampling import RESAMPLERS, effective_sample_size, optimal_resampling
+from onlinemap.resampling import (RESAMPLERS, _optimal_threshold, _sorted_threshold, effective_sample_size,
+                                  optimal_resampling)
 
 WEIGHTS = {
     "design example": np.array([0.5, 0.3, 0.15, 0.05]),
@@ -147,7 +148,9 @@ OPTIMAL_CASES = {  # (weights, n kept)
     "with zeros, keep 2": (WEIGHTS["with zeros"], 2),
     "one dominant, keep 3": (np.array([0.9, 0.04, 0.03, 0.02, 0.01]), 3),
     "equal, keep 3 of 7": (np.full(7, 1 / 7), 3),
-    "geometric, keep 18 of 22": (2.0 ** -np.arange(22), 18),  # c ~ 1e-5: many rounds, then the sort
+    "one large, keep 2": (np.array([0.7, 0.1, 0.1, 0.1]), 2),  # c = 0.30, not 1/2 nor 0.3 / 2 (the text)
+    "geometric, keep 18 of 22": (2.0 ** -np.arange(22), 18),  # c ~ 7e-6: 8 rounds of the fixed point
+    "geometric, keep 22 of 26": (2.0 ** -np.arange(26), 22),  # 9 rounds: past max_rounds, the sort
 }
 
 
@@ -158,6 +161,33 @@ def brute_threshold(weights, n):
         mid = (lo + hi) / 2
         lo, hi = (mid, hi) if np.minimum(1, weights / mid).sum() > n else (lo, mid)
     return hi
+
+
+def test_threshold_of_one_large_child_by_hand():
+    """[0.7, 0.1, 0.1, 0.1], keep 2: 0.7 is kept, the three 0.1 share the other place, c = 0.3 (1 +
+    3 x 0.1 / 0.3 = 2). A c of 1/2 (the fixed point's start), or 0.3 / 2 (dividing the rest by n
+    instead of n - 1), would give 1.6 or 3."""
+    kept = optimal_resampling(np.array([0.7, 0.1, 0.1, 0.1]), 2, np.random.default_rng(0))
+    assert kept.threshold == pytest.approx(0.3, abs=1e-15)
+    assert kept.indices[0] == 0 and kept.indices[1] in (1, 2, 3)
+    np.testing.assert_allclose(kept.weights, [0.7, 0.3], rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("case", sorted(OPTIMAL_CASES))
+def test_threshold_solves_sum_of_min_1_w_over_c_equals_n(case):
+    """The defining equation, checked directly on c as the library returns it (from
+    optimal_resampling, and from both of its solvers: the fixed point and the sort), and the
+    count of children at or above c it reports."""
+    weights, n = OPTIMAL_CASES[case]
+    w = weights / weights.sum()
+    assert np.count_nonzero(w) > n  # a threshold only when children must be dropped
+    found = [optimal_resampling(w, n, np.random.default_rng(0)).threshold]
+    for solver in (_optimal_threshold, _sorted_threshold):
+        c, n_large = solver(w, n)
+        assert n_large == np.count_nonzero(w >= c) < n
+        found.append(c)
+    for c in found:
+        assert abs(np.minimum(1.0, w / c).sum() - n) <= 1e-12, (c, np.minimum(1.0, w / c).sum())
 
 
 @pytest.mark.parametrize("walk", ["index order", "shuffled order"])

@@ -200,6 +200,9 @@ def test_scripted_trip_is_the_literature_run_with_one_random_slip():
     with pytest.raises(om.SpecError, match="line 2: walk: .*static"):
         sweeps.parse_spec('worlds = ["corridor:5,p_change=0.1"]\nwalk = "scripted_trip"\nsteps = "trip"\n'
                           '[estimators.exact]\n')
+    for world in ("corridor:5,footprint=cross", "corridor:5,blocking=1"):  # it writes one true label per step
+        with pytest.raises(om.SpecError, match="line 2: walk: .*own cell"):
+            sweeps.parse_spec(f'worlds = ["{world}"]\nwalk = "scripted_trip"\nsteps = "trip"\n[estimators.exact]\n')
 
 
 # --- resuming: every task exactly once -----------------------------------------------------------

@@ -107,3 +107,28 @@ def test_long_runs_of_unlikely_observations(name):
     steps = 300 if name != "offline_em" else 60  # offline EM refits on the whole run at every step
     refused = drive(name, model, [int(a) for a in rng.integers(2, size=steps)], [1] * steps)
     assert refused == 0
+
+
+SUBNORMAL_WORLDS = {  # issue 24 item 2: 5-cell corridors whose observation is still subnormal after rescaling
+    "sensor-3e-312 at step 1": (dict(sensor=[[1.0, 3e-312], [0.0, 1.0]], label_prior=[1.0, 0.0]), [0, 1]),
+    "sensor-3e-312 at step 1, dynamic": (dict(sensor=[[1.0, 3e-312], [0.0, 1.0]], label_prior=[1.0, 0.0],
+                                              change=[[1.0, 0.0], [0.5, 0.5]]), [0, 1]),  # 0 never becomes 1
+    "sensor-1e-310 at step 0": (dict(sensor=[[1.0, 1e-310], [0.0, 1.0]], label_prior=[1.0, 0.0]), [1]),
+    "prior-3e-312": (dict(p_obs=1.0, label_prior=[1.0, 3e-312]), [1]),
+    "prior-5e-324": (dict(p_obs=1.0, label_prior=[1.0, 5e-324]), [1]),
+}
+
+
+@pytest.mark.parametrize("kind", SUBNORMAL_WORLDS)
+@pytest.mark.parametrize("name", NAMES)
+def test_subnormal_predictive_probability_is_refused_or_valid(name, kind):
+    """Regression (issue 24 item 2): exact raised a raw OverflowError (``math.ldexp`` raises
+    instead of returning inf) when a step's total was still subnormal after dividing the
+    likelihood by its maximum, so that the power of two bringing it near 1 overflowed. Exact
+    refuses such an observation as impossible (below float64's range), the state unchanged;
+    every estimator either refuses so or gives a valid belief."""
+    options, observations = SUBNORMAL_WORLDS[kind]
+    model = om.grid_model(1, 5, 2, **options)
+    refused = drive(name, model, [1] * len(observations), observations)
+    if name == "exact":
+        assert refused == 1

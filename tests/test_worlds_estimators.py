@@ -130,3 +130,26 @@ def test_bad_or_impossible_footprint_observations_change_nothing(name):
         with pytest.raises(ImpossibleObservationError):
             est.step("north", [0, 0, 0, -1, 0])
         assert_state_unchanged(est, before)
+
+
+@pytest.mark.parametrize("name", om.available_estimators())
+def test_footprint_observation_is_f_readings_as_an_array_or_a_list(name):
+    """Regression (issue 24 item 11): an ndarray of any shape with F elements ((5, 1), (1, 5))
+    was accepted (ravelled) while the same nested list was refused. Both are refused now, with
+    the state unchanged; a flat list, tuple or (F,) array is the observation."""
+    from estimator_cases import assert_state_unchanged, snapshot
+    from onlinemap.errors import InvalidObservationError
+    from onlinemap.estimators.base import fork
+
+    model = om.grid_model(2, 3, 2, p_obs=0.9, footprint="cross", start=1)
+    est = om.make_estimator(name, model, **({"n_particles": 20, "seed": 0} if name == "rbpf" else {}))
+    reading = [0, -1, 1, 0, 1]  # cell 1 (top middle): only north is off the grid
+    est.step(None, reading)
+    before = snapshot(est)
+    for bad in (np.array(reading).reshape(5, 1), np.array(reading).reshape(1, 5), [[r] for r in reading],
+                [reading], np.array(0)):
+        with pytest.raises(InvalidObservationError, match="observation"):
+            est.step("west", bad)
+        assert_state_unchanged(est, before)
+    for good in (tuple(reading), np.array(reading)):
+        assert fork(est).step("west", good).t == 1

@@ -162,3 +162,31 @@ def test_world_specs_and_the_gym_env_take_blocking_and_footprints():
         where.append(info["location"])
     assert all(env.observation_space.contains(z) for z in seen)
     np.testing.assert_array_equal(np.array(seen) == -1, env.model.footprint_cells[where] < 0)
+
+
+
+SCALARS = [np.bool_(True), 1.0, float("nan"), object(), np.array(True), b"1"]
+SCALAR_IDS = ["numpy-bool", "float", "nan", "object", "0-d-bool-array", "bytes"]
+
+
+@pytest.mark.parametrize("blocking", SCALARS, ids=SCALAR_IDS)
+@pytest.mark.parametrize("build", [lambda b: om.grid_model(2, 3, blocking=b), lambda b: om.corridor(4, blocking=b)],
+                         ids=["grid_model", "corridor"])
+def test_scalar_blocking_that_is_no_label_raises_model_error(build, blocking):
+    """Regression (issue 24 item 6): a scalar that is not iterable raised a raw TypeError
+    (``'numpy.bool' object is not iterable``)."""
+    with pytest.raises(ModelError, match="blocking label"):
+        build(blocking)
+
+
+@pytest.mark.parametrize("blocking", SCALARS[1:], ids=SCALAR_IDS[1:])
+def test_door_world_blocking_is_a_flag(blocking):
+    with pytest.raises(ModelError, match="blocking must be True or False"):
+        om.door_world(blocking=blocking)
+    assert om.door_world(blocking=np.bool_(True))[0].has_blocking
+
+
+def test_blocking_as_a_numpy_label_or_a_0d_array():
+    np.testing.assert_array_equal(om.corridor(4, blocking=np.int64(1)).blocking, [False, True])
+    np.testing.assert_array_equal(om.corridor(4, blocking=np.array(1)).blocking, [False, True])
+    np.testing.assert_array_equal(om.grid_model(2, 2, 3, blocking=np.array([1, 2])).blocking, [False, True, True])

@@ -32,10 +32,11 @@ from .codec import (_Decoder, _Encoder, _KeepFresh, _callable_name, _scratch_nod
                     encode_model, same_tree)
 
 FORMAT = "onlinemap-checkpoint"
-FORMAT_VERSION = 2  # bump when the file layout or an estimator's state changes incompatibly
+FORMAT_VERSION = 3  # bump when the file layout or an estimator's state changes incompatibly
 OLDEST_FORMAT_VERSION = 1  # the oldest format this code still reads
-# version 2: the RBPF's block pool is one attribute (``_blocks``, a BlockPool); version 1 files
-# are read through RaoBlackwellisedPF.upgrade_attributes.
+# version 2: the RBPF's block pool is one attribute (``_blocks``, a BlockPool); version 3: the RBPF
+# counts its recoveries from depletion (``_recoveries``, ``_recovered``). Older files are read
+# through RaoBlackwellisedPF.upgrade_attributes.
 _SEPARATE = ("model", "options")  # attributes stored apart from the state tree
 
 

@@ -31,6 +31,7 @@ COMMANDS = {
     "sweep": "run a grid of experiments from a TOML spec (local dask cluster or a scheduler)",
     "compare": "accuracy of the approximate estimators against exact Bayes on random runs",
     "explore": "let planners explore a world (entropy policy vs random walk vs sweep)",
+    "navigate": "send the robot to a goal through changing doors (goto vs static_goto vs the oracle)",
 }
 
 EPILOG = ("Conventions: --out DIR writes a command's tables and figures under fixed names (nothing is "

@@ -5,8 +5,9 @@ index or name, omitted or null on the first line; observation by index or label 
 Output, one JSON line per step on stdout: ``t``, the most likely ``location`` and its
 probability ``p_location``, the normalised ``location_entropy``, the most likely label of every
 cell (``map``), the mean normalised ``map_entropy``, ``log_evidence`` (null where undefined) and
-``effective_sample_size`` for particle filters; with ``--full`` also ``location_marginal`` (N,)
-and ``map_marginal`` (N x K). Floats are printed to full precision. With ``--planner NAME``
+``effective_sample_size`` for particle filters, ``"recovered": true`` on a step where the RBPF
+recovered from particle depletion; with ``--full`` also ``location_marginal`` (N,) and
+``map_marginal`` (N x K). Floats are printed to full precision. With ``--planner NAME``
 (a registered planner of :mod:`policies`; ``--goal CELL``, an index or ``ROW,COL``, for the goal
 planners ``goto`` and ``static_goto``) every line also carries ``action``, the name of the action
 the planner chooses from that belief: the robot's next move. The planner is built afresh at
@@ -16,7 +17,9 @@ estimator, as in ``explore``).
 A malformed line (bad JSON, missing or unknown key, invalid or impossible action or
 observation) gets one JSON line on stderr, ``{"line": n, "error": type, "message": ...}``,
 changes nothing, and the process keeps reading. Informational events (start, resume,
-checkpoint written) are JSON lines on stderr too.
+checkpoint written) are JSON lines on stderr too, and so are the library's log messages
+(``{"event": "log", "level": ..., "logger": ..., "message": ...}``, e.g. the RBPF's warning
+when it recovers from depletion).
 
 A line longer than :data:`MAX_LINE` characters, with more than :data:`MAX_BRACKETS` brackets,
 or not UTF-8 is refused the same way (memory stays bounded; messages quote at most a short
@@ -42,6 +45,7 @@ import argparse
 import contextlib
 import io
 import json
+import logging
 import math
 import os
 import signal
@@ -138,6 +142,8 @@ def summarize(belief: Belief, full: bool = False) -> dict[str, object]:
     }
     if belief.effective_sample_size is not None:
         record["effective_sample_size"] = float(belief.effective_sample_size)
+    if belief.recovered:
+        record["recovered"] = True
     if full:
         record["location_marginal"] = belief.location.tolist()
         record["map_marginal"] = belief.map.tolist()
@@ -221,7 +227,7 @@ def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int
                    "actions": list(model.action_names), "labels": list(model.label_names),
                    **({} if planner is None else {"planner": repr(planner)})})
     saved, status = [est.t], 0
-    with _GracefulStop() as stop:
+    with _GracefulStop() as stop, _log_as_json(stderr):
         try:
             _loop(est, planner, args, every, stop, stdin, stdout, stderr, saved)
         except BrokenPipeError:  # the reader is gone: the last step was not delivered, so it is not saved
@@ -284,6 +290,34 @@ def _loop(est, planner, args, every: int, stop: "_GracefulStop", stdin, stdout, 
                 saved[0] = est.t
     except _Stopped:  # a signal while waiting for input
         pass
+
+
+class _JsonLines(logging.Handler):
+    """A log record as one JSON event line on ``stream``."""
+
+    def __init__(self, stream) -> None:
+        super().__init__()
+        self.stream = stream
+
+    def emit(self, record: logging.LogRecord) -> None:
+        _emit(self.stream, {"event": "log", "level": record.levelname, "logger": record.name,
+                            "message": _excerpt(record.getMessage(), 400)})
+
+
+@contextlib.contextmanager
+def _log_as_json(stderr):
+    """The ``onlinemap`` loggers' warnings go to ``stderr`` as JSON lines (not through the root
+    logger's text handler) while the loop runs."""
+    library, handler = logging.getLogger("onlinemap"), _JsonLines(stderr)
+    handler.setLevel(logging.WARNING)
+    propagate = library.propagate
+    library.addHandler(handler)
+    library.propagate = False
+    try:
+        yield
+    finally:
+        library.removeHandler(handler)
+        library.propagate = propagate
 
 
 def _quiet_stdout(stdout) -> None:

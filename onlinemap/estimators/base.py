@@ -18,7 +18,8 @@ import numpy as np
 
 from .. import checkpoint
 from ..belief import Belief, beliefs_frame
-from ..errors import CheckpointError, ModelError, OnlineMapError, UnknownEstimatorError
+from ..errors import (CheckpointError, InvalidActionError, InvalidObservationError, ModelError, OnlineMapError,
+                      UnknownEstimatorError)
 from ..model import GridModel
 
 _REGISTRY: dict[str, type] = {}
@@ -127,7 +128,15 @@ def _lookup(name: str) -> type:
 
 
 def make_estimator(name: str, model: GridModel, **options) -> Estimator:
-    """Build the estimator registered as ``name`` for ``model`` with keyword ``options``."""
+    """Build the estimator registered as ``name`` for ``model`` with keyword ``options``.
+
+    ``available_estimators()`` lists the names: ``exact``, ``dead_reckoning``, ``online_em``,
+    ``offline_em``, ``bk``, ``rbpf``. ``estimator_options(name)`` gives an estimator's options
+    with their defaults, and ``help(type(est))`` (the class's docstring) what each one means.
+    An unknown name or option raises :class:`UnknownEstimatorError` (listing the known ones), a
+    bad value :class:`InvalidOptionError`. Example:
+    ``make_estimator("rbpf", model, n_particles=500, seed=0)``.
+    """
     cls = _lookup(name)
     if not isinstance(model, GridModel):
         raise ModelError(f"model must be a GridModel, got {type(model).__name__}")
@@ -148,6 +157,17 @@ class Trajectory(NamedTuple):
     log_evidence: np.ndarray  # (T,)
     seconds_per_step: float
 
+    def __repr__(self) -> str:
+        """One line: T, the arrays' shapes and the last step's most likely cell and log evidence."""
+        text = (f"Trajectory(T={len(self.location)} steps: location {self.location.shape}, map {self.map.shape}, "
+                f"log_evidence {self.log_evidence.shape}")
+        if not len(self.location):
+            return text + ")"
+        last = self.location[-1]
+        best = int(np.argmax(last))
+        return (f"{text}; at t={len(self.location) - 1} most likely cell {best} with p={last[best]:.3f}, "
+                f"log_evidence={self.log_evidence[-1]:.4g}; {1e3 * self.seconds_per_step:.3g} ms per step)")
+
     def to_frame(self, model: GridModel | None = None):
         """The beliefs over time in long format, one row per step and cell (see
         :func:`onlinemap.belief.beliefs_frame`), for pandas / seaborn. Cost O(T N K)."""
@@ -157,11 +177,16 @@ class Trajectory(NamedTuple):
 def run_estimator(estimator: Estimator, actions, observations) -> Trajectory:
     """Feed a recorded run (``actions`` (T - 1,), ``observations`` (T,)) through ``step``.
 
+    Lengths that do not fit raise :class:`InvalidObservationError` (no observations, or no
+    sequence) or :class:`InvalidActionError` (not T - 1 actions) before any step.
     Cost: T calls of ``step``; memory O(T N K) for the stacked marginals.
     """
-    n_steps = len(observations)
-    if len(actions) != n_steps - 1:
-        raise ValueError(f"{n_steps} observations need {n_steps - 1} actions, got {len(actions)}")
+    n_steps = _length("observations", observations, InvalidObservationError)
+    n_actions = _length("actions", actions, InvalidActionError)
+    if n_steps == 0:
+        raise InvalidObservationError("a run needs at least one observation")
+    if n_actions != n_steps - 1:
+        raise InvalidActionError(f"{n_steps} observations need {n_steps - 1} actions, got {n_actions}")
     model = estimator.model
     location = np.empty((n_steps, model.n_cells))
     maps = np.empty((n_steps, model.n_cells, model.n_labels))
@@ -172,6 +197,13 @@ def run_estimator(estimator: Estimator, actions, observations) -> Trajectory:
         location[t], maps[t], evidence[t] = belief.location, belief.map, belief.log_evidence
     seconds = (time.perf_counter() - start) / n_steps
     return Trajectory(location, maps, evidence, seconds)
+
+
+def _length(name: str, values, error: type[OnlineMapError]) -> int:
+    try:
+        return len(values)
+    except TypeError:  # a generator, a number...
+        raise error(f"{name} must be a sequence (a list, tuple or array), got {type(values).__name__}") from None
 
 
 def fork(estimator: Estimator) -> Estimator:

@@ -2,12 +2,14 @@
 
 ``P(L_t) = P(L_{t-1}) T[a_t]``; the map belief is the label prior pushed through the map
 dynamics, ``prior C^t``. Observations are validated but carry no information here, so
-``log_evidence`` is NaN. With blocking labels the move into cell j succeeds with
-``p_move * P(m_j passable)`` under that map belief (the label prior pushed through C). Cost
-O(N + N K^2) per step, for any footprint.
+``log_evidence`` is NaN: undefined, as dead reckoning has no observation model. With blocking
+labels the move into cell j succeeds with ``p_move * P(m_j passable)`` under that map belief
+(the label prior pushed through C). Cost O(N + N K^2) per step, for any footprint.
 """
 
 from __future__ import annotations
+
+import math
 
 from .. import state_checks as checks
 from ..belief import Belief
@@ -18,7 +20,12 @@ from .base import register
 
 @register("dead_reckoning")
 class DeadReckoning:
-    """Motion-only location filter; map = prior. No options."""
+    """Motion-only location filter; map = prior. No options.
+
+    ``belief.log_evidence`` is NaN at every step: undefined, not an error. Dead reckoning has no
+    observation model (it never weighs an observation), so it gives the observations no
+    probability; leave it out when comparing estimators' evidence.
+    """
 
     #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
     CONSTANT_STATE = ()
@@ -43,5 +50,5 @@ class DeadReckoning:
             location = apply_motion(self.model, self._belief.location, a, passable)
             maps = self._belief.map @ self.model.change
         self._t += 1
-        self._belief = Belief(self._t, location, maps)
+        self._belief = Belief(self._t, location, maps, log_evidence=math.nan)  # undefined: no observation model
         return self._belief

@@ -1,8 +1,9 @@
 """Exact Bayes over the joint (location, map) (DESIGN.md section 3, ``exact``).
 
 The belief is the full ``P(L_t, m_0..m_{N-1})``, an (N, K**N) tensor: one clique, the junction
-tree of the two-slice network. Memory ``8 N K^N`` bytes per tensor (the filter keeps two), so
-this is for tiny grids; a guard refuses before allocating more than ``max_bytes``.
+tree of the two-slice network. Memory ``8 N K^N`` bytes per tensor (the filter keeps two; with
+blocking labels or a footprint its numpy path peaks at about 8), so this is for tiny grids; a
+guard (:func:`filter_bytes`, :func:`smooth_bytes`) refuses before allocating more than ``max_bytes``.
 
 Filter step cost: static world, one fused read+write pass over the tensor (numba); dynamic
 world, N + 2 passes (C applied along each map axis). Marginals cost about 4/N of a pass more.
@@ -36,19 +37,47 @@ from .base import register
 _SMALLEST_NORMAL = np.finfo(np.float64).tiny  # below this a total has lost precision (subnormal)
 
 
+# Peak memory in (N, K**N) float64 tensors, measured as peak RSS (tests/test_memory_guards.py)
+GENERAL_FILTER_TENSORS = 9  # blocking labels or a footprint (numpy temporaries): measured 8.1
+SMOOTH_EXTRA_TENSORS = 8  # smoothing keeps T tensors, plus temporaries: measured T + 7.0 ...
+GENERAL_SMOOTH_EXTRA_TENSORS = 10  # ... and T + 9.3 with blocking labels or a footprint
+
+
 def tensor_bytes(model: GridModel, copies: int = 1) -> int:
     """Bytes of ``copies`` float64 (N, K**N) tensors (exact Python ints: no overflow)."""
     return 8 * copies * model.n_cells * model.n_labels ** model.n_cells
 
 
-def check_memory(model: GridModel, copies: int, max_bytes: int, what: str) -> None:
-    """Raise :class:`MemoryLimitError` if ``copies`` tensors exceed ``max_bytes``; allocate nothing."""
-    need = tensor_bytes(model, copies)
-    if need > max_bytes:
+def _general(model: GridModel) -> bool:
+    return model.has_blocking or not model.reads_own_cell
+
+
+def filter_bytes(model: GridModel) -> int:
+    """Peak bytes of the exact filter: two tensors and the (K**N,) joint map for the paper's
+    model; :data:`GENERAL_FILTER_TENSORS` tensors with blocking labels or a footprint."""
+    if _general(model):
+        return tensor_bytes(model, GENERAL_FILTER_TENSORS)
+    return tensor_bytes(model, 2) + 8 * model.n_labels ** model.n_cells
+
+
+def smooth_bytes(model: GridModel, n_steps: int) -> int:
+    """Peak bytes of :func:`exact_smooth` over ``n_steps`` steps: one tensor per step plus
+    :data:`SMOOTH_EXTRA_TENSORS` (or :data:`GENERAL_SMOOTH_EXTRA_TENSORS`)."""
+    return tensor_bytes(model, n_steps + (GENERAL_SMOOTH_EXTRA_TENSORS if _general(model) else SMOOTH_EXTRA_TENSORS))
+
+
+def check_memory(model: GridModel, need: int, max_bytes: int | float, what: str) -> None:
+    """Raise :class:`MemoryLimitError` if ``need`` bytes exceed ``max_bytes`` (a positive int or
+    ``math.inf``, capped at the machine's memory: :func:`onlinemap.arguments.byte_limit`), or
+    :class:`InvalidOptionError` if ``max_bytes`` is not a limit; allocate nothing."""
+    limit = arguments.byte_limit("max_bytes", max_bytes, InvalidOptionError)
+    if need > limit:
+        raised = ("pass max_bytes=... to raise it" if limit == max_bytes else
+                  f"this machine has {limit / 1e9:.3g} GB (max_bytes={max_bytes!r} cannot raise that)")
         raise MemoryLimitError(
             f"{what} for N={model.n_cells} cells and K={model.n_labels} labels needs "
-            f"{need / 1e9:.3g} GB ({copies} x N*K^N float64) but the limit is {max_bytes / 1e9:.3g} GB; "
-            f"pass max_bytes=... to raise it, or use an approximate estimator (bk, rbpf)")
+            f"{need / 1e9:.3g} GB (about {need / tensor_bytes(model):.3g} x N*K^N float64) but the limit is "
+            f"{limit / 1e9:.3g} GB; {raised}, or use an approximate estimator (bk, rbpf)")
 
 
 def prior_tensor(model: GridModel) -> np.ndarray:
@@ -76,8 +105,8 @@ class ExactFilter:
     CONSTANT_STATE = ("max_bytes", "_no_motion", "_flat")
 
     def __init__(self, model: GridModel, *, max_bytes: int = DEFAULT_MAX_BYTES):
-        max_bytes = arguments.byte_limit("max_bytes", max_bytes, InvalidOptionError)
-        check_memory(model, 2, max_bytes, "the exact filter (two belief tensors)")
+        max_bytes = arguments.requested_bytes("max_bytes", max_bytes, InvalidOptionError)
+        check_memory(model, filter_bytes(model), max_bytes, "the exact filter")
         self.model = model
         self.max_bytes = max_bytes
         n, k = model.n_cells, model.n_labels
@@ -157,7 +186,8 @@ class ExactFilter:
         """The step redone when its total is not a normal float (an observation of probability near
         or below 1e-308): the likelihood divided by its maximum, then, if the total is still
         subnormal, the belief scaled by a power of two that brings it near 1. Returns
-        ``(total, log of the factor taken out)``; total 0 when even that underflows. Costs one
+        ``(total, log of the factor taken out)``; total 0 when even that underflows or when that
+        power of two (with the ``1 / _norm`` it multiplies) is beyond float64's range. Costs one
         or two more passes, only on this branch."""
         top = float(likelihood.max())
         if not top > 0:
@@ -165,10 +195,11 @@ class ExactFilter:
         likelihood = likelihood / top
         total = self._predict_observe(a, likelihood, 0, out, location)
         exponent = -math.frexp(total)[1] if 0 < total < _SMALLEST_NORMAL else 0
-        if exponent and math.isfinite(math.ldexp(1.0 / self._norm, exponent)):
-            total = self._predict_observe(a, likelihood, exponent, out, location)
-        elif exponent:
-            return 0.0, 0.0
+        if exponent:
+            try:
+                total = self._predict_observe(a, likelihood, exponent, out, location)
+            except OverflowError:  # 2**exponent / _norm beyond float64 (math.ldexp raises, never gives inf)
+                return 0.0, 0.0
         return total, math.log(top) - exponent * math.log(2.0)
 
     def _general_step(self, a: int | None, z) -> Belief:
@@ -190,7 +221,7 @@ class ExactFilter:
         self._norm = total
         self._log_evidence += math.log(total)
         self._t += 1
-        maps = map_marginals(x.sum(axis=0), model.n_cells, model.n_labels) / total
+        maps = np.minimum(map_marginals(x.sum(axis=0), model.n_cells, model.n_labels) / total, 1.0)  # rounding
         self._belief = Belief(self._t, location / total, maps, self._log_evidence)
         return self._belief
 
@@ -295,12 +326,13 @@ def exact_smooth(model: GridModel, actions, observations, *, max_bytes: int = DE
     """Forward filter and backward pass over a recorded run.
 
     ``actions`` (T - 1,) (or (T,) with a leading None), ``observations`` (T,) (or (T, F) with a
-    footprint), by index or name. Memory: T + 2 tensors of (N, K**N) float64; time
+    footprint), by index or name. Memory: about T + 8 tensors of (N, K**N) float64
+    (:func:`smooth_bytes`); time
     O(T N K^N (N K + F)).
     """
     a_seq, z_seq = check_sequence(model, actions, observations)
     n_steps = len(z_seq)
-    check_memory(model, n_steps + 2, max_bytes, f"exact smoothing over {n_steps} steps")
+    check_memory(model, smooth_bytes(model, n_steps), max_bytes, f"exact smoothing over {n_steps} steps")
     n, k = model.n_cells, model.n_labels
     alphas = np.empty((n_steps, n, k**n))
     log_evidence = 0.0
@@ -335,8 +367,8 @@ def exact_smooth(model: GridModel, actions, observations, *, max_bytes: int = DE
     for t in range(n_steps - 1, -1, -1):
         post = alphas[t] * beta
         post /= post.sum()
-        location[t] = post.sum(axis=1)
-        maps[t] = map_marginals(post.sum(axis=0), n, k)
+        location[t] = np.minimum(post.sum(axis=1), 1.0)  # rounding
+        maps[t] = np.minimum(map_marginals(post.sum(axis=0), n, k), 1.0)
         if t > 0:
             beta = observe(beta, z_seq[t])
             beta = change_tensor(model, beta, transpose=True)

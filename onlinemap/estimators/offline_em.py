@@ -10,7 +10,8 @@ parameter), but every iteration runs forward-backward over all T steps from the 
 
 Without annealing this is EM for the MAP of B under a Dirichlet(c + 1) prior per row, so the
 objective ``log P(z | B) + c sum log B`` never decreases. Iterations stop when it rises by
-less than ``tol`` (and tau has reached tau_min) or after ``n_iter``. EM starts from
+less than ``tol`` (and tau has reached tau_min) or after ``n_iter`` (at most
+:data:`MAX_ITERATIONS`). EM starts from
 ``B0 = label_prior @ O``. Cost: O(T (N F + E) + N K^2) per iteration, O(T N) memory.
 
 With a sensor footprint of F offsets B is per cell and the M-step counts every reading of each
@@ -20,6 +21,7 @@ read off the current B (a generalised EM step: the objective may then fall; see 
 
 from __future__ import annotations
 
+import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -28,7 +30,7 @@ from .. import state_checks as checks
 from ..arrays import read_only
 from ..belief import Belief
 from .. import arguments
-from ..errors import InvalidOptionError, ModelError
+from ..errors import InvalidOptionError, ModelError, PerformanceWarning
 from ..hmm import (append_observation, emission_from_counts, expected_cell_counts, forward_backward,
                    log_dirichlet_prior, map_from_emission, map_passability, prior_emission, sensor_inverse,
                    temper)
@@ -61,9 +63,13 @@ def check_anneal(anneal) -> Anneal | None:
     return schedule
 
 
+MAX_ITERATIONS = 10**4  # EM that has not converged in 10,000 iterations will not (the default is 200)
+
+
 def check_n_iter(n_iter) -> int:
-    """An iteration count >= 1, or InvalidOptionError."""
-    return arguments.integer("n_iter", n_iter, minimum=1, error=InvalidOptionError)
+    """An iteration count in 1..:data:`MAX_ITERATIONS`, or InvalidOptionError (with ``tol=0`` EM
+    runs every one of them: an unbounded count never returned)."""
+    return arguments.integer("n_iter", n_iter, minimum=1, maximum=MAX_ITERATIONS, error=InvalidOptionError)
 
 
 def check_tol(tol) -> float:
@@ -135,7 +141,9 @@ class OfflineEM:
     ``(tau0, rate, tau_min)``).
 
     ``step`` re-fits from scratch on z_0..z_t (a cold start, so the belief at t is exactly what
-    :meth:`fit` gives on that prefix): O(iterations t (N + E)) per step, O(T^2) over a run.
+    :meth:`fit` gives on that prefix): O(iterations t (N + E)) per step, O(T^2) over a run. Its
+    first step warns so (:class:`~onlinemap.errors.PerformanceWarning`): a recorded run is
+    fitted once by :meth:`fit`.
     Belief: ``location`` = P(L_t | z_0..t; B_t) (smoothing and filtering agree at the last
     step), ``map`` = B_t through the inverted sensor channel, ``observation_matrix`` = B_t,
     ``log_evidence`` = log P(z_0..t | a; B_t), the likelihood of the fitted B.
@@ -183,6 +191,10 @@ class OfflineEM:
                           self._location_prior, self._sensor_inverse, n_iter=self.n_iter, tol=self.tol,
                           pseudo_count=self.pseudo_count,
                           schedule=None if self.anneal is None else Anneal(*self.anneal))
+        if a is None:  # the first step (taken): once per estimator
+            warnings.warn("offline_em re-fits Baum-Welch on all the data so far at every step (O(t) per step, "
+                          "O(T^2) over a run); for a recorded run, est.fit(actions, observations) fits once",
+                          PerformanceWarning, stacklevel=2)
         self._actions, self._observations = actions, observations
         self._t += 1
         self._belief = Belief(self._t, fit.location[-1], fit.map, fit.log_likelihood,

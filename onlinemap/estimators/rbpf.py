@@ -33,11 +33,14 @@ O(P_dropped N / B) (table rows copied, not maps). Fearnhead-Clifford resamples e
 in a dynamic world). :meth:`RaoBlackwellisedPF.update` advances without building the belief;
 the ``belief`` property builds it on first access (then caches it), and :meth:`step` is
 ``update`` followed by ``belief``. Memory: the block rows in use (at most ``8 P N (K + 1)``
-bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of C.
+bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of C. A step that
+recovers from particle depletion (see the class docstring) weighs N P children instead: O(P N F
+K^2) time and at most 32 P N bytes.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -48,7 +51,8 @@ from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
 from ..kernels.rbpf import (children_by_location, in_place_ancestors, rbpf_enumerate, rbpf_enumerate_cells,
-                             rbpf_pick_children, rbpf_place_children, rbpf_propose)
+                             rbpf_pick_children, rbpf_place_children, rbpf_propose, rbpf_relocated_children,
+                             rbpf_relocation_weights)
 from ..resampling import RESAMPLERS, effective_sample_size, optimal_keep
 from ..rng import SeedLike, as_generator
 from ..model import GridModel
@@ -57,7 +61,10 @@ from .base import register
 from ..checkpoint import state_node
 from .block_pool import FORMAT_1_ATTRIBUTES, REFRESH_STEPS, BlockPool, block_layout
 
+logger = logging.getLogger(__name__)
+
 PROPOSALS = ("optimal", "transition")
+RELOCATION_SCALE = 3.0  # cells: the length scale of the recovery's relocation kernel exp(-d / scale)
 FEARNHEAD_CLIFFORD = "fearnhead_clifford"
 RESAMPLING = (*RESAMPLERS, FEARNHEAD_CLIFFORD)
 #: the filter's named schemes (the options that make each), which studies, benchmarks and figures
@@ -81,7 +88,8 @@ def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = Non
     """Worst-case peak memory of the filter's state, in bytes (exact Python ints; allocates
     nothing): every particle owning every one of its map blocks, the block pool grown by doubling
     to hold them plus P free rows (old and new pool alive together while it grows), a fresh
-    copy of the pool for eager dynamics, the table, the powers of C and per-step temporaries."""
+    copy of the pool for eager dynamics, the table, the powers of C and per-step temporaries (or
+    those of a recovery from depletion, which weighs N P children)."""
     n, k, p = model.n_cells, model.n_labels, n_particles
     block_cells = block_cells or max(1, round(math.sqrt(n / k)))  # block_layout's default
     if model.rows == 1:
@@ -100,7 +108,8 @@ def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = Non
     eager = 0 if lazy_dynamics or model.is_static else rows * size * k * 8
     powers = 8 * k * k * (4 * REFRESH_STEPS + 1 if stamped else 1)
     per_step = 8 * p * (cells_written(model) * (k + 1) * 3 + k + 8) + 8 * n * k  # children, weights, the belief
-    return pool + eager + 8 * p * n_blocks + powers + per_step
+    recovery = 32 * n * p  # a recovery from depletion: N P children's weights, their order, a sort at worst
+    return pool + eager + 8 * p * n_blocks + powers + max(per_step, recovery)
 
 
 def reads_one_cell(model: GridModel) -> bool:
@@ -137,6 +146,41 @@ class RaoBlackwellisedPF:
     the reference the lazy scheme is tested against); ``block_cells`` B, the cells per shared
     map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes`` guard on
     the particle maps (worst case: every particle owning all its blocks).
+
+    **Recovery from depletion.** When no particle explains an observation the model allows (every
+    trajectory that did was dropped; in a blocking world with a footprint, the off-grid readings
+    -1 rule particles out exactly), the step does not raise. A sampling step whose draws all miss
+    first enumerates the particles' successors as Fearnhead-Clifford does (the same children, so
+    the model's own posterior given the particles); when those all have weight zero too (with
+    Fearnhead-Clifford, when its enumeration is empty) the filter *recovers*: it takes the exact
+    limit of an augmented model. In it the robot, with probability eps, is lifted and put down on
+    a passable cell l drawn from ``K(l | l') = exp(-d(l, l') / s) / Z(l')`` instead of following
+    T (d the fewest moves from its last cell l', labels ignored; ``s = RELOCATION_SCALE`` = 3
+    cells; Z sums over the cells reachable from l'); and, after such a relocation only, each cell
+    it then reads is, with probability delta, redrawn from its model marginal ``label_prior C^t``.
+    Given the particle set (weights w_p, cells l_p, maps m_p) the posterior is ``(1 - eps) R + eps
+    sum_r delta^r S_r`` (up to factors ``1 - delta`` that tend to 1):
+    R the regular children, S_r the relocated ones with r read cells redrawn. R = 0 here, so as
+    eps, delta -> 0 it tends to S_r for the smallest r with S_r > 0: children (p, l) weighted
+    ``w_p K(l | l_p) P(z, m_l passable | l, m_p)`` where each read cell keeps m_p's marginal
+    unless that marginal rules out its reading (then it takes the model marginal: r such cells).
+    P of these children (N P at most) are kept by optimal resampling, as Fearnhead-Clifford keeps
+    its children. The recovered belief is thus the filter's best account of the data given that
+    the robot was somewhere other than its particles say: it approximates ``P(L_t, M_t | data)``
+    under the augmented model, with the particles before the step standing in for the past; it is
+    not the model's posterior (which the lost trajectories carried). ``log_evidence`` adds the log
+    of the children's total weight, the evidence given the relocation (the vanishing ``log eps``
+    left out). The step's belief has ``recovered=True``, :attr:`recoveries` counts such steps
+    (checkpointed), and a warning on the logger ``onlinemap.estimators.rbpf`` names the step and
+    what was done. Only an observation nothing explains even so (step 0, where there is no motion;
+    or no cell of the grid, with labels the model allows at step t, sees it) raises
+    :class:`ImpossibleObservationError`, the state unchanged. Steps that do not deplete run exactly
+    as before recovery existed (same numbers, same random draws). A recovery costs O(P N U K^2)
+    time (U <= F + 1 the cells a child touches) and at most 32 P N bytes. Setting the attribute
+    ``recover_from_depletion = False`` (checkpointed with the state) makes a depleted step raise
+    :class:`ImpossibleObservationError` instead, the state unchanged, as before recovery existed:
+    for hypothetical steps (a planner enumerating observations gives those the particles rule out
+    probability zero) or to stop a run rather than relocate.
     """
 
     #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
@@ -192,6 +236,9 @@ class RaoBlackwellisedPF:
         self._log_evidence = 0.0
         self._ess = float(n_particles)
         self._resampled = False
+        self.recover_from_depletion = True  # False: raise on depletion (see the class docstring)
+        self._recoveries = 0
+        self._recovered = False
         self._t = -1
         self._belief: Belief | None = None
 
@@ -199,10 +246,16 @@ class RaoBlackwellisedPF:
     def upgrade_attributes(attributes: dict, version: int) -> dict:
         """A checkpoint's encoded attributes of format ``version`` as the current format has them:
         version 1 kept the block pool as 13 loose attributes (``_pool``, ``_table``...), gathered
-        here into ``_blocks`` (the checks on load then validate it as any other). O(1)."""
+        here into ``_blocks`` (the checks on load then validate it as any other); versions 1 and 2
+        had no recovery from depletion (a filter that never recovered, with recovery on:
+        ``_recoveries`` 0, ``_recovered`` False, ``recover_from_depletion`` True). O(1)."""
         if version == 1 and all(name in attributes for name in FORMAT_1_ATTRIBUTES):
             fields = {field: attributes.pop(name) for name, field in FORMAT_1_ATTRIBUTES.items()}
             attributes["_blocks"] = state_node(BlockPool, fields)
+        if version <= 2:
+            attributes.setdefault("recover_from_depletion", True)
+            attributes.setdefault("_recoveries", 0)
+            attributes.setdefault("_recovered", False)
         return attributes
 
     @staticmethod
@@ -227,6 +280,11 @@ class RaoBlackwellisedPF:
         checks.log_evidence(state)
         if type(state._resampled) is not bool:
             checks.fail("_resampled", "must be a bool")
+        if type(state.recover_from_depletion) is not bool:
+            checks.fail("recover_from_depletion", "must be a bool")
+        checks.integer(state, "_recoveries", 0, max(t, 0))  # at most one per step, none at step 0
+        if type(state._recovered) is not bool or (state._recovered and (t < 1 or state._recoveries < 1)):
+            checks.fail("_recovered", "must be a bool, True only after a step >= 1 that counted a recovery")
         state._blocks.check(p, k, t)  # the copy-on-write pool (estimators/block_pool.py); its kind was checked
         checks.belief(state, required=False)
 
@@ -234,6 +292,11 @@ class RaoBlackwellisedPF:
     def resampled(self) -> bool:
         """Whether the last step resampled before proposing."""
         return self._resampled
+
+    @property
+    def recoveries(self) -> int:
+        """How many steps so far recovered from depletion (see the class docstring)."""
+        return self._recoveries
 
     @property
     def belief(self) -> Belief | None:
@@ -246,7 +309,7 @@ class RaoBlackwellisedPF:
             maps = self._blocks.mixture(self._t, weights)
             maps /= maps.sum(axis=1, keepdims=True)
             self._belief = Belief(self._t, location, maps, self._log_evidence,
-                                  effective_sample_size=self._ess)
+                                  effective_sample_size=self._ess, recovered=self._recovered)
         return self._belief
 
     def particle_maps(self) -> np.ndarray:
@@ -263,10 +326,10 @@ class RaoBlackwellisedPF:
 
         Resample first if the effective sample size is below ``resample_threshold * P``; then
         propose, weight and update each particle's observed cell. If the observation has
-        probability zero for every particle (impossible under the model, or every trajectory that
-        explains it was lost: depletion; the filter cannot tell which), raise
-        :class:`ImpossibleObservationError` saying both and leave everything (particles, weights,
-        random generator) as it was.
+        probability zero for every particle (depletion), recover (:meth:`_recover`, see the class
+        docstring); if nothing explains it even then (impossible under the model), raise
+        :class:`ImpossibleObservationError` and leave everything (particles, weights, random
+        generator) as it was.
         """
         model = self.model
         a, z = check_step(model, self._t + 1, action, observation)
@@ -306,10 +369,13 @@ class RaoBlackwellisedPF:
                                new_locations, new_ids, new_cells, log_increments)
         log_weights = log_weights + log_increments
         increment = _logsumexp(log_weights)
-        if increment == -math.inf:
+        if increment == -math.inf:  # every draw missed: enumerate the particles' successors instead
             self._rng.bit_generator.state = rng_state
-            raise ImpossibleObservationError(
-                _no_particle_explains(model, z, t, self.n_particles))
+            logger.info("rbpf step %d: every particle's proposal has probability zero for observation %s; the "
+                        "step enumerates the particles' successors instead (as Fearnhead-Clifford does)", t,
+                        _describe(model, z))
+            self._update_fearnhead_clifford(a, z, t)
+            return
         self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - increment, increment, resample,
                      new_ids)
 
@@ -352,28 +418,84 @@ class RaoBlackwellisedPF:
         else:
             m, (child_parent, child_location, child_log_weight, _, child_ids, child_cells) = self._enumerate_cells(
                 blocks, t, neighbors, z, self._log_weights)
-        if m == 0:
-            raise ImpossibleObservationError(
-                _no_particle_explains(model, z, t, self.n_particles))
+        if m == 0:  # depletion
+            self._recover(a, z, t, blocks)
+            return
         increment = _logsumexp(child_log_weight[:m])
         kept, kept_weights, threshold = optimal_keep(np.exp(child_log_weight[:m] - increment), n_particles,
                                                      self._rng.random(),
                                                      children_by_location(child_location[:m], model.n_cells))
+        self._commit_children(t, blocks, (child_parent, child_location, child_ids, child_cells), kept, kept_weights,
+                              increment, threshold > 0)
+
+    def _recover(self, a: int | None, z, t: int, blocks: BlockPool) -> None:
+        """The step when no particle explains ``z`` (depletion): the exact limit of the augmented
+        model of the class docstring from the particles before the step. Every live particle p and
+        cell l make a child weighted ``w_p K(l | l_p) P(z, l passable | l, map_p)``, with the fewest
+        read cells reset to their model marginal ``label_prior C^t`` that make it possible
+        (:func:`~onlinemap.kernels.rbpf.rbpf_relocation_weights`); P of them are kept by optimal
+        resampling (the strata walk them by location, as Fearnhead-Clifford's do) with one uniform,
+        their maps built (:func:`~onlinemap.kernels.rbpf.rbpf_relocated_children`) and committed.
+        Raises :class:`ImpossibleObservationError`, changing nothing, at step 0 (no motion, no
+        relocation), when no child is possible, or when ``recover_from_depletion`` is False. ``blocks``: the step's pool (reserved for P W
+        writes; advanced by C with eager dynamics). Cost O(P N U K^2 + min(P, N) N A) time, U <= W
+        the cells a child touches, A the actions; at most 32 P N bytes (:func:`peak_bytes`)."""
+        model = self.model
+        n_particles = self.n_particles
+        if not self.recover_from_depletion:
+            raise ImpossibleObservationError(_no_particle_explains(model, z, t, n_particles))
+        readings = np.atleast_1d(np.asarray(z, dtype=np.int64))
+        prior = np.ascontiguousarray(model.label_prior if model.is_static else
+                                     model.label_prior @ np.linalg.matrix_power(model.change, t))
+        child_log_weight = np.empty((model.n_cells, n_particles))
+        fewest = -1 if a is None else rbpf_relocation_weights(
+            self._locations, self._log_weights, *blocks.reads(), t, model.moves, RELOCATION_SCALE, model.blocking,
+            model.footprint_cells, model.sensor, readings, prior, child_log_weight)
+        if fewest < 0:
+            raise ImpossibleObservationError(_impossible(model, z, t, n_particles))
+        weights = child_log_weight.ravel()  # children ordered by location, then parent
+        increment = _logsumexp(weights)
+        weights -= increment
+        np.exp(weights, out=weights)  # in place: N P floats are the recovery's largest array
+        kept, kept_weights, threshold = optimal_keep(weights, n_particles, self._rng.random(), np.arange(len(weights)))
+        width = cells_written(model)
+        child_location, child_parent = np.divmod(kept, n_particles)
+        child_ids = np.empty((len(kept), width), dtype=np.int64)
+        child_cells = np.empty((len(kept), width, model.n_labels))
+        rbpf_relocated_children(child_parent, child_location, *blocks.reads(), t, model.blocking, model.footprint_cells,
+                                model.sensor, readings, prior, child_ids, child_cells)
+        parents = int(np.count_nonzero(self._weights))
+        self._commit_children(t, blocks, (child_parent, child_location, child_ids, child_cells), np.arange(len(kept)),
+                              kept_weights, increment, threshold > 0, recovered=True)
+        self._recoveries += 1
+        logger.warning("rbpf step %d: no particle explains observation %s (particle depletion); recovered by "
+                       "relocating the %d live particles near their last cells (kernel exp(-d / %g), d in moves)%s; "
+                       "%d children kept (recovery %d of this filter)", t, _describe(model, z), parents,
+                       RELOCATION_SCALE, f" and resetting {fewest} read cell(s) to their prior" if fewest else "",
+                       len(kept), self._recoveries)
+
+    def _commit_children(self, t, blocks: BlockPool, children, kept, kept_weights, increment, resampled,
+                         recovered: bool = False) -> None:
+        """Put the ``kept`` children (indices into ``children`` = (parent, location, ids (M, W),
+        cells (M, W, K)), with ``kept_weights``) into the P slots (:func:`rbpf_place_children`)
+        and :meth:`_commit` them. O(P W K)."""
+        model, n_particles = self.model, self.n_particles
+        width = cells_written(model)
         ancestors = np.empty(n_particles, dtype=np.int64)
         new_locations = np.empty(n_particles, dtype=np.int64)
         new_ids = np.empty((n_particles, width), dtype=np.int64)
         new_cells = np.empty((n_particles, width, model.n_labels))
         log_weights = np.empty(n_particles)
-        rbpf_place_children(child_parent, child_location, child_ids, child_cells, kept, kept_weights, ancestors,
-                            new_locations, new_ids, new_cells, log_weights)
-        self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights),
-                     increment, threshold > 0, new_ids)
+        rbpf_place_children(*children, kept, kept_weights, ancestors, new_locations, new_ids, new_cells, log_weights)
+        self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights), increment,
+                     resampled, new_ids, recovered)
 
     def _commit(self, t, blocks: BlockPool, ancestors, new_locations, new_cells, log_weights, increment, resampled,
-                new_ids=None) -> None:
+                new_ids=None, recovered: bool = False) -> None:
         """Write a validated step: the particles' slots and maps into ``blocks`` (this filter's
         pool, or its grown copy, which the filter then keeps; :meth:`BlockPool.commit`), the
-        normalised ``log_weights`` and the evidence ``increment``."""
+        normalised ``log_weights`` and the evidence ``increment``; ``recovered``: the step
+        recovered from depletion."""
         blocks.commit(self._locations, t, ancestors, new_locations, new_cells, new_ids)
         self._blocks = blocks
         self._log_weights = log_weights
@@ -381,17 +503,26 @@ class RaoBlackwellisedPF:
         self._weights = np.exp(self._log_weights)
         self._ess = min(float(self.n_particles), effective_sample_size(self._weights))  # rounding: <= P
         self._resampled = resampled
+        self._recovered = recovered
         self._t = t
         self._belief = None
 
 
 def _no_particle_explains(model: GridModel, z, t: int, n_particles: int) -> str:
-    """The message of an observation no particle explains: the filter cannot tell an observation
-    impossible under the model from one only its lost trajectories explained (depletion)."""
+    """The message of a depleted step with recovery off: the filter cannot tell an observation
+    impossible under the model from one only its lost trajectories explained."""
     return (f"observation {_describe(model, z)} has probability zero for every one of the {n_particles} "
             f"particles at step {t}: either it is impossible under the model given the past, or the particles "
-            f"have lost every trajectory that explains it (particle depletion; more particles, the optimal "
-            f"proposal or a sensor with no zero entries make that rarer). The filter is unchanged")
+            f"have lost every trajectory that explains it (particle depletion; recover_from_depletion is False). "
+            f"The filter is unchanged")
+
+
+def _impossible(model: GridModel, z, t: int, n_particles: int) -> str:
+    """The message of an observation nothing explains, even relocated (see _recover)."""
+    where = ("at the start cell (step 0: no motion yet)" if t == 0 else
+             "and no cell the robot could be relocated to explains it with labels the model allows at that step")
+    return (f"observation {_describe(model, z)} has probability zero for every one of the {n_particles} "
+            f"particles at step {t}, {where}: it is impossible under the model. The filter is unchanged")
 
 
 def _describe(model: GridModel, z) -> str:

@@ -6,7 +6,8 @@ and provenance for free) and summarised one way (:mod:`.base`: intervals over se
   and random corridors;
 - :mod:`.accuracy`: approximate estimators against exact Bayes (section 5.2; ``onlinemap compare``);
 - :mod:`.mapping`: the EM-mapping claims (loop, annealing, blocking walls);
-- :mod:`.exploration`: planners exploring (the paper's world, the binary task, replays);
+- :mod:`.exploration`: planners exploring (the paper's world, blocking walls, buildings, replays);
+- :mod:`.navigation`: goal planners through changing doors, against the oracle;
 
 Modules load on first use (``onlinemap.studies.exploration`` imports ``policies``).
 The layer sits above the engine and ``policies``; nothing below imports it.
@@ -16,7 +17,7 @@ from __future__ import annotations
 
 import importlib
 
-MODULES = ("base", "corridor", "accuracy", "mapping", "exploration")
+MODULES = ("base", "corridor", "accuracy", "mapping", "exploration", "navigation")
 
 
 def __getattr__(name: str):

@@ -164,10 +164,12 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
         raise where.error(("walk",), 'walk = "scripted_trip" is one trip: it needs steps = "trip"')
     if {"there_and_back", "scripted_trip"} & set(walks):
         bad = [w.spec for w in worlds if w.model.action_names != ("left", "right")
-               or ("scripted_trip" in walks and not w.model.is_static)]
+               or ("scripted_trip" in walks and not (w.model.is_static and w.model.reads_own_cell
+                                                     and not w.model.has_blocking))]
         if bad:
-            raise where.error(("walk",), f"there_and_back needs corridor worlds (scripted_trip static ones), "
-                                         f"not {', '.join(bad)}")
+            raise where.error(("walk",), f"there_and_back needs corridor worlds (scripted_trip static ones whose "
+                                         f"sensor reads the robot's own cell, without blocking labels: it writes "
+                                         f"the true label as every observation), not {', '.join(bad)}")
     _check_builds(worlds, estimators, planners, kind, goals, where)
     if reference is not None:
         _check_builds(worlds, [(reference, (), ("reference",), None)], [], None, [None], where)
