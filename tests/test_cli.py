@@ -224,3 +224,18 @@ def test_out_dir_gets_fixed_names_in_the_chosen_format(tmp_path):
     assert code == 0, err
     assert sorted(p.name for p in (tmp_path / "b").iterdir()) == ["bench.csv", "bench.csv.json", "bench.json"]
     assert set(pd.read_csv(tmp_path / "b" / "bench.csv")["benchmark"]) == {"exact"}
+
+
+SERIAL_COMMANDS = [
+    ["explore", "--world", "corridor:5", "--planner", "random", "--steps", "3", "-o", "n_particles=5"],
+    ["compare", "--world", "corridor:4", "--runs", "1", "--steps", "3", "--particles", "5"],
+]
+
+
+@pytest.mark.parametrize("args", SERIAL_COMMANDS, ids=[a[0] for a in SERIAL_COMMANDS])
+def test_workers_0_runs_in_this_process(args, monkeypatch):
+    """Regression (issue 24 item 4): ``--workers 0`` was passed on as ``workers=None`` and ran on dask."""
+    from onlinemap.sweeps import engines
+    monkeypatch.setattr(engines, "_run_dask", lambda *a, **k: pytest.fail("ran on dask"))
+    code, out, err = cli(args + ["--workers", "0", "--no-progress"])
+    assert code == 0, err

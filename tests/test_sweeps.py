@@ -344,6 +344,23 @@ def test_local_cluster_with_two_workers_gives_the_serial_table(client, serial_ta
     pd.testing.assert_frame_equal(without_timing(by_address), without_timing(serial_table))
 
 
+@pytest.mark.slow
+def test_a_failed_task_on_dask_is_one_error_not_a_worker_traceback(tmp_path):
+    """Regression (issue 24 item 4): a failing task printed dask's ``Compute Failed`` block and a
+    traceback (logged by the worker process) before the sweep's one error line."""
+    pytest.importorskip("distributed")
+    spec = write_spec(tmp_path, 'worlds = ["corridor:8"]\nseeds = 1\nsteps = 60\n'
+                                '[estimators.online_em]\npseudo_count = 0\n')  # an impossible observation
+    done = subprocess.run([sys.executable, "-m", "onlinemap", "sweep", str(spec), "--workers", "1", "--no-progress",
+                           "--out", str(tmp_path / "r")], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        "onlinemap: error: 1 of 1 tasks failed (the others are kept; rerun to retry); first: "
+        "online_em(pseudo_count=0) on corridor:8, seed 0: ImpossibleObservationError: observation '1' at step 14 "
+        "has probability zero under the observation matrix B in use (B starts as label_prior @ O; a learned B has "
+        "no zeros when pseudo_count > 0)"], done.stderr
+
+
 def test_killing_a_worker_midway_still_finishes_every_task_once(client, serial_table, tmp_path):
     spec = sweeps.parse_spec(SPEC.replace("[estimators.exact]", "[estimators.offline_em]\n\n[estimators.exact]"))
     result = {}

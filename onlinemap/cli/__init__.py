@@ -88,8 +88,9 @@ def main(argv: list[str] | None = None) -> int:
     if not logging.getLogger().handlers:  # library warnings (e.g. an estimator skipped) as one line each
         logging.basicConfig(level=logging.WARNING, format="onlinemap: %(levelname)s: %(message)s")
     # dask's scheduler runs in this process and logs every start and stop at INFO through the
-    # handler above; a sweep reports its own progress. Read by dask when a sweep first imports it.
-    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
+    # handler above, and warns when it kills a slow-to-stop worker at the end; a sweep reports its
+    # own progress and failures. Read by dask when a sweep first imports it.
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "error")
     try:
         return int(args.func(args) or 0)
     except OnlineMapError as error:

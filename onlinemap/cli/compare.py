@@ -57,7 +57,7 @@ def compare(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else None
     print(f"{args.runs} runs x {args.steps} steps on {', '.join(worlds)}; rbpf with {particles} particles; "
           f"seed {args.seed}")
-    per_step = accuracy_study(worlds, args.runs, args.steps, particles, args.seed, workers=args.workers or None,
+    per_step = accuracy_study(worlds, args.runs, args.steps, particles, args.seed, workers=args.workers,
                               out=None if out is None else out / "compare.parquet", options=options)
     summary = summarise(per_step)
     print_table(summary)

@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     options = ", ".join(f"{key}={value}" for key, value in given.items()) or "its default options"
     print(f"world {args.world} (floor plan: {args.floor_plan or 'none, uniform prior'}); estimator {args.estimator}"
           f" with {options}; {args.steps} steps, seeds {args.seed}..{args.seed + args.repeats - 1}")
-    steps = sweep(exploration_spec(args, planners), workers=args.workers or None, progress=True,
+    steps = sweep(exploration_spec(args, planners), workers=args.workers, progress=True,
                   results_dir=None if out is None else out / "explore.parts")
     runs = from_steps(steps, ["planner", "seed"])
     runs.insert(1, "kind", "explore")

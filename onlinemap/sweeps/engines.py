@@ -7,6 +7,7 @@ dask.distributed lazily.
 
 from __future__ import annotations
 
+import logging
 import os
 import warnings
 
@@ -57,13 +58,20 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     for task in todo:
         first.setdefault(_run_key(task), len(first))
     todo.sort(key=lambda task: first[_run_key(task)])
-    failures: list[tuple[Task, BaseException]] = []
+    failures: list[tuple[Task, str]] = []
 
-    def record(task: Task, frame: pd.DataFrame) -> None:
+    def record(task: Task, outcome: runner.Outcome) -> None:
+        if outcome.error is not None:  # keep going; every failure is reported at the end
+            failures.append((task, outcome.error))
+            return
         if store is not None:
-            write_part(store, task, frame)
+            try:
+                write_part(store, task, outcome.frame)
+            except OSError as error:  # e.g. a full disk: the task counts as failed, the sweep goes on
+                failures.append((task, f"{type(error).__name__}: {error}"))
+                return
         else:
-            memory[task.key] = frame
+            memory[task.key] = outcome.frame
         bar.update()
 
     bar = tqdm(total=len(spec.tasks), initial=len(spec.tasks) - len(todo), desc=f"sweep {spec.name}",
@@ -71,12 +79,9 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     try:
         if todo and client is None and workers == 0:
             for task in todo:
-                try:
-                    record(task, runner.run_task(task))
-                except Exception as error:  # keep going; report every failure at the end
-                    failures.append((task, error))
+                record(task, runner.attempt(task))
         elif todo:
-            _run_dask(todo, client, workers, record, failures)
+            _run_dask(todo, client, workers, record)
     finally:
         bar.close()
     if store is not None:
@@ -90,7 +95,7 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
         task, error = min(failures, key=lambda failure: position[failure[0].key])  # first in spec order
         raise SweepError(f"{len(failures)} of {len(spec.tasks)} tasks failed (the others are kept; rerun to "
                          f"retry); first: {task.estimator}({options_text(task.options)}) on {task.world}, "
-                         f"seed {task.seed}: {type(error).__name__}: {error}")
+                         f"seed {task.seed}: {error}")
     return table
 
 
@@ -126,10 +131,10 @@ def local_cluster(workers: int | None = None, n_tasks: int | None = None):
     with warnings.catch_warnings():  # another cluster on this machine holds the default HTTP port
         warnings.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
         return distributed.LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
-                                        dashboard_address=None, silence_logs=40)
+                                        dashboard_address=None, silence_logs=logging.CRITICAL)
 
 
-def _run_dask(todo: list[Task], client, workers: int | None, record, failures: list) -> None:
+def _run_dask(todo: list[Task], client, workers: int | None, record) -> None:
     distributed = _dask()
     owned, futures = [], []
     if client is None:
@@ -140,20 +145,19 @@ def _run_dask(todo: list[Task], client, workers: int | None, record, failures: l
         client = connect(client)
         owned = [client]
     try:
-        futures = client.map(runner.run_task, todo, pure=False)
+        futures = client.map(runner.attempt, todo, pure=False)  # a task's error comes back as a value
         by_key = {future.key: task for future, task in zip(futures, todo)}
         completed = distributed.as_completed(futures)
         for future in completed:
             task = by_key[future.key]
             try:
-                frame = future.result()
-            except Exception as error:
+                outcome = future.result()
+            except Exception as error:  # the worker itself failed (killed, out of memory)
                 if future.status in ("lost", "pending"):  # its worker died after it finished: recomputed
                     completed.add(future)
                     continue
-                failures.append((task, error))
-            else:
-                record(task, frame)
+                outcome = runner.Outcome(None, f"{type(error).__name__}: {error}")
+            record(task, outcome)
             future.release()
     except BaseException:
         client.cancel(futures)

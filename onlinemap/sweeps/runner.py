@@ -17,6 +17,7 @@ Imports: :mod:`.tasks`, :mod:`.kinds`, :mod:`onlinemap.evaluate`.
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -118,6 +119,23 @@ def run_task(task: Task) -> pd.DataFrame:
         row = run_metrics(run, trajectory, reference, steps, trip=task.walk != "random")
         frame = pd.DataFrame([{**{name: row[name] for name in RUN_METRICS if name in row}, **played.run_columns}])
     return describe(task, frame, run.n_steps)
+
+
+class Outcome(NamedTuple):
+    """What running one task gave: its rows, or the error that ended it (``"Type: message"``)."""
+
+    frame: pd.DataFrame | None
+    error: str | None
+
+
+def attempt(task: Task) -> Outcome:
+    """:func:`run_task`, with an exception returned as text instead of raised: a dask worker then
+    never sees a failed task (so it logs no ``Compute Failed`` block and no traceback), and the
+    engine reports every failure the same way, serial or not."""
+    try:
+        return Outcome(run_task(task), None)
+    except Exception as error:  # any failure of a task is reported, never raised out of a worker
+        return Outcome(None, f"{type(error).__name__}: {error}")
 
 
 def _play(task: Task) -> Played:
