@@ -213,14 +213,14 @@ def test_killed_sweep_resumes_and_finishes_every_task_exactly_once(tmp_path, ser
                                 "--out", str(out), "--no-progress"], stdout=subprocess.DEVNULL,
                                stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and len(list(parts.glob("*.parquet"))) < 5 and process.poll() is None:
+    while time.monotonic() < deadline and len(list(parts.glob("*.npz"))) < 5 and process.poll() is None:
         time.sleep(0.02)
     process.send_signal(signal.SIGKILL)  # no chance to clean up
     process.wait()
-    kept = {p.name: p.stat().st_mtime_ns for p in parts.glob("*.parquet")}
+    kept = {p.name: p.stat().st_mtime_ns for p in parts.glob("*.npz")}
     assert 5 <= len(kept) < len(spec.tasks), "the sweep was not stopped midway"
     table = om.sweep(spec_path, workers=0, out=out / "results.parquet", results_dir=parts, progress=False)
-    assert {p.name: p.stat().st_mtime_ns for p in parts.glob("*.parquet") if p.name in kept} == kept  # not rerun
+    assert {p.name: p.stat().st_mtime_ns for p in parts.glob("*.npz") if p.name in kept} == kept  # not rerun
     assert len(table) == len(spec.tasks) and table["task"].is_unique
     assert set(table["task"]) == {t.key for t in spec.tasks}
     fresh = om.sweep(spec, workers=0, progress=False)
@@ -247,7 +247,7 @@ def test_failed_tasks_are_reported_and_the_rest_kept(tmp_path, monkeypatch):
                         lambda task: real(task) if task.seed != 1 else (_ for _ in ()).throw(RuntimeError("boom")))
     with pytest.raises(om.SweepError, match=f"{N_TASKS // 3} of {N_TASKS} tasks failed.*boom"):
         om.sweep(spec, workers=0, results_dir=tmp_path, progress=False)
-    assert len(list(tmp_path.glob("*.parquet"))) == N_TASKS - N_TASKS // 3
+    assert len(list(tmp_path.glob("*.npz"))) == N_TASKS - N_TASKS // 3
     monkeypatch.setattr(sweeps.runner, "run_task", real)
     assert len(om.sweep(spec, workers=0, results_dir=tmp_path, progress=False)) == N_TASKS
 
@@ -368,16 +368,16 @@ def test_killing_a_worker_midway_still_finishes_every_task_once(client, serial_t
         table=om.sweep(spec, client, results_dir=tmp_path, progress=False)))
     runner.start()
     deadline = time.monotonic() + 60
-    while not list(tmp_path.glob("*.parquet")) and time.monotonic() < deadline:
+    while not list(tmp_path.glob("*.npz")) and time.monotonic() < deadline:
         time.sleep(0.01)
     victim = next(iter(client.run(os.getpid).values()))
     os.kill(victim, signal.SIGKILL)
-    assert len(list(tmp_path.glob("*.parquet"))) < len(spec.tasks), "killed too late"
+    assert len(list(tmp_path.glob("*.npz"))) < len(spec.tasks), "killed too late"
     runner.join(timeout=180)
     assert not runner.is_alive()
     table = result["table"]
     assert len(table) == len(spec.tasks) and table["task"].is_unique
-    assert len(list(tmp_path.glob("*.parquet"))) == len(spec.tasks)
+    assert len(list(tmp_path.glob("*.npz"))) == len(spec.tasks)
     serial = om.sweep(spec, workers=0, progress=False)
     pd.testing.assert_frame_equal(without_timing(table), without_timing(serial))
 
@@ -406,19 +406,23 @@ def test_a_failed_table_write_keeps_the_previous_file_and_no_temporary(tmp_path,
 def test_failed_part_writes_leave_no_temporaries_and_old_ones_are_cleaned(tmp_path, monkeypatch):
     parts = tmp_path / "parts"
     parts.mkdir()
-    (parts / ".abc.parquet.x1y2.tmp").write_bytes(b"half a file")  # a killed process's leftover
-    real = pd.DataFrame.to_parquet
+    (parts / ".abc.npz.x1y2.tmp").write_bytes(b"half a file")  # a killed process's leftover
+    real, calls = sweeps.store.atomic_write, []
 
-    def flaky(frame, file, *args, **kwargs):
-        if frame["seed"].iloc[0] == 1:
-            raise OSError(28, "No space left on device")
-        return real(frame, file, *args, **kwargs)
+    def flaky(path, write):  # every third part: the disk fills up halfway through writing it
+        calls.append(path)
 
-    monkeypatch.setattr(pd.DataFrame, "to_parquet", flaky)
+        def half(file):
+            write(file)
+            if len(calls) % 3 == 0:
+                raise OSError(28, "No space left on device")
+        return real(path, half)
+
+    monkeypatch.setattr(sweeps.store, "atomic_write", flaky)
     with pytest.raises(om.SweepError, match="No space"):
         om.sweep(sweeps.parse_spec(SPEC), workers=0, results_dir=parts, progress=False)
     assert not list(parts.glob(".*")), "temporary files left behind"
-    assert len(list(parts.glob("*.parquet"))) == N_TASKS - N_TASKS // 3
+    assert len(list(parts.glob("*.npz"))) == N_TASKS - N_TASKS // 3
 
 
 @pytest.mark.parametrize("old, new, words", [
@@ -522,5 +526,58 @@ def test_parquet_output_without_pyarrow_is_refused_before_any_work(tmp_path, mon
     monkeypatch.setitem(sys.modules, "pyarrow", None)  # import pyarrow now raises ImportError
     path = write_spec(tmp_path)
     monkeypatch.setattr(sweeps.runner, "run_task", lambda task: pytest.fail("a task ran"))
-    line = _one_error_line(capsys, ["sweep", str(path), "--workers", "0", "--out", str(tmp_path / "r")])
+    line = _one_error_line(capsys, ["sweep", str(path), "--workers", "0", "--out", str(tmp_path / "r"),
+                                    "--format", "parquet"])
     assert "needs pyarrow" in line and not (tmp_path / "r" / "parts").exists()
+
+
+WITHOUT_PYARROW = """\
+import sys
+sys.modules["pyarrow"] = None  # as after `pip install -e .`: pandas and onlinemap load without it
+from onlinemap.cli import main
+for args in {commands!r}:
+    status = main(args + ["--no-progress"])
+    assert status == 0, (args, status)
+assert sys.modules["pyarrow"] is None
+"""
+
+
+@pytest.mark.slow
+def test_without_pyarrow_every_out_command_keeps_its_parts_and_writes_csv(tmp_path):
+    """Regression (issue 24 item 12): the part store needed pyarrow, so ``--out`` failed after a
+    base install (``pip install -e .``) for sweep, compare, explore and reproduce --random."""
+    spec = write_spec(tmp_path, SPEC.replace("seeds = 3", "seeds = 1"))
+    out = tmp_path / "out"
+    commands = [["sweep", str(spec), "--workers", "0", "--out", str(out / "sweep")],
+                ["sweep", str(spec), "--workers", "0", "--out", str(out / "sweep")],  # resumes: nothing to run
+                ["compare", "--world", "corridor:4", "--runs", "1", "--steps", "4", "--particles", "5",
+                 "--out", str(out / "compare")],
+                ["explore", "--world", "corridor:5", "--planner", "random", "--steps", "4", "-o", "n_particles=5",
+                 "--out", str(out / "explore")],
+                ["reproduce", "corridor", "--random", "1", "--out", str(out / "reproduce")]]
+    done = subprocess.run([sys.executable, "-c", WITHOUT_PYARROW.format(commands=commands)], capture_output=True,
+                          text=True, timeout=900)
+    assert done.returncode == 0, done.stderr
+    assert f"{N_TASKS // 3} already finished" in done.stdout
+    assert len(pd.read_csv(out / "sweep" / "results.csv")) == N_TASKS // 3
+    assert len(list((out / "sweep" / "parts").glob("*.npz"))) == N_TASKS // 3
+    for parts in ("compare/compare.parts", "explore/explore.parts", "reproduce/corridor_random.parts"):
+        assert list((out / parts).glob("*.npz")), parts
+    assert (out / "explore" / "explore_visits.png").exists() and (out / "compare" / "compare_summary.csv").exists()
+
+
+def test_a_part_keeps_every_column_and_type(tmp_path):
+    task = sweeps.Task("corridor:5", "offline_em", (("anneal", (1.0, 0.5, 0.1)), ("n_iter", 3)), 2, 6)
+    frame = sweeps.run_task(task).assign(
+        note=["a"], missing=[None], mixed=[[1, "x"]], flag=pd.array([pd.NA], dtype="boolean"))
+    sweeps.write_part(tmp_path, task, frame)
+    back = sweeps.read_part(tmp_path / f"{task.key}.npz")
+    assert list(back.columns) == list(frame.columns)
+    plain = [c for c in frame.columns if c not in ("missing", "mixed", "flag", "opt_anneal")]
+    pd.testing.assert_frame_equal(back[plain], frame[plain])  # numbers exactly, text, booleans
+    assert back["missing"].isna().all() and back["mixed"].iloc[0] == [1, "x"] and back["flag"].isna().all()
+    assert back["opt_anneal"].iloc[0] == [1.0, 0.5, 0.1] and back["opt_n_iter"].iloc[0] == 3
+    pd.testing.assert_frame_equal(sweeps.collect(tmp_path), sweeps.assemble([frame]))
+    (tmp_path / f"{task.key}.npz").write_bytes(b"PK\x03\x04 not a zip")
+    with pytest.raises(om.OnlineMapError, match="cannot read sweep part"):
+        sweeps.collect(tmp_path)

@@ -58,7 +58,7 @@ def compare(args: argparse.Namespace) -> int:
     print(f"{args.runs} runs x {args.steps} steps on {', '.join(worlds)}; rbpf with {particles} particles; "
           f"seed {args.seed}")
     per_step = accuracy_study(worlds, args.runs, args.steps, particles, args.seed, workers=args.workers,
-                              out=None if out is None else out / "compare.parquet", options=options)
+                              out=None if out is None else out / "compare.parts", options=options)
     summary = summarise(per_step)
     print_table(summary)
     print(TIMING_NOTE)

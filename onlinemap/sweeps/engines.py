@@ -21,7 +21,7 @@ from .spec import load_spec, spec_from_dict
 from .store import assemble, collect, default_results_dir, finished_tasks, open_store, write_part
 from .tasks import MAX_TASKS, SweepSpec, Task, options_text
 
-DASK_HINT = "install dask.distributed with: pip install 'onlinemap[sweeps]'"
+DASK_HINT = "install dask.distributed with: pip install 'dask[distributed]'"
 
 
 class SweepError(OnlineMapError):
@@ -37,7 +37,7 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     ``distributed.Client``, a scheduler address (``"tcp://host:8786"``) or None. With no
     client, ``workers`` = 0 runs the tasks one by one in this process; otherwise a local
     dask cluster of ``workers`` processes (default: one per CPU, at most one per task) is
-    started and closed afterwards. out: also write the table (.parquet or .csv).
+    started and closed afterwards. out: also write the table (.csv, or .parquet with pyarrow).
     results_dir: where finished tasks are kept (default ``OUT.parts`` beside ``out``; with
     neither, results live only in memory and nothing resumes). Tasks already there are
     skipped. Raises :class:`SweepError` (after keeping every finished task) if tasks failed.
