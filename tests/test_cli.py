@@ -239,3 +239,47 @@ def test_workers_0_runs_in_this_process(args, monkeypatch):
     monkeypatch.setattr(engines, "_run_dask", lambda *a, **k: pytest.fail("ran on dask"))
     code, out, err = cli(args + ["--workers", "0", "--no-progress"])
     assert code == 0, err
+
+
+FLOOR_PLAN = "door,floor_plan=0.9,p_door=0.01"
+FLOOR_PLAN_COMMANDS = [
+    ["run", "--world", FLOOR_PLAN, "--estimators", "bk", "--steps", "3"],
+    ["explore", "--world", FLOOR_PLAN, "--planner", "random", "--steps", "3", "-o", "n_particles=5"],
+    ["track", "--world", FLOOR_PLAN, "--estimator", "bk"],
+]
+
+
+@pytest.mark.parametrize("args", FLOOR_PLAN_COMMANDS, ids=[a[0] for a in FLOOR_PLAN_COMMANDS])
+def test_every_command_reads_the_floor_plan_world_key(args, monkeypatch):
+    """Regression (issue 24 item 14): ``--world door,floor_plan=0.9`` was an unknown option."""
+    import io
+    monkeypatch.setattr(sys, "stdin", io.StringIO('{"observation": "free"}\n'))
+    code, out, err = cli(args + ["--no-progress"])
+    assert code == 0, err
+
+
+def test_the_floor_plan_key_is_the_policies_prior_and_needs_a_fixed_map():
+    import policies
+    from onlinemap.worlds import parse_world
+    world = parse_world(FLOOR_PLAN)
+    model, true_map = om.door_world(p_door=0.01)
+    np.testing.assert_array_equal(world.model.label_prior, policies.with_floor_plan(model, true_map, 0.9).label_prior)
+    assert world.floor_plan == 0.9 and parse_world("door").floor_plan is None
+    for spec, words in [("corridor:8,floor_plan=0.9", "fixed map"), ("door,floor_plan=0.1", "floor_plan=0.1"),
+                        ("building:10x10,cell_size=2", "for a building world")]:
+        with pytest.raises(om.ModelError, match=words):
+            parse_world(spec)
+    code, _, err = cli(["explore", "--world", FLOOR_PLAN, "--floor-plan", "0.8", "--steps", "2"])
+    assert_one_line_error(code, err, "floor plan once")
+
+
+@pytest.mark.parametrize("command", ["run", "compare", "track", "explore"])
+def test_every_world_help_lists_every_key(command):
+    from onlinemap.cli import build_parser
+    from onlinemap.worlds import KIND_KEYS
+    parser = build_parser(command).commands[command]
+    (action,) = [a for a in parser._actions if "--world" in a.option_strings]
+    for key in sorted({key for keys in KIND_KEYS.values() for key in keys}):
+        assert key in action.help, (command, key)
+    for kind in ("corridor:N", "grid:RxC", "door", "building:RxC", "layout:PATH"):
+        assert kind in action.help

@@ -289,3 +289,17 @@ def test_failed_save_reports_one_line_and_keeps_the_previous_file(tmp_path, monk
     assert len(failures) == 1 and failures[0]["t"] == 3 and "No space left" in failures[0]["message"]
     assert [e["t"] for e in lines if e.get("event") == "checkpoint"] == [1, 4]
     assert om.load(ck).t == 4
+
+
+def test_start_event_gives_the_footprint_in_reading_order_and_a_list_gets_a_hint(monkeypatch, capsys):
+    """Regression (issue 24 item 14): the start event did not say in which order an observation
+    lists its readings, and a list observation on a one-cell sensor said only 'int index'."""
+    monkeypatch.setattr(sys, "stdin", io.StringIO('{"observation": ["free", "wall", "free", "free", "wall"]}\n'))
+    assert main(["track", "--world", "door,footprint=cross", "--estimator", "bk"]) == 0
+    start = json.loads(capsys.readouterr().err.splitlines()[0])
+    model = parse_world("door,footprint=cross").model
+    assert start["footprint"] == [[0, 0], [-1, 0], [0, 1], [1, 0], [0, -1]] == [list(o) for o in model.footprint]
+    assert track_in_process(monkeypatch, [], '{"observation": [0]}\n') == 0
+    start, error = [json.loads(line) for line in capsys.readouterr().err.splitlines()]
+    assert start["footprint"] == [[0, 0]]
+    assert error["error"] == "InvalidObservationError" and "footprint=cross" in error["message"]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..errors import ModelError
 from ..evaluate import TIMING_NOTE, from_steps
-from ..worlds import parse_world
+from ..worlds import parse_world, world_help
 from .common import OPTION_HELP, non_negative_int, open_unit_interval, parse_options, positive_int, print_table, split_list, write_table
 
 #: the paper's world: the built-in 10 x 10 door world, uniform label prior, p_move 0.8
@@ -31,11 +31,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "explore_steps.csv, explore_runs.csv, explore_summary.csv, explore_errors.png and "
                     "explore_visits.png there (and explore.parts/: a rerun resumes).")
     p.add_argument("--world", default=DEFAULT_WORLD,
-                   help=f"world spec (see `onlinemap run --help`); default {DEFAULT_WORLD} (the paper's: the "
-                        f"built-in door world, uniform label prior)")
+                   help=f"default {DEFAULT_WORLD} (the paper's: the built-in door world, uniform label prior); "
+                        f"{world_help()}")
     p.add_argument("--floor-plan", type=float, default=None, metavar="CONFIDENCE",
-                   help="give the robot a label prior from the world's own map: CONFIDENCE on each cell's "
-                        "label, door states unknown (policies.with_floor_plan); default: the uniform prior")
+                   help="give the robot a label prior from each run's true map: CONFIDENCE on each cell's "
+                        "label, door states unknown (onlinemap.worlds.with_floor_plan; also for worlds whose "
+                        "map is drawn per seed, unlike the world key floor_plan); default: the world's prior")
     p.add_argument("--planner", default=DEFAULT_PLANNERS,
                    help=f"comma-separated registered planners: {', '.join(PLANNERS)} (default {DEFAULT_PLANNERS})")
     p.add_argument("--estimator", default="rbpf", help="registry name of the estimator (default rbpf)")
@@ -77,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
     if unknown or not planners:
         raise ModelError(f"--planner: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(PLANNERS)}")
     world = parse_world(args.world)
+    if args.floor_plan is not None and world.floor_plan is not None:
+        raise ModelError(f"--floor-plan {args.floor_plan} and --world {args.world}: give the floor plan once")
     out = Path(args.out) if args.out else None
     given = parse_options(args.option)
     options = ", ".join(f"{key}={value}" for key, value in given.items()) or "its default options"

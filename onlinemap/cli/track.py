@@ -11,7 +11,9 @@ and ``map_marginal`` (N x K). Floats are printed to full precision.
 A malformed line (bad JSON, missing or unknown key, invalid or impossible action or
 observation) gets one JSON line on stderr, ``{"line": n, "error": type, "message": ...}``,
 changes nothing, and the process keeps reading. Informational events (start, resume,
-checkpoint written) are JSON lines on stderr too.
+checkpoint written) are JSON lines on stderr too; the start (or resume) event names the world's
+``actions`` and ``labels`` in index order and its sensor ``footprint``: the (drow, dcol)
+offsets in the order an observation lists its readings (``[[0, 0]]``: one reading, a label).
 
 A line longer than :data:`MAX_LINE` characters, with more than :data:`MAX_BRACKETS` brackets,
 or not UTF-8 is refused the same way (memory stays bounded; messages quote at most a short
@@ -49,7 +51,7 @@ from ..errors import CheckpointError, OnlineMapError
 from ..estimators import load, make_estimator
 from ..metrics import map_entropy, normalized_entropy
 from ..model import model_difference
-from ..worlds import parse_world
+from ..worlds import parse_world, world_help
 from .common import OPTION_HELP, parse_options
 
 _KEYS = ("action", "observation")
@@ -66,9 +68,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                        description="Read {\"action\": A, \"observation\": Z} lines on stdin (A by index or "
                                    "name, omitted on the first line), write one JSON belief summary per step "
                                    "on stdout; errors and events go to stderr as JSON lines.")
-    p.add_argument("--world", required=True,
-                   help="world spec: corridor:N[,p_change=..,n_labels=..], grid:RxC, door[,p_door=..], "
-                        "building:RxC[,seed=..], layout:PATH[,cell_size=..]")
+    p.add_argument("--world", required=True, help=world_help())
     p.add_argument("--estimator", required=True, help="registry name (exact, dead_reckoning, bk, rbpf, ...)")
     p.add_argument("-o", "--option", action="append", default=[], metavar="KEY=VALUE",
                    help=f"estimator option, repeatable; {OPTION_HELP}")
@@ -206,8 +206,8 @@ def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int
                 "resume"
     model = world.model
     _emit(stderr, {"event": event, "t": est.t, "world": args.world, "estimator": est.name,
-                   "options": options,
-                   "actions": list(model.action_names), "labels": list(model.label_names)})
+                   "options": options, "actions": list(model.action_names), "labels": list(model.label_names),
+                   "footprint": [list(offset) for offset in model.footprint]})
     saved, status = [est.t], 0
     with _GracefulStop() as stop:
         try:
