@@ -237,24 +237,27 @@ def test_long_value_is_quoted_as_an_excerpt(monkeypatch, capsys):
     assert "InvalidObservationError" in err and "characters)" in err and len(err) < 2000
 
 
-def test_closed_stdout_exits_quietly_without_saving_undelivered_steps(tmp_path):
-    """Regression (issue 14 item 6): ``| head -1``: exit quietly; the checkpoint holds no step whose
-    output could not be written."""
+def test_closed_stdout_saves_every_delivered_step_and_no_other(tmp_path):
+    """Regression (issue 14 item 6, issue 24 item 7): ``| head -1``: exit quietly; the checkpoint
+    holds every step written to the pipe and none whose output could not be written. (Issue 24:
+    no checkpoint was written at all, although step 0 was delivered.)"""
     ck = tmp_path / "ck.npz"
-    lines = [json.dumps({"observation": 0})] + [json.dumps({"action": 1, "observation": t % 2}) for t in range(5000)]
-    shell = (f"{sys.executable} -m onlinemap track --world {WORLD} --estimator exact --checkpoint {ck} --every 7 "
+    model = parse_world(WORLD).model
+    run = random_run(model, 3000, seed=5)
+    shell = (f"{sys.executable} -m onlinemap track --world {WORLD} --estimator exact --checkpoint {ck} --every 700 "
              f"| head -1")
-    done = subprocess.run(["bash", "-o", "pipefail", "-c", shell], input="\n".join(lines) + "\n",
-                          capture_output=True, text=True, timeout=120)
+    done = subprocess.run(["bash", "-o", "pipefail", "-c", shell], input="\n".join(lines_of(model, run)) + "\n",
+                          capture_output=True, text=True, timeout=300)
     assert done.returncode == 0 and "Traceback" not in done.stderr and "Exception" not in done.stderr, done.stderr
     assert json.loads(done.stdout)["t"] == 0
     events = [json.loads(line) for line in done.stderr.splitlines()]
-    closed = [e for e in events if e.get("event") == "stdout closed"]
-    assert len(closed) == 1
-    saved = [e["t"] for e in events if e.get("event") == "checkpoint"]
-    assert closed[0]["t"] == (saved[-1] if saved else -1)
-    if saved:  # every saved step was written to the pipe before its checkpoint
-        assert om.load(ck).t == saved[-1]
+    (closed,) = [e for e in events if e.get("event") == "stdout closed"]
+    assert closed["undelivered"] == 1  # the step whose output met the closed pipe
+    assert [e["t"] for e in events if e.get("event") == "checkpoint"][-1] == closed["t"] >= 0
+    saved = om.load(ck)  # exactly the state after the delivered steps, bit for bit
+    assert saved.t == closed["t"]
+    want = reference("exact", [], random_run(model, 3000, seed=5))[closed["t"]]
+    assert json.loads(json.dumps(summarize(saved.belief, full=True))) == want
 
 
 def test_unwritable_checkpoint_is_refused_at_start(tmp_path, monkeypatch, capsys):

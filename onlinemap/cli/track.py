@@ -18,7 +18,9 @@ offsets in the order an observation lists its readings (``[[0, 0]]``: one readin
 A line longer than :data:`MAX_LINE` characters, with more than :data:`MAX_BRACKETS` brackets,
 or not UTF-8 is refused the same way (memory stays bounded; messages quote at most a short
 excerpt of the input). If stdout is closed (``| head -1``), the process exits quietly with
-status 0; the step whose output could not be written is not saved.
+status 0, and with ``--checkpoint`` saves every step whose output was written and not the one
+whose output met the closed pipe: the state after the last delivered step is rebuilt from the
+last checkpoint (or the start) and the inputs since (:class:`_Delivered`, bit for bit).
 
 With ``--checkpoint FILE``, the state is saved atomically every ``--every K`` steps, at the
 end of the input and on SIGTERM or SIGINT. Signals stop the loop between steps, never inside
@@ -48,7 +50,7 @@ from pathlib import Path
 from .. import checkpoint
 from ..belief import Belief
 from ..errors import CheckpointError, OnlineMapError
-from ..estimators import load, make_estimator
+from ..estimators import fork, load, make_estimator
 from ..metrics import map_entropy, normalized_entropy
 from ..model import model_difference
 from ..worlds import parse_world, world_help
@@ -208,15 +210,18 @@ def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int
     _emit(stderr, {"event": event, "t": est.t, "world": args.world, "estimator": est.name,
                    "options": options, "actions": list(model.action_names), "labels": list(model.label_names),
                    "footprint": [list(offset) for offset in model.footprint]})
-    saved, status = [est.t], 0
+    delivered, status = _Delivered(est, args.checkpoint), 0
     with _GracefulStop() as stop:
         try:
-            _loop(est, args, every, stop, stdin, stdout, stderr, saved)
-        except BrokenPipeError:  # the reader is gone: the last step was not delivered, so it is not saved
+            _loop(est, args, every, stop, stdin, stdout, stderr, delivered)
+        except BrokenPipeError:  # the reader is gone: save what it was given, not the step it missed
             _quiet_stdout(stdout)
-            _emit(stderr, {"event": "stdout closed", "t": saved[0], "unsaved": est.t - saved[0]})
-            return 0
-        if args.checkpoint is not None and est.t != saved[0] and not _save(est, args.checkpoint, stderr):
+            _emit(stderr, {"event": "stdout closed", "t": delivered.t, "undelivered": est.t - delivered.t})
+            if args.checkpoint is not None and delivered.t != delivered.saved_t and \
+                    not _save(delivered.state(), args.checkpoint, stderr):
+                status = 1
+            return status
+        if args.checkpoint is not None and est.t != delivered.saved_t and not _save(est, args.checkpoint, stderr):
             status = 1
     if stop.requested is not None:
         _emit(stderr, {"event": "stopped", "signal": signal.Signals(stop.requested).name, "t": est.t})
@@ -224,9 +229,40 @@ def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int
     return status
 
 
-def _loop(est, args, every: int, stop: "_GracefulStop", stdin, stdout, stderr, saved: list[int]) -> None:
-    """Step through the input until its end or a stop signal; ``saved[0]`` is the step of the
-    last checkpoint written. Every step is printed before any checkpoint that includes it."""
+class _Delivered:
+    """The estimator as of the last step whose output was written: a copy taken at the last
+    checkpoint (or at the start) and the inputs stepped since. Replaying them on the copy gives,
+    bit for bit, the state the estimator had after that step (as a checkpoint resumes). Memory:
+    one copy of the state and the inputs of at most ``--every`` steps (while saves succeed);
+    nothing without ``--checkpoint``."""
+
+    def __init__(self, est, path: Path | None) -> None:
+        self.t = est.t  # the last step delivered
+        self.saved_t = est.t  # the step of the last checkpoint written (or loaded)
+        self._base = fork(est) if path is not None else None
+        self._inputs: list[tuple[object, object]] = []
+
+    def stepped(self, t: int, action, observation) -> None:
+        """Step ``t``, ``(action, observation)``, was delivered."""
+        self.t = t
+        if self._base is not None:
+            self._inputs.append((action, observation))
+
+    def saved(self, est) -> None:
+        """``est`` (every step delivered) was saved."""
+        self.saved_t = est.t
+        self._base, self._inputs = fork(est), []
+
+    def state(self):
+        """The estimator after the last delivered step (consumes the copy: call once, at the end)."""
+        for action, observation in self._inputs:
+            self._base.step(action, observation)
+        return self._base
+
+
+def _loop(est, args, every: int, stop: "_GracefulStop", stdin, stdout, stderr, delivered: _Delivered) -> None:
+    """Step through the input until its end or a stop signal. Every step is printed before any
+    checkpoint that includes it (``delivered`` keeps track)."""
     try:
         for number, line in read_lines(stdin, stop):
             if isinstance(line, OnlineMapError):
@@ -236,13 +272,15 @@ def _loop(est, args, every: int, stop: "_GracefulStop", stdin, stdout, stderr, s
             if not text:
                 continue
             try:
-                belief = est.step(*parse_line(text))
+                step = parse_line(text)
+                belief = est.step(*step)
             except OnlineMapError as error:
                 _emit(stderr, {"line": number, "error": type(error).__name__, "message": _excerpt(str(error))})
                 continue
             _emit(stdout, summarize(belief, args.full))  # a closed stdout raises BrokenPipeError here
+            delivered.stepped(belief.t, *step)
             if args.checkpoint is not None and (belief.t + 1) % every == 0 and _save(est, args.checkpoint, stderr):
-                saved[0] = est.t
+                delivered.saved(est)
     except _Stopped:  # a signal while waiting for input
         pass
 
