@@ -306,3 +306,19 @@ def test_start_event_gives_the_footprint_in_reading_order_and_a_list_gets_a_hint
     start, error = [json.loads(line) for line in capsys.readouterr().err.splitlines()]
     assert start["footprint"] == [[0, 0]]
     assert error["error"] == "InvalidObservationError" and "footprint=cross" in error["message"]
+
+
+def test_temporaries_of_a_killed_save_are_removed_at_start(tmp_path, monkeypatch, capsys):
+    """Regression (issue 24 item 7): ``kill -9`` during a save left ``.NAME.*.tmp`` files that piled
+    up over restarts. Only this checkpoint's are removed: another process may be saving beside it."""
+    ck = tmp_path / "ck.npz"
+    mine = [tmp_path / ".ck.npz.k1l2m3.tmp", tmp_path / ".ck.npz.x9y8z7.tmp"]
+    others = [tmp_path / ".other.npz.a1b2c3.tmp", tmp_path / "ck.npz.notes.tmp"]
+    for path in mine + others:
+        path.write_bytes(b"half a file")
+    assert track_in_process(monkeypatch, ["--checkpoint", str(ck)], '{"observation": 0}\n') == 0
+    assert not any(path.exists() for path in mine) and all(path.exists() for path in others)
+    events = [json.loads(line) for line in capsys.readouterr().err.splitlines()]
+    assert events[0] == {"event": "removed temporaries", "count": 2, "path": str(ck)}
+    assert track_in_process(monkeypatch, ["--checkpoint", str(ck)], "") == 0  # nothing left: no event
+    assert json.loads(capsys.readouterr().err.splitlines()[0])["event"] == "resume"

@@ -25,7 +25,8 @@ last checkpoint (or the start) and the inputs since (:class:`_Delivered`, bit fo
 With ``--checkpoint FILE``, the state is saved atomically every ``--every K`` steps, at the
 end of the input and on SIGTERM or SIGINT. Signals stop the loop between steps, never inside
 one nor inside a save (a second signal does the same as the first); every step printed is in
-the final checkpoint. The path is checked writable at start-up; a save that fails later (full
+the final checkpoint. The path is checked writable at start-up, and temporary files of saves
+that a ``kill -9`` cut short (``.NAME.*.tmp`` beside it) are removed; a save that fails later (full
 disk) reports one JSON error line, keeps the previous file and the loop goes on (the exit
 status is 1 if the final save failed). A restarted process finds the file and resumes from it
 (the next line is step ``t + 1``), after checking that the world, estimator and options are the
@@ -48,6 +49,7 @@ import threading
 from pathlib import Path
 
 from .. import checkpoint
+from ..atomic import remove_temporaries
 from ..belief import Belief
 from ..errors import CheckpointError, OnlineMapError
 from ..estimators import fork, load, make_estimator
@@ -203,6 +205,10 @@ def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int
     event = "start"
     if args.checkpoint is not None:
         checkpoint.check_writable(args.checkpoint)  # fail now, not after the first K steps
+        target = Path(os.path.realpath(args.checkpoint))  # a symlink's temporaries are beside its target
+        removed = remove_temporaries(target.parent, target.name)  # of saves a kill -9 cut short
+        if removed:
+            _emit(stderr, {"event": "removed temporaries", "count": removed, "path": str(args.checkpoint)})
         if os.path.lexists(args.checkpoint):
             est, event = _resume(args.checkpoint, args.estimator, world, options, args.allow_newer_checkpoint), \
                 "resume"
