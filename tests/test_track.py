@@ -322,3 +322,35 @@ def test_temporaries_of_a_killed_save_are_removed_at_start(tmp_path, monkeypatch
     assert events[0] == {"event": "removed temporaries", "count": 2, "path": str(ck)}
     assert track_in_process(monkeypatch, ["--checkpoint", str(ck)], "") == 0  # nothing left: no event
     assert json.loads(capsys.readouterr().err.splitlines()[0])["event"] == "resume"
+
+
+SIGNAL_AT_START = """\
+import os, signal, sys
+import onlinemap.cli.track as track
+real = track.{where}
+
+def interrupted(*args, **kwargs):  # the signal arrives while the process starts up
+    os.kill(os.getpid(), signal.{signal})
+    return real(*args, **kwargs)
+
+track.{where} = interrupted
+from onlinemap.cli import main
+sys.exit(main({argv!r}))
+"""
+
+
+@pytest.mark.parametrize("where", ["make_estimator", "load"])
+@pytest.mark.parametrize("number, status", [(signal.SIGTERM, 0), (signal.SIGINT, 130)], ids=["SIGTERM", "SIGINT"])
+def test_a_signal_during_start_up_stops_cleanly(tmp_path, where, number, status):
+    """Regression (issue 24 item 7): SIGINT while building the estimator or resuming printed a
+    traceback (or one non-JSON line) and SIGTERM killed the process without a word."""
+    ck = tmp_path / "ck.npz"
+    om.save(om.make_estimator("exact", parse_world(WORLD).model), ck)  # resumed: `load` runs at start-up
+    argv = ["track", "--world", WORLD, "--estimator", "exact", "--checkpoint", str(ck)]
+    code = SIGNAL_AT_START.format(where=where, signal=signal.Signals(number).name, argv=argv)
+    done = subprocess.run([sys.executable, "-c", code], input='{"observation": 0}\n', capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == status and done.stdout == "", done.stderr  # no line read
+    events = [json.loads(line) for line in done.stderr.splitlines()]
+    assert [e["event"] for e in events] == ["resume", "stopped"]
+    assert events[-1] == {"event": "stopped", "signal": signal.Signals(number).name, "t": -1}

@@ -79,8 +79,12 @@ def main(argv: list[str] | None = None) -> int:
     """Run the command line on ``argv`` (default ``sys.argv[1:]``); returns the exit status.
     Usage errors raise ``SystemExit(2)`` after one line on stderr, as argparse does."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(chosen_command(argv))
-    args, unknown = parser.parse_known_args(argv)
+    try:
+        parser = build_parser(chosen_command(argv))  # imports the command's module
+        args, unknown = parser.parse_known_args(argv)
+    except KeyboardInterrupt:
+        print("onlinemap: interrupted", file=sys.stderr)
+        return 130
     if unknown:  # reported by the command's parser, so that the message points at its --help
         parser.commands[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
     if args.no_progress:

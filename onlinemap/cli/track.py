@@ -25,7 +25,10 @@ last checkpoint (or the start) and the inputs since (:class:`_Delivered`, bit fo
 With ``--checkpoint FILE``, the state is saved atomically every ``--every K`` steps, at the
 end of the input and on SIGTERM or SIGINT. Signals stop the loop between steps, never inside
 one nor inside a save (a second signal does the same as the first); every step printed is in
-the final checkpoint. The path is checked writable at start-up, and temporary files of saves
+the final checkpoint. From the start of the command on (building the world and the estimator,
+resuming from the checkpoint), a signal is recorded the same way: the process emits its start
+event and stops before reading input. Only while Python imports the package (``import
+onlinemap``, before any of this module runs) do the interpreter's defaults apply. The path is checked writable at start-up, and temporary files of saves
 that a ``kill -9`` cut short (``.NAME.*.tmp`` beside it) are removed; a save that fails later (full
 disk) reports one JSON error line, keeps the previous file and the loop goes on (the exit
 status is 1 if the final save failed). A restarted process finds the file and resumes from it
@@ -195,6 +198,29 @@ def read_lines(stream, stop: "_GracefulStop", limit: int = MAX_LINE):
 
 def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int:
     stdin, stdout, stderr = stdin or sys.stdin, stdout or sys.stdout, stderr or sys.stderr
+    with _GracefulStop() as stop:  # from the start: a signal during start-up (resume included) stops cleanly
+        est, every = _start(args, stderr)
+        delivered, status = _Delivered(est, args.checkpoint), 0
+        try:
+            _loop(est, args, every, stop, stdin, stdout, stderr, delivered)
+        except BrokenPipeError:  # the reader is gone: save what it was given, not the step it missed
+            _quiet_stdout(stdout)
+            _emit(stderr, {"event": "stdout closed", "t": delivered.t, "undelivered": est.t - delivered.t})
+            if args.checkpoint is not None and delivered.t != delivered.saved_t and \
+                    not _save(delivered.state(), args.checkpoint, stderr):
+                status = 1
+            return status
+        if args.checkpoint is not None and est.t != delivered.saved_t and not _save(est, args.checkpoint, stderr):
+            status = 1
+    if stop.requested is not None:
+        _emit(stderr, {"event": "stopped", "signal": signal.Signals(stop.requested).name, "t": est.t})
+        return 130 if stop.requested == signal.SIGINT else status
+    return status
+
+
+def _start(args: argparse.Namespace, stderr):
+    """Check the arguments, build the estimator (or resume it from the checkpoint), emit the start
+    event; returns ``(estimator, every)``."""
     if args.every is not None and (args.checkpoint is None or args.every < 1):
         raise OnlineMapError("--every K needs --checkpoint FILE and K >= 1")
     every = args.every or 100
@@ -216,23 +242,7 @@ def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int
     _emit(stderr, {"event": event, "t": est.t, "world": args.world, "estimator": est.name,
                    "options": options, "actions": list(model.action_names), "labels": list(model.label_names),
                    "footprint": [list(offset) for offset in model.footprint]})
-    delivered, status = _Delivered(est, args.checkpoint), 0
-    with _GracefulStop() as stop:
-        try:
-            _loop(est, args, every, stop, stdin, stdout, stderr, delivered)
-        except BrokenPipeError:  # the reader is gone: save what it was given, not the step it missed
-            _quiet_stdout(stdout)
-            _emit(stderr, {"event": "stdout closed", "t": delivered.t, "undelivered": est.t - delivered.t})
-            if args.checkpoint is not None and delivered.t != delivered.saved_t and \
-                    not _save(delivered.state(), args.checkpoint, stderr):
-                status = 1
-            return status
-        if args.checkpoint is not None and est.t != delivered.saved_t and not _save(est, args.checkpoint, stderr):
-            status = 1
-    if stop.requested is not None:
-        _emit(stderr, {"event": "stopped", "signal": signal.Signals(stop.requested).name, "t": est.t})
-        return 130 if stop.requested == signal.SIGINT else status
-    return status
+    return est, every
 
 
 class _Delivered:
