@@ -354,3 +354,28 @@ def test_a_signal_during_start_up_stops_cleanly(tmp_path, where, number, status)
     events = [json.loads(line) for line in done.stderr.splitlines()]
     assert [e["event"] for e in events] == ["resume", "stopped"]
     assert events[-1] == {"event": "stopped", "signal": signal.Signals(number).name, "t": -1}
+
+
+def test_action_errors_speak_of_lines_and_unknown_or_repeated_keys_are_refused(monkeypatch, capsys):
+    """Regression (issue 24 item 18): the first-step error spoke Python ("call step(None, z0)"); a
+    key the protocol does not have (a robot's timestamp) or a key given twice must refuse the
+    line, change nothing, and not echo the value."""
+    lines = ['{"action": 1, "observation": 0}', '{"observation": 0, "timestamp": 1700000000.25}',
+             '{"observation": 0, "observation": 1}', '{"observation": 0}', '{"observation": 1}',
+             '{"action": 1, "observation": 1, "stamp": "' + "9" * 5000 + '"}', '{"action": 1, "observation": 1}']
+    assert track_in_process(monkeypatch, [], "\n".join(lines) + "\n") == 0
+    out, err = capsys.readouterr()
+    assert [json.loads(line)["t"] for line in out.splitlines()] == [0, 1]
+    errors = [json.loads(line) for line in err.splitlines()[1:]]
+    assert [(e["line"], e["error"]) for e in errors] == [
+        (1, "InvalidActionError"), (2, "MalformedLineError"), (3, "MalformedLineError"), (5, "InvalidActionError"),
+        (6, "MalformedLineError")]
+    first, timestamp, twice, missing, long_key = (e["message"] for e in errors)
+    assert "step(" not in first and "z0" not in first and '{"observation": Z}' in first
+    assert "'timestamp'" in timestamp and "1700000000" not in timestamp
+    assert "'observation' given twice" in twice
+    assert 'needs an action' in missing and '"action"' in missing and "step(" not in missing
+    assert "'stamp'" in long_key and len(long_key) < 200
+    reference_est = om.make_estimator("exact", parse_world(WORLD).model)  # the refused lines changed nothing
+    reference_est.step(None, 0)
+    assert json.loads(out.splitlines()[1]) == json.loads(json.dumps(summarize(reference_est.step(1, 1))))

@@ -8,7 +8,7 @@ cell (``map``), the mean normalised ``map_entropy``, ``log_evidence`` (null wher
 ``effective_sample_size`` for particle filters; with ``--full`` also ``location_marginal`` (N,)
 and ``map_marginal`` (N x K). Floats are printed to full precision.
 
-A malformed line (bad JSON, missing or unknown key, invalid or impossible action or
+A malformed line (bad JSON, a missing, unknown or repeated key, invalid or impossible action or
 observation) gets one JSON line on stderr, ``{"line": n, "error": type, "message": ...}``,
 changes nothing, and the process keeps reading. Informational events (start, resume,
 checkpoint written) are JSON lines on stderr too; the start (or resume) event names the world's
@@ -54,7 +54,7 @@ from pathlib import Path
 from .. import checkpoint
 from ..atomic import remove_temporaries
 from ..belief import Belief
-from ..errors import CheckpointError, OnlineMapError
+from ..errors import CheckpointError, InvalidActionError, OnlineMapError
 from ..estimators import fork, load, make_estimator
 from ..metrics import map_entropy, normalized_entropy
 from ..model import model_difference
@@ -89,14 +89,27 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=track)
 
 
+def _object(pairs: list[tuple[str, object]]) -> dict[str, object]:
+    """A JSON object whose keys are all different (``json.loads`` would keep the last of two)."""
+    record = dict(pairs)
+    if len(record) < len(pairs):
+        twice = next(key for i, (key, _) in enumerate(pairs) if key in dict(pairs[:i]))
+        raise MalformedLineError(f"{_excerpt(repr(twice), 40)} given twice")
+    return record
+
+
 def parse_line(text: str) -> tuple[object, object]:
-    """One input line -> ``(action, observation)``, unvalidated (the estimator checks them)."""
+    """One input line -> ``(action, observation)``, unvalidated (the estimator checks them). A
+    key other than ``action`` and ``observation`` (a timestamp, say), or one given twice, refuses
+    the line: nothing a robot sends is silently dropped."""
     brackets = text.count("[") + text.count("{")
     if brackets > MAX_BRACKETS:
         raise MalformedLineError(f"{brackets} brackets; a record is one object like "
                                  "{\"action\": 1, \"observation\": 0}")
     try:
-        record = json.loads(text)
+        record = json.loads(text, object_pairs_hook=_object)
+    except MalformedLineError:  # a key given twice (a ValueError too: not "invalid JSON")
+        raise
     except (ValueError, RecursionError) as error:
         raise MalformedLineError(f"invalid JSON: {_excerpt(str(error))}") from None
     if not isinstance(record, dict):
@@ -104,10 +117,22 @@ def parse_line(text: str) -> tuple[object, object]:
                                  f"got {type(record).__name__}")
     unknown = sorted(set(record) - set(_KEYS))
     if unknown:
-        raise MalformedLineError(f"unknown key(s) {', '.join(map(repr, unknown))}; expected 'action', 'observation'")
+        names = ", ".join(_excerpt(repr(key), 40) for key in unknown[:3]) + (", ..." if len(unknown) > 3 else "")
+        raise MalformedLineError(f"unknown key(s) {names}; a line has only 'action' and 'observation'")
     if "observation" not in record:
         raise MalformedLineError("missing 'observation'")
     return record.get("action"), record["observation"]
+
+
+def check_action(t: int, action, model) -> None:
+    """The action rule of step ``t`` in the words of the line protocol: none on the first line, one
+    on every later line. Raises :class:`InvalidActionError`."""
+    if t == 0 and action is not None:
+        raise InvalidActionError(f"the first step takes no action (got {_excerpt(repr(action), 40)}): the "
+                                 "first line is {\"observation\": Z} alone, before the robot moves")
+    if t > 0 and action is None:
+        raise InvalidActionError(f"step {t} needs an action: {{\"action\": A, \"observation\": Z}}, A one of "
+                                 f"{list(model.action_names)} or its index")
 
 
 def _number(x: float) -> float | None:
@@ -289,6 +314,7 @@ def _loop(est, args, every: int, stop: "_GracefulStop", stdin, stdout, stderr, d
                 continue
             try:
                 step = parse_line(text)
+                check_action(est.t + 1, step[0], est.model)
                 belief = est.step(*step)
             except OnlineMapError as error:
                 _emit(stderr, {"line": number, "error": type(error).__name__, "message": _excerpt(str(error))})
