@@ -48,7 +48,9 @@ def plot_errors(table: pd.DataFrame, axes=None, columns=("map_error", "door_erro
 
 def plot_visits(model: GridModel, true_map, table: pd.DataFrame, axes=None) -> "Figure":
     """The world with the visit counts of each planner (summed over seeds, square-root colour
-    scale, unvisited cells white); walls shaded grey, doors outlined in red. ``axes``: one per planner (created when None)."""
+    scale, unvisited cells white); walls shaded grey, doors outlined in red, and in a world of
+    other labels each cell's label written in it. ``true_map``: the map the runs used (None when
+    they used different maps: the counts alone). ``axes``: one per planner (created when None)."""
     from matplotlib.colors import PowerNorm
     from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle
@@ -57,15 +59,15 @@ def plot_visits(model: GridModel, true_map, table: pd.DataFrame, axes=None) -> "
     if axes is None:
         figure = Figure(figsize=(3.6 * len(planners), 3.6), layout="constrained")
         axes = np.atleast_1d(figure.subplots(1, len(planners)))
-    labels = np.asarray(true_map).reshape(model.rows, model.cols)
-    doors = door_cells(model, np.asarray(true_map))
+    labels = None if true_map is None else np.asarray(true_map).reshape(model.rows, model.cols)
+    doors = np.empty(0, dtype=np.int64) if true_map is None else door_cells(model, np.asarray(true_map))
     door_share = ""
     for ax, planner in zip(axes, planners):
         where = table.loc[table["planner"] == planner, "true_location"].to_numpy()
         counts = np.bincount(where, minlength=model.n_cells).reshape(model.rows, model.cols)
         image = ax.imshow(np.ma.masked_equal(counts, 0), cmap="viridis",
                           norm=PowerNorm(0.5, vmin=0, vmax=max(1, counts.max())))
-        if model.label_names == DOOR_LABELS:
+        if labels is not None and model.label_names == DOOR_LABELS:
             walls = np.zeros(labels.shape + (4,))
             walls[labels == WALL] = (0.5, 0.5, 0.5, 0.6)
             ax.imshow(walls)
@@ -73,6 +75,10 @@ def plot_visits(model: GridModel, true_map, table: pd.DataFrame, axes=None) -> "
                 row, col = divmod(int(cell), model.cols)
                 ax.add_patch(Rectangle((col - 0.45, row - 0.45), 0.9, 0.9, fill=False, edgecolor="red", linewidth=2))
             door_share = f", {np.isin(where, doors).mean():.0%} of steps on doors"
-        ax.set(title=f"{planner}{door_share}", xticks=[], yticks=[])
+        elif labels is not None:
+            for (row, col), label in np.ndenumerate(labels):
+                ax.text(col, row, model.label_names[label], ha="center", va="center", fontsize=7, color="0.3")
+        ax.set(title=f"{planner}{door_share}" + ("" if labels is not None else "\n(a map per seed: not drawn)"),
+               xticks=[], yticks=[])
         ax.figure.colorbar(image, ax=ax, shrink=0.8, label="visits")
     return axes[0].figure

@@ -283,3 +283,26 @@ def test_every_world_help_lists_every_key(command):
         assert key in action.help, (command, key)
     for kind in ("corridor:N", "grid:RxC", "door", "building:RxC", "layout:PATH"):
         assert kind in action.help
+
+
+@pytest.mark.parametrize("repeats", [1, 2])
+def test_explore_draws_the_visits_over_the_map_the_runs_used(repeats, monkeypatch, tmp_path):
+    """Regression (issue 24 item 10): ``explore --world grid:3x3 --out DIR`` drew the visits over
+    ``initial_map(0)``, a map no run used (each run draws its own from its seed, stream 3)."""
+    import policies
+    from onlinemap.rng import derived_seed
+    drawn = []
+    real = policies.plot_visits
+    monkeypatch.setattr(policies, "plot_visits", lambda model, true_map, table: drawn.append(true_map) or
+                        real(model, true_map, table))
+    code, _, err = cli(["explore", "--world", "grid:3x3", "--planner", "random", "--steps", "4", "--seed", "4",
+                        "--repeats", str(repeats), "-o", "n_particles=5", "--out", str(tmp_path), "--no-progress"])
+    assert code == 0, err
+    world = om.worlds.parse_world("grid:3x3")
+    used = world.initial_map(np.random.default_rng(derived_seed(4, 3)))  # as the explore task draws it
+    assert not np.array_equal(used, world.initial_map(0))
+    if repeats == 1:
+        np.testing.assert_array_equal(drawn[0], used)
+    else:  # seeds 4 and 5 ran on different maps: none is drawn
+        assert drawn == [None]
+    assert (tmp_path / "explore_visits.png").stat().st_size > 0

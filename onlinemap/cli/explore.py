@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     from policies import PLANNERS, plot_errors, plot_visits
 
     from .. import plots
-    from ..sweeps import summarize, summary_table, sweep
+    from ..sweeps import played_map, summarize, summary_table, sweep
 
     if args.steps < 1 or args.repeats < 1 or args.workers < 0:
         raise ModelError("--steps and --repeats must be at least 1, --workers at least 0")
@@ -97,7 +97,10 @@ def run(args: argparse.Namespace) -> int:
     if out is not None:
         written = [write_table(steps, out / "explore_steps.csv"), write_table(runs, out / "explore_runs.csv"),
                    write_table(summary, out / "explore_summary.csv")]
-        true_map = world.initial_map(0)
+        # the map the runs used: the world's own, or the one drawn for the only seed (with several
+        # seeds each run has its own map: the visits are drawn without one)
+        true_map = world.true_map if world.true_map is not None or args.repeats > 1 else played_map(args.world,
+                                                                                                      args.seed)
         columns = [c for c in ("map_error", "door_error") if c in steps]
         written += [plots.save(plot_errors(steps, columns=columns), out / "explore_errors.png", dpi=110),
                     plots.save(plot_visits(world.model, true_map, steps), out / "explore_visits.png", dpi=110)]

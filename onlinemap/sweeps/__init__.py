@@ -67,7 +67,7 @@ The package, one job per module, imports running one way (``tasks`` <- ``spec``,
 """
 
 from .engines import SweepError, connect, local_cluster, sweep
-from .runner import derived_seed, run_task, scripted_trip, simulated_run, walk_actions, world
+from .runner import derived_seed, played_map, run_task, scripted_trip, simulated_run, walk_actions, world
 from .spec import MAX_SEED, MAX_STEPS, SpecError, load_spec, matches_annotation, parse_spec, spec_from_dict
 from .store import assemble, collect, default_results_dir, finished_tasks, read_part, write_part
 from .kinds import Played, TaskKind, register_kind, task_kind
@@ -76,7 +76,7 @@ from .tasks import CONFIG_COLUMNS, MAX_TASKS, TASK_COLUMNS, SweepSpec, Task, cou
 
 __all__ = [
     "sweep", "SweepError", "SpecError", "SweepSpec", "Task", "load_spec", "parse_spec", "spec_from_dict",
-    "matches_annotation", "run_task", "simulated_run", "scripted_trip", "walk_actions", "derived_seed", "world",
+    "matches_annotation", "run_task", "played_map", "simulated_run", "scripted_trip", "walk_actions", "derived_seed", "world",
     "collect", "assemble", "default_results_dir", "finished_tasks", "read_part", "write_part", "local_cluster", "connect",
     "summarize", "summary_table", "summary_wide", "plot_sweep", "last_steps", "expand", "count_tasks",
     "TaskKind", "Played", "register_kind", "task_kind",

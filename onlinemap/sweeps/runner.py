@@ -138,12 +138,22 @@ def attempt(task: Task) -> Outcome:
         return Outcome(None, f"{type(error).__name__}: {error}")
 
 
+PLAYED_MAP_STREAM = 3  # the stream of a task's seed that draws a played task's true map
+
+
+def played_map(world_spec: str, seed: int) -> np.ndarray:
+    """The true map a played task (``explore``, ...) of ``world_spec`` and ``seed`` runs in: the
+    world's fixed map, or one drawn from its prior with stream :data:`PLAYED_MAP_STREAM` of the
+    seed (so a figure can show the map a run used). Cost O(N)."""
+    return world(world_spec).initial_map(np.random.default_rng(derived_seed(seed, PLAYED_MAP_STREAM)))
+
+
 def _play(task: Task) -> Played:
-    """A task of a played kind, in its world: the true map drawn from the task's seed (stream 3),
-    the robot's model given the floor plan, then the kind's ``play``."""
+    """A task of a played kind, in its world: the true map (:func:`played_map`), the robot's model
+    given the floor plan, then the kind's ``play``."""
     kind = task_kind(task.kind)
     spec = world(task.world)
-    true_map = spec.initial_map(np.random.default_rng(derived_seed(task.seed, 3)))
+    true_map = played_map(task.world, task.seed)
     model = spec.model if task.floor_plan is None else kind.prior(spec.model, true_map, task.floor_plan)
     return kind.play(model, true_map, task)
 
