@@ -67,12 +67,15 @@ UNIT_METRICS = ("error", "_tv", "entropy", "p_true")  # names containing these l
 TIMING_NOTE = "ms_per_step: wall time per step, measured after a warm-up run (numba kernels compiled first)"
 
 
-def metric_bounds(name: str) -> tuple[float, float]:
-    """The range of a metric: [0, 1] for errors, distances, entropies and probabilities, [0, inf)
-    for counts and times, unbounded otherwise (log evidence)."""
+def metric_bounds(name: str, n_cells: int | None = None) -> tuple[float, float]:
+    """The range of a metric: [0, 1] for errors, distances, entropies and probabilities, [0, N]
+    for counts of cells in a world of ``n_cells`` = N (``wrong_cells``, ``unsure_or_wrong``, ...;
+    [0, inf) when N is not known), [0, inf) for times, unbounded otherwise (log evidence)."""
     if any(part in name for part in UNIT_METRICS):
         return 0.0, 1.0
-    if "wrong" in name or name == "ms_per_step":
+    if "wrong" in name:
+        return 0.0, math.inf if n_cells is None else float(n_cells)
+    if name == "ms_per_step":
         return 0.0, math.inf
     return -math.inf, math.inf
 

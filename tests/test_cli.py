@@ -305,4 +305,6 @@ def test_explore_draws_the_visits_over_the_map_the_runs_used(repeats, monkeypatc
         np.testing.assert_array_equal(drawn[0], used)
     else:  # seeds 4 and 5 ran on different maps: none is drawn
         assert drawn == [None]
+        summary = pd.read_csv(tmp_path / "explore_summary.csv").set_index("metric")
+        assert summary.loc["wrong_cells", "high"] <= 9  # issue 24 item 17: a count of 9 cells
     assert (tmp_path / "explore_visits.png").stat().st_size > 0

@@ -498,6 +498,20 @@ def test_intervals_of_bounded_metrics_stay_in_range():
     assert summary.loc["final_map_error", "high"] == pytest.approx(high)
 
 
+def test_intervals_of_cell_counts_stay_within_the_world():
+    """Regression (issue 24 item 17): wrong_cells printed 38.5 [0, 133.8] in a world of 100 cells."""
+    table = pd.DataFrame({"world": ["grid:3x3"] * 4 + ["corridor:20"] * 4, "estimator": "a", "seed": list(range(4)) * 2,
+                          "wrong_cells": [9, 0, 0, 0, 20, 0, 0, 0], "unsure_or_wrong": [9, 9, 0, 9] * 2})
+    summary = om.summarize(table, ["wrong_cells", "unsure_or_wrong"]).set_index(["world", "metric"])
+    t_high = {values: stats.t.interval(0.95, 3, loc=np.mean(values), scale=stats.sem(values))[1]
+              for values in [(9, 0, 0, 0), (9, 9, 0, 9), (20, 0, 0, 0)]}
+    assert t_high[(9, 0, 0, 0)] > 9 and t_high[(9, 9, 0, 9)] > 9 and t_high[(20, 0, 0, 0)] > 20  # past N
+    assert summary.loc[("grid:3x3", "wrong_cells"), ["low", "high"]].tolist() == [0.0, 9.0]
+    assert summary.loc[("grid:3x3", "unsure_or_wrong"), "high"] == 9.0
+    assert summary.loc[("corridor:20", "wrong_cells"), "high"] == 20.0
+    assert summary.loc[("corridor:20", "unsure_or_wrong"), "high"] == pytest.approx(t_high[(9, 9, 0, 9)])  # < 20
+
+
 def test_option_columns_are_typed_and_parts_assemble_without_the_spec(serial_table, tmp_path):
     assert serial_table["opt_n_particles"].dtype == "Int64"  # not floats beside exact's missing values
     assert serial_table["opt_n_particles"].isna().sum() == 2 * 2 * 3

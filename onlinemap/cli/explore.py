@@ -87,8 +87,8 @@ def run(args: argparse.Namespace) -> int:
           f" with {options}; {args.steps} steps, seeds {args.seed}..{args.seed + args.repeats - 1}")
     steps = sweep(exploration_spec(args, planners), workers=args.workers, progress=True,
                   results_dir=None if out is None else out / "explore.parts")
-    runs = from_steps(steps, ["planner", "seed"])
-    runs.insert(1, "kind", "explore")
+    runs = from_steps(steps, ["world", "planner", "seed"])  # the world: counts of cells are bounded by its N
+    runs.insert(2, "kind", "explore")
     metrics = [m for m in SUMMARY_METRICS if m in runs]
     summary = summarize(runs, metrics, args.confidence)
     print(f"mean [{args.confidence:.0%} confidence interval] over {args.repeats} seed(s), per planner:")
