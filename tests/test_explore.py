@@ -259,3 +259,23 @@ def test_cli_explore_on_dask_keeps_stderr_free_of_dask_logs(tmp_path):
                           cwd=tmp_path, timeout=300)
     assert done.returncode == 0, done.stderr
     assert "random" in done.stdout and "INFO" not in done.stderr, done.stderr
+
+
+def test_visits_share_one_colour_scale_show_unvisited_cells_and_name_doors():
+    """Regression (issue 24 item 17): each panel had its own colour scale, cells never visited were
+    white like the page, and nothing said what the red squares and grey cells were."""
+    import matplotlib.colors as colors
+    from policies import plot_visits
+
+    model, true_map = om.door_world()
+    table = pd.DataFrame({"planner": ["a"] * 3 + ["b"] * 40, "true_location": [0, 0, 1] + [0] * 40})
+    figure = plot_visits(model, true_map, table)
+    images = [image for axis in figure.axes for image in axis.images]
+    assert len(images) == 2 and {image.norm.vmax for image in images} == {40}  # one scale: b's 40 visits
+    unvisited = images[0].cmap.get_bad()
+    assert unvisited[3] == 1 and not np.allclose(unvisited[:3], 1)  # opaque, not white
+    assert np.ma.is_masked(images[0].get_array()[5, 5])  # a cell nobody visited takes that colour
+    (legend,) = figure.legends
+    assert [text.get_text() for text in legend.get_texts()] == ["never visited", "wall", "door (open or closed)"]
+    assert len(figure.axes) == 3  # two panels and one colour bar
+    assert colors.to_hex(unvisited) != colors.to_hex("white")
