@@ -473,6 +473,26 @@ def test_bad_command_lines_print_one_error_line_and_exit_2(tmp_path, capsys):
     assert "line 1: not UTF-8" in _one_error_line(capsys, ["sweep", str(latin), "--check"])
 
 
+def test_plot_of_particle_counts_is_logarithmic_and_its_legend_is_whole(serial_table):
+    """Regression (issue 24 item 17): particle counts on a linear axis, and a legend of many long
+    configurations cut off at the bottom of the figure."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    table = serial_table.assign(world=serial_table["world"].map(
+        lambda w: w + ",a_long_description_of_the_world_that_goes_on_and_on"))
+    table = pd.concat([table.assign(estimator=table["estimator"] + suffix) for suffix in ("", "_v2", "_v3")])
+    figure = sweeps.plot_sweep(table, "n_particles", ["mean_map_tv", "failed"])
+    assert figure.axes[0].get_xscale() == "log"  # 10 and 40 particles
+    figure.canvas.draw()
+    (legend,) = figure.legends
+    box, page = legend.get_window_extent(), figure.bbox
+    assert len(legend.get_texts()) > 10
+    assert page.x0 <= box.x0 and box.x1 <= page.x1 and page.y0 <= box.y0 and box.y1 <= page.y1
+    panels = [axis.get_window_extent() for axis in figure.axes]
+    assert all(box.y1 <= panel.y0 for panel in panels)  # below the panels, not over them
+
+
 def test_plot_when_a_configuration_failed_on_every_seed(tmp_path, capsys):
     import matplotlib
 
