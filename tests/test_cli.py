@@ -71,6 +71,20 @@ def test_run_where_no_estimator_fits_is_refused_not_an_empty_table(caplog):
     code, out, err = cli(["run", "--world", "door", "--estimators", "exact", "--steps", "3"])
     assert code == 2 and "exact: skipped" in caplog.text
     assert err.strip().splitlines()[-1].startswith("onlinemap: error: none of exact fits in memory")
+    # issue 24 item 17: it advised max_bytes of 10^54 GB; now it says how small exact's worlds are
+    from onlinemap.arrays import DEFAULT_MAX_BYTES
+    fits = {k: max(n for n in range(1, 40) if 2 * 8 * n * k ** n <= DEFAULT_MAX_BYTES) for k in (2, 4)}
+    assert "pass max_bytes" not in caplog.text and fits == {2: 22, 4: 11}
+    assert f"at most {fits[4]} cells with K=4 labels ({fits[2]} with 2) fit in max_bytes" in caplog.text
+
+
+def test_exact_just_past_its_limit_is_told_the_max_bytes_that_fits():
+    from onlinemap.estimators.exact import physical_memory
+    need = 2 * 8 * 23 * 2 ** 23  # two (N, 2^N) float64 tensors
+    if (physical_memory() or 0) < 2 * need:
+        pytest.skip("this machine could not hold them")
+    with pytest.raises(om.MemoryLimitError, match=f"pass max_bytes={need} or more"):
+        om.make_estimator("exact", om.corridor(23))
 
 
 def test_bench_refuses_an_unknown_benchmark_in_one_line():
