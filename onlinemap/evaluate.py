@@ -244,11 +244,12 @@ WARM_UP_STEPS = 20
 
 def timed_trajectory(name: str, model, options: dict, run: Run) -> Trajectory:
     """Run estimator ``name`` (built with ``options``) over ``run``. The first time in this
-    process for (name, options, grid size), it first takes up to :data:`WARM_UP_STEPS` steps of
+    process for (name, options, the model's shape and the kind of kernels it needs: grid size,
+    static or not, blocking, footprint), it first takes up to :data:`WARM_UP_STEPS` steps of
     ``run`` on a throwaway copy, so compiling or loading numba kernels is not counted in
     ``seconds_per_step``. Cost: the run's T steps (plus the warm-up once)."""
     warm = (name, repr(sorted((k, v) for k, v in options.items() if k != "seed")), model.n_cells,
-            model.n_labels, model.n_actions, model.is_static)
+            model.n_labels, model.n_actions, model.is_static, model.has_blocking, model.n_readings)
     if warm not in _WARMED and run.n_steps > 1:
         steps = min(run.n_steps, WARM_UP_STEPS)
         run_estimator(make_estimator(name, model, **options), run.actions[:steps - 1], run.observations[:steps])

@@ -322,3 +322,23 @@ def test_explore_draws_the_visits_over_the_map_the_runs_used(repeats, monkeypatc
         summary = pd.read_csv(tmp_path / "explore_summary.csv").set_index("metric")
         assert summary.loc["wrong_cells", "high"] <= 9  # issue 24 item 17: a count of 9 cells
     assert (tmp_path / "explore_visits.png").stat().st_size > 0
+
+
+def test_timings_are_taken_after_a_warm_up_for_each_kind_of_model(monkeypatch):
+    """Issue 24 item 17: ``onlinemap run`` timed numba's compilation (38.8 / 7.6 / 1.5 ms per step
+    at 20 / 100 / 1000 steps). A warm-up run comes first for each estimator, options and kind of
+    model (blocking or a footprint use other kernels), on a throwaway estimator."""
+    from onlinemap import evaluate
+    monkeypatch.setattr(evaluate, "_WARMED", set())
+    calls = []
+    real = evaluate.run_estimator
+    monkeypatch.setattr(evaluate, "run_estimator", lambda est, actions, observations: calls.append(
+        (id(est), len(observations))) or real(est, actions, observations))
+    from onlinemap.worlds import parse_world
+    plain, blocking = parse_world("grid:3x3"), parse_world("grid:3x3,blocking=1")
+    for world, runs in [(plain, 2), (plain, 1), (blocking, 2), (blocking, 1)]:
+        run = world.simulate(30, 0)
+        calls.clear()
+        summary, _ = compare_on_run(run, ["rbpf"], {"rbpf": {"n_particles": 5}}, progress=False, seed=0)
+        assert [n for _, n in calls] == [evaluate.WARM_UP_STEPS, 30][2 - runs:]
+        assert len({i for i, _ in calls}) == runs  # a throwaway estimator, then the timed one
