@@ -18,7 +18,6 @@ labels (and, with blocking, a float table of passability) is cached per grid siz
 from __future__ import annotations
 
 import math
-import os
 from functools import lru_cache, reduce
 from typing import NamedTuple
 
@@ -42,6 +41,9 @@ def tensor_bytes(model: GridModel, copies: int = 1) -> int:
     return 8 * copies * model.n_cells * model.n_labels ** model.n_cells
 
 
+PLAUSIBLE_BYTES = 2 ** 40  # 1 TiB: beyond this, raising max_bytes is not advice anyone can follow
+
+
 def largest_world(n_labels: int, copies: int, max_bytes: int) -> int:
     """The most cells N whose ``copies`` (N, K**N) float64 tensors fit in ``max_bytes`` (0 if none).
     O(N) exact integer arithmetic."""
@@ -51,23 +53,14 @@ def largest_world(n_labels: int, copies: int, max_bytes: int) -> int:
     return n
 
 
-def physical_memory() -> int | None:
-    """This machine's memory in bytes (POSIX ``sysconf``), or None where it cannot be read."""
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (AttributeError, ValueError, OSError):
-        return None
-
-
 def check_memory(model: GridModel, copies: int, max_bytes: int, what: str) -> None:
     """Raise :class:`MemoryLimitError` if ``copies`` tensors exceed ``max_bytes``; allocate nothing.
-    The message suggests raising ``max_bytes`` only when this machine's memory would hold the
-    tensors; otherwise it says how large a world exact Bayes can take."""
+    The message suggests raising ``max_bytes`` only when the tensors would fit in a large machine
+    (:data:`PLAUSIBLE_BYTES`); otherwise it says how large a world exact Bayes can take."""
     need = tensor_bytes(model, copies)
     if need > max_bytes:
-        memory = physical_memory()
-        if memory is not None and need <= memory // 2:
-            advice = f"pass max_bytes={need} or more to raise it (this machine has {memory / 1e9:.3g} GB)"
+        if need <= PLAUSIBLE_BYTES:
+            advice = f"pass max_bytes={need} or more to raise it, if this machine has the memory"
         else:
             binary = f" ({largest_world(2, copies, max_bytes)} with 2)" if model.n_labels != 2 else ""
             advice = (f"exact Bayes keeps all K^N maps, so it is for small worlds: at most "
