@@ -339,3 +339,18 @@ def test_timings_are_taken_after_a_warm_up_for_each_kind_of_model(monkeypatch):
         summary, _ = compare_on_run(run, ["rbpf"], {"rbpf": {"n_particles": 5}}, progress=False, seed=0)
         assert [n for _, n in calls] == [evaluate.WARM_UP_STEPS, 30][2 - runs:]
         assert len({i for i, _ in calls}) == runs  # a throwaway estimator, then the timed one
+
+
+def test_explore_by_default_runs_the_best_planner_and_says_why_the_world_is_hard():
+    """Regression (issue 24 item 16): the defaults showed only entropy, random and sweep, every one
+    lost in the paper's world, and did not say what the world was or why it is hard."""
+    code, out, err = cli(["explore", "--steps", "3", "-o", "n_particles=5", "--no-progress"])
+    assert code == 0, err
+    lines = out.splitlines()
+    assert lines[0].startswith("world door,p_move=0.8: GridModel(10x10") and "label prior: uniform" in lines[0]
+    assert lines[1].startswith("why it is hard: the robot knows nothing of the map") and "floor_plan" in lines[1]
+    table = out.split("per planner:\n")[1].splitlines()
+    assert [row.split()[0] for row in table[1:5]] == ["info_gain", "entropy", "random", "sweep"]
+    code, out, _ = cli(["explore", "--world", "door,floor_plan=0.9", "--planner", "random", "--steps", "3",
+                        "-o", "n_particles=5", "--no-progress"])
+    assert code == 0 and "label prior: the floor plan, confidence 0.9" in out and "why it is hard" not in out

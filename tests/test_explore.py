@@ -167,9 +167,9 @@ def test_cli_explore_runs_on_the_sweep_engine_and_writes_only_under_out(tmp_path
     assert "final_map_error" in printed and "wrong_cells" in printed and "sweep" in printed and "[" in printed
     steps = pd.read_csv(out / "explore_steps.csv")
     assert {"planner", "seed", "t", "true_location", "map_error", "location_error"} <= set(steps.columns)
-    assert len(steps) == 3 * 2 * 25
+    assert len(steps) == 4 * 2 * 25  # the default planners: info_gain, entropy, random, sweep
     runs = pd.read_csv(out / "explore_runs.csv")
-    assert len(runs) == 3 * 2
+    assert len(runs) == 4 * 2
     # the one scorer's definitions, recomputed here from the per-step table
     last = steps.sort_values("t").groupby(["planner", "seed"]).tail(1).set_index(["planner", "seed"])
     for (planner, seed), row in runs.set_index(["planner", "seed"]).iterrows():

@@ -314,6 +314,25 @@ def test_an_exploration_task_is_policies_explore_with_the_same_seed():
                           'floor_plan = 0.1\n[planners.random]\n[estimators.rbpf]\n')
 
 
+def test_a_played_task_is_timed_after_a_warm_up_play(monkeypatch):
+    """Issue 24 items 16-17: ``onlinemap explore`` printed info_gain at 205 ms a step over 100 steps:
+    its planner's numba kernels compiled inside the timed run. A first, shorter play comes first."""
+    pytest.importorskip("policies")
+    real, steps = sweeps.task_kind("explore"), []
+    monkeypatch.setattr(sweeps.runner, "task_kind", lambda name: real._replace(
+        play=lambda model, true_map, task: steps.append(task.steps) or real.play(model, true_map, task)))
+    monkeypatch.setattr(sweeps.runner, "_WARMED_PLAYS", set())
+    spec = sweeps.parse_spec('worlds = ["grid:3x3"]\nseeds = [1, 2]\nsteps = 30\n[planners.random]\n'
+                             '[estimators.rbpf]\nn_particles = 5\n')
+    tables = [sweeps.run_task(task) for task in spec.tasks]
+    assert steps == [om.evaluate.WARM_UP_STEPS, 30, 30]  # one warm-up per configuration and process
+    monkeypatch.setattr(sweeps.runner, "_WARMED_PLAYS", set())
+    steps.clear()
+    again = sweeps.run_task(spec.tasks[0])
+    assert steps == [om.evaluate.WARM_UP_STEPS, 30]
+    pd.testing.assert_frame_equal(without_timing(again), without_timing(tables[0]))  # results unchanged
+
+
 # --- the example specs -------------------------------------------------------------------------
 @pytest.mark.parametrize("path", sorted((ROOT / "examples").glob("*.toml")), ids=lambda p: p.name)
 def test_example_spec_is_valid_and_runs_in_miniature(path):

@@ -30,7 +30,7 @@ COMMANDS = {
     "reproduce": "reproduce a claim of the literature (corridor: online EM gets lost)",
     "sweep": "run a grid of experiments from a TOML spec (local dask cluster or a scheduler)",
     "compare": "accuracy of the approximate estimators against exact Bayes on random runs",
-    "explore": "let planners explore a world (entropy policy vs random walk vs sweep)",
+    "explore": "let planners explore a world (information gain vs entropy vs random walk vs sweep)",
 }
 
 EPILOG = ("Conventions: --out DIR writes a command's tables and figures under fixed names (nothing is "

@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import ModelError
 from ..evaluate import TIMING_NOTE, from_steps
 from ..worlds import parse_world, world_help
@@ -13,7 +15,13 @@ from .common import OPTION_HELP, non_negative_int, open_unit_interval, parse_opt
 
 #: the paper's world: the built-in 10 x 10 door world, uniform label prior, p_move 0.8
 DEFAULT_WORLD = "door,p_move=0.8"
-DEFAULT_PLANNERS = "entropy,random,sweep"
+DEFAULT_PLANNERS = "info_gain,entropy,random,sweep"  # the best planner first, then the baselines
+#: printed when the robot starts knowing nothing of the map (a uniform label prior)
+HARD = ("the robot knows nothing of the map (uniform label prior): a cell seen for the first time says "
+        "nothing about where it is, so it localises only on cells it has already mapped, while its moves "
+        "fail with probability 1 - p_move. Expect high location errors (0.5-0.9 in the paper's world, where "
+        "info_gain, which re-anchors in a corner, does best). Give it the floor plan with "
+        "--world door,floor_plan=0.95,p_move=0.9.")
 SUMMARY_METRICS = ("final_map_error", "wrong_cells", "mean_location_error", "late_door_error", "ms_per_step")
 
 
@@ -21,7 +29,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     from policies import PLANNERS
 
     p = sub.add_parser(
-        "explore", help="let planners explore a world (entropy policy vs random walk vs sweep, ...)",
+        "explore", help="let planners explore a world (information gain vs entropy vs random walk vs sweep, ...)",
         description="Closed-loop exploration: each planner chooses actions from the estimator's belief, "
                     "the simulated world moves and is observed, the estimator updates. Every planner runs on "
                     "the same seeds (paired), as a sweep (onlinemap.sweeps). Prints, per planner, the final "
@@ -83,8 +91,15 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else None
     given = parse_options(args.option)
     options = ", ".join(f"{key}={value}" for key, value in given.items()) or "its default options"
-    print(f"world {args.world} (floor plan: {args.floor_plan or 'none, uniform prior'}); estimator {args.estimator}"
-          f" with {options}; {args.steps} steps, seeds {args.seed}..{args.seed + args.repeats - 1}")
+    floor_plan = world.floor_plan if world.floor_plan is not None else args.floor_plan
+    uniform = floor_plan is None and np.allclose(world.model.label_prior, 1.0 / world.model.n_labels)
+    prior = (f"the floor plan, confidence {floor_plan}" if floor_plan is not None else
+             "uniform" if uniform else "the world's own")
+    print(f"world {args.world}: {world.model}; label prior: {prior}")
+    if uniform:
+        print("why it is hard: " + HARD)
+    print(f"planners {', '.join(planners)}; estimator {args.estimator} with {options}; {args.steps} steps, "
+          f"seeds {args.seed}..{args.seed + args.repeats - 1}")
     steps = sweep(exploration_spec(args, planners), workers=args.workers, progress=True,
                   results_dir=None if out is None else out / "explore.parts")
     runs = from_steps(steps, ["world", "planner", "seed"])  # the world: counts of cells are bounded by its N
