@@ -2,6 +2,8 @@
 
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -26,3 +28,13 @@ def test_the_readme_door_world_example_gives_what_it_says():
         value = eval(expression, namespace)
         assert f"{value:.2f}" == expected.strip() if isinstance(value, float) else \
             str(tuple(int(v) for v in value)) == expected.strip()
+
+
+def test_the_readme_gym_example_runs():
+    """Issue 24 item 18: the README shows the import that registers the gym id, and the id."""
+    pytest.importorskip("gymnasium")
+    readme = (ROOT / "README.md").read_text()
+    (block,) = [b.split("```", 1)[0] for b in readme.split("```python\n")[1:] if "import onlinemap.envs" in b]
+    namespace: dict = {}
+    exec(block, namespace)
+    assert namespace["env"].spec.id == "onlinemap/DoorWorld-v0" and namespace["truncated"] is False
