@@ -333,6 +333,41 @@ def test_a_played_task_is_timed_after_a_warm_up_play(monkeypatch):
     pd.testing.assert_frame_equal(without_timing(again), without_timing(tables[0]))  # results unchanged
 
 
+def test_prefer_dask_when_the_work_left_outweighs_starting_a_cluster():
+    # 0.14 s a task (after a first that compiled), 48 left, 2 CPUs: 6.7 s here, half of it saved
+    # by a cluster costing 12 s: stay (issue 24 item 18: 17.2 s on dask against 7.0 s serial)
+    assert not sweeps.prefer_dask([3.0, 0.14, 0.14], 48, 2, start=12.0)
+    assert sweeps.prefer_dask([3.0, 2.0, 2.0], 48, 2, start=12.0)  # 96 s here, 48 s saved
+    assert not sweeps.prefer_dask([30.0], 48, 2, start=12.0)  # one task: it compiled, no estimate yet
+    assert not sweeps.prefer_dask([3.0, 2.0, 2.0], 48, 1, start=12.0)  # one CPU: nothing to gain
+    assert not sweeps.prefer_dask([3.0, 2.0, 2.0], 1, 8, start=12.0)  # one task left
+    assert sweeps.prefer_dask([3.0, 1.0], 9, 4, start=6.0) and not sweeps.prefer_dask([3.0, 1.0], 7, 4, start=6.0)
+
+
+def test_the_default_engine_runs_small_sweeps_here_and_moves_big_ones_to_dask(monkeypatch):
+    """Issue 24 item 18: a local cluster was started for any sweep without --workers, 2.5 times
+    slower than serial for a spec of 50 small tasks."""
+    pytest.importorskip("distributed")
+    if (os.cpu_count() or 1) < 2:
+        pytest.skip("one CPU: the default engine is always serial")
+    from onlinemap.sweeps import engines
+    spec = sweeps.parse_spec(SPEC)
+    monkeypatch.setattr(engines, "_run_dask", lambda *args: pytest.fail("started a cluster for small tasks"))
+    small = om.sweep(spec, progress=False)  # workers=None: the default
+    moved = []
+
+    def dask(rest, client, workers, record):  # stands in for the cluster: runs the rest here
+        moved.append(len(rest))
+        for task in rest:
+            record(task, sweeps.runner.attempt(task))
+
+    monkeypatch.setattr(engines, "_run_dask", dask)
+    monkeypatch.setattr(engines, "DASK_START_SECONDS", 0.0)  # any work left pays for a cluster
+    big = om.sweep(spec, progress=False)
+    assert moved == [N_TASKS - 2]  # decided after two tasks ran here
+    pd.testing.assert_frame_equal(without_timing(big), without_timing(small))
+
+
 # --- the example specs -------------------------------------------------------------------------
 @pytest.mark.parametrize("path", sorted((ROOT / "examples").glob("*.toml")), ids=lambda p: p.name)
 def test_example_spec_is_valid_and_runs_in_miniature(path):

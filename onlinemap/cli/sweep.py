@@ -34,8 +34,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--format", choices=("csv", "parquet"), default="csv",
                    help="format of DIR/results (default csv; parquet needs pyarrow)")
     p.add_argument("--workers", type=int,
-                   help="worker processes of the local dask cluster (default: one per CPU); "
-                        "0 runs the tasks one by one in this process, without dask")
+                   help="N: a local dask cluster of N worker processes; 0: the tasks one by one in this process, "
+                        "without dask; default: in this process while the work left looks shorter than what a "
+                        "local cluster (one process per CPU) would save, then on one")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="use an existing dask scheduler (e.g. tcp://10.0.0.5:8786) instead of a local "
                         "cluster; its workers need onlinemap installed")

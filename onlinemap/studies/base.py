@@ -39,8 +39,9 @@ def summary_of(runs: pd.DataFrame, metrics: Sequence[str], by: Sequence[str], co
 def run_study(spec: dict, metrics: Sequence[str], by: Sequence[str], *, confidence: float = 0.95,
               workers: int | None = 0, out: str | os.PathLike | None = None, progress: bool = True,
               bounds: dict[str, tuple[float, float]] | None = None) -> Study:
-    """Run ``spec`` on the sweep engine (``workers`` 0: in this process; None or N: on a local dask
-    cluster; ``out``: a folder of parts, so a rerun resumes) and summarise it by ``by``."""
+    """Run ``spec`` on the sweep engine (``workers`` 0: in this process; N: on a local dask cluster
+    of N processes; None: the engine picks; ``out``: a folder of parts, so a rerun resumes) and
+    summarise it by ``by``."""
     runs = sweep(spec, workers=workers, results_dir=out, progress=progress)
     return Study(runs, summary_of(runs, metrics, by, confidence, bounds))
 

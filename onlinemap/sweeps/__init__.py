@@ -62,11 +62,12 @@ The package, one job per module, imports running one way (``tasks`` <- ``spec``,
   ``navigate``: ``policies``), registered or found through entry points, never imported;
 - :mod:`.runner`: one task (:func:`run_task`): simulate and estimate, or play its kind; score;
 - :mod:`.store`: the part store (atomic parts, resume, :func:`collect` without the spec);
-- :mod:`.engines`: :func:`sweep` serially or on dask.distributed;
+- :mod:`.engines`: :func:`sweep` serially or on dask.distributed (by default serially unless a
+  local cluster pays: :func:`prefer_dask`);
 - :mod:`.summary`: :func:`summarize`, :func:`summary_table`, :func:`plot_sweep`.
 """
 
-from .engines import SweepError, connect, local_cluster, sweep
+from .engines import SweepError, connect, local_cluster, prefer_dask, sweep
 from .runner import derived_seed, played_map, run_task, scripted_trip, simulated_run, walk_actions, world
 from .spec import MAX_SEED, MAX_STEPS, SpecError, load_spec, matches_annotation, parse_spec, spec_from_dict
 from .store import assemble, collect, default_results_dir, finished_tasks, read_part, write_part
@@ -77,7 +78,8 @@ from .tasks import CONFIG_COLUMNS, MAX_TASKS, TASK_COLUMNS, SweepSpec, Task, cou
 __all__ = [
     "sweep", "SweepError", "SpecError", "SweepSpec", "Task", "load_spec", "parse_spec", "spec_from_dict",
     "matches_annotation", "run_task", "played_map", "simulated_run", "scripted_trip", "walk_actions", "derived_seed", "world",
-    "collect", "assemble", "default_results_dir", "finished_tasks", "read_part", "write_part", "local_cluster", "connect",
+    "collect", "assemble", "default_results_dir", "finished_tasks", "read_part", "write_part", "local_cluster",
+    "connect", "prefer_dask",
     "summarize", "summary_table", "summary_wide", "plot_sweep", "last_steps", "expand", "count_tasks",
     "TaskKind", "Played", "register_kind", "task_kind",
     "TASK_COLUMNS", "CONFIG_COLUMNS", "MAX_TASKS", "MAX_SEED", "MAX_STEPS",
