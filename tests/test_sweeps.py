@@ -203,24 +203,54 @@ def test_scripted_trip_is_the_literature_run_with_one_random_slip():
 
 
 # --- resuming: every task exactly once -----------------------------------------------------------
+STALL_AFTER_FIVE_PARTS = """\
+import sys, threading
+from pathlib import Path
+from onlinemap.sweeps import store
+real = store.atomic_write
+
+def stalling(path, write):  # the sixth part: its temporary file written, then the process waits to be killed
+    if len(list(Path(path).parent.glob("*.npz"))) < 5:
+        return real(path, write)
+
+    def half(file):
+        write(file)
+        file.flush()
+        Path({marker!r}).touch()
+        threading.Event().wait()
+    return real(path, half)
+
+store.atomic_write = stalling
+from onlinemap.cli import main
+sys.exit(main({argv!r}))
+"""
+
+
 def test_killed_sweep_resumes_and_finishes_every_task_exactly_once(tmp_path, serial_table):
+    """kill -9 in the middle of writing a part: the resumed sweep keeps the finished parts, removes
+    the temporary and runs every other task once. The child stalls at a known point (after five
+    parts, inside the sixth's write) instead of being killed after a guessed delay: under load the
+    test process could be starved while the whole sweep finished (issue 24 item 13)."""
     spec_path = write_spec(tmp_path, SPEC.replace(
         "[estimators.exact]", "[estimators.offline_em]\nn_iter = 30\n\n[estimators.exact]"))
     spec = sweeps.load_spec(spec_path)
     out = tmp_path / "r"
-    parts = out / "parts"
-    process = subprocess.Popen([sys.executable, "-m", "onlinemap", "sweep", str(spec_path), "--workers", "0",
-                                "--out", str(out), "--no-progress"], stdout=subprocess.DEVNULL,
-                               stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and len(list(parts.glob("*.npz"))) < 5 and process.poll() is None:
-        time.sleep(0.02)
-    process.send_signal(signal.SIGKILL)  # no chance to clean up
-    process.wait()
+    parts, marker = out / "parts", tmp_path / "stalled"
+    argv = ["sweep", str(spec_path), "--workers", "0", "--out", str(out), "--no-progress"]
+    with open(tmp_path / "stderr.txt", "w") as stderr:
+        process = subprocess.Popen([sys.executable, "-c", STALL_AFTER_FIVE_PARTS.format(marker=str(marker), argv=argv)],
+                                   stdout=subprocess.DEVNULL, stderr=stderr)
+        deadline = time.monotonic() + 600  # only against a hang: the child waits for the kill
+        while not marker.exists() and process.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        process.send_signal(signal.SIGKILL)  # no chance to clean up
+        process.wait()
+    assert marker.exists(), (tmp_path / "stderr.txt").read_text()
     kept = {p.name: p.stat().st_mtime_ns for p in parts.glob("*.npz")}
-    assert 5 <= len(kept) < len(spec.tasks), "the sweep was not stopped midway"
+    assert len(kept) == 5 and len(list(parts.glob(".*.tmp"))) == 1  # the sixth part, half written
     table = om.sweep(spec_path, workers=0, out=out / "results.parquet", results_dir=parts, progress=False)
     assert {p.name: p.stat().st_mtime_ns for p in parts.glob("*.npz") if p.name in kept} == kept  # not rerun
+    assert not list(parts.glob(".*.tmp")) and len(list(parts.glob("*.npz"))) == len(spec.tasks)
     assert len(table) == len(spec.tasks) and table["task"].is_unique
     assert set(table["task"]) == {t.key for t in spec.tasks}
     fresh = om.sweep(spec, workers=0, progress=False)
