@@ -32,6 +32,7 @@ from .tasks import OPTION_PREFIXES, TASK_COLUMNS, Task, plain
 PART_SUFFIX = ".npz"
 PART_FORMAT = 1
 _HEADER = "__part__"  # the entry holding the JSON header
+NULLABLE = ("Int64", "boolean", "Float64")  # pandas' nullable types a part restores by name
 
 
 def default_results_dir(out: str | os.PathLike) -> Path:
@@ -57,9 +58,10 @@ def _is_option(column: str) -> bool:
 
 
 def _encode(column: pd.Series) -> tuple[str, np.ndarray | list]:
-    """(kind, data) of one column: ``array`` (numbers, booleans), ``text`` (text without missing
-    values) or ``json`` (anything else, as a list of JSON values)."""
-    if column.dtype.kind in "biuf":
+    """(kind, data) of one column: ``array`` (numpy numbers, booleans), ``text`` (text without
+    missing values) or ``json`` (anything else, as a list of JSON values; pandas' nullable types
+    keep their name, :data:`NULLABLE`)."""
+    if isinstance(column.dtype, np.dtype) and column.dtype.kind in "biuf":
         return "array", column.to_numpy()
     values = column.tolist()
     if pd.api.types.is_string_dtype(column) and all(isinstance(v, str) for v in values):
@@ -88,6 +90,8 @@ def write_part(results_dir: Path, task: Task, frame: pd.DataFrame) -> Path:
         header["columns"].append([name, kind])
         if kind == "json":
             header.setdefault("json", {})[name] = data
+            if str(frame[name].dtype) in NULLABLE:
+                header["columns"][-1].append(str(frame[name].dtype))
         else:
             arrays[f"c{position}"] = data
             header["columns"][-1].append(f"c{position}")
@@ -105,7 +109,11 @@ def read_part(path: str | os.PathLike) -> pd.DataFrame:
                 raise ValueError(f"part format {header.get('format')!r}, this onlinemap reads {PART_FORMAT}")
             data = {}
             for name, kind, *entry in header["columns"]:
-                data[name] = pd.Series(header["json"][name] if kind == "json" else entries[entry[0]])
+                if kind == "json":  # entry: the nullable type's name, if any
+                    data[name] = pd.Series(pd.array(header["json"][name], dtype=entry[0]) if entry else
+                                           header["json"][name])
+                else:
+                    data[name] = pd.Series(entries[entry[0]])
     except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as error:
         raise OnlineMapError(f"cannot read sweep part {path}: {error} (delete it to rerun its task)") from None
     frame = pd.DataFrame(data, index=pd.RangeIndex(header["rows"]))
