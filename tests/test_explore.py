@@ -227,18 +227,23 @@ def dynamic_runs():
     return paired(0.01, 300, ["entropy", "random"], DYNAMIC_SEEDS)
 
 
+@pytest.mark.slow
 def test_static_door_world_entropy_planner_learns_the_map_faster_than_a_random_walk(static_runs):
     final = static_runs.groupby(["planner", "seed"])["map_error"].last().unstack(0)
     p = one_sided_p(final["entropy"], final["random"])
     assert p < 0.05, (p, final.round(3).to_dict())
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("dynamic_runs")  # one worker runs the 128 explorations once (--dist loadgroup)
 def test_dynamic_door_world_entropy_planner_keeps_doors_up_to_date(dynamic_runs):
     late = dynamic_runs[dynamic_runs["t"] >= 100].groupby(["planner", "seed"])["door_error"].mean().unstack(0)
     p = one_sided_p(late["entropy"], late["random"])
     assert p < 0.05, (p, late.round(3).to_dict())
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("dynamic_runs")
 def test_dynamic_door_world_entropy_planner_spends_more_time_at_doors(dynamic_runs):
     model, true_map = exploration_world(p_door=0.01)
     doors = door_cells(model, true_map)
@@ -247,6 +252,7 @@ def test_dynamic_door_world_entropy_planner_spends_more_time_at_doors(dynamic_ru
     assert one_sided_p(-share["entropy"], -share["random"]) < 0.05, share.round(3).to_dict()
 
 
+@pytest.mark.slow
 def test_cli_explore_on_dask_keeps_stderr_free_of_dask_logs(tmp_path):
     """dask's scheduler runs in the CLI's process and used to log 30 INFO lines (starts, stops,
     worker registrations) through the CLI's one-line log handler; and one planner alone used to

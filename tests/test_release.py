@@ -5,12 +5,15 @@ import re
 import tomllib
 from pathlib import Path
 
+import pytest
+
 import onlinemap
 from onlinemap import docs
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow  # imports and documents every module
 def test_api_reference_builds_without_warnings(tmp_path):
     out = docs.build(tmp_path / "api")  # raises RuntimeError listing pdoc's warnings, if any
     pages = {path.relative_to(out).as_posix() for path in out.rglob("*.html")}

@@ -420,6 +420,7 @@ def test_example_spec_is_valid_and_runs_in_miniature(path):
 
 
 # --- dask ------------------------------------------------------------------------------------------
+@pytest.mark.xdist_group("dask_cluster")  # one worker starts the module's cluster once (--dist loadgroup)
 def test_local_cluster_with_two_workers_gives_the_serial_table(client, serial_table, tmp_path):
     assert len(client.scheduler_info()["workers"]) == 2
     table = om.sweep(sweeps.parse_spec(SPEC), client, results_dir=tmp_path / "a", progress=False)
@@ -445,6 +446,7 @@ def test_a_failed_task_on_dask_is_one_error_not_a_worker_traceback(tmp_path):
         "no zeros when pseudo_count > 0)"], done.stderr
 
 
+@pytest.mark.xdist_group("dask_cluster")
 def test_killing_a_worker_midway_still_finishes_every_task_once(client, serial_table, tmp_path):
     spec = sweeps.parse_spec(SPEC.replace("[estimators.exact]", "[estimators.offline_em]\n\n[estimators.exact]"))
     result = {}
@@ -663,7 +665,8 @@ assert sys.modules["pyarrow"] is None
 @pytest.mark.slow
 def test_without_pyarrow_every_out_command_keeps_its_parts_and_writes_csv(tmp_path):
     """Regression (issue 24 item 12): the part store needed pyarrow, so ``--out`` failed after a
-    base install (``pip install -e .``) for sweep, compare, explore and reproduce --random."""
+    base install (``pip install -e .``) for sweep, compare, explore and reproduce --random (the
+    last keeps its parts through the same store as compare; tests/test_reproduce.py runs its CLI)."""
     spec = write_spec(tmp_path, SPEC.replace("seeds = 3", "seeds = 1"))
     out = tmp_path / "out"
     commands = [["sweep", str(spec), "--workers", "0", "--out", str(out / "sweep")],
@@ -671,15 +674,14 @@ def test_without_pyarrow_every_out_command_keeps_its_parts_and_writes_csv(tmp_pa
                 ["compare", "--world", "corridor:4", "--runs", "1", "--steps", "4", "--particles", "5",
                  "--out", str(out / "compare")],
                 ["explore", "--world", "corridor:5", "--planner", "random", "--steps", "4", "-o", "n_particles=5",
-                 "--out", str(out / "explore")],
-                ["reproduce", "corridor", "--random", "1", "--out", str(out / "reproduce")]]
+                 "--out", str(out / "explore")]]
     done = subprocess.run([sys.executable, "-c", WITHOUT_PYARROW.format(commands=commands)], capture_output=True,
                           text=True, timeout=900)
     assert done.returncode == 0, done.stderr
     assert f"{N_TASKS // 3} already finished" in done.stdout
     assert len(pd.read_csv(out / "sweep" / "results.csv")) == N_TASKS // 3
     assert len(list((out / "sweep" / "parts").glob("*.npz"))) == N_TASKS // 3
-    for parts in ("compare/compare.parts", "explore/explore.parts", "reproduce/corridor_random.parts"):
+    for parts in ("compare/compare.parts", "explore/explore.parts"):
         assert list((out / parts).glob("*.npz")), parts
     assert (out / "explore" / "explore_visits.png").exists() and (out / "compare" / "compare_summary.csv").exists()
 
