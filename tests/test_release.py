@@ -38,3 +38,12 @@ def test_licence_and_type_marker_ship():
     assert (ROOT / "onlinemap" / "py.typed").exists()
     assert "py.typed" in project["tool"]["setuptools"]["package-data"]["onlinemap"]
     assert any(dep.startswith("pdoc") for dep in project["project"]["optional-dependencies"]["test"])
+
+
+def test_the_reference_without_pdoc_is_one_error_line(monkeypatch, tmp_path, capsys):
+    """Issue 24 item 12: after the base install, ``python -m onlinemap.docs`` ended in a traceback."""
+    import sys
+    monkeypatch.setitem(sys.modules, "pdoc", None)  # import pdoc now raises ImportError
+    assert docs.main(["--out", str(tmp_path / "api")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("onlinemap.docs: error: ") and "pip install pdoc" in err[0]
