@@ -26,7 +26,8 @@ def test_loop_study_summary_matches_its_runs():
     em = per_run[per_run["estimator"] == "offline grid EM"]
     expected = mean_interval(em["read_map_error"].to_numpy(), 0.95, bounds=(0.0, 1.0))
     row = summary.iloc[0]
-    assert (row["read_map_error"], row["read_map_error_low"], row["read_map_error_high"]) == pytest.approx(tuple(expected))
+    low, high = row["read_map_error_low"], row["read_map_error_high"]
+    assert (row["read_map_error"], low, high) == pytest.approx(tuple(expected))
     assert row["runs"] == 4 and row["error"] == ""
     exact = summary.iloc[2]  # 25 cells: exact Bayes refuses, and the table says why
     assert exact["runs"] == 0 and "MemoryLimitError" in exact["error"]
