@@ -62,8 +62,8 @@ loop = ms.loop_study(RUNS, seed=0, progress=False)
 print(ms.with_intervals(loop.summary, ms.LOOP_MEASURES).to_string(index=False))"""),
     new_code_cell("""\
 fig, axes = plt.subplots(1, 2, figsize=(11, 3.2), sharey=True)
-plot_measure(loop.summary, "map_error", axes[0])
-plot_measure(loop.summary, "location_error", axes[1])
+plot_measure(loop.summary, "read_map_error", axes[0])
+plot_measure(loop.summary, "final_location_error", axes[1])
 fig.suptitle(f"loop world, {RUNS} runs: final map and location error (95% intervals)")
 fig.tight_layout()"""),
     new_markdown_cell("""\

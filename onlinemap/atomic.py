@@ -16,6 +16,7 @@ directory per write.
 
 from __future__ import annotations
 
+import glob
 import os
 import stat
 import tempfile
@@ -78,13 +79,15 @@ def fsync_directory(directory: str | os.PathLike) -> None:
         os.close(fd)
 
 
-def remove_temporaries(directory: str | os.PathLike) -> int:
+def remove_temporaries(directory: str | os.PathLike, name: str | None = None) -> int:
     """Delete the temporary files :func:`atomic_write` left in ``directory`` (a killed process's);
-    returns how many. Only names ``.*.tmp`` are touched."""
+    returns how many. Only names ``.*.tmp`` are touched, and with ``name`` only the temporaries
+    of that file (``.NAME.*.tmp``: another process may be writing its own file beside it)."""
     directory = Path(directory)
     removed = 0
     if directory.is_dir():
-        for leftover in directory.glob(f".*{TEMPORARY_SUFFIX}"):
+        pattern = f".{glob.escape(name)}.*" if name is not None else ".*"
+        for leftover in directory.glob(pattern + TEMPORARY_SUFFIX):
             try:
                 leftover.unlink()
                 removed += 1

@@ -4,8 +4,8 @@
 
 Every public module of ``onlinemap`` and ``policies`` is documented; any warning pdoc gives (an
 annotation it cannot resolve, a module that fails to import, ...) is an error, so the reference
-builds cleanly or not at all (``tests/test_docs.py`` checks it). Needs the ``docs`` extra
-(``pip install 'onlinemap[docs]'``).
+builds cleanly or not at all (``tests/test_release.py`` checks it). Needs pdoc, the ``docs``
+extra (``pip install -e '.[docs]'`` in a clone); without it, one error line and exit status 2.
 """
 
 from __future__ import annotations
@@ -83,6 +83,10 @@ def main(argv: list[str] | None = None) -> int:
     except RuntimeError as error:
         print(f"onlinemap.docs: error: {error}", file=sys.stderr)
         return 1
+    except ImportError as error:  # the docs extra is not installed
+        print(f"onlinemap.docs: error: {error}; install it with: pip install pdoc (in a clone: pip install "
+              f"-e '.[docs]')", file=sys.stderr)
+        return 2
     print(f"wrote {path / 'index.html'}")
     return 0
 

@@ -83,12 +83,15 @@ UNIT_METRICS = ("error", "_tv", "entropy", "p_true")  # names containing these l
 TIMING_NOTE = "ms_per_step: wall time per step, measured after a warm-up run (numba kernels compiled first)"
 
 
-def metric_bounds(name: str) -> tuple[float, float]:
-    """The range of a metric: [0, 1] for errors, distances, entropies and probabilities, [0, inf)
-    for counts and times, unbounded otherwise (log evidence)."""
+def metric_bounds(name: str, n_cells: int | None = None) -> tuple[float, float]:
+    """The range of a metric: [0, 1] for errors, distances, entropies and probabilities, [0, N]
+    for counts of cells in a world of ``n_cells`` = N (``wrong_cells``, ``unsure_or_wrong``, ...;
+    [0, inf) when N is not known), [0, inf) for times, unbounded otherwise (log evidence)."""
     if any(part in name for part in UNIT_METRICS):
         return 0.0, 1.0
-    if "wrong" in name or name == "ms_per_step":
+    if "wrong" in name:
+        return 0.0, math.inf if n_cells is None else float(n_cells)
+    if name == "ms_per_step":
         return 0.0, math.inf
     return -math.inf, math.inf
 
@@ -306,12 +309,13 @@ WARM_UP_STEPS = 20
 
 def timed_trajectory(name: str, model, options: dict, run: Run) -> Trajectory:
     """Run estimator ``name`` (built with ``options``) over ``run``. The first time in this
-    process for (name, options, grid size), it first takes up to :data:`WARM_UP_STEPS` steps of
+    process for (name, options, the model's shape and the kind of kernels it needs: grid size,
+    static or not, blocking, footprint), it first takes up to :data:`WARM_UP_STEPS` steps of
     ``run`` on a throwaway copy, so compiling or loading numba kernels is not counted in
     ``seconds_per_step``. Steps every estimator on purpose, offline EM included: no
     :class:`~onlinemap.errors.PerformanceWarning`. Cost: the run's T steps (plus the warm-up once)."""
     warm = (name, repr(sorted((k, v) for k, v in options.items() if k != "seed")), model.n_cells,
-            model.n_labels, model.n_actions, model.is_static)
+            model.n_labels, model.n_actions, model.is_static, model.has_blocking, model.n_readings)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", PerformanceWarning)
         if warm not in _WARMED and run.n_steps > 1:

@@ -1,6 +1,6 @@
 """Peer-library formulations of onlinemap's model, for independent checks and benchmarks
-(DESIGN.md section 6). pgmpy, hmmlearn and filterpy are optional (``pip install
-onlinemap[peers]``): they are imported only when a function here is called.
+(DESIGN.md section 6). pgmpy, hmmlearn and filterpy are optional (the ``peers`` extra, ``pip
+install -e '.[peers]'``): they are imported only when a function here is called.
 
 - :func:`unrolled_network`: the model as a pgmpy ``DiscreteBayesianNetwork`` unrolled over a
   run (variables ``L_t``, ``M{i}_t``, ``Z_t``); :func:`pgmpy_filter` queries it with
@@ -23,7 +23,8 @@ import numpy as np
 from .errors import OnlineMapError
 from .model import GridModel
 
-PEERS_HINT = "install the peer libraries with: pip install 'onlinemap[peers]'"
+PEERS_HINT = ("install the peer libraries with: pip install pgmpy==1.1.2 hmmlearn==0.3.3 filterpy==2.0.0 "
+              "(in a clone: pip install -e '.[peers]')")
 
 
 class PeerMissingError(OnlineMapError, ImportError):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
@@ -71,6 +71,19 @@ class Run:
     @property
     def final_map(self) -> np.ndarray:
         return self.maps[-1]
+
+    def steps(self) -> Iterator[tuple[int | None, int | np.ndarray]]:
+        """The run as a ``step`` loop takes it: ``(None, z_0)``, then ``(a_t, z_t)`` for t = 1..T-1,
+        actions and labels as ints (an (F,) array of readings with a footprint)::
+
+            for action, observation in run.steps():
+                belief = est.step(action, observation)
+
+        Cost O(T)."""
+        single = self.observations.ndim == 1
+        for t in range(self.n_steps):
+            observation = int(self.observations[t]) if single else self.observations[t]
+            yield (None if t == 0 else int(self.actions[t - 1])), observation
 
     @property
     def slipped(self) -> np.ndarray:

@@ -59,6 +59,12 @@ def observation_value(model: GridModel, observation):
     off-grid offsets (a -1 where a cell exists, a label where none exists), raise
     :class:`InvalidObservationError`. Cost O(F U), U the number of distinct off-grid patterns."""
     if model.reads_own_cell:
+        if isinstance(observation, (list, tuple)) or isinstance(observation, np.ndarray) and observation.ndim:
+            raise InvalidObservationError(
+                f"observation must be an int index or a label name, got {type(observation).__name__} "
+                f"{_short(observation)}: this sensor reads one cell (footprint {model.footprint}); a list of "
+                "readings needs a model with a sensor footprint (footprint=cross or square in a world spec, "
+                "grid_model(..., footprint=...))")
         return observation_index(model, observation)
     single = model.n_readings == 1
     if single:
@@ -78,6 +84,12 @@ def observation_value(model: GridModel, observation):
     values = np.array([-1 if _is_off_grid(r) else observation_index(model, r) for r in readings], dtype=np.int64)
     _check_off_grid(model, values[None])
     return int(values[0]) if single else values
+
+
+def _short(value, limit: int = 80) -> str:
+    """``repr(value)``, cut to ``limit`` characters (a value may be megabytes long)."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}..."
 
 
 def _is_off_grid(reading) -> bool:

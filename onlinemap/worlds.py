@@ -4,9 +4,14 @@
 ``building:20x40,seed=1,p_door=0.01,extra_doors=0.5``, ``layout:floors/office.map``,
 ``layout:maps/lab.yaml,cell_size=0.5``.
 
-``footprint`` takes a preset (cell, cross, square); ``blocking`` is 0/1 (false/true) for door
-worlds and buildings (walls and closed doors block) and the blocking labels, joined by ``+``, for
-corridors and grids (``blocking=1``, ``blocking=1+2``). A building
+Every kind takes ``p_obs``, ``p_move``, ``start``, ``blocking`` and ``footprint``
+(:data:`KIND_KEYS` lists each kind's keys; :func:`world_help` says it in one paragraph, for every
+``--world`` option). ``footprint`` takes a preset (cell, cross, square); ``blocking`` is 0/1
+(false/true) for door worlds and buildings (walls and closed doors block) and the blocking
+labels, joined by ``+``, for corridors and grids (``blocking=1``, ``blocking=1+2``). Worlds
+with a fixed map (door, building, layout) take ``floor_plan=C``: the robot's label prior is the
+floor plan (:func:`floor_plan_prior`: each cell's true label with confidence C, door cells a door
+of unknown state), e.g. ``door,floor_plan=0.95``. A building
 (:func:`onlinemap.buildings.building`; default 32x32, seed 0) blocks and reads a cross unless
 told otherwise (``blocking=0``, ``footprint=cell``) and takes ``seed``, ``corridor_width``,
 ``rooms_deep``, ``extra_doors`` and ``closed_share``. A layout
@@ -16,10 +21,13 @@ same defaults and ``cell_size``.
 
 ``parse_world(spec) -> WorldSpec`` holds the model and, for door worlds, buildings and layouts,
 the map.
+
+Imports: :mod:`.model`, :mod:`.validation`, :mod:`.simulate`, :mod:`.buildings`, :mod:`.layouts`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -28,22 +36,68 @@ from . import arguments
 from .buildings import building
 from .errors import ModelError
 from .layouts import read_layout
-from .model import GridModel, corridor, door_world, grid_model, symmetric_channel
+from .model import CLOSED_DOOR, OPEN_DOOR, GridModel, corridor, door_cells, door_world, grid_model, symmetric_channel
 from .rng import SeedLike
 from .simulate import Run, random_walk, sample_map
 from .simulate import simulate as _simulate
+from .validation import check_map
 
-_FLOAT_KEYS = {"p_obs", "p_move", "p_change", "p_door", "extra_doors", "closed_share"}
+_FLOAT_KEYS = {"p_obs", "p_move", "p_change", "p_door", "extra_doors", "closed_share", "floor_plan"}
 _INT_KEYS = {"n_labels", "start", "seed", "corridor_width", "rooms_deep"}
 _REAL_KEYS = {"cell_size"}
 _FLAG_KINDS = ("door", "building", "layout")  # kinds whose blocking option is a flag
 _TEXT_KEYS = {"blocking", "footprint"}
+
+_EVERY_KIND = ("p_obs", "p_move", "start", "blocking", "footprint")
+_DOORS = ("p_door", "floor_plan")
+#: the keys each kind of world spec takes, after its own size or path
+KIND_KEYS = {
+    "corridor": ("n_labels", "p_change", *_EVERY_KIND),
+    "grid": ("n_labels", "p_change", *_EVERY_KIND),
+    "door": (*_DOORS, *_EVERY_KIND),
+    "building": ("seed", "corridor_width", "rooms_deep", "extra_doors", "closed_share", *_DOORS, *_EVERY_KIND),
+    "layout": ("cell_size", *_DOORS, *_EVERY_KIND),
+}
+_KIND_FORMS = {"corridor": "corridor:N", "grid": "grid:RxC", "door": "door", "building": "building:RxC",
+               "layout": "layout:PATH"}
+
+
+def world_help() -> str:
+    """One paragraph for every ``--world`` option: each kind with its keys (from :data:`KIND_KEYS`)."""
+    kinds = "; ".join(f"{_KIND_FORMS[kind]} ({', '.join(k for k in keys if k not in _EVERY_KIND)})"
+                      for kind, keys in KIND_KEYS.items())
+    return (f"world spec KIND[,KEY=VALUE...]: {kinds}; every kind also takes {', '.join(_EVERY_KIND)} "
+            "(blocking=0/1 for door worlds, labels joined by + otherwise; footprint=cell|cross|square); "
+            "floor_plan=C gives the robot the floor plan as its prior (confidence C, door states unknown)")
+
+
+def floor_plan_prior(model: GridModel, true_map, confidence: float = 0.8) -> np.ndarray:
+    """(N, K) label prior from a floor plan: ``confidence`` on each cell's true label, the rest
+    spread uniformly over the other labels. In a door world, door cells get 1/2 open, 1/2
+    closed (the plan shows the door, not its state). Cost O(N K)."""
+    labels = check_map(model, true_map)
+    k = model.n_labels
+    if not 1.0 / k <= float(confidence) <= 1.0:
+        raise ModelError(f"confidence must be in [1/K, 1] = [{1 / k:.3g}, 1], got {confidence!r}")
+    prior = np.full((model.n_cells, k), (1.0 - confidence) / (k - 1))
+    prior[np.arange(model.n_cells), labels] = confidence
+    doors = door_cells(model, labels)
+    if len(doors):
+        prior[doors] = 0.0
+        prior[np.ix_(doors, [OPEN_DOOR, CLOSED_DOOR])] = 0.5
+    return prior
+
+
+def with_floor_plan(model: GridModel, true_map, confidence: float = 0.8) -> GridModel:
+    """``model`` with the :func:`floor_plan_prior` of ``true_map`` as its label prior."""
+    return dataclasses.replace(model, label_prior=floor_plan_prior(model, true_map, confidence))
 
 
 class WorldSpec(NamedTuple):
     spec: str
     model: GridModel
     true_map: np.ndarray | None  # fixed map (door worlds, buildings, layouts); None = draw one from the prior
+    floor_plan: float | None = None  # the floor_plan key: the model's label prior is the map's floor plan
 
     def initial_map(self, seed: SeedLike = None) -> np.ndarray:
         """The fixed map, or one drawn from the label prior with ``seed``."""
@@ -110,53 +164,69 @@ def _blocking(spec: str, kind: str, value: str):
 
 def parse_world(spec: str) -> WorldSpec:
     """Parse ``kind[:size][,key=value...]``; kinds: corridor (size N), grid (size RxC), door,
-    building (size RxC), layout (a file name).
+    building (size RxC), layout (a file name); each takes the keys :data:`KIND_KEYS` lists.
     Anything malformed raises :class:`ModelError` naming the part at fault."""
     if not isinstance(spec, str) or not spec.strip() or len(spec) > _MAX_SPEC:
         raise ModelError(f"a world spec is a str of at most {_MAX_SPEC} characters like 'corridor:8', "
                          f"got {type(spec).__name__} of length {len(spec) if isinstance(spec, str) else '?'}")
     head, *pairs = [part.strip() for part in spec.split(",")]
     kind, _, size = head.partition(":")
+    if kind not in KIND_KEYS:
+        raise ModelError(f"world spec {spec!r}: unknown kind {kind!r} ({', '.join(_KIND_FORMS.values())})")
     options: dict[str, object] = {}
     for pair in pairs:
         key, eq, value = pair.partition("=")
         key = key.strip()
         if not eq:
             raise ModelError(f"world spec {spec!r}: expected key=value, got {pair!r}")
-        if key not in _FLOAT_KEYS | _INT_KEYS | _TEXT_KEYS | _REAL_KEYS:
-            raise ModelError(f"world spec {spec!r}: unknown option {key!r} "
-                             f"(known: {', '.join(sorted(_FLOAT_KEYS | _INT_KEYS | _TEXT_KEYS | _REAL_KEYS))})")
+        if key not in KIND_KEYS[kind]:
+            hint = (" (only worlds with a fixed map take a floor plan: door, building, layout; for maps "
+                    "drawn per seed use explore --floor-plan or a sweep's floor_plan)") if key == "floor_plan" else ""
+            raise ModelError(f"world spec {spec!r}: unknown option {key!r} for a {kind} world{hint} "
+                             f"(known: {', '.join(KIND_KEYS[kind])})")
         if key in options:
             raise ModelError(f"world spec {spec!r}: option {key!r} given twice")
         options[key] = _value(spec, key, value)
     if "blocking" in options:
         options["blocking"] = _blocking(spec, kind, str(options["blocking"]))
+    floor_plan = options.pop("floor_plan", None)
     try:
-        if kind == "corridor":
-            return WorldSpec(spec, corridor(_whole(spec, "the corridor's length", size or "8"), **options), None)
-        if kind == "grid":
-            rows, cols = _rows_cols(spec, "grid", size or "2x3")
-            change = options.pop("p_change", 0.0)
-            k = arguments.integer("n_labels", options.pop("n_labels", 2), minimum=2, maximum=arguments.MAX_LABELS)
-            return WorldSpec(spec, grid_model(rows, cols, k, change=symmetric_channel(k, 1 - change),
-                                              **options), None)
-        if kind == "door":
-            if size:
-                raise ModelError("door worlds take no size; read a floor from a file with layout:PATH")
-            model, true_map = door_world(**options)
-            return WorldSpec(spec, model, true_map)
-        if kind == "building":
-            model, true_map = building(*_rows_cols(spec, "building", size or "32x32"),
-                                       **{"seed": 0} | options)
-            return WorldSpec(spec, model, true_map)
-        if kind == "layout":
-            if not size:
-                raise ModelError(f"world spec {spec!r}: a layout names its file, layout:PATH")
-            model, true_map = read_layout(size, **options)
-            return WorldSpec(spec, model, true_map)
-    except (TypeError, ValueError) as error:
+        world = _build(spec, kind, size, options)
+        if floor_plan is not None:
+            try:
+                world = world._replace(model=with_floor_plan(world.model, world.true_map, floor_plan),
+                                       floor_plan=floor_plan)
+            except ModelError as error:
+                raise ModelError(f"world spec {spec!r}: floor_plan={floor_plan}: {error}") from None
+        return world
+    except ModelError as error:
         if str(error).startswith("world spec"):
             raise
         raise ModelError(f"world spec {spec!r}: {error}") from None
-    raise ModelError(f"world spec {spec!r}: unknown kind {kind!r} (corridor:N, grid:RxC, door, building:RxC, "
-                     "layout:PATH)")
+    except (TypeError, ValueError) as error:
+        raise ModelError(f"world spec {spec!r}: {error}") from None
+
+
+def _build(spec: str, kind: str, size: str, options: dict) -> WorldSpec:
+    """The world of a parsed spec (``kind`` known, ``options`` checked against its keys)."""
+    if kind == "corridor":
+        return WorldSpec(spec, corridor(_whole(spec, "the corridor's length", size or "8"), **options), None)
+    if kind == "grid":
+        rows, cols = _rows_cols(spec, "grid", size or "2x3")
+        change = options.pop("p_change", 0.0)
+        k = arguments.integer("n_labels", options.pop("n_labels", 2), minimum=2, maximum=arguments.MAX_LABELS)
+        return WorldSpec(spec, grid_model(rows, cols, k, change=symmetric_channel(k, 1 - change),
+                                          **options), None)
+    if kind == "door":
+        if size:
+            raise ModelError("door worlds take no size; read a floor from a file with layout:PATH")
+        model, true_map = door_world(**options)
+        return WorldSpec(spec, model, true_map)
+    if kind == "building":
+        model, true_map = building(*_rows_cols(spec, "building", size or "32x32"),
+                                   **{"seed": 0} | options)
+        return WorldSpec(spec, model, true_map)
+    if not size:  # a layout
+        raise ModelError(f"world spec {spec!r}: a layout names its file, layout:PATH")
+    model, true_map = read_layout(size, **options)
+    return WorldSpec(spec, model, true_map)

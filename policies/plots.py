@@ -46,33 +46,54 @@ def plot_errors(table: pd.DataFrame, axes=None, columns=("map_error", "door_erro
     return axes[0].figure
 
 
+UNVISITED = "0.82"  # the colour of cells no run visited (light grey: not the page's white)
+
+
 def plot_visits(model: GridModel, true_map, table: pd.DataFrame, axes=None) -> "Figure":
-    """The world with the visit counts of each planner (summed over seeds, square-root colour
-    scale, unvisited cells white); walls shaded grey, doors outlined in red. ``axes``: one per planner (created when None)."""
+    """The world with the visit counts of each planner (summed over seeds), every panel on one
+    square-root colour scale with one colour bar, so panels compare; cells never visited are light
+    grey. With the runs' map (``true_map``; None when they used different maps: the counts alone):
+    walls hatched and doors outlined in red in a door world, with a legend; in a world of other
+    labels each cell's label is written in it. ``axes``: one per planner (created when None)."""
+    from matplotlib import colormaps
     from matplotlib.colors import PowerNorm
     from matplotlib.figure import Figure
-    from matplotlib.patches import Rectangle
+    from matplotlib.patches import Patch, Rectangle
 
     planners = list(dict.fromkeys(table["planner"]))
     if axes is None:
-        figure = Figure(figsize=(3.6 * len(planners), 3.6), layout="constrained")
+        figure = Figure(figsize=(3.3 * len(planners) + 1.2, 4.0), layout="constrained")
         axes = np.atleast_1d(figure.subplots(1, len(planners)))
-    labels = np.asarray(true_map).reshape(model.rows, model.cols)
-    doors = door_cells(model, np.asarray(true_map))
-    door_share = ""
+    figure = axes[0].figure
+    counts = {planner: np.bincount(table.loc[table["planner"] == planner, "true_location"].to_numpy(),
+                                   minlength=model.n_cells).reshape(model.rows, model.cols) for planner in planners}
+    norm = PowerNorm(0.5, vmin=0, vmax=max(1, *(c.max() for c in counts.values())))  # one scale for every panel
+    cmap = colormaps["viridis"].with_extremes(bad=UNVISITED)
+    labels = None if true_map is None else np.asarray(true_map).reshape(model.rows, model.cols)
+    door_world = labels is not None and model.label_names == DOOR_LABELS
+    doors = door_cells(model, np.asarray(true_map)) if door_world else np.empty(0, dtype=np.int64)
     for ax, planner in zip(axes, planners):
-        where = table.loc[table["planner"] == planner, "true_location"].to_numpy()
-        counts = np.bincount(where, minlength=model.n_cells).reshape(model.rows, model.cols)
-        image = ax.imshow(np.ma.masked_equal(counts, 0), cmap="viridis",
-                          norm=PowerNorm(0.5, vmin=0, vmax=max(1, counts.max())))
-        if model.label_names == DOOR_LABELS:
-            walls = np.zeros(labels.shape + (4,))
-            walls[labels == WALL] = (0.5, 0.5, 0.5, 0.6)
-            ax.imshow(walls)
+        image = ax.imshow(np.ma.masked_equal(counts[planner], 0), cmap=cmap, norm=norm)
+        title = planner
+        if door_world:
+            for (row, col), label in np.ndenumerate(labels):
+                if label == WALL:
+                    ax.add_patch(Rectangle((col - 0.5, row - 0.5), 1, 1, fill=False, hatch="////", edgecolor="0.25",
+                                           linewidth=0))
             for cell in doors:
                 row, col = divmod(int(cell), model.cols)
                 ax.add_patch(Rectangle((col - 0.45, row - 0.45), 0.9, 0.9, fill=False, edgecolor="red", linewidth=2))
-            door_share = f", {np.isin(where, doors).mean():.0%} of steps on doors"
-        ax.set(title=f"{planner}{door_share}", xticks=[], yticks=[])
-        ax.figure.colorbar(image, ax=ax, shrink=0.8, label="visits")
-    return axes[0].figure
+            where = table.loc[table["planner"] == planner, "true_location"].to_numpy()
+            title += f", {np.isin(where, doors).mean():.0%} of steps on doors"
+        elif labels is not None:
+            for (row, col), label in np.ndenumerate(labels):
+                ax.text(col, row, model.label_names[label], ha="center", va="center", fontsize=7, color="0.3")
+        ax.set(title=title if labels is not None else f"{planner}\n(a map per seed: not drawn)",
+               xticks=[], yticks=[])
+    figure.colorbar(image, ax=list(axes), shrink=0.8, label="visits (all seeds)")
+    legend = [Patch(facecolor=UNVISITED, edgecolor="0.5", label="never visited")]
+    if door_world:
+        legend += [Patch(fill=False, hatch="////", edgecolor="0.25", label="wall"),
+                   Patch(fill=False, edgecolor="red", linewidth=2, label="door (open or closed)")]
+    figure.legend(handles=legend, loc="outside lower center", ncol=len(legend), fontsize=8, frameon=False)
+    return figure

@@ -10,35 +10,12 @@ and spend its effort on what changes: the doors.
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
-from onlinemap.errors import ModelError
-from onlinemap.model import CLOSED_DOOR, OPEN_DOOR, GridModel, door_cells, door_world
-from onlinemap.validation import check_map
+from onlinemap.model import GridModel, door_world
+from onlinemap.worlds import floor_plan_prior, with_floor_plan  # the floor plan lives with the world specs
 
-
-def floor_plan_prior(model: GridModel, true_map, confidence: float = 0.8) -> np.ndarray:
-    """(N, K) label prior from a floor plan: ``confidence`` on each cell's true label, the rest
-    spread uniformly over the other labels. In a door world, door cells get 1/2 open, 1/2
-    closed (the plan shows the door, not its state)."""
-    labels = check_map(model, true_map)
-    k = model.n_labels
-    if not 1.0 / k <= float(confidence) <= 1.0:
-        raise ModelError(f"confidence must be in [1/K, 1] = [{1 / k:.3g}, 1], got {confidence!r}")
-    prior = np.full((model.n_cells, k), (1.0 - confidence) / (k - 1))
-    prior[np.arange(model.n_cells), labels] = confidence
-    doors = door_cells(model, labels)
-    if len(doors):
-        prior[doors] = 0.0
-        prior[np.ix_(doors, [OPEN_DOOR, CLOSED_DOOR])] = 0.5
-    return prior
-
-
-def with_floor_plan(model: GridModel, true_map, confidence: float = 0.8) -> GridModel:
-    """``model`` with the :func:`floor_plan_prior` of ``true_map`` as its label prior."""
-    return dataclasses.replace(model, label_prior=floor_plan_prior(model, true_map, confidence))
+__all__ = ["exploration_world", "floor_plan_prior", "with_floor_plan"]
 
 
 def exploration_world(p_door: float = 0.01, p_move: float = 0.9, floor_plan: float | None = 0.8, *,

@@ -19,7 +19,7 @@ def no_pgmpy(monkeypatch):
 
 def test_bench_peers_without_peer_libraries_says_how_to_install(no_pgmpy, capsys):
     assert main(["bench", "peers"]) == 2
-    assert "pip install 'onlinemap[peers]'" in capsys.readouterr().err
+    assert "pip install pgmpy==1.1.2 hmmlearn==0.3.3 filterpy==2.0.0" in capsys.readouterr().err
 
 
 def test_bench_with_no_name_runs_everything_else_and_writes_json(no_pgmpy, monkeypatch, tmp_path, capsys):

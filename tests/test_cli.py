@@ -71,6 +71,18 @@ def test_run_where_no_estimator_fits_is_refused_not_an_empty_table(caplog):
     code, out, err = cli(["run", "--world", "door", "--estimators", "exact", "--steps", "3"])
     assert code == 2 and "exact: skipped" in caplog.text
     assert err.strip().splitlines()[-1].startswith("onlinemap: error: none of exact fits in memory")
+    # issue 24 item 17: it advised max_bytes of 10^54 GB; now it says how small exact's worlds are
+    from onlinemap.arrays import DEFAULT_MAX_BYTES
+    # the filter's peak: two (N, K^N) tensors and the (K^N,) joint map (onlinemap.estimators.exact.filter_bytes)
+    fits = {k: max(n for n in range(1, 40) if 8 * (2 * n + 1) * k ** n <= DEFAULT_MAX_BYTES) for k in (2, 4)}
+    assert "pass max_bytes" not in caplog.text and fits == {2: 22, 4: 11}
+    assert f"at most {fits[4]} cells with K=4 labels ({fits[2]} with 2) fit in max_bytes" in caplog.text
+
+
+def test_exact_just_past_its_limit_is_told_the_max_bytes_that_fits():
+    need = 8 * (2 * 23 + 1) * 2 ** 23  # two (N, 2^N) float64 tensors and the joint map: 3.2 GB, a machine may have it
+    with pytest.raises(om.MemoryLimitError, match=f"pass max_bytes={need} or more"):
+        om.make_estimator("exact", om.corridor(23))
 
 
 def test_bench_refuses_an_unknown_benchmark_in_one_line():
@@ -224,3 +236,122 @@ def test_out_dir_gets_fixed_names_in_the_chosen_format(tmp_path):
     assert code == 0, err
     assert sorted(p.name for p in (tmp_path / "b").iterdir()) == ["bench.csv", "bench.csv.json", "bench.json"]
     assert set(pd.read_csv(tmp_path / "b" / "bench.csv")["benchmark"]) == {"exact"}
+
+
+SERIAL_COMMANDS = [
+    ["explore", "--world", "corridor:5", "--planner", "random", "--steps", "3", "-o", "n_particles=5"],
+    ["compare", "--world", "corridor:4", "--runs", "1", "--steps", "3", "--particles", "5"],
+]
+
+
+@pytest.mark.parametrize("args", SERIAL_COMMANDS, ids=[a[0] for a in SERIAL_COMMANDS])
+def test_workers_0_runs_in_this_process(args, monkeypatch):
+    """Regression (issue 24 item 4): ``--workers 0`` was passed on as ``workers=None`` and ran on dask."""
+    from onlinemap.sweeps import engines
+    monkeypatch.setattr(engines, "_run_dask", lambda *a, **k: pytest.fail("ran on dask"))
+    code, out, err = cli(args + ["--workers", "0", "--no-progress"])
+    assert code == 0, err
+
+
+FLOOR_PLAN = "door,floor_plan=0.9,p_door=0.01"
+FLOOR_PLAN_COMMANDS = [
+    ["run", "--world", FLOOR_PLAN, "--estimators", "bk", "--steps", "3"],
+    ["explore", "--world", FLOOR_PLAN, "--planner", "random", "--steps", "3", "-o", "n_particles=5"],
+    ["track", "--world", FLOOR_PLAN, "--estimator", "bk"],
+]
+
+
+@pytest.mark.parametrize("args", FLOOR_PLAN_COMMANDS, ids=[a[0] for a in FLOOR_PLAN_COMMANDS])
+def test_every_command_reads_the_floor_plan_world_key(args, monkeypatch):
+    """Regression (issue 24 item 14): ``--world door,floor_plan=0.9`` was an unknown option."""
+    import io
+    monkeypatch.setattr(sys, "stdin", io.StringIO('{"observation": "free"}\n'))
+    code, out, err = cli(args + ["--no-progress"])
+    assert code == 0, err
+
+
+def test_the_floor_plan_key_is_the_policies_prior_and_needs_a_fixed_map():
+    import policies
+    from onlinemap.worlds import parse_world
+    world = parse_world(FLOOR_PLAN)
+    model, true_map = om.door_world(p_door=0.01)
+    np.testing.assert_array_equal(world.model.label_prior, policies.with_floor_plan(model, true_map, 0.9).label_prior)
+    assert world.floor_plan == 0.9 and parse_world("door").floor_plan is None
+    for spec, words in [("corridor:8,floor_plan=0.9", "fixed map"), ("door,floor_plan=0.1", "floor_plan=0.1"),
+                        ("building:10x10,cell_size=2", "for a building world")]:
+        with pytest.raises(om.ModelError, match=words):
+            parse_world(spec)
+    code, _, err = cli(["explore", "--world", FLOOR_PLAN, "--floor-plan", "0.8", "--steps", "2"])
+    assert_one_line_error(code, err, "floor plan once")
+
+
+@pytest.mark.parametrize("command", ["run", "compare", "track", "explore"])
+def test_every_world_help_lists_every_key(command):
+    from onlinemap.cli import build_parser
+    from onlinemap.worlds import KIND_KEYS
+    parser = build_parser(command).commands[command]
+    (action,) = [a for a in parser._actions if "--world" in a.option_strings]
+    for key in sorted({key for keys in KIND_KEYS.values() for key in keys}):
+        assert key in action.help, (command, key)
+    for kind in ("corridor:N", "grid:RxC", "door", "building:RxC", "layout:PATH"):
+        assert kind in action.help
+
+
+@pytest.mark.parametrize("repeats", [1, 2])
+def test_explore_draws_the_visits_over_the_map_the_runs_used(repeats, monkeypatch, tmp_path):
+    """Regression (issue 24 item 10): ``explore --world grid:3x3 --out DIR`` drew the visits over
+    ``initial_map(0)``, a map no run used (each run draws its own from its seed, stream 3)."""
+    import policies
+    from onlinemap.rng import derived_seed
+    drawn = []
+    real = policies.plot_visits
+    monkeypatch.setattr(policies, "plot_visits", lambda model, true_map, table: drawn.append(true_map) or
+                        real(model, true_map, table))
+    code, _, err = cli(["explore", "--world", "grid:3x3", "--planner", "random", "--steps", "4", "--seed", "4",
+                        "--repeats", str(repeats), "-o", "n_particles=5", "--out", str(tmp_path), "--no-progress"])
+    assert code == 0, err
+    world = om.worlds.parse_world("grid:3x3")
+    used = world.initial_map(np.random.default_rng(derived_seed(4, 3)))  # as the explore task draws it
+    assert not np.array_equal(used, world.initial_map(0))
+    if repeats == 1:
+        np.testing.assert_array_equal(drawn[0], used)
+    else:  # seeds 4 and 5 ran on different maps: none is drawn
+        assert drawn == [None]
+        summary = pd.read_csv(tmp_path / "explore_summary.csv").set_index("metric")
+        assert summary.loc["wrong_cells", "high"] <= 9  # issue 24 item 17: a count of 9 cells
+    assert (tmp_path / "explore_visits.png").stat().st_size > 0
+
+
+def test_timings_are_taken_after_a_warm_up_for_each_kind_of_model(monkeypatch):
+    """Issue 24 item 17: ``onlinemap run`` timed numba's compilation (38.8 / 7.6 / 1.5 ms per step
+    at 20 / 100 / 1000 steps). A warm-up run comes first for each estimator, options and kind of
+    model (blocking or a footprint use other kernels), on a throwaway estimator."""
+    from onlinemap import evaluate
+    monkeypatch.setattr(evaluate, "_WARMED", set())
+    calls = []
+    real = evaluate.run_estimator
+    monkeypatch.setattr(evaluate, "run_estimator", lambda est, actions, observations: calls.append(
+        (id(est), len(observations))) or real(est, actions, observations))
+    from onlinemap.worlds import parse_world
+    plain, blocking = parse_world("grid:3x3"), parse_world("grid:3x3,blocking=1")
+    for world, runs in [(plain, 2), (plain, 1), (blocking, 2), (blocking, 1)]:
+        run = world.simulate(30, 0)
+        calls.clear()
+        summary, _ = compare_on_run(run, ["rbpf"], {"rbpf": {"n_particles": 5}}, progress=False, seed=0)
+        assert [n for _, n in calls] == [evaluate.WARM_UP_STEPS, 30][2 - runs:]
+        assert len({i for i, _ in calls}) == runs  # a throwaway estimator, then the timed one
+
+
+def test_explore_by_default_runs_the_best_planner_and_says_why_the_world_is_hard():
+    """Regression (issue 24 item 16): the defaults showed only entropy, random and sweep, every one
+    lost in the paper's world, and did not say what the world was or why it is hard."""
+    code, out, err = cli(["explore", "--steps", "3", "-o", "n_particles=5", "--no-progress"])
+    assert code == 0, err
+    lines = out.splitlines()
+    assert lines[0].startswith("world door,p_move=0.8: GridModel(10x10") and "label prior: uniform" in lines[0]
+    assert lines[1].startswith("why it is hard: the robot knows nothing of the map") and "floor_plan" in lines[1]
+    table = out.split("per planner:\n")[1].splitlines()
+    assert [row.split()[0] for row in table[1:5]] == ["info_gain", "entropy", "random", "sweep"]
+    code, out, _ = cli(["explore", "--world", "door,floor_plan=0.9", "--planner", "random", "--steps", "3",
+                        "-o", "n_particles=5", "--no-progress"])
+    assert code == 0 and "label prior: the floor plan, confidence 0.9" in out and "why it is hard" not in out

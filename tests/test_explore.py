@@ -167,9 +167,9 @@ def test_cli_explore_runs_on_the_sweep_engine_and_writes_only_under_out(tmp_path
     assert "final_map_error" in printed and "wrong_cells" in printed and "sweep" in printed and "[" in printed
     steps = pd.read_csv(out / "explore_steps.csv")
     assert {"planner", "seed", "t", "true_location", "map_error", "location_error"} <= set(steps.columns)
-    assert len(steps) == 3 * 2 * 25
+    assert len(steps) == 4 * 2 * 25  # the default planners: info_gain, entropy, random, sweep
     runs = pd.read_csv(out / "explore_runs.csv")
-    assert len(runs) == 3 * 2
+    assert len(runs) == 4 * 2
     # the one scorer's definitions, recomputed here from the per-step table
     last = steps.sort_values("t").groupby(["planner", "seed"]).tail(1).set_index(["planner", "seed"])
     for (planner, seed), row in runs.set_index(["planner", "seed"]).iterrows():
@@ -234,18 +234,23 @@ def dynamic_runs():
     return paired(0.01, 300, ["entropy", "random"], DYNAMIC_SEEDS)
 
 
+@pytest.mark.slow
 def test_static_door_world_entropy_planner_learns_the_map_faster_than_a_random_walk(static_runs):
     final = static_runs.groupby(["planner", "seed"])["map_error"].last().unstack(0)
     p = one_sided_p(final["entropy"], final["random"])
     assert p < 0.05, (p, final.round(3).to_dict())
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("dynamic_runs")  # one worker runs the 128 explorations once (--dist loadgroup)
 def test_dynamic_door_world_entropy_planner_keeps_doors_up_to_date(dynamic_runs):
     late = dynamic_runs[dynamic_runs["t"] >= 100].groupby(["planner", "seed"])["door_error"].mean().unstack(0)
     p = one_sided_p(late["entropy"], late["random"])
     assert p < 0.05, (p, late.round(3).to_dict())
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("dynamic_runs")
 def test_dynamic_door_world_entropy_planner_spends_more_time_at_doors(dynamic_runs):
     model, true_map = exploration_world(p_door=0.01)
     doors = door_cells(model, true_map)
@@ -254,6 +259,7 @@ def test_dynamic_door_world_entropy_planner_spends_more_time_at_doors(dynamic_ru
     assert one_sided_p(-share["entropy"], -share["random"]) < 0.05, share.round(3).to_dict()
 
 
+@pytest.mark.slow
 def test_cli_explore_on_dask_keeps_stderr_free_of_dask_logs(tmp_path):
     """dask's scheduler runs in the CLI's process and used to log 30 INFO lines (starts, stops,
     worker registrations) through the CLI's one-line log handler; and one planner alone used to
@@ -266,3 +272,23 @@ def test_cli_explore_on_dask_keeps_stderr_free_of_dask_logs(tmp_path):
                           cwd=tmp_path, timeout=300)
     assert done.returncode == 0, done.stderr
     assert "random" in done.stdout and "INFO" not in done.stderr, done.stderr
+
+
+def test_visits_share_one_colour_scale_show_unvisited_cells_and_name_doors():
+    """Regression (issue 24 item 17): each panel had its own colour scale, cells never visited were
+    white like the page, and nothing said what the red squares and grey cells were."""
+    import matplotlib.colors as colors
+    from policies import plot_visits
+
+    model, true_map = om.door_world()
+    table = pd.DataFrame({"planner": ["a"] * 3 + ["b"] * 40, "true_location": [0, 0, 1] + [0] * 40})
+    figure = plot_visits(model, true_map, table)
+    images = [image for axis in figure.axes for image in axis.images]
+    assert len(images) == 2 and {image.norm.vmax for image in images} == {40}  # one scale: b's 40 visits
+    unvisited = images[0].cmap.get_bad()
+    assert unvisited[3] == 1 and not np.allclose(unvisited[:3], 1)  # opaque, not white
+    assert np.ma.is_masked(images[0].get_array()[5, 5])  # a cell nobody visited takes that colour
+    (legend,) = figure.legends
+    assert [text.get_text() for text in legend.get_texts()] == ["never visited", "wall", "door (open or closed)"]
+    assert len(figure.axes) == 3  # two panels and one colour bar
+    assert colors.to_hex(unvisited) != colors.to_hex("white")

@@ -24,9 +24,10 @@ def test_loop_study_summary_matches_its_runs():
     per_run, summary = ms.loop_study(4, seed=1, estimators=estimators, progress=False)
     assert len(per_run) == 8 and list(summary["estimator"]) == ["offline grid EM", "bk", "exact"]
     em = per_run[per_run["estimator"] == "offline grid EM"]
-    expected = mean_interval(em["map_error"].to_numpy(), 0.95, bounds=(0.0, 1.0))
+    expected = mean_interval(em["read_map_error"].to_numpy(), 0.95, bounds=(0.0, 1.0))
     row = summary.iloc[0]
-    assert (row["map_error"], row["map_error_low"], row["map_error_high"]) == pytest.approx(tuple(expected))
+    low, high = row["read_map_error_low"], row["read_map_error_high"]
+    assert (row["read_map_error"], low, high) == pytest.approx(tuple(expected))
     assert row["runs"] == 4 and row["error"] == ""
     exact = summary.iloc[2]  # 25 cells: exact Bayes refuses, and the table says why
     assert exact["runs"] == 0 and "MemoryLimitError" in exact["error"]
@@ -54,7 +55,7 @@ def test_blocking_study_runs_every_estimator_on_the_same_runs():
     assert seeds["bk"] == seeds["dead_reckoning"] == [3, 4]
     assert (summary["policy"] == "random walk").all() and (summary["runs"] == 2).all()
     dead = per_run[per_run["estimator"] == "dead_reckoning"]
-    assert np.allclose(dead["map_error"], 0.75)  # the uniform prior over 4 labels
+    assert np.allclose(dead["read_map_error"], 0.75)  # the uniform prior over 4 labels
 
 
 def test_blocking_study_planners_half_scores_like_the_random_walk():
@@ -75,9 +76,17 @@ def test_blocking_study_planners_half_scores_like_the_random_walk():
                         estimator_options={"n_particles": 20}, planner_options={"hypotheses": 2})
     seen = read_cells(found.run)
     p_true = found.trajectory.map[-1][seen, found.run.final_map[seen]]
-    assert row["map_error"] == pytest.approx(1 - p_true.mean())
-    assert row["wrong_cells"] == (found.trajectory.map[-1][seen].argmax(1) != found.run.final_map[seen]).sum()
-    assert row["location_error"] == pytest.approx(1 - found.trajectory.location[-1, found.run.locations[-1]])
+    assert row["read_map_error"] == pytest.approx(1 - p_true.mean())
+    assert row["read_wrong_cells"] == (found.trajectory.map[-1][seen].argmax(1) != found.run.final_map[seen]).sum()
+    assert row["final_location_error"] == pytest.approx(1 - found.trajectory.location[-1, found.run.locations[-1]])
+
+
+def test_every_study_uses_the_engines_metric_names():
+    """Regression (issue 24 item 17): ``reproduce loop`` said ``map_error`` / ``lost`` where every other
+    table says ``read_map_error`` (over the cells read) / ``ends_lost``."""
+    from onlinemap.evaluate import RUN_METRICS
+    for study in ms.STUDIES.values():
+        assert not set(study.measures) - set(RUN_METRICS) - {"any_wrong_cell", "local_maximum", "objective_gap"}
 
 
 def test_cli_prints_and_writes_the_table(tmp_path, capsys):

@@ -70,6 +70,7 @@ def test_notebook_is_stored_executed_with_figures_and_a_conclusion(stored):
     assert last.cell_type == "markdown" and len(last.source.split()) >= 30, "end with the conclusion in words"
 
 
+@pytest.mark.slow  # re-executes every notebook
 def test_stored_outputs_are_current(stored):
     name, notebook = stored
     fresh = copy.deepcopy(notebook)

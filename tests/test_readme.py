@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -50,3 +51,13 @@ def test_the_readme_door_world_example_gives_what_it_says():
     labels = est.belief.map
     assert sum(max(range(model.n_labels), key=lambda k: labels[i][k]) != run.final_map[i]
                for i in range(model.n_cells)) == 1
+
+
+def test_the_readme_gym_example_runs():
+    """Issue 24 item 18: the README shows the import that registers the gym id, and the id."""
+    pytest.importorskip("gymnasium")
+    readme = (ROOT / "README.md").read_text()
+    (block,) = [b.split("```", 1)[0] for b in readme.split("```python\n")[1:] if "import onlinemap.envs" in b]
+    namespace: dict = {}
+    exec(block, namespace)
+    assert namespace["env"].spec.id == "onlinemap/DoorWorld-v0" and namespace["truncated"] is False

@@ -5,12 +5,15 @@ import re
 import tomllib
 from pathlib import Path
 
+import pytest
+
 import onlinemap
 from onlinemap import docs
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow  # imports and documents every module
 def test_api_reference_builds_without_warnings(tmp_path):
     out = docs.build(tmp_path / "api")  # raises RuntimeError listing pdoc's warnings, if any
     pages = {path.relative_to(out).as_posix() for path in out.rglob("*.html")}
@@ -35,3 +38,12 @@ def test_licence_and_type_marker_ship():
     assert (ROOT / "onlinemap" / "py.typed").exists()
     assert "py.typed" in project["tool"]["setuptools"]["package-data"]["onlinemap"]
     assert any(dep.startswith("pdoc") for dep in project["project"]["optional-dependencies"]["test"])
+
+
+def test_the_reference_without_pdoc_is_one_error_line(monkeypatch, tmp_path, capsys):
+    """Issue 24 item 12: after the base install, ``python -m onlinemap.docs`` ended in a traceback."""
+    import sys
+    monkeypatch.setitem(sys.modules, "pdoc", None)  # import pdoc now raises ImportError
+    assert docs.main(["--out", str(tmp_path / "api")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("onlinemap.docs: error: ") and "pip install pdoc" in err[0]

@@ -60,3 +60,18 @@ def test_murphy_corridor_is_the_scripted_run():
     np.testing.assert_array_equal(run.actions, [1] * 7 + [0] * 7)
     np.testing.assert_array_equal(run.observations, [0, 1, 0, 1, 1, 0, 1, 0, 1, 0, 1, 0, 1, 0, 0])
     assert run.slipped.tolist() == [False, False, False, True] + [False] * 10
+
+
+@pytest.mark.parametrize("footprint", [None, "cross"])
+def test_run_steps_feed_a_step_loop_exactly_as_run_estimator_does(footprint):
+    """Issue 24 item 18: a helper yields the (action, observation) pairs of a ``step`` loop."""
+    model = om.grid_model(3, 3, 2, footprint=footprint)
+    run = om.simulate(model, None, om.random_walk(model, 12, seed=1), seed=2)
+    pairs = list(run.steps())
+    assert len(pairs) == run.n_steps and pairs[0][0] is None
+    assert [a for a, _ in pairs[1:]] == run.actions.tolist() and all(type(a) is int for a, _ in pairs[1:])
+    assert all(np.array_equal(z, run.observations[t]) for t, (_, z) in enumerate(pairs))
+    est = om.make_estimator("exact", model)
+    beliefs = [est.step(a, z) for a, z in run.steps()]
+    reference = om.run_estimator(om.make_estimator("exact", model), run.actions, run.observations)
+    np.testing.assert_array_equal(np.stack([b.location for b in beliefs]), reference.location)

@@ -237,24 +237,27 @@ def test_long_value_is_quoted_as_an_excerpt(monkeypatch, capsys):
     assert "InvalidObservationError" in err and "characters)" in err and len(err) < 2000
 
 
-def test_closed_stdout_exits_quietly_without_saving_undelivered_steps(tmp_path):
-    """Regression (issue 14 item 6): ``| head -1``: exit quietly; the checkpoint holds no step whose
-    output could not be written."""
+def test_closed_stdout_saves_every_delivered_step_and_no_other(tmp_path):
+    """Regression (issue 14 item 6, issue 24 item 7): ``| head -1``: exit quietly; the checkpoint
+    holds every step written to the pipe and none whose output could not be written. (Issue 24:
+    no checkpoint was written at all, although step 0 was delivered.)"""
     ck = tmp_path / "ck.npz"
-    lines = [json.dumps({"observation": 0})] + [json.dumps({"action": 1, "observation": t % 2}) for t in range(5000)]
-    shell = (f"{sys.executable} -m onlinemap track --world {WORLD} --estimator exact --checkpoint {ck} --every 7 "
+    model = parse_world(WORLD).model
+    run = random_run(model, 3000, seed=5)
+    shell = (f"{sys.executable} -m onlinemap track --world {WORLD} --estimator exact --checkpoint {ck} --every 700 "
              f"| head -1")
-    done = subprocess.run(["bash", "-o", "pipefail", "-c", shell], input="\n".join(lines) + "\n",
-                          capture_output=True, text=True, timeout=120)
+    done = subprocess.run(["bash", "-o", "pipefail", "-c", shell], input="\n".join(lines_of(model, run)) + "\n",
+                          capture_output=True, text=True, timeout=300)
     assert done.returncode == 0 and "Traceback" not in done.stderr and "Exception" not in done.stderr, done.stderr
     assert json.loads(done.stdout)["t"] == 0
     events = [json.loads(line) for line in done.stderr.splitlines()]
-    closed = [e for e in events if e.get("event") == "stdout closed"]
-    assert len(closed) == 1
-    saved = [e["t"] for e in events if e.get("event") == "checkpoint"]
-    assert closed[0]["t"] == (saved[-1] if saved else -1)
-    if saved:  # every saved step was written to the pipe before its checkpoint
-        assert om.load(ck).t == saved[-1]
+    (closed,) = [e for e in events if e.get("event") == "stdout closed"]
+    assert closed["undelivered"] == 1  # the step whose output met the closed pipe
+    assert [e["t"] for e in events if e.get("event") == "checkpoint"][-1] == closed["t"] >= 0
+    saved = om.load(ck)  # exactly the state after the delivered steps, bit for bit
+    assert saved.t == closed["t"]
+    want = reference("exact", [], random_run(model, 3000, seed=5))[closed["t"]]
+    assert json.loads(json.dumps(summarize(saved.belief, full=True))) == want
 
 
 def test_unwritable_checkpoint_is_refused_at_start(tmp_path, monkeypatch, capsys):
@@ -289,3 +292,90 @@ def test_failed_save_reports_one_line_and_keeps_the_previous_file(tmp_path, monk
     assert len(failures) == 1 and failures[0]["t"] == 3 and "No space left" in failures[0]["message"]
     assert [e["t"] for e in lines if e.get("event") == "checkpoint"] == [1, 4]
     assert om.load(ck).t == 4
+
+
+def test_start_event_gives_the_footprint_in_reading_order_and_a_list_gets_a_hint(monkeypatch, capsys):
+    """Regression (issue 24 item 14): the start event did not say in which order an observation
+    lists its readings, and a list observation on a one-cell sensor said only 'int index'."""
+    monkeypatch.setattr(sys, "stdin", io.StringIO('{"observation": ["free", "wall", "free", "free", "wall"]}\n'))
+    assert main(["track", "--world", "door,footprint=cross", "--estimator", "bk"]) == 0
+    start = json.loads(capsys.readouterr().err.splitlines()[0])
+    model = parse_world("door,footprint=cross").model
+    assert start["footprint"] == [[0, 0], [-1, 0], [0, 1], [1, 0], [0, -1]] == [list(o) for o in model.footprint]
+    assert track_in_process(monkeypatch, [], '{"observation": [0]}\n') == 0
+    start, error = [json.loads(line) for line in capsys.readouterr().err.splitlines()]
+    assert start["footprint"] == [[0, 0]]
+    assert error["error"] == "InvalidObservationError" and "footprint=cross" in error["message"]
+
+
+def test_temporaries_of_a_killed_save_are_removed_at_start(tmp_path, monkeypatch, capsys):
+    """Regression (issue 24 item 7): ``kill -9`` during a save left ``.NAME.*.tmp`` files that piled
+    up over restarts. Only this checkpoint's are removed: another process may be saving beside it."""
+    ck = tmp_path / "ck.npz"
+    mine = [tmp_path / ".ck.npz.k1l2m3.tmp", tmp_path / ".ck.npz.x9y8z7.tmp"]
+    others = [tmp_path / ".other.npz.a1b2c3.tmp", tmp_path / "ck.npz.notes.tmp"]
+    for path in mine + others:
+        path.write_bytes(b"half a file")
+    assert track_in_process(monkeypatch, ["--checkpoint", str(ck)], '{"observation": 0}\n') == 0
+    assert not any(path.exists() for path in mine) and all(path.exists() for path in others)
+    events = [json.loads(line) for line in capsys.readouterr().err.splitlines()]
+    assert events[0] == {"event": "removed temporaries", "count": 2, "path": str(ck)}
+    assert track_in_process(monkeypatch, ["--checkpoint", str(ck)], "") == 0  # nothing left: no event
+    assert json.loads(capsys.readouterr().err.splitlines()[0])["event"] == "resume"
+
+
+SIGNAL_AT_START = """\
+import os, signal, sys
+import onlinemap.cli.track as track
+real = track.{where}
+
+def interrupted(*args, **kwargs):  # the signal arrives while the process starts up
+    os.kill(os.getpid(), signal.{signal})
+    return real(*args, **kwargs)
+
+track.{where} = interrupted
+from onlinemap.cli import main
+sys.exit(main({argv!r}))
+"""
+
+
+@pytest.mark.parametrize("where", ["make_estimator", "load"])
+@pytest.mark.parametrize("number, status", [(signal.SIGTERM, 0), (signal.SIGINT, 130)], ids=["SIGTERM", "SIGINT"])
+def test_a_signal_during_start_up_stops_cleanly(tmp_path, where, number, status):
+    """Regression (issue 24 item 7): SIGINT while building the estimator or resuming printed a
+    traceback (or one non-JSON line) and SIGTERM killed the process without a word."""
+    ck = tmp_path / "ck.npz"
+    om.save(om.make_estimator("exact", parse_world(WORLD).model), ck)  # resumed: `load` runs at start-up
+    argv = ["track", "--world", WORLD, "--estimator", "exact", "--checkpoint", str(ck)]
+    code = SIGNAL_AT_START.format(where=where, signal=signal.Signals(number).name, argv=argv)
+    done = subprocess.run([sys.executable, "-c", code], input='{"observation": 0}\n', capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == status and done.stdout == "", done.stderr  # no line read
+    events = [json.loads(line) for line in done.stderr.splitlines()]
+    assert [e["event"] for e in events] == ["resume", "stopped"]
+    assert events[-1] == {"event": "stopped", "signal": signal.Signals(number).name, "t": -1}
+
+
+def test_action_errors_speak_of_lines_and_unknown_or_repeated_keys_are_refused(monkeypatch, capsys):
+    """Regression (issue 24 item 18): the first-step error spoke Python ("call step(None, z0)"); a
+    key the protocol does not have (a robot's timestamp) or a key given twice must refuse the
+    line, change nothing, and not echo the value."""
+    lines = ['{"action": 1, "observation": 0}', '{"observation": 0, "timestamp": 1700000000.25}',
+             '{"observation": 0, "observation": 1}', '{"observation": 0}', '{"observation": 1}',
+             '{"action": 1, "observation": 1, "stamp": "' + "9" * 5000 + '"}', '{"action": 1, "observation": 1}']
+    assert track_in_process(monkeypatch, [], "\n".join(lines) + "\n") == 0
+    out, err = capsys.readouterr()
+    assert [json.loads(line)["t"] for line in out.splitlines()] == [0, 1]
+    errors = [json.loads(line) for line in err.splitlines()[1:]]
+    assert [(e["line"], e["error"]) for e in errors] == [
+        (1, "InvalidActionError"), (2, "MalformedLineError"), (3, "MalformedLineError"), (5, "InvalidActionError"),
+        (6, "MalformedLineError")]
+    first, timestamp, twice, missing, long_key = (e["message"] for e in errors)
+    assert "step(" not in first and "z0" not in first and '{"observation": Z}' in first
+    assert "'timestamp'" in timestamp and "1700000000" not in timestamp
+    assert "'observation' given twice" in twice
+    assert 'needs an action' in missing and '"action"' in missing and "step(" not in missing
+    assert "'stamp'" in long_key and len(long_key) < 200
+    reference_est = om.make_estimator("exact", parse_world(WORLD).model)  # the refused lines changed nothing
+    reference_est.step(None, 0)
+    assert json.loads(out.splitlines()[1]) == json.loads(json.dumps(summarize(reference_est.step(1, 1))))

@@ -20,7 +20,7 @@ that the answers agree.
   ``tolerance``, 5 standard deviations of that difference. The unbiased schemes agree within it;
   filterpy's residual resampling does not (its shares are near [.69, .31, 0, 0]: ``copy_shares``).
 
-pgmpy, hmmlearn and filterpy come with ``pip install 'onlinemap[peers]'``; without them this
+pgmpy, hmmlearn and filterpy come with the ``peers`` extra (``pip install -e '.[peers]'``); without them this
 benchmark stops with :class:`onlinemap.peers.PeerMissingError`.
 """
 

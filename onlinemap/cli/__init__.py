@@ -30,7 +30,7 @@ COMMANDS = {
     "reproduce": "reproduce a claim of the literature (corridor: online EM gets lost)",
     "sweep": "run a grid of experiments from a TOML spec (local dask cluster or a scheduler)",
     "compare": "accuracy of the approximate estimators against exact Bayes on random runs",
-    "explore": "let planners explore a world (entropy policy vs random walk vs sweep)",
+    "explore": "let planners explore a world (information gain vs entropy vs random walk vs sweep)",
     "navigate": "send the robot to a goal through changing doors (goto vs static_goto vs the oracle)",
 }
 
@@ -80,8 +80,12 @@ def main(argv: list[str] | None = None) -> int:
     """Run the command line on ``argv`` (default ``sys.argv[1:]``); returns the exit status.
     Usage errors raise ``SystemExit(2)`` after one line on stderr, as argparse does."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(chosen_command(argv))
-    args, unknown = parser.parse_known_args(argv)
+    try:
+        parser = build_parser(chosen_command(argv))  # imports the command's module
+        args, unknown = parser.parse_known_args(argv)
+    except KeyboardInterrupt:
+        print("onlinemap: interrupted", file=sys.stderr)
+        return 130
     if unknown:  # reported by the command's parser, so that the message points at its --help
         parser.commands[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
     if args.no_progress:
@@ -89,8 +93,9 @@ def main(argv: list[str] | None = None) -> int:
     if not logging.getLogger().handlers:  # library warnings (e.g. an estimator skipped) as one line each
         logging.basicConfig(level=logging.WARNING, format="onlinemap: %(levelname)s: %(message)s")
     # dask's scheduler runs in this process and logs every start and stop at INFO through the
-    # handler above; a sweep reports its own progress. Read by dask when a sweep first imports it.
-    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
+    # handler above, and warns when it kills a slow-to-stop worker at the end; a sweep reports its
+    # own progress and failures. Read by dask when a sweep first imports it.
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "error")
     try:
         return int(args.func(args) or 0)
     except OnlineMapError as error:

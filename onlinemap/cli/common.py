@@ -170,8 +170,7 @@ def check_table_format(out: Path | None, table_format: str) -> None:
         raise OnlineMapError(f"--out {out}: expected a directory (the tables are written in it under "
                              f"fixed names; choose the format with --format)")
     if table_format == "parquet" and find_spec("pyarrow") is None:
-        raise OnlineMapError("--format parquet needs pyarrow: pip install 'onlinemap[sweeps]' or pyarrow "
-                             "(or use --format csv)")
+        raise OnlineMapError("--format parquet needs pyarrow: pip install pyarrow (or use --format csv)")
 
 
 def write_tables(tables: dict[str, pd.DataFrame], out: Path, table_format: str = "csv") -> list[Path]:

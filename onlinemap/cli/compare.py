@@ -10,6 +10,7 @@ from ..studies.accuracy import (DEFAULT_PARTICLES, DEFAULT_WORLDS, accuracy_stud
                                 error_over_time_figure, error_vs_particles_figure, error_vs_time_figure, summarise)
 from ..errors import OnlineMapError
 from ..evaluate import TIMING_NOTE
+from ..worlds import world_help
 from .common import (OPTION_HELP, non_negative_int, options_per_estimator, positive_int, print_table, split_list,
                      write_table)
 
@@ -25,8 +26,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "the time per step. With --out, writes the per-step and summary tables (CSV) and three "
                     "figures: error vs particles, error vs ms per step, and error over time.")
     p.add_argument("--world", action="append", metavar="SPEC",
-                   help="world spec, repeatable; small enough for exact (default: "
-                        f"{' and '.join(DEFAULT_WORLDS)})")
+                   help=f"repeatable, each small enough for exact (default: {' and '.join(DEFAULT_WORLDS)}); "
+                        f"{world_help()}")
     p.add_argument("--runs", type=positive_int, default=20, help="random runs per world (default 20)")
     p.add_argument("--steps", type=positive_int, default=100, help="steps per run, first observation included (default 100)")
     p.add_argument("--particles", default=",".join(map(str, DEFAULT_PARTICLES)),
@@ -57,8 +58,8 @@ def compare(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else None
     print(f"{args.runs} runs x {args.steps} steps on {', '.join(worlds)}; rbpf with {particles} particles; "
           f"seed {args.seed}")
-    per_step = accuracy_study(worlds, args.runs, args.steps, particles, args.seed, workers=args.workers or None,
-                              out=None if out is None else out / "compare.parquet", options=options)
+    per_step = accuracy_study(worlds, args.runs, args.steps, particles, args.seed, workers=args.workers,
+                              out=None if out is None else out / "compare.parts", options=options)
     summary = summarise(per_step)
     print_table(summary)
     print(TIMING_NOTE)

@@ -6,14 +6,22 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import ModelError
 from ..evaluate import TIMING_NOTE, from_steps
-from ..worlds import parse_world
+from ..worlds import parse_world, world_help
 from .common import OPTION_HELP, non_negative_int, open_unit_interval, parse_options, positive_int, print_table, split_list, write_table
 
 #: the paper's world: the built-in 10 x 10 door world, uniform label prior, p_move 0.8
 DEFAULT_WORLD = "door,p_move=0.8"
-DEFAULT_PLANNERS = "entropy,random,sweep"
+DEFAULT_PLANNERS = "info_gain,entropy,random,sweep"  # the best planner first, then the baselines
+#: printed when the robot starts knowing nothing of the map (a uniform label prior)
+HARD = ("the robot knows nothing of the map (uniform label prior): a cell seen for the first time says "
+        "nothing about where it is, so it localises only on cells it has already mapped, while its moves "
+        "fail with probability 1 - p_move. Expect high location errors (0.5-0.9 in the paper's world, where "
+        "info_gain, which re-anchors in a corner, does best). Give it the floor plan with "
+        "--world door,floor_plan=0.95,p_move=0.9.")
 SUMMARY_METRICS = ("final_map_error", "wrong_cells", "mean_location_error", "late_door_error", "ms_per_step")
 
 
@@ -21,7 +29,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     from policies import PLANNERS
 
     p = sub.add_parser(
-        "explore", help="let planners explore a world (entropy policy vs random walk vs sweep, ...)",
+        "explore", help="let planners explore a world (information gain vs entropy vs random walk vs sweep, ...)",
         description="Closed-loop exploration: each planner chooses actions from the estimator's belief, "
                     "the simulated world moves and is observed, the estimator updates. Every planner runs on "
                     "the same seeds (paired), as a sweep (onlinemap.sweeps). Prints, per planner, the final "
@@ -31,11 +39,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "explore_steps.csv, explore_runs.csv, explore_summary.csv, explore_errors.png and "
                     "explore_visits.png there (and explore.parts/: a rerun resumes).")
     p.add_argument("--world", default=DEFAULT_WORLD,
-                   help=f"world spec (see `onlinemap run --help`); default {DEFAULT_WORLD} (the paper's: the "
-                        f"built-in door world, uniform label prior)")
+                   help=f"default {DEFAULT_WORLD} (the paper's: the built-in door world, uniform label prior); "
+                        f"{world_help()}")
     p.add_argument("--floor-plan", type=float, default=None, metavar="CONFIDENCE",
-                   help="give the robot a label prior from the world's own map: CONFIDENCE on each cell's "
-                        "label, door states unknown (policies.with_floor_plan); default: the uniform prior")
+                   help="give the robot a label prior from each run's true map: CONFIDENCE on each cell's "
+                        "label, door states unknown (onlinemap.worlds.with_floor_plan; also for worlds whose "
+                        "map is drawn per seed, unlike the world key floor_plan); default: the world's prior")
     p.add_argument("--planner", default=DEFAULT_PLANNERS,
                    help=f"comma-separated registered planners: {', '.join(PLANNERS)} (default {DEFAULT_PLANNERS})")
     p.add_argument("--estimator", default="rbpf", help="registry name of the estimator (default rbpf)")
@@ -66,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     from policies import PLANNERS, plot_errors, plot_visits
 
     from .. import plots
-    from ..sweeps import summarize, summary_table, sweep
+    from ..sweeps import played_map, summarize, summary_table, sweep
 
     if args.steps < 1 or args.repeats < 1 or args.workers < 0:
         raise ModelError("--steps and --repeats must be at least 1, --workers at least 0")
@@ -77,15 +86,24 @@ def run(args: argparse.Namespace) -> int:
     if unknown or not planners:
         raise ModelError(f"--planner: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(PLANNERS)}")
     world = parse_world(args.world)
+    if args.floor_plan is not None and world.floor_plan is not None:
+        raise ModelError(f"--floor-plan {args.floor_plan} and --world {args.world}: give the floor plan once")
     out = Path(args.out) if args.out else None
     given = parse_options(args.option)
     options = ", ".join(f"{key}={value}" for key, value in given.items()) or "its default options"
-    print(f"world {args.world} (floor plan: {args.floor_plan or 'none, uniform prior'}); estimator {args.estimator}"
-          f" with {options}; {args.steps} steps, seeds {args.seed}..{args.seed + args.repeats - 1}")
-    steps = sweep(exploration_spec(args, planners), workers=args.workers or None, progress=True,
+    floor_plan = world.floor_plan if world.floor_plan is not None else args.floor_plan
+    uniform = floor_plan is None and np.allclose(world.model.label_prior, 1.0 / world.model.n_labels)
+    prior = (f"the floor plan, confidence {floor_plan}" if floor_plan is not None else
+             "uniform" if uniform else "the world's own")
+    print(f"world {args.world}: {world.model}; label prior: {prior}")
+    if uniform:
+        print("why it is hard: " + HARD)
+    print(f"planners {', '.join(planners)}; estimator {args.estimator} with {options}; {args.steps} steps, "
+          f"seeds {args.seed}..{args.seed + args.repeats - 1}")
+    steps = sweep(exploration_spec(args, planners), workers=args.workers, progress=True,
                   results_dir=None if out is None else out / "explore.parts")
-    runs = from_steps(steps, ["planner", "seed"])
-    runs.insert(1, "kind", "explore")
+    runs = from_steps(steps, ["world", "planner", "seed"])  # the world: counts of cells are bounded by its N
+    runs.insert(2, "kind", "explore")
     metrics = [m for m in SUMMARY_METRICS if m in runs]
     summary = summarize(runs, metrics, args.confidence)
     print(f"mean [{args.confidence:.0%} confidence interval] over {args.repeats} seed(s), per planner:")
@@ -94,7 +112,10 @@ def run(args: argparse.Namespace) -> int:
     if out is not None:
         written = [write_table(steps, out / "explore_steps.csv"), write_table(runs, out / "explore_runs.csv"),
                    write_table(summary, out / "explore_summary.csv")]
-        true_map = world.initial_map(0)
+        # the map the runs used: the world's own, or the one drawn for the only seed (with several
+        # seeds each run has its own map: the visits are drawn without one)
+        true_map = world.true_map if world.true_map is not None or args.repeats > 1 else played_map(args.world,
+                                                                                                      args.seed)
         columns = [c for c in ("map_error", "door_error") if c in steps]
         written += [plots.save(plot_errors(steps, columns=columns), out / "explore_errors.png", dpi=110),
                     plots.save(plot_visits(world.model, true_map, steps), out / "explore_visits.png", dpi=110)]

@@ -75,9 +75,9 @@ def scripted(out: Path | None) -> None:
     print(f"wrote {len(written)} files to {out}/ (corridor_overview.png first)")
 
 
-def study(n_runs: int, seed: int, confidence: float, out: Path | None, workers: int | None) -> None:
+def study(n_runs: int, seed: int, confidence: float, out: Path | None, workers: int) -> None:
     per_run, summary = random_corridor_study(n_runs, seed, confidence=confidence, workers=workers,
-                                             out=None if out is None else out / "corridor_random.parquet")
+                                             out=None if out is None else out / "corridor_random.parts")
     print(f"{per_run['seed'].nunique() * per_run['n_cells'].nunique()} random corridors (each length 6-12 "
           f"equally often, uniform binary labels, one slip on the way out), seeds from {seed}")
     print(f"fraction of runs [{confidence:.0%} Wilson interval]; lost: P(true location) < {LOST_BELOW}, "
@@ -118,7 +118,7 @@ def reproduce(args: argparse.Namespace) -> int:
         raise OnlineMapError(f"--workers must be >= 0, got {args.workers}")
     out = Path(args.out) if args.out else None
     if args.random:
-        study(args.random, args.seed, args.confidence, out, args.workers or None)
+        study(args.random, args.seed, args.confidence, out, args.workers)
     else:
         scripted(out)
     return 0

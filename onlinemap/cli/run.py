@@ -7,6 +7,7 @@ import argparse
 from ..arrays import DEFAULT_MAX_BYTES
 from ..errors import MemoryLimitError
 from ..estimators import available_estimators
+from ..worlds import world_help
 from .common import (OPTION_HELP, add_out_argument, check_table_format, name_list, options_per_estimator,
                      non_negative_int, positive_int, print_table, world, write_tables)
 
@@ -17,9 +18,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "final map error and the mean and final location error, then the time per "
                                    "step. The same --seed gives the same run and the same tables (estimators "
                                    "that sample, such as rbpf, are seeded from it too).")
-    p.add_argument("--world", default="corridor:8", type=world,
-                   help="world spec: corridor:N[,p_change=..,n_labels=..], grid:RxC, door[,p_door=..], "
-                        "building:RxC[,seed=..], layout:PATH[,cell_size=..] (default corridor:8)")
+    p.add_argument("--world", default="corridor:8", type=world, help=f"{world_help()} (default corridor:8)")
     p.add_argument("--estimators", default="exact,dead_reckoning", type=name_list,
                    help=f"comma-separated registry names (default exact,dead_reckoning; available: "
                         f"{', '.join(available_estimators())})")

@@ -16,7 +16,7 @@ from ..tables import check_writable
 from .common import open_unit_interval, print_table, split_list
 
 
-RESULTS = "results"  # DIR/results.parquet or DIR/results.csv
+RESULTS = "results"  # DIR/results.csv or DIR/results.parquet
 PARTS = "parts"  # DIR/parts/: one file per finished task
 
 
@@ -27,15 +27,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "one per world, estimator configuration, steps, walk and seed. Finished tasks are "
                     "kept in OUT/parts/ as they finish, so an interrupted sweep resumes where it "
                     "stopped; the table (one row per task, or per task and step with rows = \"step\") "
-                    "is written to OUT/results.parquet (or .csv) and summarised.")
+                    "is written to OUT/results.csv (or .parquet) and summarised.")
     p.add_argument("spec", nargs="?", help="the sweep spec (.toml)")
-    p.add_argument("--out", metavar="DIR", help="directory for results.parquet (or results.csv with --format "
-                   "csv) and the finished tasks (DIR/parts/); default: SPEC_NAME/ in the current directory")
-    p.add_argument("--format", choices=("parquet", "csv"), default="parquet",
-                   help="format of DIR/results (default parquet)")
+    p.add_argument("--out", metavar="DIR", help="directory for results.csv (or results.parquet with --format "
+                   "parquet) and the finished tasks (DIR/parts/); default: SPEC_NAME/ in the current directory")
+    p.add_argument("--format", choices=("csv", "parquet"), default="csv",
+                   help="format of DIR/results (default csv; parquet needs pyarrow)")
     p.add_argument("--workers", type=int,
-                   help="worker processes of the local dask cluster (default: one per CPU); "
-                        "0 runs the tasks one by one in this process, without dask")
+                   help="N: a local dask cluster of N worker processes; 0: the tasks one by one in this process, "
+                        "without dask; default: in this process while the work left looks shorter than what a "
+                        "local cluster (one process per CPU) would save, then on one")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="use an existing dask scheduler (e.g. tcp://10.0.0.5:8786) instead of a local "
                         "cluster; its workers need onlinemap installed")
@@ -62,16 +63,18 @@ def _read(path: str) -> pd.DataFrame:
     table, or, for an unfinished sweep, the parts finished so far)."""
     path = Path(path)
     if path.is_dir():
-        tables = [path / f"{RESULTS}{suffix}" for suffix in (".parquet", ".csv")]
+        tables = [path / f"{RESULTS}{suffix}" for suffix in (".csv", ".parquet")]
         existing = [table for table in tables if table.exists()]
-        if existing:
-            path = existing[0]
+        if existing:  # the newer of the two, if a sweep wrote both
+            path = max(existing, key=lambda table: table.stat().st_mtime_ns)
         elif (path / PARTS).is_dir():
             return collect(path / PARTS)
         else:
-            raise OnlineMapError(f"{path} holds no sweep results ({RESULTS}.parquet, {RESULTS}.csv or {PARTS}/)")
+            raise OnlineMapError(f"{path} holds no sweep results ({RESULTS}.csv, {RESULTS}.parquet or {PARTS}/)")
     try:
         return pd.read_csv(path) if path.suffix == ".csv" else pd.read_parquet(path)
+    except ImportError:
+        raise OnlineMapError(f"reading {path} needs pyarrow: pip install pyarrow") from None
     except (OSError, ValueError) as error:
         raise OnlineMapError(f"cannot read results table {path}: {error}") from None
 

@@ -14,24 +14,33 @@ the planner chooses from that belief: the robot's next move. The planner is buil
 start-up (also on resume) with seed 0; it sees only the beliefs (``info_gain`` is bound to the
 estimator, as in ``explore``).
 
-A malformed line (bad JSON, missing or unknown key, invalid or impossible action or
+A malformed line (bad JSON, a missing, unknown or repeated key, invalid or impossible action or
 observation) gets one JSON line on stderr, ``{"line": n, "error": type, "message": ...}``,
 changes nothing, and the process keeps reading. Informational events (start, resume,
 checkpoint written) are JSON lines on stderr too, and so are the library's log messages
 (``{"event": "log", "level": ..., "logger": ..., "message": ...}``, e.g. the RBPF's warning
-when it recovers from depletion).
+when it recovers from depletion); the start (or resume) event names the world's ``actions`` and
+``labels`` in index order and its sensor ``footprint``: the (drow, dcol) offsets in the order an
+observation lists its readings (``[[0, 0]]``: one reading, a label).
 
 A line longer than :data:`MAX_LINE` characters, with more than :data:`MAX_BRACKETS` brackets,
 or not UTF-8 is refused the same way (memory stays bounded; messages quote at most a short
 excerpt of the input). If stdout is closed (``| head -1``), the process exits quietly with
-status 0; the step whose output could not be written is not saved.
+status 0, and with ``--checkpoint`` saves every step whose output was written and not the one
+whose output met the closed pipe: the state after the last delivered step is rebuilt from the
+last checkpoint (or the start) and the inputs since (:class:`_Delivered`, bit for bit).
 
 With ``--checkpoint FILE``, the state is saved atomically every ``--every K`` steps, at the
 end of the input and on SIGTERM or SIGINT. Signals stop the loop between steps, never inside
 one nor inside a save (a second signal does the same as the first); every step printed is in
-the final checkpoint. The path is checked writable at start-up; a save that fails later (full
-disk) reports one JSON error line, keeps the previous file and the loop goes on (the exit
-status is 1 if the final save failed). A restarted process finds the file and resumes from it
+the final checkpoint. From the start of the command on (building the world and the estimator,
+resuming from the checkpoint), a signal is recorded the same way: the process emits its start
+event and stops before reading input. Only while Python imports the package (``import
+onlinemap``, before any of this module runs) do the interpreter's defaults apply. The path is
+checked writable at start-up, and temporary files of saves that a ``kill -9`` cut short
+(``.NAME.*.tmp`` beside it) are removed; a save that fails later (full disk) reports one JSON
+error line, keeps the previous file and the loop goes on (the exit status is 1 if the final save
+failed). A restarted process finds the file and resumes from it
 (the next line is step ``t + 1``), after checking that the world, estimator and options are the
 ones it was saved with; a file from another onlinemap version of the same checkpoint format
 loads, one of a newer format only with ``--allow-newer-checkpoint``. Cost per line: one
@@ -54,12 +63,13 @@ import threading
 from pathlib import Path
 
 from .. import checkpoint
+from ..atomic import remove_temporaries
 from ..belief import Belief
-from ..errors import CheckpointError, ModelError, OnlineMapError
-from ..estimators import load, make_estimator
+from ..errors import CheckpointError, InvalidActionError, ModelError, OnlineMapError
+from ..estimators import fork, load, make_estimator
 from ..metrics import map_entropy, normalized_entropy
 from ..model import model_difference
-from ..worlds import parse_world
+from ..worlds import parse_world, world_help
 from .common import OPTION_HELP, parse_options
 
 _KEYS = ("action", "observation")
@@ -76,9 +86,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                        description="Read {\"action\": A, \"observation\": Z} lines on stdin (A by index or "
                                    "name, omitted on the first line), write one JSON belief summary per step "
                                    "on stdout; errors and events go to stderr as JSON lines.")
-    p.add_argument("--world", required=True,
-                   help="world spec: corridor:N[,p_change=..,n_labels=..], grid:RxC, door[,p_door=..], "
-                        "building:RxC[,seed=..], layout:PATH[,cell_size=..]")
+    p.add_argument("--world", required=True, help=world_help())
     p.add_argument("--estimator", required=True, help="registry name (exact, dead_reckoning, bk, rbpf, ...)")
     p.add_argument("-o", "--option", action="append", default=[], metavar="KEY=VALUE",
                    help=f"estimator option, repeatable; {OPTION_HELP}")
@@ -87,23 +95,36 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--every", type=int, metavar="K",
                    help="save the checkpoint every K steps (default 100; needs --checkpoint)")
     p.add_argument("--full", action="store_true", help="also print the full location and map marginals")
+    p.add_argument("--allow-newer-checkpoint", action="store_true",
+                   help="try to resume from a checkpoint written in a newer format than this onlinemap reads")
     p.add_argument("--planner", metavar="NAME",
                    help="a registered planner (goto, static_goto, entropy, ...): each output line carries its "
                         "next action")
     p.add_argument("--goal", metavar="CELL", help="the goal of a goal planner: a cell index or ROW,COL")
-    p.add_argument("--allow-newer-checkpoint", action="store_true",
-                   help="try to resume from a checkpoint written in a newer format than this onlinemap reads")
     p.set_defaults(func=track)
 
 
+def _object(pairs: list[tuple[str, object]]) -> dict[str, object]:
+    """A JSON object whose keys are all different (``json.loads`` would keep the last of two)."""
+    record = dict(pairs)
+    if len(record) < len(pairs):
+        twice = next(key for i, (key, _) in enumerate(pairs) if key in dict(pairs[:i]))
+        raise MalformedLineError(f"{_excerpt(repr(twice), 40)} given twice")
+    return record
+
+
 def parse_line(text: str) -> tuple[object, object]:
-    """One input line -> ``(action, observation)``, unvalidated (the estimator checks them)."""
+    """One input line -> ``(action, observation)``, unvalidated (the estimator checks them). A
+    key other than ``action`` and ``observation`` (a timestamp, say), or one given twice, refuses
+    the line: nothing a robot sends is silently dropped."""
     brackets = text.count("[") + text.count("{")
     if brackets > MAX_BRACKETS:
         raise MalformedLineError(f"{brackets} brackets; a record is one object like "
                                  "{\"action\": 1, \"observation\": 0}")
     try:
-        record = json.loads(text)
+        record = json.loads(text, object_pairs_hook=_object)
+    except MalformedLineError:  # a key given twice (a ValueError too: not "invalid JSON")
+        raise
     except (ValueError, RecursionError) as error:
         raise MalformedLineError(f"invalid JSON: {_excerpt(str(error))}") from None
     if not isinstance(record, dict):
@@ -111,10 +132,22 @@ def parse_line(text: str) -> tuple[object, object]:
                                  f"got {type(record).__name__}")
     unknown = sorted(set(record) - set(_KEYS))
     if unknown:
-        raise MalformedLineError(f"unknown key(s) {', '.join(map(repr, unknown))}; expected 'action', 'observation'")
+        names = ", ".join(_excerpt(repr(key), 40) for key in unknown[:3]) + (", ..." if len(unknown) > 3 else "")
+        raise MalformedLineError(f"unknown key(s) {names}; a line has only 'action' and 'observation'")
     if "observation" not in record:
         raise MalformedLineError("missing 'observation'")
     return record.get("action"), record["observation"]
+
+
+def check_action(t: int, action, model) -> None:
+    """The action rule of step ``t`` in the words of the line protocol: none on the first line, one
+    on every later line. Raises :class:`InvalidActionError`."""
+    if t == 0 and action is not None:
+        raise InvalidActionError(f"the first step takes no action (got {_excerpt(repr(action), 40)}): the "
+                                 "first line is {\"observation\": Z} alone, before the robot moves")
+    if t > 0 and action is None:
+        raise InvalidActionError(f"step {t} needs an action: {{\"action\": A, \"observation\": Z}}, A one of "
+                                 f"{list(model.action_names)} or its index")
 
 
 def _number(x: float) -> float | None:
@@ -207,6 +240,29 @@ def read_lines(stream, stop: "_GracefulStop", limit: int = MAX_LINE):
 
 def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int:
     stdin, stdout, stderr = stdin or sys.stdin, stdout or sys.stdout, stderr or sys.stderr
+    with _GracefulStop() as stop, _log_as_json(stderr):  # from the start: a signal during start-up
+        est, planner, every = _start(args, stderr)        # (resume included) stops cleanly
+        delivered, status = _Delivered(est, args.checkpoint), 0
+        try:
+            _loop(est, planner, args, every, stop, stdin, stdout, stderr, delivered)
+        except BrokenPipeError:  # the reader is gone: save what it was given, not the step it missed
+            _quiet_stdout(stdout)
+            _emit(stderr, {"event": "stdout closed", "t": delivered.t, "undelivered": est.t - delivered.t})
+            if args.checkpoint is not None and delivered.t != delivered.saved_t and \
+                    not _save(delivered.state(), args.checkpoint, stderr):
+                status = 1
+            return status
+        if args.checkpoint is not None and est.t != delivered.saved_t and not _save(est, args.checkpoint, stderr):
+            status = 1
+    if stop.requested is not None:
+        _emit(stderr, {"event": "stopped", "signal": signal.Signals(stop.requested).name, "t": est.t})
+        return 130 if stop.requested == signal.SIGINT else status
+    return status
+
+
+def _start(args: argparse.Namespace, stderr):
+    """Check the arguments, build the estimator (or resume it from the checkpoint) and the
+    planner, emit the start event; returns ``(estimator, planner or None, every)``."""
     if args.every is not None and (args.checkpoint is None or args.every < 1):
         raise OnlineMapError("--every K needs --checkpoint FILE and K >= 1")
     every = args.every or 100
@@ -217,29 +273,20 @@ def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int
     event = "start"
     if args.checkpoint is not None:
         checkpoint.check_writable(args.checkpoint)  # fail now, not after the first K steps
+        target = Path(os.path.realpath(args.checkpoint))  # a symlink's temporaries are beside its target
+        removed = remove_temporaries(target.parent, target.name)  # of saves a kill -9 cut short
+        if removed:
+            _emit(stderr, {"event": "removed temporaries", "count": removed, "path": str(args.checkpoint)})
         if os.path.lexists(args.checkpoint):
             est, event = _resume(args.checkpoint, args.estimator, world, options, args.allow_newer_checkpoint), \
                 "resume"
     model = world.model
     planner = _planner(args, model, est)
     _emit(stderr, {"event": event, "t": est.t, "world": args.world, "estimator": est.name,
-                   "options": options,
-                   "actions": list(model.action_names), "labels": list(model.label_names),
+                   "options": options, "actions": list(model.action_names), "labels": list(model.label_names),
+                   "footprint": [list(offset) for offset in model.footprint],
                    **({} if planner is None else {"planner": repr(planner)})})
-    saved, status = [est.t], 0
-    with _GracefulStop() as stop, _log_as_json(stderr):
-        try:
-            _loop(est, planner, args, every, stop, stdin, stdout, stderr, saved)
-        except BrokenPipeError:  # the reader is gone: the last step was not delivered, so it is not saved
-            _quiet_stdout(stdout)
-            _emit(stderr, {"event": "stdout closed", "t": saved[0], "unsaved": est.t - saved[0]})
-            return 0
-        if args.checkpoint is not None and est.t != saved[0] and not _save(est, args.checkpoint, stderr):
-            status = 1
-    if stop.requested is not None:
-        _emit(stderr, {"event": "stopped", "signal": signal.Signals(stop.requested).name, "t": est.t})
-        return 130 if stop.requested == signal.SIGINT else status
-    return status
+    return est, planner, every
 
 
 def _goal(text: str) -> int | tuple[int, int]:
@@ -265,10 +312,42 @@ def _planner(args: argparse.Namespace, model, est):
     return planner
 
 
-def _loop(est, planner, args, every: int, stop: "_GracefulStop", stdin, stdout, stderr, saved: list[int]) -> None:
-    """Step through the input until its end or a stop signal; ``saved[0]`` is the step of the
-    last checkpoint written. Every step is printed (with the ``planner``'s next action, if any)
-    before any checkpoint that includes it."""
+class _Delivered:
+    """The estimator as of the last step whose output was written: a copy taken at the last
+    checkpoint (or at the start) and the inputs stepped since. Replaying them on the copy gives,
+    bit for bit, the state the estimator had after that step (as a checkpoint resumes). Memory:
+    one copy of the state and the inputs of at most ``--every`` steps (while saves succeed);
+    nothing without ``--checkpoint``."""
+
+    def __init__(self, est, path: Path | None) -> None:
+        self.t = est.t  # the last step delivered
+        self.saved_t = est.t  # the step of the last checkpoint written (or loaded)
+        self._base = fork(est) if path is not None else None
+        self._inputs: list[tuple[object, object]] = []
+
+    def stepped(self, t: int, action, observation) -> None:
+        """Step ``t``, ``(action, observation)``, was delivered."""
+        self.t = t
+        if self._base is not None:
+            self._inputs.append((action, observation))
+
+    def saved(self, est) -> None:
+        """``est`` (every step delivered) was saved."""
+        self.saved_t = est.t
+        self._base, self._inputs = fork(est), []
+
+    def state(self):
+        """The estimator after the last delivered step (consumes the copy: call once, at the end)."""
+        for action, observation in self._inputs:
+            self._base.step(action, observation)
+        return self._base
+
+
+def _loop(est, planner, args, every: int, stop: "_GracefulStop", stdin, stdout, stderr,
+          delivered: _Delivered) -> None:
+    """Step through the input until its end or a stop signal. Every step is printed (with the
+    ``planner``'s next action, if any) before any checkpoint that includes it (``delivered``
+    keeps track)."""
     try:
         for number, line in read_lines(stdin, stop):
             if isinstance(line, OnlineMapError):
@@ -278,7 +357,9 @@ def _loop(est, planner, args, every: int, stop: "_GracefulStop", stdin, stdout, 
             if not text:
                 continue
             try:
-                belief = est.step(*parse_line(text))
+                step = parse_line(text)
+                check_action(est.t + 1, step[0], est.model)
+                belief = est.step(*step)
             except OnlineMapError as error:
                 _emit(stderr, {"line": number, "error": type(error).__name__, "message": _excerpt(str(error))})
                 continue
@@ -286,38 +367,11 @@ def _loop(est, planner, args, every: int, stop: "_GracefulStop", stdin, stdout, 
             if planner is not None:
                 record["action"] = est.model.action_names[planner.choose(belief)]
             _emit(stdout, record)  # a closed stdout raises BrokenPipeError here
+            delivered.stepped(belief.t, *step)
             if args.checkpoint is not None and (belief.t + 1) % every == 0 and _save(est, args.checkpoint, stderr):
-                saved[0] = est.t
+                delivered.saved(est)
     except _Stopped:  # a signal while waiting for input
         pass
-
-
-class _JsonLines(logging.Handler):
-    """A log record as one JSON event line on ``stream``."""
-
-    def __init__(self, stream) -> None:
-        super().__init__()
-        self.stream = stream
-
-    def emit(self, record: logging.LogRecord) -> None:
-        _emit(self.stream, {"event": "log", "level": record.levelname, "logger": record.name,
-                            "message": _excerpt(record.getMessage(), 400)})
-
-
-@contextlib.contextmanager
-def _log_as_json(stderr):
-    """The ``onlinemap`` loggers' warnings go to ``stderr`` as JSON lines (not through the root
-    logger's text handler) while the loop runs."""
-    library, handler = logging.getLogger("onlinemap"), _JsonLines(stderr)
-    handler.setLevel(logging.WARNING)
-    propagate = library.propagate
-    library.addHandler(handler)
-    library.propagate = False
-    try:
-        yield
-    finally:
-        library.removeHandler(handler)
-        library.propagate = propagate
 
 
 def _quiet_stdout(stdout) -> None:
@@ -384,3 +438,31 @@ def _save(est, path: Path, stderr) -> bool:
         return False
     _emit(stderr, {"event": "checkpoint", "t": est.t, "path": str(path)})
     return True
+
+
+class _JsonLines(logging.Handler):
+    """A log record as one JSON event line on ``stream``."""
+
+    def __init__(self, stream) -> None:
+        super().__init__()
+        self.stream = stream
+
+    def emit(self, record: logging.LogRecord) -> None:
+        _emit(self.stream, {"event": "log", "level": record.levelname, "logger": record.name,
+                            "message": _excerpt(record.getMessage(), 400)})
+
+
+@contextlib.contextmanager
+def _log_as_json(stderr):
+    """The ``onlinemap`` loggers' warnings go to ``stderr`` as JSON lines (not through the root
+    logger's text handler) while the loop runs."""
+    library, handler = logging.getLogger("onlinemap"), _JsonLines(stderr)
+    handler.setLevel(logging.WARNING)
+    propagate = library.propagate
+    library.addHandler(handler)
+    library.propagate = False
+    try:
+        yield
+    finally:
+        library.removeHandler(handler)
+        library.propagate = propagate

@@ -1,4 +1,4 @@
-"""Gymnasium environments (optional: ``pip install 'onlinemap[gym]'``).
+"""Gymnasium environments (optional: ``pip install gymnasium``, in a clone ``pip install -e '.[gym]'``).
 
 Importing this package registers ``onlinemap/DoorWorld-v0`` (the dynamic 10 x 10 door world,
 ``p_door = 0.01``, 500 steps per episode)::
@@ -13,7 +13,7 @@ try:
     import gymnasium
 except ImportError as error:  # pragma: no cover - exercised in a subprocess by the tests
     raise ImportError("onlinemap.envs needs gymnasium, an optional dependency: "
-                      "pip install 'onlinemap[gym]'") from error
+                      "pip install gymnasium (in a clone: pip install -e '.[gym]')") from error
 
 from .door_world import DoorWorldEnv
 

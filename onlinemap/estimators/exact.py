@@ -66,18 +66,40 @@ def smooth_bytes(model: GridModel, n_steps: int) -> int:
     return tensor_bytes(model, n_steps + (GENERAL_SMOOTH_EXTRA_TENSORS if _general(model) else SMOOTH_EXTRA_TENSORS))
 
 
+PLAUSIBLE_BYTES = 2 ** 40  # 1 TiB: beyond this, raising max_bytes is not advice anyone can follow
+
+
+def largest_world(n_labels: int, copies: float, max_bytes: int | float) -> int:
+    """The most cells N whose ``copies`` (N, K**N) float64 tensors fit in ``max_bytes`` (0 if none).
+    O(N)."""
+    n = 0
+    while 8 * copies * (n + 1) * n_labels ** (n + 1) <= max_bytes:
+        n += 1
+    return n
+
+
 def check_memory(model: GridModel, need: int, max_bytes: int | float, what: str) -> None:
     """Raise :class:`MemoryLimitError` if ``need`` bytes exceed ``max_bytes`` (a positive int or
     ``math.inf``, capped at the machine's memory: :func:`onlinemap.arguments.byte_limit`), or
-    :class:`InvalidOptionError` if ``max_bytes`` is not a limit; allocate nothing."""
+    :class:`InvalidOptionError` if ``max_bytes`` is not a limit; allocate nothing. The message
+    suggests raising ``max_bytes`` only when the tensors would fit in a large machine
+    (:data:`PLAUSIBLE_BYTES`); otherwise it says how large a world exact Bayes can take."""
     limit = arguments.byte_limit("max_bytes", max_bytes, InvalidOptionError)
     if need > limit:
-        raised = ("pass max_bytes=... to raise it" if limit == max_bytes else
-                  f"this machine has {limit / 1e9:.3g} GB (max_bytes={max_bytes!r} cannot raise that)")
+        copies = need / tensor_bytes(model)
+        if need > PLAUSIBLE_BYTES:
+            binary = f" ({largest_world(2, copies, limit)} with 2)" if model.n_labels != 2 else ""
+            advice = (f"exact Bayes keeps all K^N maps, so it is for small worlds: at most "
+                      f"{largest_world(model.n_labels, copies, limit)} cells with K={model.n_labels} "
+                      f"labels{binary} fit in max_bytes")
+        elif limit == max_bytes:
+            advice = f"pass max_bytes={need} or more to raise it, if this machine has the memory"
+        else:
+            advice = f"this machine has {limit / 1e9:.3g} GB (max_bytes={max_bytes!r} cannot raise that)"
         raise MemoryLimitError(
             f"{what} for N={model.n_cells} cells and K={model.n_labels} labels needs "
-            f"{need / 1e9:.3g} GB (about {need / tensor_bytes(model):.3g} x N*K^N float64) but the limit is "
-            f"{limit / 1e9:.3g} GB; {raised}, or use an approximate estimator (bk, rbpf)")
+            f"{need / 1e9:.3g} GB (about {copies:.3g} x N*K^N float64) but the limit is "
+            f"{limit / 1e9:.3g} GB; {advice}, or use an approximate estimator (bk, rbpf)")
 
 
 def prior_tensor(model: GridModel) -> np.ndarray:

@@ -74,16 +74,16 @@ def accuracy_study(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_s
                    particles: Sequence[int] = DEFAULT_PARTICLES, seed: int = 0, progress: bool = True, *,
                    workers: int | None = 0, out=None,
                    options: Mapping[str, Mapping[str, object]] | None = None) -> pd.DataFrame:
-    """Per-step distances to exact, run on the sweep engine (:func:`study_spec`; ``workers`` and
-    ``out`` as in :func:`onlinemap.sweeps.sweep`: 0 runs serially here, None on a local dask
-    cluster; ``options`` as in :func:`study_spec`). One row per (world, run, estimator, t): the sweep's per-step columns
+    """Per-step distances to exact, run on the sweep engine (:func:`study_spec`; ``workers`` as in
+    :func:`onlinemap.sweeps.sweep`: 0 runs serially here; ``out``: a folder of parts, so a rerun
+    resumes; ``options`` as in :func:`study_spec`). One row per (world, run, estimator, t): the sweep's per-step columns
     (:mod:`onlinemap.evaluate`: ``location_tv``, ``map_tv``, ``map_error``, ``ms_per_step``, ...)
     plus ``run`` (the seed), ``particles`` (NaN unless rbpf), ``proposal``, ``resampling`` and
     ``estimator`` relabelled by :func:`label`. Cost: n_runs * n_steps steps of exact and of every estimator,
     per world."""
     from ..sweeps import sweep
 
-    table = sweep(study_spec(worlds, n_runs, n_steps, particles, seed, options), workers=workers, out=out,
+    table = sweep(study_spec(worlds, n_runs, n_steps, particles, seed, options), workers=workers, results_dir=out,
                   progress=progress)
     rbpf = table["estimator"] == "rbpf"
     count = table["opt_n_particles"] if "opt_n_particles" in table else pd.Series(pd.NA, index=table.index)

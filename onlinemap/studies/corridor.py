@@ -90,7 +90,7 @@ def random_corridor_study(n_runs: int, seed: int = 0, estimators=None, confidenc
                           progress: bool = True, *, workers: int | None = 0,
                           out=None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Run every estimator on random corridors (:func:`random_corridor_spec`, on the sweep engine:
-    ``workers`` and ``out`` as in :func:`onlinemap.sweeps.sweep`).
+    ``workers`` as in :func:`onlinemap.sweeps.sweep`; ``out``: a folder of parts, so a rerun resumes).
 
     Returns (per-run table: the sweep's rows (:mod:`onlinemap.evaluate`) with ``estimator``
     relabelled as in :data:`CORRIDOR_ESTIMATORS`, ``run`` (the seed) and ``n_cells``; summary
@@ -102,7 +102,8 @@ def random_corridor_study(n_runs: int, seed: int = 0, estimators=None, confidenc
     from ..sweeps import sweep
 
     estimators = estimators or CORRIDOR_ESTIMATORS
-    per_run = sweep(random_corridor_spec(n_runs, seed, estimators), workers=workers, out=out, progress=progress)
+    per_run = sweep(random_corridor_spec(n_runs, seed, estimators), workers=workers, results_dir=out,
+                    progress=progress)
     per_run["estimator"] = per_run.pop("label")
     per_run.insert(0, "run", per_run["seed"])
     per_run.insert(1, "n_cells", per_run["world"].str.partition(":")[2].astype(int))

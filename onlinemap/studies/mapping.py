@@ -20,7 +20,9 @@ Runs and online estimators go through the sweep engine (seeds ``seed .. seed + n
 the walk of the loop world as ``walk = "repeat:east,..."``); offline grid EM and the annealing
 fits are fitted once per run, on the engine's own runs (stepping offline EM re-fits every prefix,
 O(T^2)). Maps are scored over the cells the footprint read at least once
-(:func:`onlinemap.evaluate.read_cells`: the engine's ``read_map_error``, ``read_wrong_cells``).
+(:func:`onlinemap.evaluate.read_cells`), and every measure has the engine's name
+(:data:`MEASURED`: ``read_map_error``, ``read_wrong_cells``, ``final_location_error``,
+``ends_lost``), as in every other table.
 Each returns a :class:`~onlinemap.studies.base.Study` ``(per_run, summary)``; the summary has,
 per estimator (and policy), each measure's mean and its interval at ``confidence`` (columns
 NAME, NAME_low, NAME_high: Student-t for errors, Wilson for 0/1 outcomes). An estimator that
@@ -50,17 +52,15 @@ from .base import Study, summary_of, with_intervals
 
 RING_ACTIONS = (1, 1, 2, 2, 3, 3, 0, 0)  # east, east, south, south, west, west, north, north: one lap
 RING_WALK = "repeat:east,east,south,south,west,west,north,north"  # the same, as a sweep walk
-#: the engine's per-run metrics behind each study measure: the last step, over the cells read
-SCORES = {"read_map_error": "map_error", "read_wrong_cells": "wrong_cells", "final_location_error": "location_error",
-          "ends_lost": "lost"}
+#: the engine's per-run metrics the studies report: the last step, maps over the cells read
+MEASURED = ("read_map_error", "read_wrong_cells", "final_location_error", "ends_lost")
 
 
 def _scored(runs: pd.DataFrame, groups: list[str]) -> pd.DataFrame:
     """A sweep's runs as the study's rows: ``run`` (the seed), ``seed``, the groups, the measures."""
-    replaced = [c for c in ("estimator", *SCORES.values()) if c in runs]
-    table = runs.drop(columns=replaced).rename(columns={**SCORES, "label": "estimator"})
+    table = runs.drop(columns="estimator").rename(columns={"label": "estimator"})
     table.insert(0, "run", table["seed"])
-    return table[["run", "seed", *groups, *SCORES.values()]]
+    return table[["run", "seed", *groups, *MEASURED]]
 
 
 def _refused(model: GridModel, estimators) -> tuple[list, list[dict]]:
@@ -103,7 +103,7 @@ def _summary(per_run: pd.DataFrame, by: list[str], measures, confidence: float, 
              n_cells: int) -> pd.DataFrame:
     """The one summary (:func:`onlinemap.studies.base.summary_of`) with the refused estimators
     appended, each with its error (an empty ``error`` where every run went through)."""
-    summary = summary_of(per_run, list(measures), by, confidence, {"wrong_cells": (0, n_cells)})
+    summary = summary_of(per_run, list(measures), by, confidence, {"read_wrong_cells": (0, n_cells)})
     summary["error"] = ""
     return pd.concat([summary, pd.DataFrame(refused)], ignore_index=True) if refused else summary
 
@@ -135,12 +135,12 @@ def loop_run(model: GridModel, laps: int, seed: SeedLike) -> Run:
 
 def _final_scores(run: Run, location: np.ndarray, maps: np.ndarray) -> dict[str, float]:
     """At the last step, over the cells ever read: map error, wrong cells; location error, lost
-    (the engine's ``read_map_error``, ``read_wrong_cells``, ``final_location_error``, ``ends_lost``)."""
+    (:data:`MEASURED`, as the engine computes them for a filter's run)."""
     p_true = float(location[run.locations[-1]])
     seen = read_cells(run)
-    return {"map_error": float(metrics.map_error(maps[seen], run.final_map[seen])),
-            "wrong_cells": metrics.wrong_cells(maps[seen], run.final_map[seen]),
-            "location_error": 1.0 - p_true, "lost": p_true < LOST_BELOW}
+    return {"read_map_error": float(metrics.map_error(maps[seen], run.final_map[seen])),
+            "read_wrong_cells": metrics.wrong_cells(maps[seen], run.final_map[seen]),
+            "final_location_error": 1.0 - p_true, "ends_lost": p_true < LOST_BELOW}
 
 
 LOOP_ESTIMATORS: list[tuple[str, str, dict]] = [
@@ -152,8 +152,8 @@ LOOP_ESTIMATORS: list[tuple[str, str, dict]] = [
     ("rbpf P=500", "rbpf", {"n_particles": 500}),
     ("dead_reckoning", "dead_reckoning", {}),
 ]
-LOOP_MEASURES = {"map_error": False, "wrong_cells": False, "location_error": False, "lost": True,
-                 "any_wrong_cell": True}
+LOOP_MEASURES = {"read_map_error": False, "read_wrong_cells": False, "final_location_error": False,
+                 "ends_lost": True, "any_wrong_cell": True}
 
 
 def _short_error(error: Exception) -> str:
@@ -195,13 +195,13 @@ def loop_study(n_runs: int = 200, seed: int = 0, *, laps: int = 3, p_obs: float 
                                     range(int(seed), int(seed) + int(n_runs)), estimators or LOOP_ESTIMATORS,
                                     "loop", progress, workers)
     per_run = pd.DataFrame(rows)
-    per_run["any_wrong_cell"] = per_run["wrong_cells"] > 0
+    per_run["any_wrong_cell"] = per_run["read_wrong_cells"] > 0
     return Study(per_run, _summary(per_run, ["estimator"], LOOP_MEASURES, confidence, refused, size * size))
 
 
 # --- annealing --------------------------------------------------------------------------------
 ANNEAL = (8.0, 0.85, 1.0)  # tau0, rate, tau_min: the posterior tempered by 1/tau, tau from 8 down to 1
-ANNEAL_MEASURES = {"local_maximum": True, "objective_gap": False, "map_error": False}
+ANNEAL_MEASURES = {"local_maximum": True, "objective_gap": False, "read_map_error": False}
 
 
 def anneal_study(n_runs: int = 200, seed: int = 0, *, laps: int = 3, restarts: int = 10,
@@ -240,7 +240,7 @@ def anneal_study(n_runs: int = 200, seed: int = 0, *, laps: int = 3, restarts: i
             gap = best - objective(fit)
             rows.append({"run": run_seed, "seed": run_seed, "estimator": label, "objective": objective(fit),
                          "best_objective": best, "objective_gap": gap, "local_maximum": bool(gap > tol),
-                         "map_error": _final_scores(run, fit.location[-1], fit.map)["map_error"]})
+                         "read_map_error": _final_scores(run, fit.location[-1], fit.map)["read_map_error"]})
     per_run = pd.DataFrame(rows)
     summary = summary_of(per_run, list(ANNEAL_MEASURES), ["estimator"], confidence)
     stuck = per_run.pivot(index="run", columns="estimator", values="local_maximum")[list(fits)]
@@ -268,7 +268,8 @@ BLOCKING_ESTIMATORS: list[tuple[str, str, dict]] = [
 # the estimators a planner's loop is closed on (the planners read its belief each step; info_gain
 # rolls hypotheses out on forks of it)
 PLANNER_ESTIMATORS: list[tuple[str, str, dict]] = [("rbpf P=200", "rbpf", {"n_particles": 200})]
-BLOCKING_MEASURES = {"map_error": False, "wrong_cells": False, "location_error": False, "lost": True}
+BLOCKING_MEASURES = {"read_map_error": False, "read_wrong_cells": False, "final_location_error": False,
+                     "ends_lost": True}
 
 
 def blocking_world(p_obs: float = 0.9, p_move: float = 0.8, footprint="cross") -> tuple[GridModel, np.ndarray]:

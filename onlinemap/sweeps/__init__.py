@@ -44,7 +44,8 @@ limits are caught too. Errors name the file, line and key path (:class:`SpecErro
 A task simulates its run from its seed exactly as ``onlinemap run --seed`` does
 (``default_rng(seed)`` draws the map, then the walk, then the noise); estimators with a
 ``seed`` option get one derived from the task's seed (unless the spec sets it). Results:
-one parquet file per finished task, named by a hash of the task, in a results directory;
+one ``.npz`` file per finished task (pickle-free; no pyarrow needed), named by a hash of the
+task, in a results directory;
 rerunning skips the tasks found there, and the final table holds each task of the spec once.
 Its columns: the task's description (``task`` hash, ``kind``, ``world``, ``estimator``,
 ``options`` as text and one ``opt_NAME`` column per option, ``steps``, ``seed``, ...) then the
@@ -61,22 +62,24 @@ The package, one job per module, imports running one way (``tasks`` <- ``spec``,
   ``navigate``: ``policies``), registered or found through entry points, never imported;
 - :mod:`.runner`: one task (:func:`run_task`): simulate and estimate, or play its kind; score;
 - :mod:`.store`: the part store (atomic parts, resume, :func:`collect` without the spec);
-- :mod:`.engines`: :func:`sweep` serially or on dask.distributed;
+- :mod:`.engines`: :func:`sweep` serially or on dask.distributed (by default serially unless a
+  local cluster pays: :func:`prefer_dask`);
 - :mod:`.summary`: :func:`summarize`, :func:`summary_table`, :func:`plot_sweep`.
 """
 
-from .engines import SweepError, connect, local_cluster, sweep
-from .runner import derived_seed, run_task, scripted_trip, simulated_run, walk_actions, world
+from .engines import SweepError, connect, local_cluster, prefer_dask, sweep
+from .runner import derived_seed, played_map, run_task, scripted_trip, simulated_run, walk_actions, world
 from .spec import MAX_SEED, MAX_STEPS, SpecError, load_spec, matches_annotation, parse_spec, spec_from_dict
-from .store import assemble, collect, default_results_dir, finished_tasks, write_part
+from .store import assemble, collect, default_results_dir, finished_tasks, read_part, write_part
 from .kinds import Played, TaskKind, register_kind, task_kind
 from .summary import last_steps, plot_sweep, summarize, summary_table, summary_wide
 from .tasks import CONFIG_COLUMNS, MAX_TASKS, TASK_COLUMNS, SweepSpec, Task, count_tasks, expand
 
 __all__ = [
     "sweep", "SweepError", "SpecError", "SweepSpec", "Task", "load_spec", "parse_spec", "spec_from_dict",
-    "matches_annotation", "run_task", "simulated_run", "scripted_trip", "walk_actions", "derived_seed", "world",
-    "collect", "assemble", "default_results_dir", "finished_tasks", "write_part", "local_cluster", "connect",
+    "matches_annotation", "run_task", "played_map", "simulated_run", "scripted_trip", "walk_actions", "derived_seed", "world",
+    "collect", "assemble", "default_results_dir", "finished_tasks", "read_part", "write_part", "local_cluster",
+    "connect", "prefer_dask",
     "summarize", "summary_table", "summary_wide", "plot_sweep", "last_steps", "expand", "count_tasks",
     "TaskKind", "Played", "register_kind", "task_kind",
     "TASK_COLUMNS", "CONFIG_COLUMNS", "MAX_TASKS", "MAX_SEED", "MAX_STEPS",

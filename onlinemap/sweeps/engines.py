@@ -7,8 +7,11 @@ dask.distributed lazily.
 
 from __future__ import annotations
 
+import logging
 import os
+import time
 import warnings
+from importlib.util import find_spec
 
 import pandas as pd
 
@@ -20,7 +23,8 @@ from .spec import load_spec, spec_from_dict
 from .store import assemble, collect, default_results_dir, finished_tasks, open_store, write_part
 from .tasks import MAX_TASKS, SweepSpec, Task, options_text
 
-DASK_HINT = "install dask.distributed with: pip install 'onlinemap[sweeps]'"
+log = logging.getLogger(__name__)
+DASK_HINT = "install dask.distributed with: pip install 'dask[distributed]'"
 
 
 class SweepError(OnlineMapError):
@@ -34,9 +38,11 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
 
     spec: a path to a TOML file, a :class:`SweepSpec` or a dict. client: a
     ``distributed.Client``, a scheduler address (``"tcp://host:8786"``) or None. With no
-    client, ``workers`` = 0 runs the tasks one by one in this process; otherwise a local
-    dask cluster of ``workers`` processes (default: one per CPU, at most one per task) is
-    started and closed afterwards. out: also write the table (.parquet or .csv).
+    client, ``workers`` = 0 runs the tasks one by one in this process; N >= 1 starts a local
+    dask cluster of N processes (closed afterwards); None (the default) picks: the tasks run in
+    this process while the work left looks shorter than what a local cluster would save
+    (:func:`prefer_dask`), then on a local cluster of one process per CPU (always in this
+    process without dask.distributed or with one CPU). out: also write the table (.csv, or .parquet with pyarrow).
     results_dir: where finished tasks are kept (default ``OUT.parts`` beside ``out``; with
     neither, results live only in memory and nothing resumes). Tasks already there are
     skipped. Raises :class:`SweepError` (after keeping every finished task) if tasks failed.
@@ -57,13 +63,20 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     for task in todo:
         first.setdefault(_run_key(task), len(first))
     todo.sort(key=lambda task: first[_run_key(task)])
-    failures: list[tuple[Task, BaseException]] = []
+    failures: list[tuple[Task, str]] = []
 
-    def record(task: Task, frame: pd.DataFrame) -> None:
+    def record(task: Task, outcome: runner.Outcome) -> None:
+        if outcome.error is not None:  # keep going; every failure is reported at the end
+            failures.append((task, outcome.error))
+            return
         if store is not None:
-            write_part(store, task, frame)
+            try:
+                write_part(store, task, outcome.frame)
+            except OSError as error:  # e.g. a full disk: the task counts as failed, the sweep goes on
+                failures.append((task, f"{type(error).__name__}: {error}"))
+                return
         else:
-            memory[task.key] = frame
+            memory[task.key] = outcome.frame
         bar.update()
 
     bar = tqdm(total=len(spec.tasks), initial=len(spec.tasks) - len(todo), desc=f"sweep {spec.name}",
@@ -71,12 +84,11 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     try:
         if todo and client is None and workers == 0:
             for task in todo:
-                try:
-                    record(task, runner.run_task(task))
-                except Exception as error:  # keep going; report every failure at the end
-                    failures.append((task, error))
+                record(task, runner.attempt(task))
+        elif todo and client is None and workers is None:
+            _run_auto(todo, record)
         elif todo:
-            _run_dask(todo, client, workers, record, failures)
+            _run_dask(todo, client, workers, record)
     finally:
         bar.close()
     if store is not None:
@@ -90,8 +102,44 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
         task, error = min(failures, key=lambda failure: position[failure[0].key])  # first in spec order
         raise SweepError(f"{len(failures)} of {len(spec.tasks)} tasks failed (the others are kept; rerun to "
                          f"retry); first: {task.estimator}({options_text(task.options)}) on {task.world}, "
-                         f"seed {task.seed}: {type(error).__name__}: {error}")
+                         f"seed {task.seed}: {error}")
     return table
+
+
+#: seconds a local cluster costs before it pays: start the processes, import onlinemap and load the
+#: kernels in each, close them (11-13 s measured on the shared, loaded 2-core machine)
+DASK_START_SECONDS = 12.0
+
+
+def prefer_dask(seconds: list[float], remaining: int, cpus: int, start: float = DASK_START_SECONDS) -> bool:
+    """Whether a local cluster of ``min(cpus, remaining)`` processes would finish the ``remaining``
+    tasks sooner than this process, given the ``seconds`` the tasks run here so far took. The
+    first task is left out of the estimate (it compiles the kernels); with P processes the
+    cluster saves ``(1 - 1/P)`` of the serial time and costs ``start`` seconds. Needs two tasks."""
+    workers = min(cpus, remaining)
+    if len(seconds) < 2 or workers < 2:
+        return False
+    serial = sum(seconds[1:]) / (len(seconds) - 1) * remaining
+    return serial * (1 - 1 / workers) > start
+
+
+def _run_auto(todo: list[Task], record) -> None:
+    """Run ``todo`` in this process until :func:`prefer_dask` says a local cluster would finish
+    the rest sooner, then the rest on one (17.2 s on a cluster against 7.0 s serial for a spec of
+    50 small tasks is what this avoids)."""
+    cpus = os.cpu_count() or 1
+    parallel = cpus > 1 and find_spec("distributed") is not None
+    seconds: list[float] = []
+    for position, task in enumerate(todo):
+        started = time.perf_counter()
+        record(task, runner.attempt(task))
+        seconds.append(time.perf_counter() - started)
+        rest = todo[position + 1:]
+        if parallel and rest and prefer_dask(seconds, len(rest), cpus, DASK_START_SECONDS):
+            log.info("sweep: %d tasks left, about %.0f s of work here: on a local dask cluster", len(rest),
+                     sum(seconds[1:]) / (len(seconds) - 1) * len(rest))
+            _run_dask(rest, None, None, record)
+            return
 
 
 def _run_key(task: Task) -> tuple:
@@ -126,10 +174,10 @@ def local_cluster(workers: int | None = None, n_tasks: int | None = None):
     with warnings.catch_warnings():  # another cluster on this machine holds the default HTTP port
         warnings.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
         return distributed.LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
-                                        dashboard_address=None, silence_logs=40)
+                                        dashboard_address=None, silence_logs=logging.CRITICAL)
 
 
-def _run_dask(todo: list[Task], client, workers: int | None, record, failures: list) -> None:
+def _run_dask(todo: list[Task], client, workers: int | None, record) -> None:
     distributed = _dask()
     owned, futures = [], []
     if client is None:
@@ -140,20 +188,19 @@ def _run_dask(todo: list[Task], client, workers: int | None, record, failures: l
         client = connect(client)
         owned = [client]
     try:
-        futures = client.map(runner.run_task, todo, pure=False)
+        futures = client.map(runner.attempt, todo, pure=False)  # a task's error comes back as a value
         by_key = {future.key: task for future, task in zip(futures, todo)}
         completed = distributed.as_completed(futures)
         for future in completed:
             task = by_key[future.key]
             try:
-                frame = future.result()
-            except Exception as error:
+                outcome = future.result()
+            except Exception as error:  # the worker itself failed (killed, out of memory)
                 if future.status in ("lost", "pending"):  # its worker died after it finished: recomputed
                     completed.add(future)
                     continue
-                failures.append((task, error))
-            else:
-                record(task, frame)
+                outcome = runner.Outcome(None, f"{type(error).__name__}: {error}")
+            record(task, outcome)
             future.release()
     except BaseException:
         client.cancel(futures)

@@ -16,14 +16,16 @@ Imports: :mod:`.tasks`, :mod:`.kinds`, :mod:`onlinemap.evaluate`.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
 from ..estimators import estimator_options
 from ..estimators.base import Trajectory
-from ..evaluate import RUN_METRICS, STEP_METRICS, run_metrics, step_metrics, timed_trajectory
+from ..evaluate import RUN_METRICS, STEP_METRICS, WARM_UP_STEPS, run_metrics, step_metrics, timed_trajectory
 from ..model import GridModel
 from ..rng import ESTIMATOR_STREAM, derived_seed
 from ..scenarios import one_slip_corridor
@@ -120,13 +122,52 @@ def run_task(task: Task) -> pd.DataFrame:
     return describe(task, frame, run.n_steps)
 
 
+class Outcome(NamedTuple):
+    """What running one task gave: its rows, or the error that ended it (``"Type: message"``)."""
+
+    frame: pd.DataFrame | None
+    error: str | None
+
+
+def attempt(task: Task) -> Outcome:
+    """:func:`run_task`, with an exception returned as text instead of raised: a dask worker then
+    never sees a failed task (so it logs no ``Compute Failed`` block and no traceback), and the
+    engine reports every failure the same way, serial or not."""
+    try:
+        return Outcome(run_task(task), None)
+    except Exception as error:  # any failure of a task is reported, never raised out of a worker
+        return Outcome(None, f"{type(error).__name__}: {error}")
+
+
+PLAYED_MAP_STREAM = 3  # the stream of a task's seed that draws a played task's true map
+
+
+def played_map(world_spec: str, seed: int) -> np.ndarray:
+    """The true map a played task (``explore``, ...) of ``world_spec`` and ``seed`` runs in: the
+    world's fixed map, or one drawn from its prior with stream :data:`PLAYED_MAP_STREAM` of the
+    seed (so a figure can show the map a run used). Cost O(N)."""
+    return world(world_spec).initial_map(np.random.default_rng(derived_seed(seed, PLAYED_MAP_STREAM)))
+
+
+_WARMED_PLAYS: set = set()
+
+
 def _play(task: Task) -> Played:
-    """A task of a played kind, in its world: the true map drawn from the task's seed (stream 3),
-    the robot's model given the floor plan, then the kind's ``play``."""
+    """A task of a played kind, in its world: the true map (:func:`played_map`), the robot's model
+    given the floor plan, then the kind's ``play``. The first time in this process for a
+    configuration (kind, planner, estimator, options, the model's shape and kernels), a shorter
+    play of :data:`~onlinemap.evaluate.WARM_UP_STEPS` steps comes first, so that compiling the
+    planner's and the estimator's numba kernels is not counted in ``ms_per_step``."""
     kind = task_kind(task.kind)
     spec = world(task.world)
-    true_map = spec.initial_map(np.random.default_rng(derived_seed(task.seed, 3)))
+    true_map = played_map(task.world, task.seed)
     model = spec.model if task.floor_plan is None else kind.prior(spec.model, true_map, task.floor_plan)
+    warm = (task.kind, task.planner, task.planner_options, task.estimator,
+            tuple(option for option in task.options if option[0] != "seed"), model.n_cells, model.n_labels,
+            model.n_actions, model.is_static, model.has_blocking, model.n_readings)
+    if warm not in _WARMED_PLAYS and isinstance(task.steps, int) and task.steps > 1:
+        kind.play(model, true_map, dataclasses.replace(task, steps=min(task.steps, WARM_UP_STEPS)))
+        _WARMED_PLAYS.add(warm)
     return kind.play(model, true_map, task)
 
 

@@ -1,19 +1,24 @@
-"""The part store: one parquet file per finished task in a results directory, written
-atomically (:func:`onlinemap.atomic.atomic_write`), so an interrupted or crashed sweep resumes
-where it stopped; temporaries a killed process left are removed when the store is opened.
+"""The part store: one file per finished task in a results directory, written atomically
+(:func:`onlinemap.atomic.atomic_write`), so an interrupted or crashed sweep resumes where it
+stopped; temporaries a killed process left are removed when the store is opened.
 
-Each part holds its task's description and typed ``opt_NAME`` columns, so a folder of parts
-assembles into the final table without the spec (:func:`collect`). Option columns get one
-type each: nullable integers (``Int64``) when every value is an int, floats, booleans or text,
-and JSON text when values mix types or are lists.
+A part is a pickle-free ``.npz`` (numpy's own format, so the base install reads and writes it;
+no pyarrow): one array per column (numbers and booleans as they are, text as unicode) and a
+JSON header naming the columns in order, their kinds and the task's option values. A column of
+anything else (text with missing values, mixed types) is stored as JSON. Each part holds its
+task's description and its options, so a folder of parts assembles into the final table
+without the spec (:func:`collect`). Option columns get one type each: nullable integers
+(``Int64``) when every value is an int, floats, booleans or text, and JSON text when values mix
+types or are lists. Reading a part never unpickles anything (``allow_pickle=False``).
 
-Imports: :mod:`.tasks`, :mod:`onlinemap.atomic`; pyarrow.
+Imports: :mod:`.tasks`, :mod:`onlinemap.atomic`.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import zipfile
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -24,28 +29,20 @@ from ..atomic import atomic_write, remove_temporaries
 from ..errors import OnlineMapError
 from .tasks import OPTION_PREFIXES, TASK_COLUMNS, Task, plain
 
-PART_SUFFIX = ".parquet"
-
-
-def _pyarrow():
-    try:
-        import pyarrow
-        import pyarrow.parquet
-    except ImportError:
-        raise OnlineMapError("keeping sweep results on disk needs pyarrow: pip install 'onlinemap[sweeps]' "
-                             "(or run without --out / results_dir)") from None
-    return pyarrow
+PART_SUFFIX = ".npz"
+PART_FORMAT = 1
+_HEADER = "__part__"  # the entry holding the JSON header
+NULLABLE = ("Int64", "boolean", "Float64")  # pandas' nullable types a part restores by name
 
 
 def default_results_dir(out: str | os.PathLike) -> Path:
-    """``results.parquet`` -> ``results.parts/``: where finished tasks are kept."""
+    """``results.csv`` -> ``results.parts/``: where finished tasks are kept."""
     out = Path(out)
     return out.with_name(out.stem + ".parts")
 
 
 def open_store(results_dir: str | os.PathLike) -> Path:
     """Create ``results_dir`` if needed and remove temporaries a killed sweep left there."""
-    _pyarrow()
     results_dir = Path(results_dir)
     results_dir.mkdir(parents=True, exist_ok=True)
     remove_temporaries(results_dir)
@@ -56,9 +53,73 @@ def part_path(results_dir: Path, task: Task) -> Path:
     return Path(results_dir) / f"{task.key}{PART_SUFFIX}"
 
 
+def _is_option(column: str) -> bool:
+    return column.startswith(tuple(OPTION_PREFIXES.values()))
+
+
+def _encode(column: pd.Series) -> tuple[str, np.ndarray | list]:
+    """(kind, data) of one column: ``array`` (numpy numbers, booleans), ``text`` (text without
+    missing values) or ``json`` (anything else, as a list of JSON values; pandas' nullable types
+    keep their name, :data:`NULLABLE`)."""
+    if isinstance(column.dtype, np.dtype) and column.dtype.kind in "biuf":
+        return "array", column.to_numpy()
+    values = column.tolist()
+    if pd.api.types.is_string_dtype(column) and all(isinstance(v, str) for v in values):
+        return "text", np.array(values, dtype=str)
+    return "json", [_json_value(v) for v in values]
+
+
+def _json_value(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if value is pd.NA or value is pd.NaT:
+        return None
+    return plain(value)
+
+
 def write_part(results_dir: Path, task: Task, frame: pd.DataFrame) -> Path:
-    """Write one task's rows atomically: a reader (or a resumed sweep) sees the whole file or none."""
-    return atomic_write(part_path(results_dir, task), lambda file: frame.to_parquet(file, index=False))
+    """Write one task's rows atomically: a reader (or a resumed sweep) sees the whole file or none.
+    Cost: one pass over the rows (zlib-compressed, so repeated text costs little)."""
+    header = {"format": PART_FORMAT, "rows": len(frame), "columns": [], "options": {}}
+    arrays: dict[str, np.ndarray] = {}
+    for position, name in enumerate(frame.columns):
+        if _is_option(name):
+            header["options"][name] = _json_value(frame[name].iloc[0]) if len(frame) else None
+            continue
+        kind, data = _encode(frame[name])
+        header["columns"].append([name, kind])
+        if kind == "json":
+            header.setdefault("json", {})[name] = data
+            if str(frame[name].dtype) in NULLABLE:
+                header["columns"][-1].append(str(frame[name].dtype))
+        else:
+            arrays[f"c{position}"] = data
+            header["columns"][-1].append(f"c{position}")
+    arrays[_HEADER] = np.array(json.dumps(header, allow_nan=True))
+    return atomic_write(part_path(results_dir, task), lambda file: np.savez_compressed(file, **arrays))
+
+
+def read_part(path: str | os.PathLike) -> pd.DataFrame:
+    """One part as the task's frame (its columns in order, option columns last, repeated on every
+    row as the task wrote them). A damaged part raises :class:`OnlineMapError` naming the file."""
+    try:
+        with np.load(path, allow_pickle=False) as entries:
+            header = json.loads(str(entries[_HEADER][()]))
+            if header.get("format") != PART_FORMAT:
+                raise ValueError(f"part format {header.get('format')!r}, this onlinemap reads {PART_FORMAT}")
+            data = {}
+            for name, kind, *entry in header["columns"]:
+                if kind == "json":  # entry: the nullable type's name, if any
+                    data[name] = pd.Series(pd.array(header["json"][name], dtype=entry[0]) if entry else
+                                           header["json"][name])
+                else:
+                    data[name] = pd.Series(entries[entry[0]])
+    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as error:
+        raise OnlineMapError(f"cannot read sweep part {path}: {error} (delete it to rerun its task)") from None
+    frame = pd.DataFrame(data, index=pd.RangeIndex(header["rows"]))
+    for name, value in header["options"].items():
+        frame[name] = [value] * len(frame)
+    return frame
 
 
 def finished_tasks(tasks: Iterable[Task], results_dir: str | os.PathLike) -> set[str]:
@@ -69,26 +130,14 @@ def finished_tasks(tasks: Iterable[Task], results_dir: str | os.PathLike) -> set
 def collect(results_dir: str | os.PathLike, tasks: Iterable[Task] | None = None) -> pd.DataFrame:
     """One table from the parts in ``results_dir``: those of ``tasks`` (each once, in spec order;
     parts of other tasks, e.g. from an older version of the spec, are left out), or with no
-    ``tasks`` every part there (in file-name order): no spec needed."""
-    pa = _pyarrow()
+    ``tasks`` every part there (in file-name order): no spec needed. The same table as
+    :func:`assemble` of the frames the tasks returned."""
     results_dir = Path(results_dir)
     if tasks is None:
         paths = sorted(results_dir.glob(f"*{PART_SUFFIX}"))
     else:
         paths = [path for path in (part_path(results_dir, t) for t in tasks) if path.exists()]
-    parts = [pa.parquet.read_table(path) for path in paths]  # pyarrow: ~3x faster than pandas
-    options = _option_names(part.column_names for part in parts)
-    values = [[part.column(name)[0].as_py() if name in part.column_names and part.num_rows else None
-               for part in parts] for name in options]
-    bases = [part.drop_columns([c for c in part.column_names if c in options]) for part in parts]
-    if not bases:
-        table = pd.DataFrame(columns=TASK_COLUMNS)
-    else:
-        try:
-            table = pa.concat_tables(bases, promote_options="permissive").to_pandas()
-        except (pa.ArrowInvalid, pa.ArrowTypeError):  # columns whose types differ between tasks
-            table = pd.concat([base.to_pandas() for base in bases], ignore_index=True)
-    return with_options(table, options, values, [part.num_rows for part in parts])
+    return assemble([read_part(path) for path in paths])
 
 
 def assemble(frames: Sequence[pd.DataFrame]) -> pd.DataFrame:
@@ -102,7 +151,7 @@ def assemble(frames: Sequence[pd.DataFrame]) -> pd.DataFrame:
 
 
 def _option_names(column_lists) -> list[str]:
-    names = {c for columns in column_lists for c in columns if c.startswith(tuple(OPTION_PREFIXES.values()))}
+    names = {c for columns in column_lists for c in columns if _is_option(c)}
     return sorted(names, key=lambda c: (c.startswith("planner_"), c))
 
 

@@ -3,10 +3,12 @@ a readable pivot, and plots against an option.
 
 Intervals (:func:`onlinemap.stats.mean_interval`): Wilson for yes/no outcomes, Student t for
 the rest, intersected with the metric's range (:func:`onlinemap.evaluate.metric_bounds`: errors,
-distances and entropies lie in [0, 1]), which keeps the interval's coverage (the true mean lies
-in the range) and never prints an impossible bound.
+distances and entropies lie in [0, 1], counts of cells in [0, N] for the configuration's world of
+N cells), which keeps the interval's coverage (the true mean lies in the range) and never prints
+an impossible bound.
 
-Imports: :mod:`.tasks`, :mod:`onlinemap.evaluate`, :mod:`onlinemap.stats`; matplotlib lazily.
+Imports: :mod:`.tasks`, :mod:`.runner` (the parsed worlds), :mod:`onlinemap.evaluate`,
+:mod:`onlinemap.stats`; matplotlib lazily.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from __future__ import annotations
 import itertools
 import math
 import os
+import textwrap
 from typing import Iterable
 
 import numpy as np
@@ -22,12 +25,25 @@ import pandas as pd
 from ..errors import OnlineMapError
 from ..evaluate import RUN_METRICS, STEP_METRICS, metric_bounds
 from ..stats import mean_interval
+from .runner import world
 from .tasks import CONFIG_COLUMNS
 
 
-def _interval(column: pd.Series, metric: str, confidence: float):
+def _interval(column: pd.Series, metric: str, confidence: float, n_cells: int | None = None):
     return mean_interval(column.to_numpy(dtype=np.float64, na_value=np.nan), confidence,
-                         proportion=pd.api.types.is_bool_dtype(column), bounds=metric_bounds(metric))
+                         proportion=pd.api.types.is_bool_dtype(column), bounds=metric_bounds(metric, n_cells))
+
+
+def cell_count(group: pd.DataFrame) -> int | None:
+    """The number of cells of the world(s) of a group of rows (the largest, if several), read from
+    its ``world`` column; None when there is none or a world no longer parses (a layout file
+    gone)."""
+    if "world" not in group:
+        return None
+    try:
+        return max(world(spec).model.n_cells for spec in group["world"].dropna().unique())
+    except (OnlineMapError, ValueError):  # an empty column, or a world that does not parse here
+        return None
 
 
 def last_steps(table: pd.DataFrame) -> pd.DataFrame:
@@ -61,8 +77,9 @@ def summarize(table: pd.DataFrame, metrics_: Iterable[str] | None = None, confid
     groups = table.groupby(config, sort=False, dropna=False) if config else [((), table)]
     for keys, group in groups:
         keys = keys if isinstance(keys, tuple) else (keys,)
+        n_cells = cell_count(group) if any("wrong" in metric for metric in chosen) else None
         for metric in chosen:
-            interval = _interval(group[metric], metric, confidence)
+            interval = _interval(group[metric], metric, confidence, n_cells)
             if math.isnan(interval.mean):
                 continue
             rows.append({**dict(zip(config, keys)), "metric": metric, "n": len(group),
@@ -102,11 +119,15 @@ def summary_table(summary: pd.DataFrame) -> pd.DataFrame:
     return wide[order].reset_index().rename_axis(columns=None)
 
 
+LEGEND_CHAR_INCHES = 0.075  # the width of a character of the 7-point legend, with room to spare
+
+
 def plot_sweep(table: pd.DataFrame, x: str, metrics_: Iterable[str], path: str | os.PathLike | None = None,
                confidence: float = 0.95):
     """One panel per metric: its mean over seeds against ``x`` (an option name, e.g.
     ``n_particles``, or a task column such as ``world`` or ``steps``) with ``confidence``
-    intervals as error bars, one line per remaining configuration. A per-step table is read at
+    intervals as error bars, one line per remaining configuration; a positive ``x`` spanning more
+    than a doubling (particle counts) on a log axis; the legend below the panels. A per-step table is read at
     each task's last step. Saves to ``path`` if given; returns the matplotlib figure."""
     import matplotlib.pyplot as plt
 
@@ -131,32 +152,39 @@ def plot_sweep(table: pd.DataFrame, x: str, metrics_: Iterable[str], path: str |
     table = table[table[column].notna()]
     numeric = pd.api.types.is_numeric_dtype(table[column])
     positions = None if numeric else {v: i for i, v in enumerate(dict.fromkeys(table[column]))}
-    figure, axes = plt.subplots(1, len(metrics_), figsize=(5 * len(metrics_), 3.8), squeeze=False)
+    figure, axes = plt.subplots(1, len(metrics_), figsize=(5 * len(metrics_), 3.8), squeeze=False,
+                                layout="constrained")
     for axis, metric in zip(axes[0], metrics_):
         for line, group in table.groupby("_line", sort=False):
-            points = [(value, _interval(g[metric], metric, confidence)) for value, g in group.groupby(column, sort=True)]
+            points = [(value, _interval(g[metric], metric, confidence, cell_count(g)))
+                      for value, g in group.groupby(column, sort=True)]
             xs = np.array([v if numeric else positions[v] for v, _ in points], dtype=np.float64)
             means = np.array([i.mean for _, i in points])
             errors = np.array([[i.mean - i.low, i.high - i.mean] for _, i in points]).T
             # bounds can round a hair past the mean (a Wilson bound at 0 or 1 successes): never negative
             axis.errorbar(xs, means, yerr=np.maximum(np.nan_to_num(errors), 0.0), marker="o", capsize=3, label=line)
         for style, (line, group) in zip(itertools.cycle(("--", ":", "-.")), flat.groupby("_line", sort=False)):
-            level = _interval(group[metric], metric, confidence)
+            level = _interval(group[metric], metric, confidence, cell_count(group))
             axis.axhline(level.mean, linestyle=style, color="gray", label=f"{line} (no {x})")
-        if numeric and table[column].min() > 0 and table[column].max() / table[column].min() >= 20:
-            axis.set_xscale("log")
+        if numeric and table[column].min() > 0 and table[column].max() / table[column].min() > 2:
+            axis.set_xscale("log")  # particle counts and the like: a grid of doublings or decades
+            axis.set_xticks(sorted(set(table[column])), [f"{v:g}" for v in sorted(set(table[column]))])
         if positions is not None:
             axis.set_xticks(range(len(positions)), list(positions), rotation=20)
         axis.set_xlabel(x)
         axis.set_ylabel(metric)
         axis.grid(alpha=0.3)
     handles, labels = axes[0][0].get_legend_handles_labels()
-    columns = min(3, max(1, len(labels)))
-    rows = math.ceil(len(labels) / columns)
-    figure.set_figheight(3.8 + 0.2 * rows)
-    figure.legend(handles, labels, loc="lower center", ncol=columns, fontsize=7, frameon=False)
+    # as many columns (at most 3) as the labels fit across the figure, long labels wrapped to fit
+    # one: "outside", the constrained layout makes room below the panels, so nothing is cut
+    width = figure.get_figwidth() / LEGEND_CHAR_INCHES  # characters across the figure
+    longest = max((len(label) for label in labels), default=1) + 6  # with the marker
+    columns = max(1, min(3, len(labels), int(width // longest)))
+    labels = [textwrap.fill(label, int(width / columns) - 6) for label in labels]
+    lines = sum(label.count("\n") + 1 for label in labels[::columns])  # one row of the legend per line
+    figure.set_figheight(3.8 + 0.15 * lines)
+    figure.legend(handles, labels, loc="outside lower center", ncol=columns, fontsize=7, frameon=False)
     figure.suptitle(f"mean over seeds with {confidence:.0%} intervals")
-    figure.tight_layout(rect=(0, 0.2 * rows / (3.8 + 0.2 * rows) + 0.02, 1, 1))
     if path is not None:
         from .. import plots
 
