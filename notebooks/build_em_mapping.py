@@ -107,29 +107,26 @@ fig.tight_layout()"""),
 ## Conclusions (from the 200-run CLI studies)
 
 * **Loop** (`onlinemap reproduce loop`, 200 runs): offline grid EM ends with map error 0.157
-  [0.147, 0.167] over the cells read, 2.1 [1.9, 2.4] wrong cells, and is lost (P(true location)
-  < 0.5) in 15% [11%, 21%] of runs; online EM (window 16 or the whole history) ends worse on every
-  count: map error 0.20 [0.19, 0.22], 3.2 [2.9, 3.5] wrong cells, lost in 29% [23%, 36%]. BK sits
-  between (map error 0.21, lost 18%); the RBPF (500 particles) does best, map error 0.146 [0.137,
-  0.154], lost in 14% [9%, 19%]. So the claim holds in direction, but grid EM does not learn the
-  loop perfectly here: 90% of its runs keep at least one wrong cell.
+  [0.147, 0.168] over the cells read, 2.2 [1.9, 2.4] wrong cells, and is lost (P(true location)
+  < 0.5) in 17% [12%, 22%] of runs; online EM (window 16 or the whole history) ends worse on every
+  count: map error 0.20 [0.19, 0.22], 3.4 [3.0, 3.7] wrong cells, lost in 25% [19%, 31%]. BK sits
+  between (map error 0.21, lost 21%); the RBPF (500 particles) does best, map error 0.145 [0.137,
+  0.153], lost in 16% [11%, 21%]. So the claim holds in direction, but grid EM does not learn the
+  loop perfectly here: 87% of its runs keep at least one wrong cell.
 * **Annealing** (`onlinemap reproduce anneal`, 200 runs): plain EM ends stuck below the best of
-  12 fits in 17.5% [12.9%, 23.4%] of runs, annealed EM in 13.0% [9.0%, 18.4%]; on the same runs,
-  11 are stuck only under plain EM against 2 only under annealing (exact McNemar p = 0.022).
+  12 fits in 17.0% [12.4%, 22.8%] of runs, annealed EM in 11.0% [7.4%, 16.1%]; on the same runs,
+  13 are stuck only under plain EM against 1 only under annealing (exact McNemar p = 0.002).
   Fewer local maxima, as Burgard et al. claim, though the final maps are about as good (0.157
-  against 0.154).
+  against 0.155).
 * **Blocking** (`onlinemap reproduce blocking`, 200 runs of 150 random-walk steps): offline grid
-  EM ends with map error 0.188 [0.171, 0.204] over the cells read and is lost in 34% [28%, 41%]
-  of runs; online EM 0.204 [0.189, 0.219], lost in 46% [39%, 52%]; BK 0.247 [0.228, 0.267], lost
-  in 39% [33%, 46%]; the RBPF (200 particles) 0.048 [0.036, 0.060], lost in 13% [9%, 19%] (199
-  runs; one ended on an impossible observation: no particle's map explained a reading); dead
-  reckoning keeps the prior (0.75). No robot ever enters a wall. Under the planners (the RBPF
-  with 200 particles, `--planners entropy,info_gain`, 70 runs each): `info_gain` maps as well as
-  the random walk with the same filter (map error 0.046 against 0.045, location error 0.11
-  against 0.16, no significant difference paired over the same seeds), while the paper's
-  `entropy` planner gets lost (lost in 97% of runs, map error 0.31). With a cross footprint and
-  walls that stop it, a random walk already relocalises well, so there is little left for a
-  planner to add here."""),
+  EM ends with map error 0.194 [0.178, 0.210] over the cells read and is lost in 37% [31%, 44%]
+  of runs; online EM 0.219 [0.202, 0.236], lost in 46% [39%, 52%]; BK 0.244 [0.225, 0.264], lost
+  in 48% [41%, 55%]; the RBPF (200 particles) 0.049 [0.038, 0.060], lost in 17% [12%, 23%] (all
+  200 runs; two recovered from particle depletion instead of ending); dead reckoning keeps the
+  prior (0.75). No robot ever enters a wall. With a cross footprint and walls that stop it, a
+  random walk already relocalises well; the planners' comparison in this world is the
+  exploration study (`onlinemap.studies.exploration.blocking_world_study`), where maps are
+  scored over every cell."""),
 ]
 
 
