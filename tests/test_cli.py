@@ -355,3 +355,16 @@ def test_explore_by_default_runs_the_best_planner_and_says_why_the_world_is_hard
     code, out, _ = cli(["explore", "--world", "door,floor_plan=0.9", "--planner", "random", "--steps", "3",
                         "-o", "n_particles=5", "--no-progress"])
     assert code == 0 and "label prior: the floor plan, confidence 0.9" in out and "why it is hard" not in out
+
+
+def test_a_bad_option_value_names_the_option_not_an_internal_spec_path(capsys):
+    """Issue 24 item 11: ``explore -o n_particles=abc`` named ``<spec>: estimators.rbpf.n_particles``."""
+    from onlinemap.cli import main
+
+    for argv in (["explore", "--steps", "3", "-o", "n_particles=abc"],
+                 ["compare", "--runs", "1", "--steps", "3", "-o", "block_cells=abc"],
+                 ["navigate", "--repeats", "1", "-o", "n_particles=1.5"],
+                 ["run", "--estimators", "rbpf", "-o", "rbpf.n_particles=true"]):
+        assert main(argv) == 2
+        error = capsys.readouterr().err
+        assert "--option" in error and "<spec>" not in error and "must be int" in error, error

@@ -25,7 +25,7 @@ from importlib.util import find_spec
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..errors import OnlineMapError, UnknownEstimatorError
+from ..errors import InvalidOptionError, OnlineMapError, UnknownEstimatorError
 from ..progress import PROGRESS_ENV, show_progress
 
 if TYPE_CHECKING:
@@ -194,8 +194,12 @@ def print_table(frame: pd.DataFrame, float_format: str = "{:.4g}") -> None:
 
 def options_per_estimator(names: list[str], pairs: list[str]) -> dict[str, dict[str, object]]:
     """Route ``-o`` options: ``KEY=V`` to every estimator in ``names`` with option KEY, ``NAME.KEY=V``
-    to NAME. Unknown names and keys that no listed estimator takes raise ``UnknownEstimatorError``."""
+    to NAME. Unknown names and keys that no listed estimator takes raise ``UnknownEstimatorError``;
+    a value of the wrong type (the sweep spec's check, :func:`onlinemap.sweeps.spec.matches_annotation`)
+    raises ``InvalidOptionError`` naming the ``-o`` option, before any spec or estimator is built."""
     from ..estimators import estimator_options  # lazily: ``onlinemap --help`` imports no estimator
+    from ..estimators.base import _lookup
+    from ..sweeps.spec import describe_type, expected_type, matches_annotation
 
     known = {name: estimator_options(name) for name in names}  # raises for an unknown name
     routed: dict[str, dict[str, object]] = {name: {} for name in names}
@@ -209,5 +213,9 @@ def options_per_estimator(names: list[str], pairs: list[str]) -> dict[str, dict[
             raise UnknownEstimatorError(f"--option {key}: no estimator in {', '.join(takers or names)} "
                                         f"has an option {option!r}")
         for name in takers:
+            expected = expected_type(_lookup(name), option, known[name][option])
+            if not matches_annotation(value, expected):
+                raise InvalidOptionError(f"--option {key}={json.dumps(value)}: {name}'s {option} must be "
+                                         f"{describe_type(expected)}")
             routed[name][option] = value
     return routed

@@ -11,7 +11,8 @@ import numpy as np
 from ..errors import ModelError
 from ..evaluate import TIMING_NOTE, from_steps
 from ..worlds import parse_world, world_help
-from .common import OPTION_HELP, non_negative_int, open_unit_interval, parse_options, positive_int, print_table, split_list, write_table
+from .common import (OPTION_HELP, non_negative_int, open_unit_interval, options_per_estimator, parse_options, positive_int,
+                     print_table, split_list, write_table)
 
 #: the paper's world: the built-in 10 x 10 door world, uniform label prior, p_move 0.8
 DEFAULT_WORLD = "door,p_move=0.8"
@@ -66,7 +67,7 @@ def exploration_spec(args: argparse.Namespace, planners: list[str]) -> dict:
     from ..studies.exploration import exploration_spec as spec
 
     options = {key: tuple(value) if isinstance(value, list) else value
-               for key, value in parse_options(args.option).items()}
+               for key, value in options_per_estimator([args.estimator], args.option)[args.estimator].items()}
     return spec(args.world, planners, args.steps, range(args.seed, args.seed + args.repeats),
                 estimator=args.estimator, estimator_options=options, floor_plan=args.floor_plan, rows="step")
 

@@ -7,8 +7,8 @@ import argparse
 from pathlib import Path
 
 from ..errors import ModelError
-from .common import (non_negative_int, open_unit_interval, parse_options, positive_int, print_table, split_list,
-                     write_table)
+from .common import (non_negative_int, open_unit_interval, options_per_estimator, positive_int, print_table,
+                     split_list, write_table)
 
 DEFAULT_WORLD = "door,blocking=1,footprint=cross,p_door=0.05"
 DEFAULT_PLANNERS = "goto,static_goto"
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     world = parse_world(args.world)
     true_map = world.initial_map(0)
     goal = far_goals(world.model, true_map)[0] if args.goal is None else check_goal(world.model, args.goal)
-    options = {key: tuple(value) if isinstance(value, list) else value for key, value in parse_options(args.option).items()}
+    options = options_per_estimator(["rbpf"], args.option)["rbpf"]
     options.setdefault("n_particles", 500)
     row, col = divmod(goal, world.model.cols)
     print(f"world {args.world} (floor plan {args.floor_plan}); goal cell {goal} (row {row}, col {col}); rbpf with "

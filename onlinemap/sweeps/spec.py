@@ -322,7 +322,7 @@ def _choice(data: dict, key: str, allowed: tuple, where: _Locator, default: str)
 
 
 # --- option grids and their types ------------------------------------------------------------
-def _describe(annotation) -> str:
+def describe_type(annotation) -> str:
     text = getattr(annotation, "__name__", None) if isinstance(annotation, type) else None
     return text or str(annotation).replace("typing.", "").replace("numpy.random._generator.", "numpy.random.")
 
@@ -365,7 +365,7 @@ def matches_annotation(value, annotation) -> bool:
     return True
 
 
-def _expected_type(cls: type, name: str, default):
+def expected_type(cls: type, name: str, default):
     """The annotation of ``cls.__init__``'s parameter ``name``, else one inferred from its default."""
     try:
         hints = typing.get_type_hints(cls.__init__)
@@ -390,12 +390,12 @@ def _grid(table, path: tuple, known: dict, cls: type, where: _Locator, max_tasks
         values = value if isinstance(value, list) else [value]
         if not values:
             raise where.error(path + (option,), "empty list: a list is a grid of values, give at least one")
-        expected = _expected_type(cls, option, known[option])
+        expected = expected_type(cls, option, known[option])
         for v in values:
             if not matches_annotation(v, expected):
                 hint = " (a list is a grid of values; write a list-valued option as a list of lists)" \
                     if isinstance(value, list) and not isinstance(v, list) else ""
-                raise where.error(path + (option,), f"expected {_describe(expected)}, got {v!r}{hint}")
+                raise where.error(path + (option,), f"expected {describe_type(expected)}, got {v!r}{hint}")
         axes.append([(option, frozen(v)) for v in values])
     size = math.prod(len(axis) for axis in axes)
     if size > max_tasks:
