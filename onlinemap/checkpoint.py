@@ -26,7 +26,8 @@ A class may name buffers whose contents are dead between steps (fully overwritte
 read) in a class attribute ``scratch_attributes = ("_buffer", ...)``: their dtype and shape are
 recorded and checked, their contents are neither saved nor restored (the fresh instance's own
 buffers are kept), so they cost nothing in a checkpoint and do not count as state when
-comparing two state dicts. Two attributes holding the same array stay one array after loading; two different writable
+comparing two state dicts; a checkpoint written before the class had one of them still loads.
+Two attributes holding the same array stay one array after loading; two different writable
 arrays sharing memory (views) are refused, since loading could not keep them linked.
 ``est.model`` and ``est.options`` (the keyword options it was built with, recorded by
 :func:`~onlinemap.estimators.register`) are stored apart and checked on load.
@@ -379,7 +380,9 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
     if upgrade is not None and state["format_version"] < FORMAT_VERSION:
         state = {**state, "attributes": upgrade(dict(state["attributes"]), state["format_version"])}
     current = {name: value for name, value in vars(est).items() if name not in _SEPARATE}
-    missing, extra = sorted(set(current) - set(state["attributes"])), sorted(set(state["attributes"]) - set(current))
+    scratch = set(getattr(type(est), "scratch_attributes", ()))  # not state: a checkpoint may predate one
+    missing = sorted(set(current) - set(state["attributes"]) - scratch)
+    extra = sorted(set(state["attributes"]) - set(current))
     if missing or extra:
         raise CheckpointError(f"checkpoint does not fit {type(est).__name__}: missing attributes {missing}, "
                               f"unexpected {extra}")

@@ -176,6 +176,13 @@ class BlockPool:
         that read particle maps take (``rbpf_propose``, ``rbpf_enumerate``...), in their order."""
         return self.rows, self.stamps, self.table, self.cell_block, self.cell_slot, self.powers, self.stamped
 
+    def writes(self) -> tuple:
+        """(rows, stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, stamped,
+        powers, REFRESH_STEPS): the arguments the kernels that write particle maps take
+        (``rbpf_commit``, ``rbpf_commit_children``...), in their order."""
+        return (self.rows, self.stamps, self.row_block, self.refcount, self.free, self.free_top, self.table,
+                self.cell_block, self.cell_slot, self.stamped, self.powers, REFRESH_STEPS)
+
     def commit(self, locations: np.ndarray, t: int, ancestors: np.ndarray, new_locations: np.ndarray,
                new_cells: np.ndarray, new_ids: np.ndarray | None = None) -> None:
         """Write a step into this pool: particle p takes over ``ancestors[p]``'s table row (and
@@ -185,13 +192,9 @@ class BlockPool:
         block before writing it; then :meth:`refresh`. Needs P W free rows (:meth:`reserved`).
         O(P n_blocks) for the table rows of resampled particles plus O(P W B K) for the copies."""
         if new_ids is None:
-            rbpf_commit(locations, self.rows, self.stamps, self.row_block, self.refcount, self.free, self.free_top,
-                        self.table, self.cell_block, self.cell_slot, self.stamped, self.powers, REFRESH_STEPS, t,
-                        ancestors, new_locations, new_cells)
+            rbpf_commit(locations, *self.writes(), t, ancestors, new_locations, new_cells)
         else:
-            rbpf_commit_cells(locations, self.rows, self.stamps, self.row_block, self.refcount, self.free,
-                              self.free_top, self.table, self.cell_block, self.cell_slot, self.stamped, self.powers,
-                              REFRESH_STEPS, t, ancestors, new_locations, new_ids, new_cells)
+            rbpf_commit_cells(locations, *self.writes(), t, ancestors, new_locations, new_ids, new_cells)
         self.refresh(t)
 
     def refresh(self, t: int) -> None:
@@ -208,8 +211,8 @@ class BlockPool:
         """(N, K) ``sum_p weights[p] * map_p`` at step t (unnormalised). O(P n_blocks) plus one pass
         over the rows in use (K^2 flops per out-of-date slot)."""
         out = np.empty((len(self.cell_block), self.rows.shape[2]))
-        rbpf_map_mixture(self.rows, self.stamps, self.row_block, self.table, self.block_members, self.powers,
-                         self.stamped, t, weights, out)
+        rbpf_map_mixture(self.rows, self.stamps, self.row_block, self.refcount, self.table, self.block_members,
+                         self.powers, self.stamped, t, weights, out)
         return out
 
     def particle_maps(self, t: int) -> np.ndarray:

@@ -39,6 +39,7 @@ bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -46,9 +47,9 @@ from .. import arguments
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
-from ..kernels.rbpf import (children_by_location, in_place_ancestors, rbpf_enumerate, rbpf_enumerate_cells,
-                             rbpf_pick_children, rbpf_place_children, rbpf_propose)
-from ..resampling import RESAMPLERS, effective_sample_size, optimal_keep
+from ..kernels.rbpf import (in_place_ancestors, rbpf_commit_children, rbpf_commit_children_cells, rbpf_enumerate,
+                             rbpf_enumerate_cells, rbpf_keep_children, rbpf_pick_children, rbpf_propose)
+from ..resampling import RESAMPLERS, effective_sample_size
 from ..rng import SeedLike, as_generator
 from ..model import GridModel
 from ..validation import check_step
@@ -61,11 +62,14 @@ FEARNHEAD_CLIFFORD = "fearnhead_clifford"
 RESAMPLING = (*RESAMPLERS, FEARNHEAD_CLIFFORD)
 
 
-def _logsumexp(x: np.ndarray) -> float:
+def _logsumexp(x: np.ndarray, scratch: np.ndarray | None = None) -> float:
+    """``log sum exp(x)`` (-inf if every entry is); ``scratch`` (len(x),), if given, holds the
+    terms instead of a fresh array."""
     top = float(np.max(x))
     if top == -math.inf:
         return -math.inf
-    return top + math.log(float(np.exp(x - top).sum()))
+    terms = np.subtract(x, top, out=scratch)
+    return top + math.log(float(np.exp(terms, out=terms).sum()))
 
 
 def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = None, lazy_dynamics: bool = True) -> int:
@@ -130,6 +134,10 @@ class RaoBlackwellisedPF:
     the particle maps (worst case: every particle owning all its blocks).
     """
 
+    #: Fearnhead-Clifford's per-step buffers (:meth:`_fc_buffers`), overwritten by every step before
+    #: being read: not state (a checkpoint records their dtype and shape only)
+    scratch_attributes = ("_scratch_ints", "_scratch_floats")
+
     def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
                  resampling: str | None = None, resample_threshold: float = 0.5, seed: SeedLike = None,
                  lazy_dynamics: bool = True, block_cells: int | None = None,
@@ -175,6 +183,9 @@ class RaoBlackwellisedPF:
             self._log_weights[0] = 0.0
         self._weights = np.exp(self._log_weights)  # exp(_log_weights), kept beside them
         self._blocks = BlockPool.new(model, layout, n_particles, not model.is_static and self.lazy_dynamics)
+        fc = resampling == FEARNHEAD_CLIFFORD
+        self._scratch_ints = np.zeros((5 if fc else 0, 2 * n_particles), dtype=np.int64)
+        self._scratch_floats = np.zeros((3 if fc else 0, 2 * n_particles))
         self._log_evidence = 0.0
         self._ess = float(n_particles)
         self._resampled = False
@@ -281,69 +292,109 @@ class RaoBlackwellisedPF:
         size, width = 2 * self.n_particles, cells_written(model)
         children = (np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size), np.empty(size),
                     np.empty((size, width), dtype=np.int64), np.empty((size, width, model.n_labels)))
-        m = rbpf_enumerate_cells(self._locations, log_weights, *blocks.reads(), t, neighbors, model.p_move,
-                                 model.blocking, model.change, model.footprint_cells, model.sensor,
-                                 np.atleast_1d(np.asarray(z, dtype=np.int64)), *children)
+        m = rbpf_enumerate_cells(self._locations, log_weights, *blocks.reads(), t, neighbors, *_motion_and_sensor(model, z),
+                                 *children)
         return m, children
+
+    def _fc_buffers(self) -> _FCBuffers:
+        """Views of the filter's scratch buffers for one Fearnhead-Clifford step (2P children, P
+        slots); every step writes them before reading them."""
+        ints, floats, p = self._scratch_ints, self._scratch_floats, self.n_particles
+        return _FCBuffers(ints[0], ints[1], floats[0], floats[1], ints[2], ints[3, :p], floats[2, :p], ints[3, p:],
+                          ints[4, :p], floats[2, p:])
 
     def _update_fearnhead_clifford(self, a: int | None, z, t: int) -> None:
         """Enumerate every live particle's successors with their exact weights
         (:func:`rbpf_enumerate`; :func:`rbpf_enumerate_cells` with blocking labels or a sensor
         footprint), keep P of them by optimal resampling
-        (:func:`~onlinemap.resampling.optimal_resampling`: none twice, unbiased; its strata walk
-        the children ordered by location, :func:`children_by_location`, which spreads the draws
-        over the cells: measured 1.6-2x closer to exact than index order) and write them into the
-        slots. O(P K^2 + N) (O(P F K^2) with a footprint of F cells); the resampling is O(P)."""
+        (:func:`~onlinemap.kernels.rbpf.rbpf_keep_children`: none twice, unbiased; its strata walk
+        the children ordered by location, which spreads the draws over the cells: measured 1.6-2x
+        closer to exact than index order) and write them into the slots, each kept child's changed
+        cells computed from its parent's map as the enumeration defines them
+        (:func:`rbpf_commit_children`). O(P K^2 + N) (O(P F K^2) with a footprint of F cells); the
+        resampling is O(P). Works in the filter's scratch buffers: no per-step allocation of size P."""
         model = self.model
         n_particles = self.n_particles
-        width = cells_written(model)
-        blocks = self._blocks.reserved(width * n_particles)
+        blocks = self._blocks.reserved(cells_written(model) * n_particles)
         if a is not None and not model.is_static and not self.lazy_dynamics:
             blocks = blocks.with_rows(blocks.rows @ model.change)
         neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
-        if reads_one_cell(model):
-            child_parent = np.empty(2 * n_particles, dtype=np.int64)
-            child_location = np.empty(2 * n_particles, dtype=np.int64)
-            child_log_weight = np.empty(2 * n_particles)
-            child_cells = np.empty((2 * n_particles, 1, model.n_labels))
-            child_ids = child_location.reshape(-1, 1)  # the one cell a child changes is where it stands
+        one_cell = reads_one_cell(model)
+        buffers = self._fc_buffers()
+        children = (buffers.child_parent, buffers.child_location, buffers.child_log_weight)
+        if one_cell:
             m = rbpf_enumerate(self._locations, self._log_weights, *blocks.reads(), t, neighbors, model.p_move,
-                               model.likelihood[z], child_parent, child_location, child_log_weight,
-                               child_cells.reshape(2 * n_particles, model.n_labels))
+                               model.likelihood[z], *children)
         else:
-            m, (child_parent, child_location, child_log_weight, _, child_ids, child_cells) = self._enumerate_cells(
-                blocks, t, neighbors, z, self._log_weights)
+            m = rbpf_enumerate_cells(self._locations, self._log_weights, *blocks.reads(), t, neighbors,
+                                     *_motion_and_sensor(model, z), *children, *_no_child_cells(model))
         if m == 0:
             raise ImpossibleObservationError(
                 _no_particle_explains(model, z, t, self.n_particles))
-        increment = _logsumexp(child_log_weight[:m])
-        kept, kept_weights, threshold = optimal_keep(np.exp(child_log_weight[:m] - increment), n_particles,
-                                                     self._rng.random(),
-                                                     children_by_location(child_location[:m], model.n_cells))
-        ancestors = np.empty(n_particles, dtype=np.int64)
-        new_locations = np.empty(n_particles, dtype=np.int64)
-        new_ids = np.empty((n_particles, width), dtype=np.int64)
-        new_cells = np.empty((n_particles, width, model.n_labels))
-        log_weights = np.empty(n_particles)
-        rbpf_place_children(child_parent, child_location, child_ids, child_cells, kept, kept_weights, ancestors,
-                            new_locations, new_ids, new_cells, log_weights)
-        self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights),
-                     increment, threshold > 0, new_ids)
+        weights = buffers.child_weight[:m]
+        increment = _logsumexp(buffers.child_log_weight[:m], weights)
+        np.exp(np.subtract(buffers.child_log_weight[:m], increment, out=weights), out=weights)
+        threshold = rbpf_keep_children(buffers.child_parent, buffers.child_location, weights, model.n_cells,
+                                       self._rng.random(), buffers.order, buffers.kept, buffers.kept_weights,
+                                       buffers.ancestors, buffers.slot_child, buffers.log_weights)
+        if one_cell:
+            rbpf_commit_children(self._locations, *blocks.writes(), t, buffers.ancestors, buffers.slot_child,
+                                 buffers.child_location, model.likelihood[z])
+        else:
+            rbpf_commit_children_cells(self._locations, *blocks.writes(), t, buffers.ancestors, buffers.slot_child,
+                                       buffers.child_location, neighbors, *_motion_and_sensor(model, z))
+        blocks.refresh(t)
+        self._advance(t, blocks, buffers.log_weights, _logsumexp(buffers.log_weights, buffers.kept_weights), increment,
+                      threshold > 0)
 
     def _commit(self, t, blocks: BlockPool, ancestors, new_locations, new_cells, log_weights, increment, resampled,
                 new_ids=None) -> None:
-        """Write a validated step: the particles' slots and maps into ``blocks`` (this filter's
-        pool, or its grown copy, which the filter then keeps; :meth:`BlockPool.commit`), the
-        normalised ``log_weights`` and the evidence ``increment``."""
+        """Write a validated step of the sampling schemes: the particles' slots and maps into
+        ``blocks`` (:meth:`BlockPool.commit`), then :meth:`_advance`."""
         blocks.commit(self._locations, t, ancestors, new_locations, new_cells, new_ids)
+        self._advance(t, blocks, log_weights, 0.0, increment, resampled)
+
+    def _advance(self, t, blocks: BlockPool, log_weights, normaliser, increment, resampled) -> None:
+        """Take the committed step: keep ``blocks`` (this filter's pool, or its grown copy), the log
+        weights ``log_weights - normaliser`` (normalised; written into the filter's own arrays) and
+        the evidence ``increment``."""
         self._blocks = blocks
-        self._log_weights = log_weights
+        np.subtract(log_weights, normaliser, out=self._log_weights)
         self._log_evidence += increment
-        self._weights = np.exp(self._log_weights)
+        np.exp(self._log_weights, out=self._weights)
         self._ess = min(float(self.n_particles), effective_sample_size(self._weights))  # rounding: <= P
         self._resampled = resampled
         self._t = t
         self._belief = None
+
+
+class _FCBuffers(NamedTuple):
+    """One Fearnhead-Clifford step's working arrays (views of the filter's scratch buffers): the
+    children (2P,) and the slots (P,)."""
+
+    child_parent: np.ndarray
+    child_location: np.ndarray
+    child_log_weight: np.ndarray
+    child_weight: np.ndarray
+    order: np.ndarray
+    kept: np.ndarray
+    kept_weights: np.ndarray
+    ancestors: np.ndarray
+    slot_child: np.ndarray
+    log_weights: np.ndarray
+
+
+def _motion_and_sensor(model: GridModel, z) -> tuple:
+    """(p_move, blocking, change, footprint_cells, sensor, readings (F,)): the arguments of the
+    kernels for blocking labels and footprints, in their order."""
+    return (model.p_move, model.blocking, model.change, model.footprint_cells, model.sensor,
+            np.atleast_1d(np.asarray(z, dtype=np.int64)))
+
+
+def _no_child_cells(model: GridModel) -> tuple:
+    """Empty (log motion, ids, cells) for :func:`rbpf_enumerate_cells`: store no child's cells."""
+    width = cells_written(model)
+    return np.empty(0), np.empty((0, width), dtype=np.int64), np.empty((0, width, model.n_labels))
 
 
 def _no_particle_explains(model: GridModel, z, t: int, n_particles: int) -> str:
