@@ -26,6 +26,7 @@ from .. import state_checks as checks
 from ..checkpoint import state_class
 from ..errors import ModelError
 from ..kernels.rbpf import particle_maps, rbpf_commit, rbpf_commit_cells, rbpf_map_mixture, rbpf_refresh
+from ..kernels.rbpf_parallel import rbpf_map_mixture_parallel
 from ..model import GridModel
 
 REFRESH_STEPS = 256  # every block row is brought up to date at least this often (lazy dynamics)
@@ -207,12 +208,14 @@ class BlockPool:
         rbpf_refresh(self.rows, self.stamps, self.refcount, self.powers, t, self.refresh_cursor, count)
         self.refresh_cursor = (self.refresh_cursor + count) % len(self.rows)
 
-    def mixture(self, t: int, weights: np.ndarray) -> np.ndarray:
-        """(N, K) ``sum_p weights[p] * map_p`` at step t (unnormalised). O(P n_blocks) plus one pass
-        over the rows in use (K^2 flops per out-of-date slot)."""
+    def mixture(self, t: int, weights: np.ndarray, parallel: bool = False) -> np.ndarray:
+        """(N, K) ``sum_p weights[p] * map_p`` at step t (unnormalised); ``parallel``: on numba's
+        threads (:func:`~onlinemap.kernels.rbpf_parallel.rbpf_map_mixture_parallel`, the same
+        numbers). O(P n_blocks) plus one pass over the rows in use (K^2 flops per out-of-date slot)."""
         out = np.empty((len(self.cell_block), self.rows.shape[2]))
-        rbpf_map_mixture(self.rows, self.stamps, self.row_block, self.refcount, self.table, self.block_members,
-                         self.powers, self.stamped, t, weights, out)
+        (rbpf_map_mixture_parallel if parallel else rbpf_map_mixture)(
+            self.rows, self.stamps, self.row_block, self.refcount, self.table, self.block_members, self.powers,
+            self.stamped, t, weights, out)
         return out
 
     def particle_maps(self, t: int) -> np.ndarray:

@@ -38,9 +38,11 @@ bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of 
 
 from __future__ import annotations
 
+import contextlib
 import math
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
 from .. import arguments
@@ -49,6 +51,9 @@ from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
 from ..kernels.rbpf import (in_place_ancestors, rbpf_commit_children, rbpf_commit_children_cells, rbpf_enumerate,
                              rbpf_enumerate_cells, rbpf_keep_children, rbpf_pick_children, rbpf_propose)
+from ..kernels.rbpf_parallel import (rbpf_commit_staged_parallel, rbpf_enumerate_cells_parallel, rbpf_enumerate_parallel,
+                                      rbpf_propose_parallel, rbpf_stage_children_cells_parallel,
+                                      rbpf_stage_children_parallel)
 from ..resampling import RESAMPLERS, effective_sample_size
 from ..rng import SeedLike, as_generator
 from ..model import GridModel
@@ -132,16 +137,24 @@ class RaoBlackwellisedPF:
     the reference the lazy scheme is tested against); ``block_cells`` B, the cells per shared
     map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes`` guard on
     the particle maps (worst case: every particle owning all its blocks).
+
+    ``threads``: how many threads the update and the belief use (numba's, at most
+    ``NUMBA_NUM_THREADS``, an environment variable read when numba starts: the number of cores by
+    default); ``None`` for all of them. The results are the same bit for bit whatever the number
+    (:mod:`onlinemap.kernels.rbpf_parallel`). The default, 1, runs the serial kernels: threads pay
+    from about 10^4 particles and only on cores nothing else uses, the parallel kernels compile
+    once (tens of seconds, then cached) and start numba's threading layer (with GNU OpenMP a
+    process must not fork after using it; ``NUMBA_THREADING_LAYER=workqueue`` avoids that).
     """
 
-    #: Fearnhead-Clifford's per-step buffers (:meth:`_fc_buffers`), overwritten by every step before
-    #: being read: not state (a checkpoint records their dtype and shape only)
-    scratch_attributes = ("_scratch_ints", "_scratch_floats")
+    #: per-step buffers (:meth:`_fc_buffers`, :meth:`_staged_buffers`), overwritten by every step
+    #: before being read: not state (a checkpoint records their dtype and shape only)
+    scratch_attributes = ("_scratch_ints", "_scratch_floats", "_scratch_staged_ints", "_scratch_staged_cells")
 
     def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
                  resampling: str | None = None, resample_threshold: float = 0.5, seed: SeedLike = None,
                  lazy_dynamics: bool = True, block_cells: int | None = None,
-                 max_bytes: int = DEFAULT_MAX_BYTES):
+                 max_bytes: int = DEFAULT_MAX_BYTES, threads: int | None = 1):
         error = InvalidOptionError
         n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
         proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
@@ -161,6 +174,7 @@ class RaoBlackwellisedPF:
         if block_cells is not None:
             block_cells = arguments.integer("block_cells", block_cells, minimum=1, maximum=model.n_cells, error=error)
         max_bytes = arguments.byte_limit("max_bytes", max_bytes, error)
+        threads = _thread_count(threads)
         n, k = model.n_cells, model.n_labels
         need = peak_bytes(model, n_particles, block_cells, lazy_dynamics)
         if need > max_bytes:
@@ -175,6 +189,7 @@ class RaoBlackwellisedPF:
         self.resampling = resampling
         self.resample_threshold = float(resample_threshold)
         self.lazy_dynamics = bool(lazy_dynamics)
+        self.threads = threads
         self._rng = as_generator(seed)
         self._locations = np.full(n_particles, model.start, dtype=np.int64)
         self._log_weights = np.full(n_particles, -math.log(n_particles))
@@ -186,6 +201,10 @@ class RaoBlackwellisedPF:
         fc = resampling == FEARNHEAD_CLIFFORD
         self._scratch_ints = np.zeros((5 if fc else 0, 2 * n_particles), dtype=np.int64)
         self._scratch_floats = np.zeros((3 if fc else 0, 2 * n_particles))
+        staged = n_particles if threads > 1 else 0  # the parallel commit's staging
+        width = cells_written(model)
+        self._scratch_staged_ints = np.zeros(staged * (3 * width + 1), dtype=np.int64)
+        self._scratch_staged_cells = np.zeros((staged, width, k))
         self._log_evidence = 0.0
         self._ess = float(n_particles)
         self._resampled = False
@@ -215,7 +234,8 @@ class RaoBlackwellisedPF:
             weights = self._weights / self._weights.sum()
             location = np.bincount(self._locations, weights=weights, minlength=self.model.n_cells)
             location /= location.sum()  # rounding: keep every probability <= 1
-            maps = self._blocks.mixture(self._t, weights)
+            with _numba_threads(self.threads):
+                maps = self._blocks.mixture(self._t, weights, parallel=self.threads > 1)
             maps /= maps.sum(axis=1, keepdims=True)
             self._belief = Belief(self._t, location, maps, self._log_evidence,
                                   effective_sample_size=self._ess)
@@ -266,9 +286,11 @@ class RaoBlackwellisedPF:
         new_ids = None
         if one_cell:
             new_cells = np.empty((n_particles, model.n_labels))
-            rbpf_propose(self._locations, *blocks.reads(), t, ancestors, neighbors,
-                         model.p_move, model.likelihood[z], self.proposal == "optimal",
-                         self._rng.random(n_particles), new_locations, new_cells, log_increments)
+            propose = rbpf_propose_parallel if self.threads > 1 else rbpf_propose
+            with _numba_threads(self.threads):
+                propose(self._locations, *blocks.reads(), t, ancestors, neighbors, model.p_move, model.likelihood[z],
+                        self.proposal == "optimal", self._rng.random(n_particles), new_locations, new_cells,
+                        log_increments)
         else:  # the same children Fearnhead-Clifford enumerates, one drawn per particle
             m, children = self._enumerate_cells(blocks, t, neighbors, z, np.zeros(n_particles))
             width = cells_written(model)
@@ -292,8 +314,10 @@ class RaoBlackwellisedPF:
         size, width = 2 * self.n_particles, cells_written(model)
         children = (np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size), np.empty(size),
                     np.empty((size, width), dtype=np.int64), np.empty((size, width, model.n_labels)))
-        m = rbpf_enumerate_cells(self._locations, log_weights, *blocks.reads(), t, neighbors, *_motion_and_sensor(model, z),
-                                 *children)
+        enumerate_cells = rbpf_enumerate_cells_parallel if self.threads > 1 else rbpf_enumerate_cells
+        with _numba_threads(self.threads):
+            m = enumerate_cells(self._locations, log_weights, *blocks.reads(), t, neighbors, *_motion_and_sensor(model, z),
+                                *children)
         return m, children
 
     def _fc_buffers(self) -> _FCBuffers:
@@ -320,14 +344,18 @@ class RaoBlackwellisedPF:
             blocks = blocks.with_rows(blocks.rows @ model.change)
         neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
         one_cell = reads_one_cell(model)
+        parallel = self.threads > 1
         buffers = self._fc_buffers()
         children = (buffers.child_parent, buffers.child_location, buffers.child_log_weight)
-        if one_cell:
-            m = rbpf_enumerate(self._locations, self._log_weights, *blocks.reads(), t, neighbors, model.p_move,
-                               model.likelihood[z], *children)
-        else:
-            m = rbpf_enumerate_cells(self._locations, self._log_weights, *blocks.reads(), t, neighbors,
-                                     *_motion_and_sensor(model, z), *children, *_no_child_cells(model))
+        with _numba_threads(self.threads):
+            if one_cell:
+                m = (rbpf_enumerate_parallel if parallel else rbpf_enumerate)(
+                    self._locations, self._log_weights, *blocks.reads(), t, neighbors, model.p_move,
+                    model.likelihood[z], *children)
+            else:
+                m = (rbpf_enumerate_cells_parallel if parallel else rbpf_enumerate_cells)(
+                    self._locations, self._log_weights, *blocks.reads(), t, neighbors, *_motion_and_sensor(model, z),
+                    *children, *_no_child_cells(model))
         if m == 0:
             raise ImpossibleObservationError(
                 _no_particle_explains(model, z, t, self.n_particles))
@@ -337,7 +365,18 @@ class RaoBlackwellisedPF:
         threshold = rbpf_keep_children(buffers.child_parent, buffers.child_location, weights, model.n_cells,
                                        self._rng.random(), buffers.order, buffers.kept, buffers.kept_weights,
                                        buffers.ancestors, buffers.slot_child, buffers.log_weights)
-        if one_cell:
+        if parallel:  # stage every kept child's writes, then commit them (rbpf_parallel: the same state)
+            staged = self._staged_buffers()
+            with _numba_threads(self.threads):
+                if one_cell:
+                    rbpf_stage_children_parallel(*blocks.reads(), t, buffers.ancestors, buffers.slot_child,
+                                                 buffers.child_location, model.likelihood[z], *staged[:3])
+                else:
+                    rbpf_stage_children_cells_parallel(self._locations, *blocks.reads(), t, buffers.ancestors,
+                                                       buffers.slot_child, buffers.child_location, neighbors,
+                                                       *_motion_and_sensor(model, z), *staged[:3])
+                rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, buffers.ancestors, *staged)
+        elif one_cell:
             rbpf_commit_children(self._locations, *blocks.writes(), t, buffers.ancestors, buffers.slot_child,
                                  buffers.child_location, model.likelihood[z])
         else:
@@ -347,11 +386,30 @@ class RaoBlackwellisedPF:
         self._advance(t, blocks, buffers.log_weights, _logsumexp(buffers.log_weights, buffers.kept_weights), increment,
                       threshold > 0)
 
+    def _staged_buffers(self) -> tuple:
+        """(new_locations (P,), new_ids (P, W), new_cells (P, W, K), target (P, W), source (P, W)):
+        views of the scratch buffers of the parallel commit (threads > 1)."""
+        p, width = self.n_particles, cells_written(self.model)
+        ints = self._scratch_staged_ints
+        new_ids, target, source = (ints[i * p * width:(i + 1) * p * width].reshape(p, width) for i in range(3))
+        return ints[3 * p * width:], new_ids, self._scratch_staged_cells, target, source
+
     def _commit(self, t, blocks: BlockPool, ancestors, new_locations, new_cells, log_weights, increment, resampled,
                 new_ids=None) -> None:
         """Write a validated step of the sampling schemes: the particles' slots and maps into
-        ``blocks`` (:meth:`BlockPool.commit`), then :meth:`_advance`."""
-        blocks.commit(self._locations, t, ancestors, new_locations, new_cells, new_ids)
+        ``blocks`` (:meth:`BlockPool.commit`; with threads, :func:`rbpf_commit_staged_parallel`),
+        then :meth:`_advance`."""
+        if self.threads > 1:
+            n_particles = self.n_particles
+            ids = new_locations.reshape(n_particles, 1) if new_ids is None else new_ids
+            cells = new_cells.reshape(n_particles, ids.shape[1], self.model.n_labels)
+            _, _, _, target, source = self._staged_buffers()
+            with _numba_threads(self.threads):
+                rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, ancestors, new_locations, ids, cells,
+                                            target, source)
+            blocks.refresh(t)
+        else:
+            blocks.commit(self._locations, t, ancestors, new_locations, new_cells, new_ids)
         self._advance(t, blocks, log_weights, 0.0, increment, resampled)
 
     def _advance(self, t, blocks: BlockPool, log_weights, normaliser, increment, resampled) -> None:
@@ -382,6 +440,31 @@ class _FCBuffers(NamedTuple):
     ancestors: np.ndarray
     slot_child: np.ndarray
     log_weights: np.ndarray
+
+
+def _thread_count(threads) -> int:
+    """The ``threads`` option as a count, 1 to ``NUMBA_NUM_THREADS`` (None: all of them)."""
+    most = numba.config.NUMBA_NUM_THREADS
+    if threads is None:
+        return most
+    return arguments.integer(f"threads (at most NUMBA_NUM_THREADS={most}, numba's limit, set by that environment "
+                             "variable before numba starts)", threads, minimum=1, maximum=most,
+                             error=InvalidOptionError)
+
+
+@contextlib.contextmanager
+def _numba_threads(threads: int):
+    """Run numba's parallel kernels on ``threads`` threads within the block (the caller's setting
+    back after it); nothing for 1 (the serial kernels)."""
+    if threads == 1:
+        yield
+        return
+    before = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
 
 
 def _motion_and_sensor(model: GridModel, z) -> tuple:

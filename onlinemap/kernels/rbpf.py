@@ -460,8 +460,15 @@ def rbpf_propose(locations, pool, pool_stamps, table, cell_block, cell_slot, pow
     (P, K) the observed cell's updated marginal, ``log_increments`` (P,) (-inf where z is
     impossible). One uniform per particle. O(P K^2).
     """
-    n_particles = ancestors.shape[0]
-    for p in range(n_particles):
+    _propose(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors, neighbors,
+             p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments, 0, ancestors.shape[0])
+
+
+@loop_kernel
+def _propose(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors, neighbors,
+             p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments, start, stop):
+    """:func:`rbpf_propose` of particles ``start..stop - 1``."""
+    for p in range(start, stop):
         q = ancestors[p]
         l = locations[q]
         n = neighbors[l]
@@ -514,37 +521,59 @@ def _take_over_slots(refcount, free, free_top, table, ancestors):
 
 
 @njit(cache=True, inline="always")
-def _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, dynamic,
-                powers, max_age, t, p, cell, values):
-    """Particle p's marginal of ``cell`` <- ``values`` (K,), stamped t; the block is first copied if
-    shared: O(B K) (cells of the copy older than ``max_age`` steps are brought up to date, so a copy
-    never extends a row's age). Takes a free row when it copies."""
-    b = cell_block[cell]
+def _row_for_write(row_block, refcount, free, free_top, table, p, b):
+    """(row, source): the row particle p writes block b into, and the row to copy into it first
+    (-1: none). A row p shares (count > 1) is replaced by a free one, which takes over p's
+    reference: the bookkeeping of copy-on-write, without touching the rows."""
     r = table[p, b]
-    block, k = pool.shape[1], pool.shape[2]
+    source = -1
     if refcount[r] > 1:
         free_top[0] -= 1
         fresh = free[free_top[0]]
-        for slot in range(block):
-            for label in range(k):
-                pool[fresh, slot, label] = pool[r, slot, label]
-        if dynamic:
-            for slot in range(block):
-                pool_stamps[fresh, slot] = pool_stamps[r, slot]
-                if t - pool_stamps[fresh, slot] > max_age:
-                    for label in range(k):
-                        pool[fresh, slot, label] = _aged_label(pool, powers, t - pool_stamps[r, slot], r, slot, label)
-                    pool_stamps[fresh, slot] = t
         row_block[fresh] = b
         refcount[r] -= 1
         refcount[fresh] = 1
         table[p, b] = fresh
+        source = r
         r = fresh
-    j = cell_slot[cell]
-    for label in range(k):
-        pool[r, j, label] = values[label]
+    return r, source
+
+
+@njit(cache=True, inline="always")
+def _copy_row(pool, pool_stamps, dynamic, powers, max_age, t, source, row):
+    """Block row ``row`` <- a copy of ``source`` (O(B K)); slots older than ``max_age`` steps are
+    brought up to date (stamped t), so a copy never extends a row's age."""
+    for slot in range(pool.shape[1]):
+        for label in range(pool.shape[2]):
+            pool[row, slot, label] = pool[source, slot, label]
     if dynamic:
-        pool_stamps[r, j] = t
+        for slot in range(pool.shape[1]):
+            pool_stamps[row, slot] = pool_stamps[source, slot]
+            if t - pool_stamps[row, slot] > max_age:
+                for label in range(pool.shape[2]):
+                    pool[row, slot, label] = _aged_label(pool, powers, t - pool_stamps[source, slot], source, slot,
+                                                         label)
+                pool_stamps[row, slot] = t
+
+
+@njit(cache=True, inline="always")
+def _set_slot(pool, pool_stamps, dynamic, t, row, slot, values):
+    """Slot ``slot`` of block row ``row`` <- ``values`` (K,), stamped t."""
+    for label in range(pool.shape[2]):
+        pool[row, slot, label] = values[label]
+    if dynamic:
+        pool_stamps[row, slot] = t
+
+
+@njit(cache=True, inline="always")
+def _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, dynamic,
+                powers, max_age, t, p, cell, values):
+    """Particle p's marginal of ``cell`` <- ``values`` (K,), stamped t; the block is first copied if
+    shared (:func:`_row_for_write`, :func:`_copy_row`: O(B K)). Takes a free row when it copies."""
+    r, source = _row_for_write(row_block, refcount, free, free_top, table, p, cell_block[cell])
+    if source >= 0:
+        _copy_row(pool, pool_stamps, dynamic, powers, max_age, t, source, r)
+    _set_slot(pool, pool_stamps, dynamic, t, r, cell_slot[cell], values)
 
 
 @loop_kernel
@@ -665,6 +694,91 @@ def _write_children_cells(locations, pool, pool_stamps, row_block, refcount, fre
     _move_to_children(locations, slot_child, child_location)
 
 
+@loop_kernel
+def _stage_children(pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors, slot_child,
+                    child_location, likelihood, new_locations, new_ids, new_cells, start, stop):
+    """The writes :func:`_write_children` makes, staged for slots ``start..stop - 1`` before the
+    commit (from the parents' rows, ``table[ancestors[p]]``, which the take-over gives slot p):
+    ``new_locations`` (P,) the child's cell (-1: no child), ``new_ids`` (P, 1) the same,
+    ``new_cells`` (P, 1, K) its observed cell's posterior."""
+    for p in range(start, stop):
+        c = slot_child[p]
+        new_locations[p] = -1
+        new_ids[p, 0] = -1
+        if c >= 0:
+            j = child_location[c]
+            r = table[ancestors[p], cell_block[j]]
+            d = _age(pool_stamps, dynamic, t, r, cell_slot[j])
+            lam = _evidence(pool, powers, d, r, cell_slot[j], likelihood)
+            _observed_cell(pool, powers, d, r, cell_slot[j], likelihood, lam, new_cells[p, 0])
+            new_locations[p] = j
+            new_ids[p, 0] = j
+
+
+@loop_kernel
+def _stage_children_cells(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors,
+                          slot_child, child_location, neighbors, p_move, blocking, change, footprint_cells, sensor,
+                          readings, new_locations, new_ids, new_cells, start, stop, before, given, lams):
+    """The writes :func:`_write_children_cells` makes, staged for slots ``start..stop - 1`` before
+    the commit (as :func:`_stage_children`): ``new_locations`` (P,), ``new_ids`` (P, W),
+    ``new_cells`` (P, W, K); ``before``, ``given`` (K,), ``lams`` (F,) scratch."""
+    has_blocking = _any(blocking)
+    for p in range(start, stop):
+        c = slot_child[p]
+        new_locations[p] = -1
+        if c < 0:
+            for w in range(new_ids.shape[1]):
+                new_ids[p, w] = -1
+            continue
+        q = ancestors[p]
+        l = locations[q]
+        n = neighbors[l]
+        j = child_location[c]
+        gated = has_blocking and n != l
+        if gated:
+            _passable_before(pool, pool_stamps, table[q], cell_block, cell_slot, powers, dynamic, t, blocking, n,
+                             before)
+        _footprint_child(pool, pool_stamps, table[q], cell_block, cell_slot, powers, dynamic, t, j, n,
+                         0 if j == l else 1, gated, before, p_move, blocking, change, footprint_cells, sensor,
+                         readings, given, new_ids[p], new_cells[p], lams)
+        new_locations[p] = j
+
+
+@loop_kernel
+def _plan_writes(row_block, refcount, free, free_top, table, cell_block, new_locations, new_ids, target, source):
+    """The bookkeeping of copy-on-write for staged writes, in the order the serial commit makes
+    them (slots in order, then their cells): ``target`` (P, W) <- the row each write goes to,
+    ``source`` (P, W) <- the row to copy into it first (-1: none; :func:`_row_for_write`).
+    Slots with ``new_locations[p] < 0`` and cells -1 write nothing. O(P W)."""
+    for p in range(new_ids.shape[0]):
+        for w in range(new_ids.shape[1]):
+            target[p, w] = -1
+            source[p, w] = -1
+            if new_locations[p] >= 0 and new_ids[p, w] >= 0:
+                target[p, w], source[p, w] = _row_for_write(row_block, refcount, free, free_top, table, p,
+                                                           cell_block[new_ids[p, w]])
+
+
+@loop_kernel
+def _copy_planned(pool, pool_stamps, dynamic, powers, max_age, t, target, source, start, stop):
+    """The copies :func:`_plan_writes` planned, for slots ``start..stop - 1`` (each reads a row
+    no write of this step changes before every copy is made, and fills a row only its slot uses)."""
+    for p in range(start, stop):
+        for w in range(target.shape[1]):
+            if source[p, w] >= 0:
+                _copy_row(pool, pool_stamps, dynamic, powers, max_age, t, source[p, w], target[p, w])
+
+
+@loop_kernel
+def _write_planned(pool, pool_stamps, dynamic, t, cell_slot, new_ids, new_cells, target, start, stop):
+    """The staged writes of slots ``start..stop - 1`` into their planned rows (rows only their
+    slot uses, once the copies are made)."""
+    for p in range(start, stop):
+        for w in range(target.shape[1]):
+            if target[p, w] >= 0:
+                _set_slot(pool, pool_stamps, dynamic, t, target[p, w], cell_slot[new_ids[p, w]], new_cells[p, w])
+
+
 @njit(cache=True)
 def rbpf_refresh(pool, pool_stamps, refcount, powers, t, start, count):
     """Bring rows ``start, start + 1, ...`` (``count`` of them, cyclically) up to date at step t:
@@ -717,27 +831,35 @@ def rbpf_map_mixture(pool, pool_stamps, row_block, refcount, table, block_member
     world (:func:`_mixture`). R_used <= P n_blocks, and much less when particles share blocks.
     """
     n_blocks = table.shape[1]
-    row_weight = np.empty(pool.shape[0])
-    _row_weights(table, refcount, weights, row_weight, np.empty(n_blocks, dtype=np.int64),
+    row_weight = np.zeros(pool.shape[0])
+    _row_weights(table, refcount, weights, _sum(weights), row_weight, 0, n_blocks, np.empty(n_blocks, dtype=np.int64),
                  np.empty(n_blocks, dtype=np.int64), np.empty(n_blocks))
+    out[:] = 0.0
     _mixture(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, out)
 
 
 @loop_kernel
-def _row_weights(table, refcount, weights, out, split, current, acc):
-    """out (R,) <- the weight of every block row: the sum of ``weights`` (P,) over the particles
-    whose table names it, in increasing particle order (0 for rows nobody names). A block every
-    particle shares (its row's count is P) gets the plain sum, computed once; elsewhere a run of
-    particles naming the same row adds up in a register. The same additions in the same order
-    as ``out[table[p, b]] += weights[p]`` over p, then b. ``split``, ``current``, ``acc``
-    (n_blocks,) scratch. O(P n_split + R), n_split the blocks the particles do not all share."""
-    n_particles, n_blocks = table.shape
-    out[:] = 0.0
+def _sum(values):
+    """``sum(values)``, added in order from 0.0."""
     total = 0.0
-    for p in range(n_particles):
-        total += weights[p]
+    for i in range(values.shape[0]):
+        total += values[i]
+    return total
+
+
+@loop_kernel
+def _row_weights(table, refcount, weights, total, out, first, last, split, current, acc):
+    """out[r] <- the weight of every row r holding one of the blocks ``first..last - 1``: the sum
+    of ``weights`` (P,) over the particles whose table names it, in increasing particle order
+    (``out`` zero on entry; rows nobody names stay 0). A block every particle shares (its row's
+    count is P) gets ``total``, the plain sum (:func:`_sum`); elsewhere a run of particles naming
+    the same row adds up in a register. The same additions in the same order as
+    ``out[table[p, b]] += weights[p]`` over p, then b. ``split``, ``current``, ``acc`` (at least
+    ``last - first``,) scratch. O(P n_split + last - first), n_split the blocks the particles do
+    not all share."""
+    n_particles = table.shape[0]
     n_split = 0
-    for b in range(n_blocks):
+    for b in range(first, last):
         r = table[0, b]
         if refcount[r] == n_particles:
             out[r] = total
@@ -761,23 +883,51 @@ def _row_weights(table, refcount, weights, out, split, current, acc):
             out[current[i]] = acc[i]
 
 
+@njit(cache=True, inline="always")
+def _add_row(pool, pool_stamps, powers, dynamic, t, members, r, w, out):
+    """out[members] += ``w`` times the current marginals of block row r (its block's cells
+    ``members`` (B,), -1 padding)."""
+    for j in range(members.shape[0]):
+        i = members[j]
+        if i >= 0:
+            d = _age(pool_stamps, dynamic, t, r, j)
+            for b in range(out.shape[1]):
+                out[i, b] += w * _aged_label(pool, powers, d, r, j, b)
+
+
+@loop_kernel
+def _rows_by_block(row_block, row_weight, starts, rows):
+    """The rows of nonzero weight grouped by the block they hold, in row order within a block:
+    block b's are ``rows[starts[b]:starts[b + 1]]``. ``starts`` (n_blocks + 1,) zeros. O(R)."""
+    for r in range(row_block.shape[0]):
+        if row_weight[r] != 0.0:
+            starts[row_block[r] + 1] += 1
+    for b in range(starts.shape[0] - 1):
+        starts[b + 1] += starts[b]
+    for r in range(row_block.shape[0]):  # starts[b] runs up to block b's end, then moves back
+        if row_weight[r] != 0.0:
+            rows[starts[row_block[r]]] = r
+            starts[row_block[r]] += 1
+    for b in range(starts.shape[0] - 1, 0, -1):
+        starts[b] = starts[b - 1]
+    starts[0] = 0
+
+
+@loop_kernel
+def _mixture_rows(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, rows, out):
+    """out (N, K) += ``sum_r row_weight[r] * current marginals of block row r`` over ``rows``, in
+    their order."""
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        _add_row(pool, pool_stamps, powers, dynamic, t, block_members[row_block[r]], r, row_weight[r], out)
+
+
 @loop_kernel
 def _mixture(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, out):
-    """out (N, K) <- ``sum_r row_weight[r] * current marginals of block row r``, rows in order."""
-    k = out.shape[1]
-    out[:] = 0.0
+    """out (N, K) += ``sum_r row_weight[r] * current marginals of block row r``, rows in order."""
     for r in range(pool.shape[0]):
-        w = row_weight[r]
-        if w == 0.0:
-            continue
-        members = block_members[row_block[r]]
-        for j in range(members.shape[0]):
-            i = members[j]
-            if i < 0:
-                continue
-            d = _age(pool_stamps, dynamic, t, r, j)
-            for b in range(k):
-                out[i, b] += w * _aged_label(pool, powers, d, r, j, b)
+        if row_weight[r] != 0.0:
+            _add_row(pool, pool_stamps, powers, dynamic, t, block_members[row_block[r]], r, row_weight[r], out)
 
 
 @njit(cache=True)
