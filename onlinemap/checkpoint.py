@@ -57,6 +57,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import inspect
 import json
 import os
 import stat
@@ -371,7 +372,8 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
     field = model_difference(decode_model(state["model"]), est.model)
     if field is not None:
         raise CheckpointError(f"checkpoint's model differs from the estimator's model in {field!r}")
-    if not same_tree(state["options"], _Encoder().encode(dict(getattr(est, "options", {})), "options")):
+    if not same_tree(_with_later_options(state["options"], est), _Encoder().encode(dict(getattr(est, "options", {})),
+                                                                                "options")):
         options = _Decoder().decode(state["options"], "options")
         raise CheckpointError(f"checkpoint was written with options {options}, the estimator has {est.options}")
     if type(state["attributes"]) is not dict:
@@ -398,6 +400,16 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
         raise CheckpointError("checkpoint's attributes are nested too deeply") from None
     check_state(est, restored)
     vars(est).update(restored)
+
+
+def _with_later_options(node, est):
+    """The encoded options of a checkpoint, with every keyword option of ``est``'s class that it
+    does not name (one added after it was written) at its default: a checkpoint predating an
+    option loads into an estimator that has it at its default, and only there."""
+    options = decode_options(node)
+    defaults = {p.name: p.default for p in inspect.signature(type(est).__init__).parameters.values()
+                if p.kind is inspect.Parameter.KEYWORD_ONLY and p.default is not inspect.Parameter.empty}
+    return _Encoder().encode({**options, **{k: v for k, v in defaults.items() if k not in options}}, "options")
 
 
 def check_state(est, restored: dict) -> None:

@@ -156,10 +156,7 @@ class BlockPool:
         top = int(self.free_top[0])
         if top >= need:
             return self
-        have = len(self.rows)
-        size = 2 * have
-        while size - have + top < need:
-            size *= 2
+        have, size = len(self.rows), self.rows_to_hold(need)
         free = np.zeros(size, dtype=np.int64)
         added = np.arange(size - 1, have - 1, -1)  # new rows, the lowest on top of the stack
         free[:top] = self.free[:top]
@@ -167,6 +164,17 @@ class BlockPool:
         return dataclasses.replace(self, rows=_grown(self.rows, size), stamps=_grown(self.stamps, size),
                                    row_block=_grown(self.row_block, size), refcount=_grown(self.refcount, size),
                                    free=free, free_top=np.array([top + len(added)]))
+
+    def rows_to_hold(self, need: int) -> int:
+        """The number of rows :meth:`reserved` gives a pool with ``need`` free rows: R, or R doubled
+        until the rows added and the free ones make ``need``. O(1)."""
+        top, size = int(self.free_top[0]), len(self.rows)
+        if top >= need:
+            return size
+        size *= 2
+        while size - len(self.rows) + top < need:
+            size *= 2
+        return size
 
     def with_rows(self, rows: np.ndarray) -> BlockPool:
         """This pool with new row contents (R, B, K) (eager dynamics: ``rows @ C``). O(1)."""

@@ -51,9 +51,10 @@ from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
 from ..kernels.rbpf import (in_place_ancestors, rbpf_commit_children, rbpf_commit_children_cells, rbpf_enumerate,
                              rbpf_enumerate_cells, rbpf_keep_children, rbpf_pick_children, rbpf_propose)
-from ..kernels.rbpf_parallel import (rbpf_commit_staged_parallel, rbpf_enumerate_cells_parallel, rbpf_enumerate_parallel,
-                                      rbpf_propose_parallel, rbpf_stage_children_cells_parallel,
-                                      rbpf_stage_children_parallel)
+from ..kernels import rbpf_parallel
+from ..kernels.rbpf_parallel import (rbpf_commit_staged_parallel, rbpf_enumerate_cells_parallel,
+                                      rbpf_enumerate_parallel, rbpf_propose_parallel,
+                                      rbpf_stage_children_cells_parallel, rbpf_stage_children_parallel)
 from ..resampling import RESAMPLERS, effective_sample_size
 from ..rng import SeedLike, as_generator
 from ..model import GridModel
@@ -77,30 +78,49 @@ def _logsumexp(x: np.ndarray, scratch: np.ndarray | None = None) -> float:
     return top + math.log(float(np.exp(terms, out=terms).sum()))
 
 
-def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = None, lazy_dynamics: bool = True) -> int:
-    """Worst-case peak memory of the filter's state, in bytes (exact Python ints; allocates
-    nothing): every particle owning every one of its map blocks, the block pool grown by doubling
-    to hold them plus P free rows (old and new pool alive together while it grows), a fresh
-    copy of the pool for eager dynamics, the table, the powers of C and per-step temporaries."""
+def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = None, lazy_dynamics: bool = True,
+               threads: int = 1) -> int:
+    """Worst-case peak memory of the filter, in bytes (exact Python ints; allocates nothing): every
+    particle owning every one of its map blocks, the block pool grown by doubling to hold them
+    plus the rows a step writes (old and new pool alive together while it grows), a fresh copy
+    of the pool for eager dynamics, the table, the powers of C and a step's buffers
+    (:func:`state_bytes`). Particles share most blocks (measured: 1.2-5 rows per particle, against
+    ``n_blocks`` here), so runs stay far below it; the filter's guard (``max_bytes``) checks the
+    memory it actually takes instead, when it starts and whenever its pool grows."""
+    size, n_blocks = _block_shape(model, block_cells)
+    rows = n_blocks + 2 * n_particles
+    while rows - cells_written(model) * n_particles < n_blocks * n_particles:  # doubled until every particle
+        rows *= 2  # can own every block, with the rows a step writes to spare
+    return state_bytes(model, n_particles, size, n_blocks, rows, rows // 2, lazy_dynamics, threads)
+
+
+def state_bytes(model: GridModel, n_particles: int, block_size: int, n_blocks: int, rows: int, old_rows: int = 0,
+                lazy_dynamics: bool = True, threads: int = 1) -> int:
+    """Bytes of the filter with a pool of ``rows`` block rows of ``block_size`` cells (``old_rows``
+    more while a smaller pool is copied into it): the pool (rows, stamps in a dynamic world,
+    row_block / refcount / free), a fresh copy of the rows for eager dynamics, the particle table
+    (P n_blocks), the powers of C, and a step's buffers (children, weights, the parallel commit's
+    staging, the belief). O(1)."""
     n, k, p = model.n_cells, model.n_labels, n_particles
-    block_cells = block_cells or max(1, round(math.sqrt(n / k)))  # block_layout's default
+    stamped = lazy_dynamics and not model.is_static
+    row_bytes = 8 * (block_size * k + (block_size if stamped else 0) + 3)
+    eager = 0 if lazy_dynamics or model.is_static else rows * block_size * k * 8
+    powers = 8 * k * k * (4 * REFRESH_STEPS + 1 if stamped else 1)
+    width = cells_written(model)
+    per_step = 8 * p * (width * (k + 1) * 3 + k + 8) + 8 * n * k + 8 * rows  # children, weights, belief, row weights
+    staged = 8 * p * (3 * width + 1 + width * k) if threads > 1 else 0
+    return (rows + old_rows) * row_bytes + eager + 8 * p * n_blocks + powers + per_step + staged
+
+
+def _block_shape(model: GridModel, block_cells: int | None) -> tuple[int, int]:
+    """(cells per block, number of blocks) of :func:`block_layout`, without building it."""
+    n = model.n_cells
+    block_cells = block_cells or max(1, round(math.sqrt(n / model.n_labels)))  # block_layout's default
     if model.rows == 1:
         size = min(block_cells, n)
-        n_blocks = -(-n // size)
-    else:
-        side = max(1, math.isqrt(block_cells))
-        size, n_blocks = side * side, -(-model.rows // side) * -(-model.cols // side)
-    stamped = lazy_dynamics and not model.is_static
-    writes = cells_written(model) * p  # free rows a step may need
-    rows = n_blocks + 2 * p
-    while rows - writes < n_blocks * p:  # doubled until every particle can own every block, rows to spare
-        rows *= 2
-    row_bytes = 8 * (size * k + (size if stamped else 0) + 3)  # pool, stamps, row_block / refcount / free
-    pool = rows * row_bytes + rows // 2 * row_bytes  # the grown pool and the one it replaced
-    eager = 0 if lazy_dynamics or model.is_static else rows * size * k * 8
-    powers = 8 * k * k * (4 * REFRESH_STEPS + 1 if stamped else 1)
-    per_step = 8 * p * (cells_written(model) * (k + 1) * 3 + k + 8) + 8 * n * k  # children, weights, the belief
-    return pool + eager + 8 * p * n_blocks + powers + per_step
+        return size, -(-n // size)
+    side = max(1, math.isqrt(block_cells))
+    return side * side, -(-model.rows // side) * -(-model.cols // side)
 
 
 def reads_one_cell(model: GridModel) -> bool:
@@ -135,8 +155,12 @@ class RaoBlackwellisedPF:
     ``seed`` (int, None or Generator);
     ``lazy_dynamics`` (False applies C to every cell of every particle every step: O(P N K^2),
     the reference the lazy scheme is tested against); ``block_cells`` B, the cells per shared
-    map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes`` guard on
-    the particle maps (worst case: every particle owning all its blocks).
+    map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes``, the guard on
+    the filter's memory (:func:`state_bytes`), checked when it starts and whenever the pool of map
+    blocks must grow (particles share fewer blocks as their trajectories part): a step that would
+    take the filter beyond it raises :class:`~onlinemap.errors.MemoryLimitError` and leaves the
+    filter as it was; raise ``est.max_bytes`` to continue. Its worst case, every particle owning
+    every block, is :func:`peak_bytes`.
 
     ``threads``: how many threads the update and the belief use (numba's, at most
     ``NUMBA_NUM_THREADS``, an environment variable read when numba starts: the number of cores by
@@ -176,12 +200,15 @@ class RaoBlackwellisedPF:
         max_bytes = arguments.byte_limit("max_bytes", max_bytes, error)
         threads = _thread_count(threads)
         n, k = model.n_cells, model.n_labels
-        need = peak_bytes(model, n_particles, block_cells, lazy_dynamics)
+        size, n_blocks = _block_shape(model, block_cells)
+        need = state_bytes(model, n_particles, size, n_blocks, n_blocks + 2 * n_particles, 0, lazy_dynamics, threads)
         if need > max_bytes:
             raise MemoryLimitError(
-                f"rbpf with {n_particles} particles on N={n} cells, K={k} labels may need {need / 1e9:.3g} GB "
-                f"(every particle owning every map block) but the limit is {max_bytes / 1e9:.3g} GB; pass "
-                f"max_bytes=... to raise it")
+                f"rbpf with {n_particles} particles on N={n} cells, K={k} labels needs {need / 1e9:.3g} GB to start "
+                f"(its pool of map blocks, the particle table, a step's buffers) but the limit is "
+                f"{max_bytes / 1e9:.3g} GB; pass max_bytes=... to raise it (a run may need up to "
+                f"{peak_bytes(model, n_particles, block_cells, lazy_dynamics, threads) / 1e9:.3g} GB, if every "
+                f"particle came to own every map block)")
         layout = block_layout(model, block_cells)
         self.model = model
         self.n_particles = n_particles
@@ -189,7 +216,6 @@ class RaoBlackwellisedPF:
         self.resampling = resampling
         self.resample_threshold = float(resample_threshold)
         self.lazy_dynamics = bool(lazy_dynamics)
-        self.threads = threads
         self._rng = as_generator(seed)
         self._locations = np.full(n_particles, model.start, dtype=np.int64)
         self._log_weights = np.full(n_particles, -math.log(n_particles))
@@ -220,6 +246,23 @@ class RaoBlackwellisedPF:
             fields = {field: attributes.pop(name) for name, field in FORMAT_1_ATTRIBUTES.items()}
             attributes["_blocks"] = state_node(BlockPool, fields)
         return attributes
+
+    @property
+    def threads(self) -> int:
+        """The number of threads the update and the belief use (the ``threads`` option; with None,
+        ``NUMBA_NUM_THREADS``)."""
+        return _thread_count(self.options["threads"])
+
+    @property
+    def max_bytes(self) -> int | float:
+        """The guard on the filter's memory (the ``max_bytes`` option). Setting it (to continue
+        after a :class:`~onlinemap.errors.MemoryLimitError`) changes the option: a checkpoint then
+        records the new value."""
+        return self.options["max_bytes"]
+
+    @max_bytes.setter
+    def max_bytes(self, value) -> None:
+        self.options["max_bytes"] = arguments.byte_limit("max_bytes", value, InvalidOptionError)
 
     @property
     def resampled(self) -> bool:
@@ -258,7 +301,8 @@ class RaoBlackwellisedPF:
         probability zero for every particle (impossible under the model, or every trajectory that
         explains it was lost: depletion; the filter cannot tell which), raise
         :class:`ImpossibleObservationError` saying both and leave everything (particles, weights,
-        random generator) as it was.
+        random generator) as it was; so does a step that would take the filter's memory beyond
+        ``max_bytes`` (:class:`~onlinemap.errors.MemoryLimitError`).
         """
         model = self.model
         a, z = check_step(model, self._t + 1, action, observation)
@@ -266,6 +310,7 @@ class RaoBlackwellisedPF:
         if self.resampling == FEARNHEAD_CLIFFORD:
             self._update_fearnhead_clifford(a, z, t)
             return
+        blocks = self._reserved(t)
         rng_state = self._rng.bit_generator.state
         n_particles = self.n_particles
         log_weights = self._log_weights
@@ -277,7 +322,6 @@ class RaoBlackwellisedPF:
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
             log_weights = np.full(n_particles, -math.log(n_particles))
         one_cell = reads_one_cell(model)
-        blocks = self._blocks.reserved(n_particles * cells_written(model))
         if a is not None and not model.is_static and not self.lazy_dynamics:
             blocks = blocks.with_rows(blocks.rows @ model.change)  # eager: every cell of every block row, fresh array
         neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
@@ -286,11 +330,14 @@ class RaoBlackwellisedPF:
         new_ids = None
         if one_cell:
             new_cells = np.empty((n_particles, model.n_labels))
-            propose = rbpf_propose_parallel if self.threads > 1 else rbpf_propose
-            with _numba_threads(self.threads):
-                propose(self._locations, *blocks.reads(), t, ancestors, neighbors, model.p_move, model.likelihood[z],
+            proposal = (self._locations, *blocks.reads(), t, ancestors, neighbors, model.p_move, model.likelihood[z],
                         self.proposal == "optimal", self._rng.random(n_particles), new_locations, new_cells,
                         log_increments)
+            if self.threads > 1:
+                with _numba_threads(self.threads):
+                    rbpf_propose_parallel(*proposal, rbpf_parallel.CHUNK)
+            else:
+                rbpf_propose(*proposal)
         else:  # the same children Fearnhead-Clifford enumerates, one drawn per particle
             m, children = self._enumerate_cells(blocks, t, neighbors, z, np.zeros(n_particles))
             width = cells_written(model)
@@ -307,6 +354,25 @@ class RaoBlackwellisedPF:
         self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - increment, increment, resample,
                      new_ids)
 
+    def _reserved(self, t: int) -> BlockPool:
+        """The pool with the free rows a step writes (:meth:`BlockPool.reserved`: this filter's, or a
+        grown copy), after checking that growing it keeps the filter within ``max_bytes``
+        (:class:`~onlinemap.errors.MemoryLimitError` otherwise, nothing changed)."""
+        pool, model, p = self._blocks, self.model, self.n_particles
+        need = cells_written(model) * p
+        rows, have = pool.rows_to_hold(need), len(pool.rows)
+        if rows > have:
+            n_blocks, size = pool.block_members.shape
+            total = state_bytes(model, p, size, n_blocks, rows, have, self.lazy_dynamics, self.threads)
+            if total > self.max_bytes:
+                raise MemoryLimitError(
+                    f"step {t}: the particles' maps use {np.count_nonzero(pool.refcount)} block rows (particles "
+                    f"share fewer blocks as their trajectories part: {p} x {n_blocks} if they shared none) and the "
+                    f"step needs the pool grown from {have} to {rows} rows, {total / 1e9:.3g} GB in all, over "
+                    f"max_bytes = {self.max_bytes / 1e9:.3g} GB. The filter is unchanged: raise est.max_bytes to "
+                    f"continue, or use fewer particles")
+        return pool.reserved(need)
+
     def _enumerate_cells(self, blocks: BlockPool, t, neighbors, z, log_weights):
         """(M, (parent, location, log weight, log motion, ids, cells)): :func:`rbpf_enumerate_cells`
         on the current particles with ``log_weights``, the observation ``z`` an int or (F,)."""
@@ -314,11 +380,16 @@ class RaoBlackwellisedPF:
         size, width = 2 * self.n_particles, cells_written(model)
         children = (np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size), np.empty(size),
                     np.empty((size, width), dtype=np.int64), np.empty((size, width, model.n_labels)))
-        enumerate_cells = rbpf_enumerate_cells_parallel if self.threads > 1 else rbpf_enumerate_cells
-        with _numba_threads(self.threads):
-            m = enumerate_cells(self._locations, log_weights, *blocks.reads(), t, neighbors, *_motion_and_sensor(model, z),
-                                *children)
+        m = self._enumerate(rbpf_enumerate_cells, rbpf_enumerate_cells_parallel, self._locations, log_weights,
+                            *blocks.reads(), t, neighbors, *_motion_and_sensor(model, z), *children)
         return m, children
+
+    def _enumerate(self, serial, parallel, *args) -> int:
+        """``serial(*args)``, or with threads its parallel driver (which returns the same)."""
+        if self.threads == 1:
+            return serial(*args)
+        with _numba_threads(self.threads):
+            return parallel(*args, rbpf_parallel.CHUNK)
 
     def _fc_buffers(self) -> _FCBuffers:
         """Views of the filter's scratch buffers for one Fearnhead-Clifford step (2P children, P
@@ -339,7 +410,7 @@ class RaoBlackwellisedPF:
         resampling is O(P). Works in the filter's scratch buffers: no per-step allocation of size P."""
         model = self.model
         n_particles = self.n_particles
-        blocks = self._blocks.reserved(cells_written(model) * n_particles)
+        blocks = self._reserved(t)
         if a is not None and not model.is_static and not self.lazy_dynamics:
             blocks = blocks.with_rows(blocks.rows @ model.change)
         neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
@@ -347,15 +418,13 @@ class RaoBlackwellisedPF:
         parallel = self.threads > 1
         buffers = self._fc_buffers()
         children = (buffers.child_parent, buffers.child_location, buffers.child_log_weight)
-        with _numba_threads(self.threads):
-            if one_cell:
-                m = (rbpf_enumerate_parallel if parallel else rbpf_enumerate)(
-                    self._locations, self._log_weights, *blocks.reads(), t, neighbors, model.p_move,
-                    model.likelihood[z], *children)
-            else:
-                m = (rbpf_enumerate_cells_parallel if parallel else rbpf_enumerate_cells)(
-                    self._locations, self._log_weights, *blocks.reads(), t, neighbors, *_motion_and_sensor(model, z),
-                    *children, *_no_child_cells(model))
+        if one_cell:
+            m = self._enumerate(rbpf_enumerate, rbpf_enumerate_parallel, self._locations, self._log_weights,
+                                *blocks.reads(), t, neighbors, model.p_move, model.likelihood[z], *children)
+        else:
+            m = self._enumerate(rbpf_enumerate_cells, rbpf_enumerate_cells_parallel, self._locations, self._log_weights,
+                                *blocks.reads(), t, neighbors, *_motion_and_sensor(model, z), *children,
+                                *_no_child_cells(model))
         if m == 0:
             raise ImpossibleObservationError(
                 _no_particle_explains(model, z, t, self.n_particles))
@@ -370,12 +439,14 @@ class RaoBlackwellisedPF:
             with _numba_threads(self.threads):
                 if one_cell:
                     rbpf_stage_children_parallel(*blocks.reads(), t, buffers.ancestors, buffers.slot_child,
-                                                 buffers.child_location, model.likelihood[z], *staged[:3])
+                                                 buffers.child_location, model.likelihood[z], *staged[:3],
+                                                 rbpf_parallel.CHUNK)
                 else:
                     rbpf_stage_children_cells_parallel(self._locations, *blocks.reads(), t, buffers.ancestors,
                                                        buffers.slot_child, buffers.child_location, neighbors,
-                                                       *_motion_and_sensor(model, z), *staged[:3])
-                rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, buffers.ancestors, *staged)
+                                                       *_motion_and_sensor(model, z), *staged[:3], rbpf_parallel.CHUNK)
+                rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, buffers.ancestors, *staged,
+                                            rbpf_parallel.CHUNK)
         elif one_cell:
             rbpf_commit_children(self._locations, *blocks.writes(), t, buffers.ancestors, buffers.slot_child,
                                  buffers.child_location, model.likelihood[z])
@@ -406,7 +477,7 @@ class RaoBlackwellisedPF:
             _, _, _, target, source = self._staged_buffers()
             with _numba_threads(self.threads):
                 rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, ancestors, new_locations, ids, cells,
-                                            target, source)
+                                            target, source, rbpf_parallel.CHUNK)
             blocks.refresh(t)
         else:
             blocks.commit(self._locations, t, ancestors, new_locations, new_cells, new_ids)

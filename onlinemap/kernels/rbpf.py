@@ -939,4 +939,5 @@ def particle_maps(pool, pool_stamps, table, cell_block, cell_slot, powers, dynam
         for i in range(n_cells):
             r = table[p, cell_block[i]]
             for b in range(k):
-                out[p, i, b] = _aged_label(pool, powers, _age(pool_stamps, dynamic, t, r, cell_slot[i]), r, cell_slot[i], b)
+                d = _age(pool_stamps, dynamic, t, r, cell_slot[i])
+                out[p, i, b] = _aged_label(pool, powers, d, r, cell_slot[i], b)

@@ -1,7 +1,7 @@
 """Parallel drivers of the RBPF's kernels (``onlinemap/kernels/rbpf.py``), for ``threads > 1``.
 
-Each driver splits the work into fixed chunks (``CHUNK`` particles, or ``BLOCK_GROUP`` map
-blocks) that do not depend on the number of threads, runs the serial kernel's inner loop on
+Each driver splits the work into fixed chunks (``chunk`` particles, :data:`CHUNK` for the filter,
+or ``BLOCK_GROUP`` map blocks) that do not depend on the number of threads, runs the serial kernel's inner loop on
 each chunk under numba's ``prange``, and combines the chunks in chunk order. No chunk reads
 what another writes, and every sum is taken in the order the serial kernel takes it, so the
 results are the serial kernels' bit for bit, whatever the number of threads:
@@ -34,24 +34,24 @@ from numba import njit, prange
 from .rbpf import (_copy_planned, _enumerate, _enumerate_cells, _mixture_rows, _plan_writes, _propose, _row_weights,
                    _rows_by_block, _stage_children, _stage_children_cells, _sum, _take_over_slots, _write_planned)
 
-CHUNK = 1024  # particles per chunk: fixed, so the chunks do not depend on the number of threads
+CHUNK = 1024  # particles per chunk (the drivers' ``chunk``), fixed: the chunks do not depend on the threads
 BLOCK_GROUP = 8  # map blocks per chunk of the row weights: one cache line of a particle's table row
 
 
 @njit(cache=True, inline="always")
-def _chunks(n):
-    """Number of chunks of ``CHUNK`` items covering ``n``."""
-    return (n + CHUNK - 1) // CHUNK
+def _chunks(n, chunk):
+    """Number of chunks of ``chunk`` items covering ``n``."""
+    return (n + chunk - 1) // chunk
 
 
 @njit(cache=True)
-def _gather_children(counts, child_parent, child_location, child_log_weight, child_log_motion, child_ids,
+def _gather_children(counts, chunk, child_parent, child_location, child_log_weight, child_log_motion, child_ids,
                      child_cells):
-    """Move chunk c's ``counts[c]`` children from index ``2 c CHUNK`` to follow the previous chunks'
+    """Move chunk c's ``counts[c]`` children from index ``2 c chunk`` to follow the previous chunks'
     (the stored ids, cells and log motion too when ``child_cells`` has rows); returns M. O(M)."""
     m = 0
     for c in range(counts.shape[0]):
-        first = 2 * c * CHUNK
+        first = 2 * c * chunk
         if m != first:  # m < first: copying upwards never overwrites a child not yet moved
             for i in range(counts[c]):
                 child_parent[m + i] = child_parent[first + i]
@@ -67,16 +67,16 @@ def _gather_children(counts, child_parent, child_location, child_log_weight, chi
 
 @njit(cache=True, parallel=True)
 def rbpf_enumerate_parallel(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic,
-                            t, neighbors, p_move, likelihood, child_parent, child_location, child_log_weight):
+                            t, neighbors, p_move, likelihood, child_parent, child_location, child_log_weight, chunk):
     """:func:`~onlinemap.kernels.rbpf.rbpf_enumerate` (the same children, in the same order)."""
     n = locations.shape[0]
-    counts = np.empty(_chunks(n), dtype=np.int64)
+    counts = np.empty(_chunks(n, chunk), dtype=np.int64)
     for c in prange(counts.shape[0]):
-        start = c * CHUNK
+        start = c * chunk
         counts[c] = _enumerate(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers,
                                dynamic, t, neighbors, p_move, likelihood, child_parent, child_location,
-                               child_log_weight, start, min(n, start + CHUNK), 2 * start, np.empty(1))
-    return _gather_children(counts, child_parent, child_location, child_log_weight, np.empty(0),
+                               child_log_weight, start, min(n, start + chunk), 2 * start, np.empty(1))
+    return _gather_children(counts, chunk, child_parent, child_location, child_log_weight, np.empty(0),
                             np.empty((0, 1), dtype=np.int64), np.empty((0, 1, 1)))
 
 
@@ -84,67 +84,69 @@ def rbpf_enumerate_parallel(locations, log_weights, pool, pool_stamps, table, ce
 def rbpf_enumerate_cells_parallel(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers,
                                   dynamic, t, neighbors, p_move, blocking, change, footprint_cells, sensor, readings,
                                   child_parent, child_location, child_log_weight, child_log_motion, child_ids,
-                                  child_cells):
+                                  child_cells, chunk):
     """:func:`~onlinemap.kernels.rbpf.rbpf_enumerate_cells` (the same children, in the same order)."""
     n = locations.shape[0]
     k = sensor.shape[0]
     width = child_ids.shape[1]
-    counts = np.empty(_chunks(n), dtype=np.int64)
+    counts = np.empty(_chunks(n, chunk), dtype=np.int64)
     for c in prange(counts.shape[0]):
-        start = c * CHUNK
+        start = c * chunk
         counts[c] = _enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers,
                                      dynamic, t, neighbors, p_move, blocking, change, footprint_cells, sensor,
                                      readings, child_parent, child_location, child_log_weight, child_log_motion,
-                                     child_ids, child_cells, start, min(n, start + CHUNK), 2 * start, np.empty(k),
+                                     child_ids, child_cells, start, min(n, start + chunk), 2 * start, np.empty(k),
                                      np.empty(k), np.empty(footprint_cells.shape[1]), np.empty(width, dtype=np.int64),
                                      np.empty((width, k)))
-    return _gather_children(counts, child_parent, child_location, child_log_weight, child_log_motion, child_ids,
+    return _gather_children(counts, chunk, child_parent, child_location, child_log_weight, child_log_motion, child_ids,
                             child_cells)
 
 
 @njit(cache=True, parallel=True)
 def rbpf_propose_parallel(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors,
-                          neighbors, p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments):
+                          neighbors, p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments,
+                          chunk):
     """:func:`~onlinemap.kernels.rbpf.rbpf_propose`."""
     n = ancestors.shape[0]
-    for c in prange(_chunks(n)):
+    for c in prange(_chunks(n, chunk)):
         _propose(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors, neighbors,
-                 p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments, c * CHUNK,
-                 min(n, (c + 1) * CHUNK))
+                 p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments, c * chunk,
+                 min(n, (c + 1) * chunk))
 
 
 @njit(cache=True, parallel=True)
 def rbpf_stage_children_parallel(pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors,
-                                 slot_child, child_location, likelihood, new_locations, new_ids, new_cells):
+                                 slot_child, child_location, likelihood, new_locations, new_ids, new_cells,
+                                 chunk):
     """Fearnhead-Clifford's kept children's writes (:func:`~onlinemap.kernels.rbpf._stage_children`),
     staged from the parents' rows for :func:`rbpf_commit_staged_parallel`; writes only the staging
     arrays."""
     n = slot_child.shape[0]
-    for c in prange(_chunks(n)):
+    for c in prange(_chunks(n, chunk)):
         _stage_children(pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors, slot_child,
-                        child_location, likelihood, new_locations, new_ids, new_cells, c * CHUNK,
-                        min(n, (c + 1) * CHUNK))
+                        child_location, likelihood, new_locations, new_ids, new_cells, c * chunk,
+                        min(n, (c + 1) * chunk))
 
 
 @njit(cache=True, parallel=True)
 def rbpf_stage_children_cells_parallel(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
                                        ancestors, slot_child, child_location, neighbors, p_move, blocking, change,
-                                       footprint_cells, sensor, readings, new_locations, new_ids, new_cells):
+                                       footprint_cells, sensor, readings, new_locations, new_ids, new_cells, chunk):
     """:func:`rbpf_stage_children_parallel` for blocking labels and sensor footprints
     (:func:`~onlinemap.kernels.rbpf._stage_children_cells`); writes only the staging arrays."""
     n = slot_child.shape[0]
     k = sensor.shape[0]
-    for c in prange(_chunks(n)):
+    for c in prange(_chunks(n, chunk)):
         _stage_children_cells(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors,
                               slot_child, child_location, neighbors, p_move, blocking, change, footprint_cells, sensor,
-                              readings, new_locations, new_ids, new_cells, c * CHUNK, min(n, (c + 1) * CHUNK),
+                              readings, new_locations, new_ids, new_cells, c * chunk, min(n, (c + 1) * chunk),
                               np.empty(k), np.empty(k), np.empty(footprint_cells.shape[1]))
 
 
 @njit(cache=True, parallel=True)
 def rbpf_commit_staged_parallel(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block,
                                 cell_slot, dynamic, powers, max_age, t, ancestors, new_locations, new_ids, new_cells,
-                                target, source):
+                                target, source, chunk):
     """:func:`~onlinemap.kernels.rbpf.rbpf_commit_cells`, bit for bit: the take-over and the
     copy-on-write bookkeeping (:func:`~onlinemap.kernels.rbpf._plan_writes`, into ``target`` and
     ``source`` (P, W)) serially, then every block copy, then every write, then the locations.
@@ -152,12 +154,12 @@ def rbpf_commit_staged_parallel(locations, pool, pool_stamps, row_block, refcoun
     n = new_locations.shape[0]
     _take_over_slots(refcount, free, free_top, table, ancestors)
     _plan_writes(row_block, refcount, free, free_top, table, cell_block, new_locations, new_ids, target, source)
-    for c in prange(_chunks(n)):
-        _copy_planned(pool, pool_stamps, dynamic, powers, max_age, t, target, source, c * CHUNK,
-                      min(n, (c + 1) * CHUNK))
-    for c in prange(_chunks(n)):
-        _write_planned(pool, pool_stamps, dynamic, t, cell_slot, new_ids, new_cells, target, c * CHUNK,
-                       min(n, (c + 1) * CHUNK))
+    for c in prange(_chunks(n, chunk)):
+        _copy_planned(pool, pool_stamps, dynamic, powers, max_age, t, target, source, c * chunk,
+                      min(n, (c + 1) * chunk))
+    for c in prange(_chunks(n, chunk)):
+        _write_planned(pool, pool_stamps, dynamic, t, cell_slot, new_ids, new_cells, target, c * chunk,
+                       min(n, (c + 1) * chunk))
     for p in range(n):
         if new_locations[p] >= 0:
             locations[p] = new_locations[p]
