@@ -25,7 +25,7 @@ import math
 import numpy as np
 from numba import njit
 
-from . import loop_kernel
+from . import PREFETCH_AHEAD, loop_kernel, prefetch
 from .resampling import optimal_keep_into
 
 
@@ -91,6 +91,23 @@ def _parent(locations, log_weights, neighbors, q):
     return log_weights[q] != -np.inf, l, neighbors[l]
 
 
+@njit(cache=True, inline="always")
+def _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, q, cell):
+    """Ask for particle q's marginal of ``cell`` (and its stamp) ahead of its use (:func:`prefetch`)."""
+    r = table[q, cell_block[cell]]
+    prefetch(pool, (r, cell_slot[cell], 0))
+    if dynamic:
+        prefetch(pool_stamps, (r, cell_slot[cell]))
+
+
+@njit(cache=True, inline="always")
+def _prefetch_parent(locations, pool, pool_stamps, table, cell_block, cell_slot, dynamic, neighbors, q):
+    """Ask for the two cells particle q reads in a step (its own and the one its action points at)."""
+    l = locations[q]
+    _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, q, l)
+    _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, q, neighbors[l])
+
+
 @njit(cache=True)
 def _sum_of_logs(values, n):
     """``sum_i log(values[i])`` over the first n, in order (not inlined: it is the rare path, and
@@ -134,6 +151,9 @@ def _enumerate(locations, log_weights, pool, pool_stamps, table, cell_block, cel
     ``out`` on; returns their number. ``lams`` (1,) scratch."""
     m = out
     for q in range(start, stop):
+        if q + PREFETCH_AHEAD < stop:
+            _prefetch_parent(locations, pool, pool_stamps, table, cell_block, cell_slot, dynamic, neighbors,
+                             q + PREFETCH_AHEAD)
         live, l, n = _parent(locations, log_weights, neighbors, q)
         if not live:
             continue
@@ -297,6 +317,9 @@ def _enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_bloc
     has_blocking = _any(blocking)
     m = out
     for q in range(start, stop):
+        if q + PREFETCH_AHEAD < stop:
+            _prefetch_parent(locations, pool, pool_stamps, table, cell_block, cell_slot, dynamic, neighbors,
+                             q + PREFETCH_AHEAD)
         live, l, n = _parent(locations, log_weights, neighbors, q)
         if not live:
             continue
@@ -431,6 +454,8 @@ def _place_children(child_parent, kept, kept_weights, ancestors, slot_child, new
         new_log_weights[p] = -np.inf
     extra = 0  # the next slot without a child of its own, for a second child
     for i in range(kept.shape[0]):
+        if i + PREFETCH_AHEAD < kept.shape[0]:
+            prefetch(child_parent, (kept[i + PREFETCH_AHEAD],))
         c = kept[i]
         q = child_parent[c]
         if not filled[q]:
@@ -469,6 +494,9 @@ def _propose(locations, pool, pool_stamps, table, cell_block, cell_slot, powers,
              p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments, start, stop):
     """:func:`rbpf_propose` of particles ``start..stop - 1``."""
     for p in range(start, stop):
+        if p + PREFETCH_AHEAD < stop:
+            _prefetch_parent(locations, pool, pool_stamps, table, cell_block, cell_slot, dynamic, neighbors,
+                             ancestors[p + PREFETCH_AHEAD])
         q = ancestors[p]
         l = locations[q]
         n = neighbors[l]
@@ -504,6 +532,11 @@ def _take_over_slots(refcount, free, free_top, table, ancestors):
     keeps its count: it is named by both, so it never drops to 0 on the way)."""
     n_particles, n_blocks = table.shape
     for p in range(n_particles):
+        ahead = p + PREFETCH_AHEAD
+        if ahead < n_particles and ancestors[ahead] != ahead:
+            for b in range(0, n_blocks, 8):  # the two table rows, a cache line (8 entries) at a time
+                prefetch(table, (ancestors[ahead], b))
+                prefetch(table, (ahead, b))
         q = ancestors[p]
         if q == p:
             continue
@@ -628,6 +661,10 @@ def _write_children(locations, pool, pool_stamps, row_block, refcount, free, fre
     """The writes of :func:`rbpf_commit_children` once the slots are taken over; ``values`` (K,)
     scratch."""
     for p in range(table.shape[0]):
+        ahead = p + PREFETCH_AHEAD
+        if ahead < table.shape[0] and slot_child[ahead] >= 0:
+            _prefetch_write(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
+                            dynamic, ahead, child_location[slot_child[ahead]])
         c = slot_child[p]
         if c < 0:
             continue
@@ -639,6 +676,21 @@ def _write_children(locations, pool, pool_stamps, row_block, refcount, free, fre
         _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, dynamic,
                     powers, max_age, t, p, j, values)
     _move_to_children(locations, slot_child, child_location)
+
+
+@njit(cache=True, inline="always")
+def _prefetch_write(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, dynamic, p,
+                    cell):
+    """Ask for what particle p's write of ``cell`` reads: the cell's marginal and its row's count;
+    and for a free row a copy will soon take (the second on the stack), its first slot and its
+    bookkeeping."""
+    _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, p, cell)
+    prefetch(refcount, (table[p, cell_block[cell]],))
+    if free_top[0] > 1:
+        fresh = free[free_top[0] - 2]
+        prefetch(pool, (fresh, 0, 0))
+        prefetch(refcount, (fresh,))
+        prefetch(row_block, (fresh,))
 
 
 @njit(cache=True, inline="always")
@@ -674,6 +726,10 @@ def _write_children_cells(locations, pool, pool_stamps, row_block, refcount, fre
     ``given`` (K,), ``lams`` (F,), ``ids`` (W,), ``cells`` (W, K) scratch."""
     has_blocking = _any(blocking)
     for p in range(table.shape[0]):
+        ahead = p + PREFETCH_AHEAD
+        if ahead < table.shape[0] and slot_child[ahead] >= 0:
+            _prefetch_write(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
+                            dynamic, ahead, child_location[slot_child[ahead]])
         c = slot_child[p]
         if c < 0:
             continue
@@ -702,6 +758,10 @@ def _stage_children(pool, pool_stamps, table, cell_block, cell_slot, powers, dyn
     ``new_locations`` (P,) the child's cell (-1: no child), ``new_ids`` (P, 1) the same,
     ``new_cells`` (P, 1, K) its observed cell's posterior."""
     for p in range(start, stop):
+        ahead = p + PREFETCH_AHEAD
+        if ahead < stop and slot_child[ahead] >= 0:
+            _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, ancestors[ahead],
+                           child_location[slot_child[ahead]])
         c = slot_child[p]
         new_locations[p] = -1
         new_ids[p, 0] = -1
@@ -724,6 +784,10 @@ def _stage_children_cells(locations, pool, pool_stamps, table, cell_block, cell_
     ``new_cells`` (P, W, K); ``before``, ``given`` (K,), ``lams`` (F,) scratch."""
     has_blocking = _any(blocking)
     for p in range(start, stop):
+        ahead = p + PREFETCH_AHEAD
+        if ahead < stop and slot_child[ahead] >= 0:
+            _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, ancestors[ahead],
+                           child_location[slot_child[ahead]])
         c = slot_child[p]
         new_locations[p] = -1
         if c < 0:
