@@ -101,6 +101,14 @@ def _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, q, 
 
 
 @njit(cache=True, inline="always")
+def _prefetch_footprint(pool, pool_stamps, table, cell_block, cell_slot, dynamic, footprint_cells, q, cell):
+    """Ask for particle q's marginals of the cells a robot at ``cell`` reads."""
+    for f in range(footprint_cells.shape[1]):
+        if footprint_cells[cell, f] >= 0:
+            _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, q, footprint_cells[cell, f])
+
+
+@njit(cache=True, inline="always")
 def _prefetch_parent(locations, pool, pool_stamps, table, cell_block, cell_slot, dynamic, neighbors, q):
     """Ask for the two cells particle q reads in a step (its own and the one its action points at)."""
     l = locations[q]
@@ -151,7 +159,7 @@ def _enumerate(locations, log_weights, pool, pool_stamps, table, cell_block, cel
     ``out`` on; returns their number. ``lams`` (1,) scratch."""
     m = out
     for q in range(start, stop):
-        if q + PREFETCH_AHEAD < stop:
+        if q + PREFETCH_AHEAD < stop and log_weights[q + PREFETCH_AHEAD] != -np.inf:
             _prefetch_parent(locations, pool, pool_stamps, table, cell_block, cell_slot, dynamic, neighbors,
                              q + PREFETCH_AHEAD)
         live, l, n = _parent(locations, log_weights, neighbors, q)
@@ -201,13 +209,16 @@ def _motion(l, n, p_move, s, gated, passable):
 
 @njit(cache=True, inline="always")
 def _footprint_child(pool, pool_stamps, table_row, cell_block, cell_slot, powers, dynamic, t, j, n, s, gated, before,
-                     p_move, blocking, change, footprint_cells, sensor, readings, given, ids, cells, lams):
+                     p_move, blocking, change, footprint_cells, sensor, readings, given, ids, cells, lams, posteriors):
     """The map changes of a child (successor s, at cell j, of a parent whose action points at n
     and whose map has block rows ``table_row``), as :func:`rbpf_enumerate_cells` defines them:
     ``ids`` (W,) the changed cells (-1 pads), ``cells`` (W, K) their marginals at step t, ``lams``
     (F,) the likelihood of each on-grid reading in turn. ``before`` (K,): n's marginal at t - 1
-    (:func:`_passable_before`, when ``gated``); ``given`` (K,) scratch. Returns (n_reads,
-    likelihood), ``n_reads = -1`` where the readings are impossible for this child. O(F (W + K))."""
+    (:func:`_passable_before`, when ``gated``); ``given`` (K,) scratch. Without ``posteriors`` the
+    read cells keep their prior in ``cells`` (the likelihood is the same: a footprint reads each
+    cell once, after the move's evidence, and its divisions are most of the cost). Returns
+    (n_reads, likelihood), ``n_reads = -1`` where the readings are impossible for this child.
+    O(F (W + K))."""
     k = sensor.shape[0]
     used = 0
     if gated:  # n's marginal given the move's outcome (at t - 1), carried to step t by C
@@ -257,8 +268,9 @@ def _footprint_child(pool, pool_stamps, table_row, cell_block, cell_slot, powers
             lam += cells[w, b] * sensor[b, z]
         possible = lam > 0.0
         if possible:
-            for b in range(k):
-                cells[w, b] = cells[w, b] * sensor[b, z] / lam
+            if posteriors:
+                for b in range(k):
+                    cells[w, b] = cells[w, b] * sensor[b, z] / lam
             likelihood *= lam
             lams[n_reads] = lam
             n_reads += 1
@@ -317,9 +329,13 @@ def _enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_bloc
     has_blocking = _any(blocking)
     m = out
     for q in range(start, stop):
-        if q + PREFETCH_AHEAD < stop:
-            _prefetch_parent(locations, pool, pool_stamps, table, cell_block, cell_slot, dynamic, neighbors,
-                             q + PREFETCH_AHEAD)
+        ahead = q + PREFETCH_AHEAD
+        if ahead < stop and log_weights[ahead] != -np.inf:
+            _prefetch_parent(locations, pool, pool_stamps, table, cell_block, cell_slot, dynamic, neighbors, ahead)
+            _prefetch_footprint(pool, pool_stamps, table, cell_block, cell_slot, dynamic, footprint_cells, ahead,
+                                locations[ahead])
+            _prefetch_footprint(pool, pool_stamps, table, cell_block, cell_slot, dynamic, footprint_cells, ahead,
+                                neighbors[locations[ahead]])
         live, l, n = _parent(locations, log_weights, neighbors, q)
         if not live:
             continue
@@ -334,7 +350,7 @@ def _enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_bloc
                 continue
             n_reads, likelihood = _footprint_child(pool, pool_stamps, table[q], cell_block, cell_slot, powers, dynamic,
                                                    t, j, n, s, gated, before, p_move, blocking, change,
-                                                   footprint_cells, sensor, readings, given, ids, cells, lams)
+                                                   footprint_cells, sensor, readings, given, ids, cells, lams, store)
             if n_reads < 0:
                 continue
             if store:
@@ -730,6 +746,8 @@ def _write_children_cells(locations, pool, pool_stamps, row_block, refcount, fre
         if ahead < table.shape[0] and slot_child[ahead] >= 0:
             _prefetch_write(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
                             dynamic, ahead, child_location[slot_child[ahead]])
+            _prefetch_footprint(pool, pool_stamps, table, cell_block, cell_slot, dynamic, footprint_cells, ahead,
+                                child_location[slot_child[ahead]])
         c = slot_child[p]
         if c < 0:
             continue
@@ -742,7 +760,8 @@ def _write_children_cells(locations, pool, pool_stamps, row_block, refcount, fre
             _passable_before(pool, pool_stamps, table[p], cell_block, cell_slot, powers, dynamic, t, blocking, n,
                              before)
         _footprint_child(pool, pool_stamps, table[p], cell_block, cell_slot, powers, dynamic, t, j, n, s, gated,
-                         before, p_move, blocking, change, footprint_cells, sensor, readings, given, ids, cells, lams)
+                         before, p_move, blocking, change, footprint_cells, sensor, readings, given, ids, cells, lams,
+                         True)
         for w in range(ids.shape[0]):  # computed from the parent's rows before any of them is copied
             if ids[w] >= 0:
                 _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
@@ -804,7 +823,7 @@ def _stage_children_cells(locations, pool, pool_stamps, table, cell_block, cell_
                              before)
         _footprint_child(pool, pool_stamps, table[q], cell_block, cell_slot, powers, dynamic, t, j, n,
                          0 if j == l else 1, gated, before, p_move, blocking, change, footprint_cells, sensor,
-                         readings, given, new_ids[p], new_cells[p], lams)
+                         readings, given, new_ids[p], new_cells[p], lams, True)
         new_locations[p] = j
 
 
