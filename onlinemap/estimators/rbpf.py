@@ -33,7 +33,13 @@ O(P_dropped N / B) (table rows copied, not maps). Fearnhead-Clifford resamples e
 in a dynamic world). :meth:`RaoBlackwellisedPF.update` advances without building the belief;
 the ``belief`` property builds it on first access (then caches it), and :meth:`step` is
 ``update`` followed by ``belief``. Memory: the block rows in use (at most ``8 P N (K + 1)``
-bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of C.
+bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of C, and the
+step's buffers, which the filter owns (:func:`state_bytes`; measured 580-710 bytes per particle
+on the 10 x 10 door world, 2.8 KB on 64 x 64); the guard ``max_bytes`` checks it when the filter
+starts and whenever the pool grows. Measured (``onlinemap bench rbpf``, rows ``per particle``):
+an update 0.26-0.35 us of CPU per particle at 10^4-10^5 particles on the 10 x 10 door world, the
+belief 0.07. With ``threads`` the kernels of :mod:`onlinemap.kernels.rbpf_parallel` run instead
+(the same results).
 """
 
 from __future__ import annotations
