@@ -72,8 +72,9 @@ def test_two_threads_give_the_serial_result_bit_for_bit(world, scheme, n_particl
 
 @needs_two_threads
 def test_the_number_of_threads_and_the_chunks_do_not_matter(monkeypatch):
-    """The result depends on neither the number of threads nor the chunk size (chunks of 1 to more
-    than P particles), at 2000 particles on the dynamic door world."""
+    """The result depends on neither the number of threads nor the chunk size (chunks of 1 to 100
+    particles; from one chunk of P or more the serial kernels run), at 2000 particles on the
+    dynamic door world."""
     model = om.door_world(p_door=0.05)[0]
     run = random_run(model, 30, seed=2)
     finals = []

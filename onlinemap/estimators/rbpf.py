@@ -261,6 +261,13 @@ class RaoBlackwellisedPF:
         return _thread_count(self.options["threads"])
 
     @property
+    def _parallel(self) -> bool:
+        """Whether a step runs the parallel kernels: with threads, and more particles than one
+        chunk (:data:`~onlinemap.kernels.rbpf_parallel.CHUNK`; fewer would run on one thread
+        anyway, the same results at the threads' overhead)."""
+        return self.threads > 1 and self.n_particles > rbpf_parallel.CHUNK
+
+    @property
     def max_bytes(self) -> int | float:
         """The guard on the filter's memory (the ``max_bytes`` option). Setting it (to continue
         after a :class:`~onlinemap.errors.MemoryLimitError`) changes the option: a checkpoint then
@@ -285,7 +292,7 @@ class RaoBlackwellisedPF:
             location = np.bincount(self._locations, weights=weights, minlength=self.model.n_cells)
             location /= location.sum()  # rounding: keep every probability <= 1
             with _numba_threads(self.threads):
-                maps = self._blocks.mixture(self._t, weights, parallel=self.threads > 1)
+                maps = self._blocks.mixture(self._t, weights, parallel=self._parallel)
             maps /= maps.sum(axis=1, keepdims=True)
             self._belief = Belief(self._t, location, maps, self._log_evidence,
                                   effective_sample_size=self._ess)
@@ -340,7 +347,7 @@ class RaoBlackwellisedPF:
             proposal = (self._locations, *blocks.reads(), t, ancestors, neighbors, model.p_move, model.likelihood[z],
                         self.proposal == "optimal", self._rng.random(n_particles), new_locations, new_cells,
                         log_increments)
-            if self.threads > 1:
+            if self._parallel:
                 with _numba_threads(self.threads):
                     rbpf_propose_parallel(*proposal, rbpf_parallel.CHUNK)
             else:
@@ -393,7 +400,7 @@ class RaoBlackwellisedPF:
 
     def _enumerate(self, serial, parallel, *args) -> int:
         """``serial(*args)``, or with threads its parallel driver (which returns the same)."""
-        if self.threads == 1:
+        if not self._parallel:
             return serial(*args)
         with _numba_threads(self.threads):
             return parallel(*args, rbpf_parallel.CHUNK)
@@ -422,7 +429,7 @@ class RaoBlackwellisedPF:
             blocks = blocks.with_rows(blocks.rows @ model.change)
         neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
         one_cell = reads_one_cell(model)
-        parallel = self.threads > 1
+        parallel = self._parallel
         buffers = self._fc_buffers()
         children = (buffers.child_parent, buffers.child_location, buffers.child_log_weight)
         if one_cell:
@@ -477,7 +484,7 @@ class RaoBlackwellisedPF:
         """Write a validated step of the sampling schemes: the particles' slots and maps into
         ``blocks`` (:meth:`BlockPool.commit`; with threads, :func:`rbpf_commit_staged_parallel`),
         then :meth:`_advance`."""
-        if self.threads > 1:
+        if self._parallel:
             n_particles = self.n_particles
             ids = new_locations.reshape(n_particles, 1) if new_ids is None else new_ids
             cells = new_cells.reshape(n_particles, ids.shape[1], self.model.n_labels)
