@@ -47,7 +47,8 @@ def assert_same_state(a, b):
 def test_two_threads_give_the_serial_result_bit_for_bit(world, scheme, n_particles, monkeypatch):
     """60 steps of a random walk (the map drawn from the prior, so blocking walls are anywhere);
     every belief and, at the end, the whole state equal. A step the particles cannot explain
-    (depletion, possible with 40 sampled particles and off-grid readings) must be refused by both."""
+    (depletion, possible with 40 sampled particles and off-grid readings) is recovered from by both
+    alike; one the model rules out must be refused by both."""
     monkeypatch.setattr(rbpf_parallel, "CHUNK", 16)
     model = WORLDS[world]()
     run = random_run(model, 60, seed=8)
@@ -66,8 +67,42 @@ def test_two_threads_give_the_serial_result_bit_for_bit(world, scheme, n_particl
         np.testing.assert_array_equal(a.location, b.location)
         np.testing.assert_array_equal(a.map, b.map)
         assert a.log_evidence == b.log_evidence and a.effective_sample_size == b.effective_sample_size
+        assert a.recovered == b.recovered
     assert_same_state(serial, threaded)
     assert t > 20
+
+
+@needs_two_threads
+@pytest.mark.parametrize(("scheme", "n_particles"), [("fearnhead_clifford", 5), ("transition+residual", 5),
+                                                     ("transition+residual", 20)])
+def test_a_recovering_run_gives_the_serial_result_bit_for_bit(scheme, n_particles, monkeypatch):
+    """Recovery from depletion with threads: its relocated children carry their own cells (a reset
+    cell, or one read from a cell the parent never stood at, does not follow from the parent's map
+    at the child's location) and go through the parallel commit as given. The depleting run of
+    test_rbpf_recovery (100 steps of the blocking + cross door world, seed 38), chunks of 2
+    particles so that every step runs the parallel kernels (each step commits once through
+    rbpf_commit_staged_parallel, counted): every belief, its recovered flag, the recovery count
+    and the final state equal the serial run's, and the run recovers at least once."""
+    from onlinemap.estimators import rbpf as rbpf_module
+
+    monkeypatch.setattr(rbpf_parallel, "CHUNK", 2)
+    commits = []
+    staged = rbpf_module.rbpf_commit_staged_parallel
+    monkeypatch.setattr(rbpf_module, "rbpf_commit_staged_parallel", lambda *args: commits.append(1) or staged(*args))
+    model, true_map = om.door_world(blocking=True, footprint="cross")
+    run = om.simulate(model, true_map, steps=100, seed=38)
+    options = {"fearnhead_clifford": {}, "transition+residual": dict(proposal="transition", resampling="residual")}
+    serial, threaded = (om.make_estimator("rbpf", model, n_particles=n_particles, seed=38, threads=threads,
+                                          **options[scheme]) for threads in (1, 2))
+    for t in range(run.n_steps):
+        args = (None if t == 0 else int(run.actions[t - 1]), run.observations[t])
+        a, b = serial.step(*args), threaded.step(*args)
+        np.testing.assert_array_equal(a.location, b.location)
+        np.testing.assert_array_equal(a.map, b.map)
+        assert a.log_evidence == b.log_evidence and a.recovered == b.recovered
+    assert len(commits) == run.n_steps
+    assert threaded.recoveries == serial.recoveries >= 1
+    assert_same_state(serial, threaded)
 
 
 @needs_two_threads
