@@ -26,6 +26,8 @@ from typing import Callable, NamedTuple
 import numpy as np
 from numba import njit
 
+from .kernels.resampling import optimal_keep_into
+
 Resampler = Callable[[np.ndarray, np.random.Generator], np.ndarray]
 
 
@@ -118,98 +120,12 @@ class Kept(NamedTuple):
 
 
 @njit(cache=True)
-def _sorted_threshold(w, n):
-    """(c, n_large) by sorting, O(M log M): keeping the k largest, c_k = (sum of the rest) / (n - k);
-    the first k with the (k+1)-th largest below c_k is the solution (the k-th is then >= c_k)."""
-    ascending = np.sort(w)
-    below = np.cumsum(ascending)  # below[i] = sum of the i + 1 smallest: tails without cancellation
-    m = w.shape[0]
-    for k in range(n):
-        c = below[m - 1 - k] / (n - k)
-        if ascending[m - 1 - k] < c:
-            return c, k
-    return ascending[m - n], n  # the n - 1 smallest weigh less than the rounding of the rest
-
-
-@njit(cache=True)
-def _optimal_threshold(w, n, max_rounds=8):
-    """(c, n_large) for M > n positive weights ``w`` summing to 1: c solves
-    ``sum_i min(1, w_i / c) = n``, and exactly ``n_large < n`` weights are >= c.
-
-    Fixed point, O(M) a round: from c = 1/n, c <- (sum of the w < c) / (n - #{w >= c}) until no
-    weight crosses c. With f(c) = sum min(1, w / c) decreasing and c >= c* (f(c) <= n), the
-    update stays >= c* (the weights set aside are all >= c*) and is <= c (f(c) <= n), so c
-    decreases to c*, adding weights to the large set each round; once none is added, c solves the
-    equation. Rarely more than 3 rounds; after ``max_rounds`` it sorts instead (O(M log M))."""
-    c = 1.0 / n
-    n_large = -1
-    for _ in range(max_rounds):
-        count = 0
-        rest = 0.0
-        for i in range(w.shape[0]):
-            if w[i] >= c:
-                count += 1
-            else:
-                rest += w[i]
-        if count == n_large or count >= n:
-            break
-        n_large = count
-        c = rest / (n - count)
-    else:
-        return _sorted_threshold(w, n)
-    if count >= n:  # rounding pushed c below c*: sort
-        return _sorted_threshold(w, n)
-    return c, n_large
-
-
-@njit(cache=True)
 def optimal_keep(w, n, uniform, order):
-    """Kernel of :func:`optimal_resampling` for callers whose input is already valid: ``w`` (M,)
-    non-negative, summing to 1, ``n >= 1``, ``uniform`` in [0, 1), ``order`` (M,) a permutation:
-    the order in which the strata walk the children (any order fixed before the uniform is drawn
-    keeps the scheme unbiased; children of similar states next to each other spread the draws
-    over the states). Returns (indices in walk order, weights, c). O(M)."""
-    m = w.shape[0]
-    positive = 0
-    for i in range(m):
-        if w[i] > 0.0:
-            positive += 1
-    if positive <= n:
-        indices = np.empty(positive, dtype=np.int64)
-        j = 0
-        for i in order:
-            if w[i] > 0.0:
-                indices[j] = i
-                j += 1
-        return indices, w[indices].copy(), 0.0
-    c, n_large = _optimal_threshold(w, n)
-    small_total = 0.0  # summed in the order the strata are walked, so the last stratum fits
-    for i in order:
-        if w[i] < c:
-            small_total += w[i]
-    n_small = n - n_large  # 0 only when the children below c weigh less than the rounding of the rest
-    step = small_total / n_small if n_small > 0 else 0.0
+    """:func:`optimal_keep_into` into fresh arrays: returns (indices in walk order, weights, c). O(M)."""
     indices = np.empty(n, dtype=np.int64)
     weights = np.empty(n)
-    position = uniform * step  # the strata are [j step, (j + 1) step), one point in each
-    drawn = 0
-    cumulative = 0.0
-    kept = 0
-    for i in order:
-        if w[i] >= c:
-            if kept < n:  # more than n at c only through ties after rounding: keep the first n
-                indices[kept] = i
-                weights[kept] = w[i]
-                kept += 1
-            continue
-        cumulative += w[i]
-        if drawn < n_small and position < cumulative and kept < n:  # w[i] < step: at most one point falls in it
-            indices[kept] = i
-            weights[kept] = step
-            kept += 1
-            drawn += 1
-            position += step
-    return indices[:kept], weights[:kept], c
+    kept, c = optimal_keep_into(w, n, uniform, order, indices, weights)
+    return indices[:kept].copy(), weights[:kept].copy(), c
 
 
 def optimal_resampling(weights, n: int, rng: np.random.Generator, order=None) -> Kept:
@@ -239,4 +155,4 @@ def effective_sample_size(weights) -> float:
 
 
 __all__ = ["multinomial", "stratified", "systematic", "residual", "RESAMPLERS", "Resampler",
-           "effective_sample_size", "optimal_resampling", "optimal_keep", "Kept"]
+           "effective_sample_size", "optimal_resampling", "optimal_keep", "optimal_keep_into", "Kept"]

@@ -7,7 +7,9 @@ N x K^N); every other estimator gets small ones. Every estimator is built with i
 
 from __future__ import annotations
 
+import numba
 import numpy as np
+import pytest
 
 import onlinemap as om
 from onlinemap.model import symmetric_channel
@@ -98,3 +100,17 @@ def assert_state_unchanged(est, before: dict) -> None:
             np.testing.assert_array_equal(now[name], value, err_msg=name)
         else:
             assert now[name] is value or now[name] == value, name
+
+
+#: the RBPF's ``threads`` for tests run both ways: its serial kernels and its parallel ones (these
+#: skipped where numba runs one thread); see :func:`small_chunks`
+RBPF_THREADS = [1, pytest.param(2, marks=pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2,
+                                                             reason="numba runs one thread here"))]
+
+
+def small_chunks(monkeypatch, size: int = 16) -> None:
+    """Make the RBPF's parallel kernels work in chunks of ``size`` particles, so that a test with a
+    few hundred particles spans many chunks."""
+    from onlinemap.kernels import rbpf_parallel
+
+    monkeypatch.setattr(rbpf_parallel, "CHUNK", size)

@@ -68,3 +68,22 @@ def test_bench_peers_agrees_with_pgmpy_and_hmmlearn_and_shows_filterpys_residual
     assert np.all(unbiased["max_abs_diff"] <= unbiased["tolerance"])
     assert resampling.loc["residual", "max_abs_diff"] > resampling.loc["residual", "tolerance"]
     assert resampling.loc["residual", "copy_shares"].startswith("filterpy [0.69, 0.31, 0.0, 0.0]")
+
+
+def test_bench_rbpf_per_particle_rows():
+    """The rows of ``bench rbpf`` per particle (issue 25), on tiny worlds: update and belief for
+    each size and thread count, beside a copy pass of the filter's bytes in use, and blocking +
+    cross against the paper model per live particle (no timing is checked)."""
+    import onlinemap as om
+    from onlinemap.bench.rbpf import per_particle_rows
+
+    worlds = {"door 10x10": (*om.door_world(), (60,)),
+              "door 10x10 blocking+cross": (*om.door_world(blocking=True, footprint="cross"), (60,))}
+    rows = per_particle_rows(True, worlds, thread_counts=[1])
+    assert [row["case"].split(": ")[1] for row in rows] == ["update", "belief", "update", "belief",
+                                                            "update against the paper model's"]
+    for row in rows:
+        assert row["ms"] > 0 and row["reference_ms"] > 0 and 0 < row["live"] <= 60
+        assert 0 < row["bytes_per_particle"] <= row["allocated_bytes_per_particle"]
+    cross = rows[-1]
+    assert cross["target"] == 2.0 and cross["reference_ms"] == pytest.approx(rows[0]["ms"] * cross["live"] / 60)

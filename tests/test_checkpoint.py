@@ -359,6 +359,30 @@ def test_scratch_buffers_are_checked_but_not_stored():
         checkpoint.load_state_dict(fresh, state)
 
 
+def test_a_checkpoint_predating_an_option_or_a_scratch_buffer_loads():
+    """An RBPF checkpoint written before the ``threads`` option and the scratch buffers existed (as
+    any written before issue 25): the option takes its default, the buffers are the fresh
+    filter's, and it continues as the filter that wrote it. Written with another value of the
+    option, it does not load."""
+    model = om.corridor(6, p_change=0.05)
+    run = om.simulate(model, None, [1, 1, 0, 1, 1, 1, 0, 0, 1], seed=1)
+    est = om.make_estimator("rbpf", model, n_particles=20, seed=0)
+    for t in range(5):
+        est.step(None if t == 0 else int(run.actions[t - 1]), int(run.observations[t]))
+    state = checkpoint.state_dict(est)
+    options = [item for item in state["options"]["items"] if item[0] != "threads"]
+    old = {**state, "options": {**state["options"], "items": options},
+           "attributes": {k: v for k, v in state["attributes"].items() if not k.startswith("_scratch")}}
+    twin = om.make_estimator("rbpf", model, n_particles=20, seed=0)
+    checkpoint.load_state_dict(twin, old)
+    for t in range(5, run.n_steps):
+        args = (int(run.actions[t - 1]), int(run.observations[t]))
+        np.testing.assert_array_equal(twin.step(*args).map, est.step(*args).map)
+    other = {**old, "options": {**old["options"], "items": old["options"]["items"] + [["threads", 2]]}}
+    with pytest.raises(om.CheckpointError, match="options"):
+        checkpoint.load_state_dict(om.make_estimator("rbpf", model, n_particles=20, seed=0), other)
+
+
 def test_unsupported_attribute_is_named():
     stub = Stub()
     stub._handle = object()

@@ -9,10 +9,13 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 import onlinemap as om
-from onlinemap.estimators.rbpf import peak_bytes
+from estimator_cases import assert_state_unchanged, snapshot
+from onlinemap.arrays import DEFAULT_MAX_BYTES
+from onlinemap.estimators.rbpf import peak_bytes, state_bytes
 
 MEASURE = r"""
 import json, sys
@@ -66,8 +69,44 @@ def test_rbpf_guard_counts_block_cells():
     """Regression: block_cells = 10**7 on a 3 x 3 grid tried to allocate 30 GiB."""
     with pytest.raises(om.InvalidOptionError, match="block_cells must be at most 9"):
         om.make_estimator("rbpf", om.grid_model(3, 3), block_cells=10**7)
-    with pytest.raises(om.MemoryLimitError, match="may need"):
-        om.make_estimator("rbpf", om.corridor(50), n_particles=10**6, block_cells=50)
+    with pytest.raises(om.MemoryLimitError, match="needs 3.65 GB to start"):  # 3.3 GB: (1 + 2 P) rows of 50 cells
+        om.make_estimator("rbpf", om.corridor(50), n_particles=2 * 10**6, block_cells=50)
+
+
+def test_rbpf_guard_checks_the_memory_taken_when_the_pool_grows():
+    """The guard follows the memory the filter takes (issue 25): a million particles on the 10 x 10
+    door world start within a third of the default limit though their worst case (every particle
+    owning all 25 map blocks) is 3.7 times it (a run measured 1.07 GB at its peak); a run whose
+    particles stop sharing blocks (no resampling) is stopped, unchanged, at the step that would
+    grow the pool beyond ``max_bytes``, and goes on as if nothing happened once ``est.max_bytes``
+    is raised."""
+    model = om.door_world()[0]
+    start = state_bytes(model, 10**6, 4, 25, 25 + 2 * 10**6)
+    assert start < 0.35 * DEFAULT_MAX_BYTES and peak_bytes(model, 10**6) > 3.5 * DEFAULT_MAX_BYTES
+
+    model = om.corridor(40, p_move=1.0)  # every particle on the same path, each writing its own copies
+    run = om.simulate(model, None, [1] * 39, seed=0)
+    options = dict(n_particles=30, seed=0, resampling="residual", resample_threshold=0.0, block_cells=4)
+    limit = state_bytes(model, 30, 4, 10, 10 + 2 * 30) + 1  # room to start, none to grow
+    est = om.make_estimator("rbpf", model, max_bytes=limit, **options)
+    twin = om.make_estimator("rbpf", model, max_bytes=10**9, **options)
+    steps = [(None if t == 0 else 1, int(run.observations[t])) for t in range(run.n_steps)]
+    for t, args in enumerate(steps):
+        snap = snapshot(est)
+        try:
+            est.step(*args)
+        except om.MemoryLimitError as error:
+            assert f"step {t}:" in str(error) and "est.max_bytes" in str(error)
+            break
+        twin.step(*args)
+    else:
+        pytest.fail("the pool never grew")
+    assert_state_unchanged(est, snap)
+    est.max_bytes = 10**9
+    for args in steps[t:]:
+        a, b = est.step(*args), twin.step(*args)
+        np.testing.assert_array_equal(a.map, b.map)
+        np.testing.assert_array_equal(a.location, b.location)
 
 
 @pytest.mark.parametrize("name", ["exact", "rbpf"])

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import onlinemap as om
+from estimator_cases import RBPF_THREADS, small_chunks
 
 STATIC_CHANGE = np.eye(2)
 DYNAMIC_CHANGE = np.array([[0.9, 0.1], [0.2, 0.8]])
@@ -109,15 +110,20 @@ def run_both(model, n_steps, seed, n_particles, rbpf_seed=0, **options):
 CASES = [(shape, variant, dynamic) for shape in ((2, 3), (1, 6)) for variant in VARIANTS for dynamic in (False, True)]
 
 
+@pytest.mark.parametrize("threads", RBPF_THREADS)
 @pytest.mark.parametrize("shape,variant,dynamic", CASES,
                          ids=[f"{r}x{c}-{v}-{'dynamic' if d else 'static'}" for (r, c), v, d in CASES])
-def test_fearnhead_clifford_with_room_for_every_child_equals_brute_force(shape, variant, dynamic):
+def test_fearnhead_clifford_with_room_for_every_child_equals_brute_force(shape, variant, dynamic, threads,
+                                                                         monkeypatch):
     """8 moves: at most 2^8 trajectories, 256 particles: nothing is dropped, exact to 1e-12. (On
     the 2 x 3 grid the cross's off-grid readings tell every cell apart, so one trajectory is
-    left: the test then checks the five-cell map update.)"""
+    left: the test then checks the five-cell map update.) Serial and parallel kernels (in chunks
+    of 16 particles)."""
+    small_chunks(monkeypatch)
     model = world(shape, variant, dynamic)
     live = 0
-    for belief, location, maps, log_evidence, est in run_both(model, 9, seed=6, n_particles=256):
+    for belief, location, maps, log_evidence, est in run_both(model, 9, seed=6, n_particles=256,
+                                                              threads=threads):
         np.testing.assert_allclose(belief.location, location, atol=1e-12, rtol=0)
         np.testing.assert_allclose(belief.map, maps, atol=1e-12, rtol=0)
         assert belief.log_evidence == pytest.approx(log_evidence, abs=1e-12)

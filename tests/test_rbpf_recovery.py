@@ -9,7 +9,8 @@ logs its recoveries; the recovered belief equals that limit computed here by bru
 particles before the step (scipy's shortest paths, numpy loops over particles and cells); an
 observation the model rules out still raises with the state unchanged bit for bit; runs without
 depletion equal the filter before recovery existed (arrays it wrote, tests/data); a checkpoint of a
-recovered filter resumes bit for bit.
+recovered filter resumes bit for bit; the memory guard counts a recovery's children. (Threads give
+a recovering run's serial result bit for bit: test_rbpf_threads.py.)
 """
 
 from __future__ import annotations
@@ -382,6 +383,36 @@ def test_with_recovery_off_a_depleted_step_raises_and_changes_nothing(scheme):
         est.step(0, 1)
     assert checkpoint.first_difference(est.state_dict(), before) is None
     assert before["attributes"]["recover_from_depletion"] is False
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_the_memory_guard_counts_a_recoverys_children(scheme):
+    """``max_bytes`` guards what the filter takes (its pool, table and buffers, ``state_bytes``) and,
+    before a recovery, the 32 N P bytes of its N P children (their weights, the order the
+    resampling walks them, a sort at worst: ``recovery_bytes``). The reset test's depleted step
+    with the limit one byte short of both raises MemoryLimitError naming the depletion, the state
+    bit for bit unchanged; with the limit at both it recovers exactly as a filter without a limit."""
+    model = om.corridor(5, 2, p_obs=1.0, p_move=1.0)
+    steps = [(None, 0)] + [("right", 0)] * 4 + [("left", 0)] * 2
+    est, twin = (om.make_estimator("rbpf", model, n_particles=8, seed=0, **SCHEMES[scheme]) for _ in range(2))
+    step_all(est, steps)
+    step_all(twin, steps)
+    pool = est._blocks
+    assert pool.rows_to_hold(rbpf_module.cells_written(model) * 8) == len(pool.rows)  # the step does not grow it
+    n_blocks, size = pool.block_members.shape
+    held = rbpf_module.state_bytes(model, 8, size, n_blocks, len(pool.rows))
+    assert rbpf_module.recovery_bytes(model, 8) == 32 * model.n_cells * 8
+    est.max_bytes = held + 32 * model.n_cells * 8 - 1
+    before = est.state_dict()
+    with pytest.raises(om.MemoryLimitError, match="particle depletion.*raise est.max_bytes"):
+        est.step(0, 1)
+    assert checkpoint.first_difference(est.state_dict(), before) is None and est.recoveries == 0
+    est.max_bytes = held + 32 * model.n_cells * 8
+    got, expected = est.step(0, 1), twin.step(0, 1)
+    assert got.recovered and expected.recovered
+    np.testing.assert_array_equal(got.location, expected.location)
+    np.testing.assert_array_equal(got.map, expected.map)
+    assert got.log_evidence == expected.log_evidence
 
 
 def test_planning_gives_observations_the_particles_rule_out_probability_zero():

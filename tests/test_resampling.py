@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from onlinemap.peers import filterpy_resamplers, global_numpy_seed
-from onlinemap.resampling import (RESAMPLERS, _optimal_threshold, _sorted_threshold, effective_sample_size,
-                                  optimal_resampling)
+from onlinemap.kernels.resampling import _optimal_threshold, _sorted_threshold
+from onlinemap.resampling import RESAMPLERS, effective_sample_size, optimal_resampling
 
 WEIGHTS = {
     "design example": np.array([0.5, 0.3, 0.15, 0.05]),

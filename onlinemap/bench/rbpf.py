@@ -42,6 +42,20 @@ Five rows per case, each a separate cost (none includes another):
   use, at most the P N K floats of unshared maps; K^2 flops per out-of-date cell in a
   dynamic world), paid only when the belief is read; for each scheme.
 
+Per-particle rows (``per particle ...``, issue 25): the default filter (Fearnhead-Clifford) on
+the 10 x 10 door world, the same with blocking labels and the cross footprint, and the 64 x 64
+dynamic door world, at 10^3 to 10^6 particles (10^3 and 10^4 with ``--quick``), on one thread
+and on all of numba's (``threads``; the same numbers, :mod:`onlinemap.kernels.rbpf_parallel`):
+``us_per_particle`` of an update and of building the belief (medians over the steps once every
+slot is live; wall time, and CPU time in ``cpu_us_per_particle``), each against one copy pass
+over the bytes the filter uses (``bytes_per_particle``: the block rows in use, the particle
+table, the per-particle arrays and buffers; ``allocated_bytes_per_particle`` adds the free rows
+of the pool), and, for blocking + cross, against the paper model's update at the same particles
+and threads, per live particle (the cross footprint's readings at the walls often leave fewer
+live trajectories than slots; target 2). Targets (absolute, as ratios to the reference): update <= 0.3 us and
+belief <= 0.2 us per particle on the 10 x 10 door world at 10^4 and 10^5 particles; the 64 x 64
+dynamic world at 10^4 particles <= 5 ms each.
+
 Amortised = the medians of quiet and of resampling steps weighted by how often each occurs:
 on a shared machine other processes add 5-10 ms stalls to a tenth of the steps, which a plain
 mean would report as the filter's cost (the plain mean is in column ``mean_ms``).
@@ -57,6 +71,7 @@ resampling every step <= 1 pass (copying at most every row once), and the static
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -284,6 +299,86 @@ def _tightest(*targets: float) -> float:
     return min(finite) if finite else np.nan
 
 
+# --- per particle: us per particle-step and bytes per particle against P (issue 25) ----------------
+def per_particle_worlds(quick: bool) -> dict:
+    """name -> (model, true map, particle counts) for :func:`per_particle_rows`."""
+    small = (1_000, 10_000)
+    return {"door 10x10": (*door_world(), small if quick else (1_000, 10_000, 100_000, 1_000_000)),
+            "door 10x10 blocking+cross": (*door_world(blocking=True, footprint="cross"),
+                                          small if quick else (1_000, 10_000, 100_000)),
+            "door 64x64 dynamic": (*tiled_door_world(64, 64, 0.01), (1_000,) if quick else (1_000, 10_000, 100_000))}
+
+
+def filter_bytes(est) -> tuple[int, int]:
+    """(allocated, in use) bytes of an rbpf's arrays: every array it holds (the block pool's
+    included); in use leaves out the pool's free rows."""
+    pool = est._blocks
+    arrays = [v for v in vars(est).values() if isinstance(v, np.ndarray)]
+    arrays += [getattr(pool, f.name) for f in dataclasses.fields(pool) if isinstance(getattr(pool, f.name), np.ndarray)]
+    allocated = sum(a.nbytes for a in arrays)
+    row = pool.rows.strides[0] + pool.stamps.strides[0] + 3 * 8  # a row's floats, stamps, row_block/refcount/free
+    return allocated, allocated - int(pool.free_top[0]) * row
+
+
+def _per_particle_times(model, true_map, n_particles, threads, n_steps):
+    """Median wall and CPU seconds of an update and of building the belief over ``n_steps`` steps
+    after the filter has filled its P slots; the filter at the end."""
+    warmup = 5 + math.ceil(math.log2(n_particles))
+    rng = np.random.default_rng(1)
+    run = simulate(model, true_map, random_walk(model, warmup + n_steps, rng), rng)
+    est = make_estimator("rbpf", model, n_particles=n_particles, seed=0, threads=threads)
+    clock = time.thread_time if threads == 1 else time.process_time  # CPU time of every thread
+    update, belief = [], []
+    for t in range(warmup + n_steps):
+        z = run.observations[t]
+        args = (None if t == 0 else int(run.actions[t - 1]), int(z) if z.ndim == 0 else z)
+        wall, cpu = time.perf_counter(), clock()
+        est.update(*args)
+        middle, middle_cpu = time.perf_counter(), clock()
+        est.belief  # noqa: B018 - builds the mixture
+        if t >= warmup:
+            update.append((middle - wall, middle_cpu - cpu))
+            belief.append((time.perf_counter() - middle, clock() - middle_cpu))
+    return np.median(update, axis=0), np.median(belief, axis=0), est
+
+
+def per_particle_rows(quick: bool, worlds: dict | None = None, thread_counts=None) -> list[dict]:
+    """Rows of us per particle-step, update and belief separately, serial and on all numba's
+    threads, against a copy pass of the filter's bytes in use (see the module docstring)."""
+    import numba
+
+    thread_counts = thread_counts or sorted({1, numba.config.NUMBA_NUM_THREADS})
+    rows, paper = [], {}
+    for name, (model, true_map, counts) in (worlds or per_particle_worlds(quick)).items():
+        for n_particles in counts:
+            for threads in thread_counts:
+                n_steps = int(np.clip(2e6 / n_particles, 5, 10 if quick else 40))
+                update, belief, est = _per_particle_times(model, true_map, n_particles, threads, n_steps)
+                allocated, in_use = filter_bytes(est)
+                reference = copy_pass_ms(in_use // 8)
+                live = int(np.count_nonzero(est._weights))
+                common = {"reference": f"copy of the filter's {in_use / 1e6:.3g} MB in use", "reference_ms": reference,
+                          "threads": threads, "n_particles": n_particles, "live": live,
+                          "bytes_per_particle": in_use / n_particles,
+                          "allocated_bytes_per_particle": allocated / n_particles}
+                case = f"per particle {name} P={n_particles} threads={threads}"
+                door = name == "door 10x10" and n_particles in (10_000, 100_000)
+                big = name == "door 64x64 dynamic" and n_particles == 10_000
+                for what, (wall, cpu), per_particle_target in (("update", update, 0.3), ("belief", belief, 0.2)):
+                    target = (per_particle_target * 1e-3 * n_particles if door else 5.0 if big else np.nan) / reference
+                    rows.append({"case": f"{case}: {what}", "ms": 1e3 * wall, **common, "target": target,
+                                 "us_per_particle": 1e6 * wall / n_particles,
+                                 "cpu_us_per_particle": 1e6 * cpu / n_particles})
+                if name == "door 10x10":
+                    paper[n_particles, threads] = 1e3 * update[0]
+                elif "blocking" in name and (n_particles, threads) in paper:  # per live particle: slots may not fill
+                    rows.append({"case": f"{case}: update against the paper model's", "ms": 1e3 * update[0],
+                                 **common, "reference": "door 10x10 update, same P and threads, times live / P",
+                                 "reference_ms": paper[n_particles, threads] * live / n_particles, "target": 2.0,
+                                 "us_per_particle": 1e6 * update[0] / n_particles})
+    return rows
+
+
 @benchmark("rbpf")
 def bench_rbpf(quick: bool) -> list[dict]:
     rows = accuracy_rows(accuracy_table(n_runs=3 if quick else 20,
@@ -328,4 +423,4 @@ def bench_rbpf(quick: bool) -> list[dict]:
                          "target": scale_target, "mean_ms": 1e3 * enumerated.mean()})
             rows.append({"case": f"{case}: belief.map mixture, fearnhead_clifford", "ms": 1e3 * enumerated_belief_s,
                          **common, "target": scale_target})
-    return rows
+    return rows + per_particle_rows(quick)

@@ -14,7 +14,8 @@ arrays. A class may name buffers whose contents are dead between steps (fully ov
 being read) in a class attribute ``scratch_attributes = ("_buffer", ...)``: their dtype and
 shape are recorded and checked, their contents are neither saved nor restored (the fresh
 instance's own buffers are kept), so they cost nothing in a checkpoint and do not count as state
-when comparing two state dicts.
+when comparing two state dicts; a checkpoint written before the class had one of them still loads,
+as does one written before the class had a keyword option (the option takes its default).
 
 Cost: one copy of every array of the state (O(state size)) for ``state_dict``, and one pass over
 it for ``load_state_dict``'s checks.
@@ -22,6 +23,7 @@ it for ``load_state_dict``'s checks.
 
 from __future__ import annotations
 
+import inspect
 import types
 
 import numpy as np
@@ -29,7 +31,7 @@ import numpy as np
 from ..errors import CheckpointError
 from ..model import GridModel, model_difference
 from .codec import (_Decoder, _Encoder, _KeepFresh, _callable_name, _scratch_node, _short, decode_model,
-                    encode_model, same_tree)
+                    decode_options, encode_model, same_tree)
 
 FORMAT = "onlinemap-checkpoint"
 FORMAT_VERSION = 3  # bump when the file layout or an estimator's state changes incompatibly
@@ -107,7 +109,8 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
     field = model_difference(decode_model(state["model"]), est.model)
     if field is not None:
         raise CheckpointError(f"checkpoint's model differs from the estimator's model in {field!r}")
-    if not same_tree(state["options"], _Encoder().encode(dict(getattr(est, "options", {})), "options")):
+    if not same_tree(_with_later_options(state["options"], est),
+                     _Encoder().encode(dict(getattr(est, "options", {})), "options")):
         options = _Decoder().decode(state["options"], "options")
         raise CheckpointError(f"checkpoint was written with options {options}, the estimator has {est.options}")
     if type(state["attributes"]) is not dict:
@@ -116,7 +119,9 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
     if upgrade is not None and state["format_version"] < FORMAT_VERSION:
         state = {**state, "attributes": upgrade(dict(state["attributes"]), state["format_version"])}
     current = {name: value for name, value in vars(est).items() if name not in _SEPARATE}
-    missing, extra = sorted(set(current) - set(state["attributes"])), sorted(set(state["attributes"]) - set(current))
+    scratch = set(getattr(type(est), "scratch_attributes", ()))  # not state: a checkpoint may predate one
+    missing = sorted(set(current) - set(state["attributes"]) - scratch)
+    extra = sorted(set(state["attributes"]) - set(current))
     if missing or extra:
         raise CheckpointError(f"checkpoint does not fit {type(est).__name__}: missing attributes {missing}, "
                               f"unexpected {extra}")
@@ -132,6 +137,16 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
         raise CheckpointError("checkpoint's attributes are nested too deeply") from None
     check_state(est, restored)
     vars(est).update(restored)
+
+
+def _with_later_options(node, est):
+    """The encoded options of a checkpoint, with every keyword option of ``est``'s class that it
+    does not name (one added after it was written) at its default: a checkpoint predating an
+    option loads into an estimator that has it at its default, and only there."""
+    options = decode_options(node)
+    defaults = {p.name: p.default for p in inspect.signature(type(est).__init__).parameters.values()
+                if p.kind is inspect.Parameter.KEYWORD_ONLY and p.default is not inspect.Parameter.empty}
+    return _Encoder().encode({**options, **{k: v for k, v in defaults.items() if k not in options}}, "options")
 
 
 def check_state(est, restored: dict) -> None:

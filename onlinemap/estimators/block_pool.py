@@ -26,6 +26,7 @@ from .. import state_checks as checks
 from ..checkpoint import state_class
 from ..errors import ModelError
 from ..kernels.rbpf import particle_maps, rbpf_commit, rbpf_commit_cells, rbpf_map_mixture, rbpf_refresh
+from ..kernels.rbpf_parallel import rbpf_map_mixture_parallel
 from ..model import GridModel
 
 REFRESH_STEPS = 256  # every block row is brought up to date at least this often (lazy dynamics)
@@ -155,10 +156,7 @@ class BlockPool:
         top = int(self.free_top[0])
         if top >= need:
             return self
-        have = len(self.rows)
-        size = 2 * have
-        while size - have + top < need:
-            size *= 2
+        have, size = len(self.rows), self.rows_to_hold(need)
         free = np.zeros(size, dtype=np.int64)
         added = np.arange(size - 1, have - 1, -1)  # new rows, the lowest on top of the stack
         free[:top] = self.free[:top]
@@ -166,6 +164,17 @@ class BlockPool:
         return dataclasses.replace(self, rows=_grown(self.rows, size), stamps=_grown(self.stamps, size),
                                    row_block=_grown(self.row_block, size), refcount=_grown(self.refcount, size),
                                    free=free, free_top=np.array([top + len(added)]))
+
+    def rows_to_hold(self, need: int) -> int:
+        """The number of rows :meth:`reserved` gives a pool with ``need`` free rows: R, or R doubled
+        until the rows added and the free ones make ``need``. O(1)."""
+        top, size = int(self.free_top[0]), len(self.rows)
+        if top >= need:
+            return size
+        size *= 2
+        while size - len(self.rows) + top < need:
+            size *= 2
+        return size
 
     def with_rows(self, rows: np.ndarray) -> BlockPool:
         """This pool with new row contents (R, B, K) (eager dynamics: ``rows @ C``). O(1)."""
@@ -176,6 +185,13 @@ class BlockPool:
         that read particle maps take (``rbpf_propose``, ``rbpf_enumerate``...), in their order."""
         return self.rows, self.stamps, self.table, self.cell_block, self.cell_slot, self.powers, self.stamped
 
+    def writes(self) -> tuple:
+        """(rows, stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, stamped,
+        powers, REFRESH_STEPS): the arguments the kernels that write particle maps take
+        (``rbpf_commit``, ``rbpf_commit_children``...), in their order."""
+        return (self.rows, self.stamps, self.row_block, self.refcount, self.free, self.free_top, self.table,
+                self.cell_block, self.cell_slot, self.stamped, self.powers, REFRESH_STEPS)
+
     def commit(self, locations: np.ndarray, t: int, ancestors: np.ndarray, new_locations: np.ndarray,
                new_cells: np.ndarray, new_ids: np.ndarray | None = None) -> None:
         """Write a step into this pool: particle p takes over ``ancestors[p]``'s table row (and
@@ -185,13 +201,9 @@ class BlockPool:
         block before writing it; then :meth:`refresh`. Needs P W free rows (:meth:`reserved`).
         O(P n_blocks) for the table rows of resampled particles plus O(P W B K) for the copies."""
         if new_ids is None:
-            rbpf_commit(locations, self.rows, self.stamps, self.row_block, self.refcount, self.free, self.free_top,
-                        self.table, self.cell_block, self.cell_slot, self.stamped, self.powers, REFRESH_STEPS, t,
-                        ancestors, new_locations, new_cells)
+            rbpf_commit(locations, *self.writes(), t, ancestors, new_locations, new_cells)
         else:
-            rbpf_commit_cells(locations, self.rows, self.stamps, self.row_block, self.refcount, self.free,
-                              self.free_top, self.table, self.cell_block, self.cell_slot, self.stamped, self.powers,
-                              REFRESH_STEPS, t, ancestors, new_locations, new_ids, new_cells)
+            rbpf_commit_cells(locations, *self.writes(), t, ancestors, new_locations, new_ids, new_cells)
         self.refresh(t)
 
     def refresh(self, t: int) -> None:
@@ -204,12 +216,14 @@ class BlockPool:
         rbpf_refresh(self.rows, self.stamps, self.refcount, self.powers, t, self.refresh_cursor, count)
         self.refresh_cursor = (self.refresh_cursor + count) % len(self.rows)
 
-    def mixture(self, t: int, weights: np.ndarray) -> np.ndarray:
-        """(N, K) ``sum_p weights[p] * map_p`` at step t (unnormalised). O(P n_blocks) plus one pass
-        over the rows in use (K^2 flops per out-of-date slot)."""
+    def mixture(self, t: int, weights: np.ndarray, parallel: bool = False) -> np.ndarray:
+        """(N, K) ``sum_p weights[p] * map_p`` at step t (unnormalised); ``parallel``: on numba's
+        threads (:func:`~onlinemap.kernels.rbpf_parallel.rbpf_map_mixture_parallel`, the same
+        numbers). O(P n_blocks) plus one pass over the rows in use (K^2 flops per out-of-date slot)."""
         out = np.empty((len(self.cell_block), self.rows.shape[2]))
-        rbpf_map_mixture(self.rows, self.stamps, self.row_block, self.table, self.block_members, self.powers,
-                         self.stamped, t, weights, out)
+        (rbpf_map_mixture_parallel if parallel else rbpf_map_mixture)(
+            self.rows, self.stamps, self.row_block, self.refcount, self.table, self.block_members, self.powers,
+            self.stamped, t, weights, out)
         return out
 
     def particle_maps(self, t: int) -> np.ndarray:

@@ -33,16 +33,26 @@ O(P_dropped N / B) (table rows copied, not maps). Fearnhead-Clifford resamples e
 in a dynamic world). :meth:`RaoBlackwellisedPF.update` advances without building the belief;
 the ``belief`` property builds it on first access (then caches it), and :meth:`step` is
 ``update`` followed by ``belief``. Memory: the block rows in use (at most ``8 P N (K + 1)``
-bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of C. A step that
-recovers from particle depletion (see the class docstring) weighs N P children instead: O(P N F
-K^2) time and at most 32 P N bytes.
+bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of C, and the
+step's buffers, which the filter owns (:func:`state_bytes`; measured 580-710 bytes per particle
+on the 10 x 10 door world, 2.8 KB on 64 x 64); the guard ``max_bytes`` checks it when the filter
+starts and whenever the pool grows. Measured (``onlinemap bench rbpf``, rows ``per particle``):
+an update 0.26-0.35 us of CPU per particle at 10^4-10^5 particles on the 10 x 10 door world, the
+belief 0.07. With ``threads`` the kernels of :mod:`onlinemap.kernels.rbpf_parallel` run instead
+(the same results). A step that recovers from particle depletion (see the class docstring)
+weighs N P children instead: O(P N F K^2) time and at most 32 P N bytes more
+(:func:`recovery_bytes`, which the guard checks before they are taken).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import os
+from typing import NamedTuple
 
+import numba
 import numpy as np
 
 from .. import arguments
@@ -50,9 +60,13 @@ from .. import state_checks as checks
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
-from ..kernels.rbpf import (children_by_location, in_place_ancestors, rbpf_enumerate, rbpf_enumerate_cells,
-                             rbpf_pick_children, rbpf_place_children, rbpf_propose, rbpf_relocated_children,
-                             rbpf_relocation_weights)
+from ..kernels.rbpf import (in_place_ancestors, rbpf_commit_children, rbpf_commit_children_cells, rbpf_enumerate,
+                             rbpf_enumerate_cells, rbpf_keep_children, rbpf_pick_children, rbpf_place_children,
+                             rbpf_propose, rbpf_relocated_children, rbpf_relocation_weights)
+from ..kernels import rbpf_parallel
+from ..kernels.rbpf_parallel import (rbpf_commit_staged_parallel, rbpf_enumerate_cells_parallel,
+                                      rbpf_enumerate_parallel, rbpf_propose_parallel,
+                                      rbpf_stage_children_cells_parallel, rbpf_stage_children_parallel)
 from ..resampling import RESAMPLERS, effective_sample_size, optimal_keep
 from ..rng import SeedLike, as_generator
 from ..model import GridModel
@@ -77,39 +91,69 @@ SCHEMES: dict[str, dict[str, str]] = {
 }
 
 
-def _logsumexp(x: np.ndarray) -> float:
+def _logsumexp(x: np.ndarray, scratch: np.ndarray | None = None) -> float:
+    """``log sum exp(x)`` (-inf if every entry is); ``scratch`` (len(x),), if given, holds the
+    terms instead of a fresh array."""
     top = float(np.max(x))
     if top == -math.inf:
         return -math.inf
-    return top + math.log(float(np.exp(x - top).sum()))
+    terms = np.subtract(x, top, out=scratch)
+    return top + math.log(float(np.exp(terms, out=terms).sum()))
 
 
-def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = None, lazy_dynamics: bool = True) -> int:
-    """Worst-case peak memory of the filter's state, in bytes (exact Python ints; allocates
-    nothing): every particle owning every one of its map blocks, the block pool grown by doubling
-    to hold them plus P free rows (old and new pool alive together while it grows), a fresh
-    copy of the pool for eager dynamics, the table, the powers of C and per-step temporaries (or
-    those of a recovery from depletion, which weighs N P children)."""
+def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = None, lazy_dynamics: bool = True,
+               threads: int = 1) -> int:
+    """Worst-case peak memory of the filter, in bytes (exact Python ints; allocates nothing): every
+    particle owning every one of its map blocks, the block pool grown by doubling to hold them
+    plus the rows a step writes (old and new pool alive together while it grows), a fresh copy
+    of the pool for eager dynamics, the table, the powers of C and a step's buffers
+    (:func:`state_bytes`), and the N P children of a step that recovers from depletion
+    (:func:`recovery_bytes`). Particles share most blocks (measured: 1.2-5 rows per particle,
+    against ``n_blocks`` here), so runs stay far below it; the filter's guard (``max_bytes``)
+    checks the memory it actually takes instead, when it starts, whenever its pool grows and
+    before a recovery."""
+    size, n_blocks = _block_shape(model, block_cells)
+    rows = n_blocks + 2 * n_particles
+    while rows - cells_written(model) * n_particles < n_blocks * n_particles:  # doubled until every particle
+        rows *= 2  # can own every block, with the rows a step writes to spare
+    return (state_bytes(model, n_particles, size, n_blocks, rows, rows // 2, lazy_dynamics, threads)
+            + recovery_bytes(model, n_particles))
+
+
+def state_bytes(model: GridModel, n_particles: int, block_size: int, n_blocks: int, rows: int, old_rows: int = 0,
+                lazy_dynamics: bool = True, threads: int = 1) -> int:
+    """Bytes of the filter with a pool of ``rows`` block rows of ``block_size`` cells (``old_rows``
+    more while a smaller pool is copied into it): the pool (rows, stamps in a dynamic world,
+    row_block / refcount / free), a fresh copy of the rows for eager dynamics, the particle table
+    (P n_blocks), the powers of C, and a step's buffers (children, weights, the parallel commit's
+    staging, the belief). O(1)."""
     n, k, p = model.n_cells, model.n_labels, n_particles
-    block_cells = block_cells or max(1, round(math.sqrt(n / k)))  # block_layout's default
+    stamped = lazy_dynamics and not model.is_static
+    row_bytes = 8 * (block_size * k + (block_size if stamped else 0) + 3)
+    eager = 0 if lazy_dynamics or model.is_static else rows * block_size * k * 8
+    powers = 8 * k * k * (4 * REFRESH_STEPS + 1 if stamped else 1)
+    width = cells_written(model)
+    per_step = 8 * p * (width * (k + 1) * 3 + k + 8) + 8 * n * k + 8 * rows  # children, weights, belief, row weights
+    staged = 8 * p * (3 * width + 1 + width * k) if threads > 1 else 0
+    return (rows + old_rows) * row_bytes + eager + 8 * p * n_blocks + powers + per_step + staged
+
+
+def _block_shape(model: GridModel, block_cells: int | None) -> tuple[int, int]:
+    """(cells per block, number of blocks) of :func:`block_layout`, without building it."""
+    n = model.n_cells
+    block_cells = block_cells or max(1, round(math.sqrt(n / model.n_labels)))  # block_layout's default
     if model.rows == 1:
         size = min(block_cells, n)
-        n_blocks = -(-n // size)
-    else:
-        side = max(1, math.isqrt(block_cells))
-        size, n_blocks = side * side, -(-model.rows // side) * -(-model.cols // side)
-    stamped = lazy_dynamics and not model.is_static
-    writes = cells_written(model) * p  # free rows a step may need
-    rows = n_blocks + 2 * p
-    while rows - writes < n_blocks * p:  # doubled until every particle can own every block, rows to spare
-        rows *= 2
-    row_bytes = 8 * (size * k + (size if stamped else 0) + 3)  # pool, stamps, row_block / refcount / free
-    pool = rows * row_bytes + rows // 2 * row_bytes  # the grown pool and the one it replaced
-    eager = 0 if lazy_dynamics or model.is_static else rows * size * k * 8
-    powers = 8 * k * k * (4 * REFRESH_STEPS + 1 if stamped else 1)
-    per_step = 8 * p * (cells_written(model) * (k + 1) * 3 + k + 8) + 8 * n * k  # children, weights, the belief
-    recovery = 32 * n * p  # a recovery from depletion: N P children's weights, their order, a sort at worst
-    return pool + eager + 8 * p * n_blocks + powers + max(per_step, recovery)
+        return size, -(-n // size)
+    side = max(1, math.isqrt(block_cells))
+    return side * side, -(-model.rows // side) * -(-model.cols // side)
+
+
+def recovery_bytes(model: GridModel, n_particles: int) -> int:
+    """Bytes a step that recovers from depletion takes on top of the filter's
+    (:meth:`RaoBlackwellisedPF._recover`): the N P children's weights, the order the optimal
+    resampling walks them and, at worst, its sort (32 N P). O(1)."""
+    return 32 * model.n_cells * n_particles
 
 
 def reads_one_cell(model: GridModel) -> bool:
@@ -144,8 +188,12 @@ class RaoBlackwellisedPF:
     ``seed`` (int, None or Generator);
     ``lazy_dynamics`` (False applies C to every cell of every particle every step: O(P N K^2),
     the reference the lazy scheme is tested against); ``block_cells`` B, the cells per shared
-    map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes`` guard on
-    the particle maps (worst case: every particle owning all its blocks).
+    map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes``, the guard on
+    the filter's memory (:func:`state_bytes`), checked when it starts and whenever the pool of map
+    blocks must grow (particles share fewer blocks as their trajectories part): a step that would
+    take the filter beyond it raises :class:`~onlinemap.errors.MemoryLimitError` and leaves the
+    filter as it was; raise ``est.max_bytes`` to continue. Its worst case, every particle owning
+    every block, is :func:`peak_bytes`.
 
     **Recovery from depletion.** When no particle explains an observation the model allows (every
     trajectory that did was dropped; in a blocking world with a footprint, the off-grid readings
@@ -176,11 +224,23 @@ class RaoBlackwellisedPF:
     or no cell of the grid, with labels the model allows at step t, sees it) raises
     :class:`ImpossibleObservationError`, the state unchanged. Steps that do not deplete run exactly
     as before recovery existed (same numbers, same random draws). A recovery costs O(P N U K^2)
-    time (U <= F + 1 the cells a child touches) and at most 32 P N bytes. Setting the attribute
+    time (U <= F + 1 the cells a child touches) and at most 32 P N bytes more
+    (:func:`recovery_bytes`; the guard ``max_bytes`` checks them before they are taken:
+    :class:`~onlinemap.errors.MemoryLimitError`, the filter unchanged). Its children carry their
+    own cells (relocated, some reset), which the commit writes as given (with threads, in
+    parallel: the same results). Setting the attribute
     ``recover_from_depletion = False`` (checkpointed with the state) makes a depleted step raise
     :class:`ImpossibleObservationError` instead, the state unchanged, as before recovery existed:
     for hypothetical steps (a planner enumerating observations gives those the particles rule out
     probability zero) or to stop a run rather than relocate.
+
+    ``threads``: how many threads the update and the belief use (numba's, at most
+    ``NUMBA_NUM_THREADS``, an environment variable read when numba starts: the number of cores by
+    default); ``None`` for all of them. The results are the same bit for bit whatever the number
+    (:mod:`onlinemap.kernels.rbpf_parallel`). The default, 1, runs the serial kernels: threads pay
+    from about 10^4 particles and only on cores nothing else uses, the parallel kernels compile
+    once (tens of seconds, then cached) and start numba's threading layer (with GNU OpenMP a
+    process must not fork after using it; ``NUMBA_THREADING_LAYER=workqueue`` avoids that).
     """
 
     #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
@@ -188,10 +248,14 @@ class RaoBlackwellisedPF:
                       "_blocks.stamped", "_blocks.cell_block", "_blocks.cell_slot", "_blocks.block_members",
                       "_blocks.powers")
 
+    #: per-step buffers (:meth:`_fc_buffers`, :meth:`_staged_buffers`), overwritten by every step
+    #: before being read: not state (a checkpoint records their dtype and shape only)
+    scratch_attributes = ("_scratch_ints", "_scratch_floats", "_scratch_staged_ints", "_scratch_staged_cells")
+
     def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
                  resampling: str | None = None, resample_threshold: float = 0.5, seed: SeedLike = None,
                  lazy_dynamics: bool = True, block_cells: int | None = None,
-                 max_bytes: int = DEFAULT_MAX_BYTES):
+                 max_bytes: int = DEFAULT_MAX_BYTES, threads: int | None = 1):
         error = InvalidOptionError
         n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
         proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
@@ -211,13 +275,17 @@ class RaoBlackwellisedPF:
         if block_cells is not None:
             block_cells = arguments.integer("block_cells", block_cells, minimum=1, maximum=model.n_cells, error=error)
         max_bytes = arguments.byte_limit("max_bytes", max_bytes, error)
+        threads = _thread_count(threads)
         n, k = model.n_cells, model.n_labels
-        need = peak_bytes(model, n_particles, block_cells, lazy_dynamics)
+        size, n_blocks = _block_shape(model, block_cells)
+        need = state_bytes(model, n_particles, size, n_blocks, n_blocks + 2 * n_particles, 0, lazy_dynamics, threads)
         if need > max_bytes:
             raise MemoryLimitError(
-                f"rbpf with {n_particles} particles on N={n} cells, K={k} labels may need {need / 1e9:.3g} GB "
-                f"(every particle owning every map block) but the limit is {max_bytes / 1e9:.3g} GB; pass "
-                f"max_bytes=... to raise it")
+                f"rbpf with {n_particles} particles on N={n} cells, K={k} labels needs {need / 1e9:.3g} GB to start "
+                f"(its pool of map blocks, the particle table, a step's buffers) but the limit is "
+                f"{max_bytes / 1e9:.3g} GB; pass max_bytes=... to raise it (a run may need up to "
+                f"{peak_bytes(model, n_particles, block_cells, lazy_dynamics, threads) / 1e9:.3g} GB, if every "
+                f"particle came to own every map block)")
         layout = block_layout(model, block_cells)
         self.model = model
         self.n_particles = n_particles
@@ -233,6 +301,13 @@ class RaoBlackwellisedPF:
             self._log_weights[0] = 0.0
         self._weights = np.exp(self._log_weights)  # exp(_log_weights), kept beside them
         self._blocks = BlockPool.new(model, layout, n_particles, not model.is_static and self.lazy_dynamics)
+        fc = resampling == FEARNHEAD_CLIFFORD
+        self._scratch_ints = np.zeros((5 if fc else 0, 2 * n_particles), dtype=np.int64)
+        self._scratch_floats = np.zeros((3 if fc else 0, 2 * n_particles))
+        staged = n_particles if threads > 1 else 0  # the parallel commit's staging
+        width = cells_written(model)
+        self._scratch_staged_ints = np.zeros(staged * (3 * width + 1), dtype=np.int64)
+        self._scratch_staged_cells = np.zeros((staged, width, k))
         self._log_evidence = 0.0
         self._ess = float(n_particles)
         self._resampled = False
@@ -289,6 +364,30 @@ class RaoBlackwellisedPF:
         checks.belief(state, required=False)
 
     @property
+    def threads(self) -> int:
+        """The number of threads the update and the belief use (the ``threads`` option; with None,
+        ``NUMBA_NUM_THREADS``)."""
+        return _thread_count(self.options["threads"])
+
+    @property
+    def _parallel(self) -> bool:
+        """Whether a step runs the parallel kernels: with threads, and more particles than one
+        chunk (:data:`~onlinemap.kernels.rbpf_parallel.CHUNK`; fewer would run on one thread
+        anyway, the same results at the threads' overhead)."""
+        return self.threads > 1 and self.n_particles > rbpf_parallel.CHUNK
+
+    @property
+    def max_bytes(self) -> int | float:
+        """The guard on the filter's memory (the ``max_bytes`` option). Setting it (to continue
+        after a :class:`~onlinemap.errors.MemoryLimitError`) changes the option: a checkpoint then
+        records the new value."""
+        return self.options["max_bytes"]
+
+    @max_bytes.setter
+    def max_bytes(self, value) -> None:
+        self.options["max_bytes"] = arguments.byte_limit("max_bytes", value, InvalidOptionError)
+
+    @property
     def resampled(self) -> bool:
         """Whether the last step resampled before proposing."""
         return self._resampled
@@ -306,7 +405,8 @@ class RaoBlackwellisedPF:
             weights = self._weights / self._weights.sum()
             location = np.bincount(self._locations, weights=weights, minlength=self.model.n_cells)
             location /= location.sum()  # rounding: keep every probability <= 1
-            maps = self._blocks.mixture(self._t, weights)
+            with _numba_threads(self.threads):
+                maps = self._blocks.mixture(self._t, weights, parallel=self._parallel)
             maps /= maps.sum(axis=1, keepdims=True)
             self._belief = Belief(self._t, location, maps, self._log_evidence,
                                   effective_sample_size=self._ess, recovered=self._recovered)
@@ -329,7 +429,8 @@ class RaoBlackwellisedPF:
         probability zero for every particle (depletion), recover (:meth:`_recover`, see the class
         docstring); if nothing explains it even then (impossible under the model), raise
         :class:`ImpossibleObservationError` and leave everything (particles, weights, random
-        generator) as it was.
+        generator) as it was; so does a step that would take the filter's memory beyond
+        ``max_bytes`` (:class:`~onlinemap.errors.MemoryLimitError`).
         """
         model = self.model
         a, z = check_step(model, self._t + 1, action, observation)
@@ -337,6 +438,7 @@ class RaoBlackwellisedPF:
         if self.resampling == FEARNHEAD_CLIFFORD:
             self._update_fearnhead_clifford(a, z, t)
             return
+        blocks = self._reserved(t)
         rng_state = self._rng.bit_generator.state
         n_particles = self.n_particles
         log_weights = self._log_weights
@@ -348,7 +450,6 @@ class RaoBlackwellisedPF:
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
             log_weights = np.full(n_particles, -math.log(n_particles))
         one_cell = reads_one_cell(model)
-        blocks = self._blocks.reserved(n_particles * cells_written(model))
         if a is not None and not model.is_static and not self.lazy_dynamics:
             blocks = blocks.with_rows(blocks.rows @ model.change)  # eager: every cell of every block row, fresh array
         neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
@@ -357,9 +458,14 @@ class RaoBlackwellisedPF:
         new_ids = None
         if one_cell:
             new_cells = np.empty((n_particles, model.n_labels))
-            rbpf_propose(self._locations, *blocks.reads(), t, ancestors, neighbors,
-                         model.p_move, model.likelihood[z], self.proposal == "optimal",
-                         self._rng.random(n_particles), new_locations, new_cells, log_increments)
+            proposal = (self._locations, *blocks.reads(), t, ancestors, neighbors, model.p_move, model.likelihood[z],
+                        self.proposal == "optimal", self._rng.random(n_particles), new_locations, new_cells,
+                        log_increments)
+            if self._parallel:
+                with _numba_threads(self.threads):
+                    rbpf_propose_parallel(*proposal, rbpf_parallel.CHUNK)
+            else:
+                rbpf_propose(*proposal)
         else:  # the same children Fearnhead-Clifford enumerates, one drawn per particle
             m, children = self._enumerate_cells(blocks, t, neighbors, z, np.zeros(n_particles))
             width = cells_written(model)
@@ -379,6 +485,25 @@ class RaoBlackwellisedPF:
         self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - increment, increment, resample,
                      new_ids)
 
+    def _reserved(self, t: int) -> BlockPool:
+        """The pool with the free rows a step writes (:meth:`BlockPool.reserved`: this filter's, or a
+        grown copy), after checking that growing it keeps the filter within ``max_bytes``
+        (:class:`~onlinemap.errors.MemoryLimitError` otherwise, nothing changed)."""
+        pool, model, p = self._blocks, self.model, self.n_particles
+        need = cells_written(model) * p
+        rows, have = pool.rows_to_hold(need), len(pool.rows)
+        if rows > have:
+            n_blocks, size = pool.block_members.shape
+            total = state_bytes(model, p, size, n_blocks, rows, have, self.lazy_dynamics, self.threads)
+            if total > self.max_bytes:
+                raise MemoryLimitError(
+                    f"step {t}: the particles' maps use {np.count_nonzero(pool.refcount)} block rows (particles "
+                    f"share fewer blocks as their trajectories part: {p} x {n_blocks} if they shared none) and the "
+                    f"step needs the pool grown from {have} to {rows} rows, {total / 1e9:.3g} GB in all, over "
+                    f"max_bytes = {self.max_bytes / 1e9:.3g} GB. The filter is unchanged: raise est.max_bytes to "
+                    f"continue, or use fewer particles")
+        return pool.reserved(need)
+
     def _enumerate_cells(self, blocks: BlockPool, t, neighbors, z, log_weights):
         """(M, (parent, location, log weight, log motion, ids, cells)): :func:`rbpf_enumerate_cells`
         on the current particles with ``log_weights``, the observation ``z`` an int or (F,)."""
@@ -386,47 +511,85 @@ class RaoBlackwellisedPF:
         size, width = 2 * self.n_particles, cells_written(model)
         children = (np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size), np.empty(size),
                     np.empty((size, width), dtype=np.int64), np.empty((size, width, model.n_labels)))
-        m = rbpf_enumerate_cells(self._locations, log_weights, *blocks.reads(), t, neighbors, model.p_move,
-                                 model.blocking, model.change, model.footprint_cells, model.sensor,
-                                 np.atleast_1d(np.asarray(z, dtype=np.int64)), *children)
+        m = self._enumerate(rbpf_enumerate_cells, rbpf_enumerate_cells_parallel, self._locations, log_weights,
+                            *blocks.reads(), t, neighbors, *_motion_and_sensor(model, z), *children)
         return m, children
+
+    def _enumerate(self, serial, parallel, *args) -> int:
+        """``serial(*args)``, or with threads its parallel driver (which returns the same)."""
+        if not self._parallel:
+            return serial(*args)
+        with _numba_threads(self.threads):
+            return parallel(*args, rbpf_parallel.CHUNK)
+
+    def _fc_buffers(self) -> _FCBuffers:
+        """Views of the filter's scratch buffers for one Fearnhead-Clifford step (2P children, P
+        slots); every step writes them before reading them. A sampling scheme owns none: it
+        enumerates only when every draw missed (:meth:`update`), into fresh arrays."""
+        ints, floats, p = self._scratch_ints, self._scratch_floats, self.n_particles
+        if not len(ints):
+            ints, floats = np.empty((5, 2 * p), dtype=np.int64), np.empty((3, 2 * p))
+        return _FCBuffers(ints[0], ints[1], floats[0], floats[1], ints[2], ints[3, :p], floats[2, :p], ints[3, p:],
+                          ints[4, :p], floats[2, p:])
 
     def _update_fearnhead_clifford(self, a: int | None, z, t: int) -> None:
         """Enumerate every live particle's successors with their exact weights
         (:func:`rbpf_enumerate`; :func:`rbpf_enumerate_cells` with blocking labels or a sensor
         footprint), keep P of them by optimal resampling
-        (:func:`~onlinemap.resampling.optimal_resampling`: none twice, unbiased; its strata walk
-        the children ordered by location, :func:`children_by_location`, which spreads the draws
-        over the cells: measured 1.6-2x closer to exact than index order) and write them into the
-        slots. O(P K^2 + N) (O(P F K^2) with a footprint of F cells); the resampling is O(P)."""
+        (:func:`~onlinemap.kernels.rbpf.rbpf_keep_children`: none twice, unbiased; its strata walk
+        the children ordered by location, which spreads the draws over the cells: measured 1.6-2x
+        closer to exact than index order) and write them into the slots, each kept child's changed
+        cells computed from its parent's map as the enumeration defines them
+        (:func:`rbpf_commit_children`). O(P K^2 + N) (O(P F K^2) with a footprint of F cells); the
+        resampling is O(P). Works in the filter's scratch buffers: no per-step allocation of size P."""
         model = self.model
         n_particles = self.n_particles
-        width = cells_written(model)
-        blocks = self._blocks.reserved(width * n_particles)
+        blocks = self._reserved(t)
         if a is not None and not model.is_static and not self.lazy_dynamics:
             blocks = blocks.with_rows(blocks.rows @ model.change)
         neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
-        if reads_one_cell(model):
-            child_parent = np.empty(2 * n_particles, dtype=np.int64)
-            child_location = np.empty(2 * n_particles, dtype=np.int64)
-            child_log_weight = np.empty(2 * n_particles)
-            child_cells = np.empty((2 * n_particles, 1, model.n_labels))
-            child_ids = child_location.reshape(-1, 1)  # the one cell a child changes is where it stands
-            m = rbpf_enumerate(self._locations, self._log_weights, *blocks.reads(), t, neighbors, model.p_move,
-                               model.likelihood[z], child_parent, child_location, child_log_weight,
-                               child_cells.reshape(2 * n_particles, model.n_labels))
+        one_cell = reads_one_cell(model)
+        parallel = self._parallel
+        buffers = self._fc_buffers()
+        children = (buffers.child_parent, buffers.child_location, buffers.child_log_weight)
+        if one_cell:
+            m = self._enumerate(rbpf_enumerate, rbpf_enumerate_parallel, self._locations, self._log_weights,
+                                *blocks.reads(), t, neighbors, model.p_move, model.likelihood[z], *children)
         else:
-            m, (child_parent, child_location, child_log_weight, _, child_ids, child_cells) = self._enumerate_cells(
-                blocks, t, neighbors, z, self._log_weights)
+            m = self._enumerate(rbpf_enumerate_cells, rbpf_enumerate_cells_parallel, self._locations, self._log_weights,
+                                *blocks.reads(), t, neighbors, *_motion_and_sensor(model, z), *children,
+                                *_no_child_cells(model))
         if m == 0:  # depletion
             self._recover(a, z, t, blocks)
             return
-        increment = _logsumexp(child_log_weight[:m])
-        kept, kept_weights, threshold = optimal_keep(np.exp(child_log_weight[:m] - increment), n_particles,
-                                                     self._rng.random(),
-                                                     children_by_location(child_location[:m], model.n_cells))
-        self._commit_children(t, blocks, (child_parent, child_location, child_ids, child_cells), kept, kept_weights,
-                              increment, threshold > 0)
+        weights = buffers.child_weight[:m]
+        increment = _logsumexp(buffers.child_log_weight[:m], weights)
+        np.exp(np.subtract(buffers.child_log_weight[:m], increment, out=weights), out=weights)
+        threshold = rbpf_keep_children(buffers.child_parent, buffers.child_location, weights, model.n_cells,
+                                       self._rng.random(), buffers.order, buffers.kept, buffers.kept_weights,
+                                       buffers.ancestors, buffers.slot_child, buffers.log_weights)
+        if parallel:  # stage every kept child's writes, then commit them (rbpf_parallel: the same state)
+            staged = self._staged_buffers()
+            with _numba_threads(self.threads):
+                if one_cell:
+                    rbpf_stage_children_parallel(*blocks.reads(), t, buffers.ancestors, buffers.slot_child,
+                                                 buffers.child_location, model.likelihood[z], *staged[:3],
+                                                 rbpf_parallel.CHUNK)
+                else:
+                    rbpf_stage_children_cells_parallel(self._locations, *blocks.reads(), t, buffers.ancestors,
+                                                       buffers.slot_child, buffers.child_location, neighbors,
+                                                       *_motion_and_sensor(model, z), *staged[:3], rbpf_parallel.CHUNK)
+                rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, buffers.ancestors, *staged,
+                                            rbpf_parallel.CHUNK)
+        elif one_cell:
+            rbpf_commit_children(self._locations, *blocks.writes(), t, buffers.ancestors, buffers.slot_child,
+                                 buffers.child_location, model.likelihood[z])
+        else:
+            rbpf_commit_children_cells(self._locations, *blocks.writes(), t, buffers.ancestors, buffers.slot_child,
+                                       buffers.child_location, neighbors, *_motion_and_sensor(model, z))
+        blocks.refresh(t)
+        self._advance(t, blocks, buffers.log_weights, _logsumexp(buffers.log_weights, buffers.kept_weights), increment,
+                      threshold > 0)
 
     def _recover(self, a: int | None, z, t: int, blocks: BlockPool) -> None:
         """The step when no particle explains ``z`` (depletion): the exact limit of the augmented
@@ -435,20 +598,27 @@ class RaoBlackwellisedPF:
         read cells reset to their model marginal ``label_prior C^t`` that make it possible
         (:func:`~onlinemap.kernels.rbpf.rbpf_relocation_weights`); P of them are kept by optimal
         resampling (the strata walk them by location, as Fearnhead-Clifford's do) with one uniform,
-        their maps built (:func:`~onlinemap.kernels.rbpf.rbpf_relocated_children`) and committed.
+        their maps built (:func:`~onlinemap.kernels.rbpf.rbpf_relocated_children`) and committed
+        with those cells (:meth:`_commit_children`: a relocated child's cells do not follow from its
+        parent's map at its location, as Fearnhead-Clifford's children's do).
         Raises :class:`ImpossibleObservationError`, changing nothing, at step 0 (no motion, no
-        relocation), when no child is possible, or when ``recover_from_depletion`` is False. ``blocks``: the step's pool (reserved for P W
-        writes; advanced by C with eager dynamics). Cost O(P N U K^2 + min(P, N) N A) time, U <= W
-        the cells a child touches, A the actions; at most 32 P N bytes (:func:`peak_bytes`)."""
+        relocation), when no child is possible, or when ``recover_from_depletion`` is False; and
+        :class:`~onlinemap.errors.MemoryLimitError`, changing nothing, when the recovery's
+        :func:`recovery_bytes` would take the filter beyond ``max_bytes``. ``blocks``: the step's
+        pool (reserved for P W writes; advanced by C with eager dynamics). Cost O(P N U K^2 +
+        min(P, N) N A) time, U <= W the cells a child touches, A the actions; at most 32 P N bytes."""
         model = self.model
         n_particles = self.n_particles
         if not self.recover_from_depletion:
             raise ImpossibleObservationError(_no_particle_explains(model, z, t, n_particles))
+        if a is None:
+            raise ImpossibleObservationError(_impossible(model, z, t, n_particles))
+        self._check_recovery_memory(t, blocks)
         readings = np.atleast_1d(np.asarray(z, dtype=np.int64))
         prior = np.ascontiguousarray(model.label_prior if model.is_static else
                                      model.label_prior @ np.linalg.matrix_power(model.change, t))
         child_log_weight = np.empty((model.n_cells, n_particles))
-        fewest = -1 if a is None else rbpf_relocation_weights(
+        fewest = rbpf_relocation_weights(
             self._locations, self._log_weights, *blocks.reads(), t, model.moves, RELOCATION_SCALE, model.blocking,
             model.footprint_cells, model.sensor, readings, prior, child_log_weight)
         if fewest < 0:
@@ -474,11 +644,31 @@ class RaoBlackwellisedPF:
                        RELOCATION_SCALE, f" and resetting {fewest} read cell(s) to their prior" if fewest else "",
                        len(kept), self._recoveries)
 
+    def _check_recovery_memory(self, t: int, blocks: BlockPool) -> None:
+        """Raise :class:`~onlinemap.errors.MemoryLimitError` (nothing changed) when the filter, with
+        the step's pool ``blocks`` (and this filter's own while the step grew it), plus a
+        recovery's :func:`recovery_bytes` would exceed ``max_bytes``. O(1)."""
+        model, p = self.model, self.n_particles
+        n_blocks, size = blocks.block_members.shape
+        rows, have = len(blocks.rows), len(self._blocks.rows)
+        held = state_bytes(model, p, size, n_blocks, rows, have if rows != have else 0, self.lazy_dynamics,
+                           self.threads)
+        extra = recovery_bytes(model, p)
+        if held + extra > self.max_bytes:
+            raise MemoryLimitError(
+                f"step {t}: no particle explains the observation (particle depletion), and recovering weighs "
+                f"N P = {model.n_cells * p} children, {extra / 1e9:.3g} GB on top of the filter's {held / 1e9:.3g} "
+                f"GB, over max_bytes = {self.max_bytes / 1e9:.3g} GB. The filter is unchanged: raise "
+                f"est.max_bytes to continue, or use fewer particles")
+
     def _commit_children(self, t, blocks: BlockPool, children, kept, kept_weights, increment, resampled,
-                         recovered: bool = False) -> None:
+                         recovered: bool) -> None:
         """Put the ``kept`` children (indices into ``children`` = (parent, location, ids (M, W),
         cells (M, W, K)), with ``kept_weights``) into the P slots (:func:`rbpf_place_children`)
-        and :meth:`_commit` them. O(P W K)."""
+        and :meth:`_commit` them with the cells they carry: the commit of children whose changed
+        cells are given rather than recomputed from the parent's map at the child's location (a
+        recovery's relocated children and reset cells; Fearnhead-Clifford's own children go
+        through :func:`rbpf_commit_children`). O(P W K)."""
         model, n_particles = self.model, self.n_particles
         width = cells_written(model)
         ancestors = np.empty(n_particles, dtype=np.int64)
@@ -490,22 +680,106 @@ class RaoBlackwellisedPF:
         self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights), increment,
                      resampled, new_ids, recovered)
 
+    def _staged_buffers(self) -> tuple:
+        """(new_locations (P,), new_ids (P, W), new_cells (P, W, K), target (P, W), source (P, W)):
+        views of the scratch buffers of the parallel commit (threads > 1)."""
+        p, width = self.n_particles, cells_written(self.model)
+        ints = self._scratch_staged_ints
+        new_ids, target, source = (ints[i * p * width:(i + 1) * p * width].reshape(p, width) for i in range(3))
+        return ints[3 * p * width:], new_ids, self._scratch_staged_cells, target, source
+
     def _commit(self, t, blocks: BlockPool, ancestors, new_locations, new_cells, log_weights, increment, resampled,
                 new_ids=None, recovered: bool = False) -> None:
-        """Write a validated step: the particles' slots and maps into ``blocks`` (this filter's
-        pool, or its grown copy, which the filter then keeps; :meth:`BlockPool.commit`), the
-        normalised ``log_weights`` and the evidence ``increment``; ``recovered``: the step
-        recovered from depletion."""
-        blocks.commit(self._locations, t, ancestors, new_locations, new_cells, new_ids)
+        """Write a validated step whose changed cells are given (the sampling schemes; a recovery's
+        children, :meth:`_commit_children`): the particles' slots and maps into ``blocks``
+        (:meth:`BlockPool.commit`; with threads, :func:`rbpf_commit_staged_parallel`), then
+        :meth:`_advance`; ``recovered``: the step recovered from depletion."""
+        if self._parallel:
+            n_particles = self.n_particles
+            ids = new_locations.reshape(n_particles, 1) if new_ids is None else new_ids
+            cells = new_cells.reshape(n_particles, ids.shape[1], self.model.n_labels)
+            _, _, _, target, source = self._staged_buffers()
+            with _numba_threads(self.threads):
+                rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, ancestors, new_locations, ids, cells,
+                                            target, source, rbpf_parallel.CHUNK)
+            blocks.refresh(t)
+        else:
+            blocks.commit(self._locations, t, ancestors, new_locations, new_cells, new_ids)
+        self._advance(t, blocks, log_weights, 0.0, increment, resampled, recovered)
+
+    def _advance(self, t, blocks: BlockPool, log_weights, normaliser, increment, resampled,
+                 recovered: bool = False) -> None:
+        """Take the committed step: keep ``blocks`` (this filter's pool, or its grown copy), the log
+        weights ``log_weights - normaliser`` (normalised; written into the filter's own arrays), the
+        evidence ``increment`` and whether the step ``recovered`` from depletion."""
         self._blocks = blocks
-        self._log_weights = log_weights
+        np.subtract(log_weights, normaliser, out=self._log_weights)
         self._log_evidence += increment
-        self._weights = np.exp(self._log_weights)
+        np.exp(self._log_weights, out=self._weights)
         self._ess = min(float(self.n_particles), effective_sample_size(self._weights))  # rounding: <= P
         self._resampled = resampled
         self._recovered = recovered
         self._t = t
         self._belief = None
+
+
+class _FCBuffers(NamedTuple):
+    """One Fearnhead-Clifford step's working arrays (views of the filter's scratch buffers): the
+    children (2P,) and the slots (P,)."""
+
+    child_parent: np.ndarray
+    child_location: np.ndarray
+    child_log_weight: np.ndarray
+    child_weight: np.ndarray
+    order: np.ndarray
+    kept: np.ndarray
+    kept_weights: np.ndarray
+    ancestors: np.ndarray
+    slot_child: np.ndarray
+    log_weights: np.ndarray
+
+
+def _thread_count(threads) -> int:
+    """The ``threads`` option as a count, 1 to ``NUMBA_NUM_THREADS`` (None: all of them)."""
+    most = numba.config.NUMBA_NUM_THREADS
+    if threads is None:
+        return most
+    return arguments.integer(f"threads (at most NUMBA_NUM_THREADS={most}, numba's limit, set by that environment "
+                             "variable before numba starts)", threads, minimum=1, maximum=most,
+                             error=InvalidOptionError)
+
+
+@contextlib.contextmanager
+def _numba_threads(threads: int):
+    """Run numba's parallel kernels on ``threads`` threads within the block (the caller's setting
+    back after it); nothing for 1 (the serial kernels). Before numba first starts its threads,
+    ``OMP_WAIT_POLICY`` is set to ``PASSIVE`` unless set already: OpenMP's threads otherwise spin
+    between parallel regions, and where other processes use the cores a spinning thread holds the
+    one its partner needs (measured on a loaded 2-core machine: 10 ms per parallel kernel, against
+    10 us passive)."""
+    if threads == 1:
+        yield
+        return
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    before = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
+
+
+def _motion_and_sensor(model: GridModel, z) -> tuple:
+    """(p_move, blocking, change, footprint_cells, sensor, readings (F,)): the arguments of the
+    kernels for blocking labels and footprints, in their order."""
+    return (model.p_move, model.blocking, model.change, model.footprint_cells, model.sensor,
+            np.atleast_1d(np.asarray(z, dtype=np.int64)))
+
+
+def _no_child_cells(model: GridModel) -> tuple:
+    """Empty (log motion, ids, cells) for :func:`rbpf_enumerate_cells`: store no child's cells."""
+    width = cells_written(model)
+    return np.empty(0), np.empty((0, width), dtype=np.int64), np.empty((0, width, model.n_labels))
 
 
 def _no_particle_explains(model: GridModel, z, t: int, n_particles: int) -> str:

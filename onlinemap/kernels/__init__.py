@@ -1,10 +1,54 @@
 """numba kernels, one module per algorithm: ``exact`` (the joint belief's fused motion + sensor
 pass and map dynamics), ``rbpf`` (particle proposal, commit, resampling bookkeeping and map
-mixtures over copy-on-write blocks) and ``forward_backward`` (the EM estimators' location HMM).
+mixtures over copy-on-write blocks), ``resampling`` (Fearnhead-Clifford's optimal resampling)
+and ``forward_backward`` (the EM estimators' location HMM).
 
 The rule for every kernel here: arrays in, arrays out, no model objects. A kernel takes plain
 numpy arrays and scalars (the model's tables are passed as arrays by the caller), writes its
 results into arrays it is given, and never allocates per step what the caller can keep. Every
-kernel is ``@njit(cache=True)``: compiled once, cached on disk. This package imports numpy and
-numba only.
+kernel is ``@njit(cache=True)``: compiled once, cached on disk; an inner loop that allocates
+nothing may be a :data:`loop_kernel`. This package imports numpy and numba only (and llvmlite,
+numba's code generator, for :func:`prefetch`).
 """
+
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+#: An inner loop compiled without reference counting (numba's ``_nrt=False``). It may allocate
+#: nothing (its caller, a plain kernel, allocates the few small buffers it needs and passes them
+#: in); in exchange numba no longer counts references to the array arguments of the inlined
+#: helpers on every call wherever its pruning pass cannot show the counts balanced, atomic
+#: operations that cost 1.3-2x the arithmetic of the RBPF's enumeration and commit (measured).
+loop_kernel = njit(cache=True, _nrt=False)
+
+
+#: how many iterations ahead the RBPF's loops ask for the rows they will read (:func:`prefetch`)
+PREFETCH_AHEAD = 8
+
+
+@intrinsic
+def prefetch(typingctx, array, index):
+    """``prefetch(array, (i, j, ...))``: ask the CPU to bring the cache line of ``array[i, j, ...]``
+    (one index per dimension, not checked against the shape) into its caches, and go on. It
+    changes no result; a loop over particles whose rows lie anywhere in a large pool asks for
+    those of the particle :data:`PREFETCH_AHEAD` iterations on, so that the loads overlap
+    (measured: the RBPF's enumeration at 10^5 particles 2.3x faster)."""
+    if not isinstance(array, types.Array) or not isinstance(index, types.UniTuple) or index.count != array.ndim:
+        return None
+
+    def codegen(context, builder, signature, args):
+        array_type = signature.args[0]
+        data = context.make_array(array_type)(context, builder, args[0])
+        indices = cgutils.unpack_tuple(builder, args[1], array_type.ndim)
+        pointer = cgutils.get_item_pointer(context, builder, array_type, data, indices, wraparound=False)
+        byte_pointer = ir.IntType(8).as_pointer()
+        name = "llvm.prefetch.p0" if str(byte_pointer) == "ptr" else "llvm.prefetch.p0i8"  # opaque or typed pointers
+        function = cgutils.get_or_insert_function(builder.module, ir.FunctionType(
+            ir.VoidType(), [byte_pointer, ir.IntType(32), ir.IntType(32), ir.IntType(32)]), name)
+        read, high_locality, data_cache = (ir.Constant(ir.IntType(32), v) for v in (0, 3, 1))
+        builder.call(function, [builder.bitcast(pointer, byte_pointer), read, high_locality, data_cache])
+        return context.get_dummy_value()
+
+    return types.void(array, index), codegen

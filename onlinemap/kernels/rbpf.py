@@ -25,34 +25,39 @@ import math
 import numpy as np
 from numba import njit
 
+from . import PREFETCH_AHEAD, loop_kernel, prefetch
+from .resampling import optimal_keep_into
+
 
 @njit(cache=True, inline="always")
 def _age(pool_stamps, dynamic, t, r, j):
     """Steps since slot j of block row r was last brought up to date (0 in a static world)."""
-    return t - pool_stamps[r, j] if dynamic else 0
+    d = 0
+    if dynamic:
+        d = t - pool_stamps[r, j]
+    return d
 
 
 @njit(cache=True, inline="always")
 def _aged_label(pool, powers, d, r, j, b):
-    """P(label b) of slot j of block row r, ``d`` steps after its stamp: ``(row @ C^d)[b]``."""
-    if d == 0:
-        return pool[r, j, b]
-    acc = 0.0
-    for a in range(pool.shape[2]):
-        acc += pool[r, j, a] * powers[d, a, b]
-    return acc
+    """P(label b) of slot j of block row r, ``d`` steps after its stamp: ``(row @ C^d)[b]``.
+
+    (The inlined helpers here have one ``return`` statement and loops without ``break``: numba then
+    prunes the reference counting of their array arguments, which otherwise costs atomic
+    operations on every call, several times the arithmetic. ``return a if c else b`` is two.)"""
+    value = pool[r, j, b]
+    if d != 0:
+        value = 0.0
+        for a in range(pool.shape[2]):
+            value += pool[r, j, a] * powers[d, a, b]
+    return value
 
 
 @njit(cache=True, inline="always")
-def _label(pool, pool_stamps, powers, dynamic, t, r, j, b):
-    """Current P(label b) of slot j of block row r at step t (C^dt applied on the fly)."""
-    return _aged_label(pool, powers, _age(pool_stamps, dynamic, t, r, j), r, j, b)
-
-
-@njit(cache=True, inline="always")
-def _evidence(pool, pool_stamps, powers, dynamic, t, r, j, likelihood):
-    """``P(z | cell) = sum_b current(b) likelihood[b]`` for slot j of block row r."""
-    d = _age(pool_stamps, dynamic, t, r, j)
+def _evidence(pool, powers, d, r, j, likelihood):
+    """``P(z | cell) = sum_b current(b) likelihood[b]`` for slot j of block row r, ``d`` steps
+    after its stamp (:func:`_age`; the callers compute it: an age read inside a looping helper
+    defeats the pruning of reference counts)."""
     acc = 0.0
     for b in range(likelihood.shape[0]):
         acc += _aged_label(pool, powers, d, r, j, b) * likelihood[b]
@@ -60,10 +65,10 @@ def _evidence(pool, pool_stamps, powers, dynamic, t, r, j, likelihood):
 
 
 @njit(cache=True, inline="always")
-def _observed_cell(pool, pool_stamps, powers, dynamic, t, r, j, likelihood, lam, out):
-    """out (K,) <- the posterior of slot j of row r after seeing a label of likelihood ``likelihood``
-    (``lam`` = its evidence, from :func:`_evidence`); the prior unchanged where ``lam`` is 0."""
-    d = _age(pool_stamps, dynamic, t, r, j)
+def _observed_cell(pool, powers, d, r, j, likelihood, lam, out):
+    """out (K,) <- the posterior of slot j of row r (``d`` steps after its stamp) after seeing a
+    label of likelihood ``likelihood`` (``lam`` = its evidence, from :func:`_evidence`); the prior
+    unchanged where ``lam`` is 0."""
     for b in range(likelihood.shape[0]):  # divide (1 / lam overflows for a subnormal lam)
         current = _aged_label(pool, powers, d, r, j, b)
         out[b] = current * likelihood[b] / lam if lam > 0.0 else current
@@ -86,20 +91,77 @@ def _parent(locations, log_weights, neighbors, q):
     return log_weights[q] != -np.inf, l, neighbors[l]
 
 
+@njit(cache=True, inline="always")
+def _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, q, cell):
+    """Ask for particle q's marginal of ``cell`` (and its stamp) ahead of its use (:func:`prefetch`)."""
+    r = table[q, cell_block[cell]]
+    prefetch(pool, (r, cell_slot[cell], 0))
+    if dynamic:
+        prefetch(pool_stamps, (r, cell_slot[cell]))
+
+
+@njit(cache=True, inline="always")
+def _prefetch_footprint(pool, pool_stamps, table, cell_block, cell_slot, dynamic, footprint_cells, q, cell):
+    """Ask for particle q's marginals of the cells a robot at ``cell`` reads."""
+    for f in range(footprint_cells.shape[1]):
+        if footprint_cells[cell, f] >= 0:
+            _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, q, footprint_cells[cell, f])
+
+
+@njit(cache=True, inline="always")
+def _prefetch_parent(locations, pool, pool_stamps, table, cell_block, cell_slot, dynamic, neighbors, q):
+    """Ask for the two cells particle q reads in a step (its own and the one its action points at)."""
+    l = locations[q]
+    _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, q, l)
+    _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, q, neighbors[l])
+
+
+@njit(cache=True)
+def _sum_of_logs(values, n):
+    """``sum_i log(values[i])`` over the first n, in order (not inlined: it is the rare path, and
+    an inlined loop over an array in a branch costs reference counting on every call)."""
+    total = 0.0
+    for i in range(n):
+        total += math.log(values[i])
+    return total
+
+
+@njit(cache=True, inline="always")
+def _log_weight(log_weight, probability, likelihood, lams, n_reads):
+    """``log_weight + log(probability * likelihood)``: one log per child; where the product
+    underflows, ``log(probability)`` plus the sum of the logs of the ``n_reads`` factors ``lams``
+    of ``likelihood`` (in their order)."""
+    joint = probability * likelihood
+    return log_weight + (math.log(joint) if joint > 0.0 else math.log(probability) + _sum_of_logs(lams, n_reads))
+
+
 @njit(cache=True)
 def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
-                   neighbors, p_move, likelihood, child_parent, child_location, child_log_weight, child_cells):
+                   neighbors, p_move, likelihood, child_parent, child_location, child_log_weight):
     """Every successor of every live particle with its exact log weight; returns their number M.
 
     For parent q at l (``log_weights[q] > -inf``) and each successor j of l with motion probability
     ``T(l, j) > 0`` (:func:`_successor`; ``neighbors = arange(N)`` at step 0: stay only):
-    ``log w_q + log T(l, j) + log P(z | j, map_q)``, and the child's observed cell, the posterior
-    of cell j given z. Children with probability zero are left out. Writes the first M entries of
-    ``child_parent``, ``child_location``, ``child_log_weight`` and ``child_cells`` (M, K) (each at
-    least 2P long), grouped by parent in increasing order. O(P K^2)."""
-    k = likelihood.shape[0]
-    m = 0
-    for q in range(locations.shape[0]):
+    ``log w_q + log T(l, j) + log P(z | j, map_q)``. Children with probability zero are left out.
+    Writes the first M entries of ``child_parent``, ``child_location`` and ``child_log_weight``
+    (each at least 2P long), grouped by parent in increasing order. A child's observed cell (the
+    posterior of cell j given z) is not stored: :func:`rbpf_commit_children` computes it for the
+    children kept. O(P K^2)."""
+    return _enumerate(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
+                      neighbors, p_move, likelihood, child_parent, child_location, child_log_weight, 0,
+                      locations.shape[0], 0, np.empty(1))
+
+
+@loop_kernel
+def _enumerate(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, neighbors,
+               p_move, likelihood, child_parent, child_location, child_log_weight, start, stop, out, lams):
+    """:func:`rbpf_enumerate` of parents ``start..stop - 1``, their children written from index
+    ``out`` on; returns their number. ``lams`` (1,) scratch."""
+    m = out
+    for q in range(start, stop):
+        if q + PREFETCH_AHEAD < stop and log_weights[q + PREFETCH_AHEAD] != -np.inf:
+            _prefetch_parent(locations, pool, pool_stamps, table, cell_block, cell_slot, dynamic, neighbors,
+                             q + PREFETCH_AHEAD)
         live, l, n = _parent(locations, log_weights, neighbors, q)
         if not live:
             continue
@@ -108,24 +170,114 @@ def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block,
             if probability <= 0.0:
                 continue
             r = table[q, cell_block[j]]
-            slot = cell_slot[j]
-            d = _age(pool_stamps, dynamic, t, r, slot)
-            lam = 0.0  # P(z | cell j of map q), as _evidence sums it
-            for b in range(k):
-                current = _aged_label(pool, powers, d, r, slot, b)
-                child_cells[m, b] = current
-                lam += current * likelihood[b]
+            lam = _evidence(pool, powers, _age(pool_stamps, dynamic, t, r, cell_slot[j]), r, cell_slot[j], likelihood)
             if lam <= 0.0:
                 continue
-            for b in range(k):  # as _observed_cell: divide (1 / lam overflows for a subnormal lam)
-                child_cells[m, b] = child_cells[m, b] * likelihood[b] / lam
-            joint = probability * lam  # one log per child; two where the product underflows
-            child_log_weight[m] = log_weights[q] + (math.log(joint) if joint > 0.0 else
-                                                    math.log(probability) + math.log(lam))
+            lams[0] = lam
+            child_log_weight[m] = _log_weight(log_weights[q], probability, lam, lams, 1)
             child_parent[m] = q
             child_location[m] = j
             m += 1
-    return m
+    return m - out
+
+
+@njit(cache=True, inline="always")
+def _passable_before(pool, pool_stamps, table_row, cell_block, cell_slot, powers, dynamic, t, blocking, n, before):
+    """P(cell n passable) for the map whose block rows are ``table_row`` (n_blocks,), judged at
+    step t - 1 (before this step's map change); ``before`` (K,) <- n's marginal at t - 1."""
+    r = table_row[cell_block[n]]
+    d = 0
+    if dynamic:
+        d = t - 1 - pool_stamps[r, cell_slot[n]]
+    passable = 0.0
+    for b in range(before.shape[0]):
+        before[b] = _aged_label(pool, powers, d, r, cell_slot[n], b)
+        if not blocking[b]:
+            passable += before[b]
+    return passable
+
+
+@njit(cache=True, inline="always")
+def _motion(l, n, p_move, s, gated, passable):
+    """(cell, probability) of successor s (:func:`_successor`), a gated move's success scaled by
+    P(n passable)."""
+    j, probability = _successor(l, n, p_move, s)
+    if gated:
+        probability = probability * passable if s == 1 else 1.0 - p_move * passable
+    return j, probability
+
+
+@njit(cache=True, inline="always")
+def _footprint_child(pool, pool_stamps, table_row, cell_block, cell_slot, powers, dynamic, t, j, n, s, gated, before,
+                     p_move, blocking, change, footprint_cells, sensor, readings, given, ids, cells, lams, posteriors):
+    """The map changes of a child (successor s, at cell j, of a parent whose action points at n
+    and whose map has block rows ``table_row``), as :func:`rbpf_enumerate_cells` defines them:
+    ``ids`` (W,) the changed cells (-1 pads), ``cells`` (W, K) their marginals at step t, ``lams``
+    (F,) the likelihood of each on-grid reading in turn. ``before`` (K,): n's marginal at t - 1
+    (:func:`_passable_before`, when ``gated``); ``given`` (K,) scratch. Without ``posteriors`` the
+    read cells keep their prior in ``cells`` (the likelihood is the same: a footprint reads each
+    cell once, after the move's evidence, and its divisions are most of the cost). Returns
+    (n_reads, likelihood), ``n_reads = -1`` where the readings are impossible for this child.
+    O(F (W + K))."""
+    k = sensor.shape[0]
+    used = 0
+    if gated:  # n's marginal given the move's outcome (at t - 1), carried to step t by C
+        total = 0.0
+        for b in range(k):
+            factor = (0.0 if blocking[b] else 1.0) if s == 1 else (1.0 - p_move) + (p_move if blocking[b] else 0.0)
+            given[b] = before[b] * factor
+            total += given[b]
+        for b in range(k):
+            given[b] /= total
+        for b in range(k):
+            if dynamic:
+                acc = 0.0
+                for a in range(k):
+                    acc += given[a] * change[a, b]
+                cells[0, b] = acc
+            else:
+                cells[0, b] = given[b]
+        ids[0] = n
+        used = 1
+    likelihood = 1.0
+    n_reads = 0
+    possible = True
+    f = 0
+    while possible and f < footprint_cells.shape[1]:
+        c = footprint_cells[j, f]
+        z = readings[f]
+        f += 1
+        if c < 0 or z < 0:  # off the grid reads -1 with probability 1, a cell never does
+            possible = c < 0 and z < 0
+            continue
+        w = used
+        for v in range(used):  # a cell this child already changed (the move's evidence)
+            if ids[v] == c:
+                w = v
+        if w == used:
+            r = table_row[cell_block[c]]
+            d = 0
+            if dynamic:
+                d = t - pool_stamps[r, cell_slot[c]]
+            for b in range(k):
+                cells[w, b] = _aged_label(pool, powers, d, r, cell_slot[c], b)
+            ids[w] = c
+            used += 1
+        lam = 0.0
+        for b in range(k):
+            lam += cells[w, b] * sensor[b, z]
+        possible = lam > 0.0
+        if possible:
+            if posteriors:
+                for b in range(k):
+                    cells[w, b] = cells[w, b] * sensor[b, z] / lam
+            likelihood *= lam
+            lams[n_reads] = lam
+            n_reads += 1
+    for v in range(used, ids.shape[0]):
+        ids[v] = -1
+    result = n_reads if possible else -1
+    return result, likelihood
 
 
 @njit(cache=True)
@@ -142,101 +294,76 @@ def rbpf_enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_
     over the offsets of ``sum_k current(c_f)[k] sensor[k, z_f]`` (1 where both cell and reading
     are off the grid, 0 where only one is), and each read cell gets its posterior. Given the
     trajectory the cells stay independent, so a child's map differs from its parent's in at most
-    W = F + 1 cells: ``child_ids`` (2P, W) (-1: none) and ``child_cells`` (2P, W, K), at step t;
-    ``child_log_motion`` (2P,) is each child's ``log T``. Cost O(P F K^2)."""
+    W = F + 1 cells (:func:`_footprint_child`). With ``child_cells`` of 2P rows (the sampling
+    schemes) it stores them: ``child_ids`` (2P, W) (-1: none) and ``child_cells`` (2P, W, K), at
+    step t, and ``child_log_motion`` (2P,), each child's ``log T``; with 0 rows (Fearnhead-Clifford,
+    which recomputes the kept children's in :func:`rbpf_commit_children_cells`) only the parents,
+    locations and log weights. Cost O(P F K^2)."""
     k = sensor.shape[0]
-    n_reads = footprint_cells.shape[1]
     width = child_ids.shape[1]
-    has_blocking = False
-    for b in range(k):
-        has_blocking = has_blocking or blocking[b]
-    before = np.empty(k)
-    given = np.empty(k)
-    m = 0
-    for q in range(locations.shape[0]):
+    return _enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
+                            neighbors, p_move, blocking, change, footprint_cells, sensor, readings, child_parent,
+                            child_location, child_log_weight, child_log_motion, child_ids, child_cells, 0,
+                            locations.shape[0], 0, np.empty(k), np.empty(k), np.empty(footprint_cells.shape[1]),
+                            np.empty(width, dtype=np.int64), np.empty((width, k)))
+
+
+@njit(cache=True, inline="always")
+def _any(flags):
+    """Whether any of ``flags`` (K,) is True."""
+    found = False
+    for b in range(flags.shape[0]):
+        found = found or flags[b]
+    return found
+
+
+@loop_kernel
+def _enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
+                     neighbors, p_move, blocking, change, footprint_cells, sensor, readings, child_parent,
+                     child_location, child_log_weight, child_log_motion, child_ids, child_cells, start, stop, out,
+                     before, given, lams, ids, cells):
+    """:func:`rbpf_enumerate_cells` of parents ``start..stop - 1``, their children written from
+    index ``out`` on; returns their number. ``before``, ``given`` (K,), ``lams`` (F,), ``ids`` (W,)
+    and ``cells`` (W, K) scratch."""
+    store = child_cells.shape[0] > 0
+    has_blocking = _any(blocking)
+    m = out
+    for q in range(start, stop):
+        ahead = q + PREFETCH_AHEAD
+        if ahead < stop and log_weights[ahead] != -np.inf:
+            _prefetch_parent(locations, pool, pool_stamps, table, cell_block, cell_slot, dynamic, neighbors, ahead)
+            _prefetch_footprint(pool, pool_stamps, table, cell_block, cell_slot, dynamic, footprint_cells, ahead,
+                                locations[ahead])
+            _prefetch_footprint(pool, pool_stamps, table, cell_block, cell_slot, dynamic, footprint_cells, ahead,
+                                neighbors[locations[ahead]])
         live, l, n = _parent(locations, log_weights, neighbors, q)
         if not live:
             continue
         gated = has_blocking and n != l  # the move's success tells about cell n
         passable = 1.0
         if gated:
-            r = table[q, cell_block[n]]
-            d = t - 1 - pool_stamps[r, cell_slot[n]] if dynamic else 0
-            passable = 0.0
-            for b in range(k):
-                before[b] = _aged_label(pool, powers, d, r, cell_slot[n], b)
-                if not blocking[b]:
-                    passable += before[b]
+            passable = _passable_before(pool, pool_stamps, table[q], cell_block, cell_slot, powers, dynamic, t,
+                                        blocking, n, before)
         for s in range(2):
-            j, probability = _successor(l, n, p_move, s)
-            if gated:
-                probability = probability * passable if s == 1 else 1.0 - p_move * passable
+            j, probability = _motion(l, n, p_move, s, gated, passable)
             if probability <= 0.0:
                 continue
-            used = 0
-            if gated:  # n's marginal given the move's outcome (at t - 1), carried to step t by C
-                total = 0.0
-                for b in range(k):
-                    factor = (0.0 if blocking[b] else 1.0) if s == 1 else \
-                        (1.0 - p_move) + (p_move if blocking[b] else 0.0)
-                    given[b] = before[b] * factor
-                    total += given[b]
-                for b in range(k):
-                    given[b] /= total
-                for b in range(k):
-                    if dynamic:
-                        acc = 0.0
-                        for a in range(k):
-                            acc += given[a] * change[a, b]
-                        child_cells[m, 0, b] = acc
-                    else:
-                        child_cells[m, 0, b] = given[b]
-                child_ids[m, 0] = n
-                used = 1
-            likelihood = 1.0
-            log_likelihood = 0.0
-            possible = True
-            for f in range(n_reads):
-                c = footprint_cells[j, f]
-                z = readings[f]
-                if c < 0 or z < 0:  # off the grid reads -1 with probability 1, a cell never does
-                    if c < 0 and z < 0:
-                        continue
-                    possible = False
-                    break
-                w = used
-                for v in range(used):  # a cell this child already changed (the move's evidence)
-                    if child_ids[m, v] == c:
-                        w = v
-                if w == used:
-                    r = table[q, cell_block[c]]
-                    d = _age(pool_stamps, dynamic, t, r, cell_slot[c])
-                    for b in range(k):
-                        child_cells[m, w, b] = _aged_label(pool, powers, d, r, cell_slot[c], b)
-                    child_ids[m, w] = c
-                    used += 1
-                lam = 0.0
-                for b in range(k):
-                    lam += child_cells[m, w, b] * sensor[b, z]
-                if lam <= 0.0:
-                    possible = False
-                    break
-                for b in range(k):
-                    child_cells[m, w, b] = child_cells[m, w, b] * sensor[b, z] / lam
-                likelihood *= lam
-                log_likelihood += math.log(lam)
-            if not possible:
+            n_reads, likelihood = _footprint_child(pool, pool_stamps, table[q], cell_block, cell_slot, powers, dynamic,
+                                                   t, j, n, s, gated, before, p_move, blocking, change,
+                                                   footprint_cells, sensor, readings, given, ids, cells, lams, store)
+            if n_reads < 0:
                 continue
-            for v in range(used, width):
-                child_ids[m, v] = -1
-            joint = probability * likelihood
-            child_log_weight[m] = log_weights[q] + (math.log(joint) if joint > 0.0 else
-                                                    math.log(probability) + log_likelihood)
-            child_log_motion[m] = math.log(probability)
+            if store:
+                for w in range(ids.shape[0]):
+                    child_ids[m, w] = ids[w]
+                    for b in range(cells.shape[1]):
+                        child_cells[m, w, b] = cells[w, b]
+                child_log_motion[m] = math.log(probability)
+            child_log_weight[m] = _log_weight(log_weights[q], probability, likelihood, lams, n_reads)
             child_parent[m] = q
             child_location[m] = j
             m += 1
-    return m
+    return m - out
 
 
 @njit(cache=True)
@@ -291,46 +418,60 @@ def rbpf_pick_children(ancestors, child_parent, child_location, child_log_weight
 
 
 @njit(cache=True)
-def children_by_location(child_location, n_cells):
-    """(M,) the children's indices ordered by location (stable: by parent within a location), the
-    order in which Fearnhead-Clifford's strata walk them, so that the draws spread over the cells
-    in proportion to their weight. Counting sort, O(M + N)."""
-    starts = np.zeros(n_cells + 1, dtype=np.int64)
+def rbpf_keep_children(child_parent, child_location, weights, n_cells, uniform, order, kept, kept_weights, ancestors,
+                       slot_child, new_log_weights):
+    """Fearnhead-Clifford's selection of P of the M children (``weights`` (M,), normalised; the
+    first M entries of ``child_parent`` and ``child_location``): order them by location
+    (:func:`_children_by_location`, into ``order``), keep P by optimal resampling with ``uniform``
+    (:func:`~onlinemap.kernels.resampling.optimal_keep_into`, into ``kept`` and ``kept_weights``)
+    and place them in the slots (:func:`_place_children`). Returns c (0 when every child was
+    kept). O(M + N)."""
+    m = weights.shape[0]
+    n_particles = ancestors.shape[0]
+    _children_by_location(child_location[:m], np.zeros(n_cells + 1, dtype=np.int64), order[:m])
+    n_kept, c = optimal_keep_into(weights, n_particles, uniform, order[:m], kept, kept_weights)
+    _place_children(child_parent, kept[:n_kept], kept_weights[:n_kept], ancestors, slot_child, new_log_weights,
+                    np.zeros(n_particles, dtype=np.bool_), np.zeros(n_particles, dtype=np.bool_))
+    return c
+
+
+@loop_kernel
+def _children_by_location(child_location, starts, order):
+    """order (M,) <- the children's indices ordered by location (stable: by parent within a
+    location), the order in which Fearnhead-Clifford's strata walk them, so that the draws spread
+    over the cells in proportion to their weight. Counting sort, O(M + N); ``starts`` (N + 1,)
+    zeros."""
     for c in range(child_location.shape[0]):
         starts[child_location[c] + 1] += 1
-    for i in range(n_cells):
+    for i in range(starts.shape[0] - 1):
         starts[i + 1] += starts[i]
-    order = np.empty(child_location.shape[0], dtype=np.int64)
     for c in range(child_location.shape[0]):
         i = child_location[c]
         order[starts[i]] = c
         starts[i] += 1
-    return order
 
 
-@njit(cache=True)
-def rbpf_place_children(child_parent, child_location, child_ids, child_cells, kept, kept_weights, ancestors,
-                        new_locations, new_ids, new_cells, new_log_weights):
+@loop_kernel
+def _place_children(child_parent, kept, kept_weights, ancestors, slot_child, new_log_weights, has_child, filled):
     """Put the kept children (``kept`` distinct indices into the children, any order;
-    ``kept_weights`` their weights) into the P particle slots, for :func:`rbpf_commit_cells`: a
-    parent's first kept child takes the parent's slot, a second one the next slot whose particle
-    has no kept child (``ancestors[slot]`` = the parent; ``ancestors[p] = p`` elsewhere). A
-    child's changed cells ``child_ids`` (M, W) and their marginals ``child_cells`` (M, W, K) go
-    with it. Slots left without a child (fewer children than P) get ``new_locations = -1`` (no
-    write) and weight 0. Outputs (P,) ancestors, (P,), (P, W), (P, W, K), (P,). O(P W K)."""
+    ``kept_weights`` their weights) into the P particle slots: a parent's first kept child takes
+    the parent's slot, a second one the next slot whose particle has no kept child
+    (``ancestors[slot]`` = the parent; ``ancestors[p] = p`` elsewhere, so a parent with a kept
+    child keeps its slot and no source is overwritten). Outputs (P,): ``ancestors``,
+    ``slot_child`` (the child in each slot, -1 for none: fewer children than P) and
+    ``new_log_weights`` (``log`` of the kept weight, -inf for none). ``has_child``, ``filled``
+    (P,) False. O(P)."""
     n_particles = ancestors.shape[0]
-    has_child = np.zeros(n_particles, dtype=np.bool_)
     for i in range(kept.shape[0]):
         has_child[child_parent[kept[i]]] = True
     for p in range(n_particles):
         ancestors[p] = p
-    new_locations[:] = -1
-    new_ids[:] = -1
-    new_log_weights[:] = -np.inf
-    new_cells[:] = 0.0
-    filled = np.zeros(n_particles, dtype=np.bool_)
+        slot_child[p] = -1
+        new_log_weights[p] = -np.inf
     extra = 0  # the next slot without a child of its own, for a second child
     for i in range(kept.shape[0]):
+        if i + PREFETCH_AHEAD < kept.shape[0]:
+            prefetch(child_parent, (kept[i + PREFETCH_AHEAD],))
         c = kept[i]
         q = child_parent[c]
         if not filled[q]:
@@ -342,13 +483,11 @@ def rbpf_place_children(child_parent, child_location, child_ids, child_cells, ke
             extra += 1
             ancestors[slot] = q
         filled[slot] = True
-        new_locations[slot] = child_location[c]
-        new_ids[slot] = child_ids[c]
-        new_cells[slot] = child_cells[c]
+        slot_child[slot] = c
         new_log_weights[slot] = math.log(kept_weights[i])
 
 
-@njit(cache=True)
+@loop_kernel
 def rbpf_propose(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors,
                  neighbors, p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments):
     """Propose every particle's step-t location and weight it; writes nothing to the state.
@@ -362,19 +501,31 @@ def rbpf_propose(locations, pool, pool_stamps, table, cell_block, cell_slot, pow
     (P, K) the observed cell's updated marginal, ``log_increments`` (P,) (-inf where z is
     impossible). One uniform per particle. O(P K^2).
     """
-    n_particles = ancestors.shape[0]
-    for p in range(n_particles):
+    _propose(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors, neighbors,
+             p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments, 0, ancestors.shape[0])
+
+
+@loop_kernel
+def _propose(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors, neighbors,
+             p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments, start, stop):
+    """:func:`rbpf_propose` of particles ``start..stop - 1``."""
+    for p in range(start, stop):
+        if p + PREFETCH_AHEAD < stop:
+            _prefetch_parent(locations, pool, pool_stamps, table, cell_block, cell_slot, dynamic, neighbors,
+                             ancestors[p + PREFETCH_AHEAD])
         q = ancestors[p]
         l = locations[q]
         n = neighbors[l]
-        lam_here = _evidence(pool, pool_stamps, powers, dynamic, t, table[q, cell_block[l]], cell_slot[l],
+        here = table[q, cell_block[l]]
+        lam_here = _evidence(pool, powers, _age(pool_stamps, dynamic, t, here, cell_slot[l]), here, cell_slot[l],
                              likelihood)
         target = l
         lam = lam_here
         weight = lam_here
         if n != l:
-            lam_there = _evidence(pool, pool_stamps, powers, dynamic, t, table[q, cell_block[n]], cell_slot[n],
-                                  likelihood)
+            there = table[q, cell_block[n]]
+            lam_there = _evidence(pool, powers, _age(pool_stamps, dynamic, t, there, cell_slot[n]), there,
+                                  cell_slot[n], likelihood)
             if optimal:
                 move = p_move * lam_there
                 weight = move + (1.0 - p_move) * lam_here
@@ -383,79 +534,114 @@ def rbpf_propose(locations, pool, pool_stamps, table, cell_block, cell_slot, pow
             elif uniforms[p] < p_move:
                 target, lam, weight = n, lam_there, lam_there
         new_locations[p] = target
-        _observed_cell(pool, pool_stamps, powers, dynamic, t, table[q, cell_block[target]], cell_slot[target],
+        r = table[q, cell_block[target]]
+        _observed_cell(pool, powers, _age(pool_stamps, dynamic, t, r, cell_slot[target]), r, cell_slot[target],
                        likelihood, lam, new_cells[p])
         log_increments[p] = math.log(weight) if lam > 0.0 else -np.inf
 
 
-@njit(cache=True)
+@loop_kernel
 def _take_over_slots(refcount, free, free_top, table, ancestors):
     """Slots taken over by a copy (``ancestors[p] != p``; such ancestors keep their own slot, so
     sources are never overwritten) release their rows and share the ancestor's: O(n_blocks) per
-    copied particle."""
+    copied particle, reference counts touched only where the two rows differ (a row both share
+    keeps its count: it is named by both, so it never drops to 0 on the way)."""
     n_particles, n_blocks = table.shape
     for p in range(n_particles):
+        ahead = p + PREFETCH_AHEAD
+        if ahead < n_particles and ancestors[ahead] != ahead:
+            for b in range(0, n_blocks, 8):  # the two table rows, a cache line (8 entries) at a time
+                prefetch(table, (ancestors[ahead], b))
+                prefetch(table, (ahead, b))
         q = ancestors[p]
         if q == p:
             continue
         for b in range(n_blocks):
             r = table[p, b]
+            s = table[q, b]
+            if r == s:
+                continue
             refcount[r] -= 1
             if refcount[r] == 0:
                 free[free_top[0]] = r
                 free_top[0] += 1
-            r = table[q, b]
-            table[p, b] = r
-            refcount[r] += 1
+            table[p, b] = s
+            refcount[s] += 1
+
+
+@njit(cache=True, inline="always")
+def _row_for_write(row_block, refcount, free, free_top, table, p, b):
+    """(row, source): the row particle p writes block b into, and the row to copy into it first
+    (-1: none). A row p shares (count > 1) is replaced by a free one, which takes over p's
+    reference: the bookkeeping of copy-on-write, without touching the rows."""
+    r = table[p, b]
+    source = -1
+    if refcount[r] > 1:
+        free_top[0] -= 1
+        fresh = free[free_top[0]]
+        row_block[fresh] = b
+        refcount[r] -= 1
+        refcount[fresh] = 1
+        table[p, b] = fresh
+        source = r
+        r = fresh
+    return r, source
+
+
+@njit(cache=True, inline="always")
+def _copy_row(pool, pool_stamps, dynamic, powers, max_age, t, source, row):
+    """Block row ``row`` <- a copy of ``source`` (O(B K)); slots older than ``max_age`` steps are
+    brought up to date (stamped t), so a copy never extends a row's age."""
+    for slot in range(pool.shape[1]):
+        for label in range(pool.shape[2]):
+            pool[row, slot, label] = pool[source, slot, label]
+    if dynamic:
+        for slot in range(pool.shape[1]):
+            pool_stamps[row, slot] = pool_stamps[source, slot]
+            if t - pool_stamps[row, slot] > max_age:
+                for label in range(pool.shape[2]):
+                    pool[row, slot, label] = _aged_label(pool, powers, t - pool_stamps[source, slot], source, slot,
+                                                         label)
+                pool_stamps[row, slot] = t
+
+
+@njit(cache=True, inline="always")
+def _set_slot(pool, pool_stamps, dynamic, t, row, slot, values):
+    """Slot ``slot`` of block row ``row`` <- ``values`` (K,), stamped t."""
+    for label in range(pool.shape[2]):
+        pool[row, slot, label] = values[label]
+    if dynamic:
+        pool_stamps[row, slot] = t
 
 
 @njit(cache=True, inline="always")
 def _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, dynamic,
                 powers, max_age, t, p, cell, values):
     """Particle p's marginal of ``cell`` <- ``values`` (K,), stamped t; the block is first copied if
-    shared: O(B K) (cells of the copy older than ``max_age`` steps are brought up to date, so a copy
-    never extends a row's age). Takes a free row when it copies."""
-    b = cell_block[cell]
-    r = table[p, b]
-    if refcount[r] > 1:
-        free_top[0] -= 1
-        fresh = free[free_top[0]]
-        pool[fresh] = pool[r]
-        if dynamic:
-            pool_stamps[fresh] = pool_stamps[r]
-            for slot in range(pool.shape[1]):
-                if t - pool_stamps[fresh, slot] > max_age:
-                    for label in range(pool.shape[2]):
-                        pool[fresh, slot, label] = _label(pool, pool_stamps, powers, dynamic, t, r, slot, label)
-                    pool_stamps[fresh, slot] = t
-        row_block[fresh] = b
-        refcount[r] -= 1
-        refcount[fresh] = 1
-        table[p, b] = fresh
-        r = fresh
-    j = cell_slot[cell]
-    pool[r, j] = values
-    if dynamic:
-        pool_stamps[r, j] = t
+    shared (:func:`_row_for_write`, :func:`_copy_row`: O(B K)). Takes a free row when it copies."""
+    r, source = _row_for_write(row_block, refcount, free, free_top, table, p, cell_block[cell])
+    if source >= 0:
+        _copy_row(pool, pool_stamps, dynamic, powers, max_age, t, source, r)
+    _set_slot(pool, pool_stamps, dynamic, t, r, cell_slot[cell], values)
 
 
-@njit(cache=True)
+@loop_kernel
 def rbpf_commit(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
                 dynamic, powers, max_age, t, ancestors, new_locations, new_cells):
     """Apply a validated proposal in place: :func:`_take_over_slots`, then each particle writes
     its observed cell ``new_cells[p]`` at ``new_locations[p]`` (:func:`_write_cell`; needs
-    ``free_top[0] >= P``). ``new_locations[p] = -1`` leaves slot p as it is (an empty slot)."""
+    ``free_top[0] >= P``). ``new_locations[p] = -1`` leaves slot p as it is."""
     _take_over_slots(refcount, free, free_top, table, ancestors)
     for p in range(table.shape[0]):
         cell = new_locations[p]
-        if cell < 0:  # an empty slot (Fearnhead-Clifford kept fewer children than P): no write
+        if cell < 0:
             continue
         _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, dynamic,
                     powers, max_age, t, p, cell, new_cells[p])
         locations[p] = cell
 
 
-@njit(cache=True)
+@loop_kernel
 def rbpf_commit_cells(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block,
                       cell_slot, dynamic, powers, max_age, t, ancestors, new_locations, new_ids, new_cells):
     """:func:`rbpf_commit` with up to W cells written per particle: ``new_ids`` (P, W) the cells
@@ -469,6 +655,211 @@ def rbpf_commit_cells(locations, pool, pool_stamps, row_block, refcount, free, f
                 _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
                             dynamic, powers, max_age, t, p, new_ids[p, w], new_cells[p, w])
         locations[p] = new_locations[p]
+
+
+@njit(cache=True)
+def rbpf_commit_children(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block,
+                         cell_slot, dynamic, powers, max_age, t, ancestors, slot_child, child_location, likelihood):
+    """Fearnhead-Clifford's commit (:func:`rbpf_keep_children` placed the kept children): each
+    slot p takes over its ancestor's table row (:func:`_take_over_slots`), then its child's
+    observed cell, the posterior given z (likelihood (K,)) of cell ``child_location[c]`` of the
+    parent's map, is computed as :func:`rbpf_enumerate` defines it and written (:func:`_write_cell`;
+    needs ``free_top[0] >= P``); the locations follow. ``slot_child[p] = -1`` leaves slot p as it
+    is. O(P B K) at most, O(P K^2) for the posteriors."""
+    _take_over_slots(refcount, free, free_top, table, ancestors)
+    _write_children(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
+                    dynamic, powers, max_age, t, slot_child, child_location, likelihood, np.empty(likelihood.shape[0]))
+
+
+@loop_kernel
+def _write_children(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
+                    dynamic, powers, max_age, t, slot_child, child_location, likelihood, values):
+    """The writes of :func:`rbpf_commit_children` once the slots are taken over; ``values`` (K,)
+    scratch."""
+    for p in range(table.shape[0]):
+        ahead = p + PREFETCH_AHEAD
+        if ahead < table.shape[0] and slot_child[ahead] >= 0:
+            _prefetch_write(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
+                            dynamic, ahead, child_location[slot_child[ahead]])
+        c = slot_child[p]
+        if c < 0:
+            continue
+        j = child_location[c]
+        r = table[p, cell_block[j]]  # the parent's row (only its sole user writes a row in place)
+        d = _age(pool_stamps, dynamic, t, r, cell_slot[j])
+        lam = _evidence(pool, powers, d, r, cell_slot[j], likelihood)
+        _observed_cell(pool, powers, d, r, cell_slot[j], likelihood, lam, values)
+        _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, dynamic,
+                    powers, max_age, t, p, j, values)
+    _move_to_children(locations, slot_child, child_location)
+
+
+@njit(cache=True, inline="always")
+def _prefetch_write(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, dynamic, p,
+                    cell):
+    """Ask for what particle p's write of ``cell`` reads: the cell's marginal and its row's count;
+    and for a free row a copy will soon take (the second on the stack), its first slot and its
+    bookkeeping."""
+    _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, p, cell)
+    prefetch(refcount, (table[p, cell_block[cell]],))
+    if free_top[0] > 1:
+        fresh = free[free_top[0] - 2]
+        prefetch(pool, (fresh, 0, 0))
+        prefetch(refcount, (fresh,))
+        prefetch(row_block, (fresh,))
+
+
+@njit(cache=True, inline="always")
+def _move_to_children(locations, slot_child, child_location):
+    """locations[p] <- the location of slot p's child (unchanged where it has none)."""
+    for p in range(locations.shape[0]):
+        if slot_child[p] >= 0:
+            locations[p] = child_location[slot_child[p]]
+
+
+@njit(cache=True)
+def rbpf_commit_children_cells(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block,
+                               cell_slot, dynamic, powers, max_age, t, ancestors, slot_child, child_location,
+                               neighbors, p_move, blocking, change, footprint_cells, sensor, readings):
+    """:func:`rbpf_commit_children` for blocking labels and sensor footprints: each kept child's
+    W changed cells are computed from its parent's map as :func:`rbpf_enumerate_cells` defines
+    them (:func:`_footprint_child`; the parent's location is read before any slot moves) and
+    written. Needs ``free_top[0] >= W P``. O(P F K^2 + P W B K)."""
+    k = sensor.shape[0]
+    width = footprint_cells.shape[1] + int(_any(blocking))
+    _take_over_slots(refcount, free, free_top, table, ancestors)
+    _write_children_cells(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block,
+                          cell_slot, dynamic, powers, max_age, t, ancestors, slot_child, child_location, neighbors,
+                          p_move, blocking, change, footprint_cells, sensor, readings, np.empty(k), np.empty(k),
+                          np.empty(footprint_cells.shape[1]), np.empty(width, dtype=np.int64), np.empty((width, k)))
+
+
+@loop_kernel
+def _write_children_cells(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block,
+                          cell_slot, dynamic, powers, max_age, t, ancestors, slot_child, child_location, neighbors,
+                          p_move, blocking, change, footprint_cells, sensor, readings, before, given, lams, ids, cells):
+    """The writes of :func:`rbpf_commit_children_cells` once the slots are taken over; ``before``,
+    ``given`` (K,), ``lams`` (F,), ``ids`` (W,), ``cells`` (W, K) scratch."""
+    has_blocking = _any(blocking)
+    for p in range(table.shape[0]):
+        ahead = p + PREFETCH_AHEAD
+        if ahead < table.shape[0] and slot_child[ahead] >= 0:
+            _prefetch_write(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
+                            dynamic, ahead, child_location[slot_child[ahead]])
+            _prefetch_footprint(pool, pool_stamps, table, cell_block, cell_slot, dynamic, footprint_cells, ahead,
+                                child_location[slot_child[ahead]])
+        c = slot_child[p]
+        if c < 0:
+            continue
+        l = locations[ancestors[p]]
+        n = neighbors[l]
+        j = child_location[c]
+        s = 0 if j == l else 1  # the move's cell differs from l (a move to l has probability 0)
+        gated = has_blocking and n != l
+        if gated:
+            _passable_before(pool, pool_stamps, table[p], cell_block, cell_slot, powers, dynamic, t, blocking, n,
+                             before)
+        _footprint_child(pool, pool_stamps, table[p], cell_block, cell_slot, powers, dynamic, t, j, n, s, gated,
+                         before, p_move, blocking, change, footprint_cells, sensor, readings, given, ids, cells, lams,
+                         True)
+        for w in range(ids.shape[0]):  # computed from the parent's rows before any of them is copied
+            if ids[w] >= 0:
+                _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
+                            dynamic, powers, max_age, t, p, ids[w], cells[w])
+    _move_to_children(locations, slot_child, child_location)
+
+
+@loop_kernel
+def _stage_children(pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors, slot_child,
+                    child_location, likelihood, new_locations, new_ids, new_cells, start, stop):
+    """The writes :func:`_write_children` makes, staged for slots ``start..stop - 1`` before the
+    commit (from the parents' rows, ``table[ancestors[p]]``, which the take-over gives slot p):
+    ``new_locations`` (P,) the child's cell (-1: no child), ``new_ids`` (P, 1) the same,
+    ``new_cells`` (P, 1, K) its observed cell's posterior."""
+    for p in range(start, stop):
+        ahead = p + PREFETCH_AHEAD
+        if ahead < stop and slot_child[ahead] >= 0:
+            _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, ancestors[ahead],
+                           child_location[slot_child[ahead]])
+        c = slot_child[p]
+        new_locations[p] = -1
+        new_ids[p, 0] = -1
+        if c >= 0:
+            j = child_location[c]
+            r = table[ancestors[p], cell_block[j]]
+            d = _age(pool_stamps, dynamic, t, r, cell_slot[j])
+            lam = _evidence(pool, powers, d, r, cell_slot[j], likelihood)
+            _observed_cell(pool, powers, d, r, cell_slot[j], likelihood, lam, new_cells[p, 0])
+            new_locations[p] = j
+            new_ids[p, 0] = j
+
+
+@loop_kernel
+def _stage_children_cells(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors,
+                          slot_child, child_location, neighbors, p_move, blocking, change, footprint_cells, sensor,
+                          readings, new_locations, new_ids, new_cells, start, stop, before, given, lams):
+    """The writes :func:`_write_children_cells` makes, staged for slots ``start..stop - 1`` before
+    the commit (as :func:`_stage_children`): ``new_locations`` (P,), ``new_ids`` (P, W),
+    ``new_cells`` (P, W, K); ``before``, ``given`` (K,), ``lams`` (F,) scratch."""
+    has_blocking = _any(blocking)
+    for p in range(start, stop):
+        ahead = p + PREFETCH_AHEAD
+        if ahead < stop and slot_child[ahead] >= 0:
+            _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, ancestors[ahead],
+                           child_location[slot_child[ahead]])
+        c = slot_child[p]
+        new_locations[p] = -1
+        if c < 0:
+            for w in range(new_ids.shape[1]):
+                new_ids[p, w] = -1
+            continue
+        q = ancestors[p]
+        l = locations[q]
+        n = neighbors[l]
+        j = child_location[c]
+        gated = has_blocking and n != l
+        if gated:
+            _passable_before(pool, pool_stamps, table[q], cell_block, cell_slot, powers, dynamic, t, blocking, n,
+                             before)
+        _footprint_child(pool, pool_stamps, table[q], cell_block, cell_slot, powers, dynamic, t, j, n,
+                         0 if j == l else 1, gated, before, p_move, blocking, change, footprint_cells, sensor,
+                         readings, given, new_ids[p], new_cells[p], lams, True)
+        new_locations[p] = j
+
+
+@loop_kernel
+def _plan_writes(row_block, refcount, free, free_top, table, cell_block, new_locations, new_ids, target, source):
+    """The bookkeeping of copy-on-write for staged writes, in the order the serial commit makes
+    them (slots in order, then their cells): ``target`` (P, W) <- the row each write goes to,
+    ``source`` (P, W) <- the row to copy into it first (-1: none; :func:`_row_for_write`).
+    Slots with ``new_locations[p] < 0`` and cells -1 write nothing. O(P W)."""
+    for p in range(new_ids.shape[0]):
+        for w in range(new_ids.shape[1]):
+            target[p, w] = -1
+            source[p, w] = -1
+            if new_locations[p] >= 0 and new_ids[p, w] >= 0:
+                target[p, w], source[p, w] = _row_for_write(row_block, refcount, free, free_top, table, p,
+                                                           cell_block[new_ids[p, w]])
+
+
+@loop_kernel
+def _copy_planned(pool, pool_stamps, dynamic, powers, max_age, t, target, source, start, stop):
+    """The copies :func:`_plan_writes` planned, for slots ``start..stop - 1`` (each reads a row
+    no write of this step changes before every copy is made, and fills a row only its slot uses)."""
+    for p in range(start, stop):
+        for w in range(target.shape[1]):
+            if source[p, w] >= 0:
+                _copy_row(pool, pool_stamps, dynamic, powers, max_age, t, source[p, w], target[p, w])
+
+
+@loop_kernel
+def _write_planned(pool, pool_stamps, dynamic, t, cell_slot, new_ids, new_cells, target, start, stop):
+    """The staged writes of slots ``start..stop - 1`` into their planned rows (rows only their
+    slot uses, once the copies are made)."""
+    for p in range(start, stop):
+        for w in range(target.shape[1]):
+            if target[p, w] >= 0:
+                _set_slot(pool, pool_stamps, dynamic, t, target[p, w], cell_slot[new_ids[p, w]], new_cells[p, w])
 
 
 @njit(cache=True)
@@ -515,33 +906,111 @@ def in_place_ancestors(counts):
 
 
 @njit(cache=True)
-def rbpf_map_mixture(pool, pool_stamps, row_block, table, block_members, powers, dynamic, t, weights, out):
+def rbpf_map_mixture(pool, pool_stamps, row_block, refcount, table, block_members, powers, dynamic, t, weights, out):
     """out (N, K) <- ``sum_p weights[p] * current marginals of particle p``.
 
-    First the weight of every row (the sum over the particles sharing it), O(P n_blocks); then
-    one pass over the rows in use, O(R_used B K), with K^2 flops per out-of-date cell in a
-    dynamic world. R_used <= P n_blocks, and much less when particles share blocks.
+    First the weight of every row (:func:`_row_weights`), O(P n_blocks) at most; then one pass over
+    the rows in use, in row order, O(R_used B K), with K^2 flops per out-of-date cell in a dynamic
+    world (:func:`_mixture`). R_used <= P n_blocks, and much less when particles share blocks.
     """
-    k = out.shape[1]
-    n_particles, n_blocks = table.shape
+    n_blocks = table.shape[1]
     row_weight = np.zeros(pool.shape[0])
+    _row_weights(table, refcount, weights, _sum(weights), row_weight, 0, n_blocks, np.empty(n_blocks, dtype=np.int64),
+                 np.empty(n_blocks, dtype=np.int64), np.empty(n_blocks))
+    out[:] = 0.0
+    _mixture(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, out)
+
+
+@loop_kernel
+def _sum(values):
+    """``sum(values)``, added in order from 0.0."""
+    total = 0.0
+    for i in range(values.shape[0]):
+        total += values[i]
+    return total
+
+
+@loop_kernel
+def _row_weights(table, refcount, weights, total, out, first, last, split, current, acc):
+    """out[r] <- the weight of every row r holding one of the blocks ``first..last - 1``: the sum
+    of ``weights`` (P,) over the particles whose table names it, in increasing particle order
+    (``out`` zero on entry; rows nobody names stay 0). A block every particle shares (its row's
+    count is P) gets ``total``, the plain sum (:func:`_sum`); elsewhere a run of particles naming
+    the same row adds up in a register. The same additions in the same order as
+    ``out[table[p, b]] += weights[p]`` over p, then b. ``split``, ``current``, ``acc`` (at least
+    ``last - first``,) scratch. O(P n_split + last - first), n_split the blocks the particles do
+    not all share."""
+    n_particles = table.shape[0]
+    n_split = 0
+    for b in range(first, last):
+        r = table[0, b]
+        if refcount[r] == n_particles:
+            out[r] = total
+        else:
+            split[n_split] = b
+            current[n_split] = -1
+            n_split += 1
     for p in range(n_particles):
         w = weights[p]
-        for b in range(n_blocks):
-            row_weight[table[p, b]] += w
-    out[:] = 0.0
-    for r in range(pool.shape[0]):
-        w = row_weight[r]
-        if w == 0.0:
-            continue
-        members = block_members[row_block[r]]
-        for j in range(members.shape[0]):
-            i = members[j]
-            if i < 0:
-                continue
+        for i in range(n_split):
+            r = table[p, split[i]]
+            if r == current[i]:
+                acc[i] += w
+            else:
+                if current[i] >= 0:
+                    out[current[i]] = acc[i]
+                current[i] = r
+                acc[i] = out[r] + w
+    for i in range(n_split):
+        if current[i] >= 0:
+            out[current[i]] = acc[i]
+
+
+@njit(cache=True, inline="always")
+def _add_row(pool, pool_stamps, powers, dynamic, t, members, r, w, out):
+    """out[members] += ``w`` times the current marginals of block row r (its block's cells
+    ``members`` (B,), -1 padding)."""
+    for j in range(members.shape[0]):
+        i = members[j]
+        if i >= 0:
             d = _age(pool_stamps, dynamic, t, r, j)
-            for b in range(k):
+            for b in range(out.shape[1]):
                 out[i, b] += w * _aged_label(pool, powers, d, r, j, b)
+
+
+@loop_kernel
+def _rows_by_block(row_block, row_weight, starts, rows):
+    """The rows of nonzero weight grouped by the block they hold, in row order within a block:
+    block b's are ``rows[starts[b]:starts[b + 1]]``. ``starts`` (n_blocks + 1,) zeros. O(R)."""
+    for r in range(row_block.shape[0]):
+        if row_weight[r] != 0.0:
+            starts[row_block[r] + 1] += 1
+    for b in range(starts.shape[0] - 1):
+        starts[b + 1] += starts[b]
+    for r in range(row_block.shape[0]):  # starts[b] runs up to block b's end, then moves back
+        if row_weight[r] != 0.0:
+            rows[starts[row_block[r]]] = r
+            starts[row_block[r]] += 1
+    for b in range(starts.shape[0] - 1, 0, -1):
+        starts[b] = starts[b - 1]
+    starts[0] = 0
+
+
+@loop_kernel
+def _mixture_rows(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, rows, out):
+    """out (N, K) += ``sum_r row_weight[r] * current marginals of block row r`` over ``rows``, in
+    their order."""
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        _add_row(pool, pool_stamps, powers, dynamic, t, block_members[row_block[r]], r, row_weight[r], out)
+
+
+@loop_kernel
+def _mixture(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, out):
+    """out (N, K) += ``sum_r row_weight[r] * current marginals of block row r``, rows in order."""
+    for r in range(pool.shape[0]):
+        if row_weight[r] != 0.0:
+            _add_row(pool, pool_stamps, powers, dynamic, t, block_members[row_block[r]], r, row_weight[r], out)
 
 
 @njit(cache=True)
@@ -553,7 +1022,8 @@ def particle_maps(pool, pool_stamps, table, cell_block, cell_slot, powers, dynam
         for i in range(n_cells):
             r = table[p, cell_block[i]]
             for b in range(k):
-                out[p, i, b] = _label(pool, pool_stamps, powers, dynamic, t, r, cell_slot[i], b)
+                d = _age(pool_stamps, dynamic, t, r, cell_slot[i])
+                out[p, i, b] = _aged_label(pool, powers, d, r, cell_slot[i], b)
 
 
 # --- recovery from depletion (estimators/rbpf.py, RaoBlackwellisedPF._recover) -----------------------
@@ -732,3 +1202,28 @@ def rbpf_relocated_children(child_parent, child_location, pool, pool_stamps, tab
             child_ids[i, w] = c
             for b in range(k):
                 child_cells[i, w, b] = q[b] * factors[w, b] / lam
+
+
+@njit(cache=True)
+def rbpf_place_children(child_parent, child_location, child_ids, child_cells, kept, kept_weights, ancestors,
+                        new_locations, new_ids, new_cells, new_log_weights):
+    """Put kept children that carry their own changed cells (the recovery's relocated ones,
+    :func:`rbpf_relocated_children`: their cells do not follow from the parent's map at the
+    child's location, so :func:`rbpf_commit_children` cannot recompute them) into the P slots as
+    :func:`_place_children` places Fearnhead-Clifford's, for :func:`rbpf_commit_cells`. A child's
+    ``child_ids`` (M, W) and ``child_cells`` (M, W, K) go with it. Slots left without a child
+    (fewer children than P) get ``new_locations = -1`` (no write) and weight 0. Outputs (P,)
+    ancestors, (P,), (P, W), (P, W, K), (P,). O(P W K)."""
+    n_particles = ancestors.shape[0]
+    slot_child = np.empty(n_particles, dtype=np.int64)
+    _place_children(child_parent, kept, kept_weights, ancestors, slot_child, new_log_weights,
+                    np.zeros(n_particles, dtype=np.bool_), np.zeros(n_particles, dtype=np.bool_))
+    new_ids[:] = -1
+    new_cells[:] = 0.0
+    for p in range(n_particles):
+        c = slot_child[p]
+        new_locations[p] = -1
+        if c >= 0:
+            new_locations[p] = child_location[c]
+            new_ids[p] = child_ids[c]
+            new_cells[p] = child_cells[c]
