@@ -82,6 +82,7 @@ from tqdm.auto import tqdm
 
 from ..errors import ImpossibleObservationError
 from ..estimators import make_estimator, run_estimator
+from ..estimators.rbpf import SCHEMES as RBPF_SCHEMES
 from ..metrics import total_variation
 from ..model import DOOR_WORLD_10X10, corridor, door_world, grid_model
 from ..simulate import random_walk, simulate
@@ -129,8 +130,8 @@ def _step_times(model, run, n_particles, n_steps, warmup=5, **options):
 
 
 # --- accuracy: the two resampling schemes against exact, same runs, same process --------------------
-SCHEMES = {"residual": {"proposal": "optimal", "resampling": "residual"},
-           "fearnhead_clifford": {"resampling": "fearnhead_clifford"}}
+BASELINE = "optimal+residual"  # the scheme the others' accuracy and time are compared with
+SCHEMES = {name: RBPF_SCHEMES[name] for name in (BASELINE, "FC")}  # the rbpf's own named schemes
 ACCURACY_STEPS = 60
 TV_TARGET = 0.6  # Fearnhead-Clifford TV / residual TV at equal particles (100 and 1000)
 
@@ -194,14 +195,14 @@ def accuracy_rows(table: pd.DataFrame) -> list[dict]:
     ``tv_target``) and ``tv_ratio_equal_ms``."""
     rows = []
     for (world, n_particles), group in table.groupby(["world", "n_particles"], sort=False):
-        base = group[group["scheme"] == "residual"].iloc[0]
+        base = group[group["scheme"] == BASELINE].iloc[0]
         for row in group.itertuples():
             ratio = row.tv / base.tv
-            residual_curve = table[(table["world"] == world) & (table["scheme"] == "residual")]
+            residual_curve = table[(table["world"] == world) & (table["scheme"] == BASELINE)]
             rows.append({"case": f"accuracy {world} P={n_particles}: {row.scheme}", "ms": row.ms,
                          "reference": "optimal proposal + residual, same runs and P", "reference_ms": base.ms,
                          "target": np.nan, "tv": row.tv, "tv_se": row.tv_se, "tv_ratio": ratio,
-                         "tv_target": TV_TARGET if row.scheme != "residual" and n_particles in (100, 1000) else np.nan,
+                         "tv_target": TV_TARGET if row.scheme != BASELINE and n_particles in (100, 1000) else np.nan,
                          "tv_ratio_equal_ms": row.tv / _interpolated_tv(residual_curve, row.ms)})
     return rows
 
@@ -242,8 +243,7 @@ def rbpf_figures(table: pd.DataFrame) -> dict:
 
 
 # --- depletion: how often a filter in a robot loop has to recover -------------------------------------
-DEPLETION_SCHEMES = {"fearnhead_clifford": {}, "transition+residual": {"proposal": "transition",
-                                                                      "resampling": "residual"}}
+DEPLETION_SCHEMES = {name: RBPF_SCHEMES[name] for name in ("FC", "transition+residual")}
 
 
 def depletion_rows(particle_counts=(20, 200, 1000), n_runs: int = 50, n_steps: int = 300) -> list[dict]:
