@@ -35,7 +35,14 @@ class Belief:
     dead reckoning has no observation model (it never weighs an observation), so it gives the
     observations no probability
     observation_matrix: (N, K) ``B[i, k] = P(Z = k | L = i)``, for estimators that learn it
-    effective_sample_size: for particle filters, after the step's weighting
+    effective_sample_size: for particle filters, ``1 / sum w_i^2`` after the step's weighting (the
+    Monte-Carlo sample size of the weighted particles). A health signal for the sampling schemes
+    (near P the weights are even, near 1 one particle carries them), but not under
+    Fearnhead-Clifford resampling, whose kept children carry unequal weights by design and which
+    starts from one particle: 1.2 of 100 at t = 1, while the filter is still exact Bayes
+    distinct_locations: for particle filters, the number of distinct cells the particles of
+    positive weight stand in: how many location hypotheses the filter still holds, the signal to
+    read under Fearnhead-Clifford
     recovered: True when a particle filter recovered from depletion at this step (no particle
     explained the observation; see the RBPF's class docstring for what the belief then is)
 
@@ -49,6 +56,7 @@ class Belief:
     observation_matrix: np.ndarray | None = None
     effective_sample_size: float | None = None
     recovered: bool = False
+    distinct_locations: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("location", "map", "observation_matrix"):
@@ -85,6 +93,7 @@ class Belief:
     def __repr__(self) -> str:
         where = self.most_likely_location
         extra = "" if self.effective_sample_size is None else f", ess={self.effective_sample_size:.1f}"
+        extra += "" if self.distinct_locations is None else f", {self.distinct_locations} distinct particle locations"
         undefined = " (undefined)" if math.isnan(self.log_evidence) else ""
         extra += ", recovered from depletion" if self.recovered else ""
         return (f"Belief(t={self.t}, most likely cell {where} with p={self.location[where]:.3f}, "

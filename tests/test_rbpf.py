@@ -407,3 +407,33 @@ def test_default_resampling_is_fearnhead_clifford_for_the_optimal_proposal():
     assert om.make_estimator("rbpf", model).resampling == "fearnhead_clifford"
     assert om.make_estimator("rbpf", model, proposal="transition").resampling == "residual"
     assert om.make_estimator("rbpf", model, resampling="systematic").resampling == "systematic"
+
+
+# --- honest defaults on display (issue 24 item 15) -----------------------------------------------
+def test_the_rbpf_shows_the_scheme_it_runs_and_what_tells_its_health():
+    """repr and effective_options name the resampling it runs (not None) and leave out the
+    threshold Fearnhead-Clifford ignores; the belief reports the distinct particle locations (the
+    health signal under FC, where one particle starts and the ESS is small while the filter is
+    exact); ``particles`` and ``weights`` are read-only copies whose weighted histogram is the
+    location belief."""
+    model = om.door_world()[0]
+    run = om.simulate(model, om.door_world()[1], steps=15, seed=3)
+    fc = om.make_estimator("rbpf", model, n_particles=50, seed=0)
+    sampled = om.make_estimator("rbpf", model, n_particles=50, proposal="transition", seed=0)
+    assert fc.options["resampling"] is None  # what was given (checkpoints compare it)
+    assert fc.effective_options["resampling"] == "fearnhead_clifford" and "resample_threshold" not in fc.effective_options
+    assert "resampling='fearnhead_clifford'" in repr(fc) and "resample_threshold" not in repr(fc)
+    assert sampled.effective_options["resampling"] == "residual" and "resample_threshold=0.5" in repr(sampled)
+    for est in (fc, sampled):
+        for t in range(run.n_steps):
+            belief = est.step(None if t == 0 else int(run.actions[t - 1]), run.observations[t])
+        particles, weights = est.particles, est.weights
+        assert not particles.flags.writeable and not weights.flags.writeable
+        np.testing.assert_allclose(np.bincount(particles, weights=weights, minlength=model.n_cells),
+                                   belief.location, atol=1e-12)
+        assert belief.distinct_locations == len(set(particles[weights > 0].tolist()))
+        assert f"{belief.distinct_locations} distinct particle locations" in repr(belief)
+    first = om.make_estimator("rbpf", model, n_particles=50, seed=0)
+    first.step(None, run.observations[0])
+    after_one = first.step(int(run.actions[0]), run.observations[1])  # two children of one particle
+    assert after_one.distinct_locations <= 2 and after_one.effective_sample_size < 2

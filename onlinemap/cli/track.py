@@ -5,7 +5,9 @@ index or name, omitted or null on the first line; observation by index or label 
 Output, one JSON line per step on stdout: ``t``, the most likely ``location`` and its
 probability ``p_location``, the normalised ``location_entropy``, the most likely label of every
 cell (``map``), the mean normalised ``map_entropy``, ``log_evidence`` (null where undefined) and
-``effective_sample_size`` for particle filters, ``"recovered": true`` on a step where the RBPF
+``effective_sample_size`` and ``distinct_locations`` (the distinct cells the particles stand in:
+the health signal under Fearnhead-Clifford resampling, whose weights are unequal by design) for
+particle filters, ``"recovered": true`` on a step where the RBPF
 recovered from particle depletion; with ``--full`` also ``location_marginal`` (N,) and
 ``map_marginal`` (N x K). Floats are printed to full precision. With ``--planner NAME``
 (a registered planner of :mod:`policies`; ``--goal CELL``, an index or ``ROW,COL``, for the goal
@@ -175,6 +177,8 @@ def summarize(belief: Belief, full: bool = False) -> dict[str, object]:
     }
     if belief.effective_sample_size is not None:
         record["effective_sample_size"] = float(belief.effective_sample_size)
+    if belief.distinct_locations is not None:
+        record["distinct_locations"] = int(belief.distinct_locations)
     if belief.recovered:
         record["recovered"] = True
     if full:
@@ -283,7 +287,8 @@ def _start(args: argparse.Namespace, stderr):
     model = world.model
     planner = _planner(args, model, est)
     _emit(stderr, {"event": event, "t": est.t, "world": args.world, "estimator": est.name,
-                   "options": options, "actions": list(model.action_names), "labels": list(model.label_names),
+                   "options": getattr(est, "effective_options", options),  # as it runs them
+                   "actions": list(model.action_names), "labels": list(model.label_names),
                    "footprint": [list(offset) for offset in model.footprint],
                    **({} if planner is None else {"planner": repr(planner)})})
     return est, planner, every

@@ -82,8 +82,10 @@ def register(name: str) -> Callable[[type], type]:
 
 
 def _estimator_repr(self) -> str:
-    """``rbpf(t=3, model=GridModel(...), n_particles=100, ...)``: registry name, last step, model, options."""
-    options = ", ".join(f"{key}={value!r}" for key, value in getattr(self, "options", {}).items())
+    """``rbpf(t=3, model=GridModel(...), n_particles=100, ...)``: registry name, last step, model,
+    options (as the estimator runs them, ``effective_options``, where it resolves some)."""
+    shown = getattr(self, "effective_options", None) or getattr(self, "options", {})
+    options = ", ".join(f"{key}={value!r}" for key, value in shown.items())
     return f"{self.name}(t={self.t}, model={self.model!r}{', ' + options if options else ''})"
 
 

@@ -393,6 +393,30 @@ class RaoBlackwellisedPF:
         return self._resampled
 
     @property
+    def effective_options(self) -> dict:
+        """The options as the filter runs them: ``resampling`` resolved (None picks
+        Fearnhead-Clifford for the optimal proposal, residual for the transition one), and no
+        ``resample_threshold`` under Fearnhead-Clifford, which resamples every step whatever it
+        says. What ``repr`` and ``onlinemap track``'s start event show; ``options`` keeps what was
+        given (checkpoints compare it)."""
+        options = {**self.options, "resampling": self.resampling}
+        if self.resampling == FEARNHEAD_CLIFFORD:
+            options.pop("resample_threshold", None)
+        return options
+
+    @property
+    def particles(self) -> np.ndarray:
+        """(P,) every particle's location, a read-only copy (filterpy's and ``particles``' name).
+        Under Fearnhead-Clifford the filter starts from one particle: the others have weight 0
+        until there are children enough for every slot."""
+        return read_only(self._locations.copy())
+
+    @property
+    def weights(self) -> np.ndarray:
+        """(P,) the particles' normalised weights, a read-only copy."""
+        return read_only(self._weights / self._weights.sum())
+
+    @property
     def recoveries(self) -> int:
         """How many steps so far recovered from depletion (see the class docstring)."""
         return self._recoveries
@@ -408,8 +432,10 @@ class RaoBlackwellisedPF:
             with _numba_threads(self.threads):
                 maps = self._blocks.mixture(self._t, weights, parallel=self._parallel)
             maps /= maps.sum(axis=1, keepdims=True)
-            self._belief = Belief(self._t, location, maps, self._log_evidence,
-                                  effective_sample_size=self._ess, recovered=self._recovered)
+            live = self._locations[self._weights > 0]
+            distinct = int(np.count_nonzero(np.bincount(live, minlength=self.model.n_cells)))
+            self._belief = Belief(self._t, location, maps, self._log_evidence, effective_sample_size=self._ess,
+                                  recovered=self._recovered, distinct_locations=distinct)
         return self._belief
 
     def particle_maps(self) -> np.ndarray:
