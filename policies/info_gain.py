@@ -145,7 +145,12 @@ def expected_uncertainty(estimator: Estimator, actions, *, hypotheses: int | Non
     ``hypotheses=None``: exact expectation over every observation sequence (K^H forks of the
     estimator, K^(F H) for a footprint of F readings, each outcome weighted by its predictive probability ``exp(log_evidence after -
     log_evidence before)``). An integer S: the mean over S worlds drawn by :func:`sample_states`
-    and simulated with :func:`onlinemap.simulate.world_step` (S forks, S H steps).
+    and simulated with :func:`onlinemap.simulate.world_step` (S forks, S H steps). A world whose
+    simulated readings the fork cannot explain (an approximate belief, e.g. a particle filter that
+    lost the world's trajectory, gives them probability zero) is left out of the mean: by the
+    fork's own belief it has probability zero. If every world is left out the expectation is
+    ``U(now)`` at every length (nothing to be learnt that the fork can hold). Planning never
+    raises for it: the live filter is not at fault.
     The estimator itself (state and random generator) is left exactly as it was.
     """
     if estimator.belief is None:
@@ -159,11 +164,19 @@ def expected_uncertainty(estimator: Estimator, actions, *, hypotheses: int | Non
         return out
     rng = as_generator(seed)
     locations, maps = sample_states(estimator, int(hypotheses), rng)
+    total, explained = np.zeros(len(actions)), 0
+    row = np.empty(len(actions))
     for location, labels in zip(locations, maps):
         copy = fork(estimator)
-        for h, a in enumerate(actions, start=1):
-            location, labels, z = world_step(model, int(location), labels, int(a), rng)
-            out[h] += uncertainty(copy.step(int(a), z), location_weight) / len(locations)
+        try:
+            for h, a in enumerate(actions):
+                location, labels, z = world_step(model, int(location), labels, int(a), rng)
+                row[h] = uncertainty(copy.step(int(a), z), location_weight)
+        except ImpossibleObservationError:  # the fork cannot explain this world: probability zero to it
+            continue
+        total += row
+        explained += 1
+    out[1:] = total / explained if explained else out[0]
     return out
 
 
