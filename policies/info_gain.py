@@ -55,7 +55,8 @@ Backends (who plays "a copy of the filter"):
 - any other estimator: :func:`onlinemap.estimators.fork` (the live estimator is never touched)
   stepped with simulated observations; with ``hypotheses=None`` the expectation is exact: every
   observation sequence is enumerated with its predictive probability (the ratio of the fork's
-  evidence before and after), K^H forks: for tiny worlds and tests.
+  evidence before and after), Z^H forks for the Z observations of :func:`observations`
+  (K, or up to (K + 1)^F for a footprint of F offsets): for tiny worlds and tests.
 """
 
 from __future__ import annotations
@@ -142,8 +143,8 @@ def expected_uncertainty(estimator: Estimator, actions, *, hypotheses: int | Non
                          seed: SeedLike = None, location_weight: float = 1.0) -> np.ndarray:
     """(H + 1,) the expected :func:`uncertainty` after each prefix of ``actions`` (H,), entry 0 now.
 
-    ``hypotheses=None``: exact expectation over every observation sequence (K^H forks of the
-    estimator, K^(F H) for a footprint of F readings, each outcome weighted by its predictive probability ``exp(log_evidence after -
+    ``hypotheses=None``: exact expectation over every observation sequence (Z^H forks of the
+    estimator for the Z :func:`observations`, each outcome weighted by its predictive probability ``exp(log_evidence after -
     log_evidence before)``). An integer S: the mean over S worlds drawn by :func:`sample_states`
     and simulated with :func:`onlinemap.simulate.world_step` (S forks, S H steps). A world whose
     simulated readings the fork cannot explain (an approximate belief, e.g. a particle filter that
@@ -180,15 +181,25 @@ def expected_uncertainty(estimator: Estimator, actions, *, hypotheses: int | Non
     return out
 
 
+def observations(model: GridModel):
+    """Every observation the sensor can return: a label (the robot's own cell), or (F,) readings,
+    each a label or -1 for an offset that leaves the grid from some cell (the product over the
+    offsets: at most (K + 1)^F). O(that many)."""
+    if model.observation_shape == ():
+        off = bool((model.footprint_cells[:, 0] < 0).any())
+        return list(range(model.n_labels)) + ([-1] if off else [])
+    off = (model.footprint_cells < 0).any(axis=0)
+    values = [list(range(model.n_labels)) + ([-1] if o else []) for o in off]
+    return [np.array(z) for z in itertools.product(*values)]
+
+
 def _enumerate(node: Estimator, actions: np.ndarray, depth: int, probability: float, out: np.ndarray,
                location_weight: float) -> None:
     if depth == len(actions) or probability == 0.0:
         return
     before = node.belief.log_evidence
     model = node.model
-    outcomes = (range(model.n_labels) if model.observation_shape == ()
-                else (np.array(z) for z in itertools.product(range(model.n_labels), repeat=model.n_readings)))
-    for z in outcomes:
+    for z in observations(model):
         child = fork(node)
         if hasattr(child, "recover_from_depletion"):  # an RBPF: an outcome its particles rule out has
             child.recover_from_depletion = False  # probability zero here, not a relocation
@@ -253,11 +264,12 @@ class RolloutTables(NamedTuple):
 
 
 def particle_rollouts_fit(model: GridModel) -> bool:
-    """Whether the numba rollouts simulate ``model`` exactly: they read one cell per step and move
-    the robot without looking at the map, so a footprint (``n_readings > 1``) or blocking labels
-    send the planner to the forks of :func:`expected_uncertainty` instead (simulated by
+    """Whether the numba rollouts simulate ``model`` exactly: they read the robot's own cell
+    (``model.reads_own_cell``) and move the robot without looking at the map, so any other
+    footprint (one offset such as ``((0, 1),)`` included) or blocking labels send the planner to
+    the forks of :func:`expected_uncertainty` instead (simulated by
     :func:`onlinemap.simulate.world_step`, slower but exact)."""
-    return model.n_readings == 1 and not model.has_blocking
+    return model.reads_own_cell and not model.has_blocking
 
 
 def rollout_tables(model: GridModel, horizon: int) -> RolloutTables:

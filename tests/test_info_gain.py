@@ -24,6 +24,16 @@ def entropy(p):
     return float(-(p[p > 0] * np.log(p[p > 0])).sum())
 
 
+def oracle_observations(oracle):
+    """Every observation of the oracle's sensor: a label, or a tuple of readings, each a label or
+    -1 for an offset that is off the grid from some cell."""
+    if oracle.single:
+        return list(range(oracle.k))
+    per_offset = [list(range(oracle.k)) + ([-1] if any(reads[f] is None for reads in oracle.reads) else [])
+                  for f in range(len(oracle.reads[0]))]
+    return list(itertools.product(*per_offset))
+
+
 def brute_expected_uncertainty(oracle, joint, actions, location_weight):
     """E[location_weight H(L) + sum_i H(m_i)] after each prefix of ``actions``, enumerating every
     observation sequence over the (l, m) states of the oracle."""
@@ -31,7 +41,7 @@ def brute_expected_uncertainty(oracle, joint, actions, location_weight):
     loc, maps = oracle.marginals(joint)
     out[0] = location_weight * entropy(loc) + sum(entropy(row) for row in maps)
     for h in range(1, len(actions) + 1):
-        for zs in itertools.product(range(oracle.k), repeat=h):
+        for zs in itertools.product(oracle_observations(oracle), repeat=h):
             p = joint.copy()
             for a, z in zip(actions[:h], zs):
                 p = (p @ oracle.transition(a)) * oracle.likelihood(z)
@@ -57,6 +67,10 @@ TINY_WORLDS = {
     "corridor4": lambda: om.corridor(4, 2, p_obs=0.85, p_move=0.7),
     "grid2x2": lambda: om.grid_model(2, 2, 2, p_obs=0.8, p_move=0.75,
                                      change=om.model.symmetric_channel(2, 0.9)),
+    # a footprint reading off the grid (-1) at the right end, and a label that blocks
+    "corridor3 footprint": lambda: om.corridor(3, 2, p_obs=0.85, p_move=0.7, blocking=1,
+                                               footprint=((0, 0), (0, 1))),
+    "corridor3 right": lambda: om.corridor(3, 2, p_obs=0.85, p_move=0.7, footprint=((0, 1),)),
 }
 
 
@@ -66,10 +80,10 @@ def test_expected_uncertainty_equals_brute_force(world):
     oracle = BruteForce.of(model)
     rng = np.random.default_rng(3)
     past_actions = rng.integers(model.n_actions, size=3)
-    past_obs = rng.integers(model.n_labels, size=4)
     est = make_estimator("exact", model)
+    past_obs = om.simulate(model, om.sample_map(model, 5), past_actions, seed=2).observations  # possible ones
     for t, z in enumerate(past_obs):
-        est.step(None if t == 0 else int(past_actions[t - 1]), int(z))
+        est.step(None if t == 0 else int(past_actions[t - 1]), z)
     joint = brute_joint(oracle, past_actions, past_obs)
     for actions in ([0], [1, 1], [model.n_actions - 1, 0, 1]):
         got = expected_uncertainty(est, actions, hypotheses=None, location_weight=0.7)
@@ -356,3 +370,30 @@ def test_a_world_the_fork_cannot_explain_is_left_out_and_planning_never_raises()
     for _ in range(10):
         assert 0 <= planner.choose(belief) < model.n_actions
     assert checkpoint.same_tree(before, checkpoint.state_dict(est))
+
+
+def test_rollouts_read_the_cell_the_sensor_reads():
+    """Issue 24, defect 9: with the one-offset footprint ((0, 1),) the sensor reads the cell to
+    the robot's right, and so must the rollouts. A robot that cannot move (p_move = 0) at cell 0,
+    known to hold label 0, has read cell 1 once (marginal [0.9, 0.1]): one more step reads cell 1
+    again, an expected gain of I(m_1; z) (information_reward, computed by hand below), not the
+    nothing of re-reading its own known cell. The rollout gain of a world is g(z) =
+    H(m_1) - H(m_1 | z), one of two values, so the mean over S worlds has standard deviation at
+    most |g(0) - g(1)| / 2 / sqrt(S): 4 of them (false failure about 6e-5)."""
+    prior = np.array([[0.999, 0.001], [0.5, 0.5], [0.5, 0.5]])
+    model = om.corridor(3, 2, p_obs=0.9, p_move=0.0, footprint=((0, 1),), label_prior=prior)
+    est = make_estimator("rbpf", model, n_particles=20, seed=0)
+    belief = est.step(None, 0)
+    np.testing.assert_allclose(belief.map[1], [0.9, 0.1])
+    marginal, sensor = belief.map[1], model.sensor
+    after = {z: marginal * sensor[:, z] / (marginal @ sensor[:, z]) for z in (0, 1)}
+    gains = {z: entropy(marginal) - entropy(after[z]) for z in (0, 1)}
+    want = sum((marginal @ sensor[:, z]) * gains[z] for z in (0, 1))
+    hypotheses = 400
+    planner = make_planner("info_gain", model, seed=1, hypotheses=hypotheses, press_lengths=(1,),
+                           anchor_every=None)
+    planner.bind(est)
+    plan = planner.plan(belief)
+    tolerance = 4 * abs(gains[0] - gains[1]) / 2 / math.sqrt(hypotheses)
+    np.testing.assert_allclose(plan.gain[:, 0], want, atol=tolerance)
+    assert want > 0.1
