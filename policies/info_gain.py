@@ -67,6 +67,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from onlinemap import arguments
 from onlinemap.belief import Belief
 from onlinemap.errors import ImpossibleObservationError, ModelError
 from onlinemap.estimators import Estimator, fork
@@ -181,16 +182,26 @@ def expected_uncertainty(estimator: Estimator, actions, *, hypotheses: int | Non
     return out
 
 
-def observations(model: GridModel):
-    """Every observation the sensor can return: a label (the robot's own cell), or (F,) readings,
-    each a label or -1 for an offset that leaves the grid from some cell (the product over the
-    offsets: at most (K + 1)^F). O(that many)."""
-    if model.observation_shape == ():
-        off = bool((model.footprint_cells[:, 0] < 0).any())
-        return list(range(model.n_labels)) + ([-1] if off else [])
+def _readings(model: GridModel) -> list[list[int]]:
+    """(F,) lists: the values reading f can take, the labels and -1 if offset f leaves the grid
+    from some cell."""
     off = (model.footprint_cells < 0).any(axis=0)
-    values = [list(range(model.n_labels)) + ([-1] if o else []) for o in off]
+    return [list(range(model.n_labels)) + ([-1] if o else []) for o in off]
+
+
+def observations(model: GridModel) -> list:
+    """Every observation the sensor can return: a label (one reading), or (F,) readings, each a
+    label or -1 for an offset that leaves the grid from some cell (the product over the offsets:
+    at most (K + 1)^F, :func:`observation_count`). O(that many)."""
+    values = _readings(model)
+    if model.observation_shape == ():
+        return values[0]
     return [np.array(z) for z in itertools.product(*values)]
+
+
+def observation_count(model: GridModel) -> int:
+    """``len(observations(model))`` without building them. O(N F)."""
+    return math.prod(len(v) for v in _readings(model))
 
 
 def _enumerate(node: Estimator, actions: np.ndarray, depth: int, probability: float, out: np.ndarray,
@@ -311,6 +322,29 @@ def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot,
 
 
 # --- the planner ------------------------------------------------------------------------------
+MAX_PLAN_FORKS = 10**5  # an exact enumeration forking the estimator more often than this is refused
+
+
+def rollout_operations(model: GridModel, hypotheses: int, candidates: int, horizon: int, lengths: int,
+                       particles: int) -> int:
+    """The estimated floating-point operations of one plan of the particle backend:
+    ``S C (H R (F + 1) K^2 + L R N K)`` for S worlds, C candidates of H steps, L scored lengths,
+    R particles, F footprint offsets (exact Python ints)."""
+    k = model.n_labels
+    return hypotheses * candidates * (horizon * particles * (model.n_readings + 1) * k * k
+                                      + lengths * particles * model.n_cells * k)
+
+
+def _lengths(value) -> np.ndarray:
+    """``press_lengths``: a non-empty sequence of whole numbers >= 1, sorted and unique."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+        raise ModelError(f"press_lengths must be a sequence of whole numbers >= 1, got {value!r}")
+    lengths = [arguments.integer(f"press_lengths[{i}]", v, minimum=1) for i, v in enumerate(value)]
+    if not lengths:
+        raise ModelError("press_lengths must not be empty")
+    return np.unique(np.asarray(lengths, dtype=np.int64))
+
+
 def greedy_path(model: GridModel, q: np.ndarray, start: int, length: int) -> np.ndarray:
     """(length,) actions of a walk from ``start`` that takes, at each cell, the action of highest
     ``q`` (N, A) among those reaching a cell not yet on the walk (any moving action if none does).
@@ -387,53 +421,73 @@ class InfoGainExplorer:
                  rollout_particles: int | None = 64, press_lengths=None, step_cost: float = 0.05,
                  location_weight: float = 4.0, commit: int = 8, anchor_every: int | str | None = "auto",
                  gamma: float = 0.95):
-        if hypotheses is not None and (isinstance(hypotheses, bool) or int(hypotheses) < 1):
-            raise ModelError(f"hypotheses must be a positive integer or None, got {hypotheses!r}")
-        if rollout_particles is not None and (isinstance(rollout_particles, bool) or int(rollout_particles) < 1):
-            raise ModelError(f"rollout_particles must be a positive integer or None, got {rollout_particles!r}")
-        if int(commit) < 1:
-            raise ModelError(f"commit must be at least 1, got {commit!r}")
-        if not 0.0 <= float(gamma) < 1.0:
-            raise ModelError(f"the discount gamma must be in [0, 1), got {gamma!r}")
-        if not float(step_cost) >= 0.0 or not float(location_weight) >= 0.0:
-            raise ModelError(f"step_cost and location_weight must be >= 0, got {step_cost!r}, {location_weight!r}")
+        self.model = model
+        self.hypotheses = None if hypotheses is None else arguments.integer("hypotheses", hypotheses, minimum=1)
+        self.rollout_particles = None if rollout_particles is None else arguments.integer(
+            "rollout_particles", rollout_particles, minimum=1)
+        self.step_cost = arguments.real("step_cost", step_cost, low=0.0, high=math.inf, high_open=True)
+        self.location_weight = arguments.real("location_weight", location_weight, low=0.0, high=math.inf,
+                                              high_open=True)
+        self.commit = arguments.integer("commit", commit, minimum=1)
+        self.gamma = arguments.real("gamma", gamma, low=0.0, high=1.0, high_open=True)
         if press_lengths is None:
             longest = math.ceil((max(model.rows, model.cols) - 1) / max(model.p_move, 0.05)) + 1
             press_lengths = sorted({k for k in (1, 2, 4, 8) if k < longest} | {longest})
-        press_lengths = np.unique(np.asarray(press_lengths, dtype=np.int64))
-        if len(press_lengths) == 0 or press_lengths[0] < 1:
-            raise ModelError(f"press_lengths must be positive integers, got {press_lengths.tolist()}")
-        self.model = model
-        self.hypotheses = None if hypotheses is None else int(hypotheses)
-        self.rollout_particles = None if rollout_particles is None else int(rollout_particles)
-        self.press_lengths = press_lengths
-        self.step_cost = float(step_cost)
-        self.location_weight = float(location_weight)
-        self.commit = int(commit)
-        anchor_length = int(press_lengths[-1]) * ((model.rows > 1) + (model.cols > 1))
-        if anchor_every == "auto":
+        self.press_lengths = _lengths(press_lengths)
+        self._check_cost(self.rollout_particles)
+        anchor_length = int(self.press_lengths[-1]) * ((model.rows > 1) + (model.cols > 1))
+        if isinstance(anchor_every, str):
+            arguments.choice("anchor_every", anchor_every, ("auto",))
             anchor_every = 2 * anchor_length + 8  # 60 in the 10 x 10 world: under half the steps anchoring
-        if anchor_every is not None and (isinstance(anchor_every, (bool, str)) or int(anchor_every) <= anchor_length):
-            raise ModelError(f"anchor_every must be 'auto', None or longer than the {anchor_length} presses of an "
-                             f"anchor (the robot would do nothing else), got {anchor_every!r}")
-        self.anchor_every = None if anchor_every is None else int(anchor_every)
-        self.gamma = float(gamma)
-        self.rng = as_generator(seed)
+        if anchor_every is not None:
+            anchor_every = arguments.integer("anchor_every", anchor_every)
+            if anchor_every <= anchor_length:
+                raise ModelError(f"anchor_every must be 'auto', None or longer than the {anchor_length} presses of "
+                                 f"an anchor (the robot would do nothing else), got {anchor_every!r}")
+        self.anchor_every = anchor_every
+        self.rng = as_generator(arguments.seed("seed", seed))
         self.estimator: Estimator | None = None
         self.last_plan: MacroScore | None = None
         self._queue: list[int] = []
         self._since_anchor = 0
         self._pi: PolicyIterationResult | None = None
-        self._tables = rollout_tables(model, int(press_lengths[-1]))
+        self._tables = rollout_tables(model, int(self.press_lengths[-1]))
         uniform = np.full((1, model.n_labels), 1.0 / model.n_labels)
         nats = float(information_reward(Belief(0, np.ones(1), uniform), model.sensor)[0])  # I0
         self._nats_per_step = self.step_cost * nats
         self._location_nats = self.location_weight * nats
 
+    def _check_cost(self, particles: int | None) -> None:
+        """Refuse (ModelError naming the options, with the estimate) a plan of more than
+        :data:`onlinemap.arguments.MAX_OPERATIONS` operations or, enumerating, :data:`MAX_PLAN_FORKS` forks.
+        ``particles``: the R particles a rollout carries (None: not known yet, checked at bind)."""
+        model, horizon = self.model, int(self.press_lengths[-1])
+        candidates = model.n_actions + 1
+        if self.hypotheses is None:
+            outcomes = observation_count(model)
+            forks, level = 0, 1
+            for _ in range(horizon):
+                level *= outcomes
+                forks += candidates * level
+                if forks > MAX_PLAN_FORKS:
+                    raise ModelError(
+                        f"info_gain with hypotheses=None enumerates every observation ({outcomes} a step) over "
+                        f"press_lengths up to {horizon}: more than {MAX_PLAN_FORKS:.0e} estimator forks a plan "
+                        f"(at least {forks:.3g}); give hypotheses (worlds sampled) or shorter press_lengths")
+            return
+        if particles is None:
+            return
+        work = rollout_operations(model, self.hypotheses, candidates, horizon, len(self.press_lengths), particles)
+        arguments.bounded_work(
+            f"a plan of info_gain (hypotheses={self.hypotheses} worlds x {candidates} candidates x press_lengths up "
+            f"to {horizon} steps x {particles} particles)", work, "lower hypotheses, rollout_particles or press_lengths")
+
     def bind(self, estimator: Estimator) -> None:
         """Plan on copies of ``estimator`` (the live filter of the exploration loop)."""
         if estimator.model is not self.model:
             raise ModelError("the estimator was built for a different model than the planner")
+        if self.rollout_particles is None and estimator.name == "rbpf":
+            self._check_cost(len(estimator._locations))
         self.estimator = estimator
         self._queue = []
         self._since_anchor = 0
