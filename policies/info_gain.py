@@ -45,8 +45,11 @@ error 0.35; every 30, 0.27 but the robot does little else (map error 0.64).
 Backends (who plays "a copy of the filter"):
 
 - ``rbpf``: a thinned copy of the particle belief (``rollout_particles`` particles drawn by
-  weight, or all of them), rolled out by the numba kernel
-  :func:`onlinemap.kernels.planning.rollout_uncertainty` without copying any map. Cost per plan:
+  weight, or all of them), rolled out by a numba kernel without copying any map:
+  :func:`onlinemap.kernels.planning.rollout_uncertainty` for the paper's sensor and motion,
+  :func:`onlinemap.kernels.planning.plan_rollouts` for any footprint and blocking labels (the
+  RBPF's update with its optimal proposal; it equals the exact forks on exact particle beliefs
+  and Bayes' rule in expectation, ``tests/test_info_gain.py``). Cost per plan:
   O(P N K^2) to read the particles' maps, plus for each of ``hypotheses`` S worlds and each of
   the 2 A candidate rollouts of up to H steps, O(H R (H + K^2)) for the steps and O(R N K) per
   scored length, plus one warm-started policy iteration over N cells. Measured (``onlinemap
@@ -56,7 +59,7 @@ Backends (who plays "a copy of the filter"):
   stepped with simulated observations; with ``hypotheses=None`` the expectation is exact: every
   observation sequence is enumerated with its predictive probability (the ratio of the fork's
   evidence before and after), Z^H forks for the Z observations of :func:`observations`
-  (K, or up to (K + 1)^F for a footprint of F offsets): for tiny worlds and tests.
+  (K, or up to about 2^F K^F for a footprint of F offsets): for tiny worlds and tests.
 """
 
 from __future__ import annotations
@@ -71,7 +74,7 @@ from onlinemap import arguments
 from onlinemap.belief import Belief
 from onlinemap.errors import ImpossibleObservationError, ModelError
 from onlinemap.estimators import Estimator, fork
-from onlinemap.kernels.planning import rollout_uncertainty
+from onlinemap.kernels.planning import plan_rollouts, rollout_uncertainty
 from onlinemap.model import GridModel
 from onlinemap.rng import SeedLike, as_generator
 from onlinemap.simulate import world_step
@@ -182,26 +185,24 @@ def expected_uncertainty(estimator: Estimator, actions, *, hypotheses: int | Non
     return out
 
 
-def _readings(model: GridModel) -> list[list[int]]:
-    """(F,) lists: the values reading f can take, the labels and -1 if offset f leaves the grid
-    from some cell."""
-    off = (model.footprint_cells < 0).any(axis=0)
-    return [list(range(model.n_labels)) + ([-1] if o else []) for o in off]
-
-
 def observations(model: GridModel) -> list:
-    """Every observation the sensor can return: a label (one reading), or (F,) readings, each a
-    label or -1 for an offset that leaves the grid from some cell (the product over the offsets:
-    at most (K + 1)^F, :func:`observation_count`). O(that many)."""
-    values = _readings(model)
-    if model.observation_shape == ():
-        return values[0]
-    return [np.array(z) for z in itertools.product(*values)]
+    """Every observation the sensor can return: a label (the robot's own cell), or (F,) readings
+    with -1 exactly at the offsets that leave the grid from some location (one of
+    ``model.off_grid_patterns``) and a label at every other offset. O(their number,
+    :func:`observation_count`)."""
+    out = []
+    for off in model.off_grid_patterns:
+        for labels in itertools.product(range(model.n_labels), repeat=int((~off).sum())):
+            z = np.full(model.n_readings, -1, dtype=np.int64)
+            z[~off] = labels
+            out.append(z)
+    return [int(z[0]) for z in out] if model.observation_shape == () else out
 
 
 def observation_count(model: GridModel) -> int:
-    """``len(observations(model))`` without building them. O(N F)."""
-    return math.prod(len(v) for v in _readings(model))
+    """``len(observations(model))`` without building them: ``sum over patterns K^(on-grid
+    offsets)``. O(N F)."""
+    return sum(model.n_labels ** int((~off).sum()) for off in model.off_grid_patterns)
 
 
 def _enumerate(node: Estimator, actions: np.ndarray, depth: int, probability: float, out: np.ndarray,
@@ -275,11 +276,10 @@ class RolloutTables(NamedTuple):
 
 
 def particle_rollouts_fit(model: GridModel) -> bool:
-    """Whether the numba rollouts simulate ``model`` exactly: they read the robot's own cell
-    (``model.reads_own_cell``) and move the robot without looking at the map, so any other
-    footprint (one offset such as ``((0, 1),)`` included) or blocking labels send the planner to
-    the forks of :func:`expected_uncertainty` instead (simulated by
-    :func:`onlinemap.simulate.world_step`, slower but exact)."""
+    """Whether the paper's rollouts (:func:`particle_expected_uncertainty`) simulate ``model``:
+    they read the robot's own cell (``model.reads_own_cell``) and move the robot without looking
+    at the map. Any other footprint (one offset such as ``((0, 1),)`` included) or blocking labels
+    take :func:`footprint_expected_uncertainty`."""
     return model.reads_own_cell and not model.has_blocking
 
 
@@ -319,6 +319,52 @@ def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot,
                                 proposal_u, float(location_weight), checkpoints, out)
             total[c] += out
     return total / len(worlds[0])
+
+
+def agreement(model: GridModel, particles: ParticleSnapshot, horizon: int,
+              tables: RolloutTables) -> tuple[np.ndarray, np.ndarray]:
+    """The cells whose marginals differ between the particles (D,) sorted, and (H + 1,) the summed
+    entropy at step h of the other cells' common marginal (brought forward by ``C^h``): the part
+    of ``sum_i H(M_i)`` no reweighting changes. O(R N K + H N K^2) (O(R N K) in a static world)."""
+    maps = particles.maps
+    disputed = np.flatnonzero(np.any(maps != maps[:1], axis=(0, 2)))
+    agree = np.ones(model.n_cells, dtype=bool)
+    agree[disputed] = False
+    common = maps[0, agree]
+    if model.is_static:
+        return disputed, np.full(horizon + 1, _entropy(common).sum())
+    return disputed, np.array([_entropy(common @ tables.powers[h]).sum() for h in range(horizon + 1)])
+
+
+def footprint_expected_uncertainty(model: GridModel, particles: ParticleSnapshot, sequences: np.ndarray,
+                                   checkpoints: np.ndarray, worlds: tuple[np.ndarray, np.ndarray],
+                                   rng: np.random.Generator, location_weight: float = 1.0,
+                                   tables: RolloutTables | None = None, distances: np.ndarray | None = None,
+                                   go: np.ndarray | None = None) -> np.ndarray:
+    """(C, H + 1) :func:`particle_expected_uncertainty` for any sensor footprint and blocking
+    labels (:func:`onlinemap.kernels.planning.plan_rollouts`): ``sequences`` (C, H) actions, -1
+    where the action is chosen in closed loop towards candidate c's target by ``distances`` (C, N)
+    and ``go`` (N, A) (the chance each press moves). Every sequence sees the same worlds and random
+    numbers. Cost O(S C (H R (F + 1) K^2 + n_checkpoints R (D + H F) K)), D the disputed cells."""
+    sequences = np.ascontiguousarray(sequences, dtype=np.int64)
+    n_seq, horizon = sequences.shape
+    tables = rollout_tables(model, horizon) if tables is None else tables
+    n_worlds, r_count = len(worlds[0]), len(particles.locations)
+    world_u = rng.random((n_worlds, horizon, 1 + model.n_readings))
+    change_u = rng.random((n_worlds, horizon, 0 if model.is_static else model.n_cells))
+    proposal_u = rng.random((n_worlds, horizon, r_count))
+    disputed, agree_entropy = agreement(model, particles, horizon, tables)
+    if distances is None:
+        distances = np.zeros((n_seq, model.n_cells))
+        go = np.zeros((model.n_cells, model.n_actions))
+    total = np.zeros((n_seq, horizon + 1))
+    plan_rollouts(particles.locations, np.ascontiguousarray(particles.maps), particles.log_weights, model.moves,
+                  model.p_move, model.blocking, model.footprint_cells, model.sensor, tables.sensor_cdf, model.change,
+                  tables.change_cdf, tables.powers, not model.is_static, sequences, np.ascontiguousarray(distances),
+                  np.ascontiguousarray(go, dtype=np.float64), worlds[0].astype(np.int64),
+                  np.ascontiguousarray(worlds[1], dtype=np.int64), world_u, change_u, proposal_u,
+                  float(location_weight), np.asarray(checkpoints, dtype=np.bool_), disputed, agree_entropy, total)
+    return total / n_worlds
 
 
 # --- the planner ------------------------------------------------------------------------------
@@ -543,14 +589,16 @@ class InfoGainExplorer:
         checkpoints = np.zeros(horizon + 1, dtype=np.bool_)
         checkpoints[0] = True
         checkpoints[lengths] = True
-        if est.name == "rbpf" and self.hypotheses is not None and particle_rollouts_fit(self.model):
+        if est.name == "rbpf" and self.hypotheses is not None:
             snapshot = particle_snapshot(est)
             weights = np.exp(snapshot.log_weights)
             chosen = self.rng.choice(len(weights), size=self.hypotheses, p=weights / weights.sum())
             worlds = (snapshot.locations[chosen], _draw_labels(snapshot.maps[chosen], self.rng))
             particles = thin(snapshot, self.rollout_particles, self.rng)
-            expected = particle_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
-                                                     self.rng, self._location_nats, self._tables)
+            rollouts = particle_expected_uncertainty if particle_rollouts_fit(self.model) \
+                else footprint_expected_uncertainty
+            expected = rollouts(self.model, particles, sequences, checkpoints, worlds, self.rng,
+                                self._location_nats, self._tables)
         else:
             expected = np.stack([expected_uncertainty(est, s, hypotheses=self.hypotheses, seed=self.rng,
                                                       location_weight=self._location_nats) for s in sequences])
