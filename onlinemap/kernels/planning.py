@@ -432,11 +432,12 @@ def _mixture_uncertainty(loc, lw, maps, ov_index, ov_val, ov_stamp, powers, dyna
     ``agree_entropy`` (their base entropy at step h) holds their sum. O(R (|D| + |T|) K)."""
     r_count = loc.shape[0]
     k = scratch.shape[0]
+    weights = np.empty(r_count)
     for p in range(r_count):
         location[loc[p]] = 0.0
+        weights[p] = math.exp(lw[p])
     for p in range(r_count):
-        if lw[p] > -np.inf:
-            location[loc[p]] += math.exp(lw[p])
+        location[loc[p]] += weights[p]
     h_location = 0.0
     for p in range(r_count):
         x = location[loc[p]]
@@ -462,10 +463,10 @@ def _mixture_uncertainty(loc, lw, maps, ov_index, ov_val, ov_stamp, powers, dyna
                 total -= _entropy(scratch)
             mixture[:] = 0.0
             for p in range(r_count):
-                if lw[p] == -np.inf:
+                w = weights[p]
+                if w == 0.0:
                     continue
                 _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, scratch)
-                w = math.exp(lw[p])
                 for b in range(k):
                     mixture[b] += w * scratch[b]
             for b in range(k):
