@@ -79,8 +79,10 @@ from onlinemap.model import GridModel
 from onlinemap.rng import SeedLike, as_generator
 from onlinemap.simulate import world_step
 
+from .frontier import FrontierExplorer, FrontierPlan
 from .mdp import PolicyIterationResult, policy_iteration
-from .passability import expected_passability, unblocked_actions
+from .passability import (PressMemory, distances_to, expected_passability, move_chances, steps_after_press,
+                          unblocked_actions)
 
 
 def _entropy(p: np.ndarray) -> np.ndarray:
@@ -442,6 +444,56 @@ class MacroScore(NamedTuple):
     gain: np.ndarray  # (C, L) expected uncertainty drop U(now) - E[U(after k steps)], nats
     utility: np.ndarray  # (C, L) gain - step_cost * I0 * k
     chosen: tuple[int, int]  # (candidate, length index) of the best utility
+    targets: np.ndarray  # (C,) the target cell of a move towards one (sequence -1), -1 for fixed presses
+
+
+class Candidates(NamedTuple):
+    """The macro-actions of one plan. C candidates, H steps, N cells, A actions."""
+
+    names: tuple[str, ...]  # (C,)
+    sequences: np.ndarray  # (C, H) actions; -1: chosen in closed loop towards the target
+    targets: np.ndarray  # (C,) target cells, -1 for fixed sequences
+    distances: np.ndarray | None  # (C, N) expected steps to each candidate's target (None: no targets)
+    go: np.ndarray | None  # (N, A) the chance each press moves (move_chances)
+
+
+DEFAULT_TARGETS = 4  # frontier targets among the candidates, outside the paper's world
+
+
+def _finite(distance: np.ndarray, penalty: float) -> np.ndarray:
+    """``distance`` with the unreachable (inf) at ``penalty``."""
+    return np.where(np.isfinite(distance), distance, penalty)
+
+
+def frontier_targets(model: GridModel, plan: FrontierPlan, count: int, spacing: int = 3) -> np.ndarray:
+    """Up to ``count`` target cells from a frontier plan: the highest ``plan.score`` first, each
+    at least ``spacing`` cells (grid distance, rows plus columns) from those already taken, so
+    the candidates go to different places. O(N log N + count N)."""
+    order = np.argsort(-plan.score, kind="stable")
+    order = order[np.isfinite(plan.score[order])]
+    rows, cols = np.divmod(order, model.cols)
+    chosen: list[int] = []
+    for index, cell in enumerate(order):
+        if len(chosen) == count:
+            break
+        if all(abs(rows[index] - r) + abs(cols[index] - c) >= spacing for r, c in map(lambda x: divmod(x, model.cols),
+                                                                                        chosen)):
+            chosen.append(int(cell))
+    return np.asarray(chosen, dtype=np.int64)
+
+
+def descent(model: GridModel, go: np.ndarray, distance: np.ndarray, start: int, length: int) -> np.ndarray:
+    """(length,) the presses of a robot that never slips, from ``start``, each the one of least
+    expected steps to the target after it (``steps_after_press`` with ``go`` (N, A) and
+    ``distance`` (N,)), moving to the intended cell. O(length A)."""
+    path = np.empty(length, dtype=np.int64)
+    cell = start
+    for h in range(length):
+        cost = 1.0 + go[cell] * distance[model.neighbors[cell]] + (1.0 - go[cell]) * distance[cell]
+        path[h] = int(np.argmin(cost))
+        if go[cell, path[h]] > 0:
+            cell = int(model.neighbors[cell, path[h]])
+    return path
 
 
 class InfoGainExplorer:
@@ -466,7 +518,7 @@ class InfoGainExplorer:
     def __init__(self, model: GridModel, seed: SeedLike = None, *, hypotheses: int | None = 12,
                  rollout_particles: int | None = 64, press_lengths=None, step_cost: float = 0.05,
                  location_weight: float = 4.0, commit: int = 8, anchor_every: int | str | None = "auto",
-                 gamma: float = 0.95):
+                 gamma: float = 0.95, targets: int | str = "auto"):
         self.model = model
         self.hypotheses = None if hypotheses is None else arguments.integer("hypotheses", hypotheses, minimum=1)
         self.rollout_particles = None if rollout_particles is None else arguments.integer(
@@ -480,11 +532,17 @@ class InfoGainExplorer:
             longest = math.ceil((max(model.rows, model.cols) - 1) / max(model.p_move, 0.05)) + 1
             press_lengths = sorted({k for k in (1, 2, 4, 8) if k < longest} | {longest})
         self.press_lengths = _lengths(press_lengths)
+        paper = model.reads_own_cell and not model.has_blocking
+        if isinstance(targets, str):
+            arguments.choice("targets", targets, ("auto",))
+            targets = 0 if paper or model.p_move == 0 else DEFAULT_TARGETS
+        self.targets = arguments.integer("targets", targets, minimum=0)
         self._check_cost(self.rollout_particles)
         anchor_length = int(self.press_lengths[-1]) * ((model.rows > 1) + (model.cols > 1))
         if isinstance(anchor_every, str):
             arguments.choice("anchor_every", anchor_every, ("auto",))
-            anchor_every = 2 * anchor_length + 8  # 60 in the 10 x 10 world: under half the steps anchoring
+            # 60 in the 10 x 10 world: under half the steps anchoring; no corner to press into in a building
+            anchor_every = 2 * anchor_length + 8 if self.targets == 0 else None
         if anchor_every is not None:
             anchor_every = arguments.integer("anchor_every", anchor_every)
             if anchor_every <= anchor_length:
@@ -498,6 +556,9 @@ class InfoGainExplorer:
         self._since_anchor = 0
         self._pi: PolicyIterationResult | None = None
         self._tables = rollout_tables(model, int(self.press_lengths[-1]))
+        self.frontier = FrontierExplorer(model) if self.targets else None  # where the unknown is
+        self.presses = PressMemory(model)  # blocked and futile presses, for the moves towards a target
+        self._target, self._target_steps = -1, 0
         uniform = np.full((1, model.n_labels), 1.0 / model.n_labels)
         nats = float(information_reward(Belief(0, np.ones(1), uniform), model.sensor)[0])  # I0
         self._nats_per_step = self.step_cost * nats
@@ -508,7 +569,7 @@ class InfoGainExplorer:
         :data:`onlinemap.arguments.MAX_OPERATIONS` operations or, enumerating, :data:`MAX_PLAN_FORKS` forks.
         ``particles``: the R particles a rollout carries (None: not known yet, checked at bind)."""
         model, horizon = self.model, int(self.press_lengths[-1])
-        candidates = model.n_actions + 1
+        candidates = model.n_actions + max(self.targets, 1)
         if self.hypotheses is None:
             outcomes = observation_count(model)
             forks, level = 0, 1
@@ -537,6 +598,7 @@ class InfoGainExplorer:
         self.estimator = estimator
         self._queue = []
         self._since_anchor = 0
+        self._target, self._target_steps = -1, 0
 
     def choose(self, belief: Belief) -> int:
         if self.estimator is None:
@@ -544,34 +606,73 @@ class InfoGainExplorer:
                              "(policies.explore does)")
         if self._queue and self.model.has_blocking and not unblocked_actions(self.model, belief)[self._queue[0]]:
             self._queue = []  # the belief now says the next press blocks: re-plan
-        if not self._queue:
+        if self._target_steps and belief.location[self._target] > 0.5:
+            self._target_steps = 0  # most probably there: re-plan
+        if not self._queue and not self._target_steps:
             if self.anchor_every is not None and self._since_anchor >= self.anchor_every:
                 self._queue = anchor_actions(self.model, belief, int(self.press_lengths[-1])).tolist()
                 self._since_anchor = 0
             else:
                 plan = self.plan(belief)
                 c, j = plan.chosen
-                self._queue = plan.sequences[c, :min(int(plan.lengths[j]), self.commit)].tolist()
+                steps = min(int(plan.lengths[j]), self.commit)
+                if plan.targets[c] >= 0:
+                    self._target, self._target_steps = int(plan.targets[c]), steps
+                else:
+                    self._queue = plan.sequences[c, :steps].tolist()
         self._since_anchor += 1
-        return int(self._queue.pop(0))
+        if self._target_steps:
+            self._target_steps -= 1
+            action = self.toward(belief, self._target)
+        else:
+            action = int(self._queue.pop(0))
+        self.presses.pressed(belief, action)
+        return action
 
-    def candidates(self, belief: Belief) -> tuple[tuple[str, ...], np.ndarray]:
-        """Names (C,) and action sequences (C, H): press each direction H times, and the
-        :func:`greedy_path` on the policy-iteration ``Q`` of :func:`information_reward` from the
-        most probable location (with blocking labels, on the belief's expected passability).
-        Cost: one warm-started policy iteration over N cells."""
+    def toward(self, belief: Belief, target: int) -> int:
+        """The press that brings the robot closest to ``target`` in expected steps, averaged over
+        the location belief (the frontier's rule, :func:`~policies.passability.steps_after_press`
+        on the belief's passability), among the presses :class:`~policies.passability.PressMemory`
+        allows. O(N A log(N A)) (one Dijkstra)."""
+        frontier = self.frontier or FrontierExplorer(self.model)
+        passable = expected_passability(self.model, belief)
+        distance = _finite(distances_to(self.model, passable, [target], frontier.min_passable), frontier.penalty)
+        cost = belief.location @ steps_after_press(self.model, passable, distance, frontier.min_passable)
+        return int(np.argmin(np.where(self.presses.allowed(belief), cost, np.inf)))
+
+    def candidates(self, belief: Belief) -> Candidates:
+        """Press each direction H times; then, with ``targets`` 0, the :func:`greedy_path` on the
+        policy-iteration ``Q`` of :func:`information_reward` from the most probable location (with
+        blocking labels, on the belief's expected passability; one warm-started policy iteration
+        over N cells); with ``targets`` T > 0, the moves towards each of the best T frontier
+        targets (:func:`frontier_targets`), in closed loop (sequence -1: each press chosen on the
+        rollout's belief by :func:`~policies.passability.steps_after_press`; O(T N A log(N A)))."""
         model, horizon = self.model, int(self.press_lengths[-1])
         names = [f"press {name}" for name in model.action_names]
         sequences = [np.full(horizon, a, dtype=np.int64) for a in range(model.n_actions)]
-        reward = information_reward(belief, model.sensor)
+        targets = [-1] * len(names)
         passable = expected_passability(model, belief) if model.has_blocking else None
-        self._pi = policy_iteration(model, reward, self.gamma, passable=passable,
-                                    initial_policy=None if self._pi is None else self._pi.policy)
-        path = greedy_path(model, self._pi.q, int(np.argmax(belief.location)), horizon)
-        if not any(np.array_equal(path, s) for s in sequences):
-            names.append("plan")
-            sequences.append(path)
-        return tuple(names), np.stack(sequences)
+        if self.targets == 0:
+            reward = information_reward(belief, model.sensor)
+            self._pi = policy_iteration(model, reward, self.gamma, passable=passable,
+                                        initial_policy=None if self._pi is None else self._pi.policy)
+            path = greedy_path(model, self._pi.q, int(np.argmax(belief.location)), horizon)
+            if not any(np.array_equal(path, s) for s in sequences):
+                names.append("plan")
+                sequences.append(path)
+                targets.append(-1)
+            return Candidates(tuple(names), np.stack(sequences), np.asarray(targets), None, None)
+        passable = expected_passability(model, belief)
+        chosen = frontier_targets(model, self.frontier.plan(belief), self.targets)
+        frontier = self.frontier
+        distances = [np.zeros(model.n_cells)] * len(names)
+        for cell in chosen:
+            names.append(f"to {divmod(int(cell), model.cols)}")
+            sequences.append(np.full(horizon, -1, dtype=np.int64))
+            targets.append(int(cell))
+            distances.append(_finite(distances_to(model, passable, [cell], frontier.min_passable), frontier.penalty))
+        return Candidates(tuple(names), np.stack(sequences), np.asarray(targets), np.stack(distances),
+                          move_chances(model, passable, frontier.min_passable))
 
     def plan(self, belief: Belief) -> MacroScore:
         """Score every candidate at every length in ``press_lengths`` and pick the best utility
@@ -583,7 +684,7 @@ class InfoGainExplorer:
         says blocks ends the queue.
         Never changes the live estimator."""
         est = self.estimator
-        names, sequences = self.candidates(belief)
+        names, sequences, targets, distances, go = self.candidates(belief)
         horizon = sequences.shape[1]
         lengths = self.press_lengths
         checkpoints = np.zeros(horizon + 1, dtype=np.bool_)
@@ -595,28 +696,37 @@ class InfoGainExplorer:
             chosen = self.rng.choice(len(weights), size=self.hypotheses, p=weights / weights.sum())
             worlds = (snapshot.locations[chosen], _draw_labels(snapshot.maps[chosen], self.rng))
             particles = thin(snapshot, self.rollout_particles, self.rng)
-            rollouts = particle_expected_uncertainty if particle_rollouts_fit(self.model) \
-                else footprint_expected_uncertainty
-            expected = rollouts(self.model, particles, sequences, checkpoints, worlds, self.rng,
-                                self._location_nats, self._tables)
-        else:
+            if particle_rollouts_fit(self.model) and distances is None:
+                expected = particle_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
+                                                         self.rng, self._location_nats, self._tables)
+            else:
+                expected = footprint_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
+                                                          self.rng, self._location_nats, self._tables, distances, go)
+        else:  # forks take fixed actions: a move towards a target is its walk from the most probable cell
+            start = int(np.argmax(belief.location))
+            fixed = [s if t < 0 else descent(self.model, go, distances[c], start, horizon)
+                     for c, (s, t) in enumerate(zip(sequences, targets))]
             expected = np.stack([expected_uncertainty(est, s, hypotheses=self.hypotheses, seed=self.rng,
-                                                      location_weight=self._location_nats) for s in sequences])
+                                                      location_weight=self._location_nats) for s in fixed])
         gain = expected[:, :1] - expected[:, lengths]
         utility = gain - self._nats_per_step * lengths[None, :]
         # a macro-action whose first press most probably hits a wall only re-reads the same cell
-        stays = belief.location @ (self.model.neighbors[:, sequences[:, 0]] == np.arange(self.model.n_cells)[:, None])
-        through = (stays < 0.5) | np.all(stays >= 0.5)
+        first = np.maximum(sequences[:, 0], 0)  # a move towards a target chooses its presses as it goes
+        stays = belief.location @ (self.model.neighbors[:, first] == np.arange(self.model.n_cells)[:, None])
+        through = (stays < 0.5) | np.all(stays >= 0.5) | (targets >= 0)
         if self.model.has_blocking:  # nor one whose first press the belief says blocks
-            through &= unblocked_actions(self.model, belief)[sequences[:, 0]]
+            through &= unblocked_actions(self.model, belief)[first] | (targets >= 0)
             through = through if through.any() else np.ones_like(through)
         allowed = np.where(through[:, None], utility, -np.inf)
         best = np.flatnonzero(allowed.T.ravel() == allowed.max())[0]  # length-major: shorter first
         j, c = divmod(int(best), len(names))
-        self.last_plan = MacroScore(names, sequences, lengths, gain, utility, (c, j))
+        if allowed.max() <= 0.0 and (targets >= 0).any():  # nothing pays within the horizon: the
+            c, j = int(np.argmax(targets >= 0)), len(lengths) - 1  # frontier's best target, farther away
+        self.last_plan = MacroScore(names, sequences, lengths, gain, utility, (c, j), targets)
         return self.last_plan
 
     def __repr__(self) -> str:
         return (f"InfoGainExplorer(hypotheses={self.hypotheses}, rollout_particles={self.rollout_particles}, "
                 f"press_lengths={self.press_lengths.tolist()}, step_cost={self.step_cost}, "
-                f"location_weight={self.location_weight}, commit={self.commit}, anchor_every={self.anchor_every})")
+                f"location_weight={self.location_weight}, commit={self.commit}, anchor_every={self.anchor_every}, "
+                f"targets={self.targets})")

@@ -226,12 +226,16 @@ def rollout_uncertainty(locations, maps, log_weights, moves, p_move, likelihood,
 # n conditioned on the outcome (passable if it moved; ``(1 - p_move) + p_move [blocks]`` if it
 # stayed) and carried by C, then every reading of the footprint at the successor through O (-1
 # off the grid, with probability 1); one successor is drawn in proportion to motion x likelihood
-# and the weight is multiplied by their sum. No resampling.
+# and the weight is multiplied by their sum. No resampling; a particle whose weight falls below
+# 1e-9 of the largest is dropped (it would cost as much as any other for nothing).
 #
 # Overlays: a particle's changed cells go to slots ``ov_val (R, W, K)`` stamped with their step,
 # found through ``ov_index (R, N)`` (-1: the particle's base map), so a read is O(K) (O(K^2) with
 # map dynamics) whatever the horizon. W = H (F + 1) slots hold every cell a rollout of H steps can
 # change. Every rollout resets the slots it used.
+
+
+NEGLIGIBLE = math.log(1e-9)  # a rollout drops a particle whose weight falls below 1e-9 of the largest
 
 
 @njit(cache=True)
@@ -396,6 +400,8 @@ def _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, power
         top = 0.0
     total = 0.0
     for p in range(r_count):
+        if lw[p] - top < NEGLIGIBLE:  # a particle this far behind is dropped from the rollout
+            lw[p] = -np.inf
         total += math.exp(lw[p] - top)
     norm = top + math.log(total)
     for p in range(r_count):
