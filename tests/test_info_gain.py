@@ -539,3 +539,46 @@ def test_rollout_uncertainty_equals_the_whole_beliefs(p_door):
                     np.zeros(horizon + 1, dtype=np.int64), np.zeros((horizon, 5), dtype=np.int64))
     whole = [2.0 * entropy(location[h]) + sum(entropy(row) for row in mixture[h]) for h in range(horizon + 1)]
     np.testing.assert_allclose(out[0], whole, rtol=1e-12, atol=1e-10)
+
+
+# --- the explorer's hand-checkable choices (issue 22) -------------------------------------------------
+@pytest.mark.parametrize("start", range(7))
+def test_info_gain_goes_to_the_unknown_end_of_a_corridor(start):
+    """A blocking corridor of 8 cells known to be free (prior 0.999) but for its right end (0.5):
+    from every known cell the only thing left to learn lies to the right, and every planner seed
+    presses right."""
+    prior = np.tile([0.999, 0.001], (8, 1))
+    prior[7] = [0.5, 0.5]
+    model = om.corridor(8, 2, blocking=1, label_prior=prior, start=start)
+    for seed in range(3):
+        est = make_estimator("rbpf", model, n_particles=200, seed=seed)
+        belief = est.step(None, 0)
+        planner = make_planner("info_gain", model, seed=seed)
+        planner.bind(est)
+        assert model.action_names[planner.choose(belief)] == "right", (start, seed, planner.last_plan.names)
+        assert planner.last_plan.targets.max() == 7  # the one frontier target: the unknown end
+
+
+def test_info_gain_leaves_a_room_by_its_only_door():
+    """The room of test_frontier (rows 1-2, columns 6-8; its walls and its open door at row 3,
+    column 7, known at 0.999), everything outside unknown: from every room cell, for every planner
+    seed, the first press brings the robot closer to the door (rows plus columns)."""
+    from test_frontier import ROOM
+
+    _, true_map = om.door_world(ROOM, blocking=True, footprint="cross")
+    cols = 10
+    rows_of, cols_of = np.divmod(np.arange(len(true_map)), cols)
+    room = (rows_of <= 3) & (cols_of >= 5)
+    prior = np.full((len(true_map), 4), 0.25)
+    prior[room] = 0.001 / 3
+    prior[np.flatnonzero(room), true_map[room]] = 0.999
+    for cell in np.flatnonzero(room & (true_map == 0)):
+        model, _ = om.door_world(ROOM, blocking=True, footprint="cross", label_prior=prior, start=int(cell))
+        run = om.simulate(model, true_map, [], seed=int(cell))
+        for seed in range(3):
+            est = make_estimator("rbpf", model, n_particles=200, seed=seed)
+            belief = est.step(None, run.observations[0])
+            planner = make_planner("info_gain", model, seed=seed)
+            planner.bind(est)
+            after = model.neighbors[cell, planner.choose(belief)]
+            assert abs(rows_of[after] - 3) + abs(cols_of[after] - 7) < abs(rows_of[cell] - 3) + abs(cols_of[cell] - 7)
