@@ -238,7 +238,7 @@ def rollout_uncertainty(locations, maps, log_weights, moves, p_move, likelihood,
 NEGLIGIBLE = math.log(1e-9)  # a rollout drops a particle whose weight falls below 1e-9 of the largest
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, out):
     """out (K,) <- particle p's marginal of cell c at rollout step h (an overlay slot if it has one)."""
     k = out.shape[0]
@@ -254,7 +254,7 @@ def _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, out):
             out[b] = maps[p, c, b] if slot < 0 else ov_val[p, slot, b]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, n, s, h, p_move, blocking,
                has_blocking, footprint_cells, sensor, readings, ids, cells, before):
     """Successor s (0 stay, 1 move) of particle p at l pressing towards n, at step h: returns
@@ -429,13 +429,31 @@ def _closed_loop_action(loc, lw, moves, distance, go):
     return best
 
 
+@njit(cache=True, inline="always")
+def _carried(row, powers, dynamic, d, out):
+    """out (K,) <- ``row @ C^d`` (``row`` itself where d = 0 or the world is static)."""
+    k = out.shape[0]
+    for b in range(k):
+        if dynamic and d > 0:
+            acc = 0.0
+            for a in range(k):
+                acc += row[a] * powers[d, a, b]
+            out[b] = acc
+        else:
+            out[b] = row[b]
+
+
 @njit(cache=True)
-def _mixture_uncertainty(loc, lw, maps, ov_index, ov_val, ov_stamp, powers, dynamic, h, location_weight, disputed,
-                         touched, touched_list, n_touched, agree_entropy, location, mixture, scratch):
-    """``location_weight * H(L) + sum_i H(M_i)`` of the weighted particles at step h: the mixture
-    is recomputed on the disputed cells (particles' base marginals differ) and the touched ones
-    (some particle changed them); every other cell's term is the same for any weights, and
-    ``agree_entropy`` (their base entropy at step h) holds their sum. O(R (|D| + |T|) K)."""
+def _mixture_uncertainty(loc, lw, maps, disputed, disputed_maps, disputed_mask, ov_cell, ov_val, ov_stamp, ov_n,
+                         powers, dynamic, h, location_weight, touched_list, n_touched, agree_entropy, location, mix,
+                         scratch, scratch2):
+    """``location_weight * H(L) + sum_i H(M_i)`` of the weighted particles at step h. The mixture
+    ``M_i = sum_p w_p m_p(i)`` is recomputed on the disputed cells (``disputed`` (D,), their base
+    marginals ``disputed_maps`` (D, R, K), ``disputed_mask`` (N,)) and the touched ones: the base
+    part by a weighted sum, then each particle's overlay slots add ``w_p (overlay - base)``. Every
+    other cell's term is the same for any weights: ``agree_entropy`` holds their sum at step h
+    (a touched agreed cell's term is taken out and recomputed). ``mix`` (N, K) is zero on entry
+    and on exit. O(R D K + R H F K + (D + T) K) (K^2 instead of K with map dynamics)."""
     r_count = loc.shape[0]
     k = scratch.shape[0]
     weights = np.empty(r_count)
@@ -451,49 +469,41 @@ def _mixture_uncertainty(loc, lw, maps, ov_index, ov_val, ov_stamp, powers, dyna
             h_location -= x * math.log(x)
             location[loc[p]] = 0.0  # each cell once
     total = location_weight * h_location + agree_entropy
+    for d in range(disputed.shape[0]):
+        scratch[:] = 0.0
+        for p in range(r_count):
+            w = weights[p]
+            if w > 0.0:
+                for b in range(k):
+                    scratch[b] += w * disputed_maps[d, p, b]
+        _carried(scratch, powers, dynamic, h, mix[disputed[d]])
+    for index in range(n_touched):
+        c = touched_list[index]
+        if not disputed_mask[c]:  # an agreed cell a particle changed: its base term leaves the sum
+            _carried(maps[0, c], powers, dynamic, h, mix[c])
+            total -= _entropy(mix[c])
+    for p in range(r_count):
+        w = weights[p]
+        if w == 0.0:
+            continue
+        for j in range(ov_n[p]):
+            c = ov_cell[p, j]
+            _carried(ov_val[p, j], powers, dynamic, h - ov_stamp[p, j], scratch)
+            _carried(maps[p, c], powers, dynamic, h, scratch2)
+            for b in range(k):
+                mix[c, b] += w * (scratch[b] - scratch2[b])
     for pass_ in range(2):
         count = disputed.shape[0] if pass_ == 0 else n_touched
         for index in range(count):
             c = disputed[index] if pass_ == 0 else touched_list[index]
-            if pass_ == 1:  # an agreed cell that a particle changed: its base term leaves the sum
-                if _is_disputed(disputed, c):
-                    continue
-                for b in range(k):
-                    if dynamic and h > 0:
-                        acc = 0.0
-                        for a in range(k):
-                            acc += maps[0, c, a] * powers[h, a, b]
-                        scratch[b] = acc
-                    else:
-                        scratch[b] = maps[0, c, b]
-                total -= _entropy(scratch)
-            mixture[:] = 0.0
-            for p in range(r_count):
-                w = weights[p]
-                if w == 0.0:
-                    continue
-                _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, scratch)
-                for b in range(k):
-                    mixture[b] += w * scratch[b]
+            if pass_ == 1 and disputed_mask[c]:
+                continue
             for b in range(k):
-                if mixture[b] < 0.0:
-                    mixture[b] = 0.0
-            total += _entropy(mixture)
+                if mix[c, b] < 0.0:  # rounding: keep every term a probability
+                    mix[c, b] = 0.0
+            total += _entropy(mix[c])
+            mix[c] = 0.0
     return total
-
-
-@njit(cache=True)
-def _is_disputed(disputed, c):
-    """Whether cell c is in the sorted list ``disputed`` (binary search)."""
-    lo = 0
-    hi = disputed.shape[0]
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if disputed[mid] < c:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo < disputed.shape[0] and disputed[lo] == c
 
 
 @njit(cache=True)
@@ -526,7 +536,7 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
     every candidate (common random numbers). ``disputed`` (D,) sorted: the cells whose base
     marginals differ between particles; ``agree_entropy`` (H + 1,): the summed entropy of the
     other cells' base marginals at step h.
-    Cost O(S C H R (F + 1) K^2) for the steps (K^3 with map dynamics) plus O(S C R (D + H F) K)
+    Cost O(S C H R (F + 1) K) for the steps (K^2 with map dynamics) plus O(S C R (D + H F) K)
     per checkpoint.
     """
     r_count, n_cells, k = maps.shape
@@ -544,17 +554,25 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
     touched = np.zeros(n_cells, dtype=np.bool_)
     touched_list = np.empty(r_count * width, dtype=np.int64)
     location = np.zeros(n_cells)
-    mixture = np.empty(k)
+    mix = np.zeros((n_cells, k))
     scratch = np.empty(k)
+    scratch2 = np.empty(k)
+    disputed_maps = np.empty((disputed.shape[0], r_count, k))  # contiguous for the weighted sums
+    disputed_mask = np.zeros(n_cells, dtype=np.bool_)
+    for d in range(disputed.shape[0]):
+        disputed_mask[disputed[d]] = True
+        for p in range(r_count):
+            for b in range(k):
+                disputed_maps[d, p, b] = maps[p, disputed[d], b]
     ids = np.empty((2, n_reads + 1), dtype=np.int64)
     cells = np.empty((2, n_reads + 1, k))
     before = np.empty((2, k))
     readings = np.empty(n_reads, dtype=np.int64)
     loc = np.empty(r_count, dtype=np.int64)
     lw = np.empty(r_count)
-    now = _mixture_uncertainty(locations, log_weights, maps, ov_index, ov_val, ov_stamp, powers, dynamic, 0,
-                               location_weight, disputed, touched, touched_list, 0, agree_entropy[0], location,
-                               mixture, scratch)
+    now = _mixture_uncertainty(locations, log_weights, maps, disputed, disputed_maps, disputed_mask, ov_cell, ov_val,
+                               ov_stamp, ov_n, powers, dynamic, 0, location_weight, touched_list, 0, agree_entropy[0],
+                               location, mix, scratch, scratch2)
     for s in range(hyp_locations.shape[0]):
         for c in range(n_seq):
             loc[:] = locations
@@ -575,9 +593,10 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
                                          sensor, readings, proposal_u[s, h - 1], ids, cells, before, touched,
                                          touched_list, n_touched)
                 if checkpoints[h]:
-                    out[c, h] += _mixture_uncertainty(loc, lw, maps, ov_index, ov_val, ov_stamp, powers, dynamic, h,
-                                                      location_weight, disputed, touched, touched_list, n_touched,
-                                                      agree_entropy[h], location, mixture, scratch)
+                    out[c, h] += _mixture_uncertainty(loc, lw, maps, disputed, disputed_maps, disputed_mask, ov_cell,
+                                                      ov_val, ov_stamp, ov_n, powers, dynamic, h, location_weight,
+                                                      touched_list, n_touched, agree_entropy[h], location, mix,
+                                                      scratch, scratch2)
             _reset(ov_index, ov_cell, ov_n, touched, touched_list, n_touched)
 
 
