@@ -19,6 +19,17 @@ MAX_CELLS = 2**24  # bounds N, N x K and N x F (footprint offsets): the model's 
 MAX_LABELS = 2**12  # labels K: (K, K) tables stay below 128 MB
 
 
+MAX_OPERATIONS = 10**10  # a call estimated to take more floating-point operations (minutes) is refused
+
+
+def bounded_work(what: str, operations: int | float, advice: str, error: type[OnlineMapError] = ModelError) -> None:
+    """Refuse ``what`` (e.g. "a plan of info_gain") when its estimated ``operations`` exceed
+    :data:`MAX_OPERATIONS`, with the estimate and ``advice`` (the options to lower) in the message."""
+    if operations > MAX_OPERATIONS:
+        raise error(f"{what} would take about {float(operations):.2g} operations, above the limit of "
+                    f"{MAX_OPERATIONS:.0e} (minutes or more): {advice}")
+
+
 def _describe(value) -> str:
     text = repr(value)
     return f"{type(value).__name__} {text if len(text) <= 40 else text[:37] + '...'}"

@@ -68,7 +68,7 @@ from onlinemap.errors import ModelError
 from onlinemap.metrics import normalized_entropy
 from onlinemap.model import GridModel
 
-from .passability import PressMemory, distances_from, distances_to, expected_passability
+from .passability import PressMemory, distances_from, distances_to, expected_passability, steps_after_press
 
 _LEFT_OUT = 1e-9  # location mass the hypotheses may leave out
 _PROGRESS = 0.5  # expected steps the distance to the target must fall by to count as progress
@@ -84,6 +84,7 @@ class FrontierPlan(NamedTuple):
     distance: np.ndarray  # (N,) D(x) to the nearest target, unreachable at the penalty
     action_cost: np.ndarray  # (A,) sum_l P(l) [1 + q D(j) + (1 - q) D(l)]
     mode: str  # "frontier", "revisit" (no frontier left) or "relocalise" (lost)
+    score: np.ndarray  # (N,) g(c) - distance_cost E(c) over the candidate cells, -inf elsewhere
 
 
 def location_hypotheses(location: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
@@ -156,8 +157,8 @@ class FrontierExplorer:
         targets = np.flatnonzero(score >= best - 1e-12 * (1.0 + abs(best)))
         to_target = distances_to(model, passable, targets, self.min_passable)
         to_target = np.where(np.isfinite(to_target), to_target, self.penalty)
-        self.last_plan = FrontierPlan(gain, expected, reachable, targets, to_target,
-                                      belief.location @ self._action_values(passable, to_target), mode)
+        action_cost = belief.location @ steps_after_press(model, passable, to_target, self.min_passable)
+        self.last_plan = FrontierPlan(gain, expected, reachable, targets, to_target, action_cost, mode, score)
         return self.last_plan
 
     def _track(self, target: int, distance: float) -> None:
@@ -188,14 +189,6 @@ class FrontierExplorer:
         if (gain[reachable] > 0).any():
             return gain, "frontier"
         return np.where(on_grid, unknown[seen], 0.0).sum(axis=1), "revisit"
-
-    def _action_values(self, passable: np.ndarray, to_target: np.ndarray) -> np.ndarray:
-        """(N, A) ``1 + q D(j) + (1 - q) D(l)``, the expected steps to the target after pressing a in l."""
-        model = self.model
-        moves = model.neighbors != np.arange(model.n_cells)[:, None]
-        enter = passable[model.neighbors]
-        q = np.where(moves & (enter >= self.min_passable), model.p_move * enter, 0.0)
-        return 1.0 + q * to_target[model.neighbors] + (1.0 - q) * to_target[:, None]
 
     def __repr__(self) -> str:
         return (f"FrontierExplorer(threshold={self.threshold}, distance_cost={self.distance_cost}, "

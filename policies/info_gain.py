@@ -45,8 +45,11 @@ error 0.35; every 30, 0.27 but the robot does little else (map error 0.64).
 Backends (who plays "a copy of the filter"):
 
 - ``rbpf``: a thinned copy of the particle belief (``rollout_particles`` particles drawn by
-  weight, or all of them), rolled out by the numba kernel
-  :func:`onlinemap.kernels.planning.rollout_uncertainty` without copying any map. Cost per plan:
+  weight, or all of them), rolled out by a numba kernel without copying any map:
+  :func:`onlinemap.kernels.planning.rollout_uncertainty` for the paper's sensor and motion,
+  :func:`onlinemap.kernels.planning.plan_rollouts` for any footprint and blocking labels (the
+  RBPF's update with its optimal proposal; it equals the exact forks on exact particle beliefs
+  and Bayes' rule in expectation, ``tests/test_info_gain.py``). Cost per plan:
   O(P N K^2) to read the particles' maps, plus for each of ``hypotheses`` S worlds and each of
   the 2 A candidate rollouts of up to H steps, O(H R (H + K^2)) for the steps and O(R N K) per
   scored length, plus one warm-started policy iteration over N cells. Measured (``onlinemap
@@ -55,7 +58,8 @@ Backends (who plays "a copy of the filter"):
 - any other estimator: :func:`onlinemap.estimators.fork` (the live estimator is never touched)
   stepped with simulated observations; with ``hypotheses=None`` the expectation is exact: every
   observation sequence is enumerated with its predictive probability (the ratio of the fork's
-  evidence before and after), K^H forks: for tiny worlds and tests.
+  evidence before and after), Z^H forks for the Z observations of :func:`observations`
+  (K, or up to about 2^F K^F for a footprint of F offsets): for tiny worlds and tests.
 """
 
 from __future__ import annotations
@@ -66,16 +70,19 @@ from typing import NamedTuple
 
 import numpy as np
 
+from onlinemap import arguments
 from onlinemap.belief import Belief
 from onlinemap.errors import ImpossibleObservationError, ModelError
 from onlinemap.estimators import Estimator, fork
-from onlinemap.kernels.planning import rollout_uncertainty
+from onlinemap.kernels.planning import plan_rollouts, rollout_uncertainty
 from onlinemap.model import GridModel
 from onlinemap.rng import SeedLike, as_generator
 from onlinemap.simulate import world_step
 
+from .frontier import FrontierExplorer, FrontierPlan
 from .mdp import PolicyIterationResult, policy_iteration
-from .passability import expected_passability, unblocked_actions
+from .passability import (PressMemory, distances_to, expected_passability, move_chances, steps_after_press,
+                          unblocked_actions)
 
 
 def _entropy(p: np.ndarray) -> np.ndarray:
@@ -142,10 +149,15 @@ def expected_uncertainty(estimator: Estimator, actions, *, hypotheses: int | Non
                          seed: SeedLike = None, location_weight: float = 1.0) -> np.ndarray:
     """(H + 1,) the expected :func:`uncertainty` after each prefix of ``actions`` (H,), entry 0 now.
 
-    ``hypotheses=None``: exact expectation over every observation sequence (K^H forks of the
-    estimator, K^(F H) for a footprint of F readings, each outcome weighted by its predictive probability ``exp(log_evidence after -
+    ``hypotheses=None``: exact expectation over every observation sequence (Z^H forks of the
+    estimator for the Z :func:`observations`, each outcome weighted by its predictive probability ``exp(log_evidence after -
     log_evidence before)``). An integer S: the mean over S worlds drawn by :func:`sample_states`
-    and simulated with :func:`onlinemap.simulate.world_step` (S forks, S H steps).
+    and simulated with :func:`onlinemap.simulate.world_step` (S forks, S H steps). A world whose
+    simulated readings the fork cannot explain (an approximate belief, e.g. a particle filter that
+    lost the world's trajectory, gives them probability zero) is left out of the mean: by the
+    fork's own belief it has probability zero. If every world is left out the expectation is
+    ``U(now)`` at every length (nothing to be learnt that the fork can hold). Planning never
+    raises for it: the live filter is not at fault.
     The estimator itself (state and random generator) is left exactly as it was.
     """
     if estimator.belief is None:
@@ -159,12 +171,40 @@ def expected_uncertainty(estimator: Estimator, actions, *, hypotheses: int | Non
         return out
     rng = as_generator(seed)
     locations, maps = sample_states(estimator, int(hypotheses), rng)
+    total, explained = np.zeros(len(actions)), 0
+    row = np.empty(len(actions))
     for location, labels in zip(locations, maps):
         copy = fork(estimator)
-        for h, a in enumerate(actions, start=1):
-            location, labels, z = world_step(model, int(location), labels, int(a), rng)
-            out[h] += uncertainty(copy.step(int(a), z), location_weight) / len(locations)
+        try:
+            for h, a in enumerate(actions):
+                location, labels, z = world_step(model, int(location), labels, int(a), rng)
+                row[h] = uncertainty(copy.step(int(a), z), location_weight)
+        except ImpossibleObservationError:  # the fork cannot explain this world: probability zero to it
+            continue
+        total += row
+        explained += 1
+    out[1:] = total / explained if explained else out[0]
     return out
+
+
+def observations(model: GridModel) -> list:
+    """Every observation the sensor can return: a label (the robot's own cell), or (F,) readings
+    with -1 exactly at the offsets that leave the grid from some location (one of
+    ``model.off_grid_patterns``) and a label at every other offset. O(their number,
+    :func:`observation_count`)."""
+    out = []
+    for off in model.off_grid_patterns:
+        for labels in itertools.product(range(model.n_labels), repeat=int((~off).sum())):
+            z = np.full(model.n_readings, -1, dtype=np.int64)
+            z[~off] = labels
+            out.append(z)
+    return [int(z[0]) for z in out] if model.observation_shape == () else out
+
+
+def observation_count(model: GridModel) -> int:
+    """``len(observations(model))`` without building them: ``sum over patterns K^(on-grid
+    offsets)``. O(N F)."""
+    return sum(model.n_labels ** int((~off).sum()) for off in model.off_grid_patterns)
 
 
 def _enumerate(node: Estimator, actions: np.ndarray, depth: int, probability: float, out: np.ndarray,
@@ -173,9 +213,7 @@ def _enumerate(node: Estimator, actions: np.ndarray, depth: int, probability: fl
         return
     before = node.belief.log_evidence
     model = node.model
-    outcomes = (range(model.n_labels) if model.observation_shape == ()
-                else (np.array(z) for z in itertools.product(range(model.n_labels), repeat=model.n_readings)))
-    for z in outcomes:
+    for z in observations(model):
         child = fork(node)
         if hasattr(child, "recover_from_depletion"):  # an RBPF: an outcome its particles rule out has
             child.recover_from_depletion = False  # probability zero here, not a relocation
@@ -240,11 +278,11 @@ class RolloutTables(NamedTuple):
 
 
 def particle_rollouts_fit(model: GridModel) -> bool:
-    """Whether the numba rollouts simulate ``model`` exactly: they read one cell per step and move
-    the robot without looking at the map, so a footprint (``n_readings > 1``) or blocking labels
-    send the planner to the forks of :func:`expected_uncertainty` instead (simulated by
-    :func:`onlinemap.simulate.world_step`, slower but exact)."""
-    return model.n_readings == 1 and not model.has_blocking
+    """Whether the paper's rollouts (:func:`particle_expected_uncertainty`) simulate ``model``:
+    they read the robot's own cell (``model.reads_own_cell``) and move the robot without looking
+    at the map. Any other footprint (one offset such as ``((0, 1),)`` included) or blocking labels
+    take :func:`footprint_expected_uncertainty`."""
+    return model.reads_own_cell and not model.has_blocking
 
 
 def rollout_tables(model: GridModel, horizon: int) -> RolloutTables:
@@ -285,7 +323,76 @@ def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot,
     return total / len(worlds[0])
 
 
+def agreement(model: GridModel, particles: ParticleSnapshot, horizon: int,
+              tables: RolloutTables) -> tuple[np.ndarray, np.ndarray]:
+    """The cells whose marginals differ between the particles (D,) sorted, and (H + 1,) the summed
+    entropy at step h of the other cells' common marginal (brought forward by ``C^h``): the part
+    of ``sum_i H(M_i)`` no reweighting changes. O(R N K + H N K^2) (O(R N K) in a static world)."""
+    maps = particles.maps
+    disputed = np.flatnonzero(np.any(maps != maps[:1], axis=(0, 2)))
+    agree = np.ones(model.n_cells, dtype=bool)
+    agree[disputed] = False
+    common = maps[0, agree]
+    if model.is_static:
+        return disputed, np.full(horizon + 1, _entropy(common).sum())
+    return disputed, np.array([_entropy(common @ tables.powers[h]).sum() for h in range(horizon + 1)])
+
+
+def footprint_expected_uncertainty(model: GridModel, particles: ParticleSnapshot, sequences: np.ndarray,
+                                   checkpoints: np.ndarray, worlds: tuple[np.ndarray, np.ndarray],
+                                   rng: np.random.Generator, location_weight: float = 1.0,
+                                   tables: RolloutTables | None = None, distances: np.ndarray | None = None,
+                                   go: np.ndarray | None = None) -> np.ndarray:
+    """(C, H + 1) :func:`particle_expected_uncertainty` for any sensor footprint and blocking
+    labels (:func:`onlinemap.kernels.planning.plan_rollouts`): ``sequences`` (C, H) actions, -1
+    where the action is chosen in closed loop towards candidate c's target by ``distances`` (C, N)
+    and ``go`` (N, A) (the chance each press moves). Every sequence sees the same worlds and random
+    numbers. Cost O(S C (H R (F + 1) K^2 + n_checkpoints R (D + H F) K)), D the disputed cells."""
+    sequences = np.ascontiguousarray(sequences, dtype=np.int64)
+    n_seq, horizon = sequences.shape
+    tables = rollout_tables(model, horizon) if tables is None else tables
+    n_worlds, r_count = len(worlds[0]), len(particles.locations)
+    world_u = rng.random((n_worlds, horizon, 1 + model.n_readings))
+    change_u = rng.random((n_worlds, horizon, 0 if model.is_static else model.n_cells))
+    proposal_u = rng.random((n_worlds, horizon, r_count))
+    disputed, agree_entropy = agreement(model, particles, horizon, tables)
+    if distances is None:
+        distances = np.zeros((n_seq, model.n_cells))
+        go = np.zeros((model.n_cells, model.n_actions))
+    total = np.zeros((n_seq, horizon + 1))
+    plan_rollouts(particles.locations, np.ascontiguousarray(particles.maps), particles.log_weights, model.moves,
+                  model.p_move, model.blocking, model.footprint_cells, model.sensor, tables.sensor_cdf, model.change,
+                  tables.change_cdf, tables.powers, not model.is_static, sequences, np.ascontiguousarray(distances),
+                  np.ascontiguousarray(go, dtype=np.float64), worlds[0].astype(np.int64),
+                  np.ascontiguousarray(worlds[1], dtype=np.int64), world_u, change_u, proposal_u,
+                  float(location_weight), np.asarray(checkpoints, dtype=np.bool_), disputed, agree_entropy, total)
+    return total / n_worlds
+
+
 # --- the planner ------------------------------------------------------------------------------
+MAX_PLAN_FORKS = 10**5  # an exact enumeration forking the estimator more often than this is refused
+
+
+def rollout_operations(model: GridModel, hypotheses: int, candidates: int, horizon: int, lengths: int,
+                       particles: int) -> int:
+    """The estimated floating-point operations of one plan of the particle backend:
+    ``S C (H R (F + 1) K^2 + L R N K)`` for S worlds, C candidates of H steps, L scored lengths,
+    R particles, F footprint offsets (exact Python ints)."""
+    k = model.n_labels
+    return hypotheses * candidates * (horizon * particles * (model.n_readings + 1) * k * k
+                                      + lengths * particles * model.n_cells * k)
+
+
+def _lengths(value) -> np.ndarray:
+    """``press_lengths``: a non-empty sequence of whole numbers >= 1, sorted and unique."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+        raise ModelError(f"press_lengths must be a sequence of whole numbers >= 1, got {value!r}")
+    lengths = [arguments.integer(f"press_lengths[{i}]", v, minimum=1) for i, v in enumerate(value)]
+    if not lengths:
+        raise ModelError("press_lengths must not be empty")
+    return np.unique(np.asarray(lengths, dtype=np.int64))
+
+
 def greedy_path(model: GridModel, q: np.ndarray, start: int, length: int) -> np.ndarray:
     """(length,) actions of a walk from ``start`` that takes, at each cell, the action of highest
     ``q`` (N, A) among those reaching a cell not yet on the walk (any moving action if none does).
@@ -337,6 +444,56 @@ class MacroScore(NamedTuple):
     gain: np.ndarray  # (C, L) expected uncertainty drop U(now) - E[U(after k steps)], nats
     utility: np.ndarray  # (C, L) gain - step_cost * I0 * k
     chosen: tuple[int, int]  # (candidate, length index) of the best utility
+    targets: np.ndarray  # (C,) the target cell of a move towards one (sequence -1), -1 for fixed presses
+
+
+class Candidates(NamedTuple):
+    """The macro-actions of one plan. C candidates, H steps, N cells, A actions."""
+
+    names: tuple[str, ...]  # (C,)
+    sequences: np.ndarray  # (C, H) actions; -1: chosen in closed loop towards the target
+    targets: np.ndarray  # (C,) target cells, -1 for fixed sequences
+    distances: np.ndarray | None  # (C, N) expected steps to each candidate's target (None: no targets)
+    go: np.ndarray | None  # (N, A) the chance each press moves (move_chances)
+
+
+DEFAULT_TARGETS = 4  # frontier targets among the candidates, outside the paper's world
+
+
+def _finite(distance: np.ndarray, penalty: float) -> np.ndarray:
+    """``distance`` with the unreachable (inf) at ``penalty``."""
+    return np.where(np.isfinite(distance), distance, penalty)
+
+
+def frontier_targets(model: GridModel, plan: FrontierPlan, count: int, spacing: int = 3) -> np.ndarray:
+    """Up to ``count`` target cells from a frontier plan: the highest ``plan.score`` first, each
+    at least ``spacing`` cells (grid distance, rows plus columns) from those already taken, so
+    the candidates go to different places. O(N log N + count N)."""
+    order = np.argsort(-plan.score, kind="stable")
+    order = order[np.isfinite(plan.score[order])]
+    rows, cols = np.divmod(order, model.cols)
+    chosen: list[int] = []
+    for index, cell in enumerate(order):
+        if len(chosen) == count:
+            break
+        if all(abs(rows[index] - r) + abs(cols[index] - c) >= spacing for r, c in map(lambda x: divmod(x, model.cols),
+                                                                                        chosen)):
+            chosen.append(int(cell))
+    return np.asarray(chosen, dtype=np.int64)
+
+
+def descent(model: GridModel, go: np.ndarray, distance: np.ndarray, start: int, length: int) -> np.ndarray:
+    """(length,) the presses of a robot that never slips, from ``start``, each the one of least
+    expected steps to the target after it (``steps_after_press`` with ``go`` (N, A) and
+    ``distance`` (N,)), moving to the intended cell. O(length A)."""
+    path = np.empty(length, dtype=np.int64)
+    cell = start
+    for h in range(length):
+        cost = 1.0 + go[cell] * distance[model.neighbors[cell]] + (1.0 - go[cell]) * distance[cell]
+        path[h] = int(np.argmin(cost))
+        if go[cell, path[h]] > 0:
+            cell = int(model.neighbors[cell, path[h]])
+    return path
 
 
 class InfoGainExplorer:
@@ -361,57 +518,87 @@ class InfoGainExplorer:
     def __init__(self, model: GridModel, seed: SeedLike = None, *, hypotheses: int | None = 12,
                  rollout_particles: int | None = 64, press_lengths=None, step_cost: float = 0.05,
                  location_weight: float = 4.0, commit: int = 8, anchor_every: int | str | None = "auto",
-                 gamma: float = 0.95):
-        if hypotheses is not None and (isinstance(hypotheses, bool) or int(hypotheses) < 1):
-            raise ModelError(f"hypotheses must be a positive integer or None, got {hypotheses!r}")
-        if rollout_particles is not None and (isinstance(rollout_particles, bool) or int(rollout_particles) < 1):
-            raise ModelError(f"rollout_particles must be a positive integer or None, got {rollout_particles!r}")
-        if int(commit) < 1:
-            raise ModelError(f"commit must be at least 1, got {commit!r}")
-        if not 0.0 <= float(gamma) < 1.0:
-            raise ModelError(f"the discount gamma must be in [0, 1), got {gamma!r}")
-        if not float(step_cost) >= 0.0 or not float(location_weight) >= 0.0:
-            raise ModelError(f"step_cost and location_weight must be >= 0, got {step_cost!r}, {location_weight!r}")
+                 gamma: float = 0.95, targets: int | str = "auto"):
+        self.model = model
+        self.hypotheses = None if hypotheses is None else arguments.integer("hypotheses", hypotheses, minimum=1)
+        self.rollout_particles = None if rollout_particles is None else arguments.integer(
+            "rollout_particles", rollout_particles, minimum=1)
+        self.step_cost = arguments.real("step_cost", step_cost, low=0.0, high=math.inf, high_open=True)
+        self.location_weight = arguments.real("location_weight", location_weight, low=0.0, high=math.inf,
+                                              high_open=True)
+        self.commit = arguments.integer("commit", commit, minimum=1)
+        self.gamma = arguments.real("gamma", gamma, low=0.0, high=1.0, high_open=True)
         if press_lengths is None:
             longest = math.ceil((max(model.rows, model.cols) - 1) / max(model.p_move, 0.05)) + 1
             press_lengths = sorted({k for k in (1, 2, 4, 8) if k < longest} | {longest})
-        press_lengths = np.unique(np.asarray(press_lengths, dtype=np.int64))
-        if len(press_lengths) == 0 or press_lengths[0] < 1:
-            raise ModelError(f"press_lengths must be positive integers, got {press_lengths.tolist()}")
-        self.model = model
-        self.hypotheses = None if hypotheses is None else int(hypotheses)
-        self.rollout_particles = None if rollout_particles is None else int(rollout_particles)
-        self.press_lengths = press_lengths
-        self.step_cost = float(step_cost)
-        self.location_weight = float(location_weight)
-        self.commit = int(commit)
-        anchor_length = int(press_lengths[-1]) * ((model.rows > 1) + (model.cols > 1))
-        if anchor_every == "auto":
-            anchor_every = 2 * anchor_length + 8  # 60 in the 10 x 10 world: under half the steps anchoring
-        if anchor_every is not None and (isinstance(anchor_every, (bool, str)) or int(anchor_every) <= anchor_length):
-            raise ModelError(f"anchor_every must be 'auto', None or longer than the {anchor_length} presses of an "
-                             f"anchor (the robot would do nothing else), got {anchor_every!r}")
-        self.anchor_every = None if anchor_every is None else int(anchor_every)
-        self.gamma = float(gamma)
-        self.rng = as_generator(seed)
+        self.press_lengths = _lengths(press_lengths)
+        paper = model.reads_own_cell and not model.has_blocking
+        if isinstance(targets, str):
+            arguments.choice("targets", targets, ("auto",))
+            targets = 0 if paper or model.p_move == 0 else DEFAULT_TARGETS
+        self.targets = arguments.integer("targets", targets, minimum=0)
+        self._check_cost(self.rollout_particles)
+        anchor_length = int(self.press_lengths[-1]) * ((model.rows > 1) + (model.cols > 1))
+        if isinstance(anchor_every, str):
+            arguments.choice("anchor_every", anchor_every, ("auto",))
+            # 60 in the 10 x 10 world: under half the steps anchoring; no corner to press into in a building
+            anchor_every = 2 * anchor_length + 8 if self.targets == 0 else None
+        if anchor_every is not None:
+            anchor_every = arguments.integer("anchor_every", anchor_every)
+            if anchor_every <= anchor_length:
+                raise ModelError(f"anchor_every must be 'auto', None or longer than the {anchor_length} presses of "
+                                 f"an anchor (the robot would do nothing else), got {anchor_every!r}")
+        self.anchor_every = anchor_every
+        self.rng = as_generator(arguments.seed("seed", seed))
         self.estimator: Estimator | None = None
         self.last_plan: MacroScore | None = None
         self._queue: list[int] = []
         self._since_anchor = 0
         self._pi: PolicyIterationResult | None = None
-        self._tables = rollout_tables(model, int(press_lengths[-1]))
+        self._tables = rollout_tables(model, int(self.press_lengths[-1]))
+        self.frontier = FrontierExplorer(model) if self.targets else None  # where the unknown is
+        self.presses = PressMemory(model)  # blocked and futile presses, for the moves towards a target
+        self._target, self._target_steps = -1, 0
         uniform = np.full((1, model.n_labels), 1.0 / model.n_labels)
         nats = float(information_reward(Belief(0, np.ones(1), uniform), model.sensor)[0])  # I0
         self._nats_per_step = self.step_cost * nats
         self._location_nats = self.location_weight * nats
 
+    def _check_cost(self, particles: int | None) -> None:
+        """Refuse (ModelError naming the options, with the estimate) a plan of more than
+        :data:`onlinemap.arguments.MAX_OPERATIONS` operations or, enumerating, :data:`MAX_PLAN_FORKS` forks.
+        ``particles``: the R particles a rollout carries (None: not known yet, checked at bind)."""
+        model, horizon = self.model, int(self.press_lengths[-1])
+        candidates = model.n_actions + max(self.targets, 1)
+        if self.hypotheses is None:
+            outcomes = observation_count(model)
+            forks, level = 0, 1
+            for _ in range(horizon):
+                level *= outcomes
+                forks += candidates * level
+                if forks > MAX_PLAN_FORKS:
+                    raise ModelError(
+                        f"info_gain with hypotheses=None enumerates every observation ({outcomes} a step) over "
+                        f"press_lengths up to {horizon}: more than {MAX_PLAN_FORKS:.0e} estimator forks a plan "
+                        f"(at least {forks:.3g}); give hypotheses (worlds sampled) or shorter press_lengths")
+            return
+        if particles is None:
+            return
+        work = rollout_operations(model, self.hypotheses, candidates, horizon, len(self.press_lengths), particles)
+        arguments.bounded_work(
+            f"a plan of info_gain (hypotheses={self.hypotheses} worlds x {candidates} candidates x press_lengths up "
+            f"to {horizon} steps x {particles} particles)", work, "lower hypotheses, rollout_particles or press_lengths")
+
     def bind(self, estimator: Estimator) -> None:
         """Plan on copies of ``estimator`` (the live filter of the exploration loop)."""
         if estimator.model is not self.model:
             raise ModelError("the estimator was built for a different model than the planner")
+        if self.rollout_particles is None and estimator.name == "rbpf":
+            self._check_cost(len(estimator._locations))
         self.estimator = estimator
         self._queue = []
         self._since_anchor = 0
+        self._target, self._target_steps = -1, 0
 
     def choose(self, belief: Belief) -> int:
         if self.estimator is None:
@@ -419,34 +606,73 @@ class InfoGainExplorer:
                              "(policies.explore does)")
         if self._queue and self.model.has_blocking and not unblocked_actions(self.model, belief)[self._queue[0]]:
             self._queue = []  # the belief now says the next press blocks: re-plan
-        if not self._queue:
+        if self._target_steps and belief.location[self._target] > 0.5:
+            self._target_steps = 0  # most probably there: re-plan
+        if not self._queue and not self._target_steps:
             if self.anchor_every is not None and self._since_anchor >= self.anchor_every:
                 self._queue = anchor_actions(self.model, belief, int(self.press_lengths[-1])).tolist()
                 self._since_anchor = 0
             else:
                 plan = self.plan(belief)
                 c, j = plan.chosen
-                self._queue = plan.sequences[c, :min(int(plan.lengths[j]), self.commit)].tolist()
+                steps = min(int(plan.lengths[j]), self.commit)
+                if plan.targets[c] >= 0:
+                    self._target, self._target_steps = int(plan.targets[c]), steps
+                else:
+                    self._queue = plan.sequences[c, :steps].tolist()
         self._since_anchor += 1
-        return int(self._queue.pop(0))
+        if self._target_steps:
+            self._target_steps -= 1
+            action = self.toward(belief, self._target)
+        else:
+            action = int(self._queue.pop(0))
+        self.presses.pressed(belief, action)
+        return action
 
-    def candidates(self, belief: Belief) -> tuple[tuple[str, ...], np.ndarray]:
-        """Names (C,) and action sequences (C, H): press each direction H times, and the
-        :func:`greedy_path` on the policy-iteration ``Q`` of :func:`information_reward` from the
-        most probable location (with blocking labels, on the belief's expected passability).
-        Cost: one warm-started policy iteration over N cells."""
+    def toward(self, belief: Belief, target: int) -> int:
+        """The press that brings the robot closest to ``target`` in expected steps, averaged over
+        the location belief (the frontier's rule, :func:`~policies.passability.steps_after_press`
+        on the belief's passability), among the presses :class:`~policies.passability.PressMemory`
+        allows. O(N A log(N A)) (one Dijkstra)."""
+        frontier = self.frontier or FrontierExplorer(self.model)
+        passable = expected_passability(self.model, belief)
+        distance = _finite(distances_to(self.model, passable, [target], frontier.min_passable), frontier.penalty)
+        cost = belief.location @ steps_after_press(self.model, passable, distance, frontier.min_passable)
+        return int(np.argmin(np.where(self.presses.allowed(belief), cost, np.inf)))
+
+    def candidates(self, belief: Belief) -> Candidates:
+        """Press each direction H times; then, with ``targets`` 0, the :func:`greedy_path` on the
+        policy-iteration ``Q`` of :func:`information_reward` from the most probable location (with
+        blocking labels, on the belief's expected passability; one warm-started policy iteration
+        over N cells); with ``targets`` T > 0, the moves towards each of the best T frontier
+        targets (:func:`frontier_targets`), in closed loop (sequence -1: each press chosen on the
+        rollout's belief by :func:`~policies.passability.steps_after_press`; O(T N A log(N A)))."""
         model, horizon = self.model, int(self.press_lengths[-1])
         names = [f"press {name}" for name in model.action_names]
         sequences = [np.full(horizon, a, dtype=np.int64) for a in range(model.n_actions)]
-        reward = information_reward(belief, model.sensor)
+        targets = [-1] * len(names)
         passable = expected_passability(model, belief) if model.has_blocking else None
-        self._pi = policy_iteration(model, reward, self.gamma, passable=passable,
-                                    initial_policy=None if self._pi is None else self._pi.policy)
-        path = greedy_path(model, self._pi.q, int(np.argmax(belief.location)), horizon)
-        if not any(np.array_equal(path, s) for s in sequences):
-            names.append("plan")
-            sequences.append(path)
-        return tuple(names), np.stack(sequences)
+        if self.targets == 0:
+            reward = information_reward(belief, model.sensor)
+            self._pi = policy_iteration(model, reward, self.gamma, passable=passable,
+                                        initial_policy=None if self._pi is None else self._pi.policy)
+            path = greedy_path(model, self._pi.q, int(np.argmax(belief.location)), horizon)
+            if not any(np.array_equal(path, s) for s in sequences):
+                names.append("plan")
+                sequences.append(path)
+                targets.append(-1)
+            return Candidates(tuple(names), np.stack(sequences), np.asarray(targets), None, None)
+        passable = expected_passability(model, belief)
+        chosen = frontier_targets(model, self.frontier.plan(belief), self.targets)
+        frontier = self.frontier
+        distances = [np.zeros(model.n_cells)] * len(names)
+        for cell in chosen:
+            names.append(f"to {divmod(int(cell), model.cols)}")
+            sequences.append(np.full(horizon, -1, dtype=np.int64))
+            targets.append(int(cell))
+            distances.append(_finite(distances_to(model, passable, [cell], frontier.min_passable), frontier.penalty))
+        return Candidates(tuple(names), np.stack(sequences), np.asarray(targets), np.stack(distances),
+                          move_chances(model, passable, frontier.min_passable))
 
     def plan(self, belief: Belief) -> MacroScore:
         """Score every candidate at every length in ``press_lengths`` and pick the best utility
@@ -458,38 +684,49 @@ class InfoGainExplorer:
         says blocks ends the queue.
         Never changes the live estimator."""
         est = self.estimator
-        names, sequences = self.candidates(belief)
+        names, sequences, targets, distances, go = self.candidates(belief)
         horizon = sequences.shape[1]
         lengths = self.press_lengths
         checkpoints = np.zeros(horizon + 1, dtype=np.bool_)
         checkpoints[0] = True
         checkpoints[lengths] = True
-        if est.name == "rbpf" and self.hypotheses is not None and particle_rollouts_fit(self.model):
+        if est.name == "rbpf" and self.hypotheses is not None:
             snapshot = particle_snapshot(est)
             weights = np.exp(snapshot.log_weights)
             chosen = self.rng.choice(len(weights), size=self.hypotheses, p=weights / weights.sum())
             worlds = (snapshot.locations[chosen], _draw_labels(snapshot.maps[chosen], self.rng))
             particles = thin(snapshot, self.rollout_particles, self.rng)
-            expected = particle_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
-                                                     self.rng, self._location_nats, self._tables)
-        else:
+            if particle_rollouts_fit(self.model) and distances is None:
+                expected = particle_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
+                                                         self.rng, self._location_nats, self._tables)
+            else:
+                expected = footprint_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
+                                                          self.rng, self._location_nats, self._tables, distances, go)
+        else:  # forks take fixed actions: a move towards a target is its walk from the most probable cell
+            start = int(np.argmax(belief.location))
+            fixed = [s if t < 0 else descent(self.model, go, distances[c], start, horizon)
+                     for c, (s, t) in enumerate(zip(sequences, targets))]
             expected = np.stack([expected_uncertainty(est, s, hypotheses=self.hypotheses, seed=self.rng,
-                                                      location_weight=self._location_nats) for s in sequences])
+                                                      location_weight=self._location_nats) for s in fixed])
         gain = expected[:, :1] - expected[:, lengths]
         utility = gain - self._nats_per_step * lengths[None, :]
         # a macro-action whose first press most probably hits a wall only re-reads the same cell
-        stays = belief.location @ (self.model.neighbors[:, sequences[:, 0]] == np.arange(self.model.n_cells)[:, None])
-        through = (stays < 0.5) | np.all(stays >= 0.5)
+        first = np.maximum(sequences[:, 0], 0)  # a move towards a target chooses its presses as it goes
+        stays = belief.location @ (self.model.neighbors[:, first] == np.arange(self.model.n_cells)[:, None])
+        through = (stays < 0.5) | np.all(stays >= 0.5) | (targets >= 0)
         if self.model.has_blocking:  # nor one whose first press the belief says blocks
-            through &= unblocked_actions(self.model, belief)[sequences[:, 0]]
+            through &= unblocked_actions(self.model, belief)[first] | (targets >= 0)
             through = through if through.any() else np.ones_like(through)
         allowed = np.where(through[:, None], utility, -np.inf)
         best = np.flatnonzero(allowed.T.ravel() == allowed.max())[0]  # length-major: shorter first
         j, c = divmod(int(best), len(names))
-        self.last_plan = MacroScore(names, sequences, lengths, gain, utility, (c, j))
+        if allowed.max() <= 0.0 and (targets >= 0).any():  # nothing pays within the horizon: the
+            c, j = int(np.argmax(targets >= 0)), len(lengths) - 1  # frontier's best target, farther away
+        self.last_plan = MacroScore(names, sequences, lengths, gain, utility, (c, j), targets)
         return self.last_plan
 
     def __repr__(self) -> str:
         return (f"InfoGainExplorer(hypotheses={self.hypotheses}, rollout_particles={self.rollout_particles}, "
                 f"press_lengths={self.press_lengths.tolist()}, step_cost={self.step_cost}, "
-                f"location_weight={self.location_weight}, commit={self.commit}, anchor_every={self.anchor_every})")
+                f"location_weight={self.location_weight}, commit={self.commit}, anchor_every={self.anchor_every}, "
+                f"targets={self.targets})")

@@ -56,6 +56,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, dijkstra
 
+from onlinemap import arguments
 from onlinemap.belief import Belief
 from onlinemap.errors import ModelError
 from onlinemap.kernels.navigation import goal_value_iteration
@@ -100,9 +101,16 @@ def label_powers(model: GridModel, horizon: int) -> np.ndarray:
             break
         limit = following
     converged = np.abs(limit @ model.change - limit).max() <= 1e-12
+    plan_work = model.n_cells * (model.n_labels ** 2 + model.n_actions)  # a plan: O(H N (K^2 + A))
+    if not converged:  # C never mixes (it cycles): the powers run to the horizon
+        arguments.bounded_work(f"a plan to a goal over horizon={horizon} ({model.n_cells} cells, C never mixes)",
+                               (int(horizon) + 1) * plan_work, "lower horizon")
     powers = [np.eye(model.n_labels)]
     while len(powers) <= int(horizon) and not (converged and np.abs(powers[-1] - limit).max() <= MIXED):
         powers.append(powers[-1] @ model.change)
+        if len(powers) % 1024 == 0:  # C mixes slowly: refuse before the plan grows astronomical
+            arguments.bounded_work(f"a plan to a goal over horizon={horizon} ({model.n_cells} cells, C mixes after "
+                                   f"more than {len(powers) - 1} steps)", len(powers) * plan_work, "lower horizon")
     return np.stack(powers)
 
 
@@ -292,9 +300,7 @@ class GoTo:
 
 
 def _horizon(value) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or int(value) < 0:
-        raise ModelError(f"horizon must be a whole number of steps >= 0, got {value!r}")
-    return int(value)
+    return arguments.integer("horizon", value, minimum=0)
 
 
 class StaticGoTo(GoTo):

@@ -73,6 +73,25 @@ def distances_from(model: GridModel, passable: np.ndarray, sources, min_passable
     return out
 
 
+def move_chances(model: GridModel, passable: np.ndarray, min_passable: float = 0.05) -> np.ndarray:
+    """(N, A) ``q = p_move passable[j]``, the chance that pressing a in cell l moves the robot to
+    ``j = neighbors[l, a]`` by the expected-cost model; 0 off the grid edge and where
+    ``passable[j] < min_passable``. O(N A)."""
+    passable = _passable(model, passable)
+    moves = model.neighbors != np.arange(model.n_cells)[:, None]
+    enter = passable[model.neighbors]
+    return np.where(moves & (enter >= min_passable), model.p_move * enter, 0.0)
+
+
+def steps_after_press(model: GridModel, passable: np.ndarray, to_target: np.ndarray,
+                      min_passable: float = 0.05) -> np.ndarray:
+    """(N, A) ``1 + q D(j) + (1 - q) D(l)``: the expected steps to a target after pressing a in
+    cell l, with ``D = to_target`` (N,) the expected steps from each cell (finite: unreachable
+    cells at a penalty) and ``q`` :func:`move_chances`. O(N A)."""
+    q = move_chances(model, passable, min_passable)
+    return 1.0 + q * to_target[model.neighbors] + (1.0 - q) * to_target[:, None]
+
+
 def blocked_probability(model: GridModel, belief: Belief) -> np.ndarray:
     """(A,) ``P(the intended cell of action a holds a blocking label)`` under the belief's marginals:
     ``sum_l P(l) [j != l] (1 - passable[j])``, ``j = neighbors[l, a]``. A move off the grid edge
@@ -144,4 +163,4 @@ def _cells(name: str, model: GridModel, cells) -> np.ndarray:
 
 
 __all__ = ["BLOCKED_ABOVE", "expected_passability", "enter_costs", "distances_to", "distances_from",
-           "blocked_probability", "unblocked_actions", "PressMemory"]
+           "move_chances", "steps_after_press", "blocked_probability", "unblocked_actions", "PressMemory"]

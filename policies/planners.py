@@ -27,6 +27,7 @@ from typing import NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
+from onlinemap import arguments
 from onlinemap.belief import Belief
 from onlinemap.errors import ModelError
 from onlinemap.model import GridModel
@@ -65,13 +66,11 @@ class EntropyExplorer:
 
     def __init__(self, model: GridModel, gamma: float = 0.95, replan_every: int = 1,
                  reward: RewardFunction = entropy_reward):
-        if int(replan_every) < 1:
-            raise ModelError(f"replan_every must be at least 1, got {replan_every!r}")
-        if not 0.0 <= float(gamma) < 1.0:
-            raise ModelError(f"the discount gamma must be in [0, 1), got {gamma!r}")
         self.model = model
-        self.gamma = float(gamma)
-        self.replan_every = int(replan_every)
+        self.gamma = arguments.real("gamma", gamma, low=0.0, high=1.0, high_open=True)
+        self.replan_every = arguments.integer("replan_every", replan_every, minimum=1)
+        if not callable(reward):
+            raise ModelError(f"reward must be a function of the belief (policies.rewards), got {reward!r}")
         self.reward = reward
         self.plan: PolicyIterationResult | None = None
         self.presses = PressMemory(model)  # with blocking labels: blocked and futile presses
@@ -103,7 +102,7 @@ class RandomWalk:
 
     def __init__(self, model: GridModel, seed: SeedLike = None):
         self.model = model
-        self.rng = as_generator(seed)
+        self.rng = as_generator(arguments.seed("seed", seed))
 
     def choose(self, belief: Belief) -> int:
         if self.model.has_blocking:

@@ -4,6 +4,8 @@ References: value iteration on dense transition tensors built here from the desi
 of the motion model (not from the library's sparse motion), scipy.stats.entropy for the reward.
 """
 
+import re
+
 import numpy as np
 import pytest
 from scipy.stats import entropy
@@ -352,3 +354,60 @@ def test_entropy_planner_does_not_repeat_a_press_that_left_the_belief_unchanged(
     assert planner.choose(belief(np.eye(5)[1], changed)) == right
     plain = EntropyExplorer(om.corridor(5))
     assert [plain.choose(b), plain.choose(b)] == [right, right]
+
+
+NAN, INF = float("nan"), float("inf")
+#: per planner, options of the wrong type or out of range (issue 24, defect 3); frontier's are in test_frontier
+BAD_OPTIONS = {
+    "info_gain": [("hypotheses", NAN), ("hypotheses", "x"), ("hypotheses", 1.5), ("hypotheses", True),
+                  ("hypotheses", 0), ("rollout_particles", 2.5), ("rollout_particles", "8"),
+                  ("press_lengths", "x"), ("press_lengths", [1.5]), ("press_lengths", []), ("press_lengths", [0, 2]),
+                  ("press_lengths", 3), ("step_cost", "x"), ("step_cost", None), ("step_cost", NAN),
+                  ("step_cost", INF), ("step_cost", -1.0), ("location_weight", None), ("location_weight", INF),
+                  ("location_weight", NAN), ("commit", None), ("commit", True), ("commit", 1.5), ("commit", 0),
+                  ("gamma", None), ("gamma", NAN), ("gamma", 1.0), ("anchor_every", NAN), ("anchor_every", "x"),
+                  ("anchor_every", True), ("anchor_every", 2.5)],
+    "entropy": [("gamma", NAN), ("gamma", "x"), ("gamma", None), ("gamma", -0.1), ("replan_every", 1.5),
+                ("replan_every", True), ("replan_every", "x"), ("replan_every", 0), ("reward", "x")],
+    "entropy_collect": [("gamma", INF), ("replan_every", None)],
+    "goto": [("horizon", 1.5), ("horizon", "x"), ("horizon", True), ("horizon", NAN), ("horizon", -1),
+             ("goal", "x"), ("goal", 1.5), ("goal", None)],
+    "static_goto": [("horizon", INF), ("goal", (0, 99))],
+}
+
+
+@pytest.mark.parametrize("planner,option,value", [(p, o, v) for p, cases in BAD_OPTIONS.items() for o, v in cases])
+def test_bad_planner_options_raise_model_errors_naming_them(planner, option, value):
+    model, _ = om.door_world()
+    options = {"goal": 99} if planner in ("goto", "static_goto") else {}
+    options[option] = value
+    with pytest.raises(ModelError, match=option):
+        make_planner(planner, model, seed=0, **options)
+
+
+@pytest.mark.parametrize("planner", ["random", "info_gain"])
+@pytest.mark.parametrize("seed", ["x", -1, 1.5, True])
+def test_bad_planner_seeds_raise_model_errors(planner, seed):
+    with pytest.raises(ModelError, match="seed"):
+        make_planner(planner, om.door_world()[0], seed=seed)
+
+
+def test_astronomical_plans_are_refused_with_their_cost():
+    """A plan estimated above onlinemap.arguments.MAX_OPERATIONS (or info_gain's exact enumeration
+    above MAX_PLAN_FORKS forks) is refused when the planner is built, naming the options to lower
+    and the estimate, instead of running for minutes."""
+    from policies.info_gain import MAX_PLAN_FORKS
+
+    model, _ = om.door_world(blocking=True, footprint="cross")
+    for options, named in (({"hypotheses": 10**6}, "hypotheses"), ({"press_lengths": [10**6]}, "press_lengths"),
+                           ({"rollout_particles": 10**7}, "rollout_particles")):
+        with pytest.raises(ModelError, match=f"(?s)operations.*{named}"):
+            make_planner("info_gain", model, **options)
+    square, _ = om.door_world(footprint="square")
+    with pytest.raises(ModelError, match=re.escape(f"{MAX_PLAN_FORKS:.0e} estimator forks")):
+        make_planner("info_gain", square, hypotheses=None, press_lengths=(1,))
+    make_planner("info_gain", om.corridor(4), hypotheses=None, press_lengths=(1, 2, 6))  # 2^6 forks: fine
+    cycling, _ = om.door_world(p_door=1.0)  # doors swap every step: C never mixes
+    with pytest.raises(ModelError, match="(?s)horizon=1000000000.*operations.*horizon"):
+        make_planner("goto", cycling, goal=99, horizon=10**9)
+    make_planner("goto", om.door_world()[0], goal=99, horizon=10**9)  # static: a plan is one Dijkstra
