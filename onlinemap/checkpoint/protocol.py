@@ -34,11 +34,12 @@ from .codec import (_Decoder, _Encoder, _KeepFresh, _callable_name, _scratch_nod
                     decode_options, encode_model, same_tree)
 
 FORMAT = "onlinemap-checkpoint"
-FORMAT_VERSION = 3  # bump when the file layout or an estimator's state changes incompatibly
+FORMAT_VERSION = 4  # bump when the file layout or an estimator's state changes incompatibly
 OLDEST_FORMAT_VERSION = 1  # the oldest format this code still reads
 # version 2: the RBPF's block pool is one attribute (``_blocks``, a BlockPool); version 3: the RBPF
-# counts its recoveries from depletion (``_recoveries``, ``_recovered``). Older files are read
-# through RaoBlackwellisedPF.upgrade_attributes.
+# counts its recoveries from depletion (``_recoveries``, ``_recovered``); version 4: the RBPF's
+# resample-move step (``_history``, a PathHistory or None; ``move_window``, ``move_every``,
+# ``move_lag``). Older files are read through RaoBlackwellisedPF.upgrade_attributes.
 _SEPARATE = ("model", "options")  # attributes stored apart from the state tree
 
 

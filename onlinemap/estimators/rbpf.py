@@ -74,6 +74,8 @@ from ..validation import check_step
 from .base import register
 from ..checkpoint import state_node
 from .block_pool import FORMAT_1_ATTRIBUTES, REFRESH_STEPS, BlockPool, block_layout
+from .rbpf_move import (MoveCounts, PathHistory, map_rows_per_move, move_options, new_history_bytes,
+                        path_rows_per_move)
 
 logger = logging.getLogger(__name__)
 
@@ -244,7 +246,8 @@ class RaoBlackwellisedPF:
     """
 
     #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
-    CONSTANT_STATE = ("n_particles", "proposal", "resampling", "resample_threshold", "lazy_dynamics",
+    CONSTANT_STATE = ("n_particles", "proposal", "resampling", "resample_threshold", "lazy_dynamics", "move_window",
+                      "move_every", "move_lag",
                       "_blocks.stamped", "_blocks.cell_block", "_blocks.cell_slot", "_blocks.block_members",
                       "_blocks.powers")
 
@@ -255,7 +258,8 @@ class RaoBlackwellisedPF:
     def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
                  resampling: str | None = None, resample_threshold: float = 0.5, seed: SeedLike = None,
                  lazy_dynamics: bool = True, block_cells: int | None = None,
-                 max_bytes: int = DEFAULT_MAX_BYTES, threads: int | None = 1):
+                 max_bytes: int = DEFAULT_MAX_BYTES, threads: int | None = 1, move_window: int | None = None,
+                 move_every: int = 5, move_lag: int = 100):
         error = InvalidOptionError
         n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
         proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
@@ -276,13 +280,16 @@ class RaoBlackwellisedPF:
             block_cells = arguments.integer("block_cells", block_cells, minimum=1, maximum=model.n_cells, error=error)
         max_bytes = arguments.byte_limit("max_bytes", max_bytes, error)
         threads = _thread_count(threads)
+        move_window, move_every, move_lag = move_options(model, move_window, move_every, move_lag)
         n, k = model.n_cells, model.n_labels
         size, n_blocks = _block_shape(model, block_cells)
         need = state_bytes(model, n_particles, size, n_blocks, n_blocks + 2 * n_particles, 0, lazy_dynamics, threads)
+        need += 0 if move_window is None else new_history_bytes(model, n_particles)
         if need > max_bytes:
             raise MemoryLimitError(
                 f"rbpf with {n_particles} particles on N={n} cells, K={k} labels needs {need / 1e9:.3g} GB to start "
-                f"(its pool of map blocks, the particle table, a step's buffers) but the limit is "
+                f"(its pool of map blocks, the particle table, a step's buffers"
+                f"{'' if move_window is None else ', the path history of move_window'}) but the limit is "
                 f"{max_bytes / 1e9:.3g} GB; pass max_bytes=... to raise it (a run may need up to "
                 f"{peak_bytes(model, n_particles, block_cells, lazy_dynamics, threads) / 1e9:.3g} GB, if every "
                 f"particle came to own every map block)")
@@ -293,6 +300,7 @@ class RaoBlackwellisedPF:
         self.resampling = resampling
         self.resample_threshold = float(resample_threshold)
         self.lazy_dynamics = bool(lazy_dynamics)
+        self.move_window, self.move_every, self.move_lag = move_window, move_every, move_lag
         self._rng = as_generator(seed)
         self._locations = np.full(n_particles, model.start, dtype=np.int64)
         self._log_weights = np.full(n_particles, -math.log(n_particles))
@@ -302,6 +310,8 @@ class RaoBlackwellisedPF:
         self._weights = np.exp(self._log_weights)  # exp(_log_weights), kept beside them
         self._blocks = BlockPool.new(model, layout, n_particles, not model.is_static and self.lazy_dynamics)
         fc = resampling == FEARNHEAD_CLIFFORD
+        # the resample-move step's paths (rbpf_move.py); None without it
+        self._history = None if move_window is None else PathHistory.new(model, n_particles, exact=not fc)
         self._scratch_ints = np.zeros((5 if fc else 0, 2 * n_particles), dtype=np.int64)
         self._scratch_floats = np.zeros((3 if fc else 0, 2 * n_particles))
         staged = n_particles if threads > 1 else 0  # the parallel commit's staging
@@ -323,7 +333,9 @@ class RaoBlackwellisedPF:
         version 1 kept the block pool as 13 loose attributes (``_pool``, ``_table``...), gathered
         here into ``_blocks`` (the checks on load then validate it as any other); versions 1 and 2
         had no recovery from depletion (a filter that never recovered, with recovery on:
-        ``_recoveries`` 0, ``_recovered`` False, ``recover_from_depletion`` True). O(1)."""
+        ``_recoveries`` 0, ``_recovered`` False, ``recover_from_depletion`` True); versions 1 to 3
+        had no resample-move step (``_history`` None: its option ``move_window`` takes its
+        default, None, on load). O(1)."""
         if version == 1 and all(name in attributes for name in FORMAT_1_ATTRIBUTES):
             fields = {field: attributes.pop(name) for name, field in FORMAT_1_ATTRIBUTES.items()}
             attributes["_blocks"] = state_node(BlockPool, fields)
@@ -331,6 +343,11 @@ class RaoBlackwellisedPF:
             attributes.setdefault("recover_from_depletion", True)
             attributes.setdefault("_recoveries", 0)
             attributes.setdefault("_recovered", False)
+        if version <= 3:
+            attributes.setdefault("_history", None)
+            attributes.setdefault("move_window", None)
+            attributes.setdefault("move_every", 5)
+            attributes.setdefault("move_lag", 100)
         return attributes
 
     @staticmethod
@@ -361,6 +378,12 @@ class RaoBlackwellisedPF:
         if type(state._recovered) is not bool or (state._recovered and (t < 1 or state._recoveries < 1)):
             checks.fail("_recovered", "must be a bool, True only after a step >= 1 that counted a recovery")
         state._blocks.check(p, k, t)  # the copy-on-write pool (estimators/block_pool.py); its kind was checked
+        moving = state.move_window is not None  # CONSTANT_STATE: what the options give
+        if moving != isinstance(state._history, PathHistory):
+            checks.fail("_history", f"must be {'a PathHistory' if moving else 'None'} with move_window="
+                                    f"{state.move_window!r}")
+        if moving:
+            state._history.check(model, state._locations, t)  # estimators/rbpf_move.py
         checks.belief(state, required=False)
 
     @property
@@ -397,11 +420,14 @@ class RaoBlackwellisedPF:
         """The options as the filter runs them: ``resampling`` resolved (None picks
         Fearnhead-Clifford for the optimal proposal, residual for the transition one), and no
         ``resample_threshold`` under Fearnhead-Clifford, which resamples every step whatever it
-        says. What ``repr`` and ``onlinemap track``'s start event show; ``options`` keeps what was
+        says, and no ``move_every`` or ``move_lag`` without ``move_window``. What ``repr`` and ``onlinemap track``'s start event show; ``options`` keeps what was
         given (checkpoints compare it)."""
         options = {**self.options, "resampling": self.resampling}
         if self.resampling == FEARNHEAD_CLIFFORD:
             options.pop("resample_threshold", None)
+        if options.get("move_window") is None:
+            options.pop("move_every", None)
+            options.pop("move_lag", None)
         return options
 
     @property
@@ -420,6 +446,13 @@ class RaoBlackwellisedPF:
     def recoveries(self) -> int:
         """How many steps so far recovered from depletion (see the class docstring)."""
         return self._recoveries
+
+    @property
+    def moves(self) -> MoveCounts:
+        """The resample-move step's windows proposed and accepted so far (zeros without
+        ``move_window``; see the class docstring)."""
+        history = self._history
+        return MoveCounts(0, 0) if history is None else MoveCounts(history.proposed, history.accepted)
 
     @property
     def belief(self) -> Belief | None:
@@ -456,14 +489,27 @@ class RaoBlackwellisedPF:
         docstring); if nothing explains it even then (impossible under the model), raise
         :class:`ImpossibleObservationError` and leave everything (particles, weights, random
         generator) as it was; so does a step that would take the filter's memory beyond
-        ``max_bytes`` (:class:`~onlinemap.errors.MemoryLimitError`).
+        ``max_bytes`` (:class:`~onlinemap.errors.MemoryLimitError`). With ``move_window``, the
+        step is then recorded in the path history and, when due, followed by the resample-move
+        step (the class docstring).
         """
-        model = self.model
-        a, z = check_step(model, self._t + 1, action, observation)
+        a, z = check_step(self.model, self._t + 1, action, observation)
         t = self._t + 1
         if self.resampling == FEARNHEAD_CLIFFORD:
             self._update_fearnhead_clifford(a, z, t)
-            return
+        else:
+            self._update_sampling(a, z, t)
+        history = self._history
+        if history is not None:  # the step is taken: its record, then the resample-move step if due
+            history.record_step(t, a, z)
+            if history.move_due(t, self.move_window, self.move_every, self.move_lag):
+                self._history, self._blocks = history.move(self._blocks, self._locations, self._log_weights,
+                                                           self.model, t, self.move_window, self.move_lag, self._rng)
+
+    def _update_sampling(self, a: int | None, z, t: int) -> None:
+        """:meth:`update` with a sampling scheme (``a``, ``z`` checked): resample if due, propose,
+        weight, commit; when every draw missed, :meth:`_update_fearnhead_clifford` instead."""
+        model = self.model
         blocks = self._reserved(t)
         rng_state = self._rng.bit_generator.state
         n_particles = self.n_particles
@@ -514,20 +560,35 @@ class RaoBlackwellisedPF:
     def _reserved(self, t: int) -> BlockPool:
         """The pool with the free rows a step writes (:meth:`BlockPool.reserved`: this filter's, or a
         grown copy), after checking that growing it keeps the filter within ``max_bytes``
-        (:class:`~onlinemap.errors.MemoryLimitError` otherwise, nothing changed)."""
+        (:class:`~onlinemap.errors.MemoryLimitError` otherwise, nothing changed). With a path
+        history (``move_window``) the check counts its growth for the step and, on a step that may
+        move (:meth:`PathHistory.move_due`, whether the filter is still exact aside), the move's
+        worst case: P times :func:`map_rows_per_move` more map rows and
+        :func:`path_rows_per_move` more history rows (the pools grow by doubling as the move
+        needs, never beyond that). O(1)."""
         pool, model, p = self._blocks, self.model, self.n_particles
         need = cells_written(model) * p
-        rows, have = pool.rows_to_hold(need), len(pool.rows)
-        if rows > have:
+        extra, history_bytes, history_grows = 0, 0, False
+        if self._history is not None:
+            window = self.move_window
+            moving = self._history.move_due(t, window, self.move_every, self.move_lag, exact=False)
+            extra = p * map_rows_per_move(model, window, pool.table.shape[1]) if moving else 0
+            history_bytes, history_grows = self._history.bytes_to_hold(
+                t, p * (1 + (path_rows_per_move(window) if moving else 0)))
+        rows, have = pool.rows_to_hold(need + extra), len(pool.rows)
+        if rows > have or history_grows:
             n_blocks, size = pool.block_members.shape
-            total = state_bytes(model, p, size, n_blocks, rows, have, self.lazy_dynamics, self.threads)
+            total = history_bytes + state_bytes(model, p, size, n_blocks, rows, have if rows > have else 0,
+                                                self.lazy_dynamics, self.threads)
             if total > self.max_bytes:
+                paths = "" if self._history is None else (f", the path history of move_window "
+                                                          f"{history_bytes / 1e9:.3g} GB")
                 raise MemoryLimitError(
                     f"step {t}: the particles' maps use {np.count_nonzero(pool.refcount)} block rows (particles "
                     f"share fewer blocks as their trajectories part: {p} x {n_blocks} if they shared none) and the "
-                    f"step needs the pool grown from {have} to {rows} rows, {total / 1e9:.3g} GB in all, over "
-                    f"max_bytes = {self.max_bytes / 1e9:.3g} GB. The filter is unchanged: raise est.max_bytes to "
-                    f"continue, or use fewer particles")
+                    f"step needs the pool grown from {have} to {rows} rows{paths}, {total / 1e9:.3g} GB in all, "
+                    f"over max_bytes = {self.max_bytes / 1e9:.3g} GB. The filter is unchanged: raise est.max_bytes "
+                    f"to continue, or use fewer particles")
         return pool.reserved(need)
 
     def _enumerate_cells(self, blocks: BlockPool, t, neighbors, z, log_weights):
@@ -614,8 +675,8 @@ class RaoBlackwellisedPF:
             rbpf_commit_children_cells(self._locations, *blocks.writes(), t, buffers.ancestors, buffers.slot_child,
                                        buffers.child_location, neighbors, *_motion_and_sensor(model, z))
         blocks.refresh(t)
-        self._advance(t, blocks, buffers.log_weights, _logsumexp(buffers.log_weights, buffers.kept_weights), increment,
-                      threshold > 0)
+        self._advance(t, blocks, buffers.ancestors, buffers.log_weights,
+                      _logsumexp(buffers.log_weights, buffers.kept_weights), increment, threshold > 0)
 
     def _recover(self, a: int | None, z, t: int, blocks: BlockPool) -> None:
         """The step when no particle explains ``z`` (depletion): the exact limit of the augmented
@@ -678,7 +739,7 @@ class RaoBlackwellisedPF:
         n_blocks, size = blocks.block_members.shape
         rows, have = len(blocks.rows), len(self._blocks.rows)
         held = state_bytes(model, p, size, n_blocks, rows, have if rows != have else 0, self.lazy_dynamics,
-                           self.threads)
+                           self.threads) + (0 if self._history is None else self._history.nbytes)
         extra = recovery_bytes(model, p)
         if held + extra > self.max_bytes:
             raise MemoryLimitError(
@@ -731,14 +792,19 @@ class RaoBlackwellisedPF:
             blocks.refresh(t)
         else:
             blocks.commit(self._locations, t, ancestors, new_locations, new_cells, new_ids)
-        self._advance(t, blocks, log_weights, 0.0, increment, resampled, recovered)
+        self._advance(t, blocks, ancestors, log_weights, 0.0, increment, resampled, recovered)
 
-    def _advance(self, t, blocks: BlockPool, log_weights, normaliser, increment, resampled,
+    def _advance(self, t, blocks: BlockPool, ancestors, log_weights, normaliser, increment, resampled,
                  recovered: bool = False) -> None:
         """Take the committed step: keep ``blocks`` (this filter's pool, or its grown copy), the log
         weights ``log_weights - normaliser`` (normalised; written into the filter's own arrays), the
-        evidence ``increment`` and whether the step ``recovered`` from depletion."""
+        evidence ``increment`` and whether the step ``recovered`` from depletion; with a path
+        history, each slot's path: its ancestor's (``ancestors`` (P,), the commit's), then its
+        location (:meth:`PathHistory.record_paths`; :meth:`_reserved` checked the memory)."""
         self._blocks = blocks
+        if self._history is not None:
+            self._history = self._history.reserved(t, self.n_particles)
+            self._history.record_paths(t, ancestors, self._locations, resampled, recovered)
         np.subtract(log_weights, normaliser, out=self._log_weights)
         self._log_evidence += increment
         np.exp(self._log_weights, out=self._weights)
