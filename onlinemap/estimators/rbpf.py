@@ -311,7 +311,7 @@ class RaoBlackwellisedPF:
         self._blocks = BlockPool.new(model, layout, n_particles, not model.is_static and self.lazy_dynamics)
         fc = resampling == FEARNHEAD_CLIFFORD
         # the resample-move step's paths (rbpf_move.py); None without it
-        self._history = None if move_window is None else PathHistory.new(model, n_particles, exact=not fc)
+        self._history = None if move_window is None else PathHistory.new(model, n_particles, exact=fc)
         self._scratch_ints = np.zeros((5 if fc else 0, 2 * n_particles), dtype=np.int64)
         self._scratch_floats = np.zeros((3 if fc else 0, 2 * n_particles))
         staged = n_particles if threads > 1 else 0  # the parallel commit's staging
