@@ -420,14 +420,15 @@ class RaoBlackwellisedPF:
         """The options as the filter runs them: ``resampling`` resolved (None picks
         Fearnhead-Clifford for the optimal proposal, residual for the transition one), and no
         ``resample_threshold`` under Fearnhead-Clifford, which resamples every step whatever it
-        says, and no ``move_every`` or ``move_lag`` without ``move_window``. What ``repr`` and ``onlinemap track``'s start event show; ``options`` keeps what was
-        given (checkpoints compare it)."""
+        says, and no resample-move options without moves (``move_window`` None). What ``repr``
+        and ``onlinemap track``'s start event show; ``options`` keeps what was given (checkpoints
+        compare it)."""
         options = {**self.options, "resampling": self.resampling}
         if self.resampling == FEARNHEAD_CLIFFORD:
             options.pop("resample_threshold", None)
-        if options.get("move_window") is None:
-            options.pop("move_every", None)
-            options.pop("move_lag", None)
+        if self.move_window is None:
+            for name in ("move_window", "move_every", "move_lag"):
+                options.pop(name, None)
         return options
 
     @property
