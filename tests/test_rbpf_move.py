@@ -217,8 +217,8 @@ def test_bad_option_values_are_named(options, name):
 
 
 def test_a_refused_step_or_checkpoint_leaves_a_moving_filter_unchanged():
-    """A bad observation and a checkpoint written with other move options each raise and leave the moving filter (its path history included) bit for bit
-    as it was."""
+    """A bad observation and a checkpoint written with other move options each raise and leave
+    the moving filter (its path history included) bit for bit as it was."""
     model = om.corridor(8, 2, p_obs=0.85, p_move=0.7)
     run = random_run(model, 30, seed=2)
     est = om.make_estimator("rbpf", model, n_particles=20, seed=0, resampling="residual", move_window=3,

@@ -41,7 +41,10 @@ an update 0.26-0.35 us of CPU per particle at 10^4-10^5 particles on the 10 x 10
 belief 0.07. With ``threads`` the kernels of :mod:`onlinemap.kernels.rbpf_parallel` run instead
 (the same results). A step that recovers from particle depletion (see the class docstring)
 weighs N P children instead: O(P N F K^2) time and at most 32 P N bytes more
-(:func:`recovery_bytes`, which the guard checks before they are taken).
+(:func:`recovery_bytes`, which the guard checks before they are taken). With the resample-move
+option (class docstring) a move of every particle costs O(P W S (F K + 1)) every ``move_every``
+steps (S the cells a window's step can take) and the path history up to 2 P t bytes
+(:mod:`onlinemap.estimators.rbpf_move`).
 """
 
 from __future__ import annotations
@@ -235,6 +238,28 @@ class RaoBlackwellisedPF:
     :class:`ImpossibleObservationError` instead, the state unchanged, as before recovery existed:
     for hypothetical steps (a planner enumerating observations gives those the particles rule out
     probability zero) or to stop a run rather than relocate.
+
+    **Resample-move** (``move_window``, ``move_every``, ``move_lag``; off by default, Gilks and
+    Berzuini 2001; the math in :mod:`onlinemap.estimators.rbpf_move`). With ``move_window`` = W
+    (1 to 1000), every ``move_every`` steps (default 5), after the step's update, each live
+    particle redraws W consecutive past locations ``x_{s+1..s+W}``, s drawn uniformly so that the
+    window ends at least ``move_lag`` steps back (default 100; 0 lets it end at t), by a
+    Metropolis-Hastings move whose invariant law is the posterior over paths (proposal: forward
+    filtering, backward sampling of the window given its two ends and the particle's map with
+    the window's readings divided out; acceptance: the revisits inside the window). Weights,
+    the evidence and the streaming contract are unchanged (``step`` returns the belief at t);
+    each particle's map becomes the exact map given its new path. Moves wait until the filter
+    is no longer exact (Fearnhead-Clifford has dropped a child; the sampling schemes move from
+    the start), so with room for every child (P >= 2^T) the filter is exact Bayes, bit for bit
+    the filter without moves. It needs a static world, no blocking labels and a sensor without
+    zero entries (the readings are divided out of the maps): ``move_window`` is refused
+    otherwise (:class:`~onlinemap.errors.InvalidOptionError` naming the reason). After a
+    recovery from depletion windows start at or after the step that recovered. The filter keeps
+    every particle's path (shared copy-on-write blocks of steps) and every step's action and
+    readings: up to 2 P t bytes more, counted by ``max_bytes``. :attr:`moves` counts the
+    windows proposed and accepted (checkpointed). What it buys: on the paper's world replay at
+    1,000 particles (W = 20, every 5) the final map error falls from 0.26 to about 0.20 for 3.2x
+    the time per step (the README's RBPF section).
 
     ``threads``: how many threads the update and the belief use (numba's, at most
     ``NUMBA_NUM_THREADS``, an environment variable read when numba starts: the number of cores by

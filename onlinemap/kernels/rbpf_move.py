@@ -105,7 +105,8 @@ def rbpf_move(locations, log_weights, pool, pool_stamps, row_block, refcount, fr
                            np.empty((width, n_cells), dtype=np.int64), np.empty(width, dtype=np.int64),
                            np.empty((width, n_cells)), np.empty((width, n_cells, 2), dtype=np.int64),
                            np.empty((width, n_cells, 2)), np.empty(width, dtype=np.int64),
-                           np.empty(width, dtype=np.int64), np.empty(2 * n_cells), np.empty(2 * n_cells, dtype=np.int64),
+                           np.empty(width, dtype=np.int64), np.empty(2 * n_cells),
+                           np.empty(2 * n_cells, dtype=np.int64),
                            np.empty(window * footprint_cells.shape[1], dtype=np.int64), np.empty(k))
 
 
