@@ -4,7 +4,8 @@ exact Bayes, bit for bit the filter without moves); the Metropolis-Hastings move
 posterior over paths invariant (a chi-square test against a brute-force path posterior written
 here with itertools.product) and leaves each particle's map the exact map given its new path;
 refusals name the option; checkpoints resume bit for bit and a format-3 checkpoint still loads;
-``est.moves`` counts the windows."""
+``est.moves`` counts the windows; the memory guard counts the path history; threads give the same
+results."""
 
 import copy
 import itertools
@@ -18,7 +19,7 @@ from scipy import stats
 import onlinemap as om
 from onlinemap import checkpoint
 from onlinemap.estimators.rbpf_move import MAX_WINDOW
-from estimator_cases import beliefs, exact_trajectory, random_run
+from estimator_cases import RBPF_THREADS, beliefs, exact_trajectory, random_run, small_chunks
 from oracles import footprint_reads, grid_targets
 
 DATA = Path(__file__).parent / "data"
@@ -374,3 +375,44 @@ def test_moves_counts_every_window_proposed_and_accepted():
     for step in steps_of(run)[:3]:  # 3 steps: at most 4 children, none dropped
         fc.update(*step)
     assert fc.moves == (0, 0) and om.make_estimator("rbpf", model).moves == (0, 0)
+
+
+# --- memory and threads -----------------------------------------------------------------------------------
+def test_the_memory_guard_counts_the_path_history_and_the_move():
+    """With any growth over ``max_bytes``, a step that must grow the pool or the path history
+    (for the step or its move's worst case) raises MemoryLimitError naming the path history and
+    leaves the filter bit for bit as it was; with the limit raised the same step goes on."""
+    model = om.door_world(p_move=0.8)[0]
+    steps = steps_of(om.simulate(model, None, steps=200, seed=1))
+    est = om.make_estimator("rbpf", model, n_particles=100, seed=0, move_window=20, move_every=5, move_lag=10)
+    for args in steps[:100]:
+        est.update(*args)
+    raised = 0
+    for args in steps[100:]:
+        est.max_bytes = 1
+        before = est.state_dict()
+        try:
+            est.update(*args)
+        except om.MemoryLimitError as error:
+            assert "path history of move_window" in str(error)
+            assert checkpoint.first_difference(est.state_dict(), before) is None
+            raised += 1
+            est.max_bytes = 2**31
+            est.update(*args)
+    assert raised > 0 and est.moves.proposed > 0
+    with pytest.raises(om.MemoryLimitError, match="path history of move_window"):
+        om.make_estimator("rbpf", model, n_particles=200_000, move_window=20, max_bytes=10**8)
+
+
+@pytest.mark.parametrize("threads", RBPF_THREADS[1:])
+def test_a_moving_filter_gives_the_same_results_on_threads(threads, monkeypatch):
+    small_chunks(monkeypatch)
+    model = om.door_world(p_move=0.8)[0]
+    steps = steps_of(om.simulate(model, None, steps=150, seed=2))
+    serial, parallel = (om.make_estimator("rbpf", model, n_particles=100, seed=0, move_window=10, move_lag=20,
+                                          threads=n) for n in (1, threads))
+    for args in steps:
+        one, other = serial.step(*args), parallel.step(*args)
+        np.testing.assert_array_equal(one.map, other.map)
+        np.testing.assert_array_equal(one.location, other.location)
+    assert serial.moves == parallel.moves and serial.moves.proposed > 0
