@@ -34,11 +34,12 @@ from .codec import (_Decoder, _Encoder, _KeepFresh, _callable_name, _scratch_nod
                     decode_options, encode_model, same_tree)
 
 FORMAT = "onlinemap-checkpoint"
-FORMAT_VERSION = 3  # bump when the file layout or an estimator's state changes incompatibly
+FORMAT_VERSION = 4  # bump when the file layout or an estimator's state changes incompatibly
 OLDEST_FORMAT_VERSION = 1  # the oldest format this code still reads
 # version 2: the RBPF's block pool is one attribute (``_blocks``, a BlockPool); version 3: the RBPF
-# counts its recoveries from depletion (``_recoveries``, ``_recovered``). Older files are read
-# through RaoBlackwellisedPF.upgrade_attributes.
+# counts its recoveries from depletion (``_recoveries``, ``_recovered``); version 4: the RBPF's
+# resample-move step (``_history``, a PathHistory or None; ``move_window``, ``move_every``,
+# ``move_lag``). Older files are read through RaoBlackwellisedPF.upgrade_attributes.
 _SEPARATE = ("model", "options")  # attributes stored apart from the state tree
 
 
@@ -141,12 +142,14 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
 
 def _with_later_options(node, est):
     """The encoded options of a checkpoint, with every keyword option of ``est``'s class that it
-    does not name (one added after it was written) at its default: a checkpoint predating an
-    option loads into an estimator that has it at its default, and only there."""
+    does not name (one added after it was written) at its default, in the order of the class's
+    signature (``est.options``'): a checkpoint predating an option loads into an estimator that
+    has it at its default, and only there."""
     options = decode_options(node)
     defaults = {p.name: p.default for p in inspect.signature(type(est).__init__).parameters.values()
                 if p.kind is inspect.Parameter.KEYWORD_ONLY and p.default is not inspect.Parameter.empty}
-    return _Encoder().encode({**options, **{k: v for k, v in defaults.items() if k not in options}}, "options")
+    merged = {**defaults, **options}  # the signature's order, then any option it does not name
+    return _Encoder().encode(merged, "options")
 
 
 def check_state(est, restored: dict) -> None:

@@ -67,10 +67,32 @@ def block_layout(model: GridModel, block_cells: int | None = None) -> BlockLayou
     return BlockLayout(cell_block, cell_slot, members)
 
 
-def _grown(array: np.ndarray, rows: int) -> np.ndarray:
+def grown(array: np.ndarray, rows: int) -> np.ndarray:
     """``array`` with zero rows appended up to ``rows`` along axis 0."""
     out = np.zeros((rows, *array.shape[1:]), dtype=array.dtype)
     out[:len(array)] = array
+    return out
+
+
+def rows_to_hold(size: int, top: int, need: int) -> int:
+    """The number of rows a pool of ``size`` rows, ``top`` of them free, has once it holds ``need``
+    free rows: ``size``, or ``size`` doubled until the rows added and the free ones make ``need``
+    (a pool grows by doubling). O(log need)."""
+    if top >= need:
+        return size
+    grown_size = 2 * size
+    while grown_size - size + top < need:
+        grown_size *= 2
+    return grown_size
+
+
+def grown_free_stack(free: np.ndarray, top: int, have: int, size: int) -> np.ndarray:
+    """The free stack (``size``,) of a pool grown from ``have`` to ``size`` rows: the rows added
+    pushed under the ``top`` free ones already there, the lowest on top. O(size)."""
+    out = np.zeros(size, dtype=np.int64)
+    added = np.arange(size - 1, have - 1, -1)
+    out[:top] = free[:top]
+    out[top:top + len(added)] = added
     return out
 
 
@@ -157,24 +179,15 @@ class BlockPool:
         if top >= need:
             return self
         have, size = len(self.rows), self.rows_to_hold(need)
-        free = np.zeros(size, dtype=np.int64)
-        added = np.arange(size - 1, have - 1, -1)  # new rows, the lowest on top of the stack
-        free[:top] = self.free[:top]
-        free[top:top + len(added)] = added
-        return dataclasses.replace(self, rows=_grown(self.rows, size), stamps=_grown(self.stamps, size),
-                                   row_block=_grown(self.row_block, size), refcount=_grown(self.refcount, size),
-                                   free=free, free_top=np.array([top + len(added)]))
+        return dataclasses.replace(self, rows=grown(self.rows, size), stamps=grown(self.stamps, size),
+                                   row_block=grown(self.row_block, size), refcount=grown(self.refcount, size),
+                                   free=grown_free_stack(self.free, top, have, size),
+                                   free_top=np.array([top + size - have]))
 
     def rows_to_hold(self, need: int) -> int:
-        """The number of rows :meth:`reserved` gives a pool with ``need`` free rows: R, or R doubled
-        until the rows added and the free ones make ``need``. O(1)."""
-        top, size = int(self.free_top[0]), len(self.rows)
-        if top >= need:
-            return size
-        size *= 2
-        while size - len(self.rows) + top < need:
-            size *= 2
-        return size
+        """The number of rows :meth:`reserved` gives a pool with ``need`` free rows
+        (:func:`rows_to_hold`). O(1)."""
+        return rows_to_hold(len(self.rows), int(self.free_top[0]), need)
 
     def with_rows(self, rows: np.ndarray) -> BlockPool:
         """This pool with new row contents (R, B, K) (eager dynamics: ``rows @ C``). O(1)."""
@@ -243,7 +256,7 @@ class BlockPool:
             value = getattr(self, field.name)
             if type(value) is np.ndarray and not value.flags.c_contiguous:
                 checks.fail(f"{name}.{field.name}", "must be a C-contiguous array (the kernels' layout)")
-        fields, at = _Named(self, name), f"{name}."
+        fields, at = Named(self, name), f"{name}."
         members = checks.array(fields, at + "block_members", None, np.int64, ndim=2)
         n_blocks, block = members.shape
         p, k = n_particles, n_labels
@@ -252,20 +265,7 @@ class BlockPool:
         if rows.shape[1:] != (block, k) or r < n_blocks + p:
             checks.fail(at + "rows", f"must have shape (R >= {n_blocks + p}, {block}, {k}), got {rows.shape}")
         table = checks.array(fields, at + "table", (p, n_blocks), np.int64, written=True)
-        checks.indices(at + "table", table, r)
-        row_block = checks.array(fields, at + "row_block", (r,), np.int64, written=True)
-        checks.indices(at + "row_block", row_block, n_blocks)
-        if np.any(row_block[table] != np.arange(n_blocks)):
-            checks.fail(at + "row_block", "must name the block each table entry's row holds")
-        refcount = checks.array(fields, at + "refcount", (r,), np.int64, written=True)
-        if np.any(refcount != np.bincount(table.ravel(), minlength=r)):
-            checks.fail(at + "refcount", "must count the table's references to every row")
-        free = checks.array(fields, at + "free", (r,), np.int64, written=True)
-        free_top = checks.array(fields, at + "free_top", (1,), np.int64, written=True)
-        unused = np.flatnonzero(refcount == 0)
-        if not 0 <= free_top[0] <= r or not np.array_equal(np.sort(free[:free_top[0]]), unused):
-            checks.fail(at + "free", "must list exactly the rows no particle uses")
-        used = refcount > 0
+        used = check_shared_rows(fields, at, table, r) > 0
         checks.probabilities(at + "rows", rows[used])
         stamps = checks.array(fields, at + "stamps", (r, block if self.stamped else 0), np.int64, written=True)
         if self.stamped:  # ages at this step and the next index the table of powers of C
@@ -273,11 +273,35 @@ class BlockPool:
         checks.integer(fields, at + "refresh_cursor", 0, r - 1)
 
 
-class _Named:
-    """Attribute access to a pool's fields under the names ``NAME.field`` (for the messages of
-    :mod:`onlinemap.state_checks`)."""
+def check_shared_rows(fields, at: str, table: np.ndarray, n_rows: int) -> np.ndarray:
+    """The bookkeeping of rows shared copy-on-write (a :class:`BlockPool`'s, or the RBPF's path
+    history's): every entry of ``table`` (P, n) a row index below ``n_rows``; ``row_block``
+    naming the column (block) each entry's row holds; ``refcount`` counting the entries naming
+    each row; the free stack (``free``, ``free_top``) listing exactly the rows none names. Reads
+    the fields ``at + name`` of ``fields``; raises :class:`~onlinemap.errors.CheckpointError`
+    naming the first broken one; returns ``refcount``. O(n_rows + P n)."""
+    n_blocks = table.shape[1]
+    checks.indices(at + "table", table, n_rows)
+    row_block = checks.array(fields, at + "row_block", (n_rows,), np.int64, written=True)
+    checks.indices(at + "row_block", row_block, max(n_blocks, 1))
+    if np.any(row_block[table] != np.arange(n_blocks)):
+        checks.fail(at + "row_block", "must name the block each table entry's row holds")
+    refcount = checks.array(fields, at + "refcount", (n_rows,), np.int64, written=True)
+    if np.any(refcount != np.bincount(table.ravel(), minlength=n_rows)):
+        checks.fail(at + "refcount", "must count the table's references to every row")
+    free = checks.array(fields, at + "free", (n_rows,), np.int64, written=True)
+    free_top = checks.array(fields, at + "free_top", (1,), np.int64, written=True)
+    unused = np.flatnonzero(refcount == 0)
+    if not 0 <= free_top[0] <= n_rows or not np.array_equal(np.sort(free[:free_top[0]]), unused):
+        checks.fail(at + "free", "must list exactly the rows no particle uses")
+    return refcount
 
-    def __init__(self, pool: BlockPool, name: str):
+
+class Named:
+    """Attribute access to a state object's fields (a :class:`BlockPool`'s, the RBPF's path
+    history's) under the names ``NAME.field`` (for the messages of :mod:`onlinemap.state_checks`)."""
+
+    def __init__(self, pool, name: str):
         self._pool, self._name = pool, name
 
     def __getattr__(self, attribute: str):
