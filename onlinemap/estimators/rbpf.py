@@ -241,7 +241,7 @@ class RaoBlackwellisedPF:
 
     **Resample-move** (``move_window``, ``move_every``, ``move_lag``; off by default, Gilks and
     Berzuini 2001; the math in :mod:`onlinemap.estimators.rbpf_move`). With ``move_window`` = W
-    (1 to 1000), every ``move_every`` steps (default 5), after the step's update, each live
+    (1 to 1000), every ``move_every`` steps (default 10, the best measured), after the step's update, each live
     particle redraws W consecutive past locations ``x_{s+1..s+W}``, s drawn uniformly so that the
     window ends at least ``move_lag`` steps back (default 100; 0 lets it end at t), by a
     Metropolis-Hastings move whose invariant law is the posterior over paths (proposal: forward
@@ -284,7 +284,7 @@ class RaoBlackwellisedPF:
                  resampling: str | None = None, resample_threshold: float = 0.5, seed: SeedLike = None,
                  lazy_dynamics: bool = True, block_cells: int | None = None,
                  max_bytes: int = DEFAULT_MAX_BYTES, threads: int | None = 1, move_window: int | None = None,
-                 move_every: int = 5, move_lag: int = 100):
+                 move_every: int = 10, move_lag: int = 100):
         error = InvalidOptionError
         n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
         proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
@@ -371,7 +371,7 @@ class RaoBlackwellisedPF:
         if version <= 3:
             attributes.setdefault("_history", None)
             attributes.setdefault("move_window", None)
-            attributes.setdefault("move_every", 5)
+            attributes.setdefault("move_every", 10)
             attributes.setdefault("move_lag", 100)
         return attributes
 
