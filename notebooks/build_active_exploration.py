@@ -48,7 +48,8 @@ from onlinemap.studies.base import with_intervals
 from onlinemap.worlds import parse_world
 
 WORLD = exploration.BLOCKING_WORLD  # the door world's spec with blocking walls and a cross footprint
-model, true_map = parse_world(WORLD)[:2]
+world = parse_world(WORLD)
+model, true_map = world.model, world.true_map
 print(WORLD)
 print(model)"""),
     ("md", """\
@@ -86,7 +87,8 @@ closed), walls and closed doors blocking, a cross footprint. Here a 16 x 16 floo
 start."""),
     ("code", """\
 BUILDING = "building:16x16,seed=2"
-b_model, b_map = parse_world(BUILDING)[:2]
+b_world = parse_world(BUILDING)
+b_model, b_map = b_world.model, b_world.true_map
 display(om.plots.plot_building(b_model, b_map, title=BUILDING))"""),
     ("md", """\
 ## The belief as the building is explored

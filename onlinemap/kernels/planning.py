@@ -518,6 +518,19 @@ def _reset(ov_index, ov_cell, ov_n, touched, touched_list, n_touched):
 
 
 @njit(cache=True)
+def _overlays(r_count, n_cells, k, horizon, n_reads):
+    """The rollouts' copy-on-write overlays of R particles' maps (each particle writes at most
+    H (F + 1) cells): ``ov_index`` (R, N) a cell's slot or -1, ``ov_cell``/``ov_stamp`` (R, W),
+    ``ov_val`` (R, W, K), ``ov_n`` (R,) slots used, ``touched`` (N,) and ``touched_list`` (R W,)
+    the cells some particle wrote; W = max(H, 1) (F + 1). O(R (N + W K))."""
+    width = max(horizon, 1) * (n_reads + 1)
+    return (np.full((r_count, n_cells), -1, dtype=np.int64), np.empty((r_count, width), dtype=np.int64),
+            np.empty((r_count, width, k)), np.zeros((r_count, width), dtype=np.int64),
+            np.zeros(r_count, dtype=np.int64), np.zeros(n_cells, dtype=np.bool_),
+            np.empty(r_count * width, dtype=np.int64))
+
+
+@njit(cache=True)
 def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footprint_cells, sensor, sensor_cdf, change,
                   change_cdf, powers, dynamic, sequences, distances, go, hyp_locations, hyp_labels, world_u, change_u,
                   proposal_u, location_weight, checkpoints, disputed, agree_entropy, out):
@@ -542,17 +555,8 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
     r_count, n_cells, k = maps.shape
     n_seq, horizon = sequences.shape
     n_reads = footprint_cells.shape[1]
-    has_blocking = False
-    for b in range(k):
-        has_blocking = has_blocking or blocking[b]
-    width = max(horizon, 1) * (n_reads + 1)
-    ov_index = np.full((r_count, n_cells), -1, dtype=np.int64)
-    ov_cell = np.empty((r_count, width), dtype=np.int64)
-    ov_val = np.empty((r_count, width, k))
-    ov_stamp = np.zeros((r_count, width), dtype=np.int64)
-    ov_n = np.zeros(r_count, dtype=np.int64)
-    touched = np.zeros(n_cells, dtype=np.bool_)
-    touched_list = np.empty(r_count * width, dtype=np.int64)
+    has_blocking = np.any(blocking)
+    ov_index, ov_cell, ov_val, ov_stamp, ov_n, touched, touched_list = _overlays(r_count, n_cells, k, horizon, n_reads)
     location = np.zeros(n_cells)
     mix = np.zeros((n_cells, k))
     scratch = np.empty(k)
@@ -611,17 +615,8 @@ def rollout_beliefs(locations, maps, log_weights, moves, p_move, blocking, footp
     r_count, n_cells, k = maps.shape
     horizon = actions.shape[0]
     n_reads = footprint_cells.shape[1]
-    has_blocking = False
-    for b in range(k):
-        has_blocking = has_blocking or blocking[b]
-    width = max(horizon, 1) * (n_reads + 1)
-    ov_index = np.full((r_count, n_cells), -1, dtype=np.int64)
-    ov_cell = np.empty((r_count, width), dtype=np.int64)
-    ov_val = np.empty((r_count, width, k))
-    ov_stamp = np.zeros((r_count, width), dtype=np.int64)
-    ov_n = np.zeros(r_count, dtype=np.int64)
-    touched = np.zeros(n_cells, dtype=np.bool_)
-    touched_list = np.empty(r_count * width, dtype=np.int64)
+    has_blocking = np.any(blocking)
+    ov_index, ov_cell, ov_val, ov_stamp, ov_n, touched, touched_list = _overlays(r_count, n_cells, k, horizon, n_reads)
     scratch = np.empty(k)
     ids = np.empty((2, n_reads + 1), dtype=np.int64)
     cells = np.empty((2, n_reads + 1, k))

@@ -101,6 +101,16 @@ def _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, q, 
 
 
 @njit(cache=True, inline="always")
+def _prefetch_child(pool, pool_stamps, table, cell_block, cell_slot, dynamic, ancestors, slot_child, child_location,
+                    ahead, stop):
+    """Ask for the marginal of the cell slot ``ahead``'s child enters, from its parent's rows, if
+    that slot (below ``stop``) has a child (:func:`_prefetch_cell`)."""
+    if ahead < stop and slot_child[ahead] >= 0:
+        _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, ancestors[ahead],
+                       child_location[slot_child[ahead]])
+
+
+@njit(cache=True, inline="always")
 def _prefetch_footprint(pool, pool_stamps, table, cell_block, cell_slot, dynamic, footprint_cells, q, cell):
     """Ask for particle q's marginals of the cells a robot at ``cell`` reads."""
     for f in range(footprint_cells.shape[1]):
@@ -777,10 +787,8 @@ def _stage_children(pool, pool_stamps, table, cell_block, cell_slot, powers, dyn
     ``new_locations`` (P,) the child's cell (-1: no child), ``new_ids`` (P, 1) the same,
     ``new_cells`` (P, 1, K) its observed cell's posterior."""
     for p in range(start, stop):
-        ahead = p + PREFETCH_AHEAD
-        if ahead < stop and slot_child[ahead] >= 0:
-            _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, ancestors[ahead],
-                           child_location[slot_child[ahead]])
+        _prefetch_child(pool, pool_stamps, table, cell_block, cell_slot, dynamic, ancestors, slot_child,
+                        child_location, p + PREFETCH_AHEAD, stop)
         c = slot_child[p]
         new_locations[p] = -1
         new_ids[p, 0] = -1
@@ -803,10 +811,8 @@ def _stage_children_cells(locations, pool, pool_stamps, table, cell_block, cell_
     ``new_cells`` (P, W, K); ``before``, ``given`` (K,), ``lams`` (F,) scratch."""
     has_blocking = _any(blocking)
     for p in range(start, stop):
-        ahead = p + PREFETCH_AHEAD
-        if ahead < stop and slot_child[ahead] >= 0:
-            _prefetch_cell(pool, pool_stamps, table, cell_block, cell_slot, dynamic, ancestors[ahead],
-                           child_location[slot_child[ahead]])
+        _prefetch_child(pool, pool_stamps, table, cell_block, cell_slot, dynamic, ancestors, slot_child,
+                        child_location, p + PREFETCH_AHEAD, stop)
         c = slot_child[p]
         new_locations[p] = -1
         if c < 0:
