@@ -87,3 +87,31 @@ def test_bench_rbpf_per_particle_rows():
         assert 0 < row["bytes_per_particle"] <= row["allocated_bytes_per_particle"]
     cross = rows[-1]
     assert cross["target"] == 2.0 and cross["reference_ms"] == pytest.approx(rows[0]["ms"] * cross["live"] / 60)
+
+
+def test_bench_rbpf_replay_rows_replay_what_replay_study_replays():
+    """The replay rows (issue 21) on a short run: the live run and the 1000-particle FC replay are
+    those of ``replay_study`` on seed 0 (the sweep engine's path: world spec, planner defaults,
+    filter seed, scoring), computed independently; before any window ends ``move_lag`` = 100
+    steps back the move filter has not moved, so it equals FC; the targets are set where the issue
+    puts them and the map-error verdict follows the number (no timing is checked)."""
+    from onlinemap.bench.rbpf import MAP_ERROR_TARGET, replay_rows
+    from onlinemap.studies.exploration import replay_study
+
+    rows = replay_rows(60, 2000, replays=1, reference_note="; test")
+    assert [row["case"] for row in rows] == [
+        "replay info_gain paper world, 60 steps P=1000: FC",
+        "replay info_gain paper world, 60 steps P=1000: FC + move_window=20",
+        "replay info_gain paper world, 60 steps P=2000: FC (reference filter; test)"]
+    fc, move, reference = rows
+    study = replay_study("info_gain", seeds=[0], steps=60, replay_particles=(1000,), replays=1, progress=False)
+    errors = study.set_index("filter")["final_map_error"]
+    assert fc["live_map_error"] == pytest.approx(errors["live"], abs=1e-12)
+    assert fc["map_error"] == pytest.approx(errors["rbpf 1000"], abs=1e-12)
+    assert move["map_error"] == fc["map_error"]
+    assert reference["map_error"] == fc["reference_map_error"] == move["reference_map_error"]
+    for row in rows:
+        assert row["ms"] > 0 and row["reference_ms"] == fc["ms"] and 0 <= row["map_error"] <= 1
+    assert np.isnan(fc["target"]) and move["target"] == 2.0 and np.isnan(reference["target"])
+    assert move["map_error_target"] == MAP_ERROR_TARGET == 0.19
+    assert move["meets_map_error_target"] == (move["map_error"] <= 0.19) and fc["meets_map_error_target"] is None

@@ -171,6 +171,7 @@ def binary_task_study(planners: Sequence[str] = ("info_gain", "random"), *, seed
 
 # --- replays: the data of a live run through other filters -----------------------------------
 LIVE_PARTICLES = 1000  # the live filter's particles unless a replay task's planner says otherwise
+REPLAY_SEED = 10_000  # replay r of a run uses filter seed REPLAY_SEED + r (replay_study, bench rbpf)
 
 
 def replay_options(name: str) -> dict:
@@ -187,14 +188,25 @@ def build_replayed(model: GridModel, name: str, options: dict):
     return build_planner(model, name, _planner_part(options))
 
 
+def live_exploration(model: GridModel, true_map: np.ndarray, planner: str, steps: int, seed: int, *,
+                     planner_options: dict | None = None, live_particles: int = LIVE_PARTICLES) -> Exploration:
+    """The run a replay replays: ``planner`` (built with ``planner_options``, default its own
+    defaults) closed on an RBPF of ``live_particles`` in ``model`` whose true map is ``true_map``
+    (N,), ``steps`` steps, the world, the planner and the live filter seeded from ``seed`` (as
+    :func:`policies.exploration`); unscored (its ``frame`` is None). Cost: ``steps`` x (an RBPF
+    step of ``live_particles`` + a planner decision)."""
+    return _exploration(model, true_map, planner, "rbpf", steps, seed, {"n_particles": int(live_particles)},
+                        planner_options, progress=False, score=False)
+
+
 @functools.lru_cache(maxsize=4)
 def _live(model: GridModel, true_map: bytes, task: Task) -> Exploration:
     """The live exploration of a replay task (memoised per process: the replays of one seed
-    share it): the task's planner closed on an RBPF of ``live_particles``."""
+    share it): :func:`live_exploration` of the task's planner and ``live_particles``."""
     options = dict(task.planner_options)
-    live = int(options.get("live_particles", LIVE_PARTICLES))
-    return _exploration(model, np.frombuffer(true_map, dtype=np.int64), task.planner, "rbpf", task.steps, task.seed,
-                        {"n_particles": live}, _planner_part(options), progress=False, score=False)
+    return live_exploration(model, np.frombuffer(true_map, dtype=np.int64), task.planner, task.steps, task.seed,
+                            planner_options=_planner_part(options),
+                            live_particles=int(options.get("live_particles", LIVE_PARTICLES)))
 
 
 def play_replay(model: GridModel, true_map: np.ndarray, task: Task) -> Played:
@@ -230,7 +242,7 @@ def replay_study(planner: str = "info_gain", *, seeds: Sequence[int] = range(5),
     spec = {"name": "replay", "kind": "replay", "worlds": [world], "seeds": [int(s) for s in seeds],
             "steps": int(steps), "planners": {planner: {"live_particles": int(n_particles)}},
             "estimators": {"rbpf": {"n_particles": [int(p) for p in replay_particles],
-                                    "seed": [10_000 + r for r in range(int(replays))], "max_bytes": 2**36}}}
+                                    "seed": [REPLAY_SEED + r for r in range(int(replays))], "max_bytes": 2**36}}}
     runs = sweep(spec, workers=workers, progress=progress)
     rows = []
     for seed, group in runs.groupby("seed", sort=True):
