@@ -80,3 +80,23 @@ def test_the_told_location_map_of_a_static_world_equals_the_step_by_step_filter(
                 belief[cell] *= model.sensor[:, z]
                 belief[cell] /= belief[cell].sum()
     np.testing.assert_allclose(told_location_map(model, run), belief, atol=1e-12)
+
+
+def test_summary_keeps_a_metric_no_run_reached():
+    """Mean and t-interval of each metric per group, by hand; a metric with no value in any run
+    (steps to a map error never reached) keeps its columns as NaN instead of vanishing."""
+    import pandas as pd
+    from scipy import stats
+
+    from onlinemap.studies.base import summary_of
+
+    runs = pd.DataFrame({"planner": ["a", "a", "a", "b", "b"], "seed": [0, 1, 2, 0, 1],
+                         "steps": [10.0, 12.0, 17.0, 3.0, 5.0], "never": [float("nan")] * 5})
+    summary = summary_of(runs, ["steps", "never"], ["planner"])
+    a = summary[summary["planner"] == "a"].iloc[0]
+    values = [10.0, 12.0, 17.0]
+    half = stats.t.ppf(0.975, 2) * stats.sem(values)
+    assert a["runs"] == 3 and a["steps"] == pytest.approx(13.0)
+    assert (a["steps_low"], a["steps_high"]) == pytest.approx((13.0 - half, 13.0 + half))
+    assert {"never", "never_low", "never_high"} <= set(summary.columns)
+    assert summary[["never", "never_low", "never_high"]].isna().all().all()

@@ -26,13 +26,21 @@ def summary_of(runs: pd.DataFrame, metrics: Sequence[str], by: Sequence[str], co
                bounds: dict[str, tuple[float, float]] | None = None) -> pd.DataFrame:
     """One row per group of ``runs`` (the columns ``by``, in order of appearance): ``runs`` and
     each metric's mean with its interval at ``confidence`` (NAME, NAME_low, NAME_high).
-    ``bounds``: ranges tighter than the metric's own (e.g. a count of cells lies in [0, N])."""
-    long = summarize(runs, [m for m in metrics if m in runs], confidence, by=list(by))
+    ``bounds``: ranges tighter than the metric's own (e.g. a count of cells lies in [0, N]).
+    A metric of ``runs`` with no value in any run (steps to a map error no run reached) keeps
+    its columns, NaN."""
+    present = [m for m in metrics if m in runs]
+    long = summarize(runs, present, confidence, by=list(by))
     for metric, (low, high) in (bounds or {}).items():
         rows = long["metric"] == metric
         long.loc[rows, "low"] = long.loc[rows, "low"].clip(lower=low)
         long.loc[rows, "high"] = long.loc[rows, "high"].clip(upper=high)
-    return summary_wide(long)
+    wide = summary_wide(long)
+    for metric in present:
+        for name in (metric, f"{metric}_low", f"{metric}_high"):
+            if name not in wide:
+                wide[name] = np.nan
+    return wide
 
 
 def with_intervals(summary: pd.DataFrame, metrics: Sequence[str], digits: int = 3) -> pd.DataFrame:
