@@ -416,3 +416,22 @@ def test_a_moving_filter_gives_the_same_results_on_threads(threads, monkeypatch)
         np.testing.assert_array_equal(one.map, other.map)
         np.testing.assert_array_equal(one.location, other.location)
     assert serial.moves == parallel.moves and serial.moves.proposed > 0
+
+
+@pytest.mark.parametrize("name", ["corridor", "footprint"])
+def test_filter_with_moves_matches_exact_within_monte_carlo_tolerance(name):
+    """The whole filter with a move at every step (windows of 2 up to t) once Fearnhead-Clifford
+    drops children: 20,000 particles over 30 steps of a slipping robot (2^29 trajectories) stay
+    within the Monte-Carlo tolerance of exact Bayes derived in ``tests/test_rbpf.py`` for FC
+    without moves (the move keeps the posterior over paths and the weights, so each marginal is
+    still a weighted average over ESS effectively independent draws), static corridor and a
+    two-cell footprint. The moves did happen: thousands of windows accepted."""
+    from test_rbpf import STATIC, assert_within_monte_carlo_error
+
+    model = om.corridor(6, 2, **STATIC) if name == "corridor" else footprint_world()
+    run = random_run(model, 30, seed=4)
+    exact = exact_trajectory(run)
+    est = om.make_estimator("rbpf", model, n_particles=20_000, seed=1, **AGGRESSIVE)
+    for t, belief in enumerate(beliefs(est, run)):
+        assert_within_monte_carlo_error(belief, exact, t, "fearnhead_clifford")
+    assert est.moves.accepted > 1000
