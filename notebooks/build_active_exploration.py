@@ -120,7 +120,26 @@ with_intervals(buildings.summary, ["final_map_error", "map_error_area"])[COLUMNS
     ("md", """\
 ## Conclusion
 
-CONCLUSION"""),
+In the door world a robot would recognise (walls and closed doors block, a cross footprint, a
+uniform prior), the planners that know where the unknown is map the floor in one pass: over
+these 6 seeds `info_gain` reaches map error 0.1 after 112 steps on average and `frontier` after
+143, with final errors of 0.011 and 0.017 after 300 steps; `entropy`, on the belief's
+passability, gets there on 4 seeds of 6; a random walk and the sweep never do (0.48 and 0.32
+at the end). `info_gain` also keeps its location best (mean location error 0.18 against 0.33 for
+`frontier`). These 6 seeds are among those `info_gain`'s `step_cost` was tuned on; on 20 fresh
+seeds (the README) the gap to `frontier` shrinks to 127 against 139 steps (1.09x), the issue's
+1.3x is missed: a tuned frontier explorer is close to what this small world allows, and
+information gain's advantage is that it does not get lost (its slowest run needs 159 steps,
+`frontier`'s 259).
+
+In a 16 x 16 building the difference is the location. After 600 steps `info_gain` has mapped a
+good part of the floor (map error 0.32, location error 0.58), `frontier` and the random walk are
+at 0.51 and 0.56; `frontier` is lost almost all the time (location error 0.95): it heads for
+the nearest unknown along corridors whose cells read alike, where a move and a slip look the
+same, and nothing in its rule values knowing where it is. The belief pictures show how
+`info_gain` covers a building: room by room from the start, the location sharp where the map is
+known, the far wing still at the prior. No planner maps a whole building within these steps;
+the README's 32 x 32 study measures how far each gets in 2000."""),
 ]
 
 

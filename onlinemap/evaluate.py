@@ -85,14 +85,16 @@ TIMING_NOTE = "ms_per_step: wall time per step, measured after a warm-up run (nu
 
 def metric_bounds(name: str, n_cells: int | None = None) -> tuple[float, float]:
     """The range of a metric: [0, 1] for errors, distances, entropies and probabilities, [0, N]
-    for counts of cells in a world of ``n_cells`` = N (``wrong_cells``, ``unsure_or_wrong``, ...;
-    [0, inf) when N is not known), [0, inf) for times, unbounded otherwise (log evidence)."""
+    for counts of cells in a world of ``n_cells`` = N (``wrong_cells``, ``unsure_or_wrong``,
+    ``final_known_cells``, ...; [0, inf) when N is not known), [0, inf) for times, steps
+    (``steps_to_map_error_10``) and areas under an error curve (``map_error_area``, error x steps),
+    unbounded otherwise (log evidence)."""
+    if name == "ms_per_step" or name.startswith(("steps_to_", "map_error_area")):
+        return 0.0, math.inf
     if any(part in name for part in UNIT_METRICS):
         return 0.0, 1.0
-    if "wrong" in name:
+    if "wrong" in name or name.endswith("known_cells"):
         return 0.0, math.inf if n_cells is None else float(n_cells)
-    if name == "ms_per_step":
-        return 0.0, math.inf
     return -math.inf, math.inf
 
 

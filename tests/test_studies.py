@@ -100,3 +100,19 @@ def test_summary_keeps_a_metric_no_run_reached():
     assert (a["steps_low"], a["steps_high"]) == pytest.approx((13.0 - half, 13.0 + half))
     assert {"never", "never_low", "never_high"} <= set(summary.columns)
     assert summary[["never", "never_low", "never_high"]].isna().all().all()
+
+
+def test_metric_ranges_bound_each_metric_by_its_own_kind():
+    """Errors lie in [0, 1]; steps to a map error, the area under the error curve (error x
+    steps) and times in [0, inf); counts of cells in [0, N] (a study's interval of the steps to
+    map error 0.1 was once cut at 1 because the name holds "error")."""
+    import math
+
+    from onlinemap.evaluate import metric_bounds
+
+    assert metric_bounds("final_map_error") == (0.0, 1.0)
+    assert metric_bounds("reached_map_error_10") == (0.0, 1.0)
+    for name in ("steps_to_map_error_10", "steps_to_map_error_05", "map_error_area", "ms_per_step"):
+        assert metric_bounds(name) == (0.0, math.inf), name
+    assert metric_bounds("wrong_cells", 100) == metric_bounds("final_known_cells", 100) == (0.0, 100.0)
+    assert metric_bounds("final_log_evidence") == (-math.inf, math.inf)

@@ -77,7 +77,7 @@ def summarize(table: pd.DataFrame, metrics_: Iterable[str] | None = None, confid
     groups = table.groupby(config, sort=False, dropna=False) if config else [((), table)]
     for keys, group in groups:
         keys = keys if isinstance(keys, tuple) else (keys,)
-        n_cells = cell_count(group) if any("wrong" in metric for metric in chosen) else None
+        n_cells = cell_count(group) if any("wrong" in m or m.endswith("known_cells") for m in chosen) else None
         for metric in chosen:
             interval = _interval(group[metric], metric, confidence, n_cells)
             if math.isnan(interval.mean):
