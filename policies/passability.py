@@ -48,8 +48,8 @@ def enter_costs(model: GridModel, passable: np.ndarray, min_passable: float = 0.
     passable = _passable(model, passable)
     min_passable = arguments.real("min_passable", min_passable, low=0.0, high=1.0, low_open=True)
     go = model.p_move * passable
-    with np.errstate(divide="ignore"):
-        return np.where((passable >= min_passable) & (go > 0), 1.0 / go, np.inf)
+    entered = (passable >= min_passable) & (go > 0)
+    return np.divide(1.0, go, out=np.full(len(go), np.inf), where=entered)  # no 1 / tiny outside
 
 
 def distances_to(model: GridModel, passable: np.ndarray, targets, min_passable: float = 0.05) -> np.ndarray:
