@@ -116,6 +116,24 @@ def _uncertainty(locations, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powe
 
 
 @njit(cache=True)
+def _normalise(lw, top, drop_below):
+    """Log weights ``lw`` (R,) in place so that ``sum exp(lw) = 1``, given ``top = max(lw)``; a
+    particle with ``lw - top < drop_below`` is dropped (-inf); when every particle is at -inf
+    (the world left them all behind) they are kept, equally weighted. O(R)."""
+    if top == -np.inf:
+        lw[:] = 0.0
+        top = 0.0
+    total = 0.0
+    for p in range(lw.shape[0]):
+        if lw[p] - top < drop_below:
+            lw[p] = -np.inf
+        total += math.exp(lw[p] - top)
+    norm = top + math.log(total)
+    for p in range(lw.shape[0]):
+        lw[p] -= norm
+
+
+@njit(cache=True)
 def rollout_uncertainty(locations, maps, log_weights, moves, p_move, likelihood, sensor_cdf, change_cdf,
                         powers, dynamic, actions, hyp_location, hyp_labels, world_uniforms, change_uniforms,
                         proposal_uniforms, location_weight, checkpoints, out):
@@ -203,15 +221,8 @@ def rollout_uncertainty(locations, maps, log_weights, moves, p_move, likelihood,
             ov_stamp[p, slot] = h
             if lw[p] > top:
                 top = lw[p]
-        if top == -np.inf:  # the hypothesis left every particle behind: keep them, equally weighted
-            lw[:] = 0.0
-            top = 0.0
-        total = 0.0
+        _normalise(lw, top, -np.inf)
         for p in range(r_count):
-            total += math.exp(lw[p] - top)
-        norm = top + math.log(total)
-        for p in range(r_count):
-            lw[p] -= norm
             weights[p] = math.exp(lw[p])
         if checkpoints[h]:
             out[h] = _uncertainty(loc, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, h,
@@ -395,17 +406,7 @@ def _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, power
                 n_touched += 1
         if lw[p] > top:
             top = lw[p]
-    if top == -np.inf:  # the world left every particle behind: keep them, equally weighted
-        lw[:] = 0.0
-        top = 0.0
-    total = 0.0
-    for p in range(r_count):
-        if lw[p] - top < NEGLIGIBLE:  # a particle this far behind is dropped from the rollout
-            lw[p] = -np.inf
-        total += math.exp(lw[p] - top)
-    norm = top + math.log(total)
-    for p in range(r_count):
-        lw[p] -= norm
+    _normalise(lw, top, NEGLIGIBLE)  # a particle this far behind is dropped from the rollout
     return n_touched
 
 
