@@ -486,14 +486,15 @@ def frontier_targets(model: GridModel, plan: FrontierPlan, count: int, spacing: 
     order = order[np.isfinite(plan.score[order])]
     if skip is not None:
         order = order[~skip[order]]
-    rows, cols = np.divmod(order, model.cols)
     chosen: list[int] = []
-    for index, cell in enumerate(order):
+    places: list[tuple[int, int]] = []  # (row, col) of the chosen cells
+    for cell in order:
         if len(chosen) == count:
             break
-        if all(abs(rows[index] - r) + abs(cols[index] - c) >= spacing for r, c in map(lambda x: divmod(x, model.cols),
-                                                                                        chosen)):
+        row, col = divmod(int(cell), model.cols)
+        if all(abs(row - r) + abs(col - c) >= spacing for r, c in places):
             chosen.append(int(cell))
+            places.append((row, col))
     return np.asarray(chosen, dtype=np.int64)
 
 
@@ -655,7 +656,7 @@ class InfoGainExplorer:
         the location belief (the frontier's rule, :func:`~policies.passability.steps_after_press`
         on the belief's passability), among the presses :class:`~policies.passability.PressMemory`
         allows. O(N A log(N A)) (one Dijkstra)."""
-        frontier = self.frontier or FrontierExplorer(self.model)
+        frontier = self.frontier  # a target comes from it: set whenever targets > 0
         passable = expected_passability(self.model, belief)
         distance = _finite(distances_to(self.model, passable, [target], frontier.min_passable), frontier.penalty)
         cost = belief.location @ steps_after_press(self.model, passable, distance, frontier.min_passable)
@@ -683,9 +684,9 @@ class InfoGainExplorer:
                 sequences.append(path)
                 targets.append(-1)
             return Candidates(tuple(names), np.stack(sequences), np.asarray(targets), None, None)
-        passable = expected_passability(model, belief)
-        chosen = frontier_targets(model, self.frontier.plan(belief), self.targets, skip=belief.location > 0.5)
+        passable = expected_passability(model, belief) if passable is None else passable
         frontier = self.frontier
+        chosen = frontier_targets(model, frontier.plan(belief), self.targets, skip=belief.location > 0.5)
         distances = [np.zeros(model.n_cells)] * len(names)
         for cell in chosen:
             names.append(f"to {divmod(int(cell), model.cols)}")
