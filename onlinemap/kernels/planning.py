@@ -19,6 +19,8 @@ import math
 import numpy as np
 from numba import njit
 
+from . import loop_kernel
+
 
 @njit(cache=True)
 def _draw(cdf_row, u):
@@ -336,7 +338,7 @@ def _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, 
     return j, likelihood, used
 
 
-@njit(cache=True)
+@loop_kernel
 def _world_step(where, labels, a, moves, p_move, blocking, dynamic, change_cdf, sensor_cdf, footprint_cells,
                 world_u, change_u, readings):
     """One step of the hypothetical world (``onlinemap.simulate.world_step``'s order and rules):
@@ -356,7 +358,7 @@ def _world_step(where, labels, a, moves, p_move, blocking, dynamic, change_cdf, 
     return where
 
 
-@njit(cache=True)
+@loop_kernel
 def _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, powers, change, dynamic, a, h, moves,
                  p_move, blocking, has_blocking, footprint_cells, sensor, readings, proposal_u, ids, cells, before,
                  touched, touched_list, n_touched):
@@ -410,11 +412,14 @@ def _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, power
     return n_touched
 
 
-@njit(cache=True)
-def _closed_loop_action(loc, lw, moves, distance, go):
+@loop_kernel
+def _closed_loop_action(loc, lw, moves, distance, go, weights):
     """``argmin_a sum_p w_p [go(l_p, a) D(n) + (1 - go(l_p, a)) D(l_p)]``, ``n = moves[a, l_p]``:
     the expected distance ``D`` (N,) to the candidate's target after the press, ``go`` (N, A) the
-    chance the press moves (0 where it cannot); ties to the lowest action. O(R A)."""
+    chance the press moves (0 where it cannot); ties to the lowest action. ``weights`` (R,):
+    scratch for ``w_p``. O(R A)."""
+    for p in range(loc.shape[0]):
+        weights[p] = math.exp(lw[p])
     best = -1
     best_cost = np.inf
     for a in range(go.shape[1]):
@@ -423,7 +428,7 @@ def _closed_loop_action(loc, lw, moves, distance, go):
             if lw[p] == -np.inf:
                 continue
             l = loc[p]
-            cost += math.exp(lw[p]) * (go[l, a] * distance[moves[a, l]] + (1.0 - go[l, a]) * distance[l])
+            cost += weights[p] * (go[l, a] * distance[moves[a, l]] + (1.0 - go[l, a]) * distance[l])
         if cost < best_cost:
             best_cost = cost
             best = a
@@ -444,10 +449,10 @@ def _carried(row, powers, dynamic, d, out):
             out[b] = row[b]
 
 
-@njit(cache=True)
+@loop_kernel
 def _mixture_uncertainty(loc, lw, maps, disputed, disputed_maps, disputed_mask, ov_cell, ov_val, ov_stamp, ov_n,
                          powers, dynamic, h, location_weight, touched_list, n_touched, agree_entropy, location, mix,
-                         scratch, scratch2):
+                         scratch, scratch2, weights):
     """``location_weight * H(L) + sum_i H(M_i)`` of the weighted particles at step h. The mixture
     ``M_i = sum_p w_p m_p(i)`` is recomputed on the disputed cells (``disputed`` (D,), their base
     marginals ``disputed_maps`` (D, R, K), ``disputed_mask`` (N,)) and the touched ones: the base
@@ -457,7 +462,6 @@ def _mixture_uncertainty(loc, lw, maps, disputed, disputed_maps, disputed_mask, 
     and on exit. O(R D K + R H F K + (D + T) K) (K^2 instead of K with map dynamics)."""
     r_count = loc.shape[0]
     k = scratch.shape[0]
-    weights = np.empty(r_count)
     for p in range(r_count):
         location[loc[p]] = 0.0
         weights[p] = math.exp(lw[p])
@@ -562,6 +566,7 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
     mix = np.zeros((n_cells, k))
     scratch = np.empty(k)
     scratch2 = np.empty(k)
+    weights = np.empty(r_count)
     disputed_maps = np.empty((disputed.shape[0], r_count, k))  # contiguous for the weighted sums
     disputed_mask = np.zeros(n_cells, dtype=np.bool_)
     for d in range(disputed.shape[0]):
@@ -577,7 +582,7 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
     lw = np.empty(r_count)
     now = _mixture_uncertainty(locations, log_weights, maps, disputed, disputed_maps, disputed_mask, ov_cell, ov_val,
                                ov_stamp, ov_n, powers, dynamic, 0, location_weight, touched_list, 0, agree_entropy[0],
-                               location, mix, scratch, scratch2)
+                               location, mix, scratch, scratch2, weights)
     for s in range(hyp_locations.shape[0]):
         for c in range(n_seq):
             loc[:] = locations
@@ -590,7 +595,7 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
             for h in range(1, horizon + 1):
                 a = sequences[c, h - 1]
                 if a < 0:
-                    a = _closed_loop_action(loc, lw, moves, distances[c], go)
+                    a = _closed_loop_action(loc, lw, moves, distances[c], go, weights)
                 where = _world_step(where, labels, a, moves, p_move, blocking, dynamic, change_cdf, sensor_cdf,
                                     footprint_cells, world_u[s, h - 1], change_u[s, h - 1], readings)
                 n_touched = _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, powers, change,
@@ -601,7 +606,7 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
                     out[c, h] += _mixture_uncertainty(loc, lw, maps, disputed, disputed_maps, disputed_mask, ov_cell,
                                                       ov_val, ov_stamp, ov_n, powers, dynamic, h, location_weight,
                                                       touched_list, n_touched, agree_entropy[h], location, mix,
-                                                      scratch, scratch2)
+                                                      scratch, scratch2, weights)
             _reset(ov_index, ov_cell, ov_n, touched, touched_list, n_touched)
 
 
