@@ -68,14 +68,14 @@ policies.plot_errors(table, axes=axes, columns=("map_error", "location_error"));
     ("md", """\
 ## Steps to a mapped world
 
-The same runs scored per run by the study layer (`exploration.blocking_world_study`, the sweep
-tasks the curves above came from): map error after 300 steps, steps until the map error first falls
+The same runs scored per run by the study layer (`exploration.steps_study` reads them off the
+per-step table the curves above came from, without running them again; `blocking_world_study`
+runs the same study from scratch): map error after 300 steps, steps until the map error first falls
 to 0.2, 0.1 and 0.05 (mean over the runs that got there; `reached` is the share that did), the area
 under the map-error curve (error x steps: lower is faster), and the mean location error. 95%
 intervals over seeds."""),
     ("code", """\
-study = exploration.blocking_world_study(PLANNERS, seeds=SEEDS, steps=STEPS, n_particles=N_PARTICLES,
-                                         progress=False)
+study = exploration.steps_study(table, PLANNERS)
 COLUMNS = ["planner", "runs", "final_map_error", "steps_to_map_error_20", "steps_to_map_error_10",
            "steps_to_map_error_05", "reached_map_error_10", "map_error_area", "mean_location_error"]
 with_intervals(study.summary, ["final_map_error", "steps_to_map_error_10", "map_error_area"])[COLUMNS].round(3)"""),

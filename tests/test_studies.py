@@ -116,3 +116,26 @@ def test_metric_ranges_bound_each_metric_by_its_own_kind():
         assert metric_bounds(name) == (0.0, math.inf), name
     assert metric_bounds("wrong_cells", 100) == metric_bounds("final_known_cells", 100) == (0.0, 100.0)
     assert metric_bounds("final_log_evidence") == (-math.inf, math.inf)
+
+
+def test_a_study_read_off_the_per_step_table_equals_the_study_of_the_same_runs():
+    """``steps_study`` (the per-step table of ``compare_planners``, scored per run) gives the
+    per-run values and the summary ``planners_study`` computes by running the tasks, on every
+    metric a per-step table holds (exactly: the same runs, the same definitions)."""
+    from onlinemap.studies import exploration
+
+    world, planners = "door,blocking=1,footprint=cross", ["random", "frontier"]
+    options = {"n_particles": 30}
+    direct = exploration.planners_study(world, planners, seeds=[0, 1], steps=60, estimator_options=options,
+                                        progress=False)
+    table = exploration.compare_planners(world, planners, "rbpf", 60, [0, 1], estimator_options=options,
+                                         progress=False)
+    read = exploration.steps_study(table, planners)
+    metrics = [c for c in read.runs.columns if c in exploration.METRICS and c != "ms_per_step"]
+    assert {"final_map_error", "wrong_cells", "map_error_area", "steps_to_map_error_20"} <= set(metrics)
+    np.testing.assert_array_equal(read.runs[["planner", "seed"]].to_numpy(), direct.runs[["planner", "seed"]].to_numpy())
+    np.testing.assert_array_equal(read.runs[metrics].to_numpy(float), direct.runs[metrics].to_numpy(float))
+    columns = [c for c in read.summary.columns if not c.startswith("ms_per_step")]
+    assert set(columns) <= set(direct.summary.columns)
+    np.testing.assert_array_equal(read.summary[columns[3:]].to_numpy(float), direct.summary[columns[3:]].to_numpy(float))
+    assert list(read.summary[columns[:3]].itertuples(index=False)) == list(direct.summary[columns[:3]].itertuples(index=False))

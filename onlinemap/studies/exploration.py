@@ -116,14 +116,34 @@ def planners_study(world: str | Sequence[str], planners: Sequence[str], *, seeds
     """Every planner on every seed of ``world`` (a world spec, or several of one size: every
     planner runs in each, paired), one row per run; the summary per planner (and planner
     options) holds the mean and interval of every metric of :data:`METRICS`."""
-    n_cells = parse_world(world if isinstance(world, str) else world[0]).model.n_cells
     spec = exploration_spec(world, planners, steps, seeds, estimator_options=estimator_options,
                             planner_options=planner_options, floor_plan=floor_plan)
-    counts = {m: (0, n_cells) for m in METRICS if "wrong" in m or "known" in m}
     runs = sweep(spec, workers=workers, results_dir=out, progress=progress)
-    for name in COVERAGE_THRESHOLDS:  # how many runs got there at all (the mean steps count only those)
+    return _planners_summary(runs, list(planners), confidence)
+
+
+def steps_study(table: pd.DataFrame, planners: Sequence[str] | None = None, confidence: float = 0.95) -> Study:
+    """:func:`planners_study` read off a per-step table of :func:`compare_planners` instead of
+    running the tasks again: one row per run (planner, planner options, world, seed) with the
+    metrics a per-step table holds (:func:`onlinemap.evaluate.from_steps`: final map error and
+    wrong cells, mean location error, late door error, the coverage metrics, ms per step), the
+    same values :func:`planners_study` gives for those runs; ``planners``: their order (default:
+    the table's). Cost O(rows)."""
+    by = ["planner", "planner_options", "world", "seed"]
+    runs = from_steps(table.assign(ms_per_step=1e3 * table["seconds_per_step"]), by)
+    order = list(dict.fromkeys(table["planner"])) if planners is None else list(planners)
+    return _planners_summary(runs, order, confidence)
+
+
+def _planners_summary(runs: pd.DataFrame, planners: list[str], confidence: float) -> Study:
+    """The study of one row per run: ``reached_*`` (did the run get there at all; the mean
+    ``steps_to_*`` counts only those), runs in the order of ``planners``, and the summary per
+    planner (and planner options) of :data:`METRICS`, cell counts bounded by the world's cells."""
+    n_cells = parse_world(runs["world"].iloc[0]).model.n_cells
+    counts = {m: (0, n_cells) for m in METRICS if "wrong" in m or "known" in m}
+    for name in COVERAGE_THRESHOLDS:
         runs[name.replace("steps_to", "reached")] = runs[name].notna()
-    runs = ordered(runs, "planner", list(planners))
+    runs = ordered(runs, "planner", planners)
     return Study(runs, summary_of(runs, METRICS, ["planner", "planner_options"], confidence, counts))
 
 

@@ -191,9 +191,9 @@ def describe(task: Task, frame: pd.DataFrame, n_steps: int) -> pd.DataFrame:
     if task.kind == "estimate":
         described.update(walk=task.walk, reference=task.reference or "")
     described["seed"] = task.seed
-    for position, (column, value) in enumerate(described.items()):
-        frame.insert(position, column, value)
-    for field, prefix in OPTION_PREFIXES.items():
-        for name, value in getattr(task, field):
-            frame[prefix + name] = [value] * len(frame)
-    return frame
+    options = {prefix + name: [value] for field, prefix in OPTION_PREFIXES.items()
+               for name, value in getattr(task, field)}
+    rows = np.zeros(len(frame), dtype=np.intp)  # one frame of one row each, repeated: O(columns) frames, not O(rows)
+    parts = [pd.DataFrame({column: [value] for column, value in described.items()}), frame, pd.DataFrame(options)]
+    return pd.concat([part if part is frame else part.iloc[rows].set_axis(frame.index) for part in parts
+                      if part is frame or len(part.columns)], axis=1)

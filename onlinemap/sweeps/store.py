@@ -145,8 +145,13 @@ def assemble(frames: Sequence[pd.DataFrame]) -> pd.DataFrame:
     options = _option_names(frame.columns for frame in frames)
     values = [[frame[name].iloc[0] if name in frame and len(frame) else None for frame in frames]
               for name in options]
-    bases = [frame.drop(columns=[c for c in frame.columns if c in options]) for frame in frames]
-    table = pd.concat(bases, ignore_index=True) if bases else pd.DataFrame(columns=TASK_COLUMNS)
+    if not frames:
+        table = pd.DataFrame(columns=TASK_COLUMNS)
+    elif all(list(frame.columns) == list(frames[0].columns) for frame in frames):  # one concat, then the drop
+        table = pd.concat(frames, ignore_index=True).drop(columns=options)
+    else:  # frames of different columns: dropped first, so no option column is filled across frames
+        table = pd.concat([frame.drop(columns=[c for c in frame.columns if c in options]) for frame in frames],
+                          ignore_index=True)
     return with_options(table, options, values, [len(frame) for frame in frames])
 
 
