@@ -32,7 +32,7 @@ def _draw(cdf_row, u):
     return k - 1
 
 
-@njit(cache=True)
+@loop_kernel
 def _current(maps, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, p, c, h, out):
     """out (K,) <- particle p's marginal of cell c after h rollout steps."""
     k = out.shape[0]
@@ -67,13 +67,13 @@ def _entropy(row):
     return acc
 
 
-@njit(cache=True)
+@loop_kernel
 def _uncertainty(locations, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, h,
-                 location_weight, n_cells, mixture, scratch, scratch2):
-    """``location_weight * H(L) + sum_i H(M_i)`` of the weighted particles after h steps.
-    O(R N K + N K^2 + R H K^2)."""
-    r_count, _, k = maps.shape
-    location = np.zeros(n_cells)
+                 location_weight, location, mixture, scratch, scratch2):
+    """``location_weight * H(L) + sum_i H(M_i)`` of the weighted particles after h steps
+    (``location`` (N,) and ``mixture`` (N, K): scratch). O(R N K + N K^2 + R H K^2)."""
+    r_count, n_cells, k = maps.shape
+    location[:] = 0.0
     mixture[:] = 0.0
     for p in range(r_count):
         w = weights[p]
@@ -90,7 +90,8 @@ def _uncertainty(locations, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powe
                 for a in range(k):
                     acc += mixture[i, a] * powers[h, a, b]
                 scratch[b] = acc
-            mixture[i] = scratch
+            for b in range(k):
+                mixture[i, b] = scratch[b]
     for p in range(r_count):
         w = weights[p]
         if w == 0.0:
@@ -117,7 +118,7 @@ def _uncertainty(locations, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powe
     return total
 
 
-@njit(cache=True)
+@loop_kernel
 def _normalise(lw, top, drop_below):
     """Log weights ``lw`` (R,) in place so that ``sum exp(lw) = 1``, given ``top = max(lw)``; a
     particle with ``lw - top < drop_below`` is dropped (-inf); when every particle is at -inf
@@ -165,6 +166,7 @@ def rollout_uncertainty(locations, maps, log_weights, moves, p_move, likelihood,
     weights = np.exp(lw)
     labels = hyp_labels.copy()
     where = hyp_location
+    location = np.empty(n_cells)
     mixture = np.empty((n_cells, k))
     here_m = np.empty(k)
     there_m = np.empty(k)
@@ -172,7 +174,7 @@ def rollout_uncertainty(locations, maps, log_weights, moves, p_move, likelihood,
     scratch2 = np.empty(k)
     if checkpoints[0]:
         out[0] = _uncertainty(loc, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, 0,
-                              location_weight, n_cells, mixture, scratch, scratch2)
+                              location_weight, location, mixture, scratch, scratch2)
     for h in range(1, horizon + 1):
         a = actions[h - 1]
         if world_uniforms[h - 1, 0] < p_move:
@@ -228,7 +230,7 @@ def rollout_uncertainty(locations, maps, log_weights, moves, p_move, likelihood,
             weights[p] = math.exp(lw[p])
         if checkpoints[h]:
             out[h] = _uncertainty(loc, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, h,
-                                  location_weight, n_cells, mixture, scratch, scratch2)
+                                  location_weight, location, mixture, scratch, scratch2)
 
 
 # --- rollouts of footprint and blocking models -------------------------------------------------
