@@ -118,7 +118,7 @@ def _uncertainty(locations, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powe
     return total
 
 
-@loop_kernel
+@njit(cache=True)
 def _normalise(lw, top, drop_below):
     """Log weights ``lw`` (R,) in place so that ``sum exp(lw) = 1``, given ``top = max(lw)``; a
     particle with ``lw - top < drop_below`` is dropped (-inf); when every particle is at -inf
