@@ -57,8 +57,9 @@ Backends (who plays "a copy of the filter"):
   O(P N K^2) to read the particles' maps, plus for each of ``hypotheses`` S worlds and each of
   the 2 A candidate rollouts of up to H steps, O(H R (H + K^2)) for the steps and O(R N K) per
   scored length, plus one warm-started policy iteration over N cells. Measured (``onlinemap
-  bench planning``, P = 1000, R = 64, S = 12): 10 x 10, about 18 ms per plan, 2.3 ms per
-  decision; 32 x 32, about 84 ms per plan, 11 ms per decision.
+  bench planning``, P = 1000, R = 64, S = 12): 10 x 10, about 20 ms per plan, 2.7 ms per
+  decision; 32 x 32, about 96 ms per plan, 13 ms per decision; with blocking and a cross
+  footprint, 10 x 10: 33 ms per plan, 10.6 ms per decision.
 - any other estimator: :func:`onlinemap.estimators.fork` (the live estimator is never touched)
   stepped with simulated observations; with ``hypotheses=None`` the expectation is exact: every
   observation sequence is enumerated with its predictive probability (the ratio of the fork's
