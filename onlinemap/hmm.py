@@ -76,9 +76,13 @@ def forward_backward(model: GridModel, prior: np.ndarray, actions: np.ndarray, o
     else:
         filtered, posterior, normalizers = np.empty((w, n)), np.empty((w, n)), np.empty(w)
     log_scales = np.empty(w)  # 0 but where a step was rescaled against underflow
-    bad = forward_backward_pass(self_prob, model.predecessor, model.neighbors, enter,
-                                np.ascontiguousarray(prior, dtype=np.float64), actions, kernel_observations,
-                                kernel_emission, filtered, posterior, normalizers, log_scales)
+    # fresh C-contiguous, writable arrays (O(A N + W + N K) copies): one argument type whatever the
+    # caller passed (the model's read-only tables, a transposed or learned matrix), so numba
+    # compiles the pass once instead of once per combination of layouts and write flags
+    bad = forward_backward_pass(np.array(self_prob, dtype=np.float64, order="C"), model.predecessor,
+                                model.neighbors, enter, np.array(prior, dtype=np.float64, order="C"),
+                                np.array(actions, order="C"), np.array(kernel_observations, order="C"),
+                                np.array(kernel_emission, order="C"), filtered, posterior, normalizers, log_scales)
     if bad >= 0:
         label = model.label_names[observations[bad]] if model.reads_own_cell else observations[bad].tolist()
         raise ImpossibleObservationError(

@@ -591,7 +591,7 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
             lw[:] = log_weights
             labels = hyp_labels[s].copy()
             where = hyp_locations[s]
-            n_touched = 0
+            n_touched = np.int64(0)  # not a literal 0: _filter_step compiles once, for int64
             if checkpoints[0]:
                 out[c, 0] += now
             for h in range(1, horizon + 1):
@@ -633,7 +633,7 @@ def rollout_beliefs(locations, maps, log_weights, moves, p_move, blocking, footp
     lw = log_weights.copy()
     labels = hyp_labels.copy()
     where = hyp_location
-    n_touched = 0
+    n_touched = np.int64(0)
     for h in range(horizon + 1):
         if h > 0:
             a = actions[h - 1]
