@@ -191,9 +191,10 @@ def describe(task: Task, frame: pd.DataFrame, n_steps: int) -> pd.DataFrame:
     if task.kind == "estimate":
         described.update(walk=task.walk, reference=task.reference or "")
     described["seed"] = task.seed
-    options = {prefix + name: [value] for field, prefix in OPTION_PREFIXES.items()
-               for name, value in getattr(task, field)}
-    rows = np.zeros(len(frame), dtype=np.intp)  # one frame of one row each, repeated: O(columns) frames, not O(rows)
-    parts = [pd.DataFrame({column: [value] for column, value in described.items()}), frame, pd.DataFrame(options)]
-    return pd.concat([part if part is frame else part.iloc[rows].set_axis(frame.index) for part in parts
-                      if part is frame or len(part.columns)], axis=1)
+    options = pd.DataFrame({prefix + name: [value] for field, prefix in OPTION_PREFIXES.items()
+                            for name, value in getattr(task, field)})
+    rows = np.zeros(len(frame), dtype=np.intp)  # the task's one row, repeated for each of the frame's rows
+    parts = [pd.DataFrame({column: [value] for column, value in described.items()}).iloc[rows], frame]
+    if len(options.columns):
+        parts.append(options.iloc[rows])
+    return pd.concat([part.set_axis(frame.index) for part in parts], axis=1)
