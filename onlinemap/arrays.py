@@ -11,3 +11,12 @@ def read_only(array: np.ndarray) -> np.ndarray:
     """Mark ``array`` read-only in place and return it (for arrays handed out or shared)."""
     array.setflags(write=False)
     return array
+
+
+def frozen(array: np.ndarray) -> np.ndarray:
+    """A read-only, C-contiguous view of ``array`` (a copy only where it is not C-contiguous):
+    the one form in which a numba kernel's constant inputs are passed, so that the kernel is
+    compiled once rather than once per write flag and memory layout its callers happen to have."""
+    view = np.ascontiguousarray(array).view()
+    view.flags.writeable = False
+    return view

@@ -23,6 +23,11 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
+try:  # SuperLU's driver, the one spsolve calls; without spsolve's per-call checks and conversions
+    from scipy.sparse.linalg._dsolve._superlu import gssv as _gssv
+except ImportError:  # pragma: no cover - a SciPy that moved it: spsolve, the same solve
+    _gssv = None
+
 from onlinemap.errors import ModelError
 from onlinemap.model import GridModel
 
@@ -58,19 +63,25 @@ def _policy_rows(model: GridModel, policy: np.ndarray,
     """Row l of ``T_pi`` as two (column, probability) pairs: (N, 2) columns sorted within each
     row, (N, 2) probabilities, (N, 2) mask of the pairs that exist (a cell that cannot move
     has only its diagonal)."""
-    cells = np.arange(model.n_cells)
+    n = model.n_cells
+    cells = np.arange(n)
     targets = model.neighbors[cells, policy]
     moves = targets != cells
-    cols = np.stack([cells, targets], axis=1)
     if passable is None:
-        probs = np.stack([model.self_prob[policy, cells], np.where(moves, model.p_move, 0.0)], axis=1)
-    else:
-        go = move_probabilities(model, passable)[cells, policy]
-        probs = np.stack([1.0 - go, go], axis=1)
-    keep = np.stack([np.ones_like(moves), moves], axis=1)
-    swap = targets < cells
-    return (np.where(swap[:, None], cols[:, ::-1], cols), np.where(swap[:, None], probs[:, ::-1], probs),
-            np.where(swap[:, None], keep[:, ::-1], keep))
+        stay, go = model.self_prob[policy, cells], np.where(moves, model.p_move, 0.0)
+    else:  # move_probabilities' entries for the policy's actions
+        go = np.where(moves, model.p_move * passable[targets], 0.0)
+        stay = 1.0 - go
+    swap = targets < cells  # the move's column comes first in the row
+    cols = np.empty((n, 2), dtype=np.int64)
+    np.minimum(cells, targets, out=cols[:, 0])
+    np.maximum(cells, targets, out=cols[:, 1])
+    probs = np.empty((n, 2))
+    probs[:, 0] = np.where(swap, go, stay)
+    probs[:, 1] = np.where(swap, stay, go)
+    keep = np.ones((n, 2), dtype=np.bool_)
+    keep[:, 1] = moves  # a swapped row has a move, so both its pairs exist
+    return cols, probs, keep
 
 
 def _csr(cols: np.ndarray, values: np.ndarray, keep: np.ndarray) -> sp.csr_array:
@@ -96,8 +107,25 @@ def evaluate_policy(model: GridModel, reward: np.ndarray, policy: np.ndarray, ga
     policy = np.asarray(policy)
     cols, probs, keep = _policy_rows(model, policy, passable)
     diagonal = cols == np.arange(model.n_cells)[:, None]
-    system = _csr(cols, diagonal - gamma * probs, keep)
-    return np.asarray(spsolve(system, (probs * reward[cols]).sum(axis=1)), dtype=np.float64)
+    rhs = (probs * reward[cols]).sum(axis=1)
+    return _solve_csr(cols, diagonal - gamma * probs, keep, rhs)
+
+
+def _solve_csr(cols: np.ndarray, values: np.ndarray, keep: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """(N,) solution of the CSR system of :func:`_csr` (rows sorted, no duplicates) for ``rhs``
+    (N,): SuperLU with spsolve's arguments (CSR, COLAMD ordering), so bit for bit spsolve's
+    answer, without building a ``csr_array`` (its checks cost more than the solve on a 10 x 10
+    grid). A singular system (never for gamma < 1) goes to spsolve, which warns and gives NaN."""
+    n = cols.shape[0]
+    if _gssv is not None:
+        indptr = np.zeros(n + 1, dtype=np.intc)
+        np.cumsum(keep.sum(axis=1), out=indptr[1:])
+        data = values[keep]
+        x, info = _gssv(n, data.shape[0], data, cols[keep].astype(np.intc), indptr, rhs, 0,
+                        options={"ColPerm": None})
+        if info == 0:
+            return x
+    return np.asarray(spsolve(_csr(cols, values, keep), rhs), dtype=np.float64)
 
 
 def _check_passable(model: GridModel, passable) -> np.ndarray | None:

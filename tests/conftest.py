@@ -29,3 +29,34 @@ def pytest_collection_modifyitems(session, config, items):
         return 0 if "test_stored_outputs_are_current" in item.nodeid else 1
 
     items[:] = sorted(items, key=rank)
+
+
+#: tests that are each a unit of work of their own: the re-executed notebooks share nothing (each
+#: runs in its own kernel) and are the longest tests, so they go to whichever worker is free
+ALONE = ("tests/test_notebooks.py::test_stored_outputs_are_current[",)
+
+
+def work_unit(nodeid: str) -> str:
+    """The unit of work the scheduler below hands to one worker: the test's file (or the test,
+    :data:`ALONE`). A file's tests share its module fixtures (a dask cluster, 128 explorations)
+    and, mostly, its numba kernels, so each is built once instead of once per worker; and two
+    workers on two different files rarely compile the same kernel at the same time."""
+    return nodeid if nodeid.startswith(ALONE) else nodeid.split("::", 1)[0]
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadgroup`` (the README's command) hands out whole files (:func:`work_unit`), in
+    the collection's order (the files with slow tests first, as sorted above). xdist's own
+    loadgroup keys on the ``xdist_group`` mark through the test's node id, which pytest 9.2 no
+    longer lets it change (pytest-dev/pytest-xdist#1386): the marks were silently ignored and
+    a group's tests could each build its module fixture on both workers."""
+    if config.getoption("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class FileScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return work_unit(nodeid)
+
+    config.option.loadscopereorder = False  # keep the order: the long files start first
+    return FileScheduling(config, log)

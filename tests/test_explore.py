@@ -229,7 +229,7 @@ def static_runs():
     return paired(0.0, 250, ["entropy", "random"], STATIC_SEEDS)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="module")  # built once: the test command runs a file on one worker (conftest)
 def dynamic_runs():
     return paired(0.01, 300, ["entropy", "random"], DYNAMIC_SEEDS)
 
@@ -242,7 +242,6 @@ def test_static_door_world_entropy_planner_learns_the_map_faster_than_a_random_w
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("dynamic_runs")  # one worker runs the 128 explorations once (--dist loadgroup)
 def test_dynamic_door_world_entropy_planner_keeps_doors_up_to_date(dynamic_runs):
     late = dynamic_runs[dynamic_runs["t"] >= 100].groupby(["planner", "seed"])["door_error"].mean().unstack(0)
     p = one_sided_p(late["entropy"], late["random"])
@@ -250,7 +249,6 @@ def test_dynamic_door_world_entropy_planner_keeps_doors_up_to_date(dynamic_runs)
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("dynamic_runs")
 def test_dynamic_door_world_entropy_planner_spends_more_time_at_doors(dynamic_runs):
     model, true_map = exploration_world(p_door=0.01)
     doors = door_cells(model, true_map)

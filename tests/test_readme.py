@@ -61,3 +61,18 @@ def test_the_readme_gym_example_runs():
     namespace: dict = {}
     exec(block, namespace)
     assert namespace["env"].spec.id == "onlinemap/DoorWorld-v0" and namespace["truncated"] is False
+
+
+def test_the_test_command_keeps_a_files_tests_on_one_worker_and_runs_each_notebook_alone():
+    """The README's ``--dist loadgroup`` hands out work as tests/conftest.py's ``work_unit`` says:
+    a file's tests (which share its module fixtures, e.g. the 128 explorations of the dynamic door
+    world's two claims) go to one worker; each re-executed notebook is a unit of its own."""
+    from conftest import work_unit
+
+    claims = "tests/test_explore.py::test_dynamic_door_world_entropy_planner_"
+    assert work_unit(claims + "keeps_doors_up_to_date") == work_unit(claims + "spends_more_time_at_doors") \
+        == "tests/test_explore.py"
+    rerun = "tests/test_notebooks.py::test_stored_outputs_are_current[{}]"
+    assert work_unit(rerun.format("em_mapping")) != work_unit(rerun.format("navigation"))
+    assert work_unit("tests/test_notebooks.py::test_notebook_has_its_generators_cells[em_mapping]") \
+        == "tests/test_notebooks.py"

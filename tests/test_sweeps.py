@@ -44,7 +44,7 @@ def without_timing(table: pd.DataFrame) -> pd.DataFrame:
     return table.drop(columns=["ms_per_step"]).reset_index(drop=True)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="module")  # started once: the test command runs a file on one worker (conftest)
 def client():
     distributed = pytest.importorskip("distributed")
     cluster = sweeps.local_cluster(workers=2)
@@ -423,7 +423,6 @@ def test_example_spec_is_valid_and_runs_in_miniature(path):
 
 
 # --- dask ------------------------------------------------------------------------------------------
-@pytest.mark.xdist_group("dask_cluster")  # one worker starts the module's cluster once (--dist loadgroup)
 def test_local_cluster_with_two_workers_gives_the_serial_table(client, serial_table, tmp_path):
     assert len(client.scheduler_info()["workers"]) == 2
     table = om.sweep(sweeps.parse_spec(SPEC), client, results_dir=tmp_path / "a", progress=False)
@@ -449,7 +448,6 @@ def test_a_failed_task_on_dask_is_one_error_not_a_worker_traceback(tmp_path):
         "no zeros when pseudo_count > 0)"], done.stderr
 
 
-@pytest.mark.xdist_group("dask_cluster")
 def test_killing_a_worker_midway_still_finishes_every_task_once(client, serial_table, tmp_path):
     spec = sweeps.parse_spec(SPEC.replace("[estimators.exact]", "[estimators.offline_em]\n\n[estimators.exact]"))
     result = {}

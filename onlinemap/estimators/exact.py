@@ -26,7 +26,7 @@ import numpy as np
 
 from .. import arguments
 from .. import state_checks as checks
-from ..arrays import DEFAULT_MAX_BYTES, read_only
+from ..arrays import DEFAULT_MAX_BYTES, frozen, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError
 from ..kernels.exact import change_every_axis, map_marginals as _map_marginals_kernel, motion_observe
@@ -188,19 +188,19 @@ class ExactFilter:
         ``likelihood`` and scaled by ``2**exponent / _norm``; fills ``location`` and the joint map.
         Returns the total. One fused pass (static), N + 2 passes (dynamic)."""
         model, inv = self.model, 1.0 / self._norm
+        likelihood = frozen(likelihood)  # the kernels' constant inputs in one form: one compilation
+        no_motion = tuple(map(frozen, self._no_motion))
         if a is None:
-            self_prob, pred = self._no_motion
-            motion_observe(self._x, out, self_prob, pred, 0.0, math.ldexp(inv, exponent), likelihood,
+            motion_observe(self._x, out, *no_motion, 0.0, math.ldexp(inv, exponent), likelihood,
                            self._joint_map, location)
         elif model.is_static:
-            motion_observe(self._x, out, model.self_prob[a], model.predecessor[a], model.p_move,
+            motion_observe(self._x, out, frozen(model.self_prob[a]), frozen(model.predecessor[a]), model.p_move,
                            math.ldexp(inv, exponent), likelihood, self._joint_map, location)
         else:
-            motion_observe(self._x, out, model.self_prob[a], model.predecessor[a], model.p_move, inv,
-                           self._flat, self._joint_map, location)
-            change_every_axis(out, model.change)
-            self_prob, pred = self._no_motion
-            motion_observe(out, out, self_prob, pred, 0.0, math.ldexp(1.0, exponent), likelihood, self._joint_map,
+            motion_observe(self._x, out, frozen(model.self_prob[a]), frozen(model.predecessor[a]), model.p_move,
+                           inv, frozen(self._flat), self._joint_map, location)
+            change_every_axis(out, frozen(model.change))
+            motion_observe(out, out, *no_motion, 0.0, math.ldexp(1.0, exponent), likelihood, self._joint_map,
                            location)
         return location.sum()
 
@@ -231,7 +231,7 @@ class ExactFilter:
         if a is not None:
             x = blocking_motion(model, x, a)
             if not model.is_static:
-                change_every_axis(x, model.change)
+                change_every_axis(x, frozen(model.change))
         x *= footprint_likelihood(model, z)
         location = x.sum(axis=1)
         total = location.sum()

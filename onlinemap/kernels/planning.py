@@ -582,13 +582,15 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
     readings = np.empty(n_reads, dtype=np.int64)
     loc = np.empty(r_count, dtype=np.int64)
     lw = np.empty(r_count)
+    zero = np.int64(0)  # not the literal 0: _mixture_uncertainty compiles once, for int64 h and counts
     now = _mixture_uncertainty(locations, log_weights, maps, disputed, disputed_maps, disputed_mask, ov_cell, ov_val,
-                               ov_stamp, ov_n, powers, dynamic, 0, location_weight, touched_list, 0, agree_entropy[0],
-                               location, mix, scratch, scratch2, weights)
+                               ov_stamp, ov_n, powers, dynamic, zero, location_weight, touched_list, zero,
+                               agree_entropy[0], location, mix, scratch, scratch2, weights)
     for s in range(hyp_locations.shape[0]):
         for c in range(n_seq):
-            loc[:] = locations
-            lw[:] = log_weights
+            for p in range(r_count):  # element by element: no shape-mismatch message to compile
+                loc[p] = locations[p]
+                lw[p] = log_weights[p]
             labels = hyp_labels[s].copy()
             where = hyp_locations[s]
             n_touched = np.int64(0)  # not a literal 0: _filter_step compiles once, for int64

@@ -376,6 +376,17 @@ def _enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_bloc
     return m - out
 
 
+@njit(cache=True, inline="always")
+def _copy_child(child_ids, child_cells, c, new_ids, new_cells, p):
+    """``new_ids[p], new_cells[p] <- child_ids[c], child_cells[c]`` ((W,), (W, K)), element by
+    element: a whole-row assignment compiles numba's shape-mismatch message (string formatting,
+    seconds of compilation per kernel) for a check these shapes never fail."""
+    for w in range(new_ids.shape[1]):
+        new_ids[p, w] = child_ids[c, w]
+        for b in range(new_cells.shape[2]):
+            new_cells[p, w, b] = child_cells[c, w, b]
+
+
 @njit(cache=True)
 def rbpf_pick_children(ancestors, child_parent, child_location, child_log_weight, child_log_motion, child_ids,
                        child_cells, m, optimal, uniforms, new_locations, new_ids, new_cells, log_increments):
@@ -423,8 +434,7 @@ def rbpf_pick_children(ancestors, child_parent, child_location, child_log_weight
                     break
         if chosen >= 0:
             new_locations[p] = child_location[chosen]
-            new_ids[p] = child_ids[chosen]
-            new_cells[p] = child_cells[chosen]
+            _copy_child(child_ids, child_cells, chosen, new_ids, new_cells, p)
 
 
 @njit(cache=True)
@@ -1231,5 +1241,4 @@ def rbpf_place_children(child_parent, child_location, child_ids, child_cells, ke
         new_locations[p] = -1
         if c >= 0:
             new_locations[p] = child_location[c]
-            new_ids[p] = child_ids[c]
-            new_cells[p] = child_cells[c]
+            _copy_child(child_ids, child_cells, c, new_ids, new_cells, p)
