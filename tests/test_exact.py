@@ -170,3 +170,24 @@ def test_blocking_and_footprint_marginals_stay_at_most_one(footprint, blocking):
             for p in (belief.location, belief.map, smooth.location[t], smooth.map[t]):
                 assert 0 <= p.min() and p.max() <= 1, (seed, t, p.min(), p.max() - 1)
                 np.testing.assert_allclose(p.sum(axis=-1), 1.0, rtol=0, atol=1e-12)
+
+
+def test_the_exact_kernels_compile_once_whatever_the_step(tmp_path):
+    """Static and dynamic steps, the first step (no action), an observation rescaled for underflow,
+    and a restored checkpoint (whose constant arrays come back writable) all call the kernels with
+    the same argument types (``arrays.frozen``): one compiled version each, not one per write flag
+    and layout (numba compiled ``motion_observe`` six times before)."""
+    from onlinemap.arrays import frozen
+    from onlinemap.kernels.exact import change_every_axis, motion_observe
+
+    assert not frozen(np.zeros(3)).flags.writeable and frozen(np.zeros((3, 2)).T).flags.c_contiguous
+    for model in (om.corridor(5, 2), om.corridor(5, 2, p_change=0.05)):
+        est = om.make_estimator("exact", model)
+        run = random_run(model, 6, seed=1)
+        list(beliefs(est, run))
+        om.save(est, tmp_path / "exact.npz")
+        restored = om.load(tmp_path / "exact.npz")
+        restored.step(0, 1)
+    tiny = om.grid_model(1, 3, 2, sensor=[[1.0, 1e-300], [0.0, 1.0]], label_prior=[1.0, 0.0])
+    om.make_estimator("exact", tiny).step(None, 1)  # probability 1e-300: the rescaled branch
+    assert len(motion_observe.signatures) == 1 and len(change_every_axis.signatures) == 1

@@ -95,6 +95,25 @@ def test_policy_iteration_on_the_beliefs_passability_equals_value_iteration(seed
         policy_iteration(model, reward, gamma, passable=np.full(model.n_cells, 1.5))
 
 
+@pytest.mark.parametrize("with_passable", [False, True])
+def test_policy_evaluation_is_spsolves_answer_bit_for_bit(with_passable):
+    """evaluate_policy hands the policy's system to SuperLU itself, with spsolve's arguments and
+    no csr_array: the same bits as spsolve on that system, so no planner's run moves."""
+    from scipy.sparse.linalg import spsolve
+
+    from policies.mdp import _csr, _policy_rows
+
+    for seed in range(12):
+        model, reward, gamma = random_mdp(300 + seed)
+        rng = np.random.default_rng(seed)
+        passable = rng.uniform(0, 1, model.n_cells) if with_passable else None
+        policy = rng.integers(model.n_actions, size=model.n_cells)
+        cols, probs, keep = _policy_rows(model, policy, passable)
+        system = _csr(cols, (cols == np.arange(model.n_cells)[:, None]) - gamma * probs, keep)
+        expected = spsolve(system, (probs * reward[cols]).sum(axis=1))
+        assert evaluate_policy(model, reward, policy, gamma, passable).tobytes() == expected.tobytes()
+
+
 @pytest.mark.parametrize("seed", range(10))
 def test_warm_start_and_policy_evaluation_match_dense_references(seed):
     model, reward, gamma = random_mdp(100 + seed)
