@@ -1,5 +1,6 @@
 import os
 import sys
+from collections import Counter
 
 sys.path.insert(0, os.path.dirname(__file__))
 # the notebook generators import their shared helper, notebooks/nbbuild.py
@@ -19,14 +20,16 @@ if "NUMBA_CPU_NAME" in nbbuild.ENVIRONMENT and os.environ.get("NUMBA_CPU_NAME") 
 
 
 def pytest_collection_modifyitems(session, config, items):
-    """The slow tests first, the longest (re-executed notebooks) first of all: pytest-xdist hands
-    out tests in this order, so the long ones start at once and the many short ones fill the
-    other worker, instead of one long test running alone at the end. Order within each class is
-    kept."""
+    """The slow tests first, the longest (re-executed notebooks) first of all, then the other units
+    of work (:func:`work_unit`) from the largest: pytest-xdist hands them out in this order, so
+    the long ones start at once and the many short ones fill the other worker, instead of one
+    long test running alone at the end. Order within each class is kept."""
+    sizes = Counter(work_unit(item.nodeid) for item in items)
+
     def rank(item):
-        if item.get_closest_marker("slow") is None:
-            return 2
-        return 0 if "test_stored_outputs_are_current" in item.nodeid else 1
+        if item.get_closest_marker("slow") is not None:
+            return 0 if "test_stored_outputs_are_current" in item.nodeid else 1, 0
+        return 2, -sizes[work_unit(item.nodeid)]  # then the larger units of work: the small ones fill in at the end
 
     items[:] = sorted(items, key=rank)
 
@@ -36,12 +39,21 @@ def pytest_collection_modifyitems(session, config, items):
 ALONE = ("tests/test_notebooks.py::test_stored_outputs_are_current[",)
 
 
+#: files that test the same kernels: one unit of work (the RBPF's serial and threaded kernels
+#: take a minute to compile, once)
+FAMILIES = ("tests/test_rbpf",)
+
+
 def work_unit(nodeid: str) -> str:
     """The unit of work the scheduler below hands to one worker: the test's file (or the test,
-    :data:`ALONE`). A file's tests share its module fixtures (a dask cluster, 128 explorations)
-    and, mostly, its numba kernels, so each is built once instead of once per worker; and two
-    workers on two different files rarely compile the same kernel at the same time."""
-    return nodeid if nodeid.startswith(ALONE) else nodeid.split("::", 1)[0]
+    :data:`ALONE`; or its family of files, :data:`FAMILIES`). A file's tests share its module
+    fixtures (a dask cluster, 128 explorations) and, mostly, its numba kernels, so each is built
+    once instead of once per worker; and two workers on two different files rarely compile the
+    same kernel at the same time."""
+    if nodeid.startswith(ALONE):
+        return nodeid
+    path = nodeid.split("::", 1)[0]
+    return next((family for family in FAMILIES if path.startswith(family)), path)
 
 
 def pytest_xdist_make_scheduler(config, log):

@@ -66,7 +66,8 @@ def test_the_readme_gym_example_runs():
 def test_the_test_command_keeps_a_files_tests_on_one_worker_and_runs_each_notebook_alone():
     """The README's ``--dist loadgroup`` hands out work as tests/conftest.py's ``work_unit`` says:
     a file's tests (which share its module fixtures, e.g. the 128 explorations of the dynamic door
-    world's two claims) go to one worker; each re-executed notebook is a unit of its own."""
+    world's two claims) go to one worker, the RBPF's files together; each re-executed notebook is a
+    unit of its own."""
     from conftest import work_unit
 
     claims = "tests/test_explore.py::test_dynamic_door_world_entropy_planner_"
@@ -76,3 +77,6 @@ def test_the_test_command_keeps_a_files_tests_on_one_worker_and_runs_each_notebo
     assert work_unit(rerun.format("em_mapping")) != work_unit(rerun.format("navigation"))
     assert work_unit("tests/test_notebooks.py::test_notebook_has_its_generators_cells[em_mapping]") \
         == "tests/test_notebooks.py"
+    # the RBPF's files share its kernels, serial and threaded: one unit
+    assert work_unit("tests/test_rbpf.py::test_known_location_equals_exact") \
+        == work_unit("tests/test_rbpf_threads.py::test_threads_option") != work_unit("tests/test_bk.py::test_x")
