@@ -2,6 +2,8 @@ import os
 import sys
 from collections import Counter
 
+import pytest
+
 sys.path.insert(0, os.path.dirname(__file__))
 # the notebook generators import their shared helper, notebooks/nbbuild.py
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "notebooks"))
@@ -56,6 +58,7 @@ def work_unit(nodeid: str) -> str:
     return next((family for family in FAMILIES if path.startswith(family)), path)
 
 
+@pytest.hookimpl(optionalhook=True)  # pytest without pytest-xdist runs the tests too
 def pytest_xdist_make_scheduler(config, log):
     """``--dist loadgroup`` (the README's command) hands out whole files (:func:`work_unit`), in
     the collection's order (the files with slow tests first, as sorted above). xdist's own

@@ -77,6 +77,10 @@ def test_the_test_command_keeps_a_files_tests_on_one_worker_and_runs_each_notebo
     assert work_unit(rerun.format("em_mapping")) != work_unit(rerun.format("navigation"))
     assert work_unit("tests/test_notebooks.py::test_notebook_has_its_generators_cells[em_mapping]") \
         == "tests/test_notebooks.py"
+    # without pytest-xdist the scheduler's hook is unknown to pytest: optional, or no test would run
+    from conftest import pytest_xdist_make_scheduler
+
+    assert pytest_xdist_make_scheduler.pytest_impl["optionalhook"]
     # the RBPF's files share its kernels, serial and threaded: one unit
     assert work_unit("tests/test_rbpf.py::test_known_location_equals_exact") \
         == work_unit("tests/test_rbpf_threads.py::test_threads_option") != work_unit("tests/test_bk.py::test_x")
