@@ -25,6 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .arrays import frozen
 from .errors import ImpossibleObservationError
 from .kernels.forward_backward import accumulate_counts, forward_backward_pass
 from .model import GridModel
@@ -57,13 +58,10 @@ def forward_backward(model: GridModel, prior: np.ndarray, actions: np.ndarray, o
     blocking labels, ``passable`` (N,) is the probability that each cell can be entered (None:
     every cell). O(W (N F + E)) time, 3 W N floats of memory (4 W N with a footprint).
     """
-    # every array the kernel reads is a fresh C-contiguous, writable copy (O(A N + W + N K)): one
-    # argument type whatever the caller passed (the model's read-only tables, a transposed or
-    # learned matrix), so numba compiles the pass once instead of once per layout and write flag
-    actions = np.array(actions, dtype=np.int64, order="C")
-    observations = np.array(observations, dtype=np.int64, order="C")
+    actions = np.asarray(actions, dtype=np.int64)
+    observations = np.asarray(observations, dtype=np.int64)
     w, n = len(observations), model.n_cells
-    self_prob, enter = np.array(model.self_prob, dtype=np.float64, order="C"), np.full(n, model.p_move)
+    self_prob, enter = model.self_prob, np.full(n, model.p_move)
     if passable is not None:
         enter = model.p_move * np.asarray(passable, dtype=np.float64)
         movers = model.neighbors != np.arange(n)[:, None]  # (N, A)
@@ -72,16 +70,18 @@ def forward_backward(model: GridModel, prior: np.ndarray, actions: np.ndarray, o
         kernel_emission = np.ascontiguousarray(footprint_emission(model, emission, observations).T)
         kernel_observations = np.arange(w, dtype=np.int64)
     else:
-        kernel_emission = np.array(emission, dtype=np.float64, order="C")
+        kernel_emission = np.asarray(emission, dtype=np.float64)
         kernel_observations = observations
     if out is not None and out.filtered.shape == (w, n):
         filtered, posterior, normalizers = out.filtered, out.posterior, out.log_normalizers
     else:
         filtered, posterior, normalizers = np.empty((w, n)), np.empty((w, n)), np.empty(w)
     log_scales = np.empty(w)  # 0 but where a step was rescaled against underflow
-    bad = forward_backward_pass(self_prob, model.predecessor, model.neighbors, enter,
-                                np.array(prior, dtype=np.float64, order="C"), actions, kernel_observations,
-                                kernel_emission, filtered, posterior, normalizers, log_scales)
+    # the inputs in one form (arrays.frozen, no copy where already C-contiguous), whatever the caller
+    # passed (the model's read-only tables, a transposed or learned matrix): numba compiles the pass once
+    inputs = map(frozen, (self_prob, model.predecessor, model.neighbors, enter, np.asarray(prior, dtype=np.float64),
+                          actions, kernel_observations, kernel_emission))
+    bad = forward_backward_pass(*inputs, filtered, posterior, normalizers, log_scales)
     if bad >= 0:
         label = model.label_names[observations[bad]] if model.reads_own_cell else observations[bad].tolist()
         raise ImpossibleObservationError(

@@ -87,9 +87,14 @@ def _policy_rows(model: GridModel, policy: np.ndarray,
 def _csr(cols: np.ndarray, values: np.ndarray, keep: np.ndarray) -> sp.csr_array:
     """CSR (N, N) matrix from per-row (column, value) pairs, without a COO round trip."""
     n = cols.shape[0]
-    indptr = np.zeros(n + 1, dtype=np.int64)
+    return sp.csr_array((values[keep], cols[keep], _row_pointers(keep, np.int64)), shape=(n, n))
+
+
+def _row_pointers(keep: np.ndarray, dtype) -> np.ndarray:
+    """(N + 1,) CSR row pointers of the per-row pairs ``keep`` (N, 2) marks as present."""
+    indptr = np.zeros(keep.shape[0] + 1, dtype=dtype)
     np.cumsum(keep.sum(axis=1), out=indptr[1:])
-    return sp.csr_array((values[keep], cols[keep], indptr), shape=(n, n))
+    return indptr
 
 
 def policy_motion(model: GridModel, policy: np.ndarray, passable: np.ndarray | None = None) -> sp.csr_array:
@@ -118,10 +123,8 @@ def _solve_csr(cols: np.ndarray, values: np.ndarray, keep: np.ndarray, rhs: np.n
     grid). A singular system (never for gamma < 1) goes to spsolve, which warns and gives NaN."""
     n = cols.shape[0]
     if _gssv is not None:
-        indptr = np.zeros(n + 1, dtype=np.intc)
-        np.cumsum(keep.sum(axis=1), out=indptr[1:])
         data = values[keep]
-        x, info = _gssv(n, data.shape[0], data, cols[keep].astype(np.intc), indptr, rhs, 0,
+        x, info = _gssv(n, data.shape[0], data, cols[keep].astype(np.intc), _row_pointers(keep, np.intc), rhs, 0,
                         options={"ColPerm": None})
         if info == 0:
             return x

@@ -30,7 +30,7 @@ def pytest_collection_modifyitems(session, config, items):
 
     def rank(item):
         if item.get_closest_marker("slow") is not None:
-            return 0 if "test_stored_outputs_are_current" in item.nodeid else 1, 0
+            return 0 if item.nodeid.startswith(ALONE) else 1, 0
         return 2, -sizes[work_unit(item.nodeid)]  # then the larger units of work: the small ones fill in at the end
 
     items[:] = sorted(items, key=rank)
