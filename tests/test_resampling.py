@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from onlinemap.peers import filterpy_resamplers, global_numpy_seed
-from onlinemap.kernels.resampling import _optimal_threshold, _sorted_threshold
+from onlinemap.kernels.resampling import _heapsort, _optimal_threshold, _sorted_threshold
 from onlinemap.resampling import RESAMPLERS, effective_sample_size, optimal_resampling
 
 WEIGHTS = {
@@ -248,3 +248,25 @@ def test_optimal_resampling_with_children_below_rounding():
     kept = optimal_resampling(w, 2, np.random.default_rng(0))
     assert sorted(kept.indices.tolist()) == [0, 1]
     assert kept.weights.sum() == pytest.approx(1.0, abs=1e-15)
+
+
+def test_the_threshold_sort_is_numpys_sort_and_cumulative_sum():
+    """``_sorted_threshold`` sorts with its own heapsort (numba's ``np.sort`` costs seconds to
+    compile): on arrays with ties, zeros and one element, the heapsort gives ``np.sort``'s array
+    and the threshold the one computed from ``np.sort`` and ``np.cumsum`` directly."""
+    rng = np.random.default_rng(5)
+    cases = [np.array([0.5]), np.zeros(4), rng.random(1), rng.integers(0, 3, 40).astype(float), rng.random(1001),
+             np.repeat(rng.random(7), 5), rng.random(64) ** 8]
+    for a in cases:
+        sorted_ = a.copy()
+        _heapsort(sorted_)
+        assert np.array_equal(sorted_, np.sort(a))
+    for a in cases[3:]:
+        w = a / a.sum()
+        for n in (1, 2, max(1, w.size // 3)):
+            ascending = np.sort(w)
+            below = np.cumsum(ascending)
+            m = w.size
+            expected = next(((below[m - 1 - k] / (n - k), k) for k in range(n)
+                             if ascending[m - 1 - k] < below[m - 1 - k] / (n - k)), (ascending[m - n], n))
+            assert _sorted_threshold(w, n) == expected

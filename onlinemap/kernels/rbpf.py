@@ -1129,9 +1129,9 @@ def rbpf_relocation_weights(locations, log_weights, pool, pool_stamps, table, ce
     marginal at step t unless that marginal gives what is seen of it probability 0; then it is
     redrawn from ``prior`` (N, K) (a reset; if that too gives 0 the child is impossible).
     ``child_log_weight`` (N, P) <- ``log w_p + log K(l | l_p) + sum log (q @ factor)`` for the
-    children with R resets, -inf for the others. The particles are visited in order of location,
-    one search per distinct location. O(P N U K^2 + min(P, N) N A) time, N P bytes besides the
-    output."""
+    children with R resets, -inf for the others. The particles are visited in order of location
+    (a counting sort), one search per distinct location; any order within a location gives the
+    same output. O(P N U K^2 + min(P, N) N A) time, N P bytes besides the output."""
     n_cells, n_particles = child_log_weight.shape
     k = sensor.shape[0]
     width = footprint_cells.shape[1] + 1
@@ -1151,7 +1151,9 @@ def rbpf_relocation_weights(locations, log_weights, pool, pool_stamps, table, ce
     fewest = -1
     source = -1
     log_z = 0.0
-    for p in np.argsort(locations):
+    order = np.empty(n_particles, dtype=np.int64)  # by location (a counting sort; the result needs no other order)
+    _children_by_location(locations, np.zeros(n_cells + 1, dtype=np.int64), order)
+    for p in order:
         if log_weights[p] == -np.inf:
             continue
         if locations[p] != source:
