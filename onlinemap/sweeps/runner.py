@@ -18,14 +18,14 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import NamedTuple
+from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 import pandas as pd
 
 from ..estimators import estimator_options
 from ..estimators.base import Trajectory
-from ..evaluate import RUN_METRICS, STEP_METRICS, WARM_UP_STEPS, run_metrics, step_metrics, timed_trajectory
+from ..evaluate import RUN_METRICS, STEP_METRICS, WARM_UP_STEPS, run_metrics, step_columns, timed_trajectory
 from ..model import GridModel
 from ..rng import ESTIMATOR_STREAM, derived_seed
 from ..scenarios import one_slip_corridor
@@ -112,14 +112,16 @@ def run_task(task: Task) -> pd.DataFrame:
             reference = trajectory if (task.estimator, task.options) == (task.reference, ()) else \
                 reference_trajectory(task.world, task.steps, task.walk, task.seed, task.reference)
     run, trajectory = played.run, played.trajectory
-    steps = step_metrics(run, trajectory, reference)
+    steps = step_columns(run, trajectory, reference)
     if task.per_step:
-        frame = steps[["t", "true_location", *(c for c in STEP_METRICS if c in steps)]].assign(
-            **played.step_columns, ms_per_step=1e3 * trajectory.seconds_per_step)
+        names = ["t", "true_location", *(c for c in STEP_METRICS if c in steps)]
+        columns = {**{name: steps[name] for name in names}, **played.step_columns,
+                   "ms_per_step": np.full(run.n_steps, 1e3 * trajectory.seconds_per_step)}
     else:
         row = run_metrics(run, trajectory, reference, steps, trip=task.walk != "random")
-        frame = pd.DataFrame([{**{name: row[name] for name in RUN_METRICS if name in row}, **played.run_columns}])
-    return describe(task, frame, run.n_steps)
+        columns = {name: [value] for name, value in
+                   {**{name: row[name] for name in RUN_METRICS if name in row}, **played.run_columns}.items()}
+    return describe(task, columns, run.n_steps)
 
 
 class Outcome(NamedTuple):
@@ -171,10 +173,17 @@ def _play(task: Task) -> Played:
     return kind.play(model, true_map, task)
 
 
-def describe(task: Task, frame: pd.DataFrame, n_steps: int) -> pd.DataFrame:
-    """Prefix the task's description columns (those of its kind, and its labels if the spec gave
-    them; ``steps``: the run's actual number of steps) and append one typed ``opt_NAME``
-    (``planner_opt_NAME``) column per option."""
+def describe(task: Task, frame: pd.DataFrame | Mapping[str, Sequence], n_steps: int) -> pd.DataFrame:
+    """The task's rows as one frame: its description columns (those of its kind, and its labels if
+    the spec gave them; ``steps``: the run's actual number of steps), then the columns of
+    ``frame`` (a frame, or columns by name: equal-length arrays or lists), then one typed
+    ``opt_NAME`` (``planner_opt_NAME``) column per option; the description and the options are
+    repeated on every row. Cost: one DataFrame of rows x columns (about 1-2 ms for one row)."""
+    if isinstance(frame, pd.DataFrame):
+        columns, index = dict(frame.items()), frame.index
+    else:
+        columns, index = dict(frame), None
+    rows = len(frame) if index is not None else len(next(iter(columns.values()), ()))
     described = {"task": task.key, "kind": task.kind, "world": task.world}
     if task.kind != "estimate":
         described["planner"] = task.planner
@@ -191,10 +200,6 @@ def describe(task: Task, frame: pd.DataFrame, n_steps: int) -> pd.DataFrame:
     if task.kind == "estimate":
         described.update(walk=task.walk, reference=task.reference or "")
     described["seed"] = task.seed
-    options = pd.DataFrame({prefix + name: [value] for field, prefix in OPTION_PREFIXES.items()
-                            for name, value in getattr(task, field)})
-    rows = np.zeros(len(frame), dtype=np.intp)  # the task's one row, repeated for each of the frame's rows
-    parts = [pd.DataFrame({column: [value] for column, value in described.items()}).iloc[rows], frame]
-    if len(options.columns):
-        parts.append(options.iloc[rows])
-    return pd.concat([part.set_axis(frame.index) for part in parts], axis=1)
+    options = {prefix + name: value for field, prefix in OPTION_PREFIXES.items() for name, value in getattr(task, field)}
+    return pd.DataFrame({**{name: [value] * rows for name, value in described.items()}, **columns,
+                         **{name: [value] * rows for name, value in options.items()}}, index=index)

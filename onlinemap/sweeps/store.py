@@ -141,18 +141,35 @@ def collect(results_dir: str | os.PathLike, tasks: Iterable[Task] | None = None)
 
 
 def assemble(frames: Sequence[pd.DataFrame]) -> pd.DataFrame:
-    """One table from task frames held in memory (as :func:`collect` does for parts)."""
-    options = _option_names(frame.columns for frame in frames)
-    values = [[frame[name].iloc[0] if name in frame and len(frame) else None for frame in frames]
-              for name in options]
+    """One table from task frames held in memory (as :func:`collect` does for parts): the frames'
+    rows in order without their option columns, then one typed column per option
+    (:func:`with_options`). The frames of each list of columns (one per configuration of
+    options) are concatenated and stripped of their options once, then these groups are
+    concatenated and their rows put back in order: the same table as stripping every frame,
+    without doing so. Cost: O(rows x columns), plus some tens of microseconds per frame."""
     if not frames:
-        table = pd.DataFrame(columns=TASK_COLUMNS)
-    elif all(list(frame.columns) == list(frames[0].columns) for frame in frames):  # one concat, then the drop
-        table = pd.concat(frames, ignore_index=True).drop(columns=options)
-    else:  # frames of different columns: dropped first, so no option column is filled across frames
-        table = pd.concat([frame.drop(columns=[c for c in frame.columns if c in options]) for frame in frames],
-                          ignore_index=True)
-    return with_options(table, options, values, [len(frame) for frame in frames])
+        return pd.DataFrame(columns=TASK_COLUMNS)
+    groups: dict[tuple, list[int]] = {}  # each distinct list of columns -> the positions of its frames
+    for position, frame in enumerate(frames):
+        groups.setdefault(tuple(frame.columns), []).append(position)
+    options = _option_names(groups)
+    values = [[None] * len(frames) for _ in options]
+    parts = []
+    for columns, members in groups.items():
+        for name, row in zip(options, values):
+            if name in columns:
+                at = columns.index(name)
+                for position in members:
+                    row[position] = frames[position].iat[0, at] if len(frames[position]) else None
+        parts.append(pd.concat([frames[position] for position in members], ignore_index=True).drop(
+            columns=[c for c in columns if c in options]))
+    lengths = np.array([len(frame) for frame in frames], dtype=np.int64)
+    table = parts[0]
+    if len(parts) > 1:
+        order = np.concatenate(list(groups.values()))  # the frames in the order their rows were concatenated
+        table = pd.concat(parts, ignore_index=True).take(np.argsort(np.repeat(order, lengths[order]), kind="stable"))
+        table = table.reset_index(drop=True)
+    return with_options(table, options, values, lengths)
 
 
 def _option_names(column_lists) -> list[str]:
