@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Mapping, NamedTuple, Sequence
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -32,7 +32,7 @@ from ..scenarios import one_slip_corridor
 from ..simulate import Run, random_walk, there_and_back
 from ..worlds import WorldSpec, parse_world
 from .kinds import Played, task_kind
-from .tasks import OPTION_PREFIXES, Task, options_text
+from .tasks import OPTION_PREFIXES, Task, TaskRows, options_text
 
 
 @functools.lru_cache(maxsize=64)
@@ -95,10 +95,16 @@ def run_task(task: Task) -> pd.DataFrame:
     """Simulate the task's run and return its metrics (:mod:`onlinemap.evaluate`): one row of
     :data:`~onlinemap.evaluate.RUN_METRICS`, or one row per step of
     :data:`~onlinemap.evaluate.STEP_METRICS` (``rows = "step"``); with a reference estimator,
-    the total variation to its beliefs too. Timing is measured after a warm-up run.
-    Cost: the estimator's run, plus (unless this process has just had them for another task)
-    one simulation and the reference's run (:func:`simulated_run`, :func:`reference_trajectory`).
-    """
+    the total variation to its beliefs too; described by :func:`describe`. Timing is measured
+    after a warm-up run. Cost: that of :func:`task_rows`, plus one DataFrame (1-2 ms a row)."""
+    return task_rows(task).frame()
+
+
+def task_rows(task: Task) -> TaskRows:
+    """The rows of :func:`run_task` as plain columns (what the engines keep: a table of many tasks
+    is built once, :func:`~.store.assemble_rows`). Cost: the estimator's run, plus (unless this
+    process has just had them for another task) one simulation and the reference's run
+    (:func:`simulated_run`, :func:`reference_trajectory`), plus O(T N K) to score it."""
     reference = None
     if task.kind != "estimate":
         played = _play(task)
@@ -115,28 +121,29 @@ def run_task(task: Task) -> pd.DataFrame:
     steps = step_columns(run, trajectory, reference)
     if task.per_step:
         names = ["t", "true_location", *(c for c in STEP_METRICS if c in steps)]
-        columns = {**{name: steps[name] for name in names}, **played.step_columns,
+        metrics = {**{name: steps[name] for name in names},
+                   **{name: np.asarray(values) for name, values in played.step_columns.items()},
                    "ms_per_step": np.full(run.n_steps, 1e3 * trajectory.seconds_per_step)}
     else:
         row = run_metrics(run, trajectory, reference, steps, trip=task.walk != "random")
-        columns = {name: [value] for name, value in
-                   {**{name: row[name] for name in RUN_METRICS if name in row}, **played.run_columns}.items()}
-    return describe(task, columns, run.n_steps)
+        metrics = {**{name: row[name] for name in RUN_METRICS if name in row}, **played.run_columns}
+    return TaskRows(run.n_steps if task.per_step else 1, {**description(task, run.n_steps), **metrics},
+                    option_columns(task))
 
 
 class Outcome(NamedTuple):
     """What running one task gave: its rows, or the error that ended it (``"Type: message"``)."""
 
-    frame: pd.DataFrame | None
+    rows: TaskRows | None
     error: str | None
 
 
 def attempt(task: Task) -> Outcome:
-    """:func:`run_task`, with an exception returned as text instead of raised: a dask worker then
+    """:func:`task_rows`, with an exception returned as text instead of raised: a dask worker then
     never sees a failed task (so it logs no ``Compute Failed`` block and no traceback), and the
     engine reports every failure the same way, serial or not."""
     try:
-        return Outcome(run_task(task), None)
+        return Outcome(task_rows(task), None)
     except Exception as error:  # any failure of a task is reported, never raised out of a worker
         return Outcome(None, f"{type(error).__name__}: {error}")
 
@@ -173,17 +180,9 @@ def _play(task: Task) -> Played:
     return kind.play(model, true_map, task)
 
 
-def describe(task: Task, frame: pd.DataFrame | Mapping[str, Sequence], n_steps: int) -> pd.DataFrame:
-    """The task's rows as one frame: its description columns (those of its kind, and its labels if
-    the spec gave them; ``steps``: the run's actual number of steps), then the columns of
-    ``frame`` (a frame, or columns by name: equal-length arrays or lists), then one typed
-    ``opt_NAME`` (``planner_opt_NAME``) column per option; the description and the options are
-    repeated on every row. Cost: one DataFrame of rows x columns (about 1-2 ms for one row)."""
-    if isinstance(frame, pd.DataFrame):
-        columns, index = dict(frame.items()), frame.index
-    else:
-        columns, index = dict(frame), None
-    rows = len(frame) if index is not None else len(next(iter(columns.values()), ()))
+def description(task: Task, n_steps: int) -> dict[str, object]:
+    """The task's description columns, one value each: those of its kind, and its labels if the
+    spec gave them (``steps``: the run's actual number of steps, ``n_steps``)."""
     described = {"task": task.key, "kind": task.kind, "world": task.world}
     if task.kind != "estimate":
         described["planner"] = task.planner
@@ -200,6 +199,20 @@ def describe(task: Task, frame: pd.DataFrame | Mapping[str, Sequence], n_steps: 
     if task.kind == "estimate":
         described.update(walk=task.walk, reference=task.reference or "")
     described["seed"] = task.seed
-    options = {prefix + name: value for field, prefix in OPTION_PREFIXES.items() for name, value in getattr(task, field)}
-    return pd.DataFrame({**{name: [value] * rows for name, value in described.items()}, **columns,
-                         **{name: [value] * rows for name, value in options.items()}}, index=index)
+    return described
+
+
+def option_columns(task: Task) -> dict[str, object]:
+    """One ``opt_NAME`` (``planner_opt_NAME``) value per option of the task."""
+    return {prefix + name: value for field, prefix in OPTION_PREFIXES.items() for name, value in getattr(task, field)}
+
+
+def describe(task: Task, frame: pd.DataFrame, n_steps: int) -> pd.DataFrame:
+    """Prefix the task's description columns (:func:`description`) to ``frame`` and append one
+    typed ``opt_NAME`` (``planner_opt_NAME``) column per option, repeated on every row. Cost: one
+    DataFrame of rows x columns."""
+    def on_every_row(values: dict[str, object]) -> dict[str, list]:
+        return {name: [value] * len(frame) for name, value in values.items()}
+
+    return pd.DataFrame({**on_every_row(description(task, n_steps)), **dict(frame.items()),
+                         **on_every_row(option_columns(task))}, index=frame.index)
