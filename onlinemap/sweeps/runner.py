@@ -1,6 +1,8 @@
 """The task runner: simulate a task's run from its seed, run its estimator (and planner), score
 it with :mod:`onlinemap.evaluate`, and return its rows with the task's description and typed
-option columns (so a folder of parts assembles into the table without the spec).
+option columns (so a folder of parts assembles into the table without the spec). The engines
+keep the rows as plain columns (:func:`task_rows`, :class:`~.tasks.TaskRows`) and build one
+frame for all the tasks of a sweep; :func:`run_task` is one task's frame.
 
 A task simulates its run exactly as ``onlinemap run --seed`` does (``default_rng(seed)`` draws
 the map, then the walk, then the noise); estimators with a ``seed`` option get one derived from
@@ -95,8 +97,10 @@ def run_task(task: Task) -> pd.DataFrame:
     """Simulate the task's run and return its metrics (:mod:`onlinemap.evaluate`): one row of
     :data:`~onlinemap.evaluate.RUN_METRICS`, or one row per step of
     :data:`~onlinemap.evaluate.STEP_METRICS` (``rows = "step"``); with a reference estimator,
-    the total variation to its beliefs too; described by :func:`describe`. Timing is measured
-    after a warm-up run. Cost: that of :func:`task_rows`, plus one DataFrame (1-2 ms a row)."""
+    the total variation to its beliefs too; the task's description columns first
+    (:func:`description`), one typed column per option last (:func:`option_columns`). Timing is
+    measured after a warm-up run. Cost: that of :func:`task_rows`, plus one DataFrame (1-2 ms
+    for one row)."""
     return task_rows(task).frame()
 
 
@@ -209,8 +213,8 @@ def option_columns(task: Task) -> dict[str, object]:
 
 def describe(task: Task, frame: pd.DataFrame, n_steps: int) -> pd.DataFrame:
     """Prefix the task's description columns (:func:`description`) to ``frame`` and append one
-    typed ``opt_NAME`` (``planner_opt_NAME``) column per option, repeated on every row. Cost: one
-    DataFrame of rows x columns."""
+    typed ``opt_NAME`` (``planner_opt_NAME``) column per option, repeated on every row (the
+    frame :func:`run_task` gives for the task's metrics). Cost: one DataFrame of rows x columns."""
     def on_every_row(values: dict[str, object]) -> dict[str, list]:
         return {name: [value] * len(frame) for name, value in values.items()}
 

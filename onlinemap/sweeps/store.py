@@ -11,6 +11,9 @@ without the spec (:func:`collect`). Option columns get one type each: nullable i
 (``Int64``) when every value is an int, floats, booleans or text, and JSON text when values mix
 types or are lists. Reading a part never unpickles anything (``allow_pickle=False``).
 
+The same table from tasks held in memory: :func:`assemble` of their frames, or, as the engines
+do, :func:`assemble_rows` of their plain rows (one frame built for all of them, not one each).
+
 Imports: :mod:`.tasks`, :mod:`onlinemap.atomic`.
 """
 
