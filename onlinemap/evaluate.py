@@ -44,10 +44,11 @@ from __future__ import annotations
 import logging
 import math
 import warnings
-from typing import NamedTuple
+from typing import Mapping, NamedTuple
 
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike
 
 from . import metrics
 from .errors import MemoryLimitError, ModelError, PerformanceWarning
@@ -98,9 +99,21 @@ def metric_bounds(name: str, n_cells: int | None = None) -> tuple[float, float]:
     return -math.inf, math.inf
 
 
-def late_mean(t: pd.Series, values: pd.Series) -> float:
-    """Mean of ``values`` over the steps ``t >= LATE_FROM * last t`` (after the first visits)."""
-    return float(values[t >= LATE_FROM * t.iloc[-1]].mean())
+def skipna_mean(values: ArrayLike) -> float:
+    """The mean of the values that are not NaN (NaN if none is), bit for bit as pandas'
+    ``Series.mean`` computes it (NaNs as zeros in one sum, then one division), without a Series.
+    O(T)."""
+    values = np.asarray(values, dtype=np.float64)
+    missing = np.isnan(values)
+    count = values.size - np.count_nonzero(missing)
+    return float(np.where(missing, 0.0, values).sum() / count) if count else math.nan
+
+
+def late_mean(t: ArrayLike, values: ArrayLike) -> float:
+    """Mean of ``values`` over the steps ``t >= LATE_FROM * last t`` (after the first visits),
+    NaNs skipped (:func:`skipna_mean`). O(T)."""
+    t = np.asarray(t)
+    return skipna_mean(np.asarray(values, dtype=np.float64)[t >= LATE_FROM * t[-1]])
 
 
 def from_steps(steps: pd.DataFrame, by: list[str]) -> pd.DataFrame:
@@ -117,8 +130,7 @@ def from_steps(steps: pd.DataFrame, by: list[str]) -> pd.DataFrame:
         row["mean_location_error"] = float(run["location_error"].mean())
         row.update(coverage(run["map_error"]))
         if "door_error" in run and run["door_error"].notna().any():
-            row["late_door_error"] = late_mean(run["t"].reset_index(drop=True),
-                                               run["door_error"].reset_index(drop=True))
+            row["late_door_error"] = late_mean(run["t"], run["door_error"])
         if "ms_per_step" in run:
             row["ms_per_step"] = float(run["ms_per_step"].iloc[0])
         rows.append(row)
@@ -237,7 +249,14 @@ def way_back(run: Run) -> np.ndarray:
 def step_metrics(run: Run, trajectory: Trajectory, reference: Trajectory | None = None) -> pd.DataFrame:
     """One row per step of ``run``: ``t`` and the per-step metrics (module docstring) of
     ``trajectory`` (location (T, N), map (T, N, K)); ``door_error`` if the true initial map has
-    doors, ``location_tv`` / ``map_tv`` if a ``reference`` trajectory is given."""
+    doors, ``location_tv`` / ``map_tv`` if a ``reference`` trajectory is given. The frame of
+    :func:`step_columns`."""
+    return pd.DataFrame(step_columns(run, trajectory, reference))
+
+
+def step_columns(run: Run, trajectory: Trajectory, reference: Trajectory | None = None) -> dict[str, np.ndarray]:
+    """The columns of :func:`step_metrics`, (T,) arrays by name, without building a frame.
+    O(T N K)."""
     p_true = np.take_along_axis(trajectory.map, run.maps[..., None], axis=-1)[..., 0]  # (T, N)
     seen = observable_cells(run.model, run.initial_map)
     columns = {
@@ -258,22 +277,27 @@ def step_metrics(run: Run, trajectory: Trajectory, reference: Trajectory | None 
     if reference is not None:
         columns["location_tv"] = metrics.total_variation(trajectory.location, reference.location)
         columns["map_tv"] = metrics.total_variation(trajectory.map, reference.map).mean(axis=-1)
-    return pd.DataFrame(columns)
+    return columns
 
 
 def run_metrics(run: Run, trajectory: Trajectory, reference: Trajectory | None = None,
-                steps: pd.DataFrame | None = None, *, trip: bool = False) -> dict[str, float | int | bool]:
+                steps: pd.DataFrame | Mapping[str, ArrayLike] | None = None, *,
+                trip: bool = False) -> dict[str, float | int | bool]:
     """The per-run metrics (module docstring) of ``trajectory`` on ``run``, in
     :data:`RUN_METRICS` order (those that apply; the way-back ones only for a there-and-back
-    ``trip``). ``steps``: its :func:`step_metrics`, if already computed."""
-    steps = step_metrics(run, trajectory, reference) if steps is None else steps
-    final, location_error = steps.iloc[-1], steps["location_error"].to_numpy()
+    ``trip``). ``steps``: its :func:`step_metrics` (or :func:`step_columns`), if already
+    computed. Cost: O(N K) on top of the steps (O(T N K) without them), and the yardstick of
+    :func:`told_location_map`."""
+    steps = step_columns(run, trajectory, reference) if steps is None else steps
+    column = {name: np.asarray(steps[name]) for name in steps}
+    final = {name: values[-1] for name, values in column.items()}
+    location_error = column["location_error"]
     final_map = trajectory.map[-1]
     wrong = metrics.wrong_cells(final_map, run.final_map, np.unique(run.locations))
     counts = cell_counts(final_map, run.final_map)
     seen = read_cells(run)
     row: dict[str, float | int | bool] = {
-        "final_map_error": float(final["map_error"]), "mean_map_error": float(steps["map_error"].mean()),
+        "final_map_error": float(final["map_error"]), "mean_map_error": skipna_mean(column["map_error"]),
         "final_location_error": float(location_error[-1]), "mean_location_error": float(location_error.mean()),
         "max_location_error": float(location_error.max()), "wrong_cells": int(final["wrong_cells"]),
         "unsure_or_wrong": counts.unsure_or_wrong, "confidently_wrong": counts.confidently_wrong,
@@ -292,15 +316,16 @@ def run_metrics(run: Run, trajectory: Trajectory, reference: Trajectory | None =
                    told_location_wrong=told_counts.wrong, told_location_unsure_or_wrong=told_counts.unsure_or_wrong,
                    told_location_confidently_wrong=told_counts.confidently_wrong)
     row.update(final_known_cells=int(final["known_cells"]),
-               final_observable_map_error=float(final["observable_map_error"]), **coverage(steps["map_error"]))
+               final_observable_map_error=float(final["observable_map_error"]), **coverage(column["map_error"]))
     row["final_log_evidence"] = float(final["log_evidence"])
-    if "location_tv" in steps:
-        row.update(final_location_tv=float(final["location_tv"]), mean_location_tv=float(steps["location_tv"].mean()),
-                   final_map_tv=float(final["map_tv"]), mean_map_tv=float(steps["map_tv"].mean()))
+    if "location_tv" in column:
+        row.update(final_location_tv=float(final["location_tv"]),
+                   mean_location_tv=skipna_mean(column["location_tv"]),
+                   final_map_tv=float(final["map_tv"]), mean_map_tv=skipna_mean(column["map_tv"]))
     row.update(final_map_entropy=float(final["map_entropy"]), final_location_entropy=float(final["location_entropy"]))
-    if "door_error" in steps:
-        row.update(final_door_error=float(final["door_error"]), mean_door_error=float(steps["door_error"].mean()),
-                   late_door_error=late_mean(steps["t"], steps["door_error"]))
+    if "door_error" in column:
+        row.update(final_door_error=float(final["door_error"]), mean_door_error=skipna_mean(column["door_error"]),
+                   late_door_error=late_mean(column["t"], column["door_error"]))
     row["ms_per_step"] = 1e3 * trajectory.seconds_per_step
     return row
 

@@ -267,7 +267,7 @@ def test_rerunning_a_finished_sweep_runs_nothing_and_ignores_stale_results(tmp_p
     first = om.sweep(spec, workers=0, results_dir=parts, progress=False)
     stale = sweeps.Task("corridor:5", "exact", (), 99, 15)  # e.g. from an older version of the spec
     sweeps.write_part(parts, stale, sweeps.run_task(stale))
-    monkeypatch.setattr(sweeps.runner, "run_task", lambda task: pytest.fail("a finished task ran again"))
+    monkeypatch.setattr(sweeps.runner, "task_rows", lambda task: pytest.fail("a finished task ran again"))
     again = om.sweep(spec, workers=0, results_dir=parts, progress=False)
     pd.testing.assert_frame_equal(first, again)  # timings too: the same files
     assert stale.key not in set(again["task"])
@@ -275,13 +275,13 @@ def test_rerunning_a_finished_sweep_runs_nothing_and_ignores_stale_results(tmp_p
 
 def test_failed_tasks_are_reported_and_the_rest_kept(tmp_path, monkeypatch):
     spec = sweeps.parse_spec(SPEC)
-    real = sweeps.run_task
-    monkeypatch.setattr(sweeps.runner, "run_task",
+    real = sweeps.runner.task_rows
+    monkeypatch.setattr(sweeps.runner, "task_rows",
                         lambda task: real(task) if task.seed != 1 else (_ for _ in ()).throw(RuntimeError("boom")))
     with pytest.raises(om.SweepError, match=f"{N_TASKS // 3} of {N_TASKS} tasks failed.*boom"):
         om.sweep(spec, workers=0, results_dir=tmp_path, progress=False)
     assert len(list(tmp_path.glob("*.npz"))) == N_TASKS - N_TASKS // 3
-    monkeypatch.setattr(sweeps.runner, "run_task", real)
+    monkeypatch.setattr(sweeps.runner, "task_rows", real)
     assert len(om.sweep(spec, workers=0, results_dir=tmp_path, progress=False)) == N_TASKS
 
 
@@ -646,7 +646,7 @@ def test_planner_options_come_from_the_registry_without_building_one(monkeypatch
 def test_parquet_output_without_pyarrow_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "pyarrow", None)  # import pyarrow now raises ImportError
     path = write_spec(tmp_path)
-    monkeypatch.setattr(sweeps.runner, "run_task", lambda task: pytest.fail("a task ran"))
+    monkeypatch.setattr(sweeps.runner, "task_rows", lambda task: pytest.fail("a task ran"))
     line = _one_error_line(capsys, ["sweep", str(path), "--workers", "0", "--out", str(tmp_path / "r"),
                                     "--format", "parquet"])
     assert "needs pyarrow" in line and not (tmp_path / "r" / "parts").exists()
@@ -685,6 +685,25 @@ def test_without_pyarrow_every_out_command_keeps_its_parts_and_writes_csv(tmp_pa
     for parts in ("compare/compare.parts", "explore/explore.parts"):
         assert list((out / parts).glob("*.npz")), parts
     assert (out / "explore" / "explore_visits.png").exists() and (out / "compare" / "compare_summary.csv").exists()
+
+
+@pytest.mark.parametrize("rows", ["task", "step"])
+def test_the_engines_table_is_the_assembly_of_the_tasks_frames(rows):
+    """``assemble_rows`` (the engines: one frame built for every task's plain rows) gives, bit for
+    bit, the table ``assemble`` makes of the tasks' frames: tasks in any order, with different
+    options, labels and metric columns (door errors in one world only), and a task with columns
+    whose type pandas may infer differently alone (each such task is a frame of its own)."""
+    spec = sweeps.parse_spec(f'worlds = ["corridor:5", "door,p_door=0.02"]\nseeds = 2\nsteps = 6\nrows = "{rows}"\n'
+                             '[estimators.bk]\nlabel = "B"\n[estimators.rbpf]\nn_particles = [5, 10]\n')
+    results = [sweeps.runner.task_rows(task) for task in spec.tasks]
+    results = [results[i] for i in np.random.default_rng(0).permutation(len(results))]
+    results += [results[0]._replace(columns={**results[0].columns, **extra})
+                for extra in [{"note": None, "big": 2 ** 64}, {"note": 1.5, "big": 5}, {"listed": [1, "x"]}]]
+    table = sweeps.store.assemble_rows(results)
+    expected = sweeps.assemble([result.frame() for result in results])
+    pd.testing.assert_frame_equal(table, expected, check_exact=True)
+    assert table.dtypes.equals(expected.dtypes) and list(table["task"]) == [
+        result.columns["task"] for result in results for _ in range(result.n)]
 
 
 def test_a_part_keeps_every_column_and_type(tmp_path):

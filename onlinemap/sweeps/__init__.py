@@ -56,12 +56,13 @@ The package, one job per module, imports running one way (``tasks`` <- ``spec``,
 ``store`` <- ``engines``; ``summary`` beside them):
 
 - :mod:`.tasks`: :class:`Task`, :class:`SweepSpec`, expansion of a grid into tasks (counted and
-  capped first);
+  capped first), a task's rows as plain columns (``TaskRows``);
 - :mod:`.spec`: reading and validating TOML specs (:func:`load_spec`, :class:`SpecError`);
 - :mod:`.kinds`: the kinds of task played by packages above the engine (``explore``,
   ``navigate``: ``policies``), registered or found through entry points, never imported;
 - :mod:`.runner`: one task (:func:`run_task`): simulate and estimate, or play its kind; score;
-- :mod:`.store`: the part store (atomic parts, resume, :func:`collect` without the spec);
+- :mod:`.store`: the part store (atomic parts, resume, :func:`collect` without the spec) and
+  the table of many tasks' rows, built once (``assemble_rows``);
 - :mod:`.engines`: :func:`sweep` serially or on dask.distributed (by default serially unless a
   local cluster pays: :func:`prefer_dask`);
 - :mod:`.summary`: :func:`summarize`, :func:`summary_table`, :func:`plot_sweep`.

@@ -20,8 +20,8 @@ from ..progress import show_progress, tqdm
 from ..tables import check_writable, write_table
 from . import runner
 from .spec import load_spec, spec_from_dict
-from .store import assemble, collect, default_results_dir, finished_tasks, open_store, write_part
-from .tasks import MAX_TASKS, SweepSpec, Task, options_text
+from .store import assemble_rows, collect, default_results_dir, finished_tasks, open_store, write_part
+from .tasks import MAX_TASKS, SweepSpec, Task, TaskRows, options_text
 
 log = logging.getLogger(__name__)
 DASK_HINT = "install dask.distributed with: pip install 'dask[distributed]'"
@@ -55,7 +55,7 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     if results_dir is None and out is not None:
         results_dir = default_results_dir(out)
     store = open_store(results_dir) if results_dir is not None else None
-    memory: dict[str, pd.DataFrame] = {}
+    memory: dict[str, TaskRows] = {}
     done = finished_tasks(spec.tasks, store) if store is not None else set()
     todo = [t for t in spec.tasks if t.key not in done]
     # tasks sharing a run one after the other, so the memoised run and reference are reused
@@ -71,12 +71,12 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
             return
         if store is not None:
             try:
-                write_part(store, task, outcome.frame)
+                write_part(store, task, outcome.rows.frame())
             except OSError as error:  # e.g. a full disk: the task counts as failed, the sweep goes on
                 failures.append((task, f"{type(error).__name__}: {error}"))
                 return
         else:
-            memory[task.key] = outcome.frame
+            memory[task.key] = outcome.rows
         bar.update()
 
     bar = tqdm(total=len(spec.tasks), initial=len(spec.tasks) - len(todo), desc=f"sweep {spec.name}",
@@ -94,7 +94,7 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     if store is not None:
         table = collect(store, spec.tasks)
     else:
-        table = assemble([memory[t.key] for t in spec.tasks if t.key in memory])
+        table = assemble_rows([memory[t.key] for t in spec.tasks if t.key in memory])
     if out is not None:
         write_table(table, out, source=spec.text or spec.source)
     if failures:

@@ -1,6 +1,8 @@
 """The task runner: simulate a task's run from its seed, run its estimator (and planner), score
 it with :mod:`onlinemap.evaluate`, and return its rows with the task's description and typed
-option columns (so a folder of parts assembles into the table without the spec).
+option columns (so a folder of parts assembles into the table without the spec). The engines
+keep the rows as plain columns (:func:`task_rows`, :class:`~.tasks.TaskRows`) and build one
+frame for all the tasks of a sweep; :func:`run_task` is one task's frame.
 
 A task simulates its run exactly as ``onlinemap run --seed`` does (``default_rng(seed)`` draws
 the map, then the walk, then the noise); estimators with a ``seed`` option get one derived from
@@ -25,14 +27,14 @@ import pandas as pd
 
 from ..estimators import estimator_options
 from ..estimators.base import Trajectory
-from ..evaluate import RUN_METRICS, STEP_METRICS, WARM_UP_STEPS, run_metrics, step_metrics, timed_trajectory
+from ..evaluate import RUN_METRICS, STEP_METRICS, WARM_UP_STEPS, run_metrics, step_columns, timed_trajectory
 from ..model import GridModel
 from ..rng import ESTIMATOR_STREAM, derived_seed
 from ..scenarios import one_slip_corridor
 from ..simulate import Run, random_walk, there_and_back
 from ..worlds import WorldSpec, parse_world
 from .kinds import Played, task_kind
-from .tasks import OPTION_PREFIXES, Task, options_text
+from .tasks import OPTION_PREFIXES, Task, TaskRows, options_text
 
 
 @functools.lru_cache(maxsize=64)
@@ -95,10 +97,18 @@ def run_task(task: Task) -> pd.DataFrame:
     """Simulate the task's run and return its metrics (:mod:`onlinemap.evaluate`): one row of
     :data:`~onlinemap.evaluate.RUN_METRICS`, or one row per step of
     :data:`~onlinemap.evaluate.STEP_METRICS` (``rows = "step"``); with a reference estimator,
-    the total variation to its beliefs too. Timing is measured after a warm-up run.
-    Cost: the estimator's run, plus (unless this process has just had them for another task)
-    one simulation and the reference's run (:func:`simulated_run`, :func:`reference_trajectory`).
-    """
+    the total variation to its beliefs too; the task's description columns first
+    (:func:`description`), one typed column per option last (:func:`option_columns`). Timing is
+    measured after a warm-up run. Cost: that of :func:`task_rows`, plus one DataFrame (1-2 ms
+    for one row)."""
+    return task_rows(task).frame()
+
+
+def task_rows(task: Task) -> TaskRows:
+    """The rows of :func:`run_task` as plain columns (what the engines keep: a table of many tasks
+    is built once, :func:`~.store.assemble_rows`). Cost: the estimator's run, plus (unless this
+    process has just had them for another task) one simulation and the reference's run
+    (:func:`simulated_run`, :func:`reference_trajectory`), plus O(T N K) to score it."""
     reference = None
     if task.kind != "estimate":
         played = _play(task)
@@ -112,29 +122,32 @@ def run_task(task: Task) -> pd.DataFrame:
             reference = trajectory if (task.estimator, task.options) == (task.reference, ()) else \
                 reference_trajectory(task.world, task.steps, task.walk, task.seed, task.reference)
     run, trajectory = played.run, played.trajectory
-    steps = step_metrics(run, trajectory, reference)
+    steps = step_columns(run, trajectory, reference)
     if task.per_step:
-        frame = steps[["t", "true_location", *(c for c in STEP_METRICS if c in steps)]].assign(
-            **played.step_columns, ms_per_step=1e3 * trajectory.seconds_per_step)
+        names = ["t", "true_location", *(c for c in STEP_METRICS if c in steps)]
+        metrics = {**{name: steps[name] for name in names},
+                   **{name: np.asarray(values) for name, values in played.step_columns.items()},
+                   "ms_per_step": np.full(run.n_steps, 1e3 * trajectory.seconds_per_step)}
     else:
         row = run_metrics(run, trajectory, reference, steps, trip=task.walk != "random")
-        frame = pd.DataFrame([{**{name: row[name] for name in RUN_METRICS if name in row}, **played.run_columns}])
-    return describe(task, frame, run.n_steps)
+        metrics = {**{name: row[name] for name in RUN_METRICS if name in row}, **played.run_columns}
+    return TaskRows(run.n_steps if task.per_step else 1, {**description(task, run.n_steps), **metrics},
+                    option_columns(task))
 
 
 class Outcome(NamedTuple):
     """What running one task gave: its rows, or the error that ended it (``"Type: message"``)."""
 
-    frame: pd.DataFrame | None
+    rows: TaskRows | None
     error: str | None
 
 
 def attempt(task: Task) -> Outcome:
-    """:func:`run_task`, with an exception returned as text instead of raised: a dask worker then
+    """:func:`task_rows`, with an exception returned as text instead of raised: a dask worker then
     never sees a failed task (so it logs no ``Compute Failed`` block and no traceback), and the
     engine reports every failure the same way, serial or not."""
     try:
-        return Outcome(run_task(task), None)
+        return Outcome(task_rows(task), None)
     except Exception as error:  # any failure of a task is reported, never raised out of a worker
         return Outcome(None, f"{type(error).__name__}: {error}")
 
@@ -171,10 +184,9 @@ def _play(task: Task) -> Played:
     return kind.play(model, true_map, task)
 
 
-def describe(task: Task, frame: pd.DataFrame, n_steps: int) -> pd.DataFrame:
-    """Prefix the task's description columns (those of its kind, and its labels if the spec gave
-    them; ``steps``: the run's actual number of steps) and append one typed ``opt_NAME``
-    (``planner_opt_NAME``) column per option."""
+def description(task: Task, n_steps: int) -> dict[str, object]:
+    """The task's description columns, one value each: those of its kind, and its labels if the
+    spec gave them (``steps``: the run's actual number of steps, ``n_steps``)."""
     described = {"task": task.key, "kind": task.kind, "world": task.world}
     if task.kind != "estimate":
         described["planner"] = task.planner
@@ -191,10 +203,20 @@ def describe(task: Task, frame: pd.DataFrame, n_steps: int) -> pd.DataFrame:
     if task.kind == "estimate":
         described.update(walk=task.walk, reference=task.reference or "")
     described["seed"] = task.seed
-    options = pd.DataFrame({prefix + name: [value] for field, prefix in OPTION_PREFIXES.items()
-                            for name, value in getattr(task, field)})
-    rows = np.zeros(len(frame), dtype=np.intp)  # the task's one row, repeated for each of the frame's rows
-    parts = [pd.DataFrame({column: [value] for column, value in described.items()}).iloc[rows], frame]
-    if len(options.columns):
-        parts.append(options.iloc[rows])
-    return pd.concat([part.set_axis(frame.index) for part in parts], axis=1)
+    return described
+
+
+def option_columns(task: Task) -> dict[str, object]:
+    """One ``opt_NAME`` (``planner_opt_NAME``) value per option of the task."""
+    return {prefix + name: value for field, prefix in OPTION_PREFIXES.items() for name, value in getattr(task, field)}
+
+
+def describe(task: Task, frame: pd.DataFrame, n_steps: int) -> pd.DataFrame:
+    """Prefix the task's description columns (:func:`description`) to ``frame`` and append one
+    typed ``opt_NAME`` (``planner_opt_NAME``) column per option, repeated on every row (the
+    frame :func:`run_task` gives for the task's metrics). Cost: one DataFrame of rows x columns."""
+    def on_every_row(values: dict[str, object]) -> dict[str, list]:
+        return {name: [value] * len(frame) for name, value in values.items()}
+
+    return pd.DataFrame({**on_every_row(description(task, n_steps)), **dict(frame.items()),
+                         **on_every_row(option_columns(task))}, index=frame.index)

@@ -11,6 +11,9 @@ without the spec (:func:`collect`). Option columns get one type each: nullable i
 (``Int64``) when every value is an int, floats, booleans or text, and JSON text when values mix
 types or are lists. Reading a part never unpickles anything (``allow_pickle=False``).
 
+The same table from tasks held in memory: :func:`assemble` of their frames, or, as the engines
+do, :func:`assemble_rows` of their plain rows (one frame built for all of them, not one each).
+
 Imports: :mod:`.tasks`, :mod:`onlinemap.atomic`.
 """
 
@@ -27,7 +30,7 @@ import pandas as pd
 
 from ..atomic import atomic_write, remove_temporaries
 from ..errors import OnlineMapError
-from .tasks import OPTION_PREFIXES, TASK_COLUMNS, Task, plain
+from .tasks import OPTION_PREFIXES, TASK_COLUMNS, Task, TaskRows, plain, stacked
 
 PART_SUFFIX = ".npz"
 PART_FORMAT = 1
@@ -141,18 +144,81 @@ def collect(results_dir: str | os.PathLike, tasks: Iterable[Task] | None = None)
 
 
 def assemble(frames: Sequence[pd.DataFrame]) -> pd.DataFrame:
-    """One table from task frames held in memory (as :func:`collect` does for parts)."""
-    options = _option_names(frame.columns for frame in frames)
-    values = [[frame[name].iloc[0] if name in frame and len(frame) else None for frame in frames]
-              for name in options]
+    """One table from task frames held in memory (as :func:`collect` does for parts): the frames'
+    rows in order without their option columns, then one typed column per option
+    (:func:`with_options`). The frames of each list of columns (one per configuration of
+    options) are concatenated and stripped of their options at once (:func:`in_order`). Cost:
+    O(rows x columns), plus about a millisecond per frame."""
     if not frames:
-        table = pd.DataFrame(columns=TASK_COLUMNS)
-    elif all(list(frame.columns) == list(frames[0].columns) for frame in frames):  # one concat, then the drop
-        table = pd.concat(frames, ignore_index=True).drop(columns=options)
-    else:  # frames of different columns: dropped first, so no option column is filled across frames
-        table = pd.concat([frame.drop(columns=[c for c in frame.columns if c in options]) for frame in frames],
-                          ignore_index=True)
-    return with_options(table, options, values, [len(frame) for frame in frames])
+        return pd.DataFrame(columns=TASK_COLUMNS)
+    groups: dict[tuple, list[int]] = {}  # each distinct list of columns -> the positions of its frames
+    for position, frame in enumerate(frames):
+        groups.setdefault(tuple(frame.columns), []).append(position)
+    options = _option_names(groups)
+    values = [[None] * len(frames) for _ in options]
+    parts = []
+    for columns, members in groups.items():
+        for name, row in zip(options, values):
+            if name in columns:
+                at = columns.index(name)
+                for position in members:
+                    row[position] = frames[position].iat[0, at] if len(frames[position]) else None
+        parts.append(pd.concat([frames[position] for position in members], ignore_index=True).drop(
+            columns=[c for c in columns if c in options]))
+    lengths = [len(frame) for frame in frames]
+    return with_options(in_order(parts, list(groups.values()), lengths), options, values, lengths)
+
+
+def assemble_rows(results: Sequence[TaskRows]) -> pd.DataFrame:
+    """The table :func:`assemble` makes of the tasks' frames (``TaskRows.frame``), bit for bit,
+    without building them: the tasks whose columns have the same names and, in each, values of
+    the same type (or arrays of the same dtype) are one frame (:func:`~.tasks.stacked`: pandas
+    infers each column's type once, as it does for each task alone), and these frames are
+    concatenated as the tasks' would be (:func:`in_order`); a task with a column of any other
+    kind of value is a frame of its own. Cost: O(rows x columns), a few microseconds per task."""
+    if not results:
+        return pd.DataFrame(columns=TASK_COLUMNS)
+    groups: dict[tuple, list[int]] = {}
+    for position, rows in enumerate(results):
+        groups.setdefault(_signature(rows) or (position,), []).append(position)
+    parts = [stacked([results[p].columns for p in members], [results[p].n for p in members])
+             for members in groups.values()]
+    options = _option_names(rows.options for rows in results)
+    values = [[rows.options.get(name) if rows.n else None for rows in results] for name in options]
+    lengths = [rows.n for rows in results]
+    return with_options(in_order(parts, list(groups.values()), lengths), options, values, lengths)
+
+
+#: the Python types of values whose type pandas infers alike for one value and for many
+PLAIN_TYPES = (bool, int, float, str, type(None), np.bool_, np.int64, np.float64)
+
+
+def _signature(rows: TaskRows) -> tuple | None:
+    """The names of a task's columns and the type of each (an array's dtype, a value's Python
+    type); None if a column holds anything else (an array of objects, a list, a big integer)."""
+    kinds = []
+    for value in rows.columns.values():
+        if isinstance(value, np.ndarray):
+            kind = value.dtype if value.dtype.kind in "biuf" else None
+        else:
+            kind = type(value) if type(value) in PLAIN_TYPES and not (
+                type(value) is int and not -2 ** 63 <= value < 2 ** 63) else None
+        if kind is None:
+            return None
+        kinds.append(kind)
+    return tuple(rows.columns), tuple(kinds)
+
+
+def in_order(parts: list[pd.DataFrame], groups: list[list[int]], lengths: Sequence[int]) -> pd.DataFrame:
+    """Concatenate ``parts`` (part g: the rows of the tasks at positions ``groups[g]``, of
+    ``lengths`` rows each, in that order) and put the rows back in the tasks' order, with a fresh
+    index: the table of concatenating the tasks' frames one by one (a column missing from some
+    tasks filled as pandas fills it). Cost: O(rows x columns)."""
+    if len(parts) == 1:
+        return parts[0]
+    order = np.concatenate(groups)  # the tasks in the order their rows were concatenated
+    rows = np.argsort(np.repeat(order, np.asarray(lengths, dtype=np.int64)[order]), kind="stable")
+    return pd.concat(parts, ignore_index=True).take(rows).reset_index(drop=True)
 
 
 def _option_names(column_lists) -> list[str]:
