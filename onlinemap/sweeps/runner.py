@@ -209,14 +209,3 @@ def description(task: Task, n_steps: int) -> dict[str, object]:
 def option_columns(task: Task) -> dict[str, object]:
     """One ``opt_NAME`` (``planner_opt_NAME``) value per option of the task."""
     return {prefix + name: value for field, prefix in OPTION_PREFIXES.items() for name, value in getattr(task, field)}
-
-
-def describe(task: Task, frame: pd.DataFrame, n_steps: int) -> pd.DataFrame:
-    """Prefix the task's description columns (:func:`description`) to ``frame`` and append one
-    typed ``opt_NAME`` (``planner_opt_NAME``) column per option, repeated on every row (the
-    frame :func:`run_task` gives for the task's metrics). Cost: one DataFrame of rows x columns."""
-    def on_every_row(values: dict[str, object]) -> dict[str, list]:
-        return {name: [value] * len(frame) for name, value in values.items()}
-
-    return pd.DataFrame({**on_every_row(description(task, n_steps)), **dict(frame.items()),
-                         **on_every_row(option_columns(task))}, index=frame.index)
