@@ -7,8 +7,11 @@ The rule for every kernel here: arrays in, arrays out, no model objects. A kerne
 numpy arrays and scalars (the model's tables are passed as arrays by the caller), writes its
 results into arrays it is given, and never allocates per step what the caller can keep. Every
 kernel is ``@njit(cache=True)``: compiled once, cached on disk; an inner loop that allocates
-nothing may be a :data:`loop_kernel`. This package imports numpy and numba only (and llvmlite,
-numba's code generator, for :func:`prefetch`).
+nothing may be a :data:`loop_kernel`, and one that Python threads run at once on disjoint ranges
+a :data:`thread_kernel` (an entry point that only fills in such a kernel's range and scratch
+arrays is then a plain Python function, so that it shares the compiled kernel instead of
+compiling it again inside its own). This package imports numpy and numba only (and llvmlite,
+numba's code generator, for :func:`prefetch`), besides the standard library.
 """
 
 from llvmlite import ir
@@ -22,6 +25,12 @@ from numba.extending import intrinsic
 #: helpers on every call wherever its pruning pass cannot show the counts balanced, atomic
 #: operations that cost 1.3-2x the arithmetic of the RBPF's enumeration and commit (measured).
 loop_kernel = njit(cache=True, _nrt=False)
+
+#: A :data:`loop_kernel` that releases the GIL while it runs, so that Python threads run it at once
+#: on disjoint ranges (the RBPF's, :mod:`onlinemap.kernels.rbpf_parallel`). Called from Python
+#: with its range bounds as ints, never from a kernel: numba compiles a callee again for every
+#: literal argument (``0``), which would add a second copy of the same loop.
+thread_kernel = njit(cache=True, _nrt=False, nogil=True)
 
 
 #: how many iterations ahead the RBPF's loops ask for the rows they will read (:func:`prefetch`)
