@@ -943,13 +943,13 @@ def rbpf_map_mixture(pool: np.ndarray, pool_stamps: np.ndarray, row_block: np.nd
     First the weight of every row (:func:`_row_weights`), O(P n_blocks) at most; then one pass over
     the rows in use, in row order, O(R_used B K), with K^2 flops per out-of-date cell in a dynamic
     world (:func:`_mixture`). R_used <= P n_blocks, and much less when particles share blocks.
-    (A Python function: its kernels are those of the threaded mixture, but the last.)
+    (A Python function: the kernels are :func:`_row_weights` and :func:`_mixture`, on every block.)
     """
     n_blocks = table.shape[1]
     row_weight = np.zeros(len(pool))
     _row_weights(table, refcount, weights, _sum(weights), row_weight, 0, n_blocks, *_row_weight_scratch(n_blocks))
     out[:] = 0.0
-    _mixture(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, out)
+    _mixture(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, 0, n_blocks, out)
 
 
 @loop_kernel
@@ -1014,38 +1014,13 @@ def _add_row(pool, pool_stamps, powers, dynamic, t, members, r, w, out):
                 out[i, b] += w * _aged_label(pool, powers, d, r, j, b)
 
 
-@loop_kernel
-def _rows_by_block(row_block, row_weight, starts, rows):
-    """The rows of nonzero weight grouped by the block they hold, in row order within a block:
-    block b's are ``rows[starts[b]:starts[b + 1]]``. ``starts`` (n_blocks + 1,) zeros. O(R)."""
-    for r in range(row_block.shape[0]):
-        if row_weight[r] != 0.0:
-            starts[row_block[r] + 1] += 1
-    for b in range(starts.shape[0] - 1):
-        starts[b + 1] += starts[b]
-    for r in range(row_block.shape[0]):  # starts[b] runs up to block b's end, then moves back
-        if row_weight[r] != 0.0:
-            rows[starts[row_block[r]]] = r
-            starts[row_block[r]] += 1
-    for b in range(starts.shape[0] - 1, 0, -1):
-        starts[b] = starts[b - 1]
-    starts[0] = 0
-
-
 @thread_kernel
-def _mixture_rows(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, rows, out):
-    """out (N, K) += ``sum_r row_weight[r] * current marginals of block row r`` over ``rows``, in
-    their order."""
-    for i in range(rows.shape[0]):
-        r = rows[i]
-        _add_row(pool, pool_stamps, powers, dynamic, t, block_members[row_block[r]], r, row_weight[r], out)
-
-
-@loop_kernel
-def _mixture(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, out):
-    """out (N, K) += ``sum_r row_weight[r] * current marginals of block row r``, rows in order."""
+def _mixture(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, first, last, out):
+    """out (N, K) += ``sum_r row_weight[r] * current marginals of block row r`` over the rows holding
+    blocks ``first..last - 1``, in row order (the cells of those blocks only). O(R) plus
+    O(B K) per such row of nonzero weight."""
     for r in range(pool.shape[0]):
-        if row_weight[r] != 0.0:
+        if row_weight[r] != 0.0 and first <= row_block[r] < last:
             _add_row(pool, pool_stamps, powers, dynamic, t, block_members[row_block[r]], r, row_weight[r], out)
 
 
