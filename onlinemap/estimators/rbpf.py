@@ -38,8 +38,8 @@ step's buffers, which the filter owns (:func:`state_bytes`; measured 580-710 byt
 on the 10 x 10 door world, 2.8 KB on 64 x 64); the guard ``max_bytes`` checks it when the filter
 starts and whenever the pool grows. Measured (``onlinemap bench rbpf``, rows ``per particle``):
 an update 0.26-0.35 us of CPU per particle at 10^4-10^5 particles on the 10 x 10 door world, the
-belief 0.07. With ``threads`` the kernels of :mod:`onlinemap.kernels.rbpf_parallel` run instead
-(the same results). A step that recovers from particle depletion (see the class docstring)
+belief 0.07. With ``threads`` the drivers of :mod:`onlinemap.kernels.rbpf_parallel` run the same
+kernels on runs of particles at once (the same results). A step that recovers from particle depletion (see the class docstring)
 weighs N P children instead: O(P N F K^2) time and at most 32 P N bytes more
 (:func:`recovery_bytes`, which the guard checks before they are taken). With the resample-move
 option (class docstring) a move of every particle costs O(P W S (F K + 1)) every ``move_every``
@@ -259,13 +259,13 @@ class RaoBlackwellisedPF:
     1,000 particles (W = 20, every 5) the final map error falls from 0.26 to about 0.20 for 3.2x
     the time per step (the README's RBPF section).
 
-    ``threads``: how many threads the update and the belief use (numba's, at most
-    ``NUMBA_NUM_THREADS``, an environment variable read when numba starts: the number of cores by
-    default); ``None`` for all of them. The results are the same bit for bit whatever the number
-    (:mod:`onlinemap.kernels.rbpf_parallel`). The default, 1, runs the serial kernels: threads pay
-    from about 10^4 particles and only on cores nothing else uses, the parallel kernels compile
-    once (tens of seconds, then cached) and start numba's threading layer (with GNU OpenMP a
-    process must not fork after using it; ``NUMBA_THREADING_LAYER=workqueue`` avoids that).
+    ``threads``: how many threads the update and the belief use, at most ``NUMBA_NUM_THREADS``
+    (the cores numba counts for this process, or that environment variable, read when numba
+    starts; the limit though the threads are Python threads running numba kernels that release
+    the GIL, :mod:`onlinemap.kernels.rbpf_parallel`); ``None`` for all of them. The results are
+    the same bit for bit whatever the number. The default, 1, runs the serial kernels: threads
+    pay from about 10^4 particles and only on cores nothing else uses, and the few kernels only
+    they use compile once (seconds, then cached).
     """
 
     #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
@@ -856,8 +856,8 @@ def _thread_count(threads) -> int:
     most = numba.config.NUMBA_NUM_THREADS
     if threads is None:
         return most
-    return arguments.integer(f"threads (at most NUMBA_NUM_THREADS={most}, numba's limit, set by that environment "
-                             "variable before numba starts)", threads, minimum=1, maximum=most,
+    return arguments.integer(f"threads (at most NUMBA_NUM_THREADS={most}: the cores numba counts, or that "
+                             "environment variable set before numba starts)", threads, minimum=1, maximum=most,
                              error=InvalidOptionError)
 
 
