@@ -39,12 +39,12 @@ on the 10 x 10 door world, 2.8 KB on 64 x 64); the guard ``max_bytes`` checks it
 starts and whenever the pool grows. Measured (``onlinemap bench rbpf``, rows ``per particle``):
 an update 0.26-0.35 us of CPU per particle at 10^4-10^5 particles on the 10 x 10 door world, the
 belief 0.07. With ``threads`` the drivers of :mod:`onlinemap.kernels.rbpf_parallel` run the same
-kernels on runs of particles at once (the same results). A step that recovers from particle depletion (see the class docstring)
-weighs N P children instead: O(P N F K^2) time and at most 32 P N bytes more
-(:func:`recovery_bytes`, which the guard checks before they are taken). With the resample-move
-option (class docstring) a move of every particle costs O(P W S (F K + 1)) every ``move_every``
-steps (S the cells a window's step can take) and the path history up to 2 P t bytes
-(:mod:`onlinemap.estimators.rbpf_move`).
+kernels on runs of particles at once (the same results). A step that recovers from particle
+depletion (see the class docstring) weighs N P children instead: O(P N F K^2) time and at most
+32 P N bytes more (:func:`recovery_bytes`, which the guard checks before they are taken). With the
+resample-move option (class docstring) a move of every particle costs O(P W S (F K + 1)) every
+``move_every`` steps (S the cells a window's step can take) and the path history up to 2 P t
+bytes (:mod:`onlinemap.estimators.rbpf_move`).
 """
 
 from __future__ import annotations

@@ -124,8 +124,8 @@ def _enumerate_in_threads(kernel: Callable[..., int], args: tuple, scratch: Call
     together; returns M."""
     runs = _runs(len(args[0]), chunk, threads)
     counts = _in_threads([functools.partial(kernel, *args, start, stop, 2 * start, *scratch()) for start, stop in runs])
-    return _gather_children(np.array(counts, dtype=np.int64), np.array([2 * start for start, _ in runs], dtype=np.int64),
-                            *children)
+    firsts = np.array([2 * start for start, _ in runs], dtype=np.int64)
+    return _gather_children(np.array(counts, dtype=np.int64), firsts, *children)
 
 
 def rbpf_enumerate_parallel(locations: np.ndarray, log_weights: np.ndarray, pool: np.ndarray, pool_stamps: np.ndarray,
