@@ -261,8 +261,8 @@ class RaoBlackwellisedPF:
 
     ``threads``: how many threads the update and the belief use, at most ``NUMBA_NUM_THREADS``
     (the cores numba counts for this process, or that environment variable, read when numba
-    starts; the limit though the threads are Python threads running numba kernels that release
-    the GIL, :mod:`onlinemap.kernels.rbpf_parallel`); ``None`` for all of them. The results are
+    starts; kept as the limit, although the threads are Python threads running numba kernels
+    that release the GIL, :mod:`onlinemap.kernels.rbpf_parallel`); ``None`` for all of them. The results are
     the same bit for bit whatever the number. The default, 1, runs the serial kernels: threads
     pay from about 10^4 particles and only on cores nothing else uses, and the few kernels only
     they use compile once (seconds, then cached).
