@@ -145,10 +145,9 @@ def _log_weight(log_weight, probability, likelihood, lams, n_reads):
     return log_weight + (math.log(joint) if joint > 0.0 else math.log(probability) + _sum_of_logs(lams, n_reads))
 
 
-def rbpf_enumerate(locations: np.ndarray, log_weights: np.ndarray, pool: np.ndarray, pool_stamps: np.ndarray,
-                   table: np.ndarray, cell_block: np.ndarray, cell_slot: np.ndarray, powers: np.ndarray,
-                   dynamic: bool, t: int, neighbors: np.ndarray, p_move: float, likelihood: np.ndarray,
-                   child_parent: np.ndarray, child_location: np.ndarray, child_log_weight: np.ndarray) -> int:
+@njit(cache=True)
+def rbpf_enumerate(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
+                   neighbors, p_move, likelihood, child_parent, child_location, child_log_weight):
     """Every successor of every live particle with its exact log weight; returns their number M.
 
     For parent q at l (``log_weights[q] > -inf``) and each successor j of l with motion probability
@@ -157,10 +156,10 @@ def rbpf_enumerate(locations: np.ndarray, log_weights: np.ndarray, pool: np.ndar
     Writes the first M entries of ``child_parent``, ``child_location`` and ``child_log_weight``
     (each at least 2P long), grouped by parent in increasing order. A child's observed cell (the
     posterior of cell j given z) is not stored: :func:`rbpf_commit_children` computes it for the
-    children kept. O(P K^2). (A Python function: the kernel is :func:`_enumerate`, on every parent.)"""
+    children kept. O(P K^2)."""
     return _enumerate(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
                       neighbors, p_move, likelihood, child_parent, child_location, child_log_weight, 0,
-                      len(locations), 0, np.empty(1))
+                      locations.shape[0], 0, np.empty(1))
 
 
 @thread_kernel
@@ -291,12 +290,10 @@ def _footprint_child(pool, pool_stamps, table_row, cell_block, cell_slot, powers
     return result, likelihood
 
 
-def rbpf_enumerate_cells(locations: np.ndarray, log_weights: np.ndarray, pool: np.ndarray, pool_stamps: np.ndarray,
-                         table: np.ndarray, cell_block: np.ndarray, cell_slot: np.ndarray, powers: np.ndarray,
-                         dynamic: bool, t: int, neighbors: np.ndarray, p_move: float, blocking: np.ndarray,
-                         change: np.ndarray, footprint_cells: np.ndarray, sensor: np.ndarray, readings: np.ndarray,
-                         child_parent: np.ndarray, child_location: np.ndarray, child_log_weight: np.ndarray,
-                         child_log_motion: np.ndarray, child_ids: np.ndarray, child_cells: np.ndarray) -> int:
+@njit(cache=True)
+def rbpf_enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic,
+                         t, neighbors, p_move, blocking, change, footprint_cells, sensor, readings, child_parent,
+                         child_location, child_log_weight, child_log_motion, child_ids, child_cells):
     """:func:`rbpf_enumerate` for blocking labels and sensor footprints; returns M.
 
     Blocking (``blocking`` (K,) bool, any True): from l the intended n != l is entered with
@@ -311,19 +308,14 @@ def rbpf_enumerate_cells(locations: np.ndarray, log_weights: np.ndarray, pool: n
     schemes) it stores them: ``child_ids`` (2P, W) (-1: none) and ``child_cells`` (2P, W, K), at
     step t, and ``child_log_motion`` (2P,), each child's ``log T``; with 0 rows (Fearnhead-Clifford,
     which recomputes the kept children's in :func:`rbpf_commit_children_cells`) only the parents,
-    locations and log weights. Cost O(P F K^2). (A Python function: the kernel is
-    :func:`_enumerate_cells`, on every parent.)"""
+    locations and log weights. Cost O(P F K^2)."""
+    k = sensor.shape[0]
+    width = child_ids.shape[1]
     return _enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
                             neighbors, p_move, blocking, change, footprint_cells, sensor, readings, child_parent,
                             child_location, child_log_weight, child_log_motion, child_ids, child_cells, 0,
-                            len(locations), 0, *_footprint_scratch(sensor.shape[0], footprint_cells.shape[1],
-                                                                  child_ids.shape[1]))
-
-
-def _footprint_scratch(k: int, f: int, width: int) -> tuple:
-    """Fresh scratch arrays of :func:`_enumerate_cells`: ``before``, ``given`` (K,), ``lams`` (F,),
-    ``ids`` (W,) and ``cells`` (W, K) (the first three those of :func:`_stage_children_cells`)."""
-    return np.empty(k), np.empty(k), np.empty(f), np.empty(width, dtype=np.int64), np.empty((width, k))
+                            locations.shape[0], 0, np.empty(k), np.empty(k), np.empty(footprint_cells.shape[1]),
+                            np.empty(width, dtype=np.int64), np.empty((width, k)))
 
 
 @njit(cache=True, inline="always")
@@ -515,11 +507,9 @@ def _place_children(child_parent, kept, kept_weights, ancestors, slot_child, new
         new_log_weights[slot] = math.log(kept_weights[i])
 
 
-def rbpf_propose(locations: np.ndarray, pool: np.ndarray, pool_stamps: np.ndarray, table: np.ndarray,
-                 cell_block: np.ndarray, cell_slot: np.ndarray, powers: np.ndarray, dynamic: bool, t: int,
-                 ancestors: np.ndarray, neighbors: np.ndarray, p_move: float, likelihood: np.ndarray, optimal: bool,
-                 uniforms: np.ndarray, new_locations: np.ndarray, new_cells: np.ndarray,
-                 log_increments: np.ndarray) -> None:
+@loop_kernel
+def rbpf_propose(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors,
+                 neighbors, p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments):
     """Propose every particle's step-t location and weight it; writes nothing to the state.
 
     Particle ``p`` descends from ``ancestors[p]``. ``neighbors`` (N,) is ``neighbors[:, a]``
@@ -529,11 +519,10 @@ def rbpf_propose(locations: np.ndarray, pool: np.ndarray, pool_stamps: np.ndarra
     Optimal proposal: draw from ``P(l_t | l, a, z, map_p)``, increment =
     ``sum_l' T[a, l, l'] P(z | l', map_p)``. Outputs: ``new_locations`` (P,), ``new_cells``
     (P, K) the observed cell's updated marginal, ``log_increments`` (P,) (-inf where z is
-    impossible). One uniform per particle. O(P K^2). (A Python function: the kernel is
-    :func:`_propose`, on every particle.)
+    impossible). One uniform per particle. O(P K^2).
     """
     _propose(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors, neighbors,
-             p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments, 0, len(ancestors))
+             p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments, 0, ancestors.shape[0])
 
 
 @thread_kernel
@@ -935,21 +924,20 @@ def in_place_ancestors(counts):
     return ancestors
 
 
-def rbpf_map_mixture(pool: np.ndarray, pool_stamps: np.ndarray, row_block: np.ndarray, refcount: np.ndarray,
-                     table: np.ndarray, block_members: np.ndarray, powers: np.ndarray, dynamic: bool, t: int,
-                     weights: np.ndarray, out: np.ndarray) -> None:
+@njit(cache=True)
+def rbpf_map_mixture(pool, pool_stamps, row_block, refcount, table, block_members, powers, dynamic, t, weights, out):
     """out (N, K) <- ``sum_p weights[p] * current marginals of particle p``.
 
     First the weight of every row (:func:`_row_weights`), O(P n_blocks) at most; then one pass over
     the rows in use, in row order, O(R_used B K), with K^2 flops per out-of-date cell in a dynamic
     world (:func:`_mixture`). R_used <= P n_blocks, and much less when particles share blocks.
-    (A Python function: the kernels are :func:`_row_weights` and :func:`_mixture`, on every block.)
     """
     n_blocks = table.shape[1]
-    row_weight = np.zeros(len(pool))
-    _row_weights(table, refcount, weights, _sum(weights), row_weight, 0, n_blocks, *_row_weight_scratch(n_blocks))
+    row_weight = np.zeros(pool.shape[0])
+    _row_weights(table, refcount, weights, _sum(weights), row_weight, 0, n_blocks, np.empty(n_blocks, dtype=np.int64),
+                 np.empty(n_blocks, dtype=np.int64), np.empty(n_blocks))
     out[:] = 0.0
-    _mixture(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, 0, n_blocks, out)
+    _mixture(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, out)
 
 
 @loop_kernel
@@ -959,11 +947,6 @@ def _sum(values):
     for i in range(values.shape[0]):
         total += values[i]
     return total
-
-
-def _row_weight_scratch(n: int) -> tuple:
-    """Fresh scratch arrays of :func:`_row_weights` for ``n`` blocks: ``split``, ``current``, ``acc``."""
-    return np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64), np.empty(n)
 
 
 @thread_kernel
@@ -1014,13 +997,38 @@ def _add_row(pool, pool_stamps, powers, dynamic, t, members, r, w, out):
                 out[i, b] += w * _aged_label(pool, powers, d, r, j, b)
 
 
+@loop_kernel
+def _rows_by_block(row_block, row_weight, starts, rows):
+    """The rows of nonzero weight grouped by the block they hold, in row order within a block:
+    block b's are ``rows[starts[b]:starts[b + 1]]``. ``starts`` (n_blocks + 1,) zeros. O(R)."""
+    for r in range(row_block.shape[0]):
+        if row_weight[r] != 0.0:
+            starts[row_block[r] + 1] += 1
+    for b in range(starts.shape[0] - 1):
+        starts[b + 1] += starts[b]
+    for r in range(row_block.shape[0]):  # starts[b] runs up to block b's end, then moves back
+        if row_weight[r] != 0.0:
+            rows[starts[row_block[r]]] = r
+            starts[row_block[r]] += 1
+    for b in range(starts.shape[0] - 1, 0, -1):
+        starts[b] = starts[b - 1]
+    starts[0] = 0
+
+
 @thread_kernel
-def _mixture(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, first, last, out):
-    """out (N, K) += ``sum_r row_weight[r] * current marginals of block row r`` over the rows holding
-    blocks ``first..last - 1``, in row order (the cells of those blocks only). O(R) plus
-    O(B K) per such row of nonzero weight."""
+def _mixture_rows(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, rows, out):
+    """out (N, K) += ``sum_r row_weight[r] * current marginals of block row r`` over ``rows``, in
+    their order."""
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        _add_row(pool, pool_stamps, powers, dynamic, t, block_members[row_block[r]], r, row_weight[r], out)
+
+
+@loop_kernel
+def _mixture(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, out):
+    """out (N, K) += ``sum_r row_weight[r] * current marginals of block row r``, rows in order."""
     for r in range(pool.shape[0]):
-        if row_weight[r] != 0.0 and first <= row_block[r] < last:
+        if row_weight[r] != 0.0:
             _add_row(pool, pool_stamps, powers, dynamic, t, block_members[row_block[r]], r, row_weight[r], out)
 
 
