@@ -48,7 +48,8 @@ import numpy as np
 
 from . import loop_kernel
 from .rbpf import (_copy_planned, _enumerate, _enumerate_cells, _mixture_rows, _plan_writes, _propose, _row_weights,
-                   _rows_by_block, _stage_children, _stage_children_cells, _sum, _take_over_slots, _write_planned)
+                   _rows_by_block, _stage_children, _stage_children_cells, _sum, _take_over_slots, _write_planned,
+                   _footprint_scratch)
 
 CHUNK = 1024  # particles per chunk (the drivers' ``chunk``), fixed: the chunks do not depend on the threads
 BLOCK_GROUP = 8  # map blocks per chunk of the row weights: one cache line of a particle's table row
@@ -84,13 +85,6 @@ def _in_threads(calls: list[Callable[[], object]]) -> list:
     finally:
         concurrent.futures.wait(futures)
     return [first] + [future.result() for future in futures]
-
-
-def _footprint_scratch(k: int, f: int, width: int) -> tuple:
-    """Fresh scratch arrays of :func:`~onlinemap.kernels.rbpf._enumerate_cells`: ``before``,
-    ``given`` (K,), ``lams`` (F,), ``ids`` (W,), ``cells`` (W, K) (the first three those of
-    :func:`~onlinemap.kernels.rbpf._stage_children_cells`)."""
-    return np.empty(k), np.empty(k), np.empty(f), np.empty(width, dtype=np.int64), np.empty((width, k))
 
 
 def _runs(n: int, chunk: int, threads: int) -> list[tuple[int, int]]:
