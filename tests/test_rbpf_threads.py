@@ -1,4 +1,4 @@
-"""The RBPF's ``threads`` option (issue 25): its parallel kernels (``onlinemap/kernels/rbpf_parallel.py``)
+"""The RBPF's ``threads`` option (issue 25): its threaded drivers (``onlinemap/kernels/rbpf_parallel.py``)
 give the serial kernels' result bit for bit, beliefs and the whole state, for every resampling
 scheme, static and dynamic worlds, blocking labels and sensor footprints; the chunks are made
 small here so that a run spans many of them and the children of one chunk are moved behind
@@ -6,6 +6,7 @@ another's. (Fearnhead-Clifford's exactness with threads is tested beside the ser
 test_rbpf.py and test_rbpf_blocking_footprint.py.)"""
 
 import dataclasses
+import time
 
 import numba
 import numpy as np
@@ -135,3 +136,42 @@ def test_threads_option():
     for bad in (0, -1, most + 1, 1.5, "2", True):
         with pytest.raises(om.InvalidOptionError, match="threads.*NUMBA_NUM_THREADS"):
             om.make_estimator("rbpf", model, threads=bad)
+
+
+def test_an_exception_in_a_thread_reaches_the_caller_once_every_run_has_finished():
+    """A run that raises, on the pool's thread or the caller's, raises in the caller, and only
+    after the other runs have finished (none still writes into the filter's arrays)."""
+    finished = []
+
+    def slow():
+        time.sleep(0.2)
+        finished.append(True)
+
+    def fails():
+        raise ZeroDivisionError("in a run")
+
+    with pytest.raises(ZeroDivisionError, match="in a run"):
+        rbpf_parallel._in_threads([lambda: None, fails])
+    with pytest.raises(ZeroDivisionError, match="in a run"):
+        rbpf_parallel._in_threads([fails, slow])
+    assert finished == [True]
+    assert rbpf_parallel._in_threads([lambda: 1, lambda: 2, lambda: 3]) == [1, 2, 3]
+
+
+def test_no_kernel_compiles_with_numba_parallel():
+    """The threads are Python threads on ``nogil`` kernels: no kernel of ``onlinemap.kernels`` is
+    ``parallel=True`` (numba's parallel kernels took a minute to compile on a fresh clone)."""
+    import importlib
+    import pkgutil
+
+    import onlinemap.kernels as kernels
+
+    dispatchers = [value for info in pkgutil.iter_modules(kernels.__path__)
+                   for value in vars(importlib.import_module(f"onlinemap.kernels.{info.name}")).values()
+                   if isinstance(value, numba.core.registry.CPUDispatcher)]
+    assert len(dispatchers) > 50
+    assert not [d.py_func.__qualname__ for d in dispatchers if d.targetoptions.get("parallel")]
+    threaded = {rbpf_parallel._enumerate, rbpf_parallel._enumerate_cells, rbpf_parallel._propose,
+                rbpf_parallel._stage_children, rbpf_parallel._stage_children_cells, rbpf_parallel._copy_planned,
+                rbpf_parallel._write_planned, rbpf_parallel._row_weights, rbpf_parallel._mixture_rows}
+    assert all(kernel.targetoptions.get("nogil") for kernel in threaded)

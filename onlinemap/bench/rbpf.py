@@ -66,7 +66,7 @@ Five rows per case, each a separate cost (none includes another):
 Per-particle rows (``per particle ...``, issue 25): the default filter (Fearnhead-Clifford) on
 the 10 x 10 door world, the same with blocking labels and the cross footprint, and the 64 x 64
 dynamic door world, at 10^3 to 10^6 particles (10^3 and 10^4 with ``--quick``), on one thread
-and on all of numba's (``threads``; the same numbers, :mod:`onlinemap.kernels.rbpf_parallel`):
+and on all ``NUMBA_NUM_THREADS`` (the same numbers, :mod:`onlinemap.kernels.rbpf_parallel`):
 ``us_per_particle`` of an update and of building the belief (medians over the steps once every
 slot is live; wall time, and CPU time in ``cpu_us_per_particle``), each against one copy pass
 over the bytes the filter uses (``bytes_per_particle``: the block rows in use, the particle
@@ -437,7 +437,7 @@ def _per_particle_times(model, true_map, n_particles, threads, n_steps):
 
 
 def per_particle_rows(quick: bool, worlds: dict | None = None, thread_counts=None) -> list[dict]:
-    """Rows of us per particle-step, update and belief separately, serial and on all numba's
+    """Rows of us per particle-step, update and belief separately, serial and on NUMBA_NUM_THREADS
     threads, against a copy pass of the filter's bytes in use (see the module docstring)."""
     import numba
 

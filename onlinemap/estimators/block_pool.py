@@ -229,14 +229,17 @@ class BlockPool:
         rbpf_refresh(self.rows, self.stamps, self.refcount, self.powers, t, self.refresh_cursor, count)
         self.refresh_cursor = (self.refresh_cursor + count) % len(self.rows)
 
-    def mixture(self, t: int, weights: np.ndarray, parallel: bool = False) -> np.ndarray:
-        """(N, K) ``sum_p weights[p] * map_p`` at step t (unnormalised); ``parallel``: on numba's
-        threads (:func:`~onlinemap.kernels.rbpf_parallel.rbpf_map_mixture_parallel`, the same
-        numbers). O(P n_blocks) plus one pass over the rows in use (K^2 flops per out-of-date slot)."""
+    def mixture(self, t: int, weights: np.ndarray, threads: int = 1) -> np.ndarray:
+        """(N, K) ``sum_p weights[p] * map_p`` at step t (unnormalised); on ``threads`` threads from 2
+        (:func:`~onlinemap.kernels.rbpf_parallel.rbpf_map_mixture_parallel`, the same numbers).
+        O(P n_blocks) plus one pass over the rows in use (K^2 flops per out-of-date slot)."""
         out = np.empty((len(self.cell_block), self.rows.shape[2]))
-        (rbpf_map_mixture_parallel if parallel else rbpf_map_mixture)(
-            self.rows, self.stamps, self.row_block, self.refcount, self.table, self.block_members, self.powers,
-            self.stamped, t, weights, out)
+        args = (self.rows, self.stamps, self.row_block, self.refcount, self.table, self.block_members, self.powers,
+                self.stamped, t, weights, out)
+        if threads > 1:
+            rbpf_map_mixture_parallel(*args, threads)
+        else:
+            rbpf_map_mixture(*args)
         return out
 
     def particle_maps(self, t: int) -> np.ndarray:

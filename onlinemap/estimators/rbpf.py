@@ -38,21 +38,19 @@ step's buffers, which the filter owns (:func:`state_bytes`; measured 580-710 byt
 on the 10 x 10 door world, 2.8 KB on 64 x 64); the guard ``max_bytes`` checks it when the filter
 starts and whenever the pool grows. Measured (``onlinemap bench rbpf``, rows ``per particle``):
 an update 0.26-0.35 us of CPU per particle at 10^4-10^5 particles on the 10 x 10 door world, the
-belief 0.07. With ``threads`` the kernels of :mod:`onlinemap.kernels.rbpf_parallel` run instead
-(the same results). A step that recovers from particle depletion (see the class docstring)
-weighs N P children instead: O(P N F K^2) time and at most 32 P N bytes more
-(:func:`recovery_bytes`, which the guard checks before they are taken). With the resample-move
-option (class docstring) a move of every particle costs O(P W S (F K + 1)) every ``move_every``
-steps (S the cells a window's step can take) and the path history up to 2 P t bytes
-(:mod:`onlinemap.estimators.rbpf_move`).
+belief 0.07. With ``threads`` the drivers of :mod:`onlinemap.kernels.rbpf_parallel` run the same
+kernels on runs of particles at once (the same results). A step that recovers from particle
+depletion (see the class docstring) weighs N P children instead: O(P N F K^2) time and at most
+32 P N bytes more (:func:`recovery_bytes`, which the guard checks before they are taken). With the
+resample-move option (class docstring) a move of every particle costs O(P W S (F K + 1)) every
+``move_every`` steps (S the cells a window's step can take) and the path history up to 2 P t
+bytes (:mod:`onlinemap.estimators.rbpf_move`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
-import os
 from typing import NamedTuple
 
 import numba
@@ -261,13 +259,13 @@ class RaoBlackwellisedPF:
     1,000 particles (W = 20, every 5) the final map error falls from 0.26 to about 0.20 for 3.2x
     the time per step (the README's RBPF section).
 
-    ``threads``: how many threads the update and the belief use (numba's, at most
-    ``NUMBA_NUM_THREADS``, an environment variable read when numba starts: the number of cores by
-    default); ``None`` for all of them. The results are the same bit for bit whatever the number
-    (:mod:`onlinemap.kernels.rbpf_parallel`). The default, 1, runs the serial kernels: threads pay
-    from about 10^4 particles and only on cores nothing else uses, the parallel kernels compile
-    once (tens of seconds, then cached) and start numba's threading layer (with GNU OpenMP a
-    process must not fork after using it; ``NUMBA_THREADING_LAYER=workqueue`` avoids that).
+    ``threads``: how many threads the update and the belief use, at most ``NUMBA_NUM_THREADS``
+    (the cores numba counts for this process, or that environment variable, read when numba
+    starts; kept as the limit, although the threads are Python threads running numba kernels
+    that release the GIL, :mod:`onlinemap.kernels.rbpf_parallel`); ``None`` for all of them. The results are
+    the same bit for bit whatever the number. The default, 1, runs the serial kernels: threads
+    pay from about 10^4 particles and only on cores nothing else uses, and the few kernels only
+    they use compile once (seconds, then cached).
     """
 
     #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
@@ -488,8 +486,7 @@ class RaoBlackwellisedPF:
             weights = self._weights / self._weights.sum()
             location = np.bincount(self._locations, weights=weights, minlength=self.model.n_cells)
             location /= location.sum()  # rounding: keep every probability <= 1
-            with _numba_threads(self.threads):
-                maps = self._blocks.mixture(self._t, weights, parallel=self._parallel)
+            maps = self._blocks.mixture(self._t, weights, self.threads if self._parallel else 1)
             maps /= maps.sum(axis=1, keepdims=True)
             live = self._locations[self._weights > 0]
             distinct = int(np.count_nonzero(np.bincount(live, minlength=self.model.n_cells)))
@@ -560,8 +557,7 @@ class RaoBlackwellisedPF:
                         self.proposal == "optimal", self._rng.random(n_particles), new_locations, new_cells,
                         log_increments)
             if self._parallel:
-                with _numba_threads(self.threads):
-                    rbpf_propose_parallel(*proposal, rbpf_parallel.CHUNK)
+                rbpf_propose_parallel(*proposal, rbpf_parallel.CHUNK, self.threads)
             else:
                 rbpf_propose(*proposal)
         else:  # the same children Fearnhead-Clifford enumerates, one drawn per particle
@@ -632,8 +628,7 @@ class RaoBlackwellisedPF:
         """``serial(*args)``, or with threads its parallel driver (which returns the same)."""
         if not self._parallel:
             return serial(*args)
-        with _numba_threads(self.threads):
-            return parallel(*args, rbpf_parallel.CHUNK)
+        return parallel(*args, rbpf_parallel.CHUNK, self.threads)
 
     def _fc_buffers(self) -> _FCBuffers:
         """Views of the filter's scratch buffers for one Fearnhead-Clifford step (2P children, P
@@ -683,17 +678,17 @@ class RaoBlackwellisedPF:
                                        buffers.ancestors, buffers.slot_child, buffers.log_weights)
         if parallel:  # stage every kept child's writes, then commit them (rbpf_parallel: the same state)
             staged = self._staged_buffers()
-            with _numba_threads(self.threads):
-                if one_cell:
-                    rbpf_stage_children_parallel(*blocks.reads(), t, buffers.ancestors, buffers.slot_child,
-                                                 buffers.child_location, model.likelihood[z], *staged[:3],
-                                                 rbpf_parallel.CHUNK)
-                else:
-                    rbpf_stage_children_cells_parallel(self._locations, *blocks.reads(), t, buffers.ancestors,
-                                                       buffers.slot_child, buffers.child_location, neighbors,
-                                                       *_motion_and_sensor(model, z), *staged[:3], rbpf_parallel.CHUNK)
-                rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, buffers.ancestors, *staged,
-                                            rbpf_parallel.CHUNK)
+            if one_cell:
+                rbpf_stage_children_parallel(*blocks.reads(), t, buffers.ancestors, buffers.slot_child,
+                                             buffers.child_location, model.likelihood[z], *staged[:3],
+                                             rbpf_parallel.CHUNK, self.threads)
+            else:
+                rbpf_stage_children_cells_parallel(self._locations, *blocks.reads(), t, buffers.ancestors,
+                                                   buffers.slot_child, buffers.child_location, neighbors,
+                                                   *_motion_and_sensor(model, z), *staged[:3], rbpf_parallel.CHUNK,
+                                                   self.threads)
+            rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, buffers.ancestors, *staged,
+                                        rbpf_parallel.CHUNK, self.threads)
         elif one_cell:
             rbpf_commit_children(self._locations, *blocks.writes(), t, buffers.ancestors, buffers.slot_child,
                                  buffers.child_location, model.likelihood[z])
@@ -812,9 +807,8 @@ class RaoBlackwellisedPF:
             ids = new_locations.reshape(n_particles, 1) if new_ids is None else new_ids
             cells = new_cells.reshape(n_particles, ids.shape[1], self.model.n_labels)
             _, _, _, target, source = self._staged_buffers()
-            with _numba_threads(self.threads):
-                rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, ancestors, new_locations, ids, cells,
-                                            target, source, rbpf_parallel.CHUNK)
+            rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, ancestors, new_locations, ids, cells,
+                                        target, source, rbpf_parallel.CHUNK, self.threads)
             blocks.refresh(t)
         else:
             blocks.commit(self._locations, t, ancestors, new_locations, new_cells, new_ids)
@@ -862,29 +856,9 @@ def _thread_count(threads) -> int:
     most = numba.config.NUMBA_NUM_THREADS
     if threads is None:
         return most
-    return arguments.integer(f"threads (at most NUMBA_NUM_THREADS={most}, numba's limit, set by that environment "
-                             "variable before numba starts)", threads, minimum=1, maximum=most,
+    return arguments.integer(f"threads (at most NUMBA_NUM_THREADS={most}: the cores numba counts, or that "
+                             "environment variable set before numba starts)", threads, minimum=1, maximum=most,
                              error=InvalidOptionError)
-
-
-@contextlib.contextmanager
-def _numba_threads(threads: int):
-    """Run numba's parallel kernels on ``threads`` threads within the block (the caller's setting
-    back after it); nothing for 1 (the serial kernels). Before numba first starts its threads,
-    ``OMP_WAIT_POLICY`` is set to ``PASSIVE`` unless set already: OpenMP's threads otherwise spin
-    between parallel regions, and where other processes use the cores a spinning thread holds the
-    one its partner needs (measured on a loaded 2-core machine: 10 ms per parallel kernel, against
-    10 us passive)."""
-    if threads == 1:
-        yield
-        return
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    before = numba.get_num_threads()
-    numba.set_num_threads(threads)
-    try:
-        yield
-    finally:
-        numba.set_num_threads(before)
 
 
 def _motion_and_sensor(model: GridModel, z) -> tuple:

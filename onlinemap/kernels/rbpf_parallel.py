@@ -1,14 +1,16 @@
-"""Parallel drivers of the RBPF's kernels (``onlinemap/kernels/rbpf.py``), for ``threads > 1``.
+"""Threaded drivers of the RBPF's kernels (``onlinemap/kernels/rbpf.py``), for ``threads > 1``.
 
 Each driver splits the work into fixed chunks (``chunk`` particles, :data:`CHUNK` for the filter,
-or ``BLOCK_GROUP`` map blocks) that do not depend on the number of threads, runs the serial kernel's inner loop on
-each chunk under numba's ``prange``, and combines the chunks in chunk order. No chunk reads
-what another writes, and every sum is taken in the order the serial kernel takes it, so the
-results are the serial kernels' bit for bit, whatever the number of threads:
+or :data:`BLOCK_GROUP` map blocks), gives each of ``threads`` threads one contiguous run of chunks
+and calls on each run, at once, the range kernel the serial kernel calls on everything (a
+:data:`~onlinemap.kernels.thread_kernel`, which releases the GIL: ``rbpf_enumerate`` is
+``_enumerate`` over every parent); the serial steps between them run on the calling thread. No
+run reads what another writes, and every sum is taken in the order the serial kernel takes it,
+so the results are the serial kernels' bit for bit, whatever the number of threads or chunks:
 
-- :func:`rbpf_enumerate_parallel` / :func:`rbpf_enumerate_cells_parallel`: each chunk of parents
-  writes its children from index ``2 * start`` on; the chunks are then moved together in order
-  (one pass over the children; none when no child was left out);
+- :func:`rbpf_enumerate_parallel` / :func:`rbpf_enumerate_cells_parallel`: each run of parents
+  writes its children from index ``2 * start`` on; the runs are then moved together in order
+  (:func:`_gather_children`: one pass over the children; none when no child was left out);
 - :func:`rbpf_propose_parallel`: particles are independent;
 - :func:`rbpf_stage_children_parallel` / :func:`rbpf_stage_children_cells_parallel` then
   :func:`rbpf_commit_staged_parallel`: the commit in three passes. First every kept child's
@@ -18,171 +20,229 @@ results are the serial kernels' bit for bit, whatever the number of threads:
   row that no write has changed yet) and, after them, all writes (each into a row only its
   particle uses). The sampling schemes' commit is the same last step on their proposals;
 - :func:`rbpf_map_mixture_parallel`: the weight of a row is summed over the particles in order by
-  the chunk of blocks holding it; then each block adds its rows, in row order, into its own cells.
+  the run of blocks holding it; then each run of blocks (runs of about equal rows) adds its rows,
+  in row order, into its own cells.
 
-Cost: as the serial kernels, plus one pass to move the children together and one to sort the
-rows by block; the serial parts (take-over, copy-on-write bookkeeping, Fearnhead-Clifford's
-selection) stay serial. Compiled with ``parallel=True`` (a few seconds once, then cached); the
-number of threads is numba's (``numba.set_num_threads``, at most ``NUMBA_NUM_THREADS``).
+Threads: the calling thread runs the first run and a pool of Python threads the others
+(:func:`_in_threads`; the pool is made on first use, with ``NUMBA_NUM_THREADS - 1`` threads, and
+anew in a forked child); a phase ends when every run has, then the first exception of any run
+is raised. Cost: as the serial kernels, plus one pass to move the children together and one to sort
+the rows by block, and some 40-75 us per phase to hand the runs to the threads (measured: a
+pool thread wakes and takes the GIL to enter its kernel); the serial parts (take-over,
+copy-on-write bookkeeping, Fearnhead-Clifford's selection) stay serial. No kernel compiles
+with ``parallel=True``: the threads compile the range kernels once more, with bounds that are
+not literals (the serial kernels' copies are specialised to theirs), and the small kernels of
+the staged commit, the gather and the mixture's rows (about 13 CPU seconds with a cold cache
+when both run, against a minute for the ``parallel=True`` kernels they replace).
 """
 
 from __future__ import annotations
 
-import numpy as np
-from numba import njit, prange
+import concurrent.futures
+import functools
+import os
+from collections.abc import Callable
 
+import numba
+import numpy as np
+
+from . import loop_kernel
 from .rbpf import (_copy_planned, _enumerate, _enumerate_cells, _mixture_rows, _plan_writes, _propose, _row_weights,
-                   _rows_by_block, _stage_children, _stage_children_cells, _sum, _take_over_slots, _write_planned)
+                   _rows_by_block, _stage_children, _stage_children_cells, _sum, _take_over_slots, _write_planned,
+                   _footprint_scratch)
 
 CHUNK = 1024  # particles per chunk (the drivers' ``chunk``), fixed: the chunks do not depend on the threads
 BLOCK_GROUP = 8  # map blocks per chunk of the row weights: one cache line of a particle's table row
 
-
-@njit(cache=True, inline="always")
-def _chunks(n, chunk):
-    """Number of chunks of ``chunk`` items covering ``n``."""
-    return (n + chunk - 1) // chunk
+_executor: concurrent.futures.ThreadPoolExecutor | None = None
 
 
-@njit(cache=True)
-def _gather_children(counts, chunk, child_parent, child_location, child_log_weight, child_log_motion, child_ids,
+def _pool() -> concurrent.futures.ThreadPoolExecutor:
+    """The threads that run the runs after the first (made on first use)."""
+    global _executor
+    if _executor is None:
+        _executor = concurrent.futures.ThreadPoolExecutor(max(1, numba.config.NUMBA_NUM_THREADS - 1),
+                                                          thread_name_prefix="onlinemap-rbpf")
+    return _executor
+
+
+def _forget_pool() -> None:
+    """In a forked child: the parent's pool threads are gone, so the next call makes a new pool."""
+    global _executor
+    _executor = None
+
+
+if hasattr(os, "register_at_fork"):  # POSIX
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
+def _in_threads(calls: list[Callable[[], object]]) -> list:
+    """The results of ``calls``, the first run on this thread and the others at once on the pool;
+    returns (or raises the first exception, in call order) once every call has finished."""
+    futures = [_pool().submit(call) for call in calls[1:]]
+    try:
+        first = calls[0]()
+    finally:
+        concurrent.futures.wait(futures)
+    return [first] + [future.result() for future in futures]
+
+
+def _runs(n: int, chunk: int, threads: int) -> list[tuple[int, int]]:
+    """``[start, stop)`` of each of up to ``threads`` contiguous runs of the chunks of ``chunk``
+    items covering ``n`` (``n >= 1``), as even in chunks as can be."""
+    n_chunks = -(-n // chunk)
+    count = min(threads, n_chunks)
+    bounds = [i * n_chunks // count * chunk for i in range(count + 1)]
+    return [(bounds[i], min(n, bounds[i + 1])) for i in range(count)]
+
+
+@loop_kernel
+def _gather_children(counts, firsts, child_parent, child_location, child_log_weight, child_log_motion, child_ids,
                      child_cells):
-    """Move chunk c's ``counts[c]`` children from index ``2 c chunk`` to follow the previous chunks'
-    (the stored ids, cells and log motion too when ``child_cells`` has rows); returns M. O(M)."""
+    """Move run i's ``counts[i]`` children from index ``firsts[i]`` (increasing, each at or after
+    the previous run's children) to follow the previous runs' (the stored ids, cells and log
+    motion too when ``child_cells`` has rows); returns M. O(M)."""
     m = 0
-    for c in range(counts.shape[0]):
-        first = 2 * c * chunk
+    for i in range(counts.shape[0]):
+        first = firsts[i]
         if m != first:  # m < first: copying upwards never overwrites a child not yet moved
-            for i in range(counts[c]):
-                child_parent[m + i] = child_parent[first + i]
-                child_location[m + i] = child_location[first + i]
-                child_log_weight[m + i] = child_log_weight[first + i]
+            for c in range(counts[i]):
+                child_parent[m + c] = child_parent[first + c]
+                child_location[m + c] = child_location[first + c]
+                child_log_weight[m + c] = child_log_weight[first + c]
                 if child_cells.shape[0] > 0:
-                    child_log_motion[m + i] = child_log_motion[first + i]
-                    child_ids[m + i] = child_ids[first + i]
-                    child_cells[m + i] = child_cells[first + i]
-        m += counts[c]
+                    child_log_motion[m + c] = child_log_motion[first + c]
+                    for w in range(child_ids.shape[1]):
+                        child_ids[m + c, w] = child_ids[first + c, w]
+                        for b in range(child_cells.shape[2]):
+                            child_cells[m + c, w, b] = child_cells[first + c, w, b]
+        m += counts[i]
     return m
 
 
-@njit(cache=True, parallel=True)
-def rbpf_enumerate_parallel(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic,
-                            t, neighbors, p_move, likelihood, child_parent, child_location, child_log_weight, chunk):
+def _enumerate_in_threads(kernel: Callable[..., int], args: tuple, scratch: Callable[[], tuple], children: tuple,
+                          chunk: int, threads: int) -> int:
+    """``kernel(*args, start, stop, 2 start, *scratch())`` on runs of parents (``args[0]`` their
+    locations), then the children (parent, location, log weight, log motion, ids, cells) moved
+    together; returns M."""
+    runs = _runs(len(args[0]), chunk, threads)
+    counts = _in_threads([functools.partial(kernel, *args, start, stop, 2 * start, *scratch()) for start, stop in runs])
+    firsts = np.array([2 * start for start, _ in runs], dtype=np.int64)
+    return _gather_children(np.array(counts, dtype=np.int64), firsts, *children)
+
+
+def rbpf_enumerate_parallel(locations: np.ndarray, log_weights: np.ndarray, pool: np.ndarray, pool_stamps: np.ndarray,
+                            table: np.ndarray, cell_block: np.ndarray, cell_slot: np.ndarray, powers: np.ndarray,
+                            dynamic: bool, t: int, neighbors: np.ndarray, p_move: float, likelihood: np.ndarray,
+                            child_parent: np.ndarray, child_location: np.ndarray, child_log_weight: np.ndarray,
+                            chunk: int, threads: int) -> int:
     """:func:`~onlinemap.kernels.rbpf.rbpf_enumerate` (the same children, in the same order)."""
-    n = locations.shape[0]
-    counts = np.empty(_chunks(n, chunk), dtype=np.int64)
-    for c in prange(counts.shape[0]):
-        start = c * chunk
-        counts[c] = _enumerate(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers,
-                               dynamic, t, neighbors, p_move, likelihood, child_parent, child_location,
-                               child_log_weight, start, min(n, start + chunk), 2 * start, np.empty(1))
-    return _gather_children(counts, chunk, child_parent, child_location, child_log_weight, np.empty(0),
-                            np.empty((0, 1), dtype=np.int64), np.empty((0, 1, 1)))
+    children = (child_parent, child_location, child_log_weight)
+    return _enumerate_in_threads(
+        _enumerate, (locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
+                     neighbors, p_move, likelihood, *children), lambda: (np.empty(1),),
+        (*children, np.empty(0), np.empty((0, 1), dtype=np.int64), np.empty((0, 1, 1))), chunk, threads)
 
 
-@njit(cache=True, parallel=True)
-def rbpf_enumerate_cells_parallel(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers,
-                                  dynamic, t, neighbors, p_move, blocking, change, footprint_cells, sensor, readings,
-                                  child_parent, child_location, child_log_weight, child_log_motion, child_ids,
-                                  child_cells, chunk):
+def rbpf_enumerate_cells_parallel(locations: np.ndarray, log_weights: np.ndarray, pool: np.ndarray,
+                                  pool_stamps: np.ndarray, table: np.ndarray, cell_block: np.ndarray,
+                                  cell_slot: np.ndarray, powers: np.ndarray, dynamic: bool, t: int,
+                                  neighbors: np.ndarray, p_move: float, blocking: np.ndarray, change: np.ndarray,
+                                  footprint_cells: np.ndarray, sensor: np.ndarray, readings: np.ndarray,
+                                  child_parent: np.ndarray, child_location: np.ndarray, child_log_weight: np.ndarray,
+                                  child_log_motion: np.ndarray, child_ids: np.ndarray, child_cells: np.ndarray,
+                                  chunk: int, threads: int) -> int:
     """:func:`~onlinemap.kernels.rbpf.rbpf_enumerate_cells` (the same children, in the same order)."""
-    n = locations.shape[0]
-    k = sensor.shape[0]
-    width = child_ids.shape[1]
-    counts = np.empty(_chunks(n, chunk), dtype=np.int64)
-    for c in prange(counts.shape[0]):
-        start = c * chunk
-        counts[c] = _enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers,
-                                     dynamic, t, neighbors, p_move, blocking, change, footprint_cells, sensor,
-                                     readings, child_parent, child_location, child_log_weight, child_log_motion,
-                                     child_ids, child_cells, start, min(n, start + chunk), 2 * start, np.empty(k),
-                                     np.empty(k), np.empty(footprint_cells.shape[1]), np.empty(width, dtype=np.int64),
-                                     np.empty((width, k)))
-    return _gather_children(counts, chunk, child_parent, child_location, child_log_weight, child_log_motion, child_ids,
-                            child_cells)
+    children = (child_parent, child_location, child_log_weight, child_log_motion, child_ids, child_cells)
+    sizes = (sensor.shape[0], footprint_cells.shape[1], child_ids.shape[1])
+    return _enumerate_in_threads(
+        _enumerate_cells, (locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
+                           neighbors, p_move, blocking, change, footprint_cells, sensor, readings, *children),
+        lambda: _footprint_scratch(*sizes), children, chunk, threads)
 
 
-@njit(cache=True, parallel=True)
-def rbpf_propose_parallel(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors,
-                          neighbors, p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments,
-                          chunk):
+def rbpf_propose_parallel(locations: np.ndarray, pool: np.ndarray, pool_stamps: np.ndarray, table: np.ndarray,
+                          cell_block: np.ndarray, cell_slot: np.ndarray, powers: np.ndarray, dynamic: bool, t: int,
+                          ancestors: np.ndarray, neighbors: np.ndarray, p_move: float, likelihood: np.ndarray,
+                          optimal: bool, uniforms: np.ndarray, new_locations: np.ndarray, new_cells: np.ndarray,
+                          log_increments: np.ndarray, chunk: int, threads: int) -> None:
     """:func:`~onlinemap.kernels.rbpf.rbpf_propose`."""
-    n = ancestors.shape[0]
-    for c in prange(_chunks(n, chunk)):
-        _propose(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors, neighbors,
-                 p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments, c * chunk,
-                 min(n, (c + 1) * chunk))
+    _in_threads([functools.partial(_propose, locations, pool, pool_stamps, table, cell_block, cell_slot, powers,
+                                   dynamic, t, ancestors, neighbors, p_move, likelihood, optimal, uniforms,
+                                   new_locations, new_cells, log_increments, start, stop)
+                 for start, stop in _runs(len(ancestors), chunk, threads)])
 
 
-@njit(cache=True, parallel=True)
-def rbpf_stage_children_parallel(pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors,
-                                 slot_child, child_location, likelihood, new_locations, new_ids, new_cells,
-                                 chunk):
+def rbpf_stage_children_parallel(pool: np.ndarray, pool_stamps: np.ndarray, table: np.ndarray, cell_block: np.ndarray,
+                                 cell_slot: np.ndarray, powers: np.ndarray, dynamic: bool, t: int,
+                                 ancestors: np.ndarray, slot_child: np.ndarray, child_location: np.ndarray,
+                                 likelihood: np.ndarray, new_locations: np.ndarray, new_ids: np.ndarray,
+                                 new_cells: np.ndarray, chunk: int, threads: int) -> None:
     """Fearnhead-Clifford's kept children's writes (:func:`~onlinemap.kernels.rbpf._stage_children`),
     staged from the parents' rows for :func:`rbpf_commit_staged_parallel`; writes only the staging
     arrays."""
-    n = slot_child.shape[0]
-    for c in prange(_chunks(n, chunk)):
-        _stage_children(pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors, slot_child,
-                        child_location, likelihood, new_locations, new_ids, new_cells, c * chunk,
-                        min(n, (c + 1) * chunk))
+    _in_threads([functools.partial(_stage_children, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic,
+                                   t, ancestors, slot_child, child_location, likelihood, new_locations, new_ids,
+                                   new_cells, start, stop)
+                 for start, stop in _runs(len(slot_child), chunk, threads)])
 
 
-@njit(cache=True, parallel=True)
-def rbpf_stage_children_cells_parallel(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
-                                       ancestors, slot_child, child_location, neighbors, p_move, blocking, change,
-                                       footprint_cells, sensor, readings, new_locations, new_ids, new_cells, chunk):
+def rbpf_stage_children_cells_parallel(locations: np.ndarray, pool: np.ndarray, pool_stamps: np.ndarray,
+                                       table: np.ndarray, cell_block: np.ndarray, cell_slot: np.ndarray,
+                                       powers: np.ndarray, dynamic: bool, t: int, ancestors: np.ndarray,
+                                       slot_child: np.ndarray, child_location: np.ndarray, neighbors: np.ndarray,
+                                       p_move: float, blocking: np.ndarray, change: np.ndarray,
+                                       footprint_cells: np.ndarray, sensor: np.ndarray, readings: np.ndarray,
+                                       new_locations: np.ndarray, new_ids: np.ndarray, new_cells: np.ndarray,
+                                       chunk: int, threads: int) -> None:
     """:func:`rbpf_stage_children_parallel` for blocking labels and sensor footprints
     (:func:`~onlinemap.kernels.rbpf._stage_children_cells`); writes only the staging arrays."""
-    n = slot_child.shape[0]
-    k = sensor.shape[0]
-    for c in prange(_chunks(n, chunk)):
-        _stage_children_cells(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors,
-                              slot_child, child_location, neighbors, p_move, blocking, change, footprint_cells, sensor,
-                              readings, new_locations, new_ids, new_cells, c * chunk, min(n, (c + 1) * chunk),
-                              np.empty(k), np.empty(k), np.empty(footprint_cells.shape[1]))
+    sizes = (sensor.shape[0], footprint_cells.shape[1], new_ids.shape[1])
+    _in_threads([functools.partial(_stage_children_cells, locations, pool, pool_stamps, table, cell_block, cell_slot,
+                                   powers, dynamic, t, ancestors, slot_child, child_location, neighbors, p_move,
+                                   blocking, change, footprint_cells, sensor, readings, new_locations, new_ids,
+                                   new_cells, start, stop, *_footprint_scratch(*sizes)[:3])
+                 for start, stop in _runs(len(slot_child), chunk, threads)])
 
 
-@njit(cache=True, parallel=True)
-def rbpf_commit_staged_parallel(locations, pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block,
-                                cell_slot, dynamic, powers, max_age, t, ancestors, new_locations, new_ids, new_cells,
-                                target, source, chunk):
+def rbpf_commit_staged_parallel(locations: np.ndarray, pool: np.ndarray, pool_stamps: np.ndarray,
+                                row_block: np.ndarray, refcount: np.ndarray, free: np.ndarray, free_top: np.ndarray,
+                                table: np.ndarray, cell_block: np.ndarray, cell_slot: np.ndarray, dynamic: bool,
+                                powers: np.ndarray, max_age: int, t: int, ancestors: np.ndarray,
+                                new_locations: np.ndarray, new_ids: np.ndarray, new_cells: np.ndarray,
+                                target: np.ndarray, source: np.ndarray, chunk: int, threads: int) -> None:
     """:func:`~onlinemap.kernels.rbpf.rbpf_commit_cells`, bit for bit: the take-over and the
     copy-on-write bookkeeping (:func:`~onlinemap.kernels.rbpf._plan_writes`, into ``target`` and
-    ``source`` (P, W)) serially, then every block copy, then every write, then the locations.
+    ``source`` (P, W)) serially, then every block copy, then every write and the locations.
     Needs ``free_top[0] >= W P``."""
-    n = new_locations.shape[0]
     _take_over_slots(refcount, free, free_top, table, ancestors)
     _plan_writes(row_block, refcount, free, free_top, table, cell_block, new_locations, new_ids, target, source)
-    for c in prange(_chunks(n, chunk)):
-        _copy_planned(pool, pool_stamps, dynamic, powers, max_age, t, target, source, c * chunk,
-                      min(n, (c + 1) * chunk))
-    for c in prange(_chunks(n, chunk)):
-        _write_planned(pool, pool_stamps, dynamic, t, cell_slot, new_ids, new_cells, target, c * chunk,
-                       min(n, (c + 1) * chunk))
-    for p in range(n):
-        if new_locations[p] >= 0:
-            locations[p] = new_locations[p]
+    runs = _runs(len(new_locations), chunk, threads)
+    _in_threads([functools.partial(_copy_planned, pool, pool_stamps, dynamic, powers, max_age, t, target, source,
+                                   start, stop) for start, stop in runs])
+    _in_threads([functools.partial(_write_planned, pool, pool_stamps, dynamic, t, cell_slot, new_ids, new_cells,
+                                   target, locations, new_locations, start, stop) for start, stop in runs])
 
 
-@njit(cache=True, parallel=True)
-def rbpf_map_mixture_parallel(pool, pool_stamps, row_block, refcount, table, block_members, powers, dynamic, t,
-                              weights, out):
-    """:func:`~onlinemap.kernels.rbpf.rbpf_map_mixture`, the same sums: the row weights by chunks of
-    ``BLOCK_GROUP`` blocks (a row holds one block, and each row's weight adds its particles in
-    order), then each block's rows in row order into its own cells."""
+def rbpf_map_mixture_parallel(pool: np.ndarray, pool_stamps: np.ndarray, row_block: np.ndarray, refcount: np.ndarray,
+                              table: np.ndarray, block_members: np.ndarray, powers: np.ndarray, dynamic: bool, t: int,
+                              weights: np.ndarray, out: np.ndarray, threads: int) -> None:
+    """:func:`~onlinemap.kernels.rbpf.rbpf_map_mixture`, the same sums: the row weights by runs of
+    chunks of ``BLOCK_GROUP`` blocks (a row holds one block, and each row's weight adds its
+    particles in order), then the rows grouped by block (:func:`~onlinemap.kernels.rbpf._rows_by_block`)
+    and each run of blocks' rows in row order into its own cells, the runs cut where the rows in
+    use split about evenly."""
     n_blocks = table.shape[1]
-    row_weight = np.zeros(pool.shape[0])
+    row_weight = np.zeros(len(pool))
     total = _sum(weights)
-    n_groups = (n_blocks + BLOCK_GROUP - 1) // BLOCK_GROUP
-    for g in prange(n_groups):
-        _row_weights(table, refcount, weights, total, row_weight, g * BLOCK_GROUP,
-                     min(n_blocks, (g + 1) * BLOCK_GROUP), np.empty(BLOCK_GROUP, dtype=np.int64),
-                     np.empty(BLOCK_GROUP, dtype=np.int64), np.empty(BLOCK_GROUP))
+    _in_threads([functools.partial(_row_weights, table, refcount, weights, total, row_weight, first, last,
+                                   np.empty(last - first, dtype=np.int64), np.empty(last - first, dtype=np.int64),
+                                   np.empty(last - first)) for first, last in _runs(n_blocks, BLOCK_GROUP, threads)])
     starts = np.zeros(n_blocks + 1, dtype=np.int64)
-    rows = np.empty(pool.shape[0], dtype=np.int64)
+    rows = np.empty(len(pool), dtype=np.int64)
     _rows_by_block(row_block, row_weight, starts, rows)
     out[:] = 0.0
-    for b in prange(n_blocks):
-        _mixture_rows(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight,
-                      rows[starts[b]:starts[b + 1]], out)
+    cuts = starts[np.searchsorted(starts, np.arange(1, threads) * (starts[-1] / threads))]  # block boundaries
+    bounds = [0, *cuts.tolist(), int(starts[-1])]
+    _in_threads([functools.partial(_mixture_rows, pool, pool_stamps, row_block, block_members, powers, dynamic, t,
+                                   row_weight, rows[bounds[i]:bounds[i + 1]], out) for i in range(threads)])
