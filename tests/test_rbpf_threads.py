@@ -173,5 +173,5 @@ def test_no_kernel_compiles_with_numba_parallel():
     assert not [d.py_func.__qualname__ for d in dispatchers if d.targetoptions.get("parallel")]
     threaded = {rbpf_parallel._enumerate, rbpf_parallel._enumerate_cells, rbpf_parallel._propose,
                 rbpf_parallel._stage_children, rbpf_parallel._stage_children_cells, rbpf_parallel._copy_planned,
-                rbpf_parallel._write_planned, rbpf_parallel._row_weights, rbpf_parallel._mixture_rows}
+                rbpf_parallel._write_planned, rbpf_parallel._row_weights, rbpf_parallel._mixture_blocks}
     assert all(kernel.targetoptions.get("nogil") for kernel in threaded)

@@ -1007,37 +1007,19 @@ def _add_row(pool, pool_stamps, powers, dynamic, t, members, r, w, out):
 
 
 @loop_kernel
-def _rows_by_block(row_block, row_weight, starts, rows):
-    """The rows of nonzero weight grouped by the block they hold, in row order within a block:
-    block b's are ``rows[starts[b]:starts[b + 1]]``. ``starts`` (n_blocks + 1,) zeros. O(R)."""
-    for r in range(row_block.shape[0]):
-        if row_weight[r] != 0.0:
-            starts[row_block[r] + 1] += 1
-    for b in range(starts.shape[0] - 1):
-        starts[b + 1] += starts[b]
-    for r in range(row_block.shape[0]):  # starts[b] runs up to block b's end, then moves back
-        if row_weight[r] != 0.0:
-            rows[starts[row_block[r]]] = r
-            starts[row_block[r]] += 1
-    for b in range(starts.shape[0] - 1, 0, -1):
-        starts[b] = starts[b - 1]
-    starts[0] = 0
-
-
-@thread_kernel
-def _mixture_rows(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, rows, out):
-    """out (N, K) += ``sum_r row_weight[r] * current marginals of block row r`` over ``rows``, in
-    their order."""
-    for i in range(rows.shape[0]):
-        r = rows[i]
-        _add_row(pool, pool_stamps, powers, dynamic, t, block_members[row_block[r]], r, row_weight[r], out)
-
-
-@loop_kernel
 def _mixture(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, out):
     """out (N, K) += ``sum_r row_weight[r] * current marginals of block row r``, rows in order."""
     for r in range(pool.shape[0]):
         if row_weight[r] != 0.0:
+            _add_row(pool, pool_stamps, powers, dynamic, t, block_members[row_block[r]], r, row_weight[r], out)
+
+
+@thread_kernel
+def _mixture_blocks(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, first, last, out):
+    """:func:`_mixture` of the rows holding blocks ``first..last - 1`` (into those blocks' cells):
+    O(R) to scan the rows, plus O(B K) per row of nonzero weight among them."""
+    for r in range(pool.shape[0]):
+        if row_weight[r] != 0.0 and first <= row_block[r] < last:
             _add_row(pool, pool_stamps, powers, dynamic, t, block_members[row_block[r]], r, row_weight[r], out)
 
 

@@ -20,20 +20,21 @@ so the results are the serial kernels' bit for bit, whatever the number of threa
   row that no write has changed yet) and, after them, all writes (each into a row only its
   particle uses). The sampling schemes' commit is the same last step on their proposals;
 - :func:`rbpf_map_mixture_parallel`: the weight of a row is summed over the particles in order by
-  the run of blocks holding it; then each run of blocks (runs of about equal rows) adds its rows,
-  in row order, into its own cells.
+  the run of blocks holding it; then each run of blocks adds its rows, in row order, into its own
+  cells.
 
 Threads: the calling thread runs the first run and a pool of Python threads the others
 (:func:`_in_threads`; the pool is made on first use, with ``NUMBA_NUM_THREADS - 1`` threads, and
 anew in a forked child); a phase ends when every run has, then the first exception of any run
-is raised. Cost: as the serial kernels, plus one pass to move the children together and one to sort
-the rows by block, and some 40-75 us per phase to hand the runs to the threads (measured: a
-pool thread wakes and takes the GIL to enter its kernel); the serial parts (take-over,
-copy-on-write bookkeeping, Fearnhead-Clifford's selection) stay serial. No kernel compiles
-with ``parallel=True``: the threads compile the range kernels once more, with bounds that are
-not literals (the serial kernels' copies are specialised to theirs), and the small kernels of
-the staged commit, the gather and the mixture's rows (about 13 CPU seconds with a cold cache
-when both run, against a minute for the ``parallel=True`` kernels they replace).
+is raised. Cost: as the serial kernels, plus one pass to move the children together, a scan of the rows'
+weights and blocks per run in the mixture, and some 40-75 us per phase to hand the runs to the
+threads (measured: a pool thread wakes and takes the GIL to enter its kernel); the serial parts
+(take-over, copy-on-write bookkeeping, Fearnhead-Clifford's selection) stay serial. No kernel
+compiles with ``parallel=True``. The enumeration's range kernels are the serial entry points'
+own; the proposal's and the row weights' are compiled once more for the threads (the serial
+kernels call them with literal bounds, which numba compiles apart), and the staged commit,
+the gather and the mixture's runs of blocks are the threads' alone: about 10 CPU seconds in
+all with a cold cache, against 50 for the ``parallel=True`` kernels they replace.
 """
 
 from __future__ import annotations
@@ -47,9 +48,9 @@ import numba
 import numpy as np
 
 from . import loop_kernel
-from .rbpf import (_copy_planned, _enumerate, _enumerate_cells, _mixture_rows, _plan_writes, _propose, _row_weights,
-                   _rows_by_block, _stage_children, _stage_children_cells, _sum, _take_over_slots, _write_planned,
-                   _footprint_scratch)
+from .rbpf import (_copy_planned, _enumerate, _enumerate_cells, _footprint_scratch, _mixture_blocks, _plan_writes,
+                   _propose, _row_weights, _stage_children, _stage_children_cells, _sum, _take_over_slots,
+                   _write_planned)
 
 CHUNK = 1024  # particles per chunk (the drivers' ``chunk``), fixed: the chunks do not depend on the threads
 BLOCK_GROUP = 8  # map blocks per chunk of the row weights: one cache line of a particle's table row
@@ -227,22 +228,17 @@ def rbpf_commit_staged_parallel(locations: np.ndarray, pool: np.ndarray, pool_st
 def rbpf_map_mixture_parallel(pool: np.ndarray, pool_stamps: np.ndarray, row_block: np.ndarray, refcount: np.ndarray,
                               table: np.ndarray, block_members: np.ndarray, powers: np.ndarray, dynamic: bool, t: int,
                               weights: np.ndarray, out: np.ndarray, threads: int) -> None:
-    """:func:`~onlinemap.kernels.rbpf.rbpf_map_mixture`, the same sums: the row weights by runs of
-    chunks of ``BLOCK_GROUP`` blocks (a row holds one block, and each row's weight adds its
-    particles in order), then the rows grouped by block (:func:`~onlinemap.kernels.rbpf._rows_by_block`)
-    and each run of blocks' rows in row order into its own cells, the runs cut where the rows in
-    use split about evenly."""
+    """:func:`~onlinemap.kernels.rbpf.rbpf_map_mixture`, the same sums, on runs of chunks of
+    ``BLOCK_GROUP`` blocks: first the row weights (a row holds one block, and each row's weight
+    adds its particles in order), then each run's rows, in row order, into its own cells
+    (:func:`~onlinemap.kernels.rbpf._mixture_blocks`: every run scans the rows, O(R) each)."""
     n_blocks = table.shape[1]
+    runs = _runs(n_blocks, BLOCK_GROUP, threads)
     row_weight = np.zeros(len(pool))
     total = _sum(weights)
     _in_threads([functools.partial(_row_weights, table, refcount, weights, total, row_weight, first, last,
                                    np.empty(last - first, dtype=np.int64), np.empty(last - first, dtype=np.int64),
-                                   np.empty(last - first)) for first, last in _runs(n_blocks, BLOCK_GROUP, threads)])
-    starts = np.zeros(n_blocks + 1, dtype=np.int64)
-    rows = np.empty(len(pool), dtype=np.int64)
-    _rows_by_block(row_block, row_weight, starts, rows)
+                                   np.empty(last - first)) for first, last in runs])
     out[:] = 0.0
-    cuts = starts[np.searchsorted(starts, np.arange(1, threads) * (starts[-1] / threads))]  # block boundaries
-    bounds = [0, *cuts.tolist(), int(starts[-1])]
-    _in_threads([functools.partial(_mixture_rows, pool, pool_stamps, row_block, block_members, powers, dynamic, t,
-                                   row_weight, rows[bounds[i]:bounds[i + 1]], out) for i in range(threads)])
+    _in_threads([functools.partial(_mixture_blocks, pool, pool_stamps, row_block, block_members, powers, dynamic, t,
+                                   row_weight, first, last, out) for first, last in runs])
