@@ -312,8 +312,9 @@ def rbpf_enumerate_cells(locations: np.ndarray, log_weights: np.ndarray, pool: n
     schemes) it stores them: ``child_ids`` (2P, W) (-1: none) and ``child_cells`` (2P, W, K), at
     step t, and ``child_log_motion`` (2P,), each child's ``log T``; with 0 rows (Fearnhead-Clifford,
     which recomputes the kept children's in :func:`rbpf_commit_children_cells`) only the parents,
-    locations and log weights. Cost O(P F K^2). (A Python function: its kernel, :func:`_enumerate_cells`
-    on every parent, is the one the threads run on runs of parents, compiled once for both.)"""
+    locations and log weights. Cost O(P F K^2). (A Python function: its kernel,
+    :func:`_enumerate_cells` on every parent, is the one the threads run on runs of parents,
+    compiled once for both.)"""
     return _enumerate_cells(locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
                             neighbors, p_move, blocking, change, footprint_cells, sensor, readings, child_parent,
                             child_location, child_log_weight, child_log_motion, child_ids, child_cells, 0,

@@ -26,15 +26,15 @@ so the results are the serial kernels' bit for bit, whatever the number of threa
 Threads: the calling thread runs the first run and a pool of Python threads the others
 (:func:`_in_threads`; the pool is made on first use, with ``NUMBA_NUM_THREADS - 1`` threads, and
 anew in a forked child); a phase ends when every run has, then the first exception of any run
-is raised. Cost: as the serial kernels, plus one pass to move the children together, a scan of the rows'
-weights and blocks per run in the mixture, and some 40-75 us per phase to hand the runs to the
-threads (measured: a pool thread wakes and takes the GIL to enter its kernel); the serial parts
-(take-over, copy-on-write bookkeeping, Fearnhead-Clifford's selection) stay serial. No kernel
-compiles with ``parallel=True``. The enumeration's range kernels are the serial entry points'
-own; the proposal's and the row weights' are compiled once more for the threads (the serial
-kernels call them with literal bounds, which numba compiles apart), and the staged commit,
-the gather and the mixture's runs of blocks are the threads' alone: about 10 CPU seconds in
-all with a cold cache, against 50 for the ``parallel=True`` kernels they replace.
+is raised. Cost: as the serial kernels, plus one pass to move the children together, a scan of
+the rows' weights and blocks per run in the mixture, and some 40-75 us per phase to hand the
+runs to the threads (measured: a pool thread wakes and takes the GIL to enter its kernel); the
+serial parts (take-over, copy-on-write bookkeeping, Fearnhead-Clifford's selection) stay
+serial. No kernel compiles with ``parallel=True``. The enumeration's range kernels are the
+serial entry points' own; the proposal's and the row weights' are compiled once more for the
+threads (the serial kernels call them with literal bounds, which numba compiles apart), and the
+staged commit, the gather and the mixture's runs of blocks are the threads' alone: about 10 CPU
+seconds in all with a cold cache, against 50 for the ``parallel=True`` kernels they replace.
 """
 
 from __future__ import annotations
