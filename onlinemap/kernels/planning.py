@@ -452,13 +452,15 @@ def _carried(row, powers, dynamic, d, out):
 
 
 @loop_kernel
-def _mixture_uncertainty(loc, lw, maps, disputed, disputed_maps, disputed_mask, ov_cell, ov_val, ov_stamp, ov_n,
-                         powers, dynamic, h, location_weight, touched_list, n_touched, agree_entropy, location, mix,
-                         scratch, scratch2, weights):
+def _mixture_uncertainty(loc, lw, maps, disputed, disputed_maps, disputed_mix, disputed_mask, ov_cell, ov_val,
+                         ov_stamp, ov_n, powers, dynamic, h, location_weight, touched_list, n_touched, agree_entropy,
+                         location, mix, scratch, scratch2, weights):
     """``location_weight * H(L) + sum_i H(M_i)`` of the weighted particles at step h. The mixture
     ``M_i = sum_p w_p m_p(i)`` is recomputed on the disputed cells (``disputed`` (D,), their base
-    marginals ``disputed_maps`` (D, R, K), ``disputed_mask`` (N,)) and the touched ones: the base
-    part by a weighted sum, then each particle's overlay slots add ``w_p (overlay - base)``. Every
+    marginals ``disputed_maps`` (R, D K), ``disputed_mask`` (N,)) and the touched ones: the base
+    part by a weighted sum (into ``disputed_mix`` (D K,), particle by particle: one long contiguous
+    loop per particle instead of a K-long one per cell and particle, the same sums in the same
+    order), then each particle's overlay slots add ``w_p (overlay - base)``. Every
     other cell's term is the same for any weights: ``agree_entropy`` holds their sum at step h
     (a touched agreed cell's term is taken out and recomputed). ``mix`` (N, K) is zero on entry
     and on exit. O(R D K + R H F K + (D + T) K) (K^2 instead of K with map dynamics)."""
@@ -476,14 +478,15 @@ def _mixture_uncertainty(loc, lw, maps, disputed, disputed_maps, disputed_mask, 
             h_location -= x * math.log(x)
             location[loc[p]] = 0.0  # each cell once
     total = location_weight * h_location + agree_entropy
+    for j in range(disputed_mix.shape[0]):
+        disputed_mix[j] = 0.0
+    for p in range(r_count):
+        w = weights[p]
+        if w > 0.0:
+            for j in range(disputed_mix.shape[0]):
+                disputed_mix[j] += w * disputed_maps[p, j]
     for d in range(disputed.shape[0]):
-        scratch[:] = 0.0
-        for p in range(r_count):
-            w = weights[p]
-            if w > 0.0:
-                for b in range(k):
-                    scratch[b] += w * disputed_maps[d, p, b]
-        _carried(scratch, powers, dynamic, h, mix[disputed[d]])
+        _carried(disputed_mix[d * k:(d + 1) * k], powers, dynamic, h, mix[disputed[d]])
     for index in range(n_touched):
         c = touched_list[index]
         if not disputed_mask[c]:  # an agreed cell a particle changed: its base term leaves the sum
@@ -569,13 +572,14 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
     scratch = np.empty(k)
     scratch2 = np.empty(k)
     weights = np.empty(r_count)
-    disputed_maps = np.empty((disputed.shape[0], r_count, k))  # contiguous for the weighted sums
+    disputed_maps = np.empty((r_count, disputed.shape[0] * k))  # a particle's row contiguous for the sums
+    disputed_mix = np.empty(disputed.shape[0] * k)
     disputed_mask = np.zeros(n_cells, dtype=np.bool_)
     for d in range(disputed.shape[0]):
         disputed_mask[disputed[d]] = True
         for p in range(r_count):
             for b in range(k):
-                disputed_maps[d, p, b] = maps[p, disputed[d], b]
+                disputed_maps[p, d * k + b] = maps[p, disputed[d], b]
     ids = np.empty((2, n_reads + 1), dtype=np.int64)
     cells = np.empty((2, n_reads + 1, k))
     before = np.empty((2, k))
@@ -583,9 +587,9 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
     loc = np.empty(r_count, dtype=np.int64)
     lw = np.empty(r_count)
     zero = np.int64(0)  # not the literal 0: _mixture_uncertainty compiles once, for int64 h and counts
-    now = _mixture_uncertainty(locations, log_weights, maps, disputed, disputed_maps, disputed_mask, ov_cell, ov_val,
-                               ov_stamp, ov_n, powers, dynamic, zero, location_weight, touched_list, zero,
-                               agree_entropy[0], location, mix, scratch, scratch2, weights)
+    now = _mixture_uncertainty(locations, log_weights, maps, disputed, disputed_maps, disputed_mix, disputed_mask,
+                               ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, zero, location_weight, touched_list,
+                               zero, agree_entropy[0], location, mix, scratch, scratch2, weights)
     for s in range(hyp_locations.shape[0]):
         for c in range(n_seq):
             for p in range(r_count):  # element by element: no shape-mismatch message to compile
@@ -607,10 +611,10 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
                                          sensor, readings, proposal_u[s, h - 1], ids, cells, before, touched,
                                          touched_list, n_touched)
                 if checkpoints[h]:
-                    out[c, h] += _mixture_uncertainty(loc, lw, maps, disputed, disputed_maps, disputed_mask, ov_cell,
-                                                      ov_val, ov_stamp, ov_n, powers, dynamic, h, location_weight,
-                                                      touched_list, n_touched, agree_entropy[h], location, mix,
-                                                      scratch, scratch2, weights)
+                    out[c, h] += _mixture_uncertainty(loc, lw, maps, disputed, disputed_maps, disputed_mix,
+                                                      disputed_mask, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic,
+                                                      h, location_weight, touched_list, n_touched, agree_entropy[h],
+                                                      location, mix, scratch, scratch2, weights)
             _reset(ov_index, ov_cell, ov_n, touched, touched_list, n_touched)
 
 
