@@ -75,14 +75,15 @@ def _uncertainty(locations, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powe
     r_count, n_cells, k = maps.shape
     location[:] = 0.0
     mixture[:] = 0.0
+    flat = mixture.reshape(n_cells * k)  # one contiguous loop per particle: the same sums, faster
     for p in range(r_count):
         w = weights[p]
         if w == 0.0:
             continue
         location[locations[p]] += w
-        for i in range(n_cells):
-            for b in range(k):
-                mixture[i, b] += w * maps[p, i, b]
+        row = maps[p].reshape(n_cells * k)
+        for j in range(n_cells * k):
+            flat[j] += w * row[j]
     if dynamic and h > 0:
         for i in range(n_cells):
             for b in range(k):
