@@ -380,12 +380,16 @@ def _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, power
             _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, n, h - 1, before[0])
             for b in range(k):
                 before[1, b] = before[0, b]
-        j0, w0, u0 = _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, n, 0, h, p_move,
-                                blocking, has_blocking, footprint_cells, sensor, readings, ids[0], cells[0],
-                                before[0])
-        j1, w1, u1 = _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, n, 1, h, p_move,
-                                blocking, has_blocking, footprint_cells, sensor, readings, ids[1], cells[1],
-                                before[1])
+        j0, w0, u0 = l, 0.0, 0
+        j1, w1, u1 = l, 0.0, 0
+        for s in range(2):  # one copy of the successor's code for both: half the code to compile
+            j, w, u = _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, n, s, h, p_move,
+                                 blocking, has_blocking, footprint_cells, sensor, readings, ids[s], cells[s],
+                                 before[s])
+            if s == 0:
+                j0, w0, u0 = j, w, u
+            else:
+                j1, w1, u1 = j, w, u
         total = w0 + w1
         if not total > 0.0:
             lw[p] = -np.inf
