@@ -337,29 +337,32 @@ def _move_particles(locations, log_weights, pool, pool_stamps, row_block, refcou
             counts[1] += 1
             continue
         # Metropolis-Hastings: R(new) / R(old); cur keeps the new path's cells after the second
-        ratio = _revisit_ratio(old, s, window, footprint_cells, readings, likelihood, base, cur, current, 2 * mark)
-        ratio = _revisit_ratio(new, s, window, footprint_cells, readings, likelihood, base, cur, current,
-                               2 * mark + 1) / ratio
+        ratio = 1.0
+        for which in range(2):  # R(old), then R(new) / R(old): one inlined copy of the code to compile
+            revisit = _revisit_ratio(old if which == 0 else new, s, window, footprint_cells, readings, likelihood,
+                                     base, cur, current, 2 * mark + which)
+            ratio = revisit if which == 0 else revisit / ratio
         if not (ratio >= 1.0 or uniforms[p, window + 1] < ratio):
             continue
         counts[1] += 1
-        for tau in range(1, window + 1):  # the new path's cells: m_- updated by its readings
-            for f in range(n_reads):
-                c = footprint_cells[new[tau], f]
-                if c >= 0 and current[c] == 2 * mark + 1 and done[c] != mark:
-                    done[c] = mark
-                    for b in range(values.shape[0]):
-                        values[b] = cur[c, b]
-                    _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
-                                dynamic, powers, max_age, t, p, c, values)
-        for i in range(n_touched):  # the old path's other cells: m_-
-            c = touched[i]
-            if done[c] != mark:
-                done[c] = mark
-                for b in range(values.shape[0]):
-                    values[b] = base[c, b]
-                _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot,
-                            dynamic, powers, max_age, t, p, c, values)
+        # the new path's cells (m_- updated by its readings), then the old path's other cells (m_-),
+        # through one inlined copy of the write
+        n_new = window * n_reads
+        for i in range(n_new + n_touched):
+            if i < n_new:
+                c = footprint_cells[new[1 + i // n_reads], i % n_reads]
+                if c < 0 or current[c] != 2 * mark + 1 or done[c] == mark:
+                    continue
+            else:
+                c = touched[i - n_new]
+                if done[c] == mark:
+                    continue
+            done[c] = mark
+            source = cur if i < n_new else base
+            for b in range(values.shape[0]):
+                values[b] = source[c, b]
+            _write_cell(pool, pool_stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, dynamic,
+                        powers, max_age, t, p, c, values)
         for tau in range(1, window + 1):
             step = s + tau
             r, source = _row_for_write(path_row_block, path_refcount, path_free, path_free_top, path_table, p,
