@@ -723,8 +723,8 @@ class RaoBlackwellisedPF:
             raise ImpossibleObservationError(_impossible(model, z, t, n_particles))
         self._check_recovery_memory(t, blocks)
         readings = np.atleast_1d(np.asarray(z, dtype=np.int64))
-        prior = np.ascontiguousarray(model.label_prior if model.is_static else
-                                     model.label_prior @ np.linalg.matrix_power(model.change, t))
+        prior = np.array(model.label_prior if model.is_static else  # a writable copy: one kernel compile
+                         model.label_prior @ np.linalg.matrix_power(model.change, t), order="C")
         child_log_weight = np.empty((model.n_cells, n_particles))
         fewest = rbpf_relocation_weights(
             self._locations, self._log_weights, *blocks.reads(), t, model.moves, RELOCATION_SCALE, model.blocking,

@@ -140,7 +140,7 @@ def _binary_change_every_axis(x, change):
     (the stride-1 axis on interleaved pairs, then two axes per sweep), the outer axes two per
     memory pass."""
     n, m_total = x.shape
-    block = 2 ** _block_axes(n, 2)
+    block = 2 ** _block_axes(n, np.int64(2))  # int64, not a literal 2: one compile for both callers
     c00, c01, c10, c11 = change[0, 0], change[0, 1], change[1, 0], change[1, 1]
     flat = x.reshape(-1)
     for start in range(0, flat.shape[0], block):
@@ -150,7 +150,7 @@ def _binary_change_every_axis(x, change):
             w = blk[2 * i + 1]
             blk[2 * i] = u * c00 + w * c10
             blk[2 * i + 1] = u * c01 + w * c11
-        stride = 2
+        stride = np.int64(2)  # not a literal: _binary_change compiles once
         while stride < block:
             _binary_change(blk, stride, block, c00, c01, c10, c11)
             stride *= 4
@@ -182,7 +182,7 @@ def change_every_axis(x, change):
             for axis in range(n - b, n):
                 _change_axis(x, row, start, k ** (n - 1 - axis), block, change, k, tmp)
         for axis in range(n - b):
-            _change_axis(x, row, 0, k ** (n - 1 - axis), m_total, change, k, tmp)
+            _change_axis(x, row, np.int64(0), k ** (n - 1 - axis), m_total, change, k, tmp)  # one compile
 
 
 @njit(cache=True)

@@ -174,8 +174,8 @@ def rollout_uncertainty(locations, maps, log_weights, moves, p_move, likelihood,
     scratch = np.empty(k)
     scratch2 = np.empty(k)
     if checkpoints[0]:
-        out[0] = _uncertainty(loc, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, 0,
-                              location_weight, location, mixture, scratch, scratch2)
+        out[0] = _uncertainty(loc, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, np.int64(0),
+                              location_weight, location, mixture, scratch, scratch2)  # int64: one compile
     for h in range(1, horizon + 1):
         a = actions[h - 1]
         if world_uniforms[h - 1, 0] < p_move:
@@ -723,7 +723,7 @@ def shortest_paths(adjacent, enter_cost, distance, forward):
     keys = np.empty(capacity)
     items = np.empty(capacity, dtype=np.int64)
     done = np.zeros(n_cells, dtype=np.bool_)
-    size = 0
+    size = np.int64(0)  # not a literal 0: the heap's functions compile once, for int64
     for u in range(n_cells):
         if distance[u] < np.inf:
             size = _heap_push(keys, items, size, distance[u], u)

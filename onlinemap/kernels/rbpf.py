@@ -532,7 +532,8 @@ def rbpf_propose(locations, pool, pool_stamps, table, cell_block, cell_slot, pow
     impossible). One uniform per particle. O(P K^2).
     """
     _propose(locations, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, ancestors, neighbors,
-             p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments, 0, ancestors.shape[0])
+             p_move, likelihood, optimal, uniforms, new_locations, new_cells, log_increments, np.int64(0),
+             ancestors.shape[0])  # np.int64(0), not 0: one compile shared with the threads' calls
 
 
 @thread_kernel
@@ -944,8 +945,8 @@ def rbpf_map_mixture(pool, pool_stamps, row_block, refcount, table, block_member
     """
     n_blocks = table.shape[1]
     row_weight = np.zeros(pool.shape[0])
-    _row_weights(table, refcount, weights, _sum(weights), row_weight, 0, n_blocks, np.empty(n_blocks, dtype=np.int64),
-                 np.empty(n_blocks, dtype=np.int64), np.empty(n_blocks))
+    _row_weights(table, refcount, weights, _sum(weights), row_weight, np.int64(0), n_blocks,  # int64: one compile
+                 np.empty(n_blocks, dtype=np.int64), np.empty(n_blocks, dtype=np.int64), np.empty(n_blocks))
     out[:] = 0.0
     _mixture(pool, pool_stamps, row_block, block_members, powers, dynamic, t, row_weight, out)
 
@@ -1130,7 +1131,7 @@ def rbpf_relocation_weights(locations, log_weights, pool, pool_stamps, table, ce
     n_cells, n_particles = child_log_weight.shape
     k = sensor.shape[0]
     width = footprint_cells.shape[1] + 1
-    has_blocking = False
+    has_blocking = np.bool_(False)  # not a literal False: _landing compiles once, for bool
     for b in range(k):
         has_blocking = has_blocking or blocking[b]
     ids = np.empty((n_cells, width), dtype=np.int64)
@@ -1196,7 +1197,7 @@ def rbpf_relocated_children(child_parent, child_location, pool, pool_stamps, tab
     sees (``q * factor / (q @ factor)``, q the parent's marginal or, where that gives 0, the
     prior: the same rule as the weights). O(M U K^2)."""
     k = sensor.shape[0]
-    has_blocking = False
+    has_blocking = np.bool_(False)  # not a literal False: _landing compiles once, for bool
     for b in range(k):
         has_blocking = has_blocking or blocking[b]
     width = child_ids.shape[1]

@@ -33,7 +33,7 @@ def _heapsort(a):
         _sift_down(a, root, m)
     for end in range(m - 1, 0, -1):
         a[0], a[end] = a[end], a[0]
-        _sift_down(a, 0, end)
+        _sift_down(a, np.int64(0), end)  # not a literal 0: one compile
 
 
 @njit(cache=True, _nrt=True)  # it allocates: compiled with reference counting even when called from a loop_kernel
