@@ -255,11 +255,13 @@ NEGLIGIBLE = math.log(1e-9)  # a rollout drops a particle whose weight falls bel
 
 
 @njit(cache=True, inline="always")
-def _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, out):
-    """out (K,) <- particle p's marginal of cell c at rollout step h (an overlay slot if it has one)."""
+def _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, out, column):
+    """out (K,) <- particle p's marginal of cell c at rollout step h (an overlay slot if it has one);
+    returns ``sum_b out[b] column[b]`` (added in order of b as each entry is made)."""
     k = out.shape[0]
     slot = ov_index[p, c]
     d = h if slot < 0 else h - ov_stamp[p, slot]
+    total = 0.0
     for b in range(k):
         if dynamic and d > 0:
             acc = 0.0
@@ -268,6 +270,8 @@ def _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, out):
             out[b] = acc
         else:
             out[b] = maps[p, c, b] if slot < 0 else ov_val[p, slot, b]
+        total += out[b] * column[b]
+    return total
 
 
 @njit(cache=True, inline="always")
@@ -324,15 +328,15 @@ def _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, 
                 continue
             return j, 0.0, 0
         w = used
+        lam = 0.0
         if gated and ids[0] == c:  # the cell the move tried to enter, given the move's outcome
             w = 0
+            for b in range(k):
+                lam += cells[w, b] * sensor[b, z]
         else:
-            _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, cells[w])
+            lam = _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, cells[w], sensor[:, z])
             ids[w] = c
             used += 1
-        lam = 0.0
-        for b in range(k):
-            lam += cells[w, b] * sensor[b, z]
         if lam <= 0.0:
             return j, 0.0, 0
         for b in range(k):
@@ -377,7 +381,7 @@ def _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, power
         l = loc[p]
         n = moves[a, l]
         if has_blocking and n != l:
-            _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, n, h - 1, before[0])
+            _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, n, h - 1, before[0], before[1])
             for b in range(k):
                 before[1, b] = before[0, b]
         j0, w0, u0 = l, 0.0, 0
@@ -663,7 +667,7 @@ def rollout_beliefs(locations, maps, log_weights, moves, p_move, blocking, footp
             w = math.exp(lw[p])
             out_location[h, loc[p]] += w
             for c in range(n_cells):
-                _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, scratch)
+                _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, scratch, scratch)
                 for b in range(k):
                     out_maps[h, c, b] += w * scratch[b]
 
