@@ -257,7 +257,9 @@ NEGLIGIBLE = math.log(1e-9)  # a rollout drops a particle whose weight falls bel
 @njit(cache=True, inline="always")
 def _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, out, column):
     """out (K,) <- particle p's marginal of cell c at rollout step h (an overlay slot if it has one);
-    returns ``sum_b out[b] column[b]`` (added in order of b as each entry is made)."""
+    returns ``sum_b out[b] column[b]`` (added in order of b as each entry is made: a reading's
+    likelihood with ``column = O[:, z]``). A caller that wants only ``out`` passes ``out`` itself
+    and drops the sum (inlined, the compiler removes it)."""
     k = out.shape[0]
     slot = ov_index[p, c]
     d = h if slot < 0 else h - ov_stamp[p, slot]
@@ -381,7 +383,7 @@ def _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, power
         l = loc[p]
         n = moves[a, l]
         if has_blocking and n != l:
-            _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, n, h - 1, before[0], before[1])
+            _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, n, h - 1, before[0], before[0])
             for b in range(k):
                 before[1, b] = before[0, b]
         j0, w0, u0 = l, 0.0, 0
