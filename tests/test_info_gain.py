@@ -544,6 +544,53 @@ def test_rollout_uncertainty_equals_the_whole_beliefs(p_door):
     np.testing.assert_allclose(out[0], whole, rtol=1e-12, atol=1e-10)
 
 
+@pytest.mark.parametrize("p_door", [0.0, 0.05])
+def test_candidates_pressing_alike_share_a_rollout_and_score_as_if_alone(p_door):
+    """plan_rollouts steps the candidates that have pressed the same so far in a world once and
+    copies the state when they part: every candidate's scores equal, bit for bit, those of a call
+    with that candidate alone. Fixed sequences that share prefixes of 0 to 7 presses, and
+    candidates choosing in closed loop (towards random distance fields), part at every step; half
+    the cells agreed (their entropy is summed once and a touched one recomputed)."""
+    from onlinemap.kernels.planning import plan_rollouts
+    from policies.info_gain import agreement, rollout_tables
+
+    model, _ = om.door_world(blocking=True, footprint="cross", p_door=p_door)
+    rng = np.random.default_rng(3)
+    r_count, horizon, n, worlds = 24, 9, model.n_cells, 4
+    maps = np.repeat(rng.dirichlet(np.ones(4), size=n)[None], r_count, axis=0)
+    maps[:, ::2] = rng.dirichlet(np.ones(4), size=(r_count, (n + 1) // 2))  # every other cell disputed
+    particles = ParticleSnapshot(rng.integers(0, n, r_count), maps, np.log(rng.dirichlet(np.ones(r_count))))
+    tables = rollout_tables(model, horizon)
+    base = rng.integers(0, 4, horizon)
+    sequences = [base.copy() for _ in range(6)] + [np.full(horizon, -1)] * 4 + [np.full(horizon, 2)]
+    for c, parted in enumerate([0, 1, 3, 5, 7]):  # candidate c + 1 presses like base until step `parted`
+        sequences[c + 1][parted:] = rng.integers(0, 4, horizon - parted)
+    sequences = np.array(sequences, dtype=np.int64)
+    distances = rng.random((len(sequences), n)) * 10
+    distances[-2] = distances[-3]  # two candidates towards the same target never part
+    go = rng.random((n, 4))
+    hyp = (rng.integers(0, n, worlds), rng.integers(0, 4, (worlds, n)))
+    world_u, proposal_u = rng.random((worlds, horizon, 6)), rng.random((worlds, horizon, r_count))
+    change_u = rng.random((worlds, horizon, 0 if model.is_static else n))
+    disputed, agree = agreement(model, particles, horizon, tables)
+    checkpoints = np.zeros(horizon + 1, dtype=bool)
+    checkpoints[[0, 1, 2, 4, 8, 9]] = True
+    arrays = (model.moves, model.p_move, model.blocking, model.footprint_cells, model.sensor, tables.sensor_cdf,
+              model.change, tables.change_cdf, tables.powers, not model.is_static)
+
+    def scores(rows):
+        out = np.zeros((len(rows), horizon + 1))
+        plan_rollouts(*particles, *arrays, sequences[rows], distances[rows], go, *hyp, world_u, change_u, proposal_u,
+                      2.0, checkpoints, disputed, agree, out)
+        return out
+
+    together = scores(np.arange(len(sequences)))
+    alone = np.concatenate([scores(np.array([c])) for c in range(len(sequences))])
+    assert np.array_equal(together, alone)
+    assert np.array_equal(together[-3], together[-2])
+    assert len({row.tobytes() for row in together}) >= 8  # the candidates differ: the check has teeth
+
+
 # --- the explorer's hand-checkable choices (issue 22) -------------------------------------------------
 @pytest.mark.parametrize("start", range(7))
 def test_info_gain_goes_to_the_unknown_end_of_a_corridor(start):
