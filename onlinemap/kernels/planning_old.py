@@ -1,0 +1,751 @@
+"""numba kernel of the information-gain planner (``policies/info_gain.py``): roll an action
+sequence out against one hypothetical world through a thinned copy of a particle belief and
+measure the belief's uncertainty along the way.
+
+The thinned belief is R particles, each a location and dense map marginals ``maps (R, N, K)``
+with log weights (R,). A rollout never writes to them: each particle's updated cells go to a
+small overlay of at most H entries (H = the sequence's length), read before the particle's own
+map. With map dynamics, marginals are brought forward by ``powers[d] = C^d``.
+
+Uncertainty (nats): ``U = location_weight * H(L) + sum_i H(M_i)``, ``H(L)`` the entropy of the
+weighted particle locations and ``M_i`` the weighted mixture of the particles' marginals of
+cell ``i`` (the belief's map marginal).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from . import loop_kernel
+
+
+@njit(cache=True)
+def _draw(cdf_row, u):
+    """Index of the first entry of the cumulative row ``cdf_row`` above ``u``."""
+    k = cdf_row.shape[0]
+    for b in range(k - 1):
+        if u < cdf_row[b]:
+            return b
+    return k - 1
+
+
+@loop_kernel
+def _current(maps, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, p, c, h, out):
+    """out (K,) <- particle p's marginal of cell c after h rollout steps."""
+    k = out.shape[0]
+    for j in range(ov_n[p]):
+        if ov_cell[p, j] == c:
+            d = h - ov_stamp[p, j]
+            for b in range(k):
+                if dynamic and d > 0:
+                    acc = 0.0
+                    for a in range(k):
+                        acc += ov_val[p, j, a] * powers[d, a, b]
+                    out[b] = acc
+                else:
+                    out[b] = ov_val[p, j, b]
+            return
+    for b in range(k):
+        if dynamic and h > 0:
+            acc = 0.0
+            for a in range(k):
+                acc += maps[p, c, a] * powers[h, a, b]
+            out[b] = acc
+        else:
+            out[b] = maps[p, c, b]
+
+
+@njit(cache=True)
+def _entropy(row):
+    acc = 0.0
+    for x in row:
+        if x > 0.0:
+            acc -= x * math.log(x)
+    return acc
+
+
+@loop_kernel
+def _uncertainty(locations, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, h,
+                 location_weight, location, mixture, scratch, scratch2):
+    """``location_weight * H(L) + sum_i H(M_i)`` of the weighted particles after h steps
+    (``location`` (N,) and ``mixture`` (N, K): scratch). O(R N K + N K^2 + R H K^2)."""
+    r_count, n_cells, k = maps.shape
+    location[:] = 0.0
+    mixture[:] = 0.0
+    flat = mixture.reshape(n_cells * k)  # one contiguous loop per particle: the same sums, faster
+    for p in range(r_count):
+        w = weights[p]
+        if w == 0.0:
+            continue
+        location[locations[p]] += w
+        row = maps[p].reshape(n_cells * k)
+        for j in range(n_cells * k):
+            flat[j] += w * row[j]
+    if dynamic and h > 0:
+        for i in range(n_cells):
+            for b in range(k):
+                acc = 0.0
+                for a in range(k):
+                    acc += mixture[i, a] * powers[h, a, b]
+                scratch[b] = acc
+            for b in range(k):
+                mixture[i, b] = scratch[b]
+    for p in range(r_count):
+        w = weights[p]
+        if w == 0.0:
+            continue
+        for j in range(ov_n[p]):
+            c = ov_cell[p, j]
+            _current(maps, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, p, c, h, scratch)
+            for b in range(k):  # the particle's base marginal of c, brought to step h
+                if dynamic and h > 0:
+                    acc = 0.0
+                    for a in range(k):
+                        acc += maps[p, c, a] * powers[h, a, b]
+                    scratch2[b] = acc
+                else:
+                    scratch2[b] = maps[p, c, b]
+            for b in range(k):
+                mixture[c, b] += w * (scratch[b] - scratch2[b])
+    total = location_weight * _entropy(location)
+    for i in range(n_cells):
+        for b in range(k):  # rounding: keep every term a probability
+            if mixture[i, b] < 0.0:
+                mixture[i, b] = 0.0
+        total += _entropy(mixture[i])
+    return total
+
+
+@njit(cache=True)
+def _normalise(lw, top, drop_below):
+    """Log weights ``lw`` (R,) in place so that ``sum exp(lw) = 1``, given ``top = max(lw)``; a
+    particle with ``lw - top < drop_below`` is dropped (-inf); when every particle is at -inf
+    (the world left them all behind) they are kept, equally weighted. O(R)."""
+    if top == -np.inf:
+        lw[:] = 0.0
+        top = 0.0
+    total = 0.0
+    for p in range(lw.shape[0]):
+        if lw[p] - top < drop_below:
+            lw[p] = -np.inf
+        total += math.exp(lw[p] - top)
+    norm = top + math.log(total)
+    for p in range(lw.shape[0]):
+        lw[p] -= norm
+
+
+@njit(cache=True)
+def rollout_uncertainty(locations, maps, log_weights, moves, p_move, likelihood, sensor_cdf, change_cdf,
+                        powers, dynamic, actions, hyp_location, hyp_labels, world_uniforms, change_uniforms,
+                        proposal_uniforms, location_weight, checkpoints, out):
+    """Simulate ``actions`` (H,) in the world ``(hyp_location, hyp_labels (N,))`` and filter the
+    simulated observations through the particles; ``out[h]`` <- the uncertainty after h steps
+    for every h with ``checkpoints[h]`` (``out[0]``: now; other entries untouched).
+
+    World step h (DESIGN.md section 1 order): move with probability ``p_move`` when
+    ``world_uniforms[h - 1, 0] < p_move``, labels change by ``change_cdf`` (K, K) cumulative
+    rows with ``change_uniforms[h - 1]`` (N,) when ``dynamic``, observe by ``sensor_cdf`` with
+    ``world_uniforms[h - 1, 1]``. Filter step: the optimal proposal of the RBPF (particle p
+    moves with probability ``p_move * P(z | there) / (p_move P(z | there) + (1 - p_move)
+    P(z | here))``, drawn with ``proposal_uniforms[h - 1, p]``, weight times the denominator),
+    the visited cell's marginal times ``likelihood[z]`` renormalised; no resampling.
+    Inputs: ``locations`` (R,), ``maps`` (R, N, K), ``log_weights`` (R,), ``moves`` (A, N),
+    ``likelihood`` (K, K) rows ``O[:, z]``, ``powers`` (H + 1, K, K) ``C^d``.
+    Cost O(H R (H + K^2)) for the steps plus O(R N K) per checkpoint.
+    """
+    r_count, n_cells, k = maps.shape
+    horizon = actions.shape[0]
+    ov_cell = np.full((r_count, max(horizon, 1)), -1, dtype=np.int64)
+    ov_val = np.empty((r_count, max(horizon, 1), k))
+    ov_stamp = np.zeros((r_count, max(horizon, 1)), dtype=np.int64)
+    ov_n = np.zeros(r_count, dtype=np.int64)
+    loc = locations.copy()
+    lw = log_weights.copy()
+    weights = np.exp(lw)
+    labels = hyp_labels.copy()
+    where = hyp_location
+    location = np.empty(n_cells)
+    mixture = np.empty((n_cells, k))
+    here_m = np.empty(k)
+    there_m = np.empty(k)
+    scratch = np.empty(k)
+    scratch2 = np.empty(k)
+    if checkpoints[0]:
+        out[0] = _uncertainty(loc, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, np.int64(0),
+                              location_weight, location, mixture, scratch, scratch2)  # int64: one compile
+    for h in range(1, horizon + 1):
+        a = actions[h - 1]
+        if world_uniforms[h - 1, 0] < p_move:
+            where = moves[a, where]
+        if dynamic:
+            for i in range(n_cells):
+                labels[i] = _draw(change_cdf[labels[i]], change_uniforms[h - 1, i])
+        z = _draw(sensor_cdf[labels[where]], world_uniforms[h - 1, 1])
+        lik = likelihood[z]
+        top = -np.inf
+        for p in range(r_count):
+            here = loc[p]
+            there = moves[a, here]
+            _current(maps, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, p, here, h, here_m)
+            lam_here = 0.0
+            for b in range(k):
+                lam_here += here_m[b] * lik[b]
+            target = here
+            lam = lam_here
+            weight = lam_here
+            if there != here:
+                _current(maps, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, p, there, h, there_m)
+                lam_there = 0.0
+                for b in range(k):
+                    lam_there += there_m[b] * lik[b]
+                move = p_move * lam_there
+                weight = move + (1.0 - p_move) * lam_here
+                if proposal_uniforms[h - 1, p] * weight < move:
+                    target = there
+                    lam = lam_there
+                    for b in range(k):
+                        here_m[b] = there_m[b]
+            if weight > 0.0 and lw[p] > -np.inf:
+                lw[p] += math.log(weight)
+            else:
+                lw[p] = -np.inf
+            loc[p] = target
+            slot = -1
+            for j in range(ov_n[p]):
+                if ov_cell[p, j] == target:
+                    slot = j
+            if slot < 0:
+                slot = ov_n[p]
+                ov_n[p] += 1
+                ov_cell[p, slot] = target
+            for b in range(k):
+                ov_val[p, slot, b] = here_m[b] * lik[b] / lam if lam > 0.0 else here_m[b]
+            ov_stamp[p, slot] = h
+            if lw[p] > top:
+                top = lw[p]
+        _normalise(lw, top, -np.inf)
+        for p in range(r_count):
+            weights[p] = math.exp(lw[p])
+        if checkpoints[h]:
+            out[h] = _uncertainty(loc, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, h,
+                                  location_weight, location, mixture, scratch, scratch2)
+
+
+# --- rollouts of footprint and blocking models -------------------------------------------------
+# The same thinned particle belief as above, for any sensor footprint and blocking labels (DESIGN.md
+# section 7), with the filter of ``onlinemap.kernels.rbpf.rbpf_enumerate_cells`` in its optimal-
+# proposal form: particle p at l pressing towards n enumerates its two successors (stay, move), the
+# move entered with ``p_move * P(m_n passable)`` judged on n's marginal before this step's map change,
+# n conditioned on the outcome (passable if it moved; ``(1 - p_move) + p_move [blocks]`` if it
+# stayed) and carried by C, then every reading of the footprint at the successor through O (-1
+# off the grid, with probability 1); one successor is drawn in proportion to motion x likelihood
+# and the weight is multiplied by their sum. No resampling; a particle whose weight falls below
+# 1e-9 of the largest is dropped (it would cost as much as any other for nothing).
+#
+# Overlays: a particle's changed cells go to slots ``ov_val (R, W, K)`` stamped with their step,
+# found through ``ov_index (R, N)`` (-1: the particle's base map), so a read is O(K) (O(K^2) with
+# map dynamics) whatever the horizon. W = H (F + 1) slots hold every cell a rollout of H steps can
+# change. Every rollout resets the slots it used.
+
+
+NEGLIGIBLE = math.log(1e-9)  # a rollout drops a particle whose weight falls below 1e-9 of the largest
+
+
+@njit(cache=True, inline="always")
+def _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, out, column):
+    """out (K,) <- particle p's marginal of cell c at rollout step h (an overlay slot if it has one);
+    returns ``sum_b out[b] column[b]`` (added in order of b as each entry is made: a reading's
+    likelihood with ``column = O[:, z]``). A caller that wants only ``out`` passes ``out`` itself
+    and drops the sum (inlined, the compiler removes it)."""
+    k = out.shape[0]
+    slot = ov_index[p, c]
+    d = h if slot < 0 else h - ov_stamp[p, slot]
+    total = 0.0
+    for b in range(k):
+        if dynamic and d > 0:
+            acc = 0.0
+            for a in range(k):
+                acc += (maps[p, c, a] if slot < 0 else ov_val[p, slot, a]) * powers[d, a, b]
+            out[b] = acc
+        else:
+            out[b] = maps[p, c, b] if slot < 0 else ov_val[p, slot, b]
+        total += out[b] * column[b]
+    return total
+
+
+@njit(cache=True, inline="always")
+def _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, n, s, h, p_move, blocking,
+               has_blocking, footprint_cells, sensor, readings, ids, cells, before):
+    """Successor s (0 stay, 1 move) of particle p at l pressing towards n, at step h: returns
+    ``(cell, motion probability x likelihood, used)``, writing the changed cells' ids (used,)
+    and their marginals at step h ``cells (used, K)``. ``before`` (K,): n's marginal at step
+    h - 1 (read by the caller when the move is gated by blocking)."""
+    k = sensor.shape[0]
+    gated = has_blocking and n != l
+    if s == 1:
+        if n == l:
+            return l, 0.0, 0
+        j = n
+        probability = p_move
+    else:
+        j = l
+        probability = 1.0 if n == l else 1.0 - p_move
+    used = 0
+    if gated:
+        passable = 0.0
+        for b in range(k):
+            if not blocking[b]:
+                passable += before[b]
+        probability = p_move * passable if s == 1 else 1.0 - p_move * passable
+        if probability <= 0.0:
+            return j, 0.0, 0
+        total = 0.0
+        for b in range(k):
+            factor = (0.0 if blocking[b] else 1.0) if s == 1 else (1.0 - p_move) + (p_move if blocking[b] else 0.0)
+            cells[0, b] = before[b] * factor
+            total += cells[0, b]
+        for b in range(k):
+            cells[0, b] /= total
+        if dynamic:
+            for b in range(k):
+                acc = 0.0
+                for a in range(k):
+                    acc += cells[0, a] * change[a, b]
+                before[b] = acc  # scratch: n's marginal at step h, given the outcome
+            for b in range(k):
+                cells[0, b] = before[b]
+        ids[0] = n
+        used = 1
+    elif probability <= 0.0:
+        return j, 0.0, 0
+    likelihood = probability
+    for f in range(footprint_cells.shape[1]):
+        c = footprint_cells[j, f]
+        z = readings[f]
+        if c < 0 or z < 0:
+            if c < 0 and z < 0:
+                continue
+            return j, 0.0, 0
+        w = used
+        lam = 0.0
+        if gated and ids[0] == c:  # the cell the move tried to enter, given the move's outcome
+            w = 0
+            for b in range(k):
+                lam += cells[w, b] * sensor[b, z]
+        else:
+            lam = _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, cells[w], sensor[:, z])
+            ids[w] = c
+            used += 1
+        if lam <= 0.0:
+            return j, 0.0, 0
+        for b in range(k):
+            cells[w, b] = cells[w, b] * sensor[b, z] / lam
+        likelihood *= lam
+    return j, likelihood, used
+
+
+@loop_kernel
+def _world_step(where, labels, a, moves, p_move, blocking, dynamic, change_cdf, sensor_cdf, footprint_cells,
+                world_u, change_u, readings):
+    """One step of the hypothetical world (``onlinemap.simulate.world_step``'s order and rules):
+    the move with ``world_u[0] < p_move`` unless the intended cell's label blocks, the labels by
+    ``change_cdf`` with ``change_u`` (N,), the readings with ``world_u[1 + f]`` (-1 off the grid).
+    Returns the new location; ``labels`` and ``readings`` (F,) are written in place."""
+    if world_u[0] < p_move:
+        target = moves[a, where]
+        if not blocking[labels[target]]:
+            where = target
+    if dynamic:
+        for i in range(labels.shape[0]):
+            labels[i] = _draw(change_cdf[labels[i]], change_u[i])
+    for f in range(footprint_cells.shape[1]):
+        c = footprint_cells[where, f]
+        readings[f] = -1 if c < 0 else _draw(sensor_cdf[labels[c]], world_u[1 + f])
+    return where
+
+
+@loop_kernel
+def _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, powers, change, dynamic, a, h, moves,
+                 p_move, blocking, has_blocking, footprint_cells, sensor, readings, proposal_u, ids, cells, before,
+                 touched, touched_list, n_touched):
+    """Every particle takes step h (action a, the readings); weights renormalised (all particles
+    kept, equally weighted, if none explains the readings). Cells any particle changes are
+    flagged in ``touched`` (N,) and listed in ``touched_list``; returns the new count."""
+    r_count = loc.shape[0]
+    k = sensor.shape[0]
+    top = -np.inf
+    for p in range(r_count):
+        if lw[p] == -np.inf:
+            continue
+        l = loc[p]
+        n = moves[a, l]
+        if has_blocking and n != l:
+            _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, n, h - 1, before[0], before[0])
+            for b in range(k):
+                before[1, b] = before[0, b]
+        j0, w0, u0 = l, 0.0, 0
+        j1, w1, u1 = l, 0.0, 0
+        for s in range(2):  # one copy of the successor's code for both: half the code to compile
+            j, w, u = _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, n, s, h, p_move,
+                                 blocking, has_blocking, footprint_cells, sensor, readings, ids[s], cells[s],
+                                 before[s])
+            if s == 0:
+                j0, w0, u0 = j, w, u
+            else:
+                j1, w1, u1 = j, w, u
+        total = w0 + w1
+        if not total > 0.0:
+            lw[p] = -np.inf
+            continue
+        s = 1 if proposal_u[p] * total < w1 else 0
+        lw[p] += math.log(total)
+        loc[p] = j1 if s == 1 else j0
+        used = u1 if s == 1 else u0
+        for v in range(used):
+            c = ids[s, v]
+            slot = ov_index[p, c]
+            if slot < 0:
+                slot = ov_n[p]
+                ov_n[p] += 1
+                ov_index[p, c] = slot
+                ov_cell[p, slot] = c
+            for b in range(k):
+                ov_val[p, slot, b] = cells[s, v, b]
+            ov_stamp[p, slot] = h
+            if not touched[c]:
+                touched[c] = True
+                touched_list[n_touched] = c
+                n_touched += 1
+        if lw[p] > top:
+            top = lw[p]
+    _normalise(lw, top, NEGLIGIBLE)  # a particle this far behind is dropped from the rollout
+    return n_touched
+
+
+@loop_kernel
+def _closed_loop_action(loc, lw, moves, distance, go, weights):
+    """``argmin_a sum_p w_p [go(l_p, a) D(n) + (1 - go(l_p, a)) D(l_p)]``, ``n = moves[a, l_p]``:
+    the expected distance ``D`` (N,) to the candidate's target after the press, ``go`` (N, A) the
+    chance the press moves (0 where it cannot); ties to the lowest action. ``weights`` (R,):
+    scratch for ``w_p``. O(R A)."""
+    for p in range(loc.shape[0]):
+        weights[p] = math.exp(lw[p])
+    best = -1
+    best_cost = np.inf
+    for a in range(go.shape[1]):
+        cost = 0.0
+        for p in range(loc.shape[0]):
+            if lw[p] == -np.inf:
+                continue
+            l = loc[p]
+            cost += weights[p] * (go[l, a] * distance[moves[a, l]] + (1.0 - go[l, a]) * distance[l])
+        if cost < best_cost:
+            best_cost = cost
+            best = a
+    return best
+
+
+@njit(cache=True, inline="always")
+def _carried(row, powers, dynamic, d, out):
+    """out (K,) <- ``row @ C^d`` (``row`` itself where d = 0 or the world is static)."""
+    k = out.shape[0]
+    for b in range(k):
+        if dynamic and d > 0:
+            acc = 0.0
+            for a in range(k):
+                acc += row[a] * powers[d, a, b]
+            out[b] = acc
+        else:
+            out[b] = row[b]
+
+
+@loop_kernel
+def _mixture_uncertainty(loc, lw, maps, disputed, disputed_maps, disputed_mix, disputed_mask, ov_cell, ov_val,
+                         ov_stamp, ov_n, powers, dynamic, h, location_weight, touched_list, n_touched, agree_entropy,
+                         location, mix, scratch, scratch2, weights):
+    """``location_weight * H(L) + sum_i H(M_i)`` of the weighted particles at step h. The mixture
+    ``M_i = sum_p w_p m_p(i)`` is recomputed on the disputed cells (``disputed`` (D,), their base
+    marginals ``disputed_maps`` (R, D K), ``disputed_mask`` (N,)) and the touched ones: the base
+    part by a weighted sum (into ``disputed_mix`` (D K,), particle by particle: one long contiguous
+    loop per particle instead of a K-long one per cell and particle, the same sums in the same
+    order), then each particle's overlay slots add ``w_p (overlay - base)``. Every
+    other cell's term is the same for any weights: ``agree_entropy`` holds their sum at step h
+    (a touched agreed cell's term is taken out and recomputed). ``mix`` (N, K) is zero on entry
+    and on exit. O(R D K + R H F K + (D + T) K) (K^2 instead of K with map dynamics)."""
+    r_count = loc.shape[0]
+    k = scratch.shape[0]
+    for p in range(r_count):
+        location[loc[p]] = 0.0
+        weights[p] = math.exp(lw[p])
+    for p in range(r_count):
+        location[loc[p]] += weights[p]
+    h_location = 0.0
+    for p in range(r_count):
+        x = location[loc[p]]
+        if x > 0.0:
+            h_location -= x * math.log(x)
+            location[loc[p]] = 0.0  # each cell once
+    total = location_weight * h_location + agree_entropy
+    for j in range(disputed_mix.shape[0]):
+        disputed_mix[j] = 0.0
+    for p in range(r_count):
+        w = weights[p]
+        if w > 0.0:
+            for j in range(disputed_mix.shape[0]):
+                disputed_mix[j] += w * disputed_maps[p, j]
+    for d in range(disputed.shape[0]):
+        _carried(disputed_mix[d * k:(d + 1) * k], powers, dynamic, h, mix[disputed[d]])
+    for index in range(n_touched):
+        c = touched_list[index]
+        if not disputed_mask[c]:  # an agreed cell a particle changed: its base term leaves the sum
+            _carried(maps[0, c], powers, dynamic, h, mix[c])
+            total -= _entropy(mix[c])
+    for p in range(r_count):
+        w = weights[p]
+        if w == 0.0:
+            continue
+        for j in range(ov_n[p]):
+            c = ov_cell[p, j]
+            _carried(ov_val[p, j], powers, dynamic, h - ov_stamp[p, j], scratch)
+            _carried(maps[p, c], powers, dynamic, h, scratch2)
+            for b in range(k):
+                mix[c, b] += w * (scratch[b] - scratch2[b])
+    for pass_ in range(2):
+        count = disputed.shape[0] if pass_ == 0 else n_touched
+        for index in range(count):
+            c = disputed[index] if pass_ == 0 else touched_list[index]
+            if pass_ == 1 and disputed_mask[c]:
+                continue
+            for b in range(k):
+                if mix[c, b] < 0.0:  # rounding: keep every term a probability
+                    mix[c, b] = 0.0
+            total += _entropy(mix[c])
+            mix[c] = 0.0
+    return total
+
+
+@njit(cache=True)
+def _reset(ov_index, ov_cell, ov_n, touched, touched_list, n_touched):
+    """Empty every particle's overlay and the touched set after a rollout. O(slots used)."""
+    for p in range(ov_n.shape[0]):
+        for j in range(ov_n[p]):
+            ov_index[p, ov_cell[p, j]] = -1
+        ov_n[p] = 0
+    for j in range(n_touched):
+        touched[touched_list[j]] = False
+
+
+@njit(cache=True)
+def _overlays(r_count, n_cells, k, horizon, n_reads):
+    """The rollouts' copy-on-write overlays of R particles' maps (each particle writes at most
+    H (F + 1) cells): ``ov_index`` (R, N) a cell's slot or -1, ``ov_cell``/``ov_stamp`` (R, W),
+    ``ov_val`` (R, W, K), ``ov_n`` (R,) slots used, ``touched`` (N,) and ``touched_list`` (R W,)
+    the cells some particle wrote; W = max(H, 1) (F + 1). O(R (N + W K))."""
+    width = max(horizon, 1) * (n_reads + 1)
+    return (np.full((r_count, n_cells), -1, dtype=np.int64), np.empty((r_count, width), dtype=np.int64),
+            np.empty((r_count, width, k)), np.zeros((r_count, width), dtype=np.int64),
+            np.zeros(r_count, dtype=np.int64), np.zeros(n_cells, dtype=np.bool_),
+            np.empty(r_count * width, dtype=np.int64))
+
+
+@njit(cache=True)
+def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footprint_cells, sensor, sensor_cdf, change,
+                  change_cdf, powers, dynamic, sequences, distances, go, hyp_locations, hyp_labels, world_u, change_u,
+                  proposal_u, location_weight, checkpoints, disputed, agree_entropy, out):
+    """Roll every candidate out in every hypothetical world through the thinned particle belief
+    and add up its uncertainty: ``out[c, h] += U`` after h steps of candidate c in world s, for
+    every h with ``checkpoints[h]`` (``out`` (C, H + 1); the caller divides by S).
+
+    Particles: ``locations`` (R,), base marginals ``maps`` (R, N, K), ``log_weights`` (R,). Model:
+    ``moves`` (A, N), ``blocking`` (K,) bool, ``footprint_cells`` (N, F), ``sensor`` (K, K),
+    cumulative rows ``sensor_cdf`` and ``change_cdf`` (K, K), ``change`` (K, K), ``powers`` (H + 1, K,
+    K) C^d. Candidates: ``sequences`` (C, H) actions, -1 at a step where the action is chosen in
+    closed loop on the rollout's own belief towards the candidate's target
+    (:func:`_closed_loop_action` with ``distances[c]`` (N,) and ``go`` (N, A)). Worlds:
+    ``hyp_locations`` (S,), ``hyp_labels`` (S, N) and their random numbers ``world_u`` (S, H, 1 + F),
+    ``change_u`` (S, H, N) (or (S, H, 0) in a static world), ``proposal_u`` (S, H, R), the same for
+    every candidate (common random numbers). ``disputed`` (D,) sorted: the cells whose base
+    marginals differ between particles; ``agree_entropy`` (H + 1,): the summed entropy of the
+    other cells' base marginals at step h.
+    Cost O(S C H R (F + 1) K) for the steps (K^2 with map dynamics) plus O(S C R (D + H F) K)
+    per checkpoint.
+    """
+    r_count, n_cells, k = maps.shape
+    n_seq, horizon = sequences.shape
+    n_reads = footprint_cells.shape[1]
+    has_blocking = np.any(blocking)
+    ov_index, ov_cell, ov_val, ov_stamp, ov_n, touched, touched_list = _overlays(r_count, n_cells, k, horizon, n_reads)
+    location = np.zeros(n_cells)
+    mix = np.zeros((n_cells, k))
+    scratch = np.empty(k)
+    scratch2 = np.empty(k)
+    weights = np.empty(r_count)
+    disputed_maps = np.empty((r_count, disputed.shape[0] * k))  # a particle's row contiguous for the sums
+    disputed_mix = np.empty(disputed.shape[0] * k)
+    disputed_mask = np.zeros(n_cells, dtype=np.bool_)
+    for d in range(disputed.shape[0]):
+        disputed_mask[disputed[d]] = True
+        for p in range(r_count):
+            for b in range(k):
+                disputed_maps[p, d * k + b] = maps[p, disputed[d], b]
+    ids = np.empty((2, n_reads + 1), dtype=np.int64)
+    cells = np.empty((2, n_reads + 1, k))
+    before = np.empty((2, k))
+    readings = np.empty(n_reads, dtype=np.int64)
+    loc = np.empty(r_count, dtype=np.int64)
+    lw = np.empty(r_count)
+    zero = np.int64(0)  # not the literal 0: _mixture_uncertainty compiles once, for int64 h and counts
+    now = _mixture_uncertainty(locations, log_weights, maps, disputed, disputed_maps, disputed_mix, disputed_mask,
+                               ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, zero, location_weight, touched_list,
+                               zero, agree_entropy[0], location, mix, scratch, scratch2, weights)
+    for s in range(hyp_locations.shape[0]):
+        for c in range(n_seq):
+            for p in range(r_count):  # element by element: no shape-mismatch message to compile
+                loc[p] = locations[p]
+                lw[p] = log_weights[p]
+            labels = hyp_labels[s].copy()
+            where = hyp_locations[s]
+            n_touched = np.int64(0)  # not a literal 0: _filter_step compiles once, for int64
+            if checkpoints[0]:
+                out[c, 0] += now
+            for h in range(1, horizon + 1):
+                a = sequences[c, h - 1]
+                if a < 0:
+                    a = _closed_loop_action(loc, lw, moves, distances[c], go, weights)
+                where = _world_step(where, labels, a, moves, p_move, blocking, dynamic, change_cdf, sensor_cdf,
+                                    footprint_cells, world_u[s, h - 1], change_u[s, h - 1], readings)
+                n_touched = _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, powers, change,
+                                         dynamic, a, h, moves, p_move, blocking, has_blocking, footprint_cells,
+                                         sensor, readings, proposal_u[s, h - 1], ids, cells, before, touched,
+                                         touched_list, n_touched)
+                if checkpoints[h]:
+                    out[c, h] += _mixture_uncertainty(loc, lw, maps, disputed, disputed_maps, disputed_mix,
+                                                      disputed_mask, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic,
+                                                      h, location_weight, touched_list, n_touched, agree_entropy[h],
+                                                      location, mix, scratch, scratch2, weights)
+            _reset(ov_index, ov_cell, ov_n, touched, touched_list, n_touched)
+
+
+@njit(cache=True)
+def rollout_beliefs(locations, maps, log_weights, moves, p_move, blocking, footprint_cells, sensor, sensor_cdf,
+                    change, change_cdf, powers, dynamic, actions, hyp_location, hyp_labels, world_u, change_u,
+                    proposal_u, out_location, out_maps, out_where, out_readings):
+    """One rollout of :func:`plan_rollouts` (one world, the fixed ``actions`` (H,)), keeping the
+    whole belief: ``out_location`` (H + 1, N) and ``out_maps`` (H + 1, N, K) the weighted particle
+    locations and map mixture after each step, ``out_where`` (H + 1,) the world's location and
+    ``out_readings`` (H, F) its readings. For tests. O(H R (N K + (F + 1) K^2))."""
+    r_count, n_cells, k = maps.shape
+    horizon = actions.shape[0]
+    n_reads = footprint_cells.shape[1]
+    has_blocking = np.any(blocking)
+    ov_index, ov_cell, ov_val, ov_stamp, ov_n, touched, touched_list = _overlays(r_count, n_cells, k, horizon, n_reads)
+    scratch = np.empty(k)
+    ids = np.empty((2, n_reads + 1), dtype=np.int64)
+    cells = np.empty((2, n_reads + 1, k))
+    before = np.empty((2, k))
+    loc = locations.copy()
+    lw = log_weights.copy()
+    labels = hyp_labels.copy()
+    where = hyp_location
+    n_touched = np.int64(0)
+    for h in range(horizon + 1):
+        if h > 0:
+            a = actions[h - 1]
+            where = _world_step(where, labels, a, moves, p_move, blocking, dynamic, change_cdf, sensor_cdf,
+                                footprint_cells, world_u[h - 1], change_u[h - 1], out_readings[h - 1])
+            n_touched = _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, powers, change,
+                                     dynamic, a, h, moves, p_move, blocking, has_blocking, footprint_cells, sensor,
+                                     out_readings[h - 1], proposal_u[h - 1], ids, cells, before, touched,
+                                     touched_list, n_touched)
+        out_where[h] = where
+        out_location[h] = 0.0
+        out_maps[h] = 0.0
+        for p in range(r_count):
+            if lw[p] == -np.inf:
+                continue
+            w = math.exp(lw[p])
+            out_location[h, loc[p]] += w
+            for c in range(n_cells):
+                _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, scratch, scratch)
+                for b in range(k):
+                    out_maps[h, c, b] += w * scratch[b]
+
+
+# --- shortest expected paths (policies/passability.py) ------------------------------------------
+@njit(cache=True)
+def _heap_push(keys, items, size, key, item):
+    """Push (key, item) onto the binary min-heap held in ``keys[:size]``, ``items[:size]``."""
+    i = size
+    keys[i] = key
+    items[i] = item
+    while i > 0:
+        parent = (i - 1) // 2
+        if keys[parent] <= keys[i]:
+            break
+        keys[parent], keys[i] = keys[i], keys[parent]
+        items[parent], items[i] = items[i], items[parent]
+        i = parent
+    return size + 1
+
+
+@njit(cache=True)
+def _heap_pop(keys, items, size):
+    """Remove the smallest key of the heap (read it from ``keys[0]``, ``items[0]`` first)."""
+    size -= 1
+    keys[0] = keys[size]
+    items[0] = items[size]
+    i = 0
+    while True:
+        left = 2 * i + 1
+        smallest = i
+        if left < size and keys[left] < keys[smallest]:
+            smallest = left
+        if left + 1 < size and keys[left + 1] < keys[smallest]:
+            smallest = left + 1
+        if smallest == i:
+            return size
+        keys[smallest], keys[i] = keys[i], keys[smallest]
+        items[smallest], items[i] = items[i], items[smallest]
+        i = smallest
+
+
+@njit(cache=True)
+def shortest_paths(adjacent, enter_cost, distance, forward):
+    """Dijkstra from every cell with a finite ``distance`` (its start value, e.g. 0 at the sources)
+    over the graph whose edges are ``u -> adjacent[a, u]`` for every action a (an entry equal to u
+    or negative is no edge), edge ``u -> v`` costing ``enter_cost[v]`` (inf: no edge).
+
+    ``forward`` True: ``distance[v]`` <- min over sources s of start(s) + the cheapest path s -> v
+    (``adjacent`` = the moves, (A, N)). False: the same over reversed edges, ``distance[u]`` <- the
+    cheapest path from u to a source (``adjacent`` = the predecessors, (A, N): ``adjacent[a, v]`` is
+    the cell that moves into v under a, and an edge settled from v costs ``enter_cost[v]``).
+    ``enter_cost`` (N,) must be >= 0. In place on ``distance`` (N,). Cost O(N A log(N A)).
+    """
+    n_actions, n_cells = adjacent.shape
+    capacity = n_cells * (n_actions + 1)
+    keys = np.empty(capacity)
+    items = np.empty(capacity, dtype=np.int64)
+    done = np.zeros(n_cells, dtype=np.bool_)
+    size = np.int64(0)  # not a literal 0: the heap's functions compile once, for int64
+    for u in range(n_cells):
+        if distance[u] < np.inf:
+            size = _heap_push(keys, items, size, distance[u], u)
+    while size > 0:
+        d = keys[0]
+        u = items[0]
+        size = _heap_pop(keys, items, size)
+        if done[u]:
+            continue
+        done[u] = True
+        for a in range(n_actions):
+            v = adjacent[a, u]
+            if v < 0 or v == u or done[v]:
+                continue
+            step = enter_cost[v] if forward else enter_cost[u]
+            if d + step < distance[v]:
+                distance[v] = d + step
+                size = _heap_push(keys, items, size, distance[v], v)
+    return distance
