@@ -314,16 +314,23 @@ def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot,
     total = np.zeros((n_seq, horizon + 1))
     out = np.zeros(horizon + 1)
     r_count = len(particles.locations)
+    arrays = (particles.locations, particles.maps, particles.log_weights, model.moves, model.p_move, model.likelihood,
+              tables.sensor_cdf, tables.change_cdf, tables.powers, dynamic)
+    now = checkpoints[0]  # the uncertainty now is the same in every world: a rollout of no step, once
+    if now:
+        rollout_uncertainty(*arrays, sequences[0, :0], int(worlds[0][0]), worlds[1][0], np.empty((0, 2)),
+                            np.empty((0, model.n_cells if dynamic else 0)), np.empty((0, r_count)),
+                            float(location_weight), checkpoints[:1], out)
+        now, checkpoints = out[0], np.concatenate([[False], checkpoints[1:]])
     for location, labels in zip(*worlds):
         world_u = rng.random((horizon, 2))
         change_u = rng.random((horizon, model.n_cells if dynamic else 0))
         proposal_u = rng.random((horizon, r_count))
         for c in range(n_seq):
             out[:] = 0.0
-            rollout_uncertainty(particles.locations, particles.maps, particles.log_weights, model.moves,
-                                model.p_move, model.likelihood, tables.sensor_cdf, tables.change_cdf,
-                                tables.powers, dynamic, sequences[c], int(location), labels, world_u, change_u,
-                                proposal_u, float(location_weight), checkpoints, out)
+            out[0] = now
+            rollout_uncertainty(*arrays, sequences[c], int(location), labels, world_u, change_u, proposal_u,
+                                float(location_weight), checkpoints, out)
             total[c] += out
     return total / len(worlds[0])
 
