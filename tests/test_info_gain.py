@@ -588,6 +588,7 @@ def test_candidates_pressing_alike_share_a_rollout_and_score_as_if_alone(p_door)
     alone = np.concatenate([scores(np.array([c])) for c in range(len(sequences))])
     assert np.array_equal(together, alone)
     assert np.array_equal(together[-3], together[-2])
+    assert scores(np.arange(0)).shape == (0, horizon + 1)  # no candidate: nothing to roll out
     assert len({row.tobytes() for row in together}) >= 8  # the candidates differ: the check has teeth
 
 

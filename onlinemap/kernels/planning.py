@@ -611,6 +611,8 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
     """
     r_count, n_cells, k = maps.shape
     n_seq, horizon = sequences.shape
+    if n_seq == 0:  # no candidate: nothing to score (and no rollout state to start from)
+        return
     n_reads = footprint_cells.shape[1]
     has_blocking = np.any(blocking)
     ov_index, ov_cell, ov_val, ov_stamp, ov_n, touched, touched_list = _overlays(n_seq, r_count, n_cells, k, horizon,
