@@ -306,7 +306,7 @@ def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot,
     """(C, H + 1) expected uncertainty of each action sequence ``sequences`` (C, H) after each
     prefix length h with ``checkpoints[h]`` (other entries 0), averaged over the worlds
     ``(locations (S,), labels (S, N))``; every sequence sees the same worlds and random numbers.
-    Cost O(S C (H R (H + K^2) + n_checkpoints R N K))."""
+    Cost O(S C (H R (H + K^2) + n_checkpoints R N K)), the uncertainty now (O(R N K)) once."""
     n_seq, horizon = sequences.shape
     tables = rollout_tables(model, horizon) if tables is None else tables
     dynamic = not model.is_static
@@ -316,12 +316,13 @@ def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot,
     r_count = len(particles.locations)
     arrays = (particles.locations, particles.maps, particles.log_weights, model.moves, model.p_move, model.likelihood,
               tables.sensor_cdf, tables.change_cdf, tables.powers, dynamic)
-    now = checkpoints[0]  # the uncertainty now is the same in every world: a rollout of no step, once
-    if now:
+    now = 0.0  # the uncertainty now, the same in every world: one rollout of no step
+    if checkpoints[0]:
         rollout_uncertainty(*arrays, sequences[0, :0], int(worlds[0][0]), worlds[1][0], np.empty((0, 2)),
                             np.empty((0, model.n_cells if dynamic else 0)), np.empty((0, r_count)),
                             float(location_weight), checkpoints[:1], out)
-        now, checkpoints = out[0], np.concatenate([[False], checkpoints[1:]])
+        now = out[0]
+    later = np.concatenate([[False], checkpoints[1:]])  # the rollouts score the steps after now
     for location, labels in zip(*worlds):
         world_u = rng.random((horizon, 2))
         change_u = rng.random((horizon, model.n_cells if dynamic else 0))
@@ -330,7 +331,7 @@ def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot,
             out[:] = 0.0
             out[0] = now
             rollout_uncertainty(*arrays, sequences[c], int(location), labels, world_u, change_u, proposal_u,
-                                float(location_weight), checkpoints, out)
+                                float(location_weight), later, out)
             total[c] += out
     return total / len(worlds[0])
 
