@@ -124,7 +124,7 @@ def _checked_actions(model: GridModel, actions) -> np.ndarray:
 def sample_states(estimator: Estimator, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """``size`` hypothetical worlds drawn from the estimator's belief: locations (S,) and label maps
     (S, N). Exact: from the joint (O(N K^N)); RBPF: a particle by weight, then each cell's label
-    from that particle's marginals (O(P N K^2)); any other estimator: from the product of its
+    from that particle's marginals (O(P + S N K^2)); any other estimator: from the product of its
     marginals (which is its belief for ``bk`` and ``dead_reckoning``)."""
     model = estimator.model
     n, k = model.n_cells, model.n_labels
@@ -134,10 +134,9 @@ def sample_states(estimator: Estimator, size: int, rng: np.random.Generator) -> 
         index = np.stack(np.unravel_index(flat, (n,) + (k,) * n), axis=1)
         return index[:, 0].astype(np.int64), index[:, 1:].astype(np.int64)
     if estimator.name == "rbpf":
-        snapshot = particle_snapshot(estimator)
-        weights = np.exp(snapshot.log_weights)
+        weights = np.exp(estimator._log_weights)
         chosen = rng.choice(len(weights), size=size, p=weights / weights.sum())
-        return snapshot.locations[chosen], _draw_labels(snapshot.maps[chosen], rng)
+        return estimator._locations[chosen], _draw_labels(estimator.particle_maps(chosen), rng)
     belief = estimator.belief
     locations = rng.choice(n, size=size, p=belief.location / belief.location.sum())
     return locations.astype(np.int64), _draw_labels(np.broadcast_to(belief.map, (size, n, k)), rng)
@@ -248,22 +247,20 @@ class ParticleSnapshot(NamedTuple):
     log_weights: np.ndarray  # (R,) normalised
 
 
-def particle_snapshot(estimator: Estimator) -> ParticleSnapshot:
-    """The particles of an ``rbpf`` estimator (copies; O(P N K^2)). Reads its ``_locations`` and
-    ``_log_weights`` (there is no public accessor) and :meth:`particle_maps`."""
+def particle_snapshot(estimator: Estimator, size: int | None = None,
+                      rng: np.random.Generator | None = None) -> ParticleSnapshot:
+    """The particles of an ``rbpf`` estimator (copies), thinned to ``size`` of them drawn by weight
+    (systematic resampling, one uniform of ``rng``) and equally weighted; all of them, weights
+    kept, if ``size`` is None or not below P. Reads its ``_log_weights`` (the log-space weights the
+    rollouts take) and :meth:`particle_maps` of the chosen particles only: O(P + M N K^2) for M
+    kept (a plan keeps 64 of 1000)."""
     if estimator.name != "rbpf":
         raise ModelError(f"particle_snapshot needs an rbpf estimator, got {estimator.name!r}")
-    return ParticleSnapshot(estimator._locations.copy(), estimator.particle_maps(), estimator._log_weights.copy())
-
-
-def thin(snapshot: ParticleSnapshot, size: int | None, rng: np.random.Generator) -> ParticleSnapshot:
-    """``size`` particles drawn by weight (systematic resampling), equally weighted; all of them,
-    weights kept, if ``size`` is None or not below P. O(size N K)."""
-    n_particles = len(snapshot.locations)
-    if size is None or size >= n_particles:
-        return snapshot
-    chosen = _systematic_subset(np.exp(snapshot.log_weights), size, rng)
-    return ParticleSnapshot(snapshot.locations[chosen], np.ascontiguousarray(snapshot.maps[chosen]),
+    log_weights = estimator._log_weights
+    if size is None or size >= len(log_weights):
+        return ParticleSnapshot(estimator._locations.copy(), estimator.particle_maps(), log_weights.copy())
+    chosen = _systematic_subset(np.exp(log_weights), size, rng)
+    return ParticleSnapshot(estimator._locations[chosen], estimator.particle_maps(chosen),
                             np.full(size, -math.log(size)))
 
 
@@ -722,11 +719,8 @@ class InfoGainExplorer:
         checkpoints[0] = True
         checkpoints[lengths] = True
         if est.name == "rbpf" and self.hypotheses is not None:
-            snapshot = particle_snapshot(est)
-            weights = np.exp(snapshot.log_weights)
-            chosen = self.rng.choice(len(weights), size=self.hypotheses, p=weights / weights.sum())
-            worlds = (snapshot.locations[chosen], _draw_labels(snapshot.maps[chosen], self.rng))
-            particles = thin(snapshot, self.rollout_particles, self.rng)
+            worlds = sample_states(est, self.hypotheses, self.rng)
+            particles = particle_snapshot(est, self.rollout_particles, self.rng)
             if particle_rollouts_fit(self.model) and distances is None:
                 expected = particle_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
                                                          self.rng, self._location_nats, self._tables)

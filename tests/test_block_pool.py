@@ -49,6 +49,24 @@ def test_bookkeeping_after_many_resampling_steps():
     np.testing.assert_allclose(np.exp(est._log_weights) @ maps.reshape(50, -1), est.belief.map.ravel(), atol=1e-14)
 
 
+def test_particle_maps_of_some_particles_are_those_rows_of_all_and_bad_indices_are_refused():
+    """The planners read the maps of the particles they draw only (12 + 64 of 1000): the same rows,
+    bit for bit, in the order asked (repeats included); indices that name no particle are refused."""
+    model = om.grid_model(3, 4, 3, p_obs=0.8, p_move=0.7, change=symmetric_channel(3, 0.95))
+    run = random_run(model, 30, seed=4)
+    est = om.make_estimator("rbpf", model, n_particles=20, block_cells=4, seed=2)
+    for t in range(run.n_steps):
+        est.update(None if t == 0 else run.actions[t - 1], run.observations[t])
+    every = est.particle_maps()
+    which = np.array([19, 0, 7, 7, 3])
+    np.testing.assert_array_equal(est.particle_maps(which), every[which])
+    assert est.particle_maps(np.array([], dtype=np.int64)).shape == (0, model.n_cells, 3)
+    for bad in ([20], [-1], [[0, 1]], [0.0], np.array([1.5])):
+        with pytest.raises(om.ModelError, match="particle indices in 0..19"):
+            est.particle_maps(bad)
+    np.testing.assert_array_equal(est.particle_maps(), every)
+
+
 WORLDS = {
     "static grid": lambda: (om.grid_model(3, 4, 3, p_obs=0.8, p_move=0.7), None),
     "dynamic grid": lambda: (om.grid_model(3, 4, 3, p_obs=0.8, p_move=0.7, change=symmetric_channel(3, 0.95)), None),

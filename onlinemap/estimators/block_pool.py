@@ -242,11 +242,13 @@ class BlockPool:
             rbpf_map_mixture(*args)
         return out
 
-    def particle_maps(self, t: int) -> np.ndarray:
-        """(P, N, K) every particle's map marginals at step t (a fresh array). O(P N K^2)."""
-        out = np.empty((len(self.table), len(self.cell_block), self.rows.shape[2]))
+    def particle_maps(self, t: int, which: np.ndarray | None = None) -> np.ndarray:
+        """(M, N, K) the map marginals at step t of particles ``which`` (M,) int64 (None: all P of
+        them), a fresh array. O(M N K^2)."""
+        which = np.arange(len(self.table)) if which is None else which
+        out = np.empty((len(which), len(self.cell_block), self.rows.shape[2]))
         particle_maps(self.rows, self.stamps, self.table, self.cell_block, self.cell_slot, self.powers,
-                      self.stamped, t, out)
+                      self.stamped, t, which, out)
         return out
 
     def check(self, n_particles: int, n_labels: int, t: int, name: str = "_blocks") -> None:

@@ -494,9 +494,17 @@ class RaoBlackwellisedPF:
                                   recovered=self._recovered, distinct_locations=distinct)
         return self._belief
 
-    def particle_maps(self) -> np.ndarray:
-        """(P, N, K) every particle's current map marginals (a fresh array; O(P N K^2))."""
-        return self._blocks.particle_maps(max(self._t, 0))
+    def particle_maps(self, which=None) -> np.ndarray:
+        """(M, N, K) the current map marginals of particles ``which`` (M,) (indices into
+        :attr:`particles`; None: all P of them), a fresh array. O(M N K^2)."""
+        if which is not None:
+            indices = np.asarray(which)
+            if indices.ndim != 1 or indices.dtype.kind not in "iu" or \
+                    (indices.size and not 0 <= indices.min() <= indices.max() < self.n_particles):
+                raise ModelError(f"which must be a 1-d array of particle indices in 0..{self.n_particles - 1}, "
+                                 f"got {which!r}")
+            which = indices.astype(np.int64)
+        return self._blocks.particle_maps(max(self._t, 0), which)
 
     def step(self, action, observation) -> Belief:
         """``update`` then ``belief``."""

@@ -1026,16 +1026,17 @@ def _mixture_blocks(pool, pool_stamps, row_block, block_members, powers, dynamic
 
 
 @njit(cache=True)
-def particle_maps(pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, out):
-    """out (P, N, K) <- every particle's current map marginals (for inspection and tests).
-    O(P N K^2)."""
-    n_particles, n_cells, k = out.shape
-    for p in range(n_particles):
+def particle_maps(pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t, which, out):
+    """out (M, N, K) <- the current map marginals of particles ``which`` (M,) (the planners'
+    hypotheses, inspection and tests). O(M N K^2)."""
+    n_cells, k = out.shape[1], out.shape[2]
+    for m in range(which.shape[0]):
+        p = which[m]
         for i in range(n_cells):
             r = table[p, cell_block[i]]
             for b in range(k):
                 d = _age(pool_stamps, dynamic, t, r, cell_slot[i])
-                out[p, i, b] = _aged_label(pool, powers, d, r, cell_slot[i], b)
+                out[m, i, b] = _aged_label(pool, powers, d, r, cell_slot[i], b)
 
 
 # --- recovery from depletion (estimators/rbpf.py, RaoBlackwellisedPF._recover) -----------------------
