@@ -29,6 +29,8 @@ except ImportError:  # pragma: no cover - a SciPy that moved it: spsolve, the sa
     _gssv = None
 
 from onlinemap.errors import ModelError
+from onlinemap.kernels.mdp import action_values as kernel_action_values
+from onlinemap.kernels.mdp import improve_policy, policy_rows
 from onlinemap.model import GridModel
 
 
@@ -49,86 +51,68 @@ def move_probabilities(model: GridModel, passable: np.ndarray) -> np.ndarray:
 
 def action_values(model: GridModel, reward: np.ndarray, value: np.ndarray, gamma: float,
                   passable: np.ndarray | None = None) -> np.ndarray:
-    """(N, A) ``Q(l, a) = sum_j T[a, l, j] (R(j) + gamma V(j))`` for every cell and action, O(N A)."""
-    future = reward + gamma * value  # (N,)
-    if passable is not None:
-        go = move_probabilities(model, passable)
-        return (1.0 - go) * future[:, None] + go * future[model.neighbors]
-    # a blocked move leaves the robot in place (neighbors[l, a] == l): both terms are future[l]
-    return (1.0 - model.p_move) * future[:, None] + model.p_move * future[model.neighbors]
+    """(N, A) ``Q(l, a) = sum_j T[a, l, j] (R(j) + gamma V(j))`` for every cell and action, O(N A):
+    ``(1 - g) F(l) + g F(j)`` with ``F = R + gamma V`` and g the move's probability
+    (:func:`move_probabilities`; with no ``passable``, ``p_move`` for every action, a blocked move
+    staying in place). A numba kernel (:func:`onlinemap.kernels.mdp.action_values`)."""
+    q = np.empty((model.n_cells, model.n_actions))
+    kernel_action_values(model.neighbors, model.p_move, _passable_array(passable), np.asarray(reward, dtype=np.float64),
+                         np.asarray(value, dtype=np.float64), float(gamma), q)
+    return q
 
 
-def _policy_rows(model: GridModel, policy: np.ndarray,
-                 passable: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Row l of ``T_pi`` as two (column, probability) pairs: (N, 2) columns sorted within each
-    row, (N, 2) probabilities, (N, 2) mask of the pairs that exist (a cell that cannot move
-    has only its diagonal)."""
+_NO_PASSABLE = np.empty(0)  # the kernels' "None": the design's motion
+
+
+def _passable_array(passable) -> np.ndarray:
+    return _NO_PASSABLE if passable is None else np.asarray(passable, dtype=np.float64)
+
+
+def _policy_rows(model: GridModel, policy: np.ndarray, passable: np.ndarray, gamma: float = 0.0,
+                 reward: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The CSR (N, N) ``T_pi`` (``reward`` None) or ``I - gamma T_pi`` and ``T_pi R`` (N,)
+    (:func:`onlinemap.kernels.mdp.policy_rows`): data (E,), int32 columns (E,), int32 row
+    pointers (N + 1,), the right-hand side (N,). At most 2 N entries, O(N)."""
     n = model.n_cells
-    cells = np.arange(n)
-    targets = model.neighbors[cells, policy]
-    moves = targets != cells
-    if passable is None:
-        stay, go = model.self_prob[policy, cells], np.where(moves, model.p_move, 0.0)
-    else:  # move_probabilities' entries for the policy's actions
-        go = np.where(moves, model.p_move * passable[targets], 0.0)
-        stay = 1.0 - go
-    swap = targets < cells  # the move's column comes first in the row
-    cols = np.empty((n, 2), dtype=np.int64)
-    np.minimum(cells, targets, out=cols[:, 0])
-    np.maximum(cells, targets, out=cols[:, 1])
-    probs = np.empty((n, 2))
-    probs[:, 0] = np.where(swap, go, stay)
-    probs[:, 1] = np.where(swap, stay, go)
-    keep = np.ones((n, 2), dtype=np.bool_)
-    keep[:, 1] = moves  # a swapped row has a move, so both its pairs exist
-    return cols, probs, keep
-
-
-def _csr(cols: np.ndarray, values: np.ndarray, keep: np.ndarray) -> sp.csr_array:
-    """CSR (N, N) matrix from per-row (column, value) pairs, without a COO round trip."""
-    n = cols.shape[0]
-    return sp.csr_array((values[keep], cols[keep], _row_pointers(keep, np.int64)), shape=(n, n))
-
-
-def _row_pointers(keep: np.ndarray, dtype) -> np.ndarray:
-    """(N + 1,) CSR row pointers of the per-row pairs ``keep`` (N, 2) marks as present."""
-    indptr = np.zeros(keep.shape[0] + 1, dtype=dtype)
-    np.cumsum(keep.sum(axis=1), out=indptr[1:])
-    return indptr
+    data, cols, indptr, rhs = np.empty(2 * n), np.empty(2 * n, dtype=np.intc), np.empty(n + 1, dtype=np.intc), np.empty(n)
+    system = reward is not None
+    count = policy_rows(model.neighbors, model.self_prob, model.p_move, passable, policy, float(gamma), system, data,
+                        cols, indptr, rhs, reward if system else rhs)
+    return data[:count], cols[:count], indptr, rhs
 
 
 def policy_motion(model: GridModel, policy: np.ndarray, passable: np.ndarray | None = None) -> sp.csr_array:
     """Sparse (N, N) ``T_pi[l, j] = T[policy[l], l, j]``; at most 2 entries per row. O(N)."""
-    cols, probs, keep = _policy_rows(model, np.asarray(policy), passable)
-    return _csr(cols, probs, keep)
+    data, cols, indptr, _ = _policy_rows(model, np.asarray(policy, dtype=np.int64), _passable_array(passable))
+    return sp.csr_array((data, cols, indptr), shape=(model.n_cells, model.n_cells))
 
 
 def evaluate_policy(model: GridModel, reward: np.ndarray, policy: np.ndarray, gamma: float,
                     passable: np.ndarray | None = None) -> np.ndarray:
     """(N,) exact ``V_pi``: solves ``(I - gamma T_pi) V = T_pi R`` with a sparse LU (``spsolve``).
 
-    The system is built directly in CSR form (at most 2 N non-zeros); on grids the
+    The system is built directly in CSR form (at most 2 N non-zeros, a numba kernel); on grids the
     factorisation costs about O(N^1.5)."""
-    policy = np.asarray(policy)
-    cols, probs, keep = _policy_rows(model, policy, passable)
-    diagonal = cols == np.arange(model.n_cells)[:, None]
-    rhs = (probs * reward[cols]).sum(axis=1)
-    return _solve_csr(cols, diagonal - gamma * probs, keep, rhs)
+    return _value(model, np.asarray(reward, dtype=np.float64), np.asarray(policy, dtype=np.int64), float(gamma),
+                  _passable_array(passable))
 
 
-def _solve_csr(cols: np.ndarray, values: np.ndarray, keep: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """(N,) solution of the CSR system of :func:`_csr` (rows sorted, no duplicates) for ``rhs``
-    (N,): SuperLU with spsolve's arguments (CSR, COLAMD ordering), so bit for bit spsolve's
-    answer, without building a ``csr_array`` (its checks cost more than the solve on a 10 x 10
-    grid). A singular system (never for gamma < 1) goes to spsolve, which warns and gives NaN."""
-    n = cols.shape[0]
+def _value(model: GridModel, reward: np.ndarray, policy: np.ndarray, gamma: float, passable: np.ndarray) -> np.ndarray:
+    """:func:`evaluate_policy` on checked arrays (``passable`` empty for the design's motion)."""
+    return _solve_csr(*_policy_rows(model, policy, passable, gamma, reward))
+
+
+def _solve_csr(data: np.ndarray, cols: np.ndarray, indptr: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """(N,) solution of the CSR system of :func:`_policy_rows` (rows sorted, no duplicates) for
+    ``rhs`` (N,): SuperLU with spsolve's arguments (CSR, COLAMD ordering), so bit for bit
+    spsolve's answer, without building a ``csr_array`` (its checks cost more than the solve on a
+    10 x 10 grid). A singular system (never for gamma < 1) goes to spsolve, which warns and gives NaN."""
+    n = rhs.shape[0]
     if _gssv is not None:
-        data = values[keep]
-        x, info = _gssv(n, data.shape[0], data, cols[keep].astype(np.intc), _row_pointers(keep, np.intc), rhs, 0,
-                        options={"ColPerm": None})
+        x, info = _gssv(n, data.shape[0], data, cols, indptr, rhs, 0, options={"ColPerm": None})
         if info == 0:
             return x
-    return np.asarray(spsolve(_csr(cols, values, keep), rhs), dtype=np.float64)
+    return np.asarray(spsolve(sp.csr_array((data, cols, indptr), shape=(n, n)), rhs), dtype=np.float64)
 
 
 def _check_passable(model: GridModel, passable) -> np.ndarray | None:
@@ -182,14 +166,10 @@ def policy_iteration(model: GridModel, reward, gamma: float = 0.95, *, initial_p
         for _ in range(model.rows + model.cols):
             value = action_values(model, reward, value, gamma, passable).max(axis=1)
         policy = np.argmax(action_values(model, reward, value, gamma, passable), axis=1)
-    cells = np.arange(model.n_cells)
+    moves = _passable_array(passable)
+    q = np.empty((model.n_cells, model.n_actions))
     for iteration in range(1, int(max_iterations) + 1):
-        value = evaluate_policy(model, reward, policy, gamma, passable)
-        q = action_values(model, reward, value, gamma, passable)
-        best = np.argmax(q, axis=1)
-        current = q[cells, policy]
-        better = q[cells, best] > current + tolerance * (1.0 + np.abs(current))
-        if not better.any():
+        value = _value(model, reward, policy, gamma, moves)
+        if not improve_policy(model.neighbors, model.p_move, moves, reward, value, gamma, float(tolerance), q, policy):
             return PolicyIterationResult(value, q, policy, iteration)
-        policy = np.where(better, best, policy)
     raise RuntimeError(f"policy iteration did not converge in {max_iterations} iterations")

@@ -15,7 +15,7 @@ from onlinemap.belief import Belief
 from onlinemap.errors import ModelError
 from onlinemap.model import GridModel, symmetric_channel
 from estimator_cases import binomial_ok
-from policies import (PLANNERS, EntropyExplorer, RandomWalk, Sweep, collected_entropy_reward, entropy_reward,
+from policies import (PLANNERS, EntropyExplorer, RandomWalk, Sweep, action_values, collected_entropy_reward, entropy_reward,
                       evaluate_policy, make_planner, policy_iteration, policy_motion, sweep_actions)
 
 
@@ -95,23 +95,69 @@ def test_policy_iteration_on_the_beliefs_passability_equals_value_iteration(seed
         policy_iteration(model, reward, gamma, passable=np.full(model.n_cells, 1.5))
 
 
-@pytest.mark.parametrize("with_passable", [False, True])
-def test_policy_evaluation_is_spsolves_answer_bit_for_bit(with_passable):
-    """evaluate_policy hands the policy's system to SuperLU itself, with spsolve's arguments and
-    no csr_array: the same bits as spsolve on that system, so no planner's run moves."""
+def numpy_policy_system(model, policy, gamma, reward, passable):
+    """The policy's system ``(I - gamma T_pi) V = T_pi R`` as planners built it in numpy before the
+    kernels (policies/mdp.py up to 0.9): CSR ``I - gamma T_pi`` and the right-hand side."""
+    import scipy.sparse as sp
+
+    n = model.n_cells
+    cells = np.arange(n)
+    targets = model.neighbors[cells, policy]
+    moves = targets != cells
+    if passable is None:
+        stay, go = model.self_prob[policy, cells], np.where(moves, model.p_move, 0.0)
+    else:
+        go = np.where(moves, model.p_move * passable[targets], 0.0)
+        stay = 1.0 - go
+    swap = targets < cells
+    cols = np.stack([np.minimum(cells, targets), np.maximum(cells, targets)], axis=1)
+    probs = np.stack([np.where(swap, go, stay), np.where(swap, stay, go)], axis=1)
+    keep = np.stack([np.ones(n, dtype=bool), moves], axis=1)
+    values = (cols == cells[:, None]) - gamma * probs
+    indptr = np.concatenate([[0], np.cumsum(keep.sum(axis=1))])
+    return sp.csr_array((values[keep], cols[keep], indptr), shape=(n, n)), (probs * reward[cols]).sum(axis=1)
+
+
+def numpy_policy_iteration(model, reward, gamma, policy, passable, tolerance=1e-10):
+    """Policy iteration as the planners ran it in numpy before the kernels: spsolve, Q, greedy."""
     from scipy.sparse.linalg import spsolve
 
-    from policies.mdp import _csr, _policy_rows
+    cells = np.arange(model.n_cells)
+    if passable is None:
+        go = np.full(model.neighbors.shape, model.p_move)
+    else:
+        go = np.where(model.neighbors != cells[:, None], model.p_move * passable[model.neighbors], 0.0)
+    for iteration in range(1, 1000):
+        value = spsolve(*numpy_policy_system(model, policy, gamma, reward, passable))
+        future = reward + gamma * value
+        q = (1.0 - go) * future[:, None] + go * future[model.neighbors]
+        best = np.argmax(q, axis=1)
+        current = q[cells, policy]
+        better = q[cells, best] > current + tolerance * (1.0 + np.abs(current))
+        if not better.any():
+            return value, q, policy, iteration
+        policy = np.where(better, best, policy)
+
+
+@pytest.mark.parametrize("with_passable", [False, True])
+def test_policy_iteration_is_the_numpy_and_spsolve_answer_bit_for_bit(with_passable):
+    """The kernels build the policy's system and improve the policy with the same operations, in
+    the same order, as the numpy code they replaced, and SuperLU gets spsolve's arguments: the
+    same bits for the value, Q, the policy and the iteration count, so no planner's run moves."""
+    from scipy.sparse.linalg import spsolve
 
     for seed in range(12):
         model, reward, gamma = random_mdp(300 + seed)
         rng = np.random.default_rng(seed)
-        passable = rng.uniform(0, 1, model.n_cells) if with_passable else None
+        passable = rng.uniform(0, 1, model.n_cells) * (rng.random(model.n_cells) > 0.2) if with_passable else None
         policy = rng.integers(model.n_actions, size=model.n_cells)
-        cols, probs, keep = _policy_rows(model, policy, passable)
-        system = _csr(cols, (cols == np.arange(model.n_cells)[:, None]) - gamma * probs, keep)
-        expected = spsolve(system, (probs * reward[cols]).sum(axis=1))
+        expected = spsolve(*numpy_policy_system(model, policy, gamma, reward, passable))
         assert evaluate_policy(model, reward, policy, gamma, passable).tobytes() == expected.tobytes()
+        result = policy_iteration(model, reward, gamma, initial_policy=policy, passable=passable)
+        value, q, final, iterations = numpy_policy_iteration(model, reward, gamma, policy, passable)
+        assert (result.value.tobytes(), result.q.tobytes(), result.iterations) == (value.tobytes(), q.tobytes(), iterations)
+        np.testing.assert_array_equal(result.policy, final)
+        assert action_values(model, reward, value, gamma, passable).tobytes() == q.tobytes()
 
 
 @pytest.mark.parametrize("seed", range(10))
