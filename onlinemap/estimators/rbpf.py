@@ -864,6 +864,8 @@ def _thread_count(threads) -> int:
     most = numba.config.NUMBA_NUM_THREADS
     if threads is None:
         return most
+    if type(threads) is int and 1 <= threads <= most:  # a valid count, as checked below (read 3 times a step)
+        return threads
     return arguments.integer(f"threads (at most NUMBA_NUM_THREADS={most}: the cores numba counts, or that "
                              "environment variable set before numba starts)", threads, minimum=1, maximum=most,
                              error=InvalidOptionError)
