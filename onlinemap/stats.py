@@ -33,7 +33,7 @@ def mean_interval(values: np.ndarray, confidence: float = 0.95, proportion: bool
     the Wilson score interval, which stays honest when every run agrees. NaN bounds with fewer
     than 2 values (t interval). ``bounds``: the range the mean lies in (e.g. (0, 1) for an
     error); the t interval is intersected with it, which keeps its coverage."""
-    from scipy import stats
+    from scipy.special import stdtrit  # Student t's quantile, what scipy.stats.t.ppf returns (1 s less to import)
 
     values = np.asarray(values, dtype=np.float64)
     values = values[np.isfinite(values)]
@@ -46,5 +46,5 @@ def mean_interval(values: np.ndarray, confidence: float = 0.95, proportion: bool
         return Interval(mean, float(low), float(high))
     if n < 2:
         return Interval(mean, math.nan, math.nan)
-    half = stats.t.ppf(0.5 + confidence / 2, n - 1) * values.std(ddof=1) / math.sqrt(n)
+    half = stdtrit(n - 1, 0.5 + confidence / 2) * values.std(ddof=1) / math.sqrt(n)
     return Interval(mean, max(mean - half, bounds[0]), min(mean + half, bounds[1]))
