@@ -205,19 +205,19 @@ def test_optimal_resampling_is_unbiased_keeps_large_children_and_none_twice(case
     draws = 5000
     large = weights >= c
     order = np.arange(len(weights)) if walk == "index order" else np.random.default_rng(5).permutation(len(weights))
-    mean_weight = np.zeros(len(weights))
-    for _ in range(draws):
+    position = np.argsort(order)  # each child's position in the walk
+    count = min(n, np.count_nonzero(weights))
+    new_weight = np.zeros((draws, len(weights)))  # draw by draw, each child's new weight
+    for draw in range(draws):
         kept = optimal_resampling(weights, n, rng, order)
-        assert len(kept.indices) == min(n, np.count_nonzero(weights)) == len(np.unique(kept.indices))
-        walked = np.argsort(order)[kept.indices]  # positions in the walk: increasing
-        assert np.all(np.diff(walked) > 0)
+        walked = position[kept.indices]  # increasing: in walk order, and so none twice
+        assert len(walked) == count and np.all(walked[1:] > walked[:-1])
         assert abs(kept.threshold - c) <= 1e-9 * c and abs(kept.weights.sum() - 1) <= 1e-12
-        new_weight = np.zeros(len(weights))
-        new_weight[kept.indices] = kept.weights
-        assert np.array_equal(new_weight[large], weights[large])  # always kept, own weight
-        assert np.all(np.abs(new_weight[~large] - c) <= 1e-9 * c, where=new_weight[~large] > 0)
-        mean_weight += new_weight
-    mean_weight /= draws
+        new_weight[draw, kept.indices] = kept.weights
+    assert np.array_equal(new_weight[:, large], np.broadcast_to(weights[large], (draws, large.sum())))  # own weight
+    small = new_weight[:, ~large]
+    assert np.all(np.abs(small - c) <= 1e-9 * c, where=small > 0)
+    mean_weight = new_weight.mean(axis=0)
     tolerance = 5 * np.sqrt(weights * np.maximum(c - weights, 0) / draws) + 1e-12
     assert np.all(np.abs(mean_weight - weights) <= tolerance), (mean_weight, weights, tolerance)
 
