@@ -43,6 +43,7 @@ from IPython.display import display
 import onlinemap as om
 import policies
 from onlinemap.belief import Belief
+from onlinemap.evaluate import step_metrics
 from onlinemap.studies import exploration
 from onlinemap.studies.base import with_intervals
 from onlinemap.worlds import parse_world
@@ -86,37 +87,39 @@ with_intervals(study.summary, ["final_map_error", "steps_to_map_error_10", "map_
 closed), walls and closed doors blocking, a cross footprint. Here a 16 x 16 floor; the star is the
 start."""),
     ("code", """\
-BUILDING = "building:16x16,seed=2"
+B_SEEDS = SEEDS[:3]  # the buildings of the study below; the last one is drawn here
+BUILDING = f"building:16x16,seed={B_SEEDS[-1]}"
 b_world = parse_world(BUILDING)
 b_model, b_map = b_world.model, b_world.true_map
 display(om.plots.plot_building(b_model, b_map, title=BUILDING))"""),
-    ("md", """\
-## The belief as the building is explored
-
-One `info_gain` run in that building: the location belief (left) and the most probable label of
-every cell, faded where it is unsure, with dots on the cells it has wrong (right), at three moments
-of the run. The star is the true robot."""),
-    ("code", """\
-B_STEPS = 600
-run = policies.exploration(b_model, b_map, "info_gain", "rbpf", B_STEPS, seed=0,
-                           estimator_options={"n_particles": N_PARTICLES}, progress=False)
-for t in (50, 200, B_STEPS - 1):
-    belief = Belief(t, run.trajectory.location[t], run.trajectory.map[t])
-    figure = om.plots.plot_belief(b_model, belief, true_map=b_map, true_location=int(run.run.locations[t]))
-    figure.suptitle(f"step {t}: map error {run.frame['map_error'].iloc[t]:.3f}, "
-                    f"location error {run.frame['location_error'].iloc[t]:.3f}")
-    display(figure)"""),
     ("md", """\
 ## Planners across buildings
 
 `exploration.building_study` runs every planner in one generated building per seed (the same
 buildings for every planner). Here three 16 x 16 buildings, 600 steps; the README's study uses
-32 x 32 buildings and 2000 steps."""),
+32 x 32 buildings and 2000 steps. It keeps the true run and the beliefs of `info_gain` in the
+building above (`keep`), for the pictures below."""),
     ("code", """\
 B_PLANNERS = ["info_gain", "frontier", "random"]
-buildings = exploration.building_study(B_PLANNERS, rows=16, cols=16, seeds=SEEDS[:3], steps=B_STEPS,
-                                       n_particles=N_PARTICLES, progress=False)
+B_STEPS = 600
+buildings = exploration.building_study(B_PLANNERS, rows=16, cols=16, seeds=B_SEEDS, steps=B_STEPS,
+                                       n_particles=N_PARTICLES, progress=False, keep=[(BUILDING, "info_gain", 0)])
 with_intervals(buildings.summary, ["final_map_error", "map_error_area"])[COLUMNS].round(3)"""),
+    ("md", """\
+## The belief as the building is explored
+
+That `info_gain` run (kept by the study, not run again): the location belief (left) and the most
+probable label of every cell, faded where it is unsure, with dots on the cells it has wrong
+(right), at three moments of the run. The star is the true robot."""),
+    ("code", """\
+played = buildings.played[BUILDING, "info_gain", 0]
+frame = step_metrics(played.run, played.trajectory)
+for t in (50, 200, B_STEPS - 1):
+    belief = Belief(t, played.trajectory.location[t], played.trajectory.map[t])
+    figure = om.plots.plot_belief(b_model, belief, true_map=b_map, true_location=int(played.run.locations[t]))
+    figure.suptitle(f"step {t}: map error {frame['map_error'].iloc[t]:.3f}, "
+                    f"location error {frame['location_error'].iloc[t]:.3f}")
+    display(figure)"""),
     ("md", """\
 ## Conclusion
 

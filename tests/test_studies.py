@@ -139,3 +139,44 @@ def test_a_study_read_off_the_per_step_table_equals_the_study_of_the_same_runs()
     assert set(columns) <= set(direct.summary.columns)
     np.testing.assert_array_equal(read.summary[columns[3:]].to_numpy(float), direct.summary[columns[3:]].to_numpy(float))
     assert list(read.summary[columns[:3]].itertuples(index=False)) == list(direct.summary[columns[:3]].itertuples(index=False))
+
+
+def test_a_study_keeps_the_runs_it_is_asked_for_as_exploration_plays_them():
+    """``keep``: the study hands back the true run and the beliefs of the runs it names, the very
+    ones :func:`policies.exploration` gives for that world, planner and seed (so a notebook plots a
+    study's run without running it again), and its table is the one it gives without ``keep``.
+    A run the study does not have, or a study whose runs leave the process, is refused."""
+    import policies
+    from onlinemap.studies import exploration
+    from onlinemap.worlds import parse_world
+
+    worlds, planners, options = ["door,blocking=1,footprint=cross", "grid:3x4,footprint=cross"], ["random", "frontier"], \
+        {"n_particles": 20}
+    kept = [(worlds[1], "frontier", 1), (worlds[0], "random", 0)]
+    study = exploration.planners_study(worlds, planners, seeds=[0, 1], steps=30, estimator_options=options,
+                                       progress=False, keep=kept)
+    plain = exploration.planners_study(worlds, planners, seeds=[0, 1], steps=30, estimator_options=options,
+                                       progress=False)
+    assert sorted(study.played) == sorted(kept)
+    metrics = [c for c in plain.runs.columns if c in exploration.METRICS and c != "ms_per_step"]
+    np.testing.assert_array_equal(study.runs[metrics].to_numpy(float), plain.runs[metrics].to_numpy(float))
+    assert dict(plain.played) == {}
+    from onlinemap.sweeps.runner import played_map
+    for world, planner, seed in kept:
+        model = parse_world(world).model
+        alone = policies.exploration(model, played_map(world, seed), planner, "rbpf", 30, seed=seed,
+                                     estimator_options=options, progress=False)
+        played = study.played[world, planner, seed]
+        np.testing.assert_array_equal(played.run.actions, alone.run.actions)
+        np.testing.assert_array_equal(played.run.locations, alone.run.locations)
+        np.testing.assert_array_equal(played.trajectory.map, alone.trajectory.map)
+        np.testing.assert_array_equal(played.trajectory.location, alone.trajectory.location)
+    with pytest.raises(ModelError, match="does not have"):
+        exploration.planners_study(worlds[0], planners, seeds=[0], steps=5, progress=False,
+                                   keep=[(worlds[0], "info_gain", 0)])
+    with pytest.raises(ModelError, match="workers=0"):
+        exploration.planners_study(worlds[0], planners, seeds=[0], steps=5, progress=False, workers=2,
+                                   keep=[(worlds[0], "random", 0)])
+    from onlinemap.sweeps import sweep
+    with pytest.raises(om.OnlineMapError, match="on_played needs workers=0"):
+        sweep(exploration.exploration_spec(worlds[0], planners, 5, [0]), on_played=lambda task, played: None)

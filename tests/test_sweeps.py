@@ -267,7 +267,7 @@ def test_rerunning_a_finished_sweep_runs_nothing_and_ignores_stale_results(tmp_p
     first = om.sweep(spec, workers=0, results_dir=parts, progress=False)
     stale = sweeps.Task("corridor:5", "exact", (), 99, 15)  # e.g. from an older version of the spec
     sweeps.write_part(parts, stale, sweeps.run_task(stale))
-    monkeypatch.setattr(sweeps.runner, "task_rows", lambda task: pytest.fail("a finished task ran again"))
+    monkeypatch.setattr(sweeps.runner, "played_rows", lambda task: pytest.fail("a finished task ran again"))
     again = om.sweep(spec, workers=0, results_dir=parts, progress=False)
     pd.testing.assert_frame_equal(first, again)  # timings too: the same files
     assert stale.key not in set(again["task"])
@@ -275,13 +275,13 @@ def test_rerunning_a_finished_sweep_runs_nothing_and_ignores_stale_results(tmp_p
 
 def test_failed_tasks_are_reported_and_the_rest_kept(tmp_path, monkeypatch):
     spec = sweeps.parse_spec(SPEC)
-    real = sweeps.runner.task_rows
-    monkeypatch.setattr(sweeps.runner, "task_rows",
+    real = sweeps.runner.played_rows
+    monkeypatch.setattr(sweeps.runner, "played_rows",
                         lambda task: real(task) if task.seed != 1 else (_ for _ in ()).throw(RuntimeError("boom")))
     with pytest.raises(om.SweepError, match=f"{N_TASKS // 3} of {N_TASKS} tasks failed.*boom"):
         om.sweep(spec, workers=0, results_dir=tmp_path, progress=False)
     assert len(list(tmp_path.glob("*.npz"))) == N_TASKS - N_TASKS // 3
-    monkeypatch.setattr(sweeps.runner, "task_rows", real)
+    monkeypatch.setattr(sweeps.runner, "played_rows", real)
     assert len(om.sweep(spec, workers=0, results_dir=tmp_path, progress=False)) == N_TASKS
 
 
@@ -646,7 +646,7 @@ def test_planner_options_come_from_the_registry_without_building_one(monkeypatch
 def test_parquet_output_without_pyarrow_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "pyarrow", None)  # import pyarrow now raises ImportError
     path = write_spec(tmp_path)
-    monkeypatch.setattr(sweeps.runner, "task_rows", lambda task: pytest.fail("a task ran"))
+    monkeypatch.setattr(sweeps.runner, "played_rows", lambda task: pytest.fail("a task ran"))
     line = _one_error_line(capsys, ["sweep", str(path), "--workers", "0", "--out", str(tmp_path / "r"),
                                     "--format", "parquet"])
     assert "needs pyarrow" in line and not (tmp_path / "r" / "parts").exists()

@@ -7,12 +7,14 @@ Imports: :mod:`onlinemap.sweeps`, :mod:`onlinemap.evaluate`.
 
 from __future__ import annotations
 
-from typing import NamedTuple, Sequence
+from types import MappingProxyType
+from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 import pandas as pd
 
 from ..sweeps import summarize, summary_wide
+from ..sweeps.kinds import Played
 
 
 class Study(NamedTuple):
@@ -20,6 +22,8 @@ class Study(NamedTuple):
 
     runs: pd.DataFrame  # one row per run (a sweep task): its configuration, seed and metrics
     summary: pd.DataFrame  # one row per group: runs, then NAME, NAME_low, NAME_high per metric
+    # the true run and the beliefs of the runs the study was asked to keep, by (world, planner, seed)
+    played: Mapping[tuple, Played] = MappingProxyType({})
 
 
 def summary_of(runs: pd.DataFrame, metrics: Sequence[str], by: Sequence[str], confidence: float = 0.95,

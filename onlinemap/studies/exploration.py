@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
+from types import MappingProxyType
 from typing import Sequence
 
 import numpy as np
@@ -34,6 +35,7 @@ from policies.tasks import EXPLORE, build_planner
 from .. import metrics as metric_functions
 from ..estimators import make_estimator, run_estimator
 from ..evaluate import COVERAGE_THRESHOLDS, from_steps
+from ..errors import ModelError
 from ..model import GridModel, door_cells
 from ..rng import ESTIMATOR_STREAM, derived_seed
 from ..sweeps import sweep
@@ -112,14 +114,39 @@ def summarize_planners(table: pd.DataFrame, model: GridModel, true_map) -> pd.Da
 def planners_study(world: str | Sequence[str], planners: Sequence[str], *, seeds: Sequence[int] = range(20),
                    steps: int = 1000, estimator_options: dict | None = None, planner_options: dict | None = None,
                    floor_plan: float | None = None, confidence: float = 0.95, workers: int | None = 0,
-                   out: str | os.PathLike | None = None, progress: bool = True) -> Study:
+                   out: str | os.PathLike | None = None, progress: bool = True,
+                   keep: Sequence[tuple[str, str, int]] = ()) -> Study:
     """Every planner on every seed of ``world`` (a world spec, or several of one size: every
     planner runs in each, paired), one row per run; the summary per planner (and planner
-    options) holds the mean and interval of every metric of :data:`METRICS`."""
+    options) holds the mean and interval of every metric of :data:`METRICS`. ``keep``: runs
+    named ``(world, planner, seed)`` whose true run and beliefs the study returns too
+    (``Study.played``, to plot one without running it again; ``workers=0``, no ``out``)."""
     spec = exploration_spec(world, planners, steps, seeds, estimator_options=estimator_options,
                             planner_options=planner_options, floor_plan=floor_plan)
-    runs = sweep(spec, workers=workers, results_dir=out, progress=progress)
-    return _planners_summary(runs, list(planners), confidence)
+    wanted = _kept_runs(spec, keep, workers, out)
+    played: dict[tuple, Played] = {}
+
+    def on_played(task: Task, what: Played) -> None:
+        if (task.world, task.planner, task.seed) in wanted:
+            played[task.world, task.planner, task.seed] = what
+
+    runs = sweep(spec, workers=workers, results_dir=out, progress=progress, on_played=on_played if wanted else None)
+    return _planners_summary(runs, list(planners), confidence)._replace(played=MappingProxyType(played))
+
+
+def _kept_runs(spec: dict, keep: Sequence[tuple[str, str, int]], workers: int | None, out) -> set[tuple]:
+    """The ``(world, planner, seed)`` runs of ``spec`` to keep; ModelError for a run the study
+    does not have, or with ``workers`` other than 0 or an ``out`` folder (a resumed task is not
+    run again)."""
+    wanted = {(str(world), str(planner), int(seed)) for world, planner, seed in keep}
+    have = {(world, planner, seed) for world in spec["worlds"] for planner in spec["planners"] for seed in spec["seeds"]}
+    if wanted - have:
+        raise ModelError(f"keep names runs the study does not have: {sorted(wanted - have)}; it has "
+                         f"(world, planner, seed) for worlds {spec['worlds']}, planners {list(spec['planners'])}, "
+                         f"seeds {spec['seeds']}")
+    if wanted and (workers != 0 or out is not None):
+        raise ModelError("keep needs workers=0 and no out folder: the kept runs live in this process")
+    return wanted
 
 
 def steps_study(table: pd.DataFrame, planners: Sequence[str] | None = None, confidence: float = 0.95) -> Study:
@@ -170,13 +197,15 @@ def blocking_world_study(planners: Sequence[str] = ("info_gain", "frontier", "ra
 
 def building_study(planners: Sequence[str] = ("info_gain", "frontier", "random", "sweep"), *, rows: int = 32,
                    cols: int = 32, seeds: Sequence[int] = range(20), steps: int = 2000, n_particles: int = 1000,
-                   planner_options: dict | None = None, workers: int | None = 0, progress: bool = True) -> Study:
+                   planner_options: dict | None = None, workers: int | None = 0, progress: bool = True,
+                   keep: Sequence[tuple[str, str, int]] = ()) -> Study:
     """Generated buildings (:func:`onlinemap.buildings.building`, blocking walls and closed doors,
     a cross footprint, a uniform label prior): one building per seed (``building:RxC,seed=S``),
-    every planner in each."""
+    every planner in each, with run seed 0 (``keep``: ``("building:RxC,seed=S", planner, 0)``,
+    see :func:`planners_study`)."""
     worlds = [f"building:{rows}x{cols},seed={int(seed)}" for seed in seeds]
     return planners_study(worlds, planners, seeds=[0], steps=steps, estimator_options={"n_particles": n_particles},
-                          planner_options=planner_options, workers=workers, progress=progress)
+                          planner_options=planner_options, workers=workers, progress=progress, keep=keep)
 
 
 def binary_task_study(planners: Sequence[str] = ("info_gain", "random"), *, seeds: Sequence[int] = range(50),

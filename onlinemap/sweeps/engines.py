@@ -1,7 +1,7 @@
 """The engines: run a spec's tasks serially in this process or on dask.distributed, keep each
 finished task in the part store as it finishes, and assemble the table.
 
-Imports: :mod:`.tasks`, :mod:`.spec`, :mod:`.runner`, :mod:`.store`, :mod:`onlinemap.tables`;
+Imports: :mod:`.tasks`, :mod:`.kinds`, :mod:`.spec`, :mod:`.runner`, :mod:`.store`, :mod:`onlinemap.tables`;
 dask.distributed lazily.
 """
 
@@ -12,6 +12,7 @@ import os
 import time
 import warnings
 from importlib.util import find_spec
+from typing import Callable
 
 import pandas as pd
 
@@ -19,6 +20,7 @@ from ..errors import OnlineMapError
 from ..progress import show_progress, tqdm
 from ..tables import check_writable, write_table
 from . import runner
+from .kinds import Played
 from .spec import load_spec, spec_from_dict
 from .store import assemble_rows, collect, default_results_dir, finished_tasks, open_store, write_part
 from .tasks import MAX_TASKS, SweepSpec, Task, TaskRows, options_text
@@ -33,7 +35,7 @@ class SweepError(OnlineMapError):
 
 def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLike | None = None,
           results_dir: str | os.PathLike | None = None, progress: bool = True,
-          max_tasks: int = MAX_TASKS) -> pd.DataFrame:
+          max_tasks: int = MAX_TASKS, on_played: Callable[[Task, Played], None] | None = None) -> pd.DataFrame:
     """Run every task of ``spec`` and return one table (one row per task, or per task and step).
 
     spec: a path to a TOML file, a :class:`SweepSpec` or a dict. client: a
@@ -46,9 +48,15 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     results_dir: where finished tasks are kept (default ``OUT.parts`` beside ``out``; with
     neither, results live only in memory and nothing resumes). Tasks already there are
     skipped. Raises :class:`SweepError` (after keeping every finished task) if tasks failed.
+    on_played: called with each task run and what it played (its true run and the estimator's
+    beliefs, :class:`~.kinds.Played`), to keep what a figure needs without running it again;
+    with ``workers=0`` only (they stay in this process), and not for tasks resumed from
+    ``results_dir``.
     """
     if client is not None and workers is not None:
         raise OnlineMapError("workers sizes a local cluster or picks serial mode (0); not with a client")
+    if on_played is not None and (client is not None or workers != 0):
+        raise OnlineMapError("on_played needs workers=0: what a task played stays in the process that ran it")
     spec = _as_spec(spec, max_tasks)
     if out is not None:
         check_writable(out)
@@ -77,6 +85,8 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
                 return
         else:
             memory[task.key] = outcome.rows
+        if on_played is not None:
+            on_played(task, outcome.played)
         bar.update()
 
     bar = tqdm(total=len(spec.tasks), initial=len(spec.tasks) - len(todo), desc=f"sweep {spec.name}",
@@ -84,7 +94,7 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     try:
         if todo and client is None and workers == 0:
             for task in todo:
-                record(task, runner.attempt(task))
+                record(task, runner.attempt(task, keep=on_played is not None))
         elif todo and client is None and workers is None:
             _run_auto(todo, record)
         elif todo:

@@ -109,6 +109,12 @@ def task_rows(task: Task) -> TaskRows:
     is built once, :func:`~.store.assemble_rows`). Cost: the estimator's run, plus (unless this
     process has just had them for another task) one simulation and the reference's run
     (:func:`simulated_run`, :func:`reference_trajectory`), plus O(T N K) to score it."""
+    return played_rows(task)[1]
+
+
+def played_rows(task: Task) -> tuple[Played, TaskRows]:
+    """What the task played (its true run and the estimator's beliefs, :class:`~.kinds.Played`) and
+    its :func:`task_rows`. Cost: that of :func:`task_rows`."""
     reference = None
     if task.kind != "estimate":
         played = _play(task)
@@ -131,23 +137,26 @@ def task_rows(task: Task) -> TaskRows:
     else:
         row = run_metrics(run, trajectory, reference, steps, trip=task.walk != "random")
         metrics = {**{name: row[name] for name in RUN_METRICS if name in row}, **played.run_columns}
-    return TaskRows(run.n_steps if task.per_step else 1, {**description(task, run.n_steps), **metrics},
-                    option_columns(task))
+    return played, TaskRows(run.n_steps if task.per_step else 1, {**description(task, run.n_steps), **metrics},
+                            option_columns(task))
 
 
 class Outcome(NamedTuple):
-    """What running one task gave: its rows, or the error that ended it (``"Type: message"``)."""
+    """What running one task gave: its rows, or the error that ended it (``"Type: message"``);
+    and what it played, if asked for."""
 
     rows: TaskRows | None
     error: str | None
+    played: Played | None = None
 
 
-def attempt(task: Task) -> Outcome:
+def attempt(task: Task, keep: bool = False) -> Outcome:
     """:func:`task_rows`, with an exception returned as text instead of raised: a dask worker then
     never sees a failed task (so it logs no ``Compute Failed`` block and no traceback), and the
-    engine reports every failure the same way, serial or not."""
+    engine reports every failure the same way, serial or not. ``keep``: what the task played too."""
     try:
-        return Outcome(task_rows(task), None)
+        played, rows = played_rows(task)
+        return Outcome(rows, None, played if keep else None)
     except Exception as error:  # any failure of a task is reported, never raised out of a worker
         return Outcome(None, f"{type(error).__name__}: {error}")
 
