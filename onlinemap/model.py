@@ -295,9 +295,10 @@ class GridModel:
         """() when an observation is one label (F = 1), (F,) otherwise."""
         return () if self.n_readings == 1 else (self.n_readings,)
 
-    @property
+    @cached_property
     def has_blocking(self) -> bool:
-        """True when some label blocks motion (motion then depends on the map)."""
+        """True when some label blocks motion (motion then depends on the map). Computed once
+        (every EM step asks)."""
         return bool(self.blocking.any())
 
     @property
