@@ -62,8 +62,9 @@ def forward_backward(model: GridModel, prior: np.ndarray, actions: np.ndarray, o
     actions = np.asarray(actions, dtype=np.int64)
     observations = np.asarray(observations, dtype=np.int64)
     w, n = len(observations), model.n_cells
-    self_prob, enter = model.self_prob, np.full(n, model.p_move)
-    if passable is not None:
+    if passable is None:
+        self_prob, enter = model.self_prob, np.full(n, model.p_move)
+    else:
         enter = model.p_move * np.asarray(passable, dtype=np.float64)
         movers = model.neighbors != np.arange(n)[:, None]  # (N, A)
         self_prob = np.ascontiguousarray(np.where(movers, 1.0 - enter[model.neighbors], 1.0).T)

@@ -301,11 +301,12 @@ class GridModel:
         (every EM step asks)."""
         return bool(self.blocking.any())
 
-    @property
+    @cached_property
     def reads_own_cell(self) -> bool:
         """True for the paper's sensor: one reading, of the robot's own cell (an observation is
         then one label, never -1). The one answer to "what does the sensor read?": anything else
-        reads a footprint (``footprint_cells``), with -1 where an offset leaves the grid."""
+        reads a footprint (``footprint_cells``), with -1 where an offset leaves the grid.
+        Computed once (every EM step asks several times)."""
         return self.footprint == FOOTPRINTS["cell"]
 
     @cached_property
