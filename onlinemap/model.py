@@ -295,16 +295,18 @@ class GridModel:
         """() when an observation is one label (F = 1), (F,) otherwise."""
         return () if self.n_readings == 1 else (self.n_readings,)
 
-    @property
+    @cached_property
     def has_blocking(self) -> bool:
-        """True when some label blocks motion (motion then depends on the map)."""
+        """True when some label blocks motion (motion then depends on the map). Computed once
+        (every EM step asks)."""
         return bool(self.blocking.any())
 
-    @property
+    @cached_property
     def reads_own_cell(self) -> bool:
         """True for the paper's sensor: one reading, of the robot's own cell (an observation is
         then one label, never -1). The one answer to "what does the sensor read?": anything else
-        reads a footprint (``footprint_cells``), with -1 where an offset leaves the grid."""
+        reads a footprint (``footprint_cells``), with -1 where an offset leaves the grid.
+        Computed once (every EM step asks several times)."""
         return self.footprint == FOOTPRINTS["cell"]
 
     @cached_property

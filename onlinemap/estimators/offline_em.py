@@ -164,7 +164,7 @@ class OfflineEM:
         # constant tables of every step's fit, computed once (read-only arrays: checkpointable)
         self._prior_emission = read_only(prior_emission(model))
         self._location_prior = read_only(model.location_prior())
-        self._sensor_inverse = read_only(sensor_inverse(model.sensor))
+        self._sensor_inverse = sensor_inverse(model.sensor)
         self._actions = np.empty(0, dtype=np.int64)
         self._observations = np.empty((0,) + model.observation_shape,
                                       dtype=np.int64)
