@@ -158,6 +158,8 @@ def test_a_study_keeps_the_runs_it_is_asked_for_as_exploration_plays_them():
     plain = exploration.planners_study(worlds, planners, seeds=[0, 1], steps=30, estimator_options=options,
                                        progress=False)
     assert sorted(study.played) == sorted(kept)
+    runs, summary = study  # still the pair every study returns
+    assert runs is study.runs and summary is study.summary
     metrics = [c for c in plain.runs.columns if c in exploration.METRICS and c != "ms_per_step"]
     np.testing.assert_array_equal(study.runs[metrics].to_numpy(float), plain.runs[metrics].to_numpy(float))
     assert dict(plain.played) == {}

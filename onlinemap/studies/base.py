@@ -17,13 +17,23 @@ from ..sweeps import summarize, summary_wide
 from ..sweeps.kinds import Played
 
 
-class Study(NamedTuple):
-    """A study's result."""
-
+class _Pair(NamedTuple):
     runs: pd.DataFrame  # one row per run (a sweep task): its configuration, seed and metrics
     summary: pd.DataFrame  # one row per group: runs, then NAME, NAME_low, NAME_high per metric
-    # the true run and the beliefs of the runs the study was asked to keep, by (world, planner, seed)
+
+
+class Study(_Pair):
+    """A study's result: the pair ``runs, summary = study``; and ``played``, the true run and the
+    beliefs (:class:`~onlinemap.sweeps.kinds.Played`) of the runs it was asked to keep, by
+    ``(world, planner, seed)`` (empty unless asked: ``planners_study(..., keep=...)``)."""
+
     played: Mapping[tuple, Played] = MappingProxyType({})
+
+    def __new__(cls, runs: pd.DataFrame, summary: pd.DataFrame, played: Mapping[tuple, Played] | None = None):
+        study = super().__new__(cls, runs, summary)
+        if played:
+            study.played = MappingProxyType(dict(played))
+        return study
 
 
 def summary_of(runs: pd.DataFrame, metrics: Sequence[str], by: Sequence[str], confidence: float = 0.95,

@@ -22,7 +22,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
-from types import MappingProxyType
 from typing import Sequence
 
 import numpy as np
@@ -131,7 +130,7 @@ def planners_study(world: str | Sequence[str], planners: Sequence[str], *, seeds
             played[task.world, task.planner, task.seed] = what
 
     runs = sweep(spec, workers=workers, results_dir=out, progress=progress, on_played=on_played if wanted else None)
-    return _planners_summary(runs, list(planners), confidence)._replace(played=MappingProxyType(played))
+    return Study(*_planners_summary(runs, list(planners), confidence), played)
 
 
 def _kept_runs(spec: dict, keep: Sequence[tuple[str, str, int]], workers: int | None, out) -> set[tuple]:
