@@ -28,6 +28,7 @@ Two options (DESIGN.md section 7), both off by default (the paper's model, bit f
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Iterable, Sequence
@@ -182,6 +183,25 @@ def symmetric_channel(n_labels: int, p_same: float) -> np.ndarray:
     p_same = _probability("p_same", p_same)
     off = (1.0 - p_same) / (n_labels - 1)
     return np.full((n_labels, n_labels), off) + np.eye(n_labels) * (p_same - off)
+
+
+def change_powers(change: np.ndarray, count: int) -> np.ndarray:
+    """(count, K, K) ``C^d`` for d < count, each the last times ``change`` C (K, K): read-only and
+    shared per matrix and count (copy it to hand a kernel a writable array). The RBPF's pool keeps
+    1025 of them for every dynamic filter built (1-3 ms of products in Python), the rollouts
+    H + 1 per planner. O(count K^3) the first time."""
+    change = np.ascontiguousarray(change, dtype=np.float64)
+    return _change_powers(change.tobytes(), change.shape[0], int(count))
+
+
+@functools.lru_cache(maxsize=16)
+def _change_powers(change: bytes, k: int, count: int) -> np.ndarray:
+    matrix = np.frombuffer(change, dtype=np.float64).reshape(k, k).copy()
+    powers = np.empty((count, k, k))
+    powers[0] = np.eye(k)
+    for d in range(1, count):
+        powers[d] = powers[d - 1] @ matrix
+    return read_only(powers)
 
 
 @dataclass(frozen=True, eq=False)

@@ -80,7 +80,7 @@ from onlinemap.belief import Belief
 from onlinemap.errors import ImpossibleObservationError, ModelError
 from onlinemap.estimators import Estimator, fork
 from onlinemap.kernels.planning import plan_rollouts, rollout_uncertainty
-from onlinemap.model import GridModel
+from onlinemap.model import GridModel, change_powers
 from onlinemap.rng import SeedLike, as_generator
 from onlinemap.simulate import world_step
 
@@ -289,11 +289,8 @@ def particle_rollouts_fit(model: GridModel) -> bool:
 
 def rollout_tables(model: GridModel, horizon: int) -> RolloutTables:
     """Cumulative sensor and change rows and the powers of C up to ``horizon``. O(H K^3)."""
-    powers = np.empty((horizon + 1, model.n_labels, model.n_labels))
-    powers[0] = np.eye(model.n_labels)
-    for d in range(1, horizon + 1):
-        powers[d] = powers[d - 1] @ model.change
-    return RolloutTables(np.cumsum(model.sensor, axis=1), np.cumsum(model.change, axis=1), powers)
+    return RolloutTables(np.cumsum(model.sensor, axis=1), np.cumsum(model.change, axis=1),
+                         change_powers(model.change, horizon + 1).copy())  # writable: the kernels' one signature
 
 
 def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot, sequences: np.ndarray,

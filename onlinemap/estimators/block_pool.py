@@ -17,7 +17,6 @@ while particles share), O(P N / B) for the table, O(K^2 REFRESH_STEPS) for the p
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from typing import NamedTuple
 
@@ -28,7 +27,7 @@ from ..checkpoint import state_class
 from ..errors import ModelError
 from ..kernels.rbpf import particle_maps, rbpf_commit, rbpf_commit_cells, rbpf_map_mixture, rbpf_refresh
 from ..kernels.rbpf_parallel import rbpf_map_mixture_parallel
-from ..model import GridModel
+from ..model import GridModel, change_powers
 
 REFRESH_STEPS = 256  # every block row is brought up to date at least this often (lazy dynamics)
 
@@ -95,20 +94,6 @@ def grown_free_stack(free: np.ndarray, top: int, have: int, size: int) -> np.nda
     out[:top] = free[:top]
     out[top:top + len(added)] = added
     return out
-
-
-@functools.lru_cache(maxsize=16)
-def _powers(change: bytes, k: int, count: int) -> np.ndarray:
-    """(count, K, K) ``C^d`` for d < count, C the (K, K) matrix with these bytes, each the last
-    times C. Kept per matrix (read-only; callers copy): every filter on a model shares them, and
-    the 1024 products in Python cost 1-3 ms per filter built. O(count K^3)."""
-    matrix = np.frombuffer(change, dtype=np.float64).reshape(k, k).copy()
-    powers = np.empty((count, k, k))
-    powers[0] = np.eye(k)
-    for d in range(1, count):
-        powers[d] = powers[d - 1] @ matrix
-    powers.flags.writeable = False
-    return powers
 
 
 @state_class
@@ -178,7 +163,7 @@ class BlockPool:
         free[:len(unused)] = unused
         powers = np.eye(k)[None].copy()  # powers[d] = C^d for every age d a stamp can have
         if stamped:  # ages stay <= 2 REFRESH_STEPS + 1
-            powers = _powers(model.change.tobytes(), k, 4 * REFRESH_STEPS + 1).copy()
+            powers = change_powers(model.change, 4 * REFRESH_STEPS + 1).copy()
         return cls(rows, np.zeros((len(rows), block if stamped else 0), dtype=np.int64), row_block, refcount, free,
                    np.array([len(unused)]), np.tile(np.arange(n_blocks), (n_particles, 1)), layout.cell_block,
                    layout.cell_slot, layout.members, powers, bool(stamped))
