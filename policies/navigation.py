@@ -54,12 +54,13 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import breadth_first_order, dijkstra
+from scipy.sparse.csgraph import breadth_first_order
 
 from onlinemap import arguments
 from onlinemap.belief import Belief
 from onlinemap.errors import ModelError
 from onlinemap.kernels.navigation import goal_value_iteration
+from onlinemap.kernels.planning import shortest_paths
 from onlinemap.model import GridModel
 
 MIXED = 1e-3  # the horizon ends where C^tau is this close to its limit (label_powers)
@@ -165,19 +166,15 @@ def _stationary_cost(model: GridModel, tables: LabelTables, arrival: np.ndarray,
     ``arrival`` (N, K) for ever: the shortest path with cost ``(s_j + sum_k m_k alpha_k) /
     (1 - s_j)`` per move into ``j`` (``s_j`` its permanently blocking mass, ``alpha``
     :func:`commitment_steps`). inf where the goal cannot be reached. O(N A log N)."""
-    n = model.n_cells
     permanent, alpha = tables.permanent, tables.alpha
     wall = arrival[:, permanent].sum(axis=1)
     entering = arrival[:, ~permanent] @ alpha[~permanent]
     with np.errstate(divide="ignore", invalid="ignore"):
         cost = np.where(wall < 1.0, (wall + entering) / (1.0 - wall), np.inf)
-    cells = np.repeat(np.arange(n), model.n_actions)
-    targets = model.neighbors.ravel()
-    keep = (targets != cells) & np.isfinite(cost[targets]) & (cost[targets] < NEVER)
-    # one edge per (from, to) pair: two actions into the same cell cost the same
-    pairs = np.unique(targets[keep] * n + cells[keep])
-    reverse = sp.csr_array((cost[pairs // n], (pairs // n, pairs % n)), shape=(n, n))  # j -> l for l -> j
-    return dijkstra(reverse, directed=True, indices=goal)
+    cost[~(cost < NEVER)] = np.inf  # no way in
+    distance = np.full(model.n_cells, np.inf)
+    distance[goal] = 0.0
+    return shortest_paths(model.predecessor, cost, distance, False)  # over reversed moves: from each cell to the goal
 
 
 class GoalPlan(NamedTuple):
