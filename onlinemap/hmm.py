@@ -21,12 +21,11 @@ Costs: W steps, N cells, E motion edges (E <= 2 N for every grid here), K labels
 
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple
 
 import numpy as np
 
-from .arrays import frozen, read_only
+from .arrays import cached_by_content, frozen
 from .errors import ImpossibleObservationError
 from .kernels.forward_backward import accumulate_counts, forward_backward_pass
 from .model import GridModel
@@ -178,19 +177,13 @@ def prior_emission(model: GridModel) -> np.ndarray:
     return model.label_prior @ model.sensor
 
 
+@cached_by_content
 def sensor_inverse(sensor: np.ndarray) -> np.ndarray:
     """(K, K) pseudo-inverse of the sensor O (its inverse when O is invertible; least squares
     when it is singular, e.g. p_obs = 1/K), for :func:`map_from_emission`; read-only, computed
     once per distinct O (bit for bit: an SVD, about 0.2 ms, that every EM estimator built needs)
-    and shared. O(K^2) to look up, O(K^3) the first time."""
-    sensor = np.asarray(sensor)
-    return _pseudo_inverse(sensor.tobytes(), sensor.shape, sensor.dtype.str)
-
-
-@functools.lru_cache(maxsize=64)
-def _pseudo_inverse(data: bytes, shape: tuple[int, ...], dtype: str) -> np.ndarray:
-    """:func:`numpy.linalg.pinv` of the array of ``shape`` and ``dtype`` whose bytes are ``data``, read-only."""
-    return read_only(np.linalg.pinv(np.frombuffer(data, dtype=dtype).reshape(shape)))
+    and shared (:func:`~onlinemap.arrays.cached_by_content`). O(K^3) the first time."""
+    return np.linalg.pinv(sensor)
 
 
 def map_from_emission(emission: np.ndarray, inverse: np.ndarray) -> np.ndarray:

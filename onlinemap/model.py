@@ -28,7 +28,6 @@ Two options (DESIGN.md section 7), both off by default (the paper's model, bit f
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Iterable, Sequence
@@ -36,7 +35,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from . import arguments
-from .arrays import read_only
+from .arrays import cached_by_content, read_only
 from .errors import ModelError
 
 CORRIDOR_ACTIONS = ("left", "right")
@@ -187,21 +186,19 @@ def symmetric_channel(n_labels: int, p_same: float) -> np.ndarray:
 
 def change_powers(change: np.ndarray, count: int) -> np.ndarray:
     """(count, K, K) ``C^d`` for d < count, each the last times ``change`` C (K, K): read-only and
-    shared per matrix and count (copy it to hand a kernel a writable array). The RBPF's pool keeps
-    1025 of them for every dynamic filter built (1-3 ms of products in Python), the rollouts
-    H + 1 per planner. O(count K^3) the first time."""
-    change = np.ascontiguousarray(change, dtype=np.float64)
-    return _change_powers(change.tobytes(), change.shape[0], int(count))
+    shared per matrix and count (:func:`~onlinemap.arrays.cached_by_content`; copy it to hand a
+    kernel a writable array). The RBPF's pool keeps 1025 of them for every dynamic filter built
+    (1-3 ms of products in Python), the rollouts H + 1 per planner. O(count K^3) the first time."""
+    return _change_powers(np.asarray(change, dtype=np.float64), int(count))
 
 
-@functools.lru_cache(maxsize=16)
-def _change_powers(change: bytes, k: int, count: int) -> np.ndarray:
-    matrix = np.frombuffer(change, dtype=np.float64).reshape(k, k).copy()
-    powers = np.empty((count, k, k))
-    powers[0] = np.eye(k)
+@cached_by_content
+def _change_powers(change: np.ndarray, count: int) -> np.ndarray:
+    powers = np.empty((count,) + change.shape)
+    powers[0] = np.eye(change.shape[0])
     for d in range(1, count):
-        powers[d] = powers[d - 1] @ matrix
-    return read_only(powers)
+        powers[d] = powers[d - 1] @ change
+    return powers
 
 
 @dataclass(frozen=True, eq=False)

@@ -60,8 +60,9 @@ from onlinemap import arguments
 from onlinemap.belief import Belief
 from onlinemap.errors import ModelError
 from onlinemap.kernels.navigation import goal_value_iteration
-from onlinemap.kernels.planning import shortest_paths
 from onlinemap.model import GridModel
+
+from .passability import paths_to
 
 MIXED = 1e-3  # the horizon ends where C^tau is this close to its limit (label_powers)
 CREDIBLE = 0.95  # the location hypotheses that vote for the action (best_action): the likeliest cells holding this
@@ -172,9 +173,7 @@ def _stationary_cost(model: GridModel, tables: LabelTables, arrival: np.ndarray,
     with np.errstate(divide="ignore", invalid="ignore"):
         cost = np.where(wall < 1.0, (wall + entering) / (1.0 - wall), np.inf)
     cost[~(cost < NEVER)] = np.inf  # no way in
-    distance = np.full(model.n_cells, np.inf)
-    distance[goal] = 0.0
-    return shortest_paths(model.predecessor, cost, distance, False)  # over reversed moves: from each cell to the goal
+    return paths_to(model, cost, np.array([goal]))
 
 
 class GoalPlan(NamedTuple):

@@ -56,9 +56,16 @@ def distances_to(model: GridModel, passable: np.ndarray, targets, min_passable: 
     """(N,) expected steps ``d(i, S)`` from every cell to the nearest of ``targets`` S (cell
     indices), by :func:`enter_costs`; 0 on S, inf where S cannot be reached. Dijkstra over reversed
     moves: O(N A log(N A))."""
+    return paths_to(model, enter_costs(model, passable, min_passable), _cells("targets", model, targets))
+
+
+def paths_to(model: GridModel, enter_cost: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """(N,) the cheapest path from every cell to the nearest of ``targets`` (checked cell indices),
+    a move into cell j costing ``enter_cost[j]`` (N,) >= 0 (inf: no way in); 0 on the targets, inf
+    where none can be reached. Dijkstra over reversed moves: O(N A log(N A))."""
     distance = np.full(model.n_cells, np.inf)
-    distance[_cells("targets", model, targets)] = 0.0
-    return shortest_paths(model.predecessor, enter_costs(model, passable, min_passable), distance, False)
+    distance[targets] = 0.0
+    return shortest_paths(model.predecessor, enter_cost, distance, False)
 
 
 def distances_from(model: GridModel, passable: np.ndarray, sources, min_passable: float = 0.05) -> np.ndarray:
@@ -162,5 +169,5 @@ def _cells(name: str, model: GridModel, cells) -> np.ndarray:
     return cells.astype(np.int64)
 
 
-__all__ = ["BLOCKED_ABOVE", "expected_passability", "enter_costs", "distances_to", "distances_from",
+__all__ = ["BLOCKED_ABOVE", "expected_passability", "enter_costs", "distances_to", "paths_to", "distances_from",
            "move_chances", "steps_after_press", "blocked_probability", "unblocked_actions", "PressMemory"]

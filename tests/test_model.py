@@ -127,3 +127,30 @@ def test_building_world_specs():
                         ("building:32x32,extra_doors=2", "extra_doors")]:
         with pytest.raises(om.ModelError, match=match):
             parse_world(spec)
+
+
+def test_change_powers_are_the_matrix_powers_shared_read_only_per_content():
+    from onlinemap.model import change_powers
+
+    change = om.door_world(p_door=0.05)[0].change
+    powers = change_powers(change, 40)
+    assert powers.shape == (40,) + change.shape and not powers.flags.writeable
+    for d in (0, 1, 7, 39):  # an independent reference: numpy's repeated squaring
+        np.testing.assert_allclose(powers[d], np.linalg.matrix_power(change, d), rtol=1e-12, atol=1e-15)
+    assert change_powers(change.copy(), 40) is powers  # equal contents: the same table
+    assert change_powers(np.asfortranarray(change), 40) is powers  # whatever the layout
+    assert change_powers(change, 41) is not powers
+    skewed = np.array([[0.9, 0.1], [0.3, 0.7]])  # not symmetric: its transpose has other contents
+    assert change_powers(skewed.T, 5) is not change_powers(skewed, 5)
+    np.testing.assert_array_equal(change_powers(skewed.T, 5)[1], skewed.T)
+
+
+def test_sensor_inverse_is_numpys_pinv_shared_read_only_per_content():
+    from onlinemap.hmm import sensor_inverse
+    from onlinemap.model import symmetric_channel
+
+    for sensor in (symmetric_channel(3, 0.9), symmetric_channel(2, 0.5)):  # invertible, then singular
+        inverse = sensor_inverse(sensor)
+        assert inverse.tobytes() == np.linalg.pinv(sensor).tobytes() and not inverse.flags.writeable
+        assert sensor_inverse(sensor.copy()) is inverse
+    assert sensor_inverse(np.eye(2)) is not sensor_inverse(np.eye(2, dtype=np.float32))  # dtype is part of the key
