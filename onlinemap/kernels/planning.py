@@ -278,10 +278,12 @@ def _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, out, c
 
 @njit(cache=True, inline="always")
 def _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, n, s, h, p_move, blocking,
-               has_blocking, footprint_cells, sensor, readings, ids, cells, before):
+               has_blocking, footprint_cells, sensor, readings, ids, cells, before, lams, slots):
     """Successor s (0 stay, 1 move) of particle p at l pressing towards n, at step h: returns
     ``(cell, motion probability x likelihood, used)``, writing the changed cells' ids (used,)
-    and their marginals at step h ``cells (used, K)``. ``before`` (K,): n's marginal at step
+    and their marginals at step h, before the readings, ``cells (used, K)``; read f's likelihood
+    ``lams[f]`` and its row of ``cells``, ``slots[f]`` (-1: no reading). :func:`_read` turns the
+    rows into posteriors, for the successor drawn only. ``before`` (K,): n's marginal at step
     h - 1 (read by the caller when the move is gated by blocking)."""
     k = sensor.shape[0]
     gated = has_blocking and n != l
@@ -325,6 +327,7 @@ def _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, 
     for f in range(footprint_cells.shape[1]):
         c = footprint_cells[j, f]
         z = readings[f]
+        slots[f] = -1
         if c < 0 or z < 0:
             if c < 0 and z < 0:
                 continue
@@ -341,10 +344,26 @@ def _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, 
             used += 1
         if lam <= 0.0:
             return j, 0.0, 0
-        for b in range(k):
-            cells[w, b] = cells[w, b] * sensor[b, z] / lam
+        lams[f] = lam
+        slots[f] = w
         likelihood *= lam
     return j, likelihood, used
+
+
+@njit(cache=True, inline="always")
+def _read(sensor, readings, cells, lams, slots):
+    """The rows ``cells`` (W, K) of a successor (:func:`_successor`) given their readings:
+    ``cells[w] <- cells[w] O[:, z] / lam`` for read f's row w = ``slots[f]``. Each footprint cell
+    is read once, so no likelihood depends on another read's posterior."""
+    k = sensor.shape[0]
+    for f in range(slots.shape[0]):
+        w = slots[f]
+        if w < 0:
+            continue
+        z = readings[f]
+        lam = lams[f]
+        for b in range(k):
+            cells[w, b] = cells[w, b] * sensor[b, z] / lam
 
 
 @loop_kernel
@@ -370,10 +389,11 @@ def _world_step(where, labels, a, moves, p_move, blocking, dynamic, change_cdf, 
 @loop_kernel
 def _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, powers, change, dynamic, a, h, moves,
                  p_move, blocking, has_blocking, footprint_cells, sensor, readings, proposal_u, ids, cells, before,
-                 touched, touched_list, n_touched):
+                 lams, slots, touched, touched_list, n_touched):
     """Every particle takes step h (action a, the readings); weights renormalised (all particles
     kept, equally weighted, if none explains the readings). Cells any particle changes are
-    flagged in ``touched`` (N,) and listed in ``touched_list``; returns the new count."""
+    flagged in ``touched`` (N,) and listed in ``touched_list``; returns the new count. Both
+    successors' likelihoods are computed, the posterior cells only for the one drawn."""
     r_count = loc.shape[0]
     k = sensor.shape[0]
     top = -np.inf
@@ -391,7 +411,7 @@ def _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, power
         for s in range(2):  # one copy of the successor's code for both: half the code to compile
             j, w, u = _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, n, s, h, p_move,
                                  blocking, has_blocking, footprint_cells, sensor, readings, ids[s], cells[s],
-                                 before[s])
+                                 before[s], lams[s], slots[s])
             if s == 0:
                 j0, w0, u0 = j, w, u
             else:
@@ -404,6 +424,7 @@ def _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, power
         lw[p] += math.log(total)
         loc[p] = j1 if s == 1 else j0
         used = u1 if s == 1 else u0
+        _read(sensor, readings, cells[s], lams[s], slots[s])
         for v in range(used):
             c = ids[s, v]
             slot = ov_index[p, c]
@@ -633,6 +654,8 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
     ids = np.empty((2, n_reads + 1), dtype=np.int64)
     cells = np.empty((2, n_reads + 1, k))
     before = np.empty((2, k))
+    lams = np.empty((2, n_reads))
+    slots = np.empty((2, n_reads), dtype=np.int64)
     readings = np.empty(n_reads, dtype=np.int64)
     loc = np.empty((n_seq, r_count), dtype=np.int64)  # rollout state x: loc[x], lw[x], labels[x], where[x], ...
     lw = np.empty((n_seq, r_count))
@@ -697,7 +720,8 @@ def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footpri
                 n_touched[x] = _filter_step(loc[x], lw[x], maps, ov_index[x], ov_cell[x], ov_val[x], ov_stamp[x],
                                             ov_n[x], powers, change, dynamic, action[lead], h, moves, p_move, blocking,
                                             has_blocking, footprint_cells, sensor, readings, proposal_u[s, h - 1], ids,
-                                            cells, before, touched[x], touched_list[x], n_touched[x])
+                                            cells, before, lams, slots, touched[x], touched_list[x],
+                                            n_touched[x])
                 if checkpoints[h]:
                     value = _mixture_uncertainty(loc[x], lw[x], maps, disputed, disputed_maps, disputed_mix,
                                                  disputed_mask, ov_cell[x], ov_val[x], ov_stamp[x], ov_n[x], powers,
@@ -732,6 +756,8 @@ def rollout_beliefs(locations, maps, log_weights, moves, p_move, blocking, footp
     ids = np.empty((2, n_reads + 1), dtype=np.int64)
     cells = np.empty((2, n_reads + 1, k))
     before = np.empty((2, k))
+    lams = np.empty((2, n_reads))
+    slots = np.empty((2, n_reads), dtype=np.int64)
     loc = locations.copy()
     lw = log_weights.copy()
     labels = hyp_labels.copy()
@@ -744,8 +770,8 @@ def rollout_beliefs(locations, maps, log_weights, moves, p_move, blocking, footp
                                 footprint_cells, world_u[h - 1], change_u[h - 1], out_readings[h - 1])
             n_touched = _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, powers, change,
                                      dynamic, a, h, moves, p_move, blocking, has_blocking, footprint_cells, sensor,
-                                     out_readings[h - 1], proposal_u[h - 1], ids, cells, before, touched,
-                                     touched_list, n_touched)
+                                     out_readings[h - 1], proposal_u[h - 1], ids, cells, before, lams,
+                                     slots, touched, touched_list, n_touched)
         out_where[h] = where
         out_location[h] = 0.0
         out_maps[h] = 0.0
