@@ -282,9 +282,10 @@ def _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, 
     """Successor s (0 stay, 1 move) of particle p at l pressing towards n, at step h: returns
     ``(cell, motion probability x likelihood, used)``, writing the changed cells' ids (used,)
     and their marginals at step h, before the readings, ``cells (used, K)``; read f's likelihood
-    ``lams[f]`` and its row of ``cells``, ``slots[f]`` (-1: no reading). :func:`_read` turns the
-    rows into posteriors, for the successor drawn only. ``before`` (K,): n's marginal at step
-    h - 1 (read by the caller when the move is gated by blocking)."""
+    ``lams[f]`` and its row of ``cells``, ``slots[f]`` (-1: no reading). Those are complete only
+    when the returned weight is positive, as it is for the successor drawn, the one whose rows
+    :func:`_read` turns into posteriors. ``before`` (K,): n's marginal at step h - 1 (read by the
+    caller when the move is gated by blocking)."""
     k = sensor.shape[0]
     gated = has_blocking and n != l
     if s == 1:
