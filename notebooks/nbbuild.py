@@ -27,6 +27,16 @@ HERE = Path(__file__).resolve().parent
 KERNELSPEC = {"name": "python3", "display_name": "Python 3", "language": "python"}
 
 
+def cpu_flags() -> set[str]:
+    """The CPU's feature flags from /proc/cpuinfo (``avx2``, ``fma``, ``avx512f``, ...); empty
+    where there is no /proc/cpuinfo."""
+    try:
+        with open("/proc/cpuinfo") as info:
+            return set(next((line for line in info if line.startswith("flags")), "").split()[2:])
+    except OSError:
+        return set()
+
+
 def same_code_paths() -> dict[str, str]:
     """Environment variables that make numpy, its OpenBLAS and numba run the same floating-point
     code on every x86-64 machine with AVX2 and FMA (x86-64-v3), whatever else the CPU has.
@@ -38,12 +48,7 @@ def same_code_paths() -> dict[str, str]:
     on one machine was re-run on another, an AMD EPYC with X86_V3 only). Pinning every machine
     to the v3 code paths makes the stored outputs reproducible. Elsewhere (no AVX2, not x86,
     no /proc/cpuinfo) nothing is pinned. Costs a few percent of speed on v4 machines."""
-    try:
-        with open("/proc/cpuinfo") as info:
-            flags = set(next((line for line in info if line.startswith("flags")), "").split())
-    except OSError:
-        return {}
-    if not {"avx2", "fma"} <= flags:
+    if not {"avx2", "fma"} <= cpu_flags():
         return {}
     from importlib.metadata import version
 
