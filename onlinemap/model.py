@@ -327,6 +327,13 @@ class GridModel:
         return self.footprint == FOOTPRINTS["cell"]
 
     @cached_property
+    def is_paper_model(self) -> bool:
+        """True for the paper's motion and sensor (DESIGN.md section 1): no label blocks motion and
+        the robot reads only its own cell. The one spelling of that test: the estimators and planners
+        take their fast paths on it. Computed once."""
+        return self.reads_own_cell and not self.has_blocking
+
+    @cached_property
     def off_grid_patterns(self) -> np.ndarray:
         """(U, F) bool: the distinct off-grid masks ``footprint_cells[l] < 0`` over locations l."""
         return read_only(np.unique(self.footprint_cells < 0, axis=0))
