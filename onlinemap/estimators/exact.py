@@ -29,6 +29,7 @@ from .. import state_checks as checks
 from ..arrays import DEFAULT_MAX_BYTES, frozen, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError
+from ..label_prior import LabelPrior, dirichlet_multinomial_prior, resolve_label_prior
 from ..kernels.exact import change_every_axis, map_marginals as _map_marginals_kernel, motion_observe
 from ..model import GridModel, apply_motion, apply_motion_transpose
 from ..validation import check_sequence, check_step
@@ -102,9 +103,17 @@ def check_memory(model: GridModel, need: int, max_bytes: int | float, what: str)
             f"{limit / 1e9:.3g} GB; {advice}, or use an approximate estimator (bk, rbpf)")
 
 
-def prior_tensor(model: GridModel) -> np.ndarray:
-    """(N, K**N) joint prior: one-hot start cell times the product of the cells' label priors."""
-    joint = reduce(np.multiply.outer, model.label_prior).ravel()
+def prior_tensor(model: GridModel, label_prior: LabelPrior | None = None) -> np.ndarray:
+    """(N, K**N) joint prior: one-hot start cell times the map prior: the product of the cells'
+    label priors (the model's, or the fixed frequencies of ``label_prior``), or, for
+    ``label_prior.kind == "learn"``, the Dirichlet-multinomial over maps
+    (:func:`onlinemap.label_prior.dirichlet_multinomial_prior`: the exact hierarchical prior)."""
+    if label_prior is not None and label_prior.kind == "learn":
+        joint = dirichlet_multinomial_prior(model.n_cells, label_prior.alpha)
+    elif label_prior is not None and label_prior.kind == "fixed":
+        joint = reduce(np.multiply.outer, [label_prior.frequencies] * model.n_cells).ravel()
+    else:
+        joint = reduce(np.multiply.outer, model.label_prior).ravel()
     x = np.zeros((model.n_cells, joint.size))
     x[model.start] = joint
     return x
@@ -120,19 +129,26 @@ def map_marginals(joint_map: np.ndarray, n_cells: int, n_labels: int) -> np.ndar
 
 @register("exact")
 class ExactFilter:
-    """Exact filtering of ``P(L_t, M_t | z_0:t, a_1:t)``. Options: ``max_bytes`` (memory guard)."""
+    """Exact filtering of ``P(L_t, M_t | z_0:t, a_1:t)``. Options: ``max_bytes`` (memory guard);
+    ``label_prior`` and ``prior_strength`` (:mod:`onlinemap.label_prior`): None keeps the model's
+    prior; a (K,) vector gives every cell those frequencies; ``"learn"`` puts the frequencies
+    under a Dirichlet (total pseudo-count ``prior_strength``, default K) and filters the exact
+    posterior of that hierarchical model (its map prior the Dirichlet-multinomial): the reference
+    for the approximate filters that learn the label prior."""
 
     scratch_attributes = ("_scratch", "_joint_map")  # overwritten by every step: not checkpointed
     #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
     CONSTANT_STATE = ("max_bytes", "_no_motion", "_flat")
 
-    def __init__(self, model: GridModel, *, max_bytes: int = DEFAULT_MAX_BYTES):
+    def __init__(self, model: GridModel, *, max_bytes: int = DEFAULT_MAX_BYTES, label_prior=None,
+                 prior_strength=None):
         max_bytes = arguments.requested_bytes("max_bytes", max_bytes, InvalidOptionError)
+        prior = resolve_label_prior(model.n_labels, label_prior, prior_strength)
         check_memory(model, filter_bytes(model), max_bytes, "the exact filter")
         self.model = model
         self.max_bytes = max_bytes
         n, k = model.n_cells, model.n_labels
-        self._x = prior_tensor(model)  # current belief, unnormalised by the factor 1/_norm
+        self._x = prior_tensor(model, prior)  # current belief, unnormalised by the factor 1/_norm
         self._scratch = np.empty_like(self._x)
         self._joint_map = np.empty(k**n)
         self._norm = 1.0
