@@ -107,7 +107,7 @@ def _read(path: Path, what: str) -> bytes:
             kind = next((name for test, name in _KINDS if test(mode)), "not a regular file")
             raise FloorFileError(f"{what} {path} is {kind}, not a regular file")
         chunks, size = [], 0
-        while chunk := os.read(fd, min(1 << 24, MAX_FILE_BYTES + 1 - size)):
+        while chunk := os.read(fd, min(1 << 20, MAX_FILE_BYTES + 1 - size)):
             chunks.append(chunk)
             size += len(chunk)
             if size > MAX_FILE_BYTES:
