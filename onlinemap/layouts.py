@@ -74,7 +74,7 @@ import numpy as np
 
 from . import arguments
 from .errors import FloorFileError, FloorFileWarning, LargeFloorWarning, ModelError, SmallRegionWarning
-from .model import FREE, OPEN_DOOR, WALL, GridModel, door_world, passable_start
+from .model import FREE, OPEN_DOOR, WALL, GridModel, _footprint, door_world, passable_start
 
 MOVINGAI_PASSABLE, MOVINGAI_OBSTACLES = ".GS", "@OTW"
 ROS_DEFAULTS = {"occupied_thresh": 0.65, "free_thresh": 0.196, "negate": 0}  # map_server's
@@ -566,15 +566,17 @@ def _region(source: _Source, region) -> tuple[int, int, int, int]:
     return top, bottom, left, right
 
 
-def _frame(source: _Source, cell_size, region) -> FloorFrame:
-    """The frame of ``source`` read at ``cell_size`` over ``region``, refused above the cell cap."""
+def _frame(source: _Source, cell_size, region, footprint=None) -> FloorFrame:
+    """The frame of ``source`` read at ``cell_size`` over ``region``, refused when its cells
+    times the footprint's offsets (as the model counts them) are above the cell cap."""
     factor = _factor(source, cell_size)
     top, bottom, left, right = _region(source, region)
     shape = (-(-(bottom - top) // factor), -(-(right - left) // factor))
-    cells = shape[0] * shape[1]
-    if cells > arguments.MAX_CELLS:
-        raise FloorFileError(f"{source.path}: {shape[0]} x {shape[1]} = {cells} cells at cell_size {cell_size}, above "
-                             f"the limit of {arguments.MAX_CELLS}; give a larger cell_size or a region")
+    cells, offsets = shape[0] * shape[1], len(_footprint(footprint))
+    if cells * offsets > arguments.MAX_CELLS:
+        read = f"x {offsets} cells read a step " if offsets > 1 else ""
+        raise FloorFileError(f"{source.path}: {shape[0]} x {shape[1]} = {cells} cells {read}at cell_size {cell_size}, "
+                             f"above the limit of {arguments.MAX_CELLS}; give a larger cell_size or a region")
     if shape[0] < 2:
         raise FloorFileError(f"{source.path}: the floor is one cell high at cell_size {cell_size} (a door world "
                              "needs two rows or more); give a smaller cell_size or a taller region")
@@ -607,11 +609,15 @@ def layout_labels(path, *, cell_size=None, doorways: bool = True, cell_rule: str
     (None: one pixel a cell) under ``cell_rule``, doorways marked as open doors unless
     ``doorways=False``. Sizes are checked against the limits before the pixels are decoded.
     O(pixels)."""
-    path = _path(path)
+    source = _source(_path(path))
+    return _labels(source, _frame(source, cell_size, region), cell_size, doorways, cell_rule)
+
+
+def _labels(source: _Source, frame: FloorFrame, cell_size, doorways, cell_rule) -> np.ndarray:
+    """:func:`layout_labels` of a file whose header and frame are checked."""
+    path = source.path
     doorways = arguments.flag("doorways", doorways, error=FloorFileError)
     cell_rule = arguments.choice("cell_rule", cell_rule, CELL_RULES, error=FloorFileError)
-    source = _source(path)
-    frame = _frame(source, cell_size, region)
     if cell_size is None and frame.shape[0] * frame.shape[1] > LARGE_FLOOR_CELLS:
         _large_floor_warning(frame)
     (top, bottom), (left, right) = frame.rows, frame.cols
@@ -652,7 +658,9 @@ def read_layout(path, *, cell_size=None, doorways: bool = True, cell_rule: str =
     than half the free cells and open doors warns (:class:`~onlinemap.errors.SmallRegionWarning`).
     true_map (N,) read-only; the labels are ``true_map.reshape(model.shape)``. Cost O(pixels) to
     read, then the model's O(N F)."""
-    labels = layout_labels(path, cell_size=cell_size, doorways=doorways, cell_rule=cell_rule, region=region)
+    source = _source(_path(path))
+    frame = _frame(source, cell_size, region, footprint)  # the model's cap, checked on the header
+    labels = _labels(source, frame, cell_size, doorways, cell_rule)
     start = largest_region_start(labels) if start is None else passable_start(labels, start)
     regions, sizes = _regions(labels)
     reached, total = int(sizes[regions.flat[start]]), int(sizes.sum())

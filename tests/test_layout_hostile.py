@@ -149,6 +149,13 @@ def test_the_cell_cap_is_checked_after_cell_size_before_decoding(tmp_path, monke
     assert decoded == []  # refused on the header alone
     monkeypatch.setattr(layouts, "_movingai", source)
     assert layout_labels(path, cell_size=2).shape == (10, 10)  # 100 cells: within the cap
+    # the model reads a cross of 5 cells a step: 100 cells x 5 offsets is above the cap, refused on the header
+    monkeypatch.setattr(layouts, "_movingai", lambda p: source(p)._replace(decode=lambda: decoded.append(1)))
+    with pytest.raises(FloorFileError, match=r"10 x 10 = 100 cells x 5 cells read a step at cell_size 2, above"):
+        om.read_layout(path, cell_size=2)
+    assert decoded == []
+    monkeypatch.setattr(layouts, "_movingai", source)
+    assert om.read_layout(path, cell_size=4)[0].shape == (5, 5)  # 25 cells x 5 offsets
 
 
 def test_a_one_row_floor_is_not_told_to_use_corridor(tmp_path):
