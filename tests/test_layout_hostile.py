@@ -155,7 +155,7 @@ def test_the_cell_cap_is_checked_after_cell_size_before_decoding(tmp_path, monke
         om.read_layout(path, cell_size=2)
     assert decoded == []
     monkeypatch.setattr(layouts, "_movingai", source)
-    assert om.read_layout(path, cell_size=4)[0].shape == (5, 5)  # 25 cells x 5 offsets
+    assert om.read_layout(path, cell_size=5)[0].shape == (4, 4)  # 16 cells x 5 offsets
 
 
 def test_a_one_row_floor_is_not_told_to_use_corridor(tmp_path):
