@@ -23,7 +23,17 @@ its numbers here, with the same names and thresholds:
   ``confidently_wrong``); the map error and wrong cells over the cells the sensor read
   (``read_map_error``, ``read_wrong_cells``: :func:`read_cells`); and the yardstick of a robot
   told its location (:func:`told_location_map`: ``told_location_map_error`` and its three
-  counts; NaN with blocking labels, where the trajectory itself depends on the map).
+  counts; with blocking labels the moves are evidence too) and ``excess_map_error``, the final
+  map error less the told-location map's.
+- honest (issue 40; :data:`HONEST_METRICS` says each in one sentence for printed tables): per step
+  ``location_distance`` (the expected moves on the true floor between the location belief and
+  the true cell: :func:`floor_distances`), ``location_claimed`` (``sum_i P(L_t = i)^2``, the
+  P(true cell) the belief expects), ``read_map_p_true`` and ``read_map_claimed`` (the same for the
+  labels of the cells read so far), ``told_location_map_error`` and ``excess_map_error``; per run
+  (:func:`honest_metrics`) ``mean_``, ``late_`` (second half) and ``final_location_distance``,
+  ``mean_location_p_true``, ``mean_location_claimed`` and ``location_calibration_gap`` (their
+  difference: negative when the filter is overconfident), ``mean_read_map_p_true``,
+  ``mean_read_map_claimed`` and ``map_calibration_gap``.
 - coverage (how fast an explorer maps): ``known_cells`` per step (cells whose true label has
   probability >= :data:`KNOWN_ABOVE`), ``observable_map_error`` per step (the map error over the
   cells a robot could ever read: :func:`observable_cells`; with blocking walls some walls are
@@ -36,7 +46,9 @@ its numbers here, with the same names and thresholds:
   ``success`` (reached within :data:`SUCCESS_WITHIN` times the oracle's steps; counted over the
   runs where the oracle reaches the goal, ``oracle_reached``).
 
-Cost: O(T N K) for T steps, N cells, K labels (one pass over the stacked beliefs).
+Cost: O(T N K) for T steps, N cells, K labels (one pass over the stacked beliefs), plus once per
+run the told-location map (:func:`told_location`) and a shortest-path search per distinct true cell
+(:func:`floor_distances`).
 """
 
 from __future__ import annotations
@@ -292,7 +304,7 @@ def _normalised(log_belief: np.ndarray) -> np.ndarray:
 class _Presses(NamedTuple):
     """What the moves of a run say about the cells pressed towards (:func:`_presses`)."""
 
-    cell: np.ndarray  # (T,) the in-grid cell pressed towards at step t, or -1 (no evidence: t = 0, an edge, no blocking)
+    cell: np.ndarray  # (T,) the in-grid cell pressed towards at step t, or -1 (t = 0, an edge, no blocking labels)
     kind: np.ndarray  # (T,) 0: the robot entered it, 1: it stayed
     likelihood: np.ndarray  # (2, K) P(outcome | label of the cell), up to a constant per row
 
