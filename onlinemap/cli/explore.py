@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ModelError
-from ..evaluate import TIMING_NOTE, from_steps
+from ..evaluate import HONEST_METRICS, TIMING_NOTE, from_steps
 from ..worlds import parse_world, world_help
 from .common import (OPTION_HELP, non_negative_int, open_unit_interval, options_per_estimator, parse_options, positive_int,
                      print_table, split_list, write_table)
@@ -23,7 +23,8 @@ HARD = ("the robot knows nothing of the map (uniform label prior): a cell seen f
         "fail with probability 1 - p_move. Expect high location errors (0.5-0.9 in the paper's world, where "
         "info_gain, which re-anchors in a corner, does best). Give it the floor plan with "
         "--world door,floor_plan=0.95,p_move=0.9.")
-SUMMARY_METRICS = ("final_map_error", "wrong_cells", "mean_location_error", "late_door_error", "ms_per_step")
+SUMMARY_METRICS = ("final_map_error", "wrong_cells", "mean_location_error", "late_door_error", *HONEST_METRICS,
+                   "ms_per_step")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -36,7 +37,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "the same seeds (paired), as a sweep (onlinemap.sweeps). Prints, per planner, the final "
                     "map error, the wrong cells (most probable label wrong) at the end, the mean location "
                     "error and, in a world with doors, the late door-state error (mean over the last two "
-                    "thirds of the run), each with a confidence interval over seeds. With --out DIR, writes "
+                    "thirds of the run), the honest metrics (how far off the location belief is, how "
+                    "calibrated the location and map beliefs are, the map error of a robot told its path "
+                    "and the excess over it; a legend under the table says each in one sentence), each with "
+                    "a confidence interval over seeds. With --out DIR, writes "
                     "explore_steps.csv, explore_runs.csv, explore_summary.csv, explore_errors.png and "
                     "explore_visits.png there (and explore.parts/: a rerun resumes).")
     p.add_argument("--world", default=DEFAULT_WORLD,
@@ -110,6 +114,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"mean [{args.confidence:.0%} confidence interval] over {args.repeats} seed(s), per planner:")
     print_table(summary_table(summary))
     print(TIMING_NOTE + "; wrong_cells: cells whose most probable label is wrong at the end")
+    for name, meaning in HONEST_METRICS.items():
+        print(f"{name}: {meaning}")
     if out is not None:
         written = [write_table(steps, out / "explore_steps.csv"), write_table(runs, out / "explore_runs.csv"),
                    write_table(summary, out / "explore_summary.csv")]

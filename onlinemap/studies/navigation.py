@@ -37,7 +37,7 @@ from .base import Study, ordered, summary_of
 DOOR_WORLD = "door,blocking=1,footprint=cross"  # the 10 x 10 door world with blocking and a cross footprint
 FLOOR_PLAN = 0.95  # the confidence of the floor plan the robot is given
 METRICS = ("success", "reached", "steps_to_goal", "oracle_steps", "steps_over_oracle", "mean_location_error",
-           "ms_per_step")
+           "mean_location_distance", "location_calibration_gap", "map_calibration_gap", "ms_per_step")
 
 
 def far_goals(model: GridModel, true_map: np.ndarray, count: int = 1) -> list[int]:
