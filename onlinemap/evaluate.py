@@ -82,19 +82,24 @@ RUN_METRICS = ("final_map_error", "mean_map_error", "final_location_error", "mea
                "mean_map_tv", "final_map_entropy", "final_location_entropy", "final_door_error",
                "mean_door_error", "late_door_error", "ms_per_step")
 UNIT_METRICS = ("error", "_tv", "entropy", "p_true")  # names containing these lie in [0, 1]
+#: yes/no outcomes per run: their means (shares of runs) lie in [0, 1]
+PROPORTION_METRICS = ("reached", "oracle_reached", "success", "ends_lost", "failed", "astray_way_back",
+                      "any_wrong_cell", "wrong_map", "ends_lost_or_wrong_map", "local_maximum")
 #: a footnote for printed tables: what ``ms_per_step`` includes
 TIMING_NOTE = "ms_per_step: wall time per step, measured after a warm-up run (numba kernels compiled first)"
 
 
 def metric_bounds(name: str, n_cells: int | None = None) -> tuple[float, float]:
-    """The range of a metric: [0, 1] for errors, distances, entropies and probabilities, [0, N]
-    for counts of cells in a world of ``n_cells`` = N (``wrong_cells``, ``unsure_or_wrong``,
-    ``final_known_cells``, ...; [0, inf) when N is not known), [0, inf) for times, steps
-    (``steps_to_map_error_10``) and areas under an error curve (``map_error_area``, error x steps),
-    unbounded otherwise (log evidence)."""
-    if name == "ms_per_step" or name.startswith(("steps_to_", "map_error_area")):
+    """The range of a metric: [0, 1] for errors, distances, entropies, probabilities and yes/no
+    outcomes (:data:`PROPORTION_METRICS`), [0, N] for counts of cells in a world of ``n_cells`` =
+    N (``wrong_cells``, ``unsure_or_wrong``, ``final_known_cells``, ...; [0, inf) when N is not
+    known), [0, inf) for times, steps (``steps_to_map_error_10``, ``steps_to_goal``,
+    ``oracle_steps``), ratios of steps (``steps_over_oracle``), gaps to a maximum
+    (``objective_gap``) and areas under an error curve (``map_error_area``, error x steps),
+    unbounded otherwise (log evidence, objectives)."""
+    if name == "ms_per_step" or name.startswith("map_error_area") or "steps" in name or name.endswith("_gap"):
         return 0.0, math.inf
-    if any(part in name for part in UNIT_METRICS):
+    if name in PROPORTION_METRICS or any(part in name for part in UNIT_METRICS):
         return 0.0, 1.0
     if "wrong" in name or name.endswith("known_cells"):
         return 0.0, math.inf if n_cells is None else float(n_cells)

@@ -9,6 +9,7 @@ import itertools
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
 import onlinemap as om
@@ -571,3 +572,58 @@ def test_navigate_command_prints_and_writes(tmp_path, capsys):
         assert (tmp_path / name).stat().st_size > 0
     assert main(["navigate", "--goal", "0,5", "--repeats", "1"]) == 2  # a wall: refused, one line
     assert "goal" in capsys.readouterr().err
+
+
+def test_navigate_command_without_goal_in_a_world_without_free_labels_goes_to_the_far_cell(capsys):
+    """Issue 42 item 7: ``navigate --world corridor:8`` (labels '0', '1', none named free) died in
+    ``far_goals(...)[0]`` with an IndexError. Every label lets the robot in, so the far goal is the
+    cell farthest from the start: the corridor's other end, the 3 x 3 grid's opposite corner."""
+    from onlinemap.cli import main
+    from onlinemap.studies.navigation import far_goals
+
+    for world, goal in (("corridor:8", 7), ("grid:3x3", 8)):
+        spec = parse_world(world)
+        assert far_goals(spec.model, spec.initial_map(0)) == [goal]
+        assert main(["navigate", "--world", world, "--repeats", "1", "--steps", "12", "-o", "n_particles=20"]) == 0
+        assert f"goal cell {goal} " in capsys.readouterr().out
+
+
+def test_navigate_command_refuses_a_wall_goal_before_running_anything(capsys):
+    """Issue 42 item 7: ``navigate --goal 3,0`` (a wall of the door world's floor plan) ran all its
+    tasks, then said "rerun to retry". The goal is checked against the floor plan first."""
+    from onlinemap.cli import main
+
+    assert main(["navigate", "--goal", "3,0", "--repeats", "1", "-o", "n_particles=20"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""  # no run started
+    assert "wall" in captured.err and "cell 30" in captured.err and "rerun" not in captured.err
+
+
+def test_navigate_command_refuses_planners_that_ignore_the_goal(capsys):
+    """Issue 42 item 7: ``navigate --planner info_gain`` / ``frontier`` were accepted, and reached
+    the goal in no run, since they never read it."""
+    from onlinemap.cli import main
+
+    for planners, named in (("info_gain", "info_gain"), ("goto,frontier", "frontier")):
+        assert main(["navigate", "--planner", planners, "--repeats", "1"]) == 2
+        err = capsys.readouterr().err
+        assert f"--planner {named}" in err and "goal" in err and "goto, static_goto" in err
+        assert len(err.strip().splitlines()) == 1
+
+
+def test_navigate_command_says_so_when_no_oracle_reaches_the_goal(tmp_path, capsys):
+    """Issue 43 section 2 item 2: with no run's oracle at the goal within --steps, ``navigate``
+    ended in ``KeyError: 'n'`` (an empty summary), wrote no table with --out, and its rerun (which
+    resumes) crashed again. Now it says why there is nothing to compare and writes the tables."""
+    from onlinemap.cli import main
+
+    argv = ["navigate", "--goal", "99", "--steps", "10", "--repeats", "1", "-o", "n_particles=20",
+            "--out", str(tmp_path)]
+    for _ in range(2):  # the rerun resumes from navigate.parts
+        assert main(argv) == 0
+        out = capsys.readouterr().out
+        assert "the oracle reaches goal cell 99 within 10 steps in none of the 1 run(s)" in out
+    runs = pd.read_csv(tmp_path / "navigate_runs.csv")
+    assert len(runs) == 2 and not runs["oracle_reached"].any()
+    summary = pd.read_csv(tmp_path / "navigate_summary.csv")
+    assert summary.empty and {"planner", "runs", "success"} <= set(summary.columns)

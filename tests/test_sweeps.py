@@ -723,3 +723,35 @@ def test_a_part_keeps_every_column_and_type(tmp_path):
     (tmp_path / f"{task.key}.npz").write_bytes(b"PK\x03\x04 not a zip")
     with pytest.raises(om.OnlineMapError, match="cannot read sweep part"):
         sweeps.collect(tmp_path)
+
+
+def test_intervals_of_counts_steps_ratios_and_shares_stay_in_their_range():
+    """Issue 42 item 7: intervals of counts, steps, ratios and times went below 0
+    (``steps_over_oracle 12.649 [-45.951, 71.249]``). Each is clipped to its range: the t
+    interval of [0, 0, 0, 40] is 10 +- 3.182 * 20 / 2 = [-21.8, 41.8] before clipping (worked by
+    hand: sd 20, t(0.975, 3) = 3.182), so its low end is 0 after; a share stored as 0/1 floats
+    (a table read back) stays in [0, 1]; a log evidence stays signed."""
+    table = pd.DataFrame({"planner": "goto", "steps_to_goal": [0.0, 0.0, 0.0, 40.0],
+                          "oracle_steps": [0.0, 0.0, 0.0, 40.0], "steps_over_oracle": [0.0, 0.0, 0.0, 40.0],
+                          "objective_gap": [0.0, 0.0, 0.0, 40.0], "success": [1.0, 1.0, 1.0, 0.0],
+                          "failed": [0.0, 0.0, 0.0, 1.0], "final_log_evidence": [0.0, 0.0, 0.0, 40.0]})
+    summary = sweeps.summarize(table, list(table.columns[1:]), by=["planner"]).set_index("metric")
+    half = stats.t.ppf(0.975, 3) * 20.0 / 2.0
+    assert half == pytest.approx(31.82, abs=0.01)
+    for metric in ("steps_to_goal", "oracle_steps", "steps_over_oracle", "objective_gap"):
+        assert (summary.loc[metric, "low"], summary.loc[metric, "high"]) == pytest.approx((0.0, 10.0 + half)), metric
+    for metric in ("success", "failed"):  # mean 0.75 / 0.25 +- 3.182 * 0.5 / 2 = 0.795: past both ends
+        assert (summary.loc[metric, "low"], summary.loc[metric, "high"]) == pytest.approx((0.0, 1.0)), metric
+    assert summary.loc["final_log_evidence", "low"] == pytest.approx(10.0 - half)
+
+
+def test_a_summary_of_no_runs_is_an_empty_table_with_its_columns():
+    """Issue 43 section 2 item 2: summarising no rows (no run where the oracle reached the goal)
+    raised ``KeyError: 'n'``."""
+    from onlinemap.studies.base import summary_of
+
+    empty = pd.DataFrame({"planner": pd.Series([], dtype=object), "success": pd.Series([], dtype=bool)})
+    assert list(sweeps.summarize(empty, ["success"], by=["planner"]).columns) == \
+        ["planner", "metric", "n", "mean", "low", "high"]
+    wide = summary_of(empty, ["success"], ["planner"])
+    assert wide.empty and list(wide.columns) == ["planner", "runs", "success", "success_low", "success_high"]
