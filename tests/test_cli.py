@@ -368,3 +368,37 @@ def test_a_bad_option_value_names_the_option_not_an_internal_spec_path(capsys):
         assert main(argv) == 2
         error = capsys.readouterr().err
         assert "--option" in error and "<spec>" not in error and "must be int" in error, error
+
+
+@pytest.mark.parametrize("world, suggestion", [
+    ("building:12x12", "--world building:12x12,floor_plan=0.95."),
+    ("corridor:8", "--world corridor:8 --floor-plan 0.95."),  # a map drawn per seed: the option, not the key
+])
+def test_the_why_it_is_hard_hint_names_the_users_own_world(world, suggestion):
+    """Issue 42 item 7: the hint proposed the door world's spec (``--world
+    door,floor_plan=0.95,p_move=0.9``) on ``building:`` and ``layout:`` worlds. It names the
+    user's own world with the floor plan, and what it proposes runs (no hint: a floor plan)."""
+    code, out, _ = cli(["explore", "--world", world, "--planner", "random", "--steps", "2", "-o", "n_particles=5",
+                        "--no-progress"])
+    hint = [line for line in out.splitlines() if line.startswith("why it is hard")]
+    assert code == 0 and len(hint) == 1 and hint[0].endswith(f"Give it the floor plan with {suggestion}"), out
+    proposed = suggestion.rstrip(".").split()
+    code, out, err = cli(["explore", *proposed, "--planner", "random", "--steps", "2", "-o", "n_particles=5",
+                          "--no-progress"])
+    assert code == 0 and "why it is hard" not in out and "label prior: the floor plan, confidence 0.95" in out, err
+
+
+def test_goal_planners_without_a_goal_get_command_line_wording():
+    """Issue 42 item 7: ``track --planner goto`` without ``--goal`` said ``GoTo needs a goal:
+    goal=CELL (an index or (row, col))``, Python wording; ``explore --planner goto`` named an
+    internal ``<spec>: planners.goto``. Issue 43 item 14: ``track --goal ²`` printed a raw
+    ValueError (``str.isdigit`` is true for a superscript)."""
+    code, _, err = cli(["track", "--world", "door", "--estimator", "rbpf", "--planner", "goto"])
+    assert_one_line_error(code, err, "--planner goto needs --goal CELL")
+    assert "GoTo" not in err and "goal=CELL" not in err
+    code, _, err = cli(["track", "--world", "door", "--estimator", "rbpf", "--planner", "goto", "--goal", "²"])
+    assert_one_line_error(code, err, "--goal must be a cell index or ROW,COL", "'²'")
+    assert "ValueError" not in err
+    code, _, err = cli(["explore", "--planner", "random,goto", "--steps", "3", "-o", "n_particles=5"])
+    assert_one_line_error(code, err, "--planner goto", "navigate --goal CELL")
+    assert "<spec>" not in err and "GoTo" not in err

@@ -17,12 +17,12 @@ from .common import (OPTION_HELP, non_negative_int, open_unit_interval, options_
 #: the paper's world: the built-in 10 x 10 door world, uniform label prior, p_move 0.8
 DEFAULT_WORLD = "door,p_move=0.8"
 DEFAULT_PLANNERS = "info_gain,entropy,random,sweep"  # the best planner first, then the baselines
-#: printed when the robot starts knowing nothing of the map (a uniform label prior)
+#: printed when the robot starts knowing nothing of the map (a uniform label prior); ``{floor_plan}``:
+#: the user's world with the floor plan
 HARD = ("the robot knows nothing of the map (uniform label prior): a cell seen for the first time says "
         "nothing about where it is, so it localises only on cells it has already mapped, while its moves "
         "fail with probability 1 - p_move. Expect high location errors (0.5-0.9 in the paper's world, where "
-        "info_gain, which re-anchors in a corner, does best). Give it the floor plan with "
-        "--world door,floor_plan=0.95,p_move=0.9.")
+        "info_gain, which re-anchors in a corner, does best). Give it the floor plan with {floor_plan}.")
 SUMMARY_METRICS = ("final_map_error", "wrong_cells", "mean_location_error", "late_door_error", "ms_per_step")
 
 
@@ -73,7 +73,7 @@ def exploration_spec(args: argparse.Namespace, planners: list[str]) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from policies import PLANNERS, plot_errors, plot_visits
+    from policies import PLANNERS, planner_options, plot_errors, plot_visits
 
     from .. import plots
     from ..sweeps import played_map, summarize, summary_table, sweep
@@ -86,6 +86,10 @@ def run(args: argparse.Namespace) -> int:
     unknown = [name for name in planners if name not in PLANNERS]
     if unknown or not planners:
         raise ModelError(f"--planner: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(PLANNERS)}")
+    goal_planners = [name for name in planners if "goal" in planner_options(name)]
+    if goal_planners:
+        raise ModelError(f"--planner {', '.join(goal_planners)}: a goal planner goes to a goal, it does not explore; "
+                         f"send it to one with onlinemap navigate --goal CELL")
     world = parse_world(args.world)
     if args.floor_plan is not None and world.floor_plan is not None:
         raise ModelError(f"--floor-plan {args.floor_plan} and --world {args.world}: give the floor plan once")
@@ -98,7 +102,10 @@ def run(args: argparse.Namespace) -> int:
              "uniform" if uniform else "the world's own")
     print(f"world {args.world}: {world.model}; label prior: {prior}")
     if uniform:
-        print("why it is hard: " + HARD)
+        # the user's own world with the floor plan: a world key where the map is fixed, else the option
+        suggestion = (f"--world {args.world},floor_plan=0.95" if world.true_map is not None else
+                      f"--world {args.world} --floor-plan 0.95")
+        print("why it is hard: " + HARD.format(floor_plan=suggestion))
     print(f"planners {', '.join(planners)}; estimator {args.estimator} with {options}; {args.steps} steps, "
           f"seeds {args.seed}..{args.seed + args.repeats - 1}")
     steps = sweep(exploration_spec(args, planners), workers=args.workers, progress=True,

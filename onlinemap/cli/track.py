@@ -297,7 +297,8 @@ def _start(args: argparse.Namespace, stderr):
 def _goal(text: str) -> int | tuple[int, int]:
     """``--goal``: ``CELL`` or ``ROW,COL`` (whole numbers), unchecked against the world."""
     parts = text.split(",")
-    if len(parts) > 2 or not all(part.strip().isdigit() for part in parts):
+    # ASCII digits only: str.isdigit is true for "²", which int() refuses
+    if len(parts) > 2 or not all(part.strip().isascii() and part.strip().isdigit() for part in parts):
         raise ModelError(f"--goal must be a cell index or ROW,COL (whole numbers), got {text!r}")
     numbers = tuple(int(part) for part in parts)
     return numbers[0] if len(numbers) == 1 else numbers
@@ -309,8 +310,10 @@ def _planner(args: argparse.Namespace, model, est):
         if args.goal is not None:
             raise OnlineMapError("--goal needs --planner (e.g. --planner goto)")
         return None
-    from policies import make_planner
+    from policies import make_planner, planner_options
 
+    if args.goal is None and "goal" in planner_options(args.planner):
+        raise OnlineMapError(f"--planner {args.planner} needs --goal CELL (a cell index or ROW,COL)")
     planner = make_planner(args.planner, model, seed=0, **({} if args.goal is None else {"goal": _goal(args.goal)}))
     if hasattr(planner, "bind"):
         planner.bind(est)
