@@ -85,8 +85,68 @@ UNIT_METRICS = ("error", "_tv", "entropy", "p_true")  # names containing these l
 #: yes/no outcomes per run: their means (shares of runs) lie in [0, 1]
 PROPORTION_METRICS = ("reached", "oracle_reached", "success", "ends_lost", "failed", "astray_way_back",
                       "any_wrong_cell", "wrong_map", "ends_lost_or_wrong_map", "local_maximum")
+#: what each metric means, printed under the tables that show it (:func:`metric_legend`); ``final_X``
+#: and ``mean_X`` are X at the last step and X averaged over the steps
+METRIC_DEFINITIONS = {
+    "map_error": "mean over cells of 1 - P(true label)",
+    "location_error": "1 - P(true cell)",
+    "log_evidence": "log P(all observations so far)",
+    "location_entropy": "entropy of the location belief / log(cells), in [0, 1]",
+    "map_entropy": "mean over cells of the label belief's entropy / log(labels), in [0, 1]",
+    "wrong_cells": "cells whose most probable label is wrong at the end",
+    "known_cells": f"cells whose true label has probability >= {KNOWN_ABOVE}",
+    "observable_map_error": "map_error over the cells a robot could ever read",
+    "door_error": "map_error over the door cells",
+    "location_tv": "total variation distance to exact Bayes's location belief",
+    "map_tv": "total variation distance to exact Bayes's label belief, mean over cells",
+    "max_location_error": "the largest location_error over the steps",
+    "unsure_or_wrong": f"cells whose most probable label is wrong or below probability {CONFIDENT} at the end",
+    "confidently_wrong": f"cells whose most probable label is wrong with probability >= {CONFIDENT} at the end",
+    "wrong_visited": "visited cells whose most probable label is wrong at the end",
+    "read_map_error": "final map_error over the cells the sensor read",
+    "read_wrong_cells": "wrong_cells among the cells the sensor read",
+    "ends_lost": f"share of runs ending with P(true cell) < {LOST_BELOW}",
+    "failed": f"share of runs that end lost (P(true cell) < {LOST_BELOW}) or with a visited cell's most probable "
+              "label wrong",
+    "min_p_true_way_back": "the lowest P(true cell) after the robot turns back",
+    "astray_way_back": f"share of runs whose P(true cell) falls below {ASTRAY_BELOW} after the robot turns back",
+    "map_error_area": "sum of map_error over the steps",
+    "late_door_error": "mean door_error over the last two thirds of the run",
+    "ms_per_step": "wall time per step, measured after a warm-up run (numba kernels compiled first)",
+    "reached": "share of runs in which the robot reaches the goal",
+    "steps_to_goal": "steps until the robot first stands on the goal",
+    "oracle_steps": "steps of a robot that knows its cell and the true map, in the same world history",
+    "steps_over_oracle": "steps_to_goal / oracle_steps, per run",
+    "success": f"share of runs reaching the goal within {SUCCESS_WITHIN}x the oracle's steps",
+}
 #: a footnote for printed tables: what ``ms_per_step`` includes
-TIMING_NOTE = "ms_per_step: wall time per step, measured after a warm-up run (numba kernels compiled first)"
+TIMING_NOTE = f"ms_per_step: {METRIC_DEFINITIONS['ms_per_step']}"
+
+
+def metric_definition(name: str) -> str | None:
+    """What the metric ``name`` means (:data:`METRIC_DEFINITIONS`; ``final_X``/``mean_X``: X at
+    the last step / averaged over the steps; ``told_location_X``: X of a robot told its cell;
+    ``steps_to_map_error_NN``: the first step with map_error <= 0.NN), or None for a name that is
+    not a metric."""
+    if name in METRIC_DEFINITIONS:
+        return METRIC_DEFINITIONS[name]
+    if name in COVERAGE_THRESHOLDS:
+        return f"first step at which map_error <= {COVERAGE_THRESHOLDS[name]:.2f} (empty: never)"
+    for prefix, meaning in (("final_", "{} at the last step"), ("mean_", "{} averaged over the steps"),
+                            ("told_location_", "{} of a robot told its cell at every step (mapping alone)")):
+        if name.startswith(prefix):
+            base = name[len(prefix):]
+            base = {"wrong": "wrong_cells", "map_error": "final_map_error"}.get(base, base) \
+                if prefix == "told_location_" else base
+            if metric_definition(base) is not None:
+                return meaning.format(base)
+    return None
+
+
+def metric_legend(names) -> list[str]:
+    """``NAME: definition`` for each metric among ``names`` (other names, e.g. configuration
+    columns, skipped), in their order: the legend printed under a table of metrics."""
+    return [f"{name}: {metric_definition(name)}" for name in dict.fromkeys(names) if metric_definition(name)]
 
 
 def metric_bounds(name: str, n_cells: int | None = None) -> tuple[float, float]:

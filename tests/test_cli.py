@@ -382,6 +382,7 @@ def test_the_why_it_is_hard_hint_names_the_users_own_world(world, suggestion):
                         "--no-progress"])
     hint = [line for line in out.splitlines() if line.startswith("why it is hard")]
     assert code == 0 and len(hint) == 1 and hint[0].endswith(f"Give it the floor plan with {suggestion}"), out
+    assert "\nwrong_cells: cells whose most probable label is wrong at the end\n" in out  # the table's legend
     proposed = suggestion.rstrip(".").split()
     code, out, err = cli(["explore", *proposed, "--planner", "random", "--steps", "2", "-o", "n_particles=5",
                           "--no-progress"])
@@ -402,3 +403,27 @@ def test_goal_planners_without_a_goal_get_command_line_wording():
     code, _, err = cli(["explore", "--planner", "random,goto", "--steps", "3", "-o", "n_particles=5"])
     assert_one_line_error(code, err, "--planner goto", "navigate --goal CELL")
     assert "<spec>" not in err and "GoTo" not in err
+
+
+def test_the_exploration_example_header_says_what_the_spec_and_explore_do():
+    """Issue 42 item 7: ``examples/exploration.toml``'s header said that, as in ``onlinemap
+    explore``, the robot knows the floor plan with confidence 0.8: explore's default is a uniform
+    prior. The header's numbers are the spec's, and what it says of explore is explore's default."""
+    import re
+    import tomllib
+    from pathlib import Path
+
+    from onlinemap.cli.explore import DEFAULT_WORLD
+    from onlinemap.worlds import parse_world
+
+    path = Path(__file__).parent.parent / "examples" / "exploration.toml"
+    text = path.read_text()
+    header = " ".join(line.lstrip("# ") for line in text.splitlines() if line.startswith("#"))
+    spec = tomllib.loads(text)
+    assert f"floor plan with confidence {spec['floor_plan']}" in header
+    world = parse_world(spec["worlds"][0])
+    slip = re.search(r"slip (\d+)% of the time \(p_move=([\d.]+)\)", header)
+    assert float(slip.group(2)) == world.model.p_move == 1 - int(slip.group(1)) / 100
+    assert f"explore's default world is `{DEFAULT_WORLD}`" in header and "uniform label prior" in header
+    default = parse_world(DEFAULT_WORLD).model
+    assert np.allclose(default.label_prior, 1 / default.n_labels)

@@ -585,7 +585,11 @@ def test_navigate_command_without_goal_in_a_world_without_free_labels_goes_to_th
         spec = parse_world(world)
         assert far_goals(spec.model, spec.initial_map(0)) == [goal]
         assert main(["navigate", "--world", world, "--repeats", "1", "--steps", "12", "-o", "n_particles=20"]) == 0
-        assert f"goal cell {goal} " in capsys.readouterr().out
+        out = capsys.readouterr().out
+        assert f"goal cell {goal} " in out
+        # every metric of the table defined under it (issue 42 item 7)
+        assert "\nsuccess: share of runs reaching the goal within 4x the oracle's steps\n" in out
+        assert "\nsteps_over_oracle: steps_to_goal / oracle_steps, per run\n" in out
 
 
 def test_navigate_command_refuses_a_wall_goal_before_running_anything(capsys):

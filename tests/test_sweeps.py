@@ -755,3 +755,28 @@ def test_a_summary_of_no_runs_is_an_empty_table_with_its_columns():
         ["planner", "metric", "n", "mean", "low", "high"]
     wide = summary_of(empty, ["success"], ["planner"])
     assert wide.empty and list(wide.columns) == ["planner", "runs", "success", "success_low", "success_high"]
+
+
+def test_sweep_summary_of_a_missing_path_says_not_found(tmp_path, capsys):
+    """Issue 42 item 7: ``sweep --summary nowhere`` said it needs pyarrow (the base install's
+    reader of a path without .csv) instead of "not found"."""
+    for missing in (tmp_path / "nowhere", tmp_path / "results.parquet", tmp_path / "results.csv"):
+        assert main(["sweep", "--summary", str(missing)]) == 2
+        err = capsys.readouterr().err
+        assert f"--summary {missing}: not found" in err and "pyarrow" not in err, err
+
+
+def test_sweep_tables_define_every_metric_they_print(tmp_path, capsys):
+    """Issue 42 item 7: ``failed`` (0.8 on plain corridors) was defined nowhere a user sees. The
+    table is followed by one ``NAME: definition`` line per metric it prints."""
+    table = pd.DataFrame({"task": [0, 1, 2, 3], "estimator": "rbpf", "seed": [0, 1, 2, 3],
+                          "final_map_error": [0.1, 0.2, 0.3, 0.2], "failed": [True, False, True, True],
+                          "mean_location_tv": [0.1, 0.1, 0.2, 0.3], "ms_per_step": [1.0, 1.1, 1.2, 1.0]})
+    table.to_csv(tmp_path / "results.csv", index=False)
+    assert main(["sweep", "--summary", str(tmp_path / "results.csv")]) == 0
+    out = capsys.readouterr().out
+    printed = ["final_map_error", "failed", "mean_location_tv", "ms_per_step"]
+    legend = [line.split(":")[0] for line in out.splitlines() if ": " in line and not line.startswith("mean [")]
+    assert legend == printed, out
+    assert "failed: share of runs that end lost (P(true cell) < 0.5) or with a visited cell's most probable " \
+           "label wrong" in out

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ModelError
-from ..evaluate import TIMING_NOTE, from_steps
+from ..evaluate import from_steps, metric_legend
 from ..worlds import parse_world, world_help
 from .common import (OPTION_HELP, non_negative_int, open_unit_interval, options_per_estimator, parse_options, positive_int,
                      print_table, split_list, write_table)
@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     summary = summarize(runs, metrics, args.confidence)
     print(f"mean [{args.confidence:.0%} confidence interval] over {args.repeats} seed(s), per planner:")
     print_table(summary_table(summary))
-    print(TIMING_NOTE + "; wrong_cells: cells whose most probable label is wrong at the end")
+    print("\n".join(metric_legend(metrics)))
     if out is not None:
         written = [write_table(steps, out / "explore_steps.csv"), write_table(runs, out / "explore_runs.csv"),
                    write_table(summary, out / "explore_summary.csv")]

@@ -66,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
     from policies import PLANNERS, check_goal, planner_options, with_floor_plan
 
     from .. import plots
+    from ..evaluate import metric_legend
     from ..studies.base import summary_of, with_intervals
     from ..studies.navigation import far_goals, navigation_spec, oracle_figure, route_figure
     from ..sweeps import sweep
@@ -109,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"mean [{args.confidence:.0%} interval] over the {len(judged) // max(len(planners), 1)} run(s) per "
               f"planner where the oracle reaches the goal; success: within 4x the oracle's steps")
         print_table(with_intervals(summary, SUMMARY_METRICS))
+        print("\n".join(metric_legend(SUMMARY_METRICS)))
     if out is not None:
         from policies import navigate, with_floor_plan
 
