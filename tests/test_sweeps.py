@@ -493,7 +493,9 @@ def test_a_failed_table_write_keeps_the_previous_file_and_no_temporary(tmp_path,
 def test_failed_part_writes_leave_no_temporaries_and_old_ones_are_cleaned(tmp_path, monkeypatch):
     parts = tmp_path / "parts"
     parts.mkdir()
-    (parts / ".abc.npz.x1y2.tmp").write_bytes(b"half a file")  # a killed process's leftover
+    from estimator_cases import dead_pid
+
+    (parts / f".abc.npz.{dead_pid()}-0a1b2c3d.tmp").write_bytes(b"half a file")  # a killed process's leftover
     real, calls = sweeps.store.atomic_write, []
 
     def flaky(path, write):  # every third part: the disk fills up halfway through writing it

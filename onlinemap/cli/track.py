@@ -40,9 +40,9 @@ resuming from the checkpoint), a signal is recorded the same way: the process em
 event and stops before reading input. Only while Python imports the package (``import
 onlinemap``, before any of this module runs) do the interpreter's defaults apply. The path is
 checked writable at start-up, and temporary files of saves that a ``kill -9`` cut short
-(``.NAME.*.tmp`` beside it) are removed; a save that fails later (full disk) reports one JSON
-error line, keeps the previous file and the loop goes on (the exit status is 1 if the final save
-failed). A restarted process finds the file and resumes from it
+(``.NAME.<pid>-<8 hex digits>.tmp`` beside it, of processes gone; nothing else) are removed; a
+save that fails later (full disk) reports one JSON error line, keeps the previous file and the
+loop goes on (the exit status is 1 if the final save failed). A restarted process finds the file and resumes from it
 (the next line is step ``t + 1``), after checking that the world, estimator and options are the
 ones it was saved with; a file from another onlinemap version of the same checkpoint format
 loads, one of a newer format only with ``--allow-newer-checkpoint``. Cost per line: one
