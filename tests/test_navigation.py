@@ -631,3 +631,14 @@ def test_navigate_command_says_so_when_no_oracle_reaches_the_goal(tmp_path, caps
     assert len(runs) == 2 and not runs["oracle_reached"].any()
     summary = pd.read_csv(tmp_path / "navigate_summary.csv")
     assert summary.empty and {"planner", "runs", "success"} <= set(summary.columns)
+
+
+def test_a_navigation_prints_on_one_line(open_world):
+    """Issue 42 item 7: ``repr`` of a Navigation was 29 lines (the frame printed whole)."""
+    model, true_map = open_world
+    found = navigate(model, true_map, 8, "goto", max_steps=40, seed=0, estimator_options={"n_particles": 20})
+    text = repr(found)
+    assert "\n" not in text and len(text) < 200, text
+    where = "never reached" if found.reached_at is None else f"reached at step {found.reached_at}"
+    assert text.startswith(f"Navigation(goal cell 8 {where}; {len(found.frame)} steps from cell {model.start} to "
+                           f"{found.run.locations[-1]}; frame {len(found.frame)} rows x ")
