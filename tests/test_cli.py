@@ -427,3 +427,17 @@ def test_the_exploration_example_header_says_what_the_spec_and_explore_do():
     assert f"explore's default world is `{DEFAULT_WORLD}`" in header and "uniform label prior" in header
     default = parse_world(DEFAULT_WORLD).model
     assert np.allclose(default.label_prior, 1 / default.n_labels)
+
+
+@pytest.mark.parametrize("depth", [9, 3000])
+def test_an_option_nested_thousands_deep_is_one_clean_error(depth):
+    """Issue 43 section 2 item 7: ``-o "n_particles=[[[...]]]"`` nested 3000 deep ended in a
+    ``RecursionError`` traceback in ``run`` and ``track``. No option takes lists nested more than
+    8 deep: one line naming the option."""
+    value = "[" * depth + "]" * depth
+    for argv in (["run", "--estimators", "rbpf"], ["track", "--world", "door", "--estimator", "rbpf"]):
+        code, _, err = cli([*argv, "-o", f"n_particles={value}"])
+        assert_one_line_error(code, err, "--option n_particles", "more than 8 deep")
+        assert "RecursionError" not in err
+    code, _, err = cli(["run", "--estimators", "rbpf", "-o", "n_particles=" + "[" * 8 + "]" * 8])
+    assert_one_line_error(code, err, "n_particles", "must be int")  # 8 deep parses: the type check speaks

@@ -136,9 +136,26 @@ OPTION_HELP = ("VALUE is read as JSON when it parses (4, 0.9, null, [1, 0.9, 0.0
                "otherwise (e.g. window=max)")
 
 
+MAX_OPTION_DEPTH = 8  # lists in an option value nest at most this deep (options hold flat lists)
+
+
+def _nesting(value) -> int:
+    """How deep lists and objects nest in a JSON value (1: none), without recursion."""
+    deepest, stack = 0, [(value, 1)]
+    while stack and deepest <= MAX_OPTION_DEPTH:
+        node, level = stack.pop()
+        deepest = max(deepest, level)
+        if isinstance(node, list):
+            stack.extend((item, level + 1) for item in node)
+        elif isinstance(node, dict):
+            stack.extend((item, level + 1) for item in node.values())
+    return deepest
+
+
 def parse_options(pairs: list[str]) -> dict[str, object]:
     """``["window=4", "decay=0.9", "window=max"]`` -> dict; JSON values where they parse (lists
-    become tuples), strings otherwise."""
+    become tuples), strings otherwise. A value nested deeper than :data:`MAX_OPTION_DEPTH`
+    raises OnlineMapError (no option takes one; a hostile one would exhaust the stack)."""
     options: dict[str, object] = {}
     for pair in pairs:
         key, eq, text = pair.partition("=")
@@ -146,8 +163,13 @@ def parse_options(pairs: list[str]) -> dict[str, object]:
             raise OnlineMapError(f"--option {pair!r}: expected KEY=VALUE")
         try:
             value = json.loads(text)
+            too_deep = _nesting(value) > MAX_OPTION_DEPTH
         except ValueError:
-            value = text
+            value, too_deep = text, False
+        except RecursionError:  # thousands of nested brackets: deeper than any option
+            too_deep = True
+        if too_deep:
+            raise OnlineMapError(f"--option {key.strip()}: its value nests lists more than {MAX_OPTION_DEPTH} deep")
         options[key.strip()] = tuple(value) if isinstance(value, list) else value
     return options
 
