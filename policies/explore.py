@@ -23,7 +23,7 @@ from onlinemap.rng import SeedLike
 from onlinemap.simulate import Run, world_step
 from onlinemap.validation import check_map
 
-from .planners import Planner, make_planner
+from .planners import PLANNERS, Planner, make_planner
 
 COLUMNS = ("t", "action", "true_location", "map_error", "location_error", "location_entropy",
            "map_entropy", "door_error")
@@ -68,6 +68,9 @@ def _planner(model: GridModel, planner: str | Planner, options: dict | None,
              rng: np.random.Generator) -> Planner:
     if isinstance(planner, str):
         return make_planner(planner, model, seed=rng, **(options or {}))
+    if not callable(getattr(planner, "choose", None)):
+        raise ModelError(f"planner must be a registered name ({', '.join(PLANNERS)}) or an object with a "
+                         f"choose(belief) method, got {type(planner).__name__} {planner!r}"[:300])
     if options:
         raise ModelError("planner_options are for a planner given by name")
     return planner

@@ -642,3 +642,21 @@ def test_a_navigation_prints_on_one_line(open_world):
     where = "never reached" if found.reached_at is None else f"reached at step {found.reached_at}"
     assert text.startswith(f"Navigation(goal cell 8 {where}; {len(found.frame)} steps from cell {model.start} to "
                            f"{found.run.locations[-1]}; frame {len(found.frame)} rows x ")
+
+
+def test_navigate_takes_a_goal_in_a_0d_array_and_refuses_planners_that_are_not_planners(open_world):
+    """Issue 43 section 2 item 8: ``policies.navigate(m, tm, np.array(99), ...)`` raised
+    ``TypeError: len() of unsized object``; a planner of None or 5 raised AttributeError. A 0-d
+    integer array is the cell it holds; anything without ``choose`` is a ModelError naming it."""
+    model, true_map = open_world
+    options = {"n_particles": 20}
+    in_array = navigate(model, true_map, np.array(11), "goto", max_steps=30, seed=1, estimator_options=options)
+    plain = navigate(model, true_map, 11, "goto", max_steps=30, seed=1, estimator_options=options)
+    assert in_array.frame.attrs["goal"] == 11 and in_array.reached_at == plain.reached_at
+    assert in_array.run.locations.tolist() == plain.run.locations.tolist()
+    with pytest.raises(ModelError, match=r"goal must be a cell index or a \(row, col\) pair, got 2.5"):
+        navigate(model, true_map, np.array(2.5), "goto", max_steps=3, seed=1, estimator_options=options)
+    for planner in (None, 5):
+        with pytest.raises(ModelError, match=f"planner must be a registered name .* or an object with a "
+                                             f"choose\\(belief\\) method, got {type(planner).__name__} {planner}"):
+            navigate(model, true_map, 11, planner, max_steps=3, seed=1, estimator_options=options)
