@@ -441,3 +441,24 @@ def test_an_option_nested_thousands_deep_is_one_clean_error(depth):
         assert "RecursionError" not in err
     code, _, err = cli(["run", "--estimators", "rbpf", "-o", "n_particles=" + "[" * 8 + "]" * 8])
     assert_one_line_error(code, err, "n_particles", "must be int")  # 8 deep parses: the type check speaks
+
+
+def test_option_values_agree_with_make_estimator_and_name_the_option():
+    """Issue 43 section 2 item 14: ``move_window=5.0`` was accepted by ``make_estimator`` (a whole
+    number) but refused by ``-o``; ``-o seed=-1`` on ``explore`` named an internal ``<spec>``
+    (the sweep's task). A whole float is the int, as make_estimator takes it; a value the
+    estimator refuses is an --option error before any task runs."""
+    model = om.grid_model(3, 3, 2)
+    assert om.make_estimator("rbpf", model, move_window=5.0).move_window == 5
+    from onlinemap.cli.common import options_per_estimator
+
+    routed = options_per_estimator(["rbpf"], ["move_window=5.0", "n_particles=20.0"])["rbpf"]
+    assert routed == {"move_window": 5, "n_particles": 20} and all(type(v) is int for v in routed.values())
+    code, out, err = cli(["run", "--world", "corridor:6", "--estimators", "rbpf", "--steps", "5",
+                          "-o", "move_window=5.0"])
+    assert code == 0, err
+    for argv in (["explore", "--steps", "3", "--planner", "random"], ["navigate", "--repeats", "1", "--steps", "3"],
+                 ["compare", "--runs", "1", "--steps", "3"]):
+        code, out, err = cli([*argv, "-o", "seed=-1"])
+        assert_one_line_error(code, err, "--option: rbpf's seed must be at least 0, got -1")
+        assert "<spec>" not in err

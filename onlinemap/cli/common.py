@@ -214,12 +214,15 @@ def print_table(frame: pd.DataFrame, float_format: str = "{:.4g}") -> None:
     sys.stdout.flush()
 
 
-def options_per_estimator(names: list[str], pairs: list[str]) -> dict[str, dict[str, object]]:
+def options_per_estimator(names: list[str], pairs: list[str], model=None) -> dict[str, dict[str, object]]:
     """Route ``-o`` options: ``KEY=V`` to every estimator in ``names`` with option KEY, ``NAME.KEY=V``
     to NAME. Unknown names and keys that no listed estimator takes raise ``UnknownEstimatorError``;
     a value of the wrong type (the sweep spec's check, :func:`onlinemap.sweeps.spec.matches_annotation`)
-    raises ``InvalidOptionError`` naming the ``-o`` option, before any spec or estimator is built."""
-    from ..estimators import estimator_options  # lazily: ``onlinemap --help`` imports no estimator
+    raises ``InvalidOptionError`` naming the ``-o`` option, before any spec or estimator is built.
+    A whole float for an int option (``move_window=5.0``) is that int, as ``make_estimator`` takes
+    it. With ``model``, each estimator given options is built once on it, so that a value its
+    own check refuses (``seed=-1``) is reported as an ``--option`` error, not from a sweep's task."""
+    from ..estimators import estimator_options, make_estimator  # lazily: ``onlinemap --help`` imports no estimator
     from ..estimators.base import _lookup
     from ..sweeps.spec import describe_type, expected_type, matches_annotation
 
@@ -236,8 +239,17 @@ def options_per_estimator(names: list[str], pairs: list[str]) -> dict[str, dict[
                                         f"has an option {option!r}")
         for name in takers:
             expected = expected_type(_lookup(name), option, known[name][option])
+            if isinstance(value, float) and value.is_integer() and not matches_annotation(value, expected) \
+                    and matches_annotation(int(value), expected):
+                value = int(value)
             if not matches_annotation(value, expected):
                 raise InvalidOptionError(f"--option {key}={json.dumps(value)}: {name}'s {option} must be "
                                          f"{describe_type(expected)}")
             routed[name][option] = value
+    for name, options in routed.items():
+        if model is not None and options:
+            try:
+                make_estimator(name, model, **options)
+            except InvalidOptionError as error:
+                raise InvalidOptionError(f"--option: {name}'s {error}") from None
     return routed

@@ -61,13 +61,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def exploration_spec(args: argparse.Namespace, planners: list[str]) -> dict:
+def exploration_spec(args: argparse.Namespace, planners: list[str], model=None) -> dict:
     """The sweep spec of an ``explore`` command line (:func:`onlinemap.studies.exploration.exploration_spec`;
-    an option's list value is one value, not a grid)."""
+    an option's list value is one value, not a grid); ``model``: the world's, to check the
+    options' values on (:func:`~onlinemap.cli.common.options_per_estimator`)."""
     from ..studies.exploration import exploration_spec as spec
 
-    options = {key: tuple(value) if isinstance(value, list) else value
-               for key, value in options_per_estimator([args.estimator], args.option)[args.estimator].items()}
+    routed = options_per_estimator([args.estimator], args.option, model)[args.estimator]
+    options = {key: tuple(value) if isinstance(value, list) else value for key, value in routed.items()}
     return spec(args.world, planners, args.steps, range(args.seed, args.seed + args.repeats),
                 estimator=args.estimator, estimator_options=options, floor_plan=args.floor_plan, rows="step")
 
@@ -108,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
         print("why it is hard: " + HARD.format(floor_plan=suggestion))
     print(f"planners {', '.join(planners)}; estimator {args.estimator} with {options}; {args.steps} steps, "
           f"seeds {args.seed}..{args.seed + args.repeats - 1}")
-    steps = sweep(exploration_spec(args, planners), workers=args.workers, progress=True,
+    steps = sweep(exploration_spec(args, planners, world.model), workers=args.workers, progress=True,
                   results_dir=None if out is None else out / "explore.parts")
     runs = from_steps(steps, ["world", "planner", "seed"])  # the world: counts of cells are bounded by its N
     runs.insert(2, "kind", "explore")

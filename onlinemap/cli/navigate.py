@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
         goal = goals[0]
     else:  # checked as the runs will see it, before any run: a wall of the floor plan refuses it
         goal = check_goal(with_floor_plan(world.model, true_map, args.floor_plan), args.goal)
-    options = options_per_estimator(["rbpf"], args.option)["rbpf"]
+    options = options_per_estimator(["rbpf"], args.option, world.model)["rbpf"]
     options.setdefault("n_particles", 500)
     row, col = divmod(goal, world.model.cols)
     print(f"world {args.world} (floor plan {args.floor_plan}); goal cell {goal} (row {row}, col {col}); rbpf with "
