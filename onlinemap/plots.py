@@ -14,6 +14,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from .belief import Belief
+from .errors import ModelError
 from .estimators import Trajectory
 from .model import GridModel
 from .simulate import Run
@@ -87,10 +88,12 @@ def plot_belief(model: GridModel, belief: Belief, true_map: np.ndarray | None = 
     Corridors (one row): bars of P(L_t = i) and stacked bars of P(m_i = k) per label. 2D worlds:
     an image of P(L_t) and an image of the most likely label per cell, faded where it is
     uncertain (opacity = its probability). ``true_map`` (N,) and ``true_location`` are marked when
-    given (dots on the wrong cells, a star on the robot). Cost O(N K).
+    given (dots on the wrong cells, a star on the robot). A belief of another model's size
+    raises ModelError. Cost O(N K).
     """
     if belief.location.shape != (model.n_cells,) or belief.map.shape != (model.n_cells, model.n_labels):
-        raise ValueError(f"a belief over {belief.n_cells} cells x {belief.n_labels} labels does not fit {model}")
+        raise ModelError(f"a belief over {belief.n_cells} cells x {belief.n_labels} labels does not fit {model} "
+                         f"({model.n_cells} cells x {model.n_labels} labels): give the model the belief is of")
     fig = Figure(figsize=(10, 3.2) if model.rows == 1 else (10, 4.2), layout="constrained")
     ax_loc, ax_map = fig.subplots(1, 2)
     cells = np.arange(model.n_cells)

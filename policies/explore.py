@@ -13,6 +13,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 import pandas as pd
 
+from onlinemap import arguments
 from onlinemap.errors import ModelError
 from onlinemap.estimators import Estimator, Trajectory, estimator_options, make_estimator
 from onlinemap.evaluate import step_metrics
@@ -22,7 +23,7 @@ from onlinemap.rng import SeedLike
 from onlinemap.simulate import Run, world_step
 from onlinemap.validation import check_map
 
-from .planners import Planner, make_planner
+from .planners import PLANNERS, Planner, make_planner
 
 COLUMNS = ("t", "action", "true_location", "map_error", "location_error", "location_entropy",
            "map_entropy", "door_error")
@@ -67,6 +68,9 @@ def _planner(model: GridModel, planner: str | Planner, options: dict | None,
              rng: np.random.Generator) -> Planner:
     if isinstance(planner, str):
         return make_planner(planner, model, seed=rng, **(options or {}))
+    if not callable(getattr(planner, "choose", None)):
+        raise ModelError(f"planner must be a registered name ({', '.join(PLANNERS)}) or an object with a "
+                         f"choose(belief) method, got {type(planner).__name__} {planner!r}"[:300])
     if options:
         raise ModelError("planner_options are for a planner given by name")
     return planner
@@ -87,9 +91,9 @@ def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[
     step at which it holds (that step recorded). The frame is scored by
     :func:`onlinemap.evaluate.step_metrics` unless ``score`` is False (the sweep engine scores the
     run and trajectory itself: frame None)."""
-    steps = int(steps)
-    if steps < 1:
-        raise ModelError(f"steps must be at least 1 (the first observation), got {steps}")
+    n, k = model.n_cells, model.n_labels  # a step's record: action, location, readings, beliefs, true map
+    steps = arguments.step_count("steps", steps, minimum=1,
+                                 bytes_per_step=8 * (3 + model.n_readings + n + n * k + n))
     actions = np.full(steps, -1, dtype=np.int64)
     locations = np.empty(steps, dtype=np.int64)
     observations = np.empty((steps,) + model.observation_shape, dtype=np.int64)

@@ -422,8 +422,8 @@ def anchor_actions(model: GridModel, belief: Belief, presses: int) -> np.ndarray
     """(2 presses,) actions that press into the grid corner nearest the belief's expected location:
     ``presses`` times towards the nearer of the two column edges, then as many towards the nearer
     row edge. An action "goes towards" an edge when it moves every cell off that edge and keeps
-    the edge's cells in place (found from ``model.neighbors``, so any 4-connected grid works).
-    O(N A)."""
+    the edge's cells in place (found from ``model.neighbors``, so any 4-connected grid works). A
+    1 x 1 grid: ``presses`` presses of action 0. O(N A)."""
     rows, cols = np.divmod(np.arange(model.n_cells), model.cols)
     expected = (belief.location @ rows, belief.location @ cols)
     sequence = []
@@ -439,6 +439,8 @@ def anchor_actions(model: GridModel, belief: Belief, presses: int) -> np.ndarray
         if not towards:
             raise ModelError("anchor_actions needs a grid whose actions move along its rows and columns")
         sequence += [towards[0]] * presses
+    if model.n_cells == 1:  # a single cell is its own corner: any press anchors (and moves nothing)
+        sequence = [0] * presses
     return np.asarray(sequence, dtype=np.int64)
 
 

@@ -77,6 +77,15 @@ class Navigation(NamedTuple):
     run: Run
     trajectory: Trajectory
 
+    def __repr__(self) -> str:
+        """One line (the frame's rows are its own to print): the goal, when it was reached, the
+        steps and the fields' sizes."""
+        reached = "never reached" if self.reached_at is None else f"reached at step {self.reached_at}"
+        rows, columns = self.frame.shape
+        return (f"Navigation(goal cell {self.frame.attrs.get('goal')} {reached}; {self.run.n_steps} steps from "
+                f"cell {self.run.locations[0]} to {self.run.locations[-1]}; frame {rows} rows x {columns} columns, "
+                f"run, trajectory)")
+
 
 def true_distances(model: GridModel, labels: np.ndarray, goal: int) -> np.ndarray:
     """(N,) the fewest moves from each cell to ``goal`` on the map ``labels`` (N,): a move may

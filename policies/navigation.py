@@ -72,6 +72,8 @@ NEVER = 1e9  # steps charged for what never ends (a cell from which the goal can
 def goal_cell(model: GridModel, goal) -> int:
     """The cell index of ``goal``: an index in ``0..N-1`` or a ``(row, col)`` pair on the grid.
     Anything else, or a goal off the grid, raises ModelError naming the goal."""
+    if isinstance(goal, np.ndarray) and goal.ndim == 0:  # np.array(99): a cell index in an array
+        goal = goal.item()
     if isinstance(goal, numbers.Integral) and not isinstance(goal, (bool, np.bool_)):
         if not 0 <= int(goal) < model.n_cells:
             raise ModelError(f"goal {goal!r} is off the grid: cells are 0..{model.n_cells - 1}")

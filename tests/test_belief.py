@@ -87,7 +87,8 @@ def test_plot_belief_draws_a_grid_as_images(door_run):
     np.testing.assert_allclose(location_image, belief.location.reshape(run.model.shape))
     rgba = np.asarray(fig.axes[1].images[0].get_array())
     np.testing.assert_allclose(rgba[..., 3], belief.map.max(axis=1).reshape(run.model.shape))
-    with pytest.raises(ValueError, match="does not fit"):
+    # issue 42 item 7: a bare ValueError; now the library's ModelError, naming both sizes
+    with pytest.raises(om.ModelError, match=r"100 cells x 4 labels does not fit GridModel\(1x4.*\(4 cells x 2 labels\)"):
         plots.plot_belief(om.corridor(4), belief)
 
 

@@ -321,6 +321,21 @@ def test_anchor_actions_press_into_the_nearest_corner(shape):
         assert end == corner_of(model, cell)
 
 
+def test_info_gain_explores_a_one_cell_grid_past_its_first_anchor():
+    """Issue 43 section 2 item 9: on a 1 x 1 grid ``anchor_actions`` returned no press (both
+    axes of size 1 skipped) and info_gain's queue ran empty at its first anchor: ``IndexError:
+    pop from empty list`` at step 8. The one cell is its own corner: the anchor presses in place."""
+    import policies
+    from policies.info_gain import anchor_actions
+
+    model = om.grid_model(1, 1, 2)
+    belief = om.Belief(0, np.ones(1), np.full((1, 2), 0.5))
+    assert anchor_actions(model, belief, 3).tolist() == [0, 0, 0]
+    frame = policies.explore(model, om.sample_map(model, 0), "info_gain", "rbpf", steps=30, seed=0,
+                             estimator_options={"n_particles": 5})
+    assert len(frame) == 30 and (frame["true_location"] == 0).all()
+
+
 def test_info_gain_re_anchors_every_anchor_every_steps():
     """With commit 1 and anchor_every = 2 H + 3: 2 H + 3 plans, then 2 H presses into the corner
     nearest the expected location (no plan meanwhile), 3 plans, and the next anchor."""

@@ -9,6 +9,7 @@ import itertools
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
 import onlinemap as om
@@ -571,3 +572,91 @@ def test_navigate_command_prints_and_writes(tmp_path, capsys):
         assert (tmp_path / name).stat().st_size > 0
     assert main(["navigate", "--goal", "0,5", "--repeats", "1"]) == 2  # a wall: refused, one line
     assert "goal" in capsys.readouterr().err
+
+
+def test_navigate_command_without_goal_in_a_world_without_free_labels_goes_to_the_far_cell(capsys):
+    """Issue 42 item 7: ``navigate --world corridor:8`` (labels '0', '1', none named free) died in
+    ``far_goals(...)[0]`` with an IndexError. Every label lets the robot in, so the far goal is the
+    cell farthest from the start: the corridor's other end, the 3 x 3 grid's opposite corner."""
+    from onlinemap.cli import main
+    from onlinemap.studies.navigation import far_goals
+
+    for world, goal in (("corridor:8", 7), ("grid:3x3", 8)):
+        spec = parse_world(world)
+        assert far_goals(spec.model, spec.initial_map(0)) == [goal]
+        assert main(["navigate", "--world", world, "--repeats", "1", "--steps", "12", "-o", "n_particles=20"]) == 0
+        out = capsys.readouterr().out
+        assert f"goal cell {goal} " in out
+        # every metric of the table defined under it (issue 42 item 7)
+        assert "\nsuccess: share of runs reaching the goal within 4x the oracle's steps\n" in out
+        assert "\nsteps_over_oracle: steps_to_goal / oracle_steps, per run\n" in out
+
+
+def test_navigate_command_refuses_a_wall_goal_before_running_anything(capsys):
+    """Issue 42 item 7: ``navigate --goal 3,0`` (a wall of the door world's floor plan) ran all its
+    tasks, then said "rerun to retry". The goal is checked against the floor plan first."""
+    from onlinemap.cli import main
+
+    assert main(["navigate", "--goal", "3,0", "--repeats", "1", "-o", "n_particles=20"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""  # no run started
+    assert "wall" in captured.err and "cell 30" in captured.err and "rerun" not in captured.err
+
+
+def test_navigate_command_refuses_planners_that_ignore_the_goal(capsys):
+    """Issue 42 item 7: ``navigate --planner info_gain`` / ``frontier`` were accepted, and reached
+    the goal in no run, since they never read it."""
+    from onlinemap.cli import main
+
+    for planners, named in (("info_gain", "info_gain"), ("goto,frontier", "frontier")):
+        assert main(["navigate", "--planner", planners, "--repeats", "1"]) == 2
+        err = capsys.readouterr().err
+        assert f"--planner {named}" in err and "goal" in err and "goto, static_goto" in err
+        assert len(err.strip().splitlines()) == 1
+
+
+def test_navigate_command_says_so_when_no_oracle_reaches_the_goal(tmp_path, capsys):
+    """Issue 43 section 2 item 2: with no run's oracle at the goal within --steps, ``navigate``
+    ended in ``KeyError: 'n'`` (an empty summary), wrote no table with --out, and its rerun (which
+    resumes) crashed again. Now it says why there is nothing to compare and writes the tables."""
+    from onlinemap.cli import main
+
+    argv = ["navigate", "--goal", "99", "--steps", "10", "--repeats", "1", "-o", "n_particles=20",
+            "--out", str(tmp_path)]
+    for _ in range(2):  # the rerun resumes from navigate.parts
+        assert main(argv) == 0
+        out = capsys.readouterr().out
+        assert "the oracle reaches goal cell 99 within 10 steps in none of the 1 run(s)" in out
+    runs = pd.read_csv(tmp_path / "navigate_runs.csv")
+    assert len(runs) == 2 and not runs["oracle_reached"].any()
+    summary = pd.read_csv(tmp_path / "navigate_summary.csv")
+    assert summary.empty and {"planner", "runs", "success"} <= set(summary.columns)
+
+
+def test_a_navigation_prints_on_one_line(open_world):
+    """Issue 42 item 7: ``repr`` of a Navigation was 29 lines (the frame printed whole)."""
+    model, true_map = open_world
+    found = navigate(model, true_map, 8, "goto", max_steps=40, seed=0, estimator_options={"n_particles": 20})
+    text = repr(found)
+    assert "\n" not in text and len(text) < 200, text
+    where = "never reached" if found.reached_at is None else f"reached at step {found.reached_at}"
+    assert text.startswith(f"Navigation(goal cell 8 {where}; {len(found.frame)} steps from cell {model.start} to "
+                           f"{found.run.locations[-1]}; frame {len(found.frame)} rows x ")
+
+
+def test_navigate_takes_a_goal_in_a_0d_array_and_refuses_planners_that_are_not_planners(open_world):
+    """Issue 43 section 2 item 8: ``policies.navigate(m, tm, np.array(99), ...)`` raised
+    ``TypeError: len() of unsized object``; a planner of None or 5 raised AttributeError. A 0-d
+    integer array is the cell it holds; anything without ``choose`` is a ModelError naming it."""
+    model, true_map = open_world
+    options = {"n_particles": 20}
+    in_array = navigate(model, true_map, np.array(11), "goto", max_steps=30, seed=1, estimator_options=options)
+    plain = navigate(model, true_map, 11, "goto", max_steps=30, seed=1, estimator_options=options)
+    assert in_array.frame.attrs["goal"] == 11 and in_array.reached_at == plain.reached_at
+    assert in_array.run.locations.tolist() == plain.run.locations.tolist()
+    with pytest.raises(ModelError, match=r"goal must be a cell index or a \(row, col\) pair, got 2.5"):
+        navigate(model, true_map, np.array(2.5), "goto", max_steps=3, seed=1, estimator_options=options)
+    for planner in (None, 5):
+        with pytest.raises(ModelError, match=f"planner must be a registered name .* or an object with a "
+                                             f"choose\\(belief\\) method, got {type(planner).__name__} {planner}"):
+            navigate(model, true_map, 11, planner, max_steps=3, seed=1, estimator_options=options)

@@ -23,14 +23,13 @@ import hashlib
 import json
 import os
 import stat
-import tempfile
 import tokenize
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_write, file_mode
+from ..atomic import atomic_write, create_temporary, file_mode, remove_temporaries
 from ..errors import CheckpointError
 from .codec import _ARRAY_KINDS, _TAG, _short
 from .protocol import check_header
@@ -121,7 +120,7 @@ def check_writable(path: str | os.PathLike) -> None:
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         file_mode(target)
-        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
+        fd, tmp = create_temporary(target)
         os.close(fd)
         os.unlink(tmp)
     except OSError as error:
@@ -253,5 +252,13 @@ def _depth(node) -> int:
 
 
 def save(est, path: str | os.PathLike) -> Path:
-    """Checkpoint ``est`` (its ``state_dict()``) to ``path``, atomically. Returns the path."""
+    """Checkpoint ``est`` (its ``state_dict()``) to ``path``, atomically, first removing the
+    temporaries of earlier saves to ``path`` whose process was killed mid-write
+    (:func:`~onlinemap.atomic.remove_temporaries`). Returns the path. Anything but an estimator
+    raises :class:`CheckpointError` naming it."""
+    if not callable(getattr(est, "state_dict", None)):
+        raise CheckpointError(f"save checkpoints an estimator (om.make_estimator(...)), not a "
+                              f"{type(est).__name__}")
+    target = Path(os.path.realpath(path))  # a symlink's temporaries are beside its target
+    remove_temporaries(target.parent, target.name)
     return write(est.state_dict(), path)

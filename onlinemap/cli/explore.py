@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ModelError
-from ..evaluate import HONEST_METRICS, TIMING_NOTE, from_steps
+from ..evaluate import HONEST_METRICS, from_steps, metric_legend
 from ..worlds import parse_world, world_help
 from .common import (OPTION_HELP, non_negative_int, open_unit_interval, options_per_estimator, parse_options, positive_int,
                      print_table, split_list, write_table)
@@ -17,12 +17,12 @@ from .common import (OPTION_HELP, non_negative_int, open_unit_interval, options_
 #: the paper's world: the built-in 10 x 10 door world, uniform label prior, p_move 0.8
 DEFAULT_WORLD = "door,p_move=0.8"
 DEFAULT_PLANNERS = "info_gain,entropy,random,sweep"  # the best planner first, then the baselines
-#: printed when the robot starts knowing nothing of the map (a uniform label prior)
+#: printed when the robot starts knowing nothing of the map (a uniform label prior); ``{floor_plan}``:
+#: the user's world with the floor plan
 HARD = ("the robot knows nothing of the map (uniform label prior): a cell seen for the first time says "
         "nothing about where it is, so it localises only on cells it has already mapped, while its moves "
         "fail with probability 1 - p_move. Expect high location errors (0.5-0.9 in the paper's world, where "
-        "info_gain, which re-anchors in a corner, does best). Give it the floor plan with "
-        "--world door,floor_plan=0.95,p_move=0.9.")
+        "info_gain, which re-anchors in a corner, does best). Give it the floor plan with {floor_plan}.")
 SUMMARY_METRICS = ("final_map_error", "wrong_cells", "mean_location_error", "late_door_error", *HONEST_METRICS,
                    "ms_per_step")
 
@@ -65,19 +65,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def exploration_spec(args: argparse.Namespace, planners: list[str]) -> dict:
+def exploration_spec(args: argparse.Namespace, planners: list[str], model=None) -> dict:
     """The sweep spec of an ``explore`` command line (:func:`onlinemap.studies.exploration.exploration_spec`;
-    an option's list value is one value, not a grid)."""
+    an option's list value is one value, not a grid); ``model``: the world's, to check the
+    options' values on (:func:`~onlinemap.cli.common.options_per_estimator`)."""
     from ..studies.exploration import exploration_spec as spec
 
-    options = {key: tuple(value) if isinstance(value, list) else value
-               for key, value in options_per_estimator([args.estimator], args.option)[args.estimator].items()}
+    routed = options_per_estimator([args.estimator], args.option, model)[args.estimator]
+    options = {key: tuple(value) if isinstance(value, list) else value for key, value in routed.items()}
     return spec(args.world, planners, args.steps, range(args.seed, args.seed + args.repeats),
                 estimator=args.estimator, estimator_options=options, floor_plan=args.floor_plan, rows="step")
 
 
 def run(args: argparse.Namespace) -> int:
-    from policies import PLANNERS, plot_errors, plot_visits
+    from policies import PLANNERS, planner_options, plot_errors, plot_visits
 
     from .. import plots
     from ..sweeps import played_map, summarize, summary_table, sweep
@@ -90,6 +91,10 @@ def run(args: argparse.Namespace) -> int:
     unknown = [name for name in planners if name not in PLANNERS]
     if unknown or not planners:
         raise ModelError(f"--planner: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(PLANNERS)}")
+    goal_planners = [name for name in planners if "goal" in planner_options(name)]
+    if goal_planners:
+        raise ModelError(f"--planner {', '.join(goal_planners)}: a goal planner goes to a goal, it does not explore; "
+                         f"send it to one with onlinemap navigate --goal CELL")
     world = parse_world(args.world)
     if args.floor_plan is not None and world.floor_plan is not None:
         raise ModelError(f"--floor-plan {args.floor_plan} and --world {args.world}: give the floor plan once")
@@ -102,10 +107,13 @@ def run(args: argparse.Namespace) -> int:
              "uniform" if uniform else "the world's own")
     print(f"world {args.world}: {world.model}; label prior: {prior}")
     if uniform:
-        print("why it is hard: " + HARD)
+        # the user's own world with the floor plan: a world key where the map is fixed, else the option
+        suggestion = (f"--world {args.world},floor_plan=0.95" if world.true_map is not None else
+                      f"--world {args.world} --floor-plan 0.95")
+        print("why it is hard: " + HARD.format(floor_plan=suggestion))
     print(f"planners {', '.join(planners)}; estimator {args.estimator} with {options}; {args.steps} steps, "
           f"seeds {args.seed}..{args.seed + args.repeats - 1}")
-    steps = sweep(exploration_spec(args, planners), workers=args.workers, progress=True,
+    steps = sweep(exploration_spec(args, planners, world.model), workers=args.workers, progress=True,
                   results_dir=None if out is None else out / "explore.parts")
     runs = from_steps(steps, ["world", "planner", "seed"])  # the world: counts of cells are bounded by its N
     runs.insert(2, "kind", "explore")
@@ -113,9 +121,7 @@ def run(args: argparse.Namespace) -> int:
     summary = summarize(runs, metrics, args.confidence)
     print(f"mean [{args.confidence:.0%} confidence interval] over {args.repeats} seed(s), per planner:")
     print_table(summary_table(summary))
-    print(TIMING_NOTE + "; wrong_cells: cells whose most probable label is wrong at the end")
-    for name, meaning in HONEST_METRICS.items():
-        print(f"{name}: {meaning}")
+    print("\n".join(metric_legend(metrics)))
     if out is not None:
         written = [write_table(steps, out / "explore_steps.csv"), write_table(runs, out / "explore_runs.csv"),
                    write_table(summary, out / "explore_summary.csv")]

@@ -63,9 +63,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from policies import PLANNERS, check_goal
+    from policies import PLANNERS, check_goal, planner_options, with_floor_plan
 
     from .. import plots
+    from ..evaluate import metric_legend
     from ..studies.base import summary_of, with_intervals
     from ..studies.navigation import far_goals, navigation_spec, oracle_figure, route_figure
     from ..sweeps import sweep
@@ -75,10 +76,21 @@ def run(args: argparse.Namespace) -> int:
     unknown = [name for name in planners if name not in PLANNERS]
     if unknown or not planners:
         raise ModelError(f"--planner: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(PLANNERS)}")
+    goal_planners = [name for name in PLANNERS if "goal" in planner_options(name)]
+    aimless = [name for name in planners if name not in goal_planners]
+    if aimless:
+        raise ModelError(f"--planner {', '.join(aimless)}: {'does' if len(aimless) == 1 else 'do'} not take a goal; "
+                         f"navigate compares goal planners: {', '.join(goal_planners)}")
     world = parse_world(args.world)
     true_map = world.initial_map(0)
-    goal = far_goals(world.model, true_map)[0] if args.goal is None else check_goal(world.model, args.goal)
-    options = options_per_estimator(["rbpf"], args.option)["rbpf"]
+    if args.goal is None:
+        goals = far_goals(world.model, true_map)
+        if not goals:
+            raise ModelError(f"--world {args.world}: no free cell to send the robot to; give one with --goal CELL")
+        goal = goals[0]
+    else:  # checked as the runs will see it, before any run: a wall of the floor plan refuses it
+        goal = check_goal(with_floor_plan(world.model, true_map, args.floor_plan), args.goal)
+    options = options_per_estimator(["rbpf"], args.option, world.model)["rbpf"]
     options.setdefault("n_particles", 500)
     row, col = divmod(goal, world.model.cols)
     print(f"world {args.world} (floor plan {args.floor_plan}); goal cell {goal} (row {row}, col {col}); rbpf with "
@@ -91,9 +103,14 @@ def run(args: argparse.Namespace) -> int:
                  results_dir=None if out is None else out / "navigate.parts")
     judged = runs[runs["oracle_reached"].astype(bool)]
     summary = summary_of(judged, SUMMARY_METRICS, ["planner"], args.confidence)
-    print(f"mean [{args.confidence:.0%} interval] over the {len(judged) // max(len(planners), 1)} run(s) per planner "
-          f"where the oracle reaches the goal; success: within 4x the oracle's steps")
-    print_table(with_intervals(summary, SUMMARY_METRICS))
+    if judged.empty:
+        print(f"the oracle reaches goal cell {goal} within {args.steps} steps in none of the {args.repeats} run(s): "
+              f"nothing to compare the planners against; give more --steps or a nearer --goal")
+    else:
+        print(f"mean [{args.confidence:.0%} interval] over the {len(judged) // max(len(planners), 1)} run(s) per "
+              f"planner where the oracle reaches the goal; success: within 4x the oracle's steps")
+        print_table(with_intervals(summary, SUMMARY_METRICS))
+        print("\n".join(metric_legend(SUMMARY_METRICS)))
     if out is not None:
         from policies import navigate, with_floor_plan
 

@@ -40,9 +40,9 @@ resuming from the checkpoint), a signal is recorded the same way: the process em
 event and stops before reading input. Only while Python imports the package (``import
 onlinemap``, before any of this module runs) do the interpreter's defaults apply. The path is
 checked writable at start-up, and temporary files of saves that a ``kill -9`` cut short
-(``.NAME.*.tmp`` beside it) are removed; a save that fails later (full disk) reports one JSON
-error line, keeps the previous file and the loop goes on (the exit status is 1 if the final save
-failed). A restarted process finds the file and resumes from it
+(``.NAME.<pid>-<8 hex digits>.tmp`` beside it, of processes gone; nothing else) are removed; a
+save that fails later (full disk) reports one JSON error line, keeps the previous file and the
+loop goes on (the exit status is 1 if the final save failed). A restarted process finds the file and resumes from it
 (the next line is step ``t + 1``), after checking that the world, estimator and options are the
 ones it was saved with; a file from another onlinemap version of the same checkpoint format
 loads, one of a newer format only with ``--allow-newer-checkpoint``. Cost per line: one
@@ -297,7 +297,8 @@ def _start(args: argparse.Namespace, stderr):
 def _goal(text: str) -> int | tuple[int, int]:
     """``--goal``: ``CELL`` or ``ROW,COL`` (whole numbers), unchecked against the world."""
     parts = text.split(",")
-    if len(parts) > 2 or not all(part.strip().isdigit() for part in parts):
+    # ASCII digits only: str.isdigit is true for "²", which int() refuses
+    if len(parts) > 2 or not all(part.strip().isascii() and part.strip().isdigit() for part in parts):
         raise ModelError(f"--goal must be a cell index or ROW,COL (whole numbers), got {text!r}")
     numbers = tuple(int(part) for part in parts)
     return numbers[0] if len(numbers) == 1 else numbers
@@ -309,8 +310,10 @@ def _planner(args: argparse.Namespace, model, est):
         if args.goal is not None:
             raise OnlineMapError("--goal needs --planner (e.g. --planner goto)")
         return None
-    from policies import make_planner
+    from policies import make_planner, planner_options
 
+    if args.goal is None and "goal" in planner_options(args.planner):
+        raise OnlineMapError(f"--planner {args.planner} needs --goal CELL (a cell index or ROW,COL)")
     planner = make_planner(args.planner, model, seed=0, **({} if args.goal is None else {"goal": _goal(args.goal)}))
     if hasattr(planner, "bind"):
         planner.bind(est)

@@ -116,8 +116,13 @@ def available_estimators() -> tuple[str, ...]:
 
 
 def estimator_options(name: str) -> dict[str, object]:
-    """The keyword options of an estimator and their defaults (a fresh dict)."""
-    return dict(_keyword_options(_lookup(name)))
+    """The keyword options of an estimator and their effective defaults (a fresh dict): the
+    signature's, except where a placeholder default is resolved when the estimator is built with
+    the other defaults (the class's ``resolved_defaults``: e.g. rbpf's ``resampling=None`` runs
+    ``fearnhead_clifford`` with the default optimal proposal). Building with this dict runs as
+    building with no option does."""
+    cls = _lookup(name)
+    return {**_keyword_options(cls), **getattr(cls, "resolved_defaults", {})}
 
 
 @functools.cache

@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import logging
 import math
+from types import MappingProxyType
 from typing import NamedTuple
 
 import numba
@@ -277,6 +278,9 @@ class RaoBlackwellisedPF:
     #: per-step buffers (:meth:`_fc_buffers`, :meth:`_staged_buffers`), overwritten by every step
     #: before being read: not state (a checkpoint records their dtype and shape only)
     scratch_attributes = ("_scratch_ints", "_scratch_floats", "_scratch_staged_ints", "_scratch_staged_cells")
+
+    #: what the placeholder defaults run with the other defaults (estimator_options shows these)
+    resolved_defaults = MappingProxyType({"resampling": FEARNHEAD_CLIFFORD})
 
     def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
                  resampling: str | None = None, resample_threshold: float = 0.5, seed: SeedLike = None,

@@ -78,7 +78,8 @@ def accuracy_study(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_s
     :func:`onlinemap.sweeps.sweep`: 0 runs serially here; ``out``: a folder of parts, so a rerun
     resumes; ``options`` as in :func:`study_spec`). One row per (world, run, estimator, t): the sweep's per-step columns
     (:mod:`onlinemap.evaluate`: ``location_tv``, ``map_tv``, ``map_error``, ``ms_per_step``, ...)
-    plus ``run`` (the seed), ``particles`` (NaN unless rbpf), ``proposal``, ``resampling`` and
+    plus ``run`` (the seed), ``particles`` (NaN unless rbpf), ``proposal``, ``resampling`` (in
+    place of the sweep's ``opt_n_particles``, ``opt_proposal``, ``opt_resampling``) and
     ``estimator`` relabelled by :func:`label`. Cost: n_runs * n_steps steps of exact and of every estimator,
     per world."""
     from ..sweeps import sweep
@@ -93,7 +94,8 @@ def accuracy_study(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_s
     table["run"] = table["seed"]
     for column in ("proposal", "resampling"):
         table[column] = table[f"opt_{column}"] if f"opt_{column}" in table else None
-    return table
+    # the scheme's options are the columns above now: their opt_ copies would repeat them
+    return table.drop(columns=["opt_n_particles", "opt_proposal", "opt_resampling"], errors="ignore")
 
 
 def summarise(per_step: pd.DataFrame) -> pd.DataFrame:

@@ -42,12 +42,16 @@ METRICS = ("success", "reached", "steps_to_goal", "oracle_steps", "steps_over_or
 
 def far_goals(model: GridModel, true_map: np.ndarray, count: int = 1) -> list[int]:
     """The ``count`` free cells farthest from the start by the fewest moves with every door open
-    (ties: the lowest cell), the goals a navigation study sends the robot to. O(N A)."""
+    (ties: the lowest cell), the goals a navigation study sends the robot to; in a world without a
+    ``free`` label (``corridor``, ``grid``), the cells whose label does not block. Fewer than
+    ``count`` (none) when fewer are reachable. O(N A)."""
     labels = np.asarray(true_map).copy()
-    doors = np.isin(np.asarray(model.label_names)[labels], ("open_door", "closed_door"))
+    names = np.asarray(model.label_names)
+    doors = np.isin(names[labels], ("open_door", "closed_door"))
     labels[doors] = model.label_names.index("open_door") if "open_door" in model.label_names else labels[doors]
     distance = true_distances(model, labels, model.start)  # symmetric moves: from the start = to it
-    free = np.flatnonzero((np.asarray(model.label_names)[np.asarray(true_map)] == "free") & np.isfinite(distance))
+    free = names[np.asarray(true_map)] == "free" if "free" in model.label_names else ~model.blocking[labels]
+    free = np.flatnonzero(free & np.isfinite(distance))
     order = free[np.lexsort((free, -distance[free]))]
     return [int(cell) for cell in order[:count]]
 
