@@ -508,7 +508,7 @@ def test_track_refuses_a_bad_goal_or_a_goal_without_planner(monkeypatch, capsys)
     assert main(spec + ["--planner", "goto", "--goal", "9,9"]) == 2
     assert "goal (9, 9) (row, col) is off the 3 x 4 grid" in capsys.readouterr().err
     assert main(spec + ["--planner", "goto", "--goal", "x"]) == 2 and "--goal must be" in capsys.readouterr().err
-    assert main(spec + ["--planner", "goto"]) == 2 and "needs a goal" in capsys.readouterr().err
+    assert main(spec + ["--planner", "goto"]) == 2 and "--planner goto needs --goal CELL" in capsys.readouterr().err
 
 
 # --- the navigation study on the sweep engine (onlinemap.studies.navigation) ------------------------
