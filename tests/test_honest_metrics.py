@@ -259,3 +259,18 @@ def test_a_per_step_table_without_the_new_columns_still_reads():
     table = pd.DataFrame({"run": 0, "t": [0, 1], "map_error": [0.5, 0.4], "location_error": [0.1, 0.2]})
     row = from_steps(table, ["run"]).iloc[0]
     assert "location_calibration_gap" not in row and row["final_map_error"] == 0.4
+
+
+def test_explore_prints_the_honest_metrics_with_a_legend(capsys):
+    """The table of ``onlinemap explore`` has a column per honest metric, and under it one line
+    saying what each means."""
+    from onlinemap.cli import main
+    from onlinemap.evaluate import HONEST_METRICS
+
+    assert main(["explore", "--world", "door,blocking=1,footprint=cross", "--planner", "random",
+                 "--estimator", "bk", "--steps", "12"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    header = next(line for line in printed if line.split()[:1] == ["planner"])
+    for name in HONEST_METRICS:
+        assert name in header.split()
+        assert any(line.startswith(f"{name}: ") and len(line.split()) > 8 for line in printed), name

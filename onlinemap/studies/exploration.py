@@ -33,7 +33,7 @@ from policies.tasks import EXPLORE, build_planner
 
 from .. import metrics as metric_functions
 from ..estimators import make_estimator, run_estimator
-from ..evaluate import COVERAGE_THRESHOLDS, from_steps
+from ..evaluate import COVERAGE_THRESHOLDS, HONEST_METRICS, from_steps
 from ..errors import ModelError
 from ..model import GridModel, door_cells
 from ..rng import ESTIMATOR_STREAM, derived_seed
@@ -96,16 +96,17 @@ def compare_planners(world: str = "door,p_door=0.01,p_move=0.9", planners=("entr
 def summarize_planners(table: pd.DataFrame, model: GridModel, true_map) -> pd.DataFrame:
     """One row per planner from a :func:`compare_planners` table, averaged over seeds: the
     per-run metrics of :func:`onlinemap.evaluate.from_steps` (final map error, mean door error
-    over the last two thirds of the run, mean location error), the share of steps spent on door
-    cells, distinct cells visited, and milliseconds per step (estimator + planner)."""
+    over the last two thirds of the run, mean location error, the honest metrics of
+    :data:`onlinemap.evaluate.HONEST_METRICS`), the share of steps spent on door cells, distinct
+    cells visited, and milliseconds per step (estimator + planner)."""
     doors = door_cells(model, true_map)
     table = table.assign(ms_per_step=1e3 * table["seconds_per_step"])
     per_run = from_steps(table, ["planner", "seed"])
     visits = table.groupby(["planner", "seed"], sort=False)["true_location"]
     per_run["time_at_doors"] = visits.apply(lambda cells: np.isin(cells, doors).mean()).to_numpy()
     per_run["cells_visited"] = visits.nunique().to_numpy()
-    columns = ["planner", "final_map_error", "late_door_error", "mean_location_error", "time_at_doors",
-               "cells_visited", "ms_per_step"]
+    columns = ["planner", "final_map_error", "late_door_error", "mean_location_error", *HONEST_METRICS,
+               "time_at_doors", "cells_visited", "ms_per_step"]
     summary = per_run[[c for c in columns if c in per_run]].groupby("planner", sort=False).mean().reset_index()
     summary.insert(1, "runs", per_run.groupby("planner", sort=False).size().to_numpy())
     return summary
