@@ -129,3 +129,17 @@ def test_the_test_command_keeps_a_files_tests_on_one_worker_and_runs_each_notebo
     # the RBPF's files share its kernels, serial and threaded: one unit
     assert work_unit("tests/test_rbpf.py::test_known_location_equals_exact") \
         == work_unit("tests/test_rbpf_threads.py::test_threads_option") != work_unit("tests/test_bk.py::test_x")
+
+
+def test_every_results_table_comes_with_the_command_that_reproduces_it():
+    """The results page: each section holds its command (a code block naming `onlinemap` or a
+    study) before its first table."""
+    text = (PAGES / "results.md").read_text()
+    sections = text.split("\n## ")[1:]
+    assert len(sections) >= 10
+    for section in sections:
+        title, body = section.split("\n", 1)
+        assert "|---" in body.replace(" ", "") or "| ---" in body, title
+        before_table = body.split("\n|", 1)[0]
+        commands = before_table.split("```")[1::2]
+        assert commands and all("onlinemap" in c for c in commands), title
