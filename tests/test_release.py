@@ -72,3 +72,9 @@ def test_the_site_without_mkdocs_is_one_error_line(monkeypatch, tmp_path, capsys
     assert main(["--out", str(tmp_path / "site")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("onlinemap.docs: error: ") and "pip install -e '.[docs]'" in err[0]
+
+
+def test_the_sites_hook_drops_sphinx_roles_from_rendered_docstrings():
+    from onlinemap.docs.hooks import on_page_content
+    html = "see :func:<code>~policies.navigation.check_goal</code>, :class:<code>Belief</code> and <code>:x:</code>"
+    assert on_page_content(html) == "see <code>check_goal</code>, <code>Belief</code> and <code>:x:</code>"

@@ -86,6 +86,7 @@ def assemble(site: Path) -> Path:
     api = _api_pages(site / "docs", names)
     config["nav"] = [entry if entry != "API reference" else {"API reference": api} for entry in config["nav"]]
     config["docs_dir"] = "docs"
+    config["hooks"] = [str(HERE / "hooks.py")]
     path = site / "mkdocs.yml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return path
