@@ -44,8 +44,13 @@ def test_the_readme_is_a_front_page():
 
 
 def test_the_guide_names_no_issue_numbers_in_headings():
-    """Users read headings; the project's issue numbers mean nothing to them."""
-    headings = [line for page in PAGES.rglob("*.md") for line in page.read_text().splitlines()
+    """Users read headings (the notebooks' included); the project's issue numbers mean nothing to them."""
+    import nbformat
+
+    texts = [page.read_text() for page in PAGES.rglob("*.md")]
+    texts += [cell.source for path in (ROOT / "notebooks").glob("*.ipynb")  # rendered on the site too
+              for cell in nbformat.read(path, as_version=4).cells if cell.cell_type == "markdown"]
+    headings = [line for text in texts for line in text.splitlines()
                 if line.startswith("#") and re.search(r"issue \d", line, re.IGNORECASE)]
     assert not headings
 
