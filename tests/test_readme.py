@@ -148,3 +148,22 @@ def test_every_results_table_comes_with_the_command_that_reproduces_it():
         before_table = body.split("\n|", 1)[0]
         commands = before_table.split("```")[1::2]
         assert commands and all("onlinemap" in c for c in commands), title
+
+
+def test_the_results_pages_corridor_rows_are_current():
+    """The deterministic rows of the results page's Murphy-corridor table (exact, dead reckoning,
+    offline EM, BK) are what the study gives today, at the precision the page prints."""
+    from onlinemap.scenarios import murphy_corridor
+    from onlinemap.studies.corridor import CORRIDOR_ESTIMATORS, corridor_table
+
+    text = (PAGES / "results.md").read_text()
+    table = text[text.index("## Murphy's corridor"):].split("\n## ", 1)[0]
+    stated = {cells[0]: cells[1:] for line in table.splitlines() if line.startswith("| ")
+              for cells in [[c.strip() for c in line.strip("|").split("|")]]}
+    names = ("exact", "dead_reckoning", "offline_em", "bk")
+    frame, _ = corridor_table(murphy_corridor(), [e for e in CORRIDOR_ESTIMATORS if e[0] in names], progress=False)
+    for row in frame.itertuples():
+        error, wrong, low, final = stated[row.estimator]
+        for value, text_value in ((row.final_map_error, error), (row.min_p_true_way_back, low), (row.final_p_true, final)):
+            assert float(text_value) == pytest.approx(value, rel=0.01, abs=5e-4), (row.estimator, text_value, value)
+        assert int(wrong) == row.wrong_visited
