@@ -472,7 +472,7 @@ STEP_COST = 0.05  # step_cost "auto" in the paper's world (chosen on 8 seeds of 
 # step_cost "auto" with frontier targets: tuned on the blocking + cross door world, 1000 particles,
 # 300 steps, mean steps to map error 0.1 over 8 seeds: seeds 0-7, 0.05 -> 142, 0.2 -> 131,
 # 0.35 -> 117, 0.6 -> 112, 1.0 -> 133 (frontier 142); seeds 8-15, 0.45 -> 126, 0.6 -> 115,
-# 0.75 -> 117 (frontier 131). Measured apart from these seeds, on seeds 20-39 (README).
+# 0.75 -> 117 (frontier 131). Measured apart from these seeds, on seeds 20-39 (the guide's Exploration page).
 TARGETS_STEP_COST = 0.6
 
 

@@ -278,7 +278,7 @@ def test_info_gain_maps_the_papers_world_better_than_the_entropy_planner():
     particles, 600 steps, paired seeds: info_gain's map error, averaged over the run (the area
     under its map-error curve), is lower than the paper's entropy planner's, one-sided paired
     t-test p < 0.05 (power 0.95 for the effect measured on other seeds, above). (Full size, 20
-    seeds of 1000 steps with 1000 particles, final map error: see the README.)"""
+    seeds of 1000 steps with 1000 particles, final map error: see the guide's Exploration page.)"""
     model, true_map = exploration_world(p_door=0.0, p_move=0.8, floor_plan=None)
     mean_error = {planner: np.array([explore(model, true_map, planner, "rbpf", steps=600, seed=seed,
                                              estimator_options={"n_particles": 100})["map_error"].mean()

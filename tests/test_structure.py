@@ -111,7 +111,7 @@ def tour_rows() -> dict[str, int]:
     that names it most closely)."""
     text = (ROOT / "README.md").read_text()
     table = text[text.index("## Tour"):]
-    table = table[:table.index("\n## ")]
+    table = table.split("\n## ", 1)[0]  # up to the next section, if the tour is not the last
     rows = [line for line in table.splitlines() if line.startswith("| `")]
     named: dict[str, int] = {}
     for number, row in enumerate(rows):

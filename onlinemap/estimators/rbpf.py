@@ -258,7 +258,7 @@ class RaoBlackwellisedPF:
     readings: up to 2 P t bytes more, counted by ``max_bytes``. :attr:`moves` counts the
     windows proposed and accepted (checkpointed). What it buys: on the paper's world replay at
     1,000 particles (W = 20, every 5) the final map error falls from 0.26 to about 0.20 for 3.2x
-    the time per step (the README's RBPF section).
+    the time per step (the user guide's Estimators page, RBPF section).
 
     ``threads``: how many threads the update and the belief use, at most ``NUMBA_NUM_THREADS``
     (the cores numba counts for this process, or that environment variable, read when numba
