@@ -25,6 +25,10 @@ class InvalidActionError(OnlineMapError):
     """An action is out of range, of the wrong type, unknown by name, or given at the wrong step."""
 
 
+class StepIndexError(OnlineMapError, IndexError):
+    """A step asked of a :class:`~onlinemap.estimators.Trajectory` is not an integer in ``-T..T-1``."""
+
+
 class InvalidObservationError(OnlineMapError):
     """An observation is out of range, of the wrong type, NaN or unknown by name."""
 
@@ -40,6 +44,10 @@ class MemoryLimitError(OnlineMapError, MemoryError):
 class CheckpointError(OnlineMapError):
     """A checkpoint file is truncated, tampered with, of another version, or does not match the
     estimator or model it is loaded into; or an estimator's state cannot be checkpointed."""
+
+
+class MissingDependencyError(OnlineMapError):
+    """An optional package a feature needs is not installed (the message says how to install it)."""
 
 
 class UnknownEstimatorError(OnlineMapError, KeyError):

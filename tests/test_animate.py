@@ -1,0 +1,96 @@
+"""``om.plots.animate``: a run's beliefs over time as a GIF or an MP4, read back (issue 42 item 3)."""
+
+import numpy as np
+import pytest
+from matplotlib.colors import to_rgb
+from PIL import Image
+
+import onlinemap as om
+from onlinemap import plots
+from onlinemap.errors import InvalidOptionError, MissingDependencyError, ModelError
+
+
+def share_near(image: Image.Image, colour: str, tolerance: float = 10.0) -> float:
+    """The share of the image's pixels within ``tolerance`` (0-255 per channel) of ``colour``."""
+    pixels = np.asarray(image.convert("RGB"), dtype=float)
+    return float(np.mean(np.abs(pixels - 255 * np.array(to_rgb(colour))).max(axis=2) <= tolerance))
+
+
+@pytest.fixture(scope="module")
+def learned():
+    """A 6 x 8 door world whose map belief goes from uniform (t = 0) to certain walls (the last step)."""
+    model = om.grid_model(6, 8, 4, label_names=("free", "wall", "open_door", "closed_door"))
+    steps = 7
+    location = np.full((steps, model.n_cells), 1.0 / model.n_cells)
+    maps = np.full((steps, model.n_cells, 4), 0.25)
+    maps[-1] = [0.0, 1.0, 0.0, 0.0]
+    return model, om.Trajectory(location, maps, np.zeros(steps), 0.0)
+
+
+def test_a_gif_has_one_frame_per_shown_step_and_draws_the_belief_in_the_palette(tmp_path, learned):
+    model, trajectory = learned
+    path = plots.animate(model, trajectory, tmp_path / "sub" / "run.gif", every=3, fps=5)
+    assert path == tmp_path / "sub" / "run.gif"
+    frames = plots.animation_frames(trajectory.n_steps, 3)
+    np.testing.assert_array_equal(frames, [0, 3, 6])
+    with Image.open(path) as gif:
+        assert gif.n_frames == 3 and gif.info["duration"] == 200
+        width, height = gif.size
+        assert 300 <= width <= 1200 and 150 <= height <= 600
+        gif.seek(0)
+        first = gif.copy()
+        gif.seek(2)
+        last = gif.copy()
+    # uniform at t = 0: the map panel is blue-grey, no cell drawn as a wall; certain walls at the end
+    assert share_near(first, plots.UNKNOWN_COLOUR) > 0.15 and share_near(first, "#404040") < 0.01
+    assert share_near(last, "#404040") > 0.15 and share_near(last, plots.UNKNOWN_COLOUR) < 0.01
+
+
+def test_the_true_path_and_map_add_a_panel(tmp_path):
+    model, true_map = om.building(12, 12, seed=3)
+    run = om.simulate(model, true_map, om.random_walk(model, 9, 1), seed=1)
+    trajectory = om.run_estimator(om.make_estimator("rbpf", model, n_particles=20, seed=0), run.actions,
+                                  run.observations)
+    bare = plots.animate(model, trajectory, tmp_path / "bare.gif")
+    full = plots.animate(model, trajectory, tmp_path / "full.gif", true_locations=run.locations, true_maps=run.maps)
+    with Image.open(bare) as a, Image.open(full) as b:
+        assert a.n_frames == b.n_frames == 10
+        assert b.size[0] > a.size[0] * 1.25  # a third panel: the true map
+        b.seek(9)
+        assert share_near(b, "#404040", 6) > 0.03  # its walls, certain
+
+
+def test_an_mp4_is_written_where_imageio_ffmpeg_is_installed(tmp_path, learned):
+    imageio = pytest.importorskip("imageio.v2")
+    pytest.importorskip("imageio_ffmpeg")
+    model, trajectory = learned
+    path = plots.animate(model, trajectory, tmp_path / "run.mp4", fps=10)
+    with imageio.get_reader(path) as reader:
+        frames = [frame for frame in reader]
+    assert len(frames) == trajectory.n_steps and frames[0].shape[0] % 2 == frames[0].shape[1] % 2 == 0
+
+
+def test_bad_arguments_are_refused_before_anything_is_written(tmp_path, learned, monkeypatch):
+    model, trajectory = learned
+    for path, options, error in [(tmp_path / "run.png", {}, InvalidOptionError),
+                                 (tmp_path / "run.gif", {"every": 0}, InvalidOptionError),
+                                 (tmp_path / "run.gif", {"fps": 0}, InvalidOptionError),
+                                 (tmp_path / "run.gif", {"true_locations": np.zeros(3, dtype=int)}, ModelError),
+                                 (tmp_path / "run.gif", {"true_maps": np.full(model.n_cells, 4)}, ModelError)]:
+        with pytest.raises(error):
+            plots.animate(model, trajectory, path, **options)
+    with pytest.raises(ModelError, match="does not fit"):
+        plots.animate(om.corridor(5), trajectory, tmp_path / "run.gif")
+    monkeypatch.setattr(plots, "find_spec", lambda name: None)  # no imageio here
+    with pytest.raises(MissingDependencyError, match="pip install imageio imageio-ffmpeg"):
+        plots.animate(model, trajectory, tmp_path / "run.mp4")
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_corridor_animates_as_one_row(tmp_path):
+    run = om.scenarios.murphy_corridor()
+    trajectory = om.run_estimator(om.make_estimator("exact", run.model), run.actions, run.observations)
+    path = plots.animate(run.model, trajectory, tmp_path / "corridor.gif", true_locations=run.locations,
+                         true_maps=run.maps)
+    with Image.open(path) as gif:
+        assert gif.n_frames == run.n_steps and gif.size[0] > 2 * gif.size[1]
