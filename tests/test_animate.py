@@ -94,3 +94,37 @@ def test_a_corridor_animates_as_one_row(tmp_path):
                          true_maps=run.maps)
     with Image.open(path) as gif:
         assert gif.n_frames == run.n_steps and gif.size[0] > 2 * gif.size[1]
+
+
+def test_explore_and_navigate_animate_and_record_their_first_run(tmp_path, capsys):
+    """``--animate FILE`` (and ``--mcap FILE``) on ``explore`` and ``navigate``: the first planner's
+    run with the first seed, every step a frame (at most MAX_FRAMES), read back."""
+    from onlinemap.cli import main
+
+    gif, mcap = tmp_path / "explore.gif", tmp_path / "explore.mcap"
+    assert main(["explore", "--world", "building:10x12,seed=1", "--planner", "frontier,random", "--steps", "15",
+                 "--animate", str(gif), "--mcap", str(mcap)]) == 0
+    assert f"wrote {gif}, {mcap}" in capsys.readouterr().out
+    with Image.open(gif) as image:
+        assert image.n_frames == 15
+    reader = pytest.importorskip("mcap.reader")
+    with open(mcap, "rb") as stream:
+        counts = reader.make_reader(stream).get_summary().statistics.channel_message_counts
+    assert set(counts.values()) == {15}
+    goal_gif = tmp_path / "navigate.gif"
+    assert main(["navigate", "--world", "door,blocking=1,footprint=cross", "--goal", "2,2", "--planner", "goto",
+                 "--repeats", "1", "--steps", "30", "--animate", str(goal_gif)]) == 0
+    with Image.open(goal_gif) as image:
+        assert 2 <= image.n_frames <= 31
+
+
+def test_the_views_are_checked_before_any_work(tmp_path, capsys):
+    from onlinemap.cli import main
+
+    for flag, name, message in (("--animate", "run.png", "must end in .gif or .mp4"),
+                                ("--mcap", "run.bag", "must end in .mcap")):
+        assert main(["explore", "--steps", "5", flag, str(tmp_path / name)]) == 2
+        captured = capsys.readouterr()
+        assert message in captured.err and "planners" not in captured.out  # refused before the run starts
+    from onlinemap.cli.views import MAX_FRAMES, animation_every
+    assert [animation_every(n) for n in (1, MAX_FRAMES, MAX_FRAMES + 1, 2000)] == [1, 1, 2, 7]
