@@ -17,7 +17,7 @@ from typing import Callable
 import pandas as pd
 
 from ..errors import OnlineMapError
-from ..progress import show_progress, tqdm
+from ..progress import FEW_TASKS, counting_steps, show_progress, tqdm
 from ..tables import check_writable, write_table
 from . import runner
 from .kinds import Played
@@ -89,10 +89,16 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
             on_played(task, outcome.played)
         bar.update()
 
+    # few tasks in this process (a serial sweep of FEW_TASKS never moves to dask): their loops count steps
+    steps_counted = show_progress(progress) and client is None and workers in (0, None) and len(todo) <= FEW_TASKS
     bar = tqdm(total=len(spec.tasks), initial=len(spec.tasks) - len(todo), desc=f"sweep {spec.name}",
-               unit="task", disable=not show_progress(progress), smoothing=0.1)
+               unit="task", disable=not show_progress(progress) or steps_counted, smoothing=0.1)
     try:
-        if todo and client is None and workers == 0:
+        if todo and steps_counted:
+            with counting_steps():
+                for task in todo:
+                    record(task, runner.attempt(task, keep=on_played is not None))
+        elif todo and client is None and workers == 0:
             for task in todo:
                 record(task, runner.attempt(task, keep=on_played is not None))
         elif todo and client is None and workers is None:
