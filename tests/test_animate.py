@@ -127,4 +127,4 @@ def test_the_views_are_checked_before_any_work(tmp_path, capsys):
         captured = capsys.readouterr()
         assert message in captured.err and "planners" not in captured.out  # refused before the run starts
     from onlinemap.cli.views import MAX_FRAMES, animation_every
-    assert [animation_every(n) for n in (1, MAX_FRAMES, MAX_FRAMES + 1, 2000)] == [1, 1, 2, 7]
+    assert [animation_every(n) for n in (1, MAX_FRAMES, MAX_FRAMES + 1, 2000)] == [1, 1, 2, 14]

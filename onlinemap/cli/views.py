@@ -19,8 +19,8 @@ if TYPE_CHECKING:
     from ..simulate import Run
     from ..sweeps.kinds import Played
 
-#: an animation of a long run shows at most this many frames (every k-th step): 25 s at 12 frames a second
-MAX_FRAMES = 300
+#: an animation of a long run shows at most this many frames (every k-th step): 12.5 s at 12 frames a second
+MAX_FRAMES = 150
 VIZ_HINT = "pip install foxglove-sdk mcap (in a clone: pip install -e '.[viz]')"
 
 
