@@ -153,3 +153,23 @@ def test_import_onlinemap_does_not_import_foxglove():
     code = "import sys, onlinemap, onlinemap.plots; print('foxglove' in sys.modules, 'mcap' in sys.modules)"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.stdout.split() == ["False", "False"], done.stderr
+
+
+def test_a_goal_plans_path_walks_down_its_value_to_the_goal():
+    from onlinemap.foxglove import descent_path
+    from policies import make_planner
+
+    model, true_map = om.door_world(blocking=True)
+    planner = make_planner("goto", model, goal=(9, 9))
+    belief = om.make_estimator("bk", model).step(None, int(true_map[model.start]))
+    planner.choose(belief)
+    value = planner.plan.value
+    path = descent_path(model, value, model.start)
+    assert path[0] == model.start and path[-1] == planner.goal
+    for here, there in zip(path, path[1:]):
+        assert there in model.neighbors[here] and value[there] < value[here]
+    assert descent_path(model, value, planner.goal) == [planner.goal]
+    assert len(descent_path(model, value, model.start, limit=3)) == 3
+    stuck = np.full(model.n_cells, np.inf)
+    stuck[planner.goal] = 0.0
+    assert descent_path(model, stuck, model.start) == [model.start]

@@ -129,6 +129,6 @@ def run(args: argparse.Namespace) -> int:
     if wanted(args):
         played = first_played(spec, kept, planners[0], args.seed)
         written = write_views(args, world.model, played.run, played.trajectory,
-                              f"{planners[0]}, {args.estimator}, seed {args.seed}")
+                              f"{args.world}: {planners[0]}, {args.estimator}, seed {args.seed}")
         print(f"wrote {', '.join(str(p) for p in written)}")
     return 0

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from ..simulate import Run
     from ..sweeps.kinds import Played
 
-#: an animation of a long run shows at most this many frames (every k-th step): 12.5 s at 12 frames a second
+#: an animation of a long run shows about this many frames at most (every k-th step, and the last): 12.5 s at 12 a second
 MAX_FRAMES = 150
 VIZ_HINT = "pip install foxglove-sdk mcap (in a clone: pip install -e '.[viz]')"
 
@@ -28,8 +28,8 @@ def add_view_arguments(parser: argparse.ArgumentParser, what: str) -> None:
     """``--animate FILE`` and ``--mcap FILE``; ``what`` names the run they show, for the help."""
     parser.add_argument("--animate", type=Path, metavar="FILE",
                         help=f"write an animation of {what}: the location and map belief over time with the true "
-                             f"path and map; FILE.gif (pillow) or FILE.mp4 (needs imageio and imageio-ffmpeg); at "
-                             f"most {MAX_FRAMES} frames (every k-th step of a longer run)")
+                             f"path and map; FILE.gif (pillow) or FILE.mp4 (needs imageio and imageio-ffmpeg); about "
+                             f"{MAX_FRAMES} frames at most (every k-th step of a longer run, and the last)")
     parser.add_argument("--mcap", type=Path, metavar="FILE",
                         help=f"record {what} to FILE.mcap for Foxglove (the map and location beliefs as grids, the "
                              f"robot's most likely and true cell, the goal; log time = step x 0.1 s); needs the viz "
@@ -59,7 +59,8 @@ def wanted(args: argparse.Namespace) -> bool:
 
 
 def animation_every(steps: int) -> int:
-    """Every how many steps a frame is drawn so that a run of ``steps`` has at most :data:`MAX_FRAMES`."""
+    """Every how many steps a frame is drawn so that a run of ``steps`` has at most :data:`MAX_FRAMES`
+    frames, and the last step (:func:`onlinemap.plots.animation_frames`)."""
     return max(1, math.ceil(steps / MAX_FRAMES))
 
 
