@@ -220,7 +220,7 @@ def animation_frames(steps: int, every: int) -> np.ndarray:
 
 
 def animate(model: GridModel, trajectory: Trajectory, path: str | Path, *, true_locations=None, true_maps=None,
-            every: int = 1, fps: float = 12.0, dpi: int = 80, title: str = "") -> Path:
+            every: int = 1, fps: float = 12.0, dpi: int = 80, title: str = "", first_step: int = 0) -> Path:
     """Write an animation of a run's beliefs over time: a GIF (``.gif``, with pillow) or an MP4
     (``.mp4``, with imageio and imageio-ffmpeg where installed; :class:`MissingDependencyError` otherwise).
 
@@ -230,7 +230,8 @@ def animate(model: GridModel, trajectory: Trajectory, path: str | Path, *, true_
     ``true_maps`` ((N,), or (T, N) for a world that changes) the true map and, with
     ``true_locations`` (T,), the true path so far. The robot's most likely cell is circled and its
     true cell starred in the belief panels; a legend names every mark. Corridors are drawn as one-row
-    images. Returns the path (its directory created).
+    images. ``first_step``: the step number of the trajectory's first belief, for the frames' step counter
+    (a stream resumed from a checkpoint). Returns the path (its directory created).
 
     The figure is drawn once; each frame then redraws only the images, marks and step counter on the
     saved background (blitting), so a frame costs a few milliseconds (a 500-step 32 x 32 run is
@@ -249,11 +250,12 @@ def animate(model: GridModel, trajectory: Trajectory, path: str | Path, *, true_
     every = arguments.integer("every", every, minimum=1, error=InvalidOptionError)
     fps = arguments.real("fps", fps, low=0.0, low_open=True, high=100.0, error=InvalidOptionError)
     dpi = arguments.integer("dpi", dpi, minimum=20, maximum=400, error=InvalidOptionError)
+    first_step = arguments.integer("first_step", first_step, minimum=0, error=InvalidOptionError)
     truth_path = _true_locations(true_locations, steps, cells)
     truth_maps = _true_maps(true_maps, model, steps)
     frames = animation_frames(steps, every)
     path.parent.mkdir(parents=True, exist_ok=True)
-    scene = _Scene(model, trajectory, truth_path, truth_maps, dpi, title)
+    scene = _Scene(model, trajectory, truth_path, truth_maps, dpi, title, first_step)
     if suffix == ".gif":
         _write_gif(path, scene, frames, fps)
     else:
@@ -293,13 +295,14 @@ class _Scene:
 
     LIKELY, TRUE, PATH = "lime", "cyan", "tab:blue"  # the marks' colours, here and in the legend
 
-    def __init__(self, model: GridModel, trajectory: Trajectory, true_locations, true_maps, dpi: int, title: str):
+    def __init__(self, model: GridModel, trajectory: Trajectory, true_locations, true_maps, dpi: int, title: str,
+                 first_step: int = 0):
         from matplotlib import colormaps
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.colors import LogNorm
 
         self.model, self.trajectory = model, trajectory
-        self.true_locations, self.true_maps = true_locations, true_maps
+        self.true_locations, self.true_maps, self.first_step = true_locations, true_maps, first_step
         corridor = model.rows == 1
         panels = 3 if true_maps is not None else 2
         width = 3.4 if corridor else min(5.0, max(2.4, 2.9 * model.cols / model.rows))
@@ -391,7 +394,8 @@ class _Scene:
             for panel in range(len(self.boxes)):
                 x, y = self._centre(panel, self.true_locations[t])
                 draw.polygon(_star(x, y, radius), fill=rgb[self.TRUE], outline=(0, 0, 0))
-        draw.text((6, 4), f"step {t} of {trajectory.n_steps - 1}", fill=(0, 0, 0), font=self.font)
+        draw.text((6, 4), f"step {self.first_step + t} of {self.first_step + trajectory.n_steps - 1}", fill=(0, 0, 0),
+                  font=self.font)
         return image
 
 

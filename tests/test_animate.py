@@ -128,3 +128,24 @@ def test_the_views_are_checked_before_any_work(tmp_path, capsys):
         assert message in captured.err and "planners" not in captured.out  # refused before the run starts
     from onlinemap.cli.views import MAX_FRAMES, animation_every
     assert [animation_every(n) for n in (1, MAX_FRAMES, MAX_FRAMES + 1, 2000)] == [1, 1, 2, 14]
+
+
+def test_track_animates_the_steps_of_its_stream(tmp_path):
+    """``track --animate``: one frame per step this process took (after a resume, the steps since)."""
+    import json
+    import subprocess
+    import sys
+
+    lines = [{"observation": "free"}] + [{"action": "east", "observation": "free"}] * 4
+    command = [sys.executable, "-m", "onlinemap", "track", "--world", "door", "--estimator", "bk",
+               "--checkpoint", str(tmp_path / "state.npz"), "--animate", str(tmp_path / "stream.gif")]
+    for part, first in ((lines[:3], 0), (lines[3:], 3)):  # the second process resumes at step 3
+        done = subprocess.run(command, input="".join(json.dumps(line) + "\n" for line in part), text=True,
+                              capture_output=True, timeout=300)
+        assert done.returncode == 0, done.stderr
+        assert [json.loads(line)["t"] for line in done.stdout.splitlines()] == list(range(first, first + len(part)))
+        with Image.open(tmp_path / "stream.gif") as gif:
+            assert gif.n_frames == len(part)
+    with pytest.raises(InvalidOptionError, match="first_step"):
+        plots.animate(om.corridor(3), om.Trajectory(np.full((1, 3), 1 / 3), np.full((1, 3, 2), 0.5), np.zeros(1), 0),
+                      tmp_path / "x.gif", first_step=-1)

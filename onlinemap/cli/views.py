@@ -143,6 +143,8 @@ class StreamViews:
     def step(self, belief: Belief, planner=None) -> None:
         """Show the belief of one step (after the planner, if any, chose from it)."""
         if self.animate is not None:
+            if not self.location:
+                self.first_step = belief.t  # after a resume, not 0
             self.location.append(belief.location)
             self.maps.append(belief.map)
         if self.logger is not None:
@@ -163,7 +165,8 @@ class StreamViews:
             from ..plots import animate
 
             trajectory = Trajectory(np.array(self.location), np.array(self.maps), np.zeros(len(self.location)), 0.0)
-            written.append(animate(self.model, trajectory, self.animate, every=animation_every(len(self.location))))
+            written.append(animate(self.model, trajectory, self.animate, every=animation_every(len(self.location)),
+                                   first_step=self.first_step))
         return written
 
 
