@@ -173,3 +173,20 @@ def test_a_goal_plans_path_walks_down_its_value_to_the_goal():
     stuck = np.full(model.n_cells, np.inf)
     stuck[planner.goal] = 0.0
     assert descent_path(model, stuck, model.start) == [model.start]
+
+
+def test_the_planner_view_is_a_goal_planners_goal_and_path_or_a_frontier_target():
+    from onlinemap.cli.views import planner_view
+    from policies import make_planner
+
+    model, true_map = om.door_world()
+    belief = om.make_estimator("bk", model).step(None, int(true_map[model.start]))
+    assert planner_view(model, None, belief) == (None, None)
+    frontier = make_planner("frontier", model, seed=0)
+    frontier.choose(belief)
+    assert planner_view(model, frontier, belief) == (int(frontier.last_plan.targets[0]), None)
+    goto = make_planner("goto", model, goal=(9, 9))
+    goto.choose(belief)
+    target, path = planner_view(model, goto, belief)
+    assert target == 99 and path[0] == belief.most_likely_location and path[-1] == 99
+    assert planner_view(model, make_planner("random", model, seed=0), belief) == (None, None)
