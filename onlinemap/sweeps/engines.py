@@ -51,7 +51,9 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     on_played: called with each task run and what it played (its true run and the estimator's
     beliefs, :class:`~.kinds.Played`), to keep what a figure needs without running it again;
     with ``workers=0`` only (they stay in this process), and not for tasks resumed from
-    ``results_dir``.
+    ``results_dir``. progress: a bar of tasks; when at most
+    :data:`~onlinemap.progress.FEW_TASKS` tasks run in this process, a bar of steps per played
+    task instead (:func:`onlinemap.progress.counting_steps`).
     """
     if client is not None and workers is not None:
         raise OnlineMapError("workers sizes a local cluster or picks serial mode (0); not with a client")
