@@ -16,6 +16,16 @@ def share_near(image: Image.Image, colour: str, tolerance: float = 10.0) -> floa
     return float(np.mean(np.abs(pixels - 255 * np.array(to_rgb(colour))).max(axis=2) <= tolerance))
 
 
+def gif_frames(path) -> list[np.ndarray]:
+    """Every frame of a GIF as (H, W, 3) RGB."""
+    frames = []
+    with Image.open(path) as gif:
+        for index in range(gif.n_frames):
+            gif.seek(index)
+            frames.append(np.asarray(gif.convert("RGB")))
+    return frames
+
+
 @pytest.fixture(scope="module")
 def learned():
     """A 6 x 8 door world whose map belief goes from uniform (t = 0) to certain walls (the last step)."""
@@ -149,3 +159,18 @@ def test_track_animates_the_steps_of_its_stream(tmp_path):
     with pytest.raises(InvalidOptionError, match="first_step"):
         plots.animate(om.corridor(3), om.Trajectory(np.full((1, 3), 1 / 3), np.full((1, 3, 2), 0.5), np.zeros(1), 0),
                       tmp_path / "x.gif", first_step=-1)
+
+
+def test_a_resumed_explore_animates_the_same_run_played_again(tmp_path):
+    """With ``--out`` a rerun resumes every task from its parts: the animated run is then played
+    again in this process (seeded by its task), and it is the same run, frame for frame."""
+    from onlinemap.cli import main
+
+    frames = []
+    for name in ("first.gif", "resumed.gif"):
+        assert main(["explore", "--world", "building:10x12,seed=1", "--planner", "frontier", "--steps", "12",
+                     "--out", str(tmp_path / "out"), "--animate", str(tmp_path / name)]) == 0
+        frames.append(gif_frames(tmp_path / name))
+    assert len(frames[0]) == len(frames[1]) == 12
+    for first, resumed in zip(*frames):
+        np.testing.assert_array_equal(first, resumed)
