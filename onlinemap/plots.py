@@ -228,14 +228,16 @@ def animate(model: GridModel, trajectory: Trajectory, path: str | Path, *, true_
     second. Panels: P(L_t) on a log scale (1e-4 to 1); the map belief in the palette of
     :func:`belief_colours` (the most likely label's colour, blue-grey where uncertain); with
     ``true_maps`` ((N,), or (T, N) for a world that changes) the true map and, with
-    ``true_locations`` (T,), the true path so far. The robot's most likely cell is circled and its
-    true cell starred in the belief panels; a legend names every mark. Corridors are drawn as one-row
-    images. ``first_step``: the step number of the trajectory's first belief, for the frames' step counter
+    ``true_locations`` (T,), the true path so far. The robot's most likely cell is circled in the
+    belief panels and its true cell starred in every panel; a legend names every mark. Corridors are
+    drawn as one-row images. ``first_step``: the step number of the trajectory's first belief, for the frames' step counter
     (a stream resumed from a checkpoint). Returns the path (its directory created).
 
-    The figure is drawn once; each frame then redraws only the images, marks and step counter on the
-    saved background (blitting), so a frame costs a few milliseconds (a 500-step 32 x 32 run is
-    seconds). Memory: a GIF holds its frames, one byte per pixel each, until written.
+    The figure (axes, titles, colour bar, legend) is drawn once by matplotlib; each frame is that
+    background with the cells painted in by numpy and the marks and step counter drawn by PIL
+    (:class:`_Scene`): 500 frames of a 32 x 32 run with its true map took 7 s as a GIF or an MP4 on a
+    2-core machine at load 7, about 14 ms a frame, where a matplotlib redraw of the images alone took
+    70-90 ms. Memory: a GIF holds its frames, one byte per pixel each, until written; an MP4 streams.
     """
     path = Path(path)
     suffix = path.suffix.lower()
