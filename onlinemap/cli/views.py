@@ -32,8 +32,8 @@ def add_view_arguments(parser: argparse.ArgumentParser, what: str) -> None:
                              f"{MAX_FRAMES} frames at most (every k-th step of a longer run, and the last)")
     parser.add_argument("--mcap", type=Path, metavar="FILE",
                         help=f"record {what} to FILE.mcap for Foxglove (the map and location beliefs as grids, the "
-                             f"robot's most likely and true cell, the goal; log time = step x 0.1 s); needs the viz "
-                             f"extra: {VIZ_HINT}")
+                             f"robot's most likely and true cell and the true map, a goal planner's goal; log time = "
+                             f"step x 0.1 s); needs {VIZ_HINT}")
 
 
 def check_view_arguments(args: argparse.Namespace) -> None:
@@ -47,7 +47,7 @@ def check_view_arguments(args: argparse.Namespace) -> None:
         if args.animate.suffix.lower() == ".mp4" and (find_spec("imageio") is None or
                                                        find_spec("imageio_ffmpeg") is None):
             raise MissingDependencyError(f"--animate {args.animate}: {MP4_HINT}")
-    if getattr(args, "mcap", None) is not None:
+    if args.mcap is not None:
         if args.mcap.suffix.lower() != ".mcap":
             raise InvalidOptionError(f"--mcap {args.mcap}: the file name must end in .mcap")
         if find_spec("foxglove") is None:
@@ -55,7 +55,7 @@ def check_view_arguments(args: argparse.Namespace) -> None:
 
 
 def wanted(args: argparse.Namespace) -> bool:
-    return args.animate is not None or getattr(args, "mcap", None) is not None
+    return args.animate is not None or args.mcap is not None
 
 
 def animation_every(steps: int) -> int:
@@ -96,7 +96,7 @@ def write_views(args: argparse.Namespace, model: GridModel, run: Run, trajectory
 
         written.append(animate(model, trajectory, args.animate, true_locations=run.locations, true_maps=run.maps,
                                every=animation_every(run.n_steps), title=title))
-    if getattr(args, "mcap", None) is not None:
+    if args.mcap is not None:
         from ..foxglove import record_run
 
         written.append(record_run(args.mcap, model, trajectory, run, goal=goal))
@@ -105,10 +105,17 @@ def write_views(args: argparse.Namespace, model: GridModel, run: Run, trajectory
 
 def add_stream_arguments(parser: argparse.ArgumentParser) -> None:
     """``track``'s views of its stream: ``--animate``, ``--mcap`` and ``--foxglove [PORT]``."""
-    add_view_arguments(parser, "the stream's beliefs (kept in memory until the end of the input)")
+    parser.add_argument("--animate", type=Path, metavar="FILE",
+                        help="at the end of the input, write an animation of the location and map belief of every "
+                             "step taken (kept in memory until then): FILE.gif (pillow) or FILE.mp4 (needs imageio "
+                             f"and imageio-ffmpeg); about {MAX_FRAMES} frames at most")
+    parser.add_argument("--mcap", type=Path, metavar="FILE",
+                        help="record every step to FILE.mcap for Foxglove as it is taken (the map and location "
+                             "beliefs as grids, the most likely cell, the planner's target and path; log time = "
+                             f"step x 0.1 s); needs {VIZ_HINT}")
     parser.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
-                        help="serve the beliefs live to Foxglove (open ws://localhost:PORT in Foxglove) on PORT "
-                             f"(default 8765; 0 picks a free port, named in the start event); needs {VIZ_HINT}")
+                        help="serve the same live to Foxglove on PORT (default 8765; 0 picks a free port, named in "
+                             "a JSON event on stderr: open ws://localhost:PORT in Foxglove); needs " + VIZ_HINT)
 
 
 def check_stream_arguments(args: argparse.Namespace) -> None:
