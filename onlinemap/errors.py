@@ -25,6 +25,10 @@ class InvalidActionError(OnlineMapError):
     """An action is out of range, of the wrong type, unknown by name, or given at the wrong step."""
 
 
+class StepIndexError(OnlineMapError, IndexError):
+    """A step asked of a :class:`~onlinemap.estimators.Trajectory` is not an integer in ``-T..T-1``."""
+
+
 class InvalidObservationError(OnlineMapError):
     """An observation is out of range, of the wrong type, NaN or unknown by name."""
 
@@ -46,6 +50,10 @@ class FloorFileError(ModelError):
     """A floor file (a MovingAI ``.map``, a ROS ``.yaml`` or a ``.pgm``) cannot be read: not a
     regular file, too large, malformed, or too many cells at the cell size asked for. Raised
     before the pixels are read wherever the header already says so."""
+
+
+class MissingDependencyError(OnlineMapError):
+    """An optional package a feature needs is not installed (the message says how to install it)."""
 
 
 class UnknownEstimatorError(OnlineMapError, KeyError):

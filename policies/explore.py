@@ -107,7 +107,7 @@ def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[
     belief = estimator.step(None, observation)
     started = time.perf_counter()
     bar = tqdm(total=steps, desc=f"explore ({type(planner).__name__}, {estimator.name})",
-               disable=(steps < 200) if progress is None else not progress, leave=False)
+               disable=(steps < 200) if progress is None else not progress, leave=False, unit="step")
     for t in range(steps):
         if t > 0:
             actions[t] = planner.choose(belief)

@@ -287,6 +287,12 @@ def test_visits_share_one_colour_scale_show_unvisited_cells_and_name_doors():
     assert unvisited[3] == 1 and not np.allclose(unvisited[:3], 1)  # opaque, not white
     assert np.ma.is_masked(images[0].get_array()[5, 5])  # a cell nobody visited takes that colour
     (legend,) = figure.legends
-    assert [text.get_text() for text in legend.get_texts()] == ["never visited", "wall", "door (open or closed)"]
+    assert [text.get_text() for text in legend.get_texts()] == ["never visited", "wall", "open_door", "closed_door"]
+    # each door outlined in its label's colour of the one palette (open green, closed red)
+    outlines = {(round(p.get_x() + 0.45), round(p.get_y() + 0.45)): colors.to_hex(p.get_edgecolor())
+                for p in figure.axes[0].patches if p.get_linewidth() == 2}
+    palette = {om.model.OPEN_DOOR: colors.to_hex("tab:green"), om.model.CLOSED_DOOR: colors.to_hex("tab:red")}
+    assert outlines == {(col, row): palette[true_map[row * model.cols + col]]
+                        for row, col in zip(*np.nonzero(np.isin(true_map.reshape(model.shape), list(palette))))}
     assert len(figure.axes) == 3  # two panels and one colour bar
     assert colors.to_hex(unvisited) != colors.to_hex("white")

@@ -13,6 +13,7 @@ from ..evaluate import HONEST_METRICS, from_steps, metric_legend
 from ..worlds import parse_world, world_help
 from .common import (OPTION_HELP, non_negative_int, open_unit_interval, options_per_estimator, parse_options, positive_int,
                      print_table, split_list, write_table)
+from .views import add_view_arguments, check_view_arguments, first_played, keeper, wanted, write_views
 
 #: the paper's world: the built-in 10 x 10 door world, uniform label prior, p_move 0.8
 DEFAULT_WORLD = "door,p_move=0.8"
@@ -62,6 +63,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=non_negative_int, default=0,
                    help="0 (default): run in this process; N: on a local dask cluster of N processes")
     p.add_argument("--out", metavar="DIR", help="directory for the tables and figures (nothing is written without it)")
+    add_view_arguments(p, "the first planner's run with the first seed")
     p.set_defaults(func=run)
 
 
@@ -95,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
     if goal_planners:
         raise ModelError(f"--planner {', '.join(goal_planners)}: a goal planner goes to a goal, it does not explore; "
                          f"send it to one with onlinemap navigate --goal CELL")
+    check_view_arguments(args)
     world = parse_world(args.world)
     if args.floor_plan is not None and world.floor_plan is not None:
         raise ModelError(f"--floor-plan {args.floor_plan} and --world {args.world}: give the floor plan once")
@@ -113,8 +116,10 @@ def run(args: argparse.Namespace) -> int:
         print("why it is hard: " + HARD.format(floor_plan=suggestion))
     print(f"planners {', '.join(planners)}; estimator {args.estimator} with {options}; {args.steps} steps, "
           f"seeds {args.seed}..{args.seed + args.repeats - 1}")
-    steps = sweep(exploration_spec(args, planners, world.model), workers=args.workers, progress=True,
-                  results_dir=None if out is None else out / "explore.parts")
+    spec = exploration_spec(args, planners, world.model)
+    kept, on_played = keeper(planners[0], args.seed)
+    steps = sweep(spec, workers=args.workers, progress=True, results_dir=None if out is None else out / "explore.parts",
+                  on_played=on_played if wanted(args) and args.workers == 0 else None)
     runs = from_steps(steps, ["world", "planner", "seed"])  # the world: counts of cells are bounded by its N
     runs.insert(2, "kind", "explore")
     metrics = [m for m in SUMMARY_METRICS if m in runs]
@@ -132,5 +137,10 @@ def run(args: argparse.Namespace) -> int:
         columns = [c for c in ("map_error", "door_error") if c in steps]
         written += [plots.save(plot_errors(steps, columns=columns), out / "explore_errors.png", dpi=110),
                     plots.save(plot_visits(world.model, true_map, steps), out / "explore_visits.png", dpi=110)]
+        print(f"wrote {', '.join(str(p) for p in written)}")
+    if wanted(args):
+        played = first_played(spec, kept, planners[0], args.seed)
+        written = write_views(args, world.model, played.run, played.trajectory,
+                              f"{args.world}: {planners[0]}, {args.estimator}, seed {args.seed}")
         print(f"wrote {', '.join(str(p) for p in written)}")
     return 0

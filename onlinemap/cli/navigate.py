@@ -9,6 +9,7 @@ from pathlib import Path
 from ..errors import ModelError
 from .common import (non_negative_int, open_unit_interval, options_per_estimator, positive_int, print_table,
                      split_list, write_table)
+from .views import add_view_arguments, check_view_arguments, first_played, keeper, wanted, write_views
 
 DEFAULT_WORLD = "door,blocking=1,footprint=cross,p_door=0.05"
 DEFAULT_PLANNERS = "goto,static_goto"
@@ -59,6 +60,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=non_negative_int, default=0,
                    help="0 (default): run in this process; N: on a local dask cluster of N processes")
     p.add_argument("--out", metavar="DIR", help="directory for the tables and figures (nothing is written without it)")
+    add_view_arguments(p, "the first planner's run with the first seed")
     p.set_defaults(func=run)
 
 
@@ -72,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
     from ..sweeps import sweep
     from ..worlds import parse_world
 
+    check_view_arguments(args)
     planners = split_list(args.planner)
     unknown = [name for name in planners if name not in PLANNERS]
     if unknown or not planners:
@@ -99,8 +102,9 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else None
     spec = navigation_spec(args.world, planners, [goal], range(args.seed, args.seed + args.repeats),
                            max_steps=args.steps, estimator_options=options, floor_plan=args.floor_plan)
-    runs = sweep(spec, workers=args.workers, progress=True,
-                 results_dir=None if out is None else out / "navigate.parts")
+    kept, on_played = keeper(planners[0], args.seed)
+    runs = sweep(spec, workers=args.workers, progress=True, results_dir=None if out is None else out / "navigate.parts",
+                 on_played=on_played if wanted(args) and args.workers == 0 else None)
     judged = runs[runs["oracle_reached"].astype(bool)]
     summary = summary_of(judged, SUMMARY_METRICS, ["planner"], args.confidence)
     if judged.empty:
@@ -121,5 +125,10 @@ def run(args: argparse.Namespace) -> int:
                    plots.save(route_figure(world.model, first.run, goal, f"{planners[0]}, seed {args.seed}"),
                               out / "navigate_route.png", dpi=110),
                    plots.save(oracle_figure(runs), out / "navigate_vs_oracle.png", dpi=110)]
+        print(f"wrote {', '.join(str(p) for p in written)}")
+    if wanted(args):
+        played = first_played(spec, kept, planners[0], args.seed)
+        written = write_views(args, world.model, played.run, played.trajectory,
+                              f"{planners[0]} to cell {goal}, seed {args.seed}", goal=goal)
         print(f"wrote {', '.join(str(p) for p in written)}")
     return 0

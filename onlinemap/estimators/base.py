@@ -10,6 +10,7 @@ from __future__ import annotations
 import copy
 import functools
 import inspect
+import operator
 import os
 import time
 from types import MappingProxyType
@@ -20,7 +21,7 @@ import numpy as np
 from .. import checkpoint
 from ..belief import Belief, beliefs_frame
 from ..errors import (CheckpointError, InvalidActionError, InvalidObservationError, ModelError, OnlineMapError,
-                      UnknownEstimatorError)
+                      StepIndexError, UnknownEstimatorError)
 from ..model import GridModel
 
 _REGISTRY: dict[str, type] = {}
@@ -165,12 +166,43 @@ def make_estimator(name: str, model: GridModel, **options) -> Estimator:
 
 
 class Trajectory(NamedTuple):
-    """Beliefs of one estimator over a run, stacked. T = number of steps."""
+    """Beliefs of one estimator over a run, stacked. T = number of steps (:attr:`n_steps`).
+
+    ``trajectory.belief(t)``, or ``trajectory[t]``, is the :class:`~onlinemap.belief.Belief` after
+    step ``t`` (negative ``t`` counts from the end). Iterating or unpacking gives the four fields,
+    as for any named tuple (``len(trajectory)`` is 4; the steps are :attr:`n_steps`).
+    """
 
     location: np.ndarray  # (T, N)
     map: np.ndarray  # (T, N, K)
     log_evidence: np.ndarray  # (T,)
     seconds_per_step: float
+
+    @property
+    def n_steps(self) -> int:
+        """T, the number of steps stacked."""
+        return len(self.location)
+
+    def belief(self, t: int) -> Belief:
+        """The read-only :class:`~onlinemap.belief.Belief` after step ``t`` (0..T-1, or -T..-1 from the
+        end): copies of ``location[t]`` (N,) and ``map[t]`` (N, K) and ``log_evidence[t]``. A particle
+        filter's per-step health signals (effective sample size, distinct locations, recovery) are not
+        stacked, so they are absent. Raises :class:`~onlinemap.errors.StepIndexError` for ``t`` out of
+        range or not an integer. Cost O(N K)."""
+        steps = self.n_steps
+        try:
+            index = operator.index(t)
+        except TypeError:
+            raise StepIndexError(f"a step of a trajectory is an integer, got {type(t).__name__} {t!r}") from None
+        if not -steps <= index < steps:
+            raise StepIndexError(f"step {index} is not in a trajectory of {steps} steps (0..{steps - 1}, "
+                                 f"or -{steps}..-1 from the end)")
+        index %= steps
+        return Belief(index, self.location[index], self.map[index], self.log_evidence[index])
+
+    def __getitem__(self, t: int) -> Belief:
+        """``trajectory[t]`` is :meth:`belief` ``(t)``, not the tuple's ``t``-th field (use the field names)."""
+        return self.belief(t)
 
     def __repr__(self) -> str:
         """One line: T, the arrays' shapes and the last step's most likely cell and log evidence."""
