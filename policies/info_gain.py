@@ -279,14 +279,6 @@ class RolloutTables(NamedTuple):
     powers: np.ndarray  # (H + 1, K, K) C^d
 
 
-def particle_rollouts_fit(model: GridModel) -> bool:
-    """Whether the paper's rollouts (:func:`particle_expected_uncertainty`) simulate ``model``:
-    they read the robot's own cell (``model.reads_own_cell``) and move the robot without looking
-    at the map. Any other footprint (one offset such as ``((0, 1),)`` included) or blocking labels
-    take :func:`footprint_expected_uncertainty`."""
-    return model.reads_own_cell and not model.has_blocking
-
-
 def rollout_tables(model: GridModel, horizon: int) -> RolloutTables:
     """Cumulative sensor and change rows and the powers of C up to ``horizon``. O(H K^3)."""
     return RolloutTables(np.cumsum(model.sensor, axis=1), np.cumsum(model.change, axis=1),
@@ -551,7 +543,7 @@ class InfoGainExplorer:
             longest = math.ceil((max(model.rows, model.cols) - 1) / max(model.p_move, 0.05)) + 1
             press_lengths = sorted({k for k in (1, 2, 4, 8) if k < longest} | {longest})
         self.press_lengths = _lengths(press_lengths)
-        paper = model.reads_own_cell and not model.has_blocking
+        paper = model.is_paper_model
         if isinstance(targets, str):
             arguments.choice("targets", targets, ("auto",))
             targets = 0 if paper or model.p_move == 0 else DEFAULT_TARGETS
@@ -718,7 +710,7 @@ class InfoGainExplorer:
         if est.name == "rbpf" and self.hypotheses is not None:
             worlds = sample_states(est, self.hypotheses, self.rng)
             particles = particle_snapshot(est, self.rollout_particles, self.rng)
-            if particle_rollouts_fit(self.model) and distances is None:
+            if self.model.is_paper_model and distances is None:
                 expected = particle_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
                                                          self.rng, self._location_nats, self._tables)
             else:

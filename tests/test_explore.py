@@ -61,10 +61,8 @@ def test_every_planner_explores_a_blocking_world_with_a_cross_footprint(planner)
     """(F,) observations (F = 5 readings) and blocking walls: the loop stores what the world
     emitted (a replay through onlinemap.simulate with the world's stream gives the same run), and
     info_gain plans on estimator forks (its numba rollouts model neither footprints nor blocking)."""
-    from policies.info_gain import particle_rollouts_fit
-
     model, true_map = om.door_world(blocking=True, footprint="cross")
-    assert model.observation_shape == (5,) and not particle_rollouts_fit(model)
+    assert model.observation_shape == (5,) and not model.is_paper_model
     found = exploration(model, true_map, planner, "rbpf", steps=5, seed=3, progress=False,
                         estimator_options={"n_particles": 20},
                         planner_options={"hypotheses": 2} if planner == "info_gain" else None)

@@ -164,8 +164,7 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
         raise where.error(("walk",), 'walk = "scripted_trip" is one trip: it needs steps = "trip"')
     if {"there_and_back", "scripted_trip"} & set(walks):
         bad = [w.spec for w in worlds if w.model.action_names != ("left", "right")
-               or ("scripted_trip" in walks and not (w.model.is_static and w.model.reads_own_cell
-                                                     and not w.model.has_blocking))]
+               or ("scripted_trip" in walks and not (w.model.is_static and w.model.is_paper_model))]
         if bad:
             raise where.error(("walk",), f"there_and_back needs corridor worlds (scripted_trip static ones whose "
                                          f"sensor reads the robot's own cell, without blocking labels: it writes "
