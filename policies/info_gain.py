@@ -79,6 +79,7 @@ from onlinemap import arguments
 from onlinemap.belief import Belief
 from onlinemap.errors import ImpossibleObservationError, ModelError
 from onlinemap.estimators import Estimator, fork
+from onlinemap.estimators.base import HoldsParticles, ParticleSnapshot, SamplesStates, draw_labels
 from onlinemap.kernels.planning import plan_rollouts, rollout_uncertainty
 from onlinemap.model import GridModel, change_powers
 from onlinemap.rng import SeedLike, as_generator
@@ -123,30 +124,16 @@ def _checked_actions(model: GridModel, actions) -> np.ndarray:
 # --- the generic backend: forks of the live estimator -------------------------------------------
 def sample_states(estimator: Estimator, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """``size`` hypothetical worlds drawn from the estimator's belief: locations (S,) and label maps
-    (S, N). Exact: from the joint (O(N K^N)); RBPF: a particle by weight, then each cell's label
-    from that particle's marginals (O(P + S N K^2)); any other estimator: from the product of its
-    marginals (which is its belief for ``bk`` and ``dead_reckoning``)."""
+    (S, N). An estimator that draws whole states (:class:`~onlinemap.estimators.base.SamplesStates`:
+    ``exact`` from its joint, ``rbpf`` a particle and then its map) draws them; any other from the
+    product of its marginals (which is its belief for ``bk`` and ``dead_reckoning``): O(S N K)."""
+    if isinstance(estimator, SamplesStates):
+        return estimator.sample_states(size, rng)
     model = estimator.model
     n, k = model.n_cells, model.n_labels
-    if estimator.name == "exact":
-        joint = estimator.joint().ravel()
-        flat = rng.choice(joint.size, size=size, p=joint / joint.sum())
-        index = np.stack(np.unravel_index(flat, (n,) + (k,) * n), axis=1)
-        return index[:, 0].astype(np.int64), index[:, 1:].astype(np.int64)
-    if estimator.name == "rbpf":
-        weights = np.exp(estimator._log_weights)
-        chosen = rng.choice(len(weights), size=size, p=weights / weights.sum())
-        return estimator._locations[chosen], _draw_labels(estimator.particle_maps(chosen), rng)
     belief = estimator.belief
     locations = rng.choice(n, size=size, p=belief.location / belief.location.sum())
-    return locations.astype(np.int64), _draw_labels(np.broadcast_to(belief.map, (size, n, k)), rng)
-
-
-def _draw_labels(marginals: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """(S, N, K) marginals -> (S, N) labels drawn independently per cell."""
-    cdf = np.cumsum(marginals, axis=-1)
-    u = rng.random(marginals.shape[:-1])[..., None] * cdf[..., -1:]
-    return np.minimum((u >= cdf).sum(axis=-1), marginals.shape[-1] - 1).astype(np.int64)
+    return locations.astype(np.int64), draw_labels(np.broadcast_to(belief.map, (size, n, k)), rng)
 
 
 def expected_uncertainty(estimator: Estimator, actions, *, hypotheses: int | None = None,
@@ -239,38 +226,6 @@ def expected_information_gain(estimator: Estimator, actions, *, hypotheses: int 
 
 
 # --- the particle backend: thinned particle beliefs, rolled out in numba -----------------------
-class ParticleSnapshot(NamedTuple):
-    """A particle belief. R particles, N cells, K labels."""
-
-    locations: np.ndarray  # (R,) int64
-    maps: np.ndarray  # (R, N, K) each particle's current map marginals
-    log_weights: np.ndarray  # (R,) normalised
-
-
-def particle_snapshot(estimator: Estimator, size: int | None = None,
-                      rng: np.random.Generator | None = None) -> ParticleSnapshot:
-    """The particles of an ``rbpf`` estimator (copies), thinned to ``size`` of them drawn by weight
-    (systematic resampling, one uniform of ``rng``) and equally weighted; all of them, weights
-    kept, if ``size`` is None or not below P. Reads its ``_log_weights`` (the log-space weights the
-    rollouts take) and :meth:`particle_maps` of the chosen particles only: O(P + M N K^2) for M
-    kept (a plan keeps 64 of 1000)."""
-    if estimator.name != "rbpf":
-        raise ModelError(f"particle_snapshot needs an rbpf estimator, got {estimator.name!r}")
-    log_weights = estimator._log_weights
-    if size is None or size >= len(log_weights):
-        return ParticleSnapshot(estimator._locations.copy(), estimator.particle_maps(), log_weights.copy())
-    chosen = _systematic_subset(np.exp(log_weights), size, rng)
-    return ParticleSnapshot(estimator._locations[chosen], estimator.particle_maps(chosen),
-                            np.full(size, -math.log(size)))
-
-
-def _systematic_subset(weights: np.ndarray, size: int, rng: np.random.Generator) -> np.ndarray:
-    """``size`` indices by systematic sampling of ``weights`` (one uniform). O(P + size)."""
-    cdf = np.cumsum(weights / weights.sum())
-    positions = (rng.random() + np.arange(size)) / size
-    return np.minimum(np.searchsorted(cdf, positions, side="right"), len(weights) - 1)
-
-
 class RolloutTables(NamedTuple):
     """The model's tables as the kernel takes them, for horizons up to H."""
 
@@ -608,8 +563,8 @@ class InfoGainExplorer:
         """Plan on copies of ``estimator`` (the live filter of the exploration loop)."""
         if estimator.model is not self.model:
             raise ModelError("the estimator was built for a different model than the planner")
-        if self.rollout_particles is None and estimator.name == "rbpf":
-            self._check_cost(len(estimator._locations))
+        if self.rollout_particles is None and isinstance(estimator, HoldsParticles):
+            self._check_cost(estimator.n_particles)
         self.estimator = estimator
         self._queue = []
         self._since_anchor = 0
@@ -707,9 +662,9 @@ class InfoGainExplorer:
         checkpoints = np.zeros(horizon + 1, dtype=np.bool_)
         checkpoints[0] = True
         checkpoints[lengths] = True
-        if est.name == "rbpf" and self.hypotheses is not None:
+        if self.hypotheses is not None and isinstance(est, HoldsParticles):
             worlds = sample_states(est, self.hypotheses, self.rng)
-            particles = particle_snapshot(est, self.rollout_particles, self.rng)
+            particles = est.particle_snapshot(self.rollout_particles, self.rng)
             if self.model.is_paper_model and distances is None:
                 expected = particle_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
                                                          self.rng, self._location_nats, self._tables)

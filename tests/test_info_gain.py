@@ -16,7 +16,8 @@ from onlinemap.errors import ModelError
 from onlinemap.estimators import fork, make_estimator
 from oracles import BruteForce
 from policies import InfoGainExplorer, expected_uncertainty, explore, exploration_world, make_planner
-from policies.info_gain import ParticleSnapshot, footprint_expected_uncertainty, particle_expected_uncertainty, uncertainty
+from onlinemap.estimators.base import ParticleSnapshot
+from policies.info_gain import footprint_expected_uncertainty, particle_expected_uncertainty, uncertainty
 
 
 def entropy(p):
@@ -219,6 +220,60 @@ def test_planning_leaves_the_live_estimator_bit_identical(name, options):
         assert est._rng.bit_generator.state == rng_before
     for a, z in [(1, 0), (2, 1), (3, 0)]:  # and it continues exactly as a twin that never planned
         np.testing.assert_array_equal(est.step(a, z).map, twin.step(a, z).map)
+
+
+def test_exact_sample_states_follow_the_joint():
+    """Drawn states against the brute-force joint of the oracle (independent of the filter): a
+    chi-square test over the (location, map) states, 20 000 draws."""
+    model = om.corridor(3, 2, p_obs=0.85, p_move=0.7)
+    actions, observations = [1, 1], [0, 1, 1]
+    est = make_estimator("exact", model)
+    for t, z in enumerate(observations):
+        est.step(None if t == 0 else actions[t - 1], z)
+    oracle = BruteForce.of(model)
+    joint = brute_joint(oracle, actions, observations)
+    locations, maps = est.sample_states(20_000, np.random.default_rng(3))
+    assert locations.dtype == maps.dtype == np.int64 and maps.shape == (20_000, 3)
+    index = {state: i for i, state in enumerate(oracle.states)}
+    counts = np.bincount([index[(int(l), tuple(int(v) for v in m))] for l, m in zip(locations, maps)],
+                         minlength=len(joint))
+    keep = joint > 0
+    assert counts[~keep].sum() == 0
+    assert stats.chisquare(counts[keep], 20_000 * joint[keep] / joint[keep].sum()).pvalue > 1e-4
+
+
+def test_particle_snapshot_and_sampled_states_read_the_particles():
+    """All particles: the filter's public particles, weights and maps; thinned to M by systematic
+    sampling: each particle kept floor or ceil of M times its weight (summed per cell), each map a
+    particle's, weights equal; sampled states: locations with the particles' weights (chi-square)."""
+    model, true_map = exploration_world(p_door=0.01, p_move=0.8, floor_plan=None)
+    est = make_estimator("rbpf", model, n_particles=200, seed=4)
+    run = om.simulate(model, true_map, np.random.default_rng(0).integers(4, size=15), seed=1)
+    for t in range(run.n_steps):
+        est.step(None if t == 0 else int(run.actions[t - 1]), int(run.observations[t]))
+    whole = est.particle_snapshot()
+    np.testing.assert_array_equal(whole.locations, est.particles)
+    np.testing.assert_allclose(np.exp(whole.log_weights), est.weights, rtol=1e-12)
+    np.testing.assert_array_equal(whole.maps, est.particle_maps())
+    thinned = est.particle_snapshot(64, np.random.default_rng(1))
+    assert len(thinned.locations) == 64 and np.allclose(thinned.log_weights, -math.log(64))
+    share = 64 * est.weights / est.weights.sum()
+    low = np.bincount(est.particles, weights=np.floor(share), minlength=model.n_cells)
+    high = np.bincount(est.particles, weights=np.ceil(share), minlength=model.n_cells)
+    got = np.bincount(thinned.locations, minlength=model.n_cells)
+    assert np.all((low - 1e-9 <= got) & (got <= high + 1e-9))
+    for location, maps in zip(thinned.locations, thinned.maps):  # each a copy of a particle's map
+        assert any(np.array_equal(maps, whole.maps[i]) for i in np.flatnonzero(whole.locations == location))
+    locations, maps = est.sample_states(20_000, np.random.default_rng(2))
+    p = np.bincount(est.particles, weights=est.weights, minlength=model.n_cells)
+    seen = p > 0
+    counts = np.bincount(locations, minlength=model.n_cells)
+    assert counts[~seen].sum() == 0 and maps.shape == (20_000, model.n_cells)
+    assert stats.chisquare(counts[seen], 20_000 * p[seen] / p[seen].sum()).pvalue > 1e-4
+    mixture = np.einsum("p,pnk->nk", est.weights / est.weights.sum(), whole.maps)  # each cell's label marginal
+    cell = int(np.argmax(-(mixture * np.log(np.maximum(mixture, 1e-300))).sum(axis=1)))  # the least certain
+    labels = np.bincount(maps[:, cell], minlength=model.n_labels)
+    assert stats.chisquare(labels[mixture[cell] > 0], 20_000 * mixture[cell][mixture[cell] > 0]).pvalue > 1e-4
 
 
 def test_fork_is_independent_and_continues_like_the_original():

@@ -19,7 +19,7 @@ from onlinemap.worlds import parse_world
 from policies import (NAVIGATION_COLUMNS, make_planner, navigate, oracle_steps, planner_options, true_distances,
                       with_floor_plan)
 from estimator_cases import assert_state_unchanged, snapshot
-from policies.explore import _seeds
+from policies.explore import seed_streams
 from policies.navigate import PairedWorld
 from policies.navigation import GoTo, StaticGoTo, goal_cell, label_powers, plan_to_goal
 
@@ -363,7 +363,7 @@ def test_navigate_reaches_the_goal_in_a_small_open_world(open_world):
     rows, cols = np.divmod(frame["true_location"].to_numpy(), 4)
     np.testing.assert_array_equal(frame["distance_to_goal"], (2 - rows) + (3 - cols))  # Manhattan, no walls
     # the estimator saw what the world emitted: a fresh filter fed the run's record agrees
-    replay = om.make_estimator("rbpf", model, n_particles=200, seed=_seeds(4)[2])
+    replay = om.make_estimator("rbpf", model, n_particles=200, seed=seed_streams(4)[2])
     for t, observation in enumerate(found.run.observations):
         belief = replay.step(None if t == 0 else int(found.run.actions[t - 1]), observation)
         assert belief.location.tobytes() == found.trajectory.location[t].tobytes()

@@ -197,8 +197,8 @@ def options_per_estimator(names: list[str], pairs: list[str]) -> dict[str, dict[
     to NAME. Unknown names and keys that no listed estimator takes raise ``UnknownEstimatorError``;
     a value of the wrong type (the sweep spec's check, :func:`onlinemap.sweeps.spec.matches_annotation`)
     raises ``InvalidOptionError`` naming the ``-o`` option, before any spec or estimator is built."""
-    from ..estimators import estimator_options  # lazily: ``onlinemap --help`` imports no estimator
-    from ..estimators.base import _lookup
+    # lazily: ``onlinemap --help`` imports no estimator
+    from ..estimators import estimator_class, estimator_options
     from ..sweeps.spec import describe_type, expected_type, matches_annotation
 
     known = {name: estimator_options(name) for name in names}  # raises for an unknown name
@@ -213,7 +213,7 @@ def options_per_estimator(names: list[str], pairs: list[str]) -> dict[str, dict[
             raise UnknownEstimatorError(f"--option {key}: no estimator in {', '.join(takers or names)} "
                                         f"has an option {option!r}")
         for name in takers:
-            expected = expected_type(_lookup(name), option, known[name][option])
+            expected = expected_type(estimator_class(name), option, known[name][option])
             if not matches_annotation(value, expected):
                 raise InvalidOptionError(f"--option {key}={json.dumps(value)}: {name}'s {option} must be "
                                          f"{describe_type(expected)}")

@@ -249,6 +249,15 @@ class ExactFilter:
         shape = (self.model.n_cells,) + (self.model.n_labels,) * self.model.n_cells
         return (self._x / self._norm).reshape(shape)
 
+    def sample_states(self, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """``size`` states drawn from the joint belief (one ``rng.choice`` over its N K^N entries):
+        locations (S,) and label maps (S, N), int64. O(N K^N + S N)."""
+        n, k = self.model.n_cells, self.model.n_labels
+        joint = self.joint().ravel()
+        flat = rng.choice(joint.size, size=size, p=joint / joint.sum())
+        index = np.stack(np.unravel_index(flat, (n,) + (k,) * n), axis=1)
+        return index[:, 0].astype(np.int64), index[:, 1:].astype(np.int64)
+
 
 # --- blocking and footprints (numpy; DESIGN.md section 7) ---------------------------------
 @lru_cache(maxsize=4)

@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 import policies
-from policies.explore import Exploration, _exploration
+from policies.explore import Exploration, exploration
 from policies.tasks import EXPLORE, build_planner
 
 from .. import metrics as metric_functions
@@ -243,8 +243,9 @@ def live_exploration(model: GridModel, true_map: np.ndarray, planner: str, steps
     (N,), ``steps`` steps, the world, the planner and the live filter seeded from ``seed`` (as
     :func:`policies.exploration`); unscored (its ``frame`` is None). Cost: ``steps`` x (an RBPF
     step of ``live_particles`` + a planner decision)."""
-    return _exploration(model, true_map, planner, "rbpf", steps, seed, {"n_particles": int(live_particles)},
-                        planner_options, progress=False, score=False)
+    return exploration(model, true_map, planner, "rbpf", steps, seed,
+                       estimator_options={"n_particles": int(live_particles)}, planner_options=planner_options,
+                       progress=False, score=False)
 
 
 @functools.lru_cache(maxsize=4)

@@ -30,7 +30,7 @@ from typing import Callable
 
 from ..errors import OnlineMapError
 from ..estimators import available_estimators, estimator_options, make_estimator
-from ..estimators.base import _lookup as _estimator_class
+from ..estimators.base import estimator_class
 from ..worlds import WorldSpec, parse_world
 from .kinds import TaskKind, task_kind
 from .tasks import MAX_TASKS, SweepSpec, expand, frozen, options_text, plain
@@ -156,7 +156,7 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
             if key in data:
                 raise where.error((key,), "applies to exploration sweeps (with [planners]) only")
         floor_plans, goals = [None], [None]
-    estimators = _configs(data, "estimators", where, estimator_options, _estimator_class, max_tasks)
+    estimators = _configs(data, "estimators", where, estimator_options, estimator_class, max_tasks)
     if "trip" in steps and not set(walks) <= {"there_and_back", "scripted_trip"}:
         raise where.error(("steps",), 'steps = "trip" (one there-and-back trip) needs walk = "there_and_back" '
                                       'or "scripted_trip"')
