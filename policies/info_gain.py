@@ -50,8 +50,8 @@ Backends (who plays "a copy of the filter"):
 
 - ``rbpf``: a thinned copy of the particle belief (``rollout_particles`` particles drawn by
   weight, or all of them), rolled out by a numba kernel without copying any map:
-  :func:`onlinemap.kernels.planning.rollout_uncertainty` for the paper's sensor and motion,
-  :func:`onlinemap.kernels.planning.plan_rollouts` for any footprint and blocking labels (the
+  :func:`policies.kernels.planning.rollout_uncertainty` for the paper's sensor and motion,
+  :func:`policies.kernels.planning.plan_rollouts` for any footprint and blocking labels (the
   RBPF's update with its optimal proposal; it equals the exact forks on exact particle beliefs
   and Bayes' rule in expectation, ``tests/test_info_gain.py``). Cost per plan:
   O(P N K^2) to read the particles' maps, plus for each of ``hypotheses`` S worlds and each of
@@ -80,7 +80,7 @@ from onlinemap.belief import Belief
 from onlinemap.errors import ImpossibleObservationError, ModelError
 from onlinemap.estimators import Estimator, fork
 from onlinemap.estimators.base import HoldsParticles, ParticleSnapshot, SamplesStates, draw_labels
-from onlinemap.kernels.planning import plan_rollouts, rollout_uncertainty
+from .kernels.planning import plan_rollouts, rollout_uncertainty
 from onlinemap.model import GridModel, change_powers
 from onlinemap.rng import SeedLike, as_generator
 from onlinemap.simulate import world_step
@@ -298,7 +298,7 @@ def footprint_expected_uncertainty(model: GridModel, particles: ParticleSnapshot
                                    tables: RolloutTables | None = None, distances: np.ndarray | None = None,
                                    go: np.ndarray | None = None) -> np.ndarray:
     """(C, H + 1) :func:`particle_expected_uncertainty` for any sensor footprint and blocking
-    labels (:func:`onlinemap.kernels.planning.plan_rollouts`): ``sequences`` (C, H) actions, -1
+    labels (:func:`policies.kernels.planning.plan_rollouts`): ``sequences`` (C, H) actions, -1
     where the action is chosen in closed loop towards candidate c's target by ``distances`` (C, N)
     and ``go`` (N, A) (the chance each press moves). Every sequence sees the same worlds and random
     numbers. Cost O(S C (H R (F + 1) K^2 + n_checkpoints R (D + H F) K)), D the disputed cells."""

@@ -29,8 +29,8 @@ except ImportError:  # pragma: no cover - a SciPy that moved it: spsolve, the sa
     _gssv = None
 
 from onlinemap.errors import ModelError
-from onlinemap.kernels.mdp import action_values as kernel_action_values
-from onlinemap.kernels.mdp import improve_policy, policy_rows
+from .kernels.mdp import action_values as kernel_action_values
+from .kernels.mdp import improve_policy, policy_rows
 from onlinemap.model import GridModel
 
 
@@ -54,7 +54,7 @@ def action_values(model: GridModel, reward: np.ndarray, value: np.ndarray, gamma
     """(N, A) ``Q(l, a) = sum_j T[a, l, j] (R(j) + gamma V(j))`` for every cell and action, O(N A):
     ``(1 - g) F(l) + g F(j)`` with ``F = R + gamma V`` and g the move's probability
     (:func:`move_probabilities`; with no ``passable``, ``p_move`` for every action, a blocked move
-    staying in place). A numba kernel (:func:`onlinemap.kernels.mdp.action_values`)."""
+    staying in place). A numba kernel (:func:`policies.kernels.mdp.action_values`)."""
     q = np.empty((model.n_cells, model.n_actions))
     kernel_action_values(model.neighbors, model.p_move, _passable_array(passable), np.asarray(reward, dtype=np.float64),
                          np.asarray(value, dtype=np.float64), float(gamma), q)
@@ -71,7 +71,7 @@ def _passable_array(passable) -> np.ndarray:
 def _policy_rows(model: GridModel, policy: np.ndarray, passable: np.ndarray, gamma: float = 0.0,
                  reward: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The CSR (N, N) ``T_pi`` (``reward`` None) or ``I - gamma T_pi`` and ``T_pi R`` (N,)
-    (:func:`onlinemap.kernels.mdp.policy_rows`): data (E,), int32 columns (E,), int32 row
+    (:func:`policies.kernels.mdp.policy_rows`): data (E,), int32 columns (E,), int32 row
     pointers (N + 1,), the right-hand side (N,). At most 2 N entries, O(N)."""
     n = model.n_cells
     data, cols, indptr, rhs = np.empty(2 * n), np.empty(2 * n, dtype=np.intc), np.empty(n + 1, dtype=np.intc), np.empty(n)

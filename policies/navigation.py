@@ -17,7 +17,7 @@ not to hold such a label is planned as a wall (a 5% chance that a wall is free i
 press into it again and again: the model forgets the failure, the belief may not learn from it when
 the chance comes from another location hypothesis's map).
 
-Value iteration over (cell, step) (the kernel :func:`onlinemap.kernels.navigation.goal_value_iteration`):
+Value iteration over (cell, step) (the kernel :func:`policies.kernels.navigation.goal_value_iteration`):
 with ``G[tau](j, k)`` the expected steps of pressing into ``j`` from step ``tau`` on, its label
 being ``k``, and ``m = M[j] C^tau``, ``s`` its permanently blocking mass,
 
@@ -59,7 +59,7 @@ from scipy.sparse.csgraph import breadth_first_order
 from onlinemap import arguments
 from onlinemap.belief import Belief
 from onlinemap.errors import ModelError
-from onlinemap.kernels.navigation import goal_value_iteration
+from .kernels.navigation import goal_value_iteration
 from onlinemap.model import GridModel
 
 from .passability import paths_to

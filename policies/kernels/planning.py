@@ -19,7 +19,7 @@ import math
 import numpy as np
 from numba import njit
 
-from . import loop_kernel
+from onlinemap.kernels import loop_kernel
 
 
 @njit(cache=True)
