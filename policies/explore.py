@@ -13,7 +13,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 import pandas as pd
 
-from onlinemap.errors import ModelError
+from onlinemap.errors import InvalidOptionError, ModelError
 from onlinemap.estimators import Estimator, Trajectory, estimator_options, make_estimator
 from onlinemap.evaluate import step_metrics
 from onlinemap.model import GridModel
@@ -59,7 +59,7 @@ def loop_estimator(model: GridModel, estimator: str | Estimator, options: dict |
             options.setdefault("seed", seed)
         return make_estimator(estimator, model, **options)
     if options:
-        raise ModelError("estimator_options are for an estimator given by name")
+        raise InvalidOptionError("estimator_options are for an estimator given by name")
     if estimator.t != -1:
         raise ModelError(f"the estimator has already taken {estimator.t + 1} steps; pass a fresh one")
     if estimator.model is not model:
@@ -70,11 +70,11 @@ def loop_estimator(model: GridModel, estimator: str | Estimator, options: dict |
 def loop_planner(model: GridModel, planner: str | Planner, options: dict | None,
                  rng: np.random.Generator) -> Planner:
     """The planner a closed loop runs: a registry name built with ``options`` and the planner
-    stream ``rng``, or an instance taken as it is (ModelError if options come with it)."""
+    stream ``rng``, or an instance taken as it is (InvalidOptionError if options come with it)."""
     if isinstance(planner, str):
         return make_planner(planner, model, seed=rng, **(options or {}))
     if options:
-        raise ModelError("planner_options are for a planner given by name")
+        raise InvalidOptionError("planner_options are for a planner given by name")
     return planner
 
 
@@ -97,7 +97,7 @@ def closed_loop(model: GridModel, reset: Callable[[], WorldState], advance: Call
     run and trajectory itself: frame None)."""
     steps = int(steps)
     if steps < 1:
-        raise ModelError(f"steps must be at least 1 (the first observation), got {steps}")
+        raise InvalidOptionError(f"steps must be at least 1 (the first observation), got {steps}")
     actions = np.full(steps, -1, dtype=np.int64)
     locations = np.empty(steps, dtype=np.int64)
     observations = np.empty((steps,) + model.observation_shape, dtype=np.int64)

@@ -77,7 +77,7 @@ import numpy as np
 
 from onlinemap import arguments
 from onlinemap.belief import Belief
-from onlinemap.errors import ImpossibleObservationError, ModelError
+from onlinemap.errors import ImpossibleObservationError, InvalidOptionError, ModelError
 from onlinemap.estimators import Estimator, fork
 from onlinemap.estimators.base import HoldsParticles, ParticleSnapshot, SamplesStates, draw_labels
 from .kernels.planning import plan_rollouts, rollout_uncertainty
@@ -340,10 +340,11 @@ def rollout_operations(model: GridModel, hypotheses: int, candidates: int, horiz
 def _lengths(value) -> np.ndarray:
     """``press_lengths``: a non-empty sequence of whole numbers >= 1, sorted and unique."""
     if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
-        raise ModelError(f"press_lengths must be a sequence of whole numbers >= 1, got {value!r}")
-    lengths = [arguments.integer(f"press_lengths[{i}]", v, minimum=1) for i, v in enumerate(value)]
+        raise InvalidOptionError(f"press_lengths must be a sequence of whole numbers >= 1, got {value!r}")
+    lengths = [arguments.integer(f"press_lengths[{i}]", v, minimum=1, error=InvalidOptionError)
+               for i, v in enumerate(value)]
     if not lengths:
-        raise ModelError("press_lengths must not be empty")
+        raise InvalidOptionError("press_lengths must not be empty")
     return np.unique(np.asarray(lengths, dtype=np.int64))
 
 
@@ -413,7 +414,7 @@ class Candidates(NamedTuple):
 
 
 DEFAULT_TARGETS = 4  # frontier targets among the candidates, outside the paper's world
-STEP_COST = 0.05  # step_cost "auto" in the paper's world (chosen on 8 seeds of it, issue 11)
+STEP_COST = 0.05  # step_cost "auto" in the paper's world (chosen on 8 seeds of it)
 # step_cost "auto" with frontier targets: tuned on the blocking + cross door world, 1000 particles,
 # 300 steps, mean steps to map error 0.1 over 8 seeds: seeds 0-7, 0.05 -> 142, 0.2 -> 131,
 # 0.35 -> 117, 0.6 -> 112, 1.0 -> 133 (frontier 142); seeds 8-15, 0.45 -> 126, 0.6 -> 115,
@@ -487,39 +488,41 @@ class InfoGainExplorer:
                  location_weight: float = 4.0, commit: int = 8, anchor_every: int | str | None = "auto",
                  gamma: float = 0.95, targets: int | str = "auto"):
         self.model = model
-        self.hypotheses = None if hypotheses is None else arguments.integer("hypotheses", hypotheses, minimum=1)
+        self.hypotheses = None if hypotheses is None else arguments.integer("hypotheses", hypotheses, minimum=1,
+                                                                            error=InvalidOptionError)
         self.rollout_particles = None if rollout_particles is None else arguments.integer(
-            "rollout_particles", rollout_particles, minimum=1)
+            "rollout_particles", rollout_particles, minimum=1, error=InvalidOptionError)
         self.location_weight = arguments.real("location_weight", location_weight, low=0.0, high=math.inf,
-                                              high_open=True)
-        self.commit = arguments.integer("commit", commit, minimum=1)
-        self.gamma = arguments.real("gamma", gamma, low=0.0, high=1.0, high_open=True)
+                                              high_open=True, error=InvalidOptionError)
+        self.commit = arguments.integer("commit", commit, minimum=1, error=InvalidOptionError)
+        self.gamma = arguments.real("gamma", gamma, low=0.0, high=1.0, high_open=True, error=InvalidOptionError)
         if press_lengths is None:
             longest = math.ceil((max(model.rows, model.cols) - 1) / max(model.p_move, 0.05)) + 1
             press_lengths = sorted({k for k in (1, 2, 4, 8) if k < longest} | {longest})
         self.press_lengths = _lengths(press_lengths)
         paper = model.is_paper_model
         if isinstance(targets, str):
-            arguments.choice("targets", targets, ("auto",))
+            arguments.choice("targets", targets, ("auto",), error=InvalidOptionError)
             targets = 0 if paper or model.p_move == 0 else DEFAULT_TARGETS
-        self.targets = arguments.integer("targets", targets, minimum=0)
+        self.targets = arguments.integer("targets", targets, minimum=0, error=InvalidOptionError)
         if isinstance(step_cost, str):
-            arguments.choice("step_cost", step_cost, ("auto",))
+            arguments.choice("step_cost", step_cost, ("auto",), error=InvalidOptionError)
             step_cost = STEP_COST if self.targets == 0 else TARGETS_STEP_COST
-        self.step_cost = arguments.real("step_cost", step_cost, low=0.0, high=math.inf, high_open=True)
+        self.step_cost = arguments.real("step_cost", step_cost, low=0.0, high=math.inf, high_open=True,
+                                        error=InvalidOptionError)
         self._check_cost(self.rollout_particles)
         anchor_length = int(self.press_lengths[-1]) * ((model.rows > 1) + (model.cols > 1))
         if isinstance(anchor_every, str):
-            arguments.choice("anchor_every", anchor_every, ("auto",))
+            arguments.choice("anchor_every", anchor_every, ("auto",), error=InvalidOptionError)
             # 60 in the 10 x 10 world: under half the steps anchoring; no corner to press into in a building
             anchor_every = 2 * anchor_length + 8 if self.targets == 0 else None
         if anchor_every is not None:
-            anchor_every = arguments.integer("anchor_every", anchor_every)
+            anchor_every = arguments.integer("anchor_every", anchor_every, error=InvalidOptionError)
             if anchor_every <= anchor_length:
-                raise ModelError(f"anchor_every must be 'auto', None or longer than the {anchor_length} presses of "
-                                 f"an anchor (the robot would do nothing else), got {anchor_every!r}")
+                raise InvalidOptionError(f"anchor_every must be 'auto', None or longer than the {anchor_length} presses "
+                                         f"of an anchor (the robot would do nothing else), got {anchor_every!r}")
         self.anchor_every = anchor_every
-        self.rng = as_generator(arguments.seed("seed", seed))
+        self.rng = as_generator(arguments.seed("seed", seed, error=InvalidOptionError))
         self.estimator: Estimator | None = None
         self.last_plan: MacroScore | None = None
         self._queue: list[int] = []
@@ -535,7 +538,7 @@ class InfoGainExplorer:
         self._location_nats = self.location_weight * nats
 
     def _check_cost(self, particles: int | None) -> None:
-        """Refuse (ModelError naming the options, with the estimate) a plan of more than
+        """Refuse (InvalidOptionError naming the options, with the estimate) a plan of more than
         :data:`onlinemap.arguments.MAX_OPERATIONS` operations or, enumerating, :data:`MAX_PLAN_FORKS` forks.
         ``particles``: the R particles a rollout carries (None: not known yet, checked at bind)."""
         model, horizon = self.model, int(self.press_lengths[-1])
@@ -547,7 +550,7 @@ class InfoGainExplorer:
                 level *= outcomes
                 forks += candidates * level
                 if forks > MAX_PLAN_FORKS:
-                    raise ModelError(
+                    raise InvalidOptionError(
                         f"info_gain with hypotheses=None enumerates every observation ({outcomes} a step) over "
                         f"press_lengths up to {horizon}: more than {MAX_PLAN_FORKS:.0e} estimator forks a plan "
                         f"(at least {forks:.3g}); give hypotheses (worlds sampled) or shorter press_lengths")
@@ -557,7 +560,8 @@ class InfoGainExplorer:
         work = rollout_operations(model, self.hypotheses, candidates, horizon, len(self.press_lengths), particles)
         arguments.bounded_work(
             f"a plan of info_gain (hypotheses={self.hypotheses} worlds x {candidates} candidates x press_lengths up "
-            f"to {horizon} steps x {particles} particles)", work, "lower hypotheses, rollout_particles or press_lengths")
+            f"to {horizon} steps x {particles} particles)", work,
+            "lower hypotheses, rollout_particles or press_lengths", error=InvalidOptionError)
 
     def bind(self, estimator: Estimator) -> None:
         """Plan on copies of ``estimator`` (the live filter of the exploration loop)."""

@@ -12,7 +12,8 @@ The reward of the cell the robot starts in is not counted (it has been collected
 ``passable`` (N,), optional everywhere: the probability that each cell can be entered (the belief's
 expected passability in a world with blocking labels, :mod:`policies.passability`); the move from
 ``l`` to its neighbour ``j`` then succeeds with ``p_move * passable[j]`` and the robot stays
-otherwise. None: the design's motion (every cell enterable), bit for bit as before.
+otherwise. None: the design's motion (every cell enterable), computed with no passable factor at
+all (not a factor of 1.0), so the paper's planner does not depend on this option's arithmetic.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ try:  # SuperLU's driver, the one spsolve calls; without spsolve's per-call chec
 except ImportError:  # pragma: no cover - a SciPy that moved it: spsolve, the same solve
     _gssv = None
 
-from onlinemap.errors import ModelError
+from onlinemap.errors import InvalidOptionError, ModelError
 from .kernels.mdp import action_values as kernel_action_values
 from .kernels.mdp import improve_policy, policy_rows
 from onlinemap.model import GridModel
@@ -132,12 +133,12 @@ def _check(model: GridModel, reward, gamma: float, initial_policy) -> tuple[np.n
         raise ModelError("reward contains NaN or infinite values")
     gamma = float(gamma)
     if not 0.0 <= gamma < 1.0:
-        raise ModelError(f"the discount gamma must be in [0, 1), got {gamma!r}")
+        raise InvalidOptionError(f"the discount gamma must be in [0, 1), got {gamma!r}")
     if initial_policy is None:
         return reward, gamma, None
     policy = np.array(initial_policy, dtype=np.int64)
     if policy.shape != (model.n_cells,) or np.any(policy < 0) or np.any(policy >= model.n_actions):
-        raise ModelError(f"initial_policy must be ({model.n_cells},) actions in 0..{model.n_actions - 1}")
+        raise InvalidOptionError(f"initial_policy must be ({model.n_cells},) actions in 0..{model.n_actions - 1}")
     return reward, gamma, policy
 
 

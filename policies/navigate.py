@@ -20,7 +20,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
 from onlinemap import arguments
-from onlinemap.errors import ModelError
+from onlinemap.errors import InvalidOptionError
 from onlinemap.estimators import Estimator, Trajectory
 from onlinemap.model import GridModel
 from onlinemap.rng import SeedLike
@@ -115,7 +115,7 @@ def navigate(model: GridModel, true_map, goal, planner: str | Planner = "goto", 
     ``planner``: a registered name (``goto``, ``static_goto``; a named planner that takes a goal
     is given this one, others, e.g. ``random``, run as they are) or a planner instance (whose
     ``goal``, if it has one, must be this goal). The goal is checked as the goal planners check it
-    (:func:`~policies.navigation.check_goal`: ModelError naming it when off the grid, a wall under
+    (:func:`~policies.navigation.check_goal`: InvalidOptionError naming it when off the grid, a wall under
     the prior or cut off from the start).
 
     Returns a :class:`Navigation`: ``frame`` has one row per step (at most ``max_steps + 1``),
@@ -126,17 +126,17 @@ def navigate(model: GridModel, true_map, goal, planner: str | Planner = "goto", 
     (the sweep engine scores the run itself). Cost: the steps taken x (estimator step + planner choice), plus
     O(N A) per distinct true map for the distances.
     """
-    max_steps = arguments.integer("max_steps", max_steps, minimum=0)
+    max_steps = arguments.integer("max_steps", max_steps, minimum=0, error=InvalidOptionError)
     cell = check_goal(model, goal)
     if isinstance(planner, str):
         options = dict(planner_options or {})
         if "goal" in named_options(planner):
             if "goal" in options:
-                raise ModelError("give the goal once, as navigate's goal, not in planner_options")
+                raise InvalidOptionError("give the goal once, as navigate's goal, not in planner_options")
             options["goal"] = goal
         planner_options = options
     elif getattr(planner, "goal", cell) != cell:
-        raise ModelError(f"the planner goes to cell {planner.goal}, not to the goal {goal!r} (cell {cell})")
+        raise InvalidOptionError(f"the planner goes to cell {planner.goal}, not to the goal {goal!r} (cell {cell})")
     world_rng, planner_rng, estimator_seed = seed_streams(seed)
     world = PairedWorld(model, true_map, world_rng)
     est = loop_estimator(model, estimator, estimator_options, estimator_seed)
@@ -161,7 +161,7 @@ def oracle_steps(model: GridModel, true_map, goal, *, max_steps: int, seed: Seed
     would, knowing what it knows), taking the cheapest action from its cell. Returns the step at
     which it first stands on the goal, or None after ``max_steps`` actions. Cost: one plan per
     distinct true map met, plus O(N + F) per step."""
-    max_steps = arguments.integer("max_steps", max_steps, minimum=0)
+    max_steps = arguments.integer("max_steps", max_steps, minimum=0, error=InvalidOptionError)
     cell = check_goal(model, goal)
     world = PairedWorld(model, true_map, seed_streams(seed)[0])
     _, location, labels = world.reset()

@@ -26,7 +26,7 @@ import numpy as np
 
 from onlinemap import arguments
 from onlinemap.belief import Belief
-from onlinemap.errors import ModelError
+from onlinemap.errors import InvalidOptionError, ModelError
 from .kernels.planning import shortest_paths
 from onlinemap.model import GridModel, passable_probability
 
@@ -46,7 +46,8 @@ def enter_costs(model: GridModel, passable: np.ndarray, min_passable: float = 0.
     """(N,) ``c(j) = 1 / (p_move passable[j])``, inf where ``passable[j] < min_passable`` or
     ``p_move = 0``. ``passable`` (N,) in [0, 1]. O(N)."""
     passable = _passable(model, passable)
-    min_passable = arguments.real("min_passable", min_passable, low=0.0, high=1.0, low_open=True)
+    min_passable = arguments.real("min_passable", min_passable, low=0.0, high=1.0, low_open=True,
+                                  error=InvalidOptionError)
     go = model.p_move * passable
     entered = (passable >= min_passable) & (go > 0)
     return np.divide(1.0, go, out=np.full(len(go), np.inf), where=entered)  # no 1 / tiny outside

@@ -12,7 +12,7 @@ from scipy import stats
 
 import onlinemap as om
 from onlinemap import checkpoint
-from onlinemap.errors import ModelError
+from onlinemap.errors import InvalidOptionError, ModelError
 from onlinemap.estimators import fork, make_estimator
 from oracles import BruteForce
 from policies import InfoGainExplorer, expected_uncertainty, explore, exploration_world, make_planner
@@ -289,11 +289,11 @@ def test_fork_is_independent_and_continues_like_the_original():
     assert est.t == 1 and copy.t == 2
 
 
-def test_bad_options_and_unbound_use_raise_model_errors():
+def test_bad_options_raise_invalid_option_errors_and_unbound_use_model_errors():
     model, _ = exploration_world(p_door=0.0, p_move=0.8, floor_plan=None)
     for options in ({"hypotheses": 0}, {"rollout_particles": 0}, {"commit": 0}, {"gamma": 1.0},
                     {"step_cost": -1.0}, {"press_lengths": [0, 2]}):
-        with pytest.raises(ModelError):
+        with pytest.raises(InvalidOptionError):
             make_planner("info_gain", model, **options)
     planner = make_planner("info_gain", model, seed=0)
     est = make_estimator("rbpf", model, n_particles=10, seed=0)

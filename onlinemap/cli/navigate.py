@@ -67,8 +67,8 @@ def run(args: argparse.Namespace) -> int:
 
     from .. import plots
     from ..studies.base import summary_of, with_intervals
-    from ..studies.navigation import far_goals, navigation_spec, oracle_figure, route_figure
-    from ..sweeps import sweep
+    from ..studies.navigation import far_goals, fixed_map, navigation_spec, oracle_figure, route_figure
+    from ..sweeps import played_map, sweep
     from ..worlds import parse_world
 
     planners = split_list(args.planner)
@@ -76,8 +76,7 @@ def run(args: argparse.Namespace) -> int:
     if unknown or not planners:
         raise ModelError(f"--planner: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(PLANNERS)}")
     world = parse_world(args.world)
-    true_map = world.initial_map(0)
-    goal = far_goals(world.model, true_map)[0] if args.goal is None else check_goal(world.model, args.goal)
+    goal = far_goals(world.model, fixed_map(world))[0] if args.goal is None else check_goal(world.model, args.goal)
     options = options_per_estimator(["rbpf"], args.option)["rbpf"]
     options.setdefault("n_particles", 500)
     row, col = divmod(goal, world.model.cols)
@@ -97,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
     if out is not None:
         from policies import navigate, with_floor_plan
 
+        true_map = played_map(args.world, args.seed)  # the first run's: the route figure replays it
         model = with_floor_plan(world.model, true_map, args.floor_plan)
         first = navigate(model, true_map, goal, planners[0], "rbpf", max_steps=args.steps, seed=args.seed,
                          estimator_options=options)
