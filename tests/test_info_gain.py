@@ -17,7 +17,8 @@ from onlinemap.estimators import fork, make_estimator
 from oracles import BruteForce
 from policies import InfoGainExplorer, expected_uncertainty, explore, exploration_world, make_planner
 from onlinemap.estimators.base import ParticleSnapshot
-from policies.info_gain import footprint_expected_uncertainty, particle_expected_uncertainty, uncertainty
+from policies.information import uncertainty
+from policies.rollouts import footprint_expected_uncertainty, particle_expected_uncertainty
 
 
 def entropy(p):
@@ -534,7 +535,7 @@ def test_a_rollout_step_is_bayes_in_expectation(world):
     4000 draws; an entry whose draws vary must lie within 4.5 standard errors (a false failure of
     about 7e-6 per entry, under 1e-3 over the at most 60 entries), the others to rounding."""
     from policies.kernels.planning import rollout_beliefs
-    from policies.info_gain import rollout_tables
+    from policies.rollouts import rollout_tables
 
     model = STEP_WORLDS[world]()
     oracle = BruteForce.of(model)
@@ -573,7 +574,7 @@ def test_rollout_uncertainty_equals_the_whole_beliefs(p_door):
     only the disputed and touched cells: its U after every step equals U of the whole weighted
     particle belief that rollout_beliefs returns for the same world and random numbers."""
     from policies.kernels.planning import plan_rollouts, rollout_beliefs
-    from policies.info_gain import agreement, rollout_tables
+    from policies.rollouts import agreement, rollout_tables
 
     model, _ = om.door_world(blocking=True, footprint="cross", p_door=p_door)
     rng = np.random.default_rng(1)
@@ -607,7 +608,7 @@ def test_candidates_pressing_alike_share_a_rollout_and_score_as_if_alone(p_door)
     candidates choosing in closed loop (towards random distance fields), part at every step; half
     the cells agreed (their entropy is summed once and a touched one recomputed)."""
     from policies.kernels.planning import plan_rollouts
-    from policies.info_gain import agreement, rollout_tables
+    from policies.rollouts import agreement, rollout_tables
 
     model, _ = om.door_world(blocking=True, footprint="cross", p_door=p_door)
     rng = np.random.default_rng(3)
