@@ -3,7 +3,7 @@ sequences measured on a thinned copy of a particle belief (``rollout_particles``
 by weight, or all of them; :meth:`~onlinemap.estimators.rbpf.RaoBlackwellisedPF.particle_snapshot`),
 rolled out by a numba kernel without copying any map:
 :func:`policies.kernels.planning.rollout_uncertainty` for the paper's sensor and motion,
-:func:`policies.kernels.planning.plan_rollouts` for any footprint and blocking labels (the RBPF's
+:func:`policies.kernels.footprint.plan_rollouts` for any footprint and blocking labels (the RBPF's
 update with its optimal proposal; it equals the exact forks on exact particle beliefs and Bayes'
 rule in expectation, ``tests/test_info_gain.py``).
 
@@ -25,7 +25,8 @@ from onlinemap.estimators.base import ParticleSnapshot
 from onlinemap.model import GridModel, change_powers
 
 from .information import entropy
-from .kernels.planning import plan_rollouts, rollout_uncertainty
+from .kernels.footprint import plan_rollouts
+from .kernels.planning import rollout_uncertainty
 
 
 class RolloutTables(NamedTuple):
@@ -100,7 +101,7 @@ def footprint_expected_uncertainty(model: GridModel, particles: ParticleSnapshot
                                    tables: RolloutTables | None = None, distances: np.ndarray | None = None,
                                    go: np.ndarray | None = None) -> np.ndarray:
     """(C, H + 1) :func:`particle_expected_uncertainty` for any sensor footprint and blocking
-    labels (:func:`policies.kernels.planning.plan_rollouts`): ``sequences`` (C, H) actions, -1
+    labels (:func:`policies.kernels.footprint.plan_rollouts`): ``sequences`` (C, H) actions, -1
     where the action is chosen in closed loop towards candidate c's target by ``distances`` (C, N)
     and ``go`` (N, A) (the chance each press moves). Every sequence sees the same worlds and random
     numbers. Cost O(S C (H R (F + 1) K^2 + n_checkpoints R (D + H F) K)), D the disputed cells."""

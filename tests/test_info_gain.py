@@ -458,7 +458,7 @@ def test_rollouts_read_the_cell_the_sensor_reads():
     assert want > 0.1
 
 
-# --- the rollouts of footprint and blocking models (policies.kernels.planning.plan_rollouts) ------
+# --- the rollouts of footprint and blocking models (policies.kernels.footprint.plan_rollouts) ------
 def one_hot_particles(model, joint):
     """Every (location, map) state of the oracle with positive probability as a particle whose map
     is certain: an exact particle belief of ``joint``."""
@@ -534,7 +534,7 @@ def test_a_rollout_step_is_bayes_in_expectation(world):
     action and the simulated reading, computed here by brute force over (l, m) states. Mean over
     4000 draws; an entry whose draws vary must lie within 4.5 standard errors (a false failure of
     about 7e-6 per entry, under 1e-3 over the at most 60 entries), the others to rounding."""
-    from policies.kernels.planning import rollout_beliefs
+    from policies.kernels.footprint import rollout_beliefs
     from policies.rollouts import rollout_tables
 
     model = STEP_WORLDS[world]()
@@ -573,7 +573,7 @@ def test_rollout_uncertainty_equals_the_whole_beliefs(p_door):
     """plan_rollouts sums the entropy of the cells every particle agrees on once and recomputes
     only the disputed and touched cells: its U after every step equals U of the whole weighted
     particle belief that rollout_beliefs returns for the same world and random numbers."""
-    from policies.kernels.planning import plan_rollouts, rollout_beliefs
+    from policies.kernels.footprint import plan_rollouts, rollout_beliefs
     from policies.rollouts import agreement, rollout_tables
 
     model, _ = om.door_world(blocking=True, footprint="cross", p_door=p_door)
@@ -607,7 +607,7 @@ def test_candidates_pressing_alike_share_a_rollout_and_score_as_if_alone(p_door)
     with that candidate alone. Fixed sequences that share prefixes of 0 to 7 presses, and
     candidates choosing in closed loop (towards random distance fields), part at every step; half
     the cells agreed (their entropy is summed once and a touched one recomputed)."""
-    from policies.kernels.planning import plan_rollouts
+    from policies.kernels.footprint import plan_rollouts
     from policies.rollouts import agreement, rollout_tables
 
     model, _ = om.door_world(blocking=True, footprint="cross", p_door=p_door)
