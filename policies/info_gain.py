@@ -316,6 +316,12 @@ class InfoGainExplorer:
         self._since_anchor = 0
         self._target, self._target_steps = -1, 0
 
+    @property
+    def pending(self) -> int:
+        """The presses of the chosen macro-action (or anchor, or moves towards a target) still to
+        make; 0: the next :meth:`choose` decides anew (it plans, or anchors)."""
+        return len(self._queue) + self._target_steps
+
     def choose(self, belief: Belief) -> int:
         if self.estimator is None:
             raise ModelError("info_gain plans on the live estimator: call planner.bind(estimator) first "

@@ -277,6 +277,26 @@ def test_particle_snapshot_and_sampled_states_read_the_particles():
     assert stats.chisquare(labels[mixture[cell] > 0], 20_000 * mixture[cell][mixture[cell] > 0]).pvalue > 1e-4
 
 
+def test_pending_counts_the_presses_left_of_the_chosen_macro_action():
+    """After a plan, ``pending`` is the committed presses not yet made (the chosen length, at most
+    ``commit``, minus the one just made); it falls by one a decision and the next plan comes at 0."""
+    model, true_map = exploration_world(p_door=0.0, p_move=0.8, floor_plan=None)
+    est = make_estimator("rbpf", model, n_particles=100, seed=0)
+    planner = make_planner("info_gain", model, seed=0, hypotheses=2, commit=3)
+    planner.bind(est)
+    belief = est.step(None, int(om.simulate(model, true_map, [], seed=0).observations[0]))
+    assert planner.pending == 0
+    planner.choose(belief)
+    plan = planner.last_plan
+    committed = min(int(plan.lengths[plan.chosen[1]]), 3)
+    assert planner.pending == committed - 1
+    for left in range(committed - 2, -1, -1):
+        planner.choose(belief)
+        assert planner.pending == left and planner.last_plan is plan
+    planner.choose(belief)
+    assert planner.last_plan is not plan
+
+
 def test_fork_is_independent_and_continues_like_the_original():
     model = om.corridor(6, 2)
     est = make_estimator("rbpf", model, n_particles=50, seed=2)
