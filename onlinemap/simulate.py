@@ -119,8 +119,10 @@ def sample_map(model: GridModel, seed: SeedLike = None) -> np.ndarray:
     return np.minimum((u[:, None] >= cumulative).sum(axis=1), model.n_labels - 1)
 
 
-def _categorical(rng: np.random.Generator, rows: np.ndarray) -> np.ndarray:
-    """One draw per row of a (R, K) stochastic matrix."""
+def categorical(rng: np.random.Generator, rows: np.ndarray) -> np.ndarray:
+    """(R,) one draw per row of a (R, K) stochastic matrix, by inversion of one uniform each (the
+    world's map changes and readings; a paired world draws its changes from its own stream with
+    it). O(R K)."""
     u = rng.random(rows.shape[0])
     return np.minimum((u[:, None] >= np.cumsum(rows, axis=1)).sum(axis=1), rows.shape[1] - 1)
 
@@ -171,16 +173,16 @@ def world_step(model: GridModel, location: int, labels: np.ndarray, action: int 
             if not model.blocking[labels[target]]:
                 location = target
         if not model.is_static:
-            labels = _categorical(rng, model.change[labels])
+            labels = categorical(rng, model.change[labels])
     if model.n_readings == 1:
         cell = location if model.reads_own_cell else int(model.footprint_cells[location, 0])
         if cell < 0:
             return location, labels, -1
-        return location, labels, int(_categorical(rng, model.sensor[labels[cell]][None])[0])
+        return location, labels, int(categorical(rng, model.sensor[labels[cell]][None])[0])
     cells = model.footprint_cells[location]
     on_grid = cells >= 0
     observation = np.full(model.n_readings, -1, dtype=np.int64)
-    observation[on_grid] = _categorical(rng, model.sensor[labels[cells[on_grid]]])
+    observation[on_grid] = categorical(rng, model.sensor[labels[cells[on_grid]]])
     return location, labels, observation
 
 

@@ -231,7 +231,7 @@ def test_step_counts_are_whole_numbers_that_fit_in_memory():
                 "integer, got str '10'", "at least 1, got 0", "whole number, got nan", "whole number, got nan",
                 "whole number, got 2.5", "integer, got str '10'"]
     for (kind, message), words in zip(_refusals(bad), expected):
-        assert kind is om.ModelError and words in message, message
+        assert issubclass(kind, om.ModelError) and words in message, message  # InvalidOptionError for a planner loop's steps
     # whole numbers of any type still run, as before
     assert om.random_walk(model, 4.0, seed=1).tolist() == om.random_walk(model, np.int64(4), seed=1).tolist()
     assert om.simulate(model, true_map, steps=np.int32(3), seed=2).n_steps == 3

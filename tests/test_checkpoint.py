@@ -184,7 +184,7 @@ def rewrite_meta(path, change):
     meta_bytes = json.dumps(meta).encode()
     arrays = {k: v for k, v in entries.items() if k not in ("meta", "sha256")}
     entries["meta"] = np.frombuffer(meta_bytes, np.uint8)
-    entries["sha256"] = np.frombuffer(checkpoint._digest(meta_bytes, arrays).encode(), np.uint8)
+    entries["sha256"] = np.frombuffer(checkpoint.checkpoint_digest(meta_bytes, arrays).encode(), np.uint8)
     rewrite(path, entries)
 
 

@@ -14,13 +14,13 @@ import pytest
 
 import onlinemap as om
 from onlinemap.belief import Belief
-from onlinemap.errors import ModelError
+from onlinemap.errors import InvalidOptionError, ModelError
 from onlinemap.model import CLOSED_DOOR, DOOR_LABELS, FREE, OPEN_DOOR, WALL, door_change
 from onlinemap.worlds import parse_world
 from policies import (NAVIGATION_COLUMNS, make_planner, navigate, oracle_steps, planner_options, true_distances,
                       with_floor_plan)
 from estimator_cases import assert_state_unchanged, snapshot
-from policies.explore import _seeds
+from policies.explore import seed_streams
 from policies.navigate import PairedWorld
 from policies.navigation import GoTo, StaticGoTo, goal_cell, label_powers, plan_to_goal
 
@@ -306,25 +306,25 @@ def test_bad_goals_raise_model_errors_naming_the_goal():
     model, true_map = om.door_world(blocking=True, footprint="cross", p_door=0.05)
     model = with_floor_plan(model, true_map, 0.95)
     for goal in (100, -1, (10, 0), (0, 10), (-1, 3)):
-        with pytest.raises(ModelError, match=rf"goal {__import__('re').escape(repr(goal))} .*off the"):
+        with pytest.raises(InvalidOptionError, match=rf"goal {__import__('re').escape(repr(goal))} .*off the"):
             make_planner("goto", model, goal=goal)
     for goal in ("north", 2.5, (1, 2, 3), True, None):
-        with pytest.raises(ModelError, match="goal"):
+        with pytest.raises(InvalidOptionError, match="goal"):
             make_planner("goto", model, goal=goal)
     wall = int(np.flatnonzero(true_map == WALL)[0])
-    with pytest.raises(ModelError, match=rf"goal {wall} \(cell {wall}\) is a wall under the prior.* 0.95"):
+    with pytest.raises(InvalidOptionError, match=rf"goal {wall} \(cell {wall}\) is a wall under the prior.* 0.95"):
         make_planner("goto", model, goal=wall)
-    with pytest.raises(ModelError, match=r"goal \(3, 0\) \(cell 30\) is a wall"):
+    with pytest.raises(InvalidOptionError, match=r"goal \(3, 0\) \(cell 30\) is a wall"):
         make_planner("static_goto", model, goal=(3, 0))
     enclosed, enclosed_map = om.door_world("..#.\n..#.\n", blocking=True)
     enclosed = with_floor_plan(enclosed, enclosed_map, 0.95)
-    with pytest.raises(ModelError, match=r"goal \(0, 3\) \(cell 3\) cannot be reached from the start cell 0"):
+    with pytest.raises(InvalidOptionError, match=r"goal \(0, 3\) \(cell 3\) cannot be reached from the start cell 0"):
         make_planner("goto", enclosed, goal=(0, 3))
     assert make_planner("goto", enclosed, goal=(1, 1)).goal == 5
     stuck, stuck_map = om.door_world("...\n...\n", blocking=True, p_move=0.0)
     with pytest.raises(ModelError, match="p_move = 0"):
         make_planner("goto", stuck, goal=2)
-    with pytest.raises(ModelError, match="horizon"):
+    with pytest.raises(InvalidOptionError, match="horizon"):
         make_planner("goto", model, goal=0, horizon=-1)
     assert planner_options("goto") == planner_options("static_goto") == {"goal": None, "horizon": None}
 
@@ -338,7 +338,7 @@ def test_a_door_the_prior_believes_closed_is_a_wall_only_if_it_never_opens():
         prior[2] = [0, 0, 0.05, 0.95]  # the door: believed closed
         model = om.GridModel(**{**{f: getattr(model, f) for f in om.model.DEFINING_FIELDS}, "label_prior": prior})
         if fails:
-            with pytest.raises(ModelError, match=r"goal \(0, 4\) \(cell 4\) cannot be reached"):
+            with pytest.raises(InvalidOptionError, match=r"goal \(0, 4\) \(cell 4\) cannot be reached"):
                 GoTo(model, goal=(0, 4))
         else:
             assert GoTo(model, goal=(0, 4)).goal == 4
@@ -364,7 +364,7 @@ def test_navigate_reaches_the_goal_in_a_small_open_world(open_world):
     rows, cols = np.divmod(frame["true_location"].to_numpy(), 4)
     np.testing.assert_array_equal(frame["distance_to_goal"], (2 - rows) + (3 - cols))  # Manhattan, no walls
     # the estimator saw what the world emitted: a fresh filter fed the run's record agrees
-    replay = om.make_estimator("rbpf", model, n_particles=200, seed=_seeds(4)[2])
+    replay = om.make_estimator("rbpf", model, n_particles=200, seed=seed_streams(4)[2])
     for t, observation in enumerate(found.run.observations):
         belief = replay.step(None if t == 0 else int(found.run.actions[t - 1]), observation)
         assert belief.location.tobytes() == found.trajectory.location[t].tobytes()
@@ -400,13 +400,13 @@ def test_navigate_stops_after_max_steps_and_takes_any_planner(open_world):
     assert home.reached_at == 0 and len(home.frame) == 1 and home.frame["distance_to_goal"].iloc[0] == 0
     walk = navigate(model, true_map, 5, "random", max_steps=300, seed=1, estimator_options={"n_particles": 50})
     assert walk.reached_at is not None and walk.frame["true_location"].iloc[-1] == 5
-    with pytest.raises(ModelError, match="goal once"):
+    with pytest.raises(InvalidOptionError, match="goal once"):
         navigate(model, true_map, 5, max_steps=5, seed=0, planner_options={"goal": 6})
-    with pytest.raises(ModelError, match=r"goes to cell 6, not to the goal 5"):
+    with pytest.raises(InvalidOptionError, match=r"goes to cell 6, not to the goal 5"):
         navigate(model, true_map, 5, GoTo(model, goal=6), max_steps=5, seed=0)
-    with pytest.raises(ModelError, match=r"goal \(3, 0\) .*off the"):
+    with pytest.raises(InvalidOptionError, match=r"goal \(3, 0\) .*off the"):
         navigate(model, true_map, (3, 0), max_steps=5, seed=0)
-    with pytest.raises(ModelError, match="max_steps"):
+    with pytest.raises(InvalidOptionError, match="max_steps"):
         navigate(model, true_map, 5, max_steps=-1, seed=0)
 
 

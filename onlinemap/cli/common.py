@@ -222,8 +222,8 @@ def options_per_estimator(names: list[str], pairs: list[str], model=None) -> dic
     A whole float for an int option (``move_window=5.0``) is that int, as ``make_estimator`` takes
     it. With ``model``, each estimator given options is built once on it, so that a value its
     own check refuses (``seed=-1``) is reported as an ``--option`` error, not from a sweep's task."""
-    from ..estimators import estimator_options, make_estimator  # lazily: ``onlinemap --help`` imports no estimator
-    from ..estimators.base import _lookup
+    # lazily: ``onlinemap --help`` imports no estimator
+    from ..estimators import estimator_class, estimator_options, make_estimator
     from ..sweeps.spec import describe_type, expected_type, matches_annotation
 
     known = {name: estimator_options(name) for name in names}  # raises for an unknown name
@@ -238,7 +238,7 @@ def options_per_estimator(names: list[str], pairs: list[str], model=None) -> dic
             raise UnknownEstimatorError(f"--option {key}: no estimator in {', '.join(takers or names)} "
                                         f"has an option {option!r}")
         for name in takers:
-            expected = expected_type(_lookup(name), option, known[name][option])
+            expected = expected_type(estimator_class(name), option, known[name][option])
             if isinstance(value, float) and value.is_integer() and not matches_annotation(value, expected) \
                     and matches_annotation(int(value), expected):
                 value = int(value)

@@ -70,8 +70,8 @@ def run(args: argparse.Namespace) -> int:
     from .. import plots
     from ..evaluate import metric_legend
     from ..studies.base import summary_of, with_intervals
-    from ..studies.navigation import far_goals, navigation_spec, oracle_figure, route_figure
-    from ..sweeps import sweep
+    from ..studies.navigation import far_goals, fixed_map, navigation_spec, oracle_figure, route_figure
+    from ..sweeps import played_map, sweep
     from ..worlds import parse_world
 
     check_view_arguments(args)
@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         raise ModelError(f"--planner {', '.join(aimless)}: {'does' if len(aimless) == 1 else 'do'} not take a goal; "
                          f"navigate compares goal planners: {', '.join(goal_planners)}")
     world = parse_world(args.world)
-    true_map = world.initial_map(0)
+    true_map = fixed_map(world)
     if args.goal is None:
         goals = far_goals(world.model, true_map)
         if not goals:
@@ -118,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
     if out is not None:
         from policies import navigate, with_floor_plan
 
+        true_map = played_map(args.world, args.seed)  # the first run's: the route figure replays it
         model = with_floor_plan(world.model, true_map, args.floor_plan)
         first = navigate(model, true_map, goal, planners[0], "rbpf", max_steps=args.steps, seed=args.seed,
                          estimator_options=options)

@@ -56,6 +56,43 @@ class Estimator(Protocol):
         ``allow_newer``; with ``strict_version``, also against this onlinemap's version)."""
 
 
+class ParticleSnapshot(NamedTuple):
+    """A particle belief as the planners' rollouts take it. R particles, N cells, K labels."""
+
+    locations: np.ndarray  # (R,) int64
+    maps: np.ndarray  # (R, N, K) each particle's current map marginals
+    log_weights: np.ndarray  # (R,) normalised
+
+
+@runtime_checkable
+class SamplesStates(Protocol):
+    """An estimator that draws whole states (a location and a map) from its own belief, not from
+    the product of its marginals (``exact``: the joint; ``rbpf``: a particle, then its map)."""
+
+    def sample_states(self, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """``size`` states drawn from the belief: locations (S,) and label maps (S, N), int64."""
+
+
+@runtime_checkable
+class HoldsParticles(Protocol):
+    """A particle filter whose particles a planner may roll out (copies; the filter is untouched)."""
+
+    n_particles: int
+
+    def particle_snapshot(self, size: int | None = None,
+                          rng: np.random.Generator | None = None) -> ParticleSnapshot:
+        """The particles, all of them or ``size`` drawn by weight."""
+
+
+def draw_labels(marginals: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(S, N, K) per-cell label marginals -> (S, N) int64 labels, drawn independently per cell by
+    inversion (one uniform each, scaled by the row's total, so rows need not sum to 1 exactly).
+    O(S N K)."""
+    cdf = np.cumsum(marginals, axis=-1)
+    u = rng.random(marginals.shape[:-1])[..., None] * cdf[..., -1:]
+    return np.minimum((u >= cdf).sum(axis=-1), marginals.shape[-1] - 1).astype(np.int64)
+
+
 def register(name: str) -> Callable[[type], type]:
     """Class decorator: make an estimator available to :func:`make_estimator` under ``name``.
 
@@ -122,7 +159,7 @@ def estimator_options(name: str) -> dict[str, object]:
     the other defaults (the class's ``resolved_defaults``: e.g. rbpf's ``resampling=None`` runs
     ``fearnhead_clifford`` with the default optimal proposal). Building with this dict runs as
     building with no option does."""
-    cls = _lookup(name)
+    cls = estimator_class(name)
     return {**_keyword_options(cls), **getattr(cls, "resolved_defaults", {})}
 
 
@@ -135,7 +172,9 @@ def _keyword_options(cls: type) -> MappingProxyType:
     return MappingProxyType({p.name: p.default for p in params if p.kind is inspect.Parameter.KEYWORD_ONLY})
 
 
-def _lookup(name: str) -> type:
+def estimator_class(name: str) -> type:
+    """The class registered as ``name`` (its options' annotations are the sweep spec's and the
+    CLI's type checks); :class:`UnknownEstimatorError` listing the known names otherwise."""
     try:
         return _REGISTRY[name]
     except (KeyError, TypeError):  # TypeError: an unhashable name
@@ -153,7 +192,7 @@ def make_estimator(name: str, model: GridModel, **options) -> Estimator:
     bad value :class:`InvalidOptionError`. Example:
     ``make_estimator("rbpf", model, n_particles=500, seed=0)``.
     """
-    cls = _lookup(name)
+    cls = estimator_class(name)
     if not isinstance(model, GridModel):
         raise ModelError(f"model must be a GridModel, got {type(model).__name__}")
     known = _keyword_options(cls)

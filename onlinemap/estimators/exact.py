@@ -49,14 +49,10 @@ def tensor_bytes(model: GridModel, copies: int = 1) -> int:
     return 8 * copies * model.n_cells * model.n_labels ** model.n_cells
 
 
-def _general(model: GridModel) -> bool:
-    return model.has_blocking or not model.reads_own_cell
-
-
 def filter_bytes(model: GridModel) -> int:
     """Peak bytes of the exact filter: two tensors and the (K**N,) joint map for the paper's
     model; :data:`GENERAL_FILTER_TENSORS` tensors with blocking labels or a footprint."""
-    if _general(model):
+    if not model.is_paper_model:
         return tensor_bytes(model, GENERAL_FILTER_TENSORS)
     return tensor_bytes(model, 2) + 8 * model.n_labels ** model.n_cells
 
@@ -64,7 +60,8 @@ def filter_bytes(model: GridModel) -> int:
 def smooth_bytes(model: GridModel, n_steps: int) -> int:
     """Peak bytes of :func:`exact_smooth` over ``n_steps`` steps: one tensor per step plus
     :data:`SMOOTH_EXTRA_TENSORS` (or :data:`GENERAL_SMOOTH_EXTRA_TENSORS`)."""
-    return tensor_bytes(model, n_steps + (GENERAL_SMOOTH_EXTRA_TENSORS if _general(model) else SMOOTH_EXTRA_TENSORS))
+    extra = SMOOTH_EXTRA_TENSORS if model.is_paper_model else GENERAL_SMOOTH_EXTRA_TENSORS
+    return tensor_bytes(model, n_steps + extra)
 
 
 PLAUSIBLE_BYTES = 2 ** 40  # 1 TiB: beyond this, raising max_bytes is not advice anyone can follow
@@ -176,7 +173,7 @@ class ExactFilter:
 
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
-        if self.model.has_blocking or not self.model.reads_own_cell:
+        if not self.model.is_paper_model:
             return self._general_step(a, z)
         model = self.model
         likelihood = model.likelihood[z]
@@ -267,6 +264,15 @@ class ExactFilter:
         """A normalised copy of the joint belief, shape (N, K, ..., K) (N + 1 axes)."""
         shape = (self.model.n_cells,) + (self.model.n_labels,) * self.model.n_cells
         return (self._x / self._norm).reshape(shape)
+
+    def sample_states(self, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """``size`` states drawn from the joint belief (one ``rng.choice`` over its N K^N entries):
+        locations (S,) and label maps (S, N), int64. O(N K^N + S N)."""
+        n, k = self.model.n_cells, self.model.n_labels
+        joint = self.joint().ravel()
+        flat = rng.choice(joint.size, size=size, p=joint / joint.sum())
+        index = np.stack(np.unravel_index(flat, (n,) + (k,) * n), axis=1)
+        return index[:, 0].astype(np.int64), index[:, 1:].astype(np.int64)
 
 
 # --- blocking and footprints (numpy; DESIGN.md section 7) ---------------------------------
@@ -375,7 +381,7 @@ def exact_smooth(model: GridModel, actions, observations, *, max_bytes: int = DE
     alphas = np.empty((n_steps, n, k**n))
     log_evidence = 0.0
     scales = np.empty(n_steps)
-    general = model.has_blocking or not model.reads_own_cell
+    general = not model.is_paper_model
     passable = passable_tensor(model) if model.has_blocking else None
 
     def move(x, a, transpose=False):

@@ -846,6 +846,32 @@ class RaoBlackwellisedPF:
         self._t = t
         self._belief = None
 
+    def sample_states(self, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """``size`` states drawn from the belief: a particle by weight (one ``rng.choice``), then each
+        cell's label from that particle's map marginals (:func:`~onlinemap.estimators.base.draw_labels`).
+        Locations (S,) and label maps (S, N), int64. O(P + S N K^2)."""
+        from .base import draw_labels
+
+        weights = np.exp(self._log_weights)
+        chosen = rng.choice(len(weights), size=size, p=weights / weights.sum())
+        return self._locations[chosen], draw_labels(self.particle_maps(chosen), rng)
+
+    def particle_snapshot(self, size: int | None = None, rng: np.random.Generator | None = None):
+        """The particles as a :class:`~onlinemap.estimators.base.ParticleSnapshot` (copies): all
+        of them, weights kept, if ``size`` is None or not below P; else ``size`` of them drawn by
+        weight (systematic sampling: one uniform of ``rng``) and equally weighted. Reads
+        :meth:`particle_maps` of the kept particles only: O(P + M N K^2) for M kept."""
+        from .base import ParticleSnapshot
+
+        log_weights = self._log_weights
+        if size is None or size >= len(log_weights):
+            return ParticleSnapshot(self._locations.copy(), self.particle_maps(), log_weights.copy())
+        weights = np.exp(log_weights)
+        cdf = np.cumsum(weights / weights.sum())
+        positions = (rng.random() + np.arange(size)) / size
+        chosen = np.minimum(np.searchsorted(cdf, positions, side="right"), len(weights) - 1)
+        return ParticleSnapshot(self._locations[chosen], self.particle_maps(chosen), np.full(size, -math.log(size)))
+
 
 class _FCBuffers(NamedTuple):
     """One Fearnhead-Clifford step's working arrays (views of the filter's scratch buffers): the

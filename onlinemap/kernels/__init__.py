@@ -1,9 +1,8 @@
 """numba kernels, one module per algorithm: ``exact`` (the joint belief's fused motion + sensor
 pass and map dynamics), ``rbpf`` (particle proposal, commit, resampling bookkeeping and map
-mixtures over copy-on-write blocks), ``resampling`` (Fearnhead-Clifford's optimal resampling)
-``forward_backward`` (the EM estimators' location HMM), and the planners' ``planning`` (information
-gain's rollouts, shortest paths), ``navigation`` (the goal planner's value iteration) and ``mdp``
-(policy iteration's system and greedy improvement).
+mixtures over copy-on-write blocks), ``resampling`` (Fearnhead-Clifford's optimal resampling) and
+``forward_backward`` (the EM estimators' location HMM): the estimators' kernels. The planners'
+kernels live beside the planners (:mod:`policies.kernels`) and take the decorators below.
 
 The rule for every kernel here: arrays in, arrays out, no model objects. A kernel takes plain
 numpy arrays and scalars (the model's tables are passed as arrays by the caller), writes its

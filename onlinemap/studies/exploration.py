@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 import policies
-from policies.explore import Exploration, _exploration
+from policies.explore import Exploration, exploration
 from policies.tasks import EXPLORE, build_planner
 
 from .. import metrics as metric_functions
@@ -93,6 +93,12 @@ def compare_planners(world: str = "door,p_door=0.01,p_move=0.9", planners=("entr
                              kind="stable").reset_index(drop=True)
 
 
+def _with_ms_per_step(table: pd.DataFrame) -> pd.DataFrame:
+    """``table`` with ``ms_per_step``: the engine's own column where it has one (a
+    :func:`compare_planners` table), else from ``seconds_per_step`` (a table built by hand)."""
+    return table if "ms_per_step" in table else table.assign(ms_per_step=1e3 * table["seconds_per_step"])
+
+
 def summarize_planners(table: pd.DataFrame, model: GridModel, true_map) -> pd.DataFrame:
     """One row per planner from a :func:`compare_planners` table, averaged over seeds: the
     per-run metrics of :func:`onlinemap.evaluate.from_steps` (final map error, mean door error
@@ -100,7 +106,7 @@ def summarize_planners(table: pd.DataFrame, model: GridModel, true_map) -> pd.Da
     :data:`onlinemap.evaluate.HONEST_METRICS`), the share of steps spent on door cells, distinct
     cells visited, and milliseconds per step (estimator + planner)."""
     doors = door_cells(model, true_map)
-    table = table.assign(ms_per_step=1e3 * table["seconds_per_step"])
+    table = _with_ms_per_step(table)
     per_run = from_steps(table, ["planner", "seed"])
     visits = table.groupby(["planner", "seed"], sort=False)["true_location"]
     per_run["time_at_doors"] = visits.apply(lambda cells: np.isin(cells, doors).mean()).to_numpy()
@@ -158,7 +164,7 @@ def steps_study(table: pd.DataFrame, planners: Sequence[str] | None = None, conf
     same values :func:`planners_study` gives for those runs; ``planners``: their order (default:
     the table's). Cost O(rows)."""
     by = ["planner", "planner_options", "world", "seed"]
-    runs = from_steps(table.assign(ms_per_step=1e3 * table["seconds_per_step"]), by)
+    runs = from_steps(_with_ms_per_step(table), by)
     order = list(dict.fromkeys(table["planner"])) if planners is None else list(planners)
     return _planners_summary(runs, order, confidence)
 
@@ -179,7 +185,7 @@ def paper_world_study(planners: Sequence[str] = ("info_gain", "entropy", "random
                       seeds: Sequence[int] = range(20), steps: int = 1000, n_particles: int = 1000,
                       p_door: float = 0.0, planner_options: dict | None = None, workers: int | None = 0,
                       progress: bool = True) -> Study:
-    """Issue 11's main study: the 10 x 10 door world, uniform prior, ``p_move`` 0.8, ``p_obs`` 0.9."""
+    """The planners' main study: the 10 x 10 door world, uniform prior, ``p_move`` 0.8, ``p_obs`` 0.9."""
     world = PAPER_WORLD + (f",p_door={p_door}" if p_door else "")
     return planners_study(world, planners, seeds=seeds, steps=steps, estimator_options={"n_particles": n_particles},
                           planner_options=planner_options, workers=workers, progress=progress)
@@ -245,8 +251,9 @@ def live_exploration(model: GridModel, true_map: np.ndarray, planner: str, steps
     (N,), ``steps`` steps, the world, the planner and the live filter seeded from ``seed`` (as
     :func:`policies.exploration`); unscored (its ``frame`` is None). Cost: ``steps`` x (an RBPF
     step of ``live_particles`` + a planner decision)."""
-    return _exploration(model, true_map, planner, "rbpf", steps, seed, {"n_particles": int(live_particles)},
-                        planner_options, progress=False, score=False)
+    return exploration(model, true_map, planner, "rbpf", steps, seed,
+                       estimator_options={"n_particles": int(live_particles)}, planner_options=planner_options,
+                       progress=False, score=False)
 
 
 @functools.lru_cache(maxsize=4)

@@ -1,4 +1,4 @@
-"""The other papers' EM-mapping claims (issue 13), each a study over many seeded random runs
+"""The other papers' EM-mapping claims, each a study over many seeded random runs
 with confidence intervals (``onlinemap reproduce loop|anneal|blocking``, notebook
 ``notebooks/em_mapping.ipynb``).
 
