@@ -50,11 +50,13 @@ from pathlib import Path
 import numpy as np
 
 from . import arguments
+from .door_layouts import FREE, OPEN_DOOR, WALL, passable_start
 from .errors import FloorFileError, FloorFileWarning, LargeFloorWarning, SmallRegionWarning
 # The file readers live in floor_files; their public names are importable from here too.
-from .floor_files import (MAX_FILE_BYTES, MAX_PIXELS, MOVINGAI_OBSTACLES, MOVINGAI_PASSABLE,  # noqa: F401
+from .floor_files import (MAX_FILE_BYTES, MAX_PIXELS, MOVINGAI_OBSTACLES, MOVINGAI_PASSABLE,
                           ROS_DEFAULTS, FloorSource, floor_source, read_movingai, read_pgm, read_ros_map)
-from .model import FREE, OPEN_DOOR, WALL, GridModel, _footprint, door_world, passable_start
+from .grids import footprint_offsets
+from .model import GridModel, door_world
 
 CELL_RULES = ("majority", "any", "threshold")
 LARGE_FLOOR_CELLS = 2**14  # 128 x 128: above it, a floor read without cell_size warns
@@ -233,7 +235,7 @@ def _frame(source: FloorSource, cell_size, region, footprint=None) -> FloorFrame
     factor = _factor(source, cell_size)
     top, bottom, left, right = _region(source, region)
     shape = (-(-(bottom - top) // factor), -(-(right - left) // factor))
-    cells, offsets = shape[0] * shape[1], len(_footprint(footprint))
+    cells, offsets = shape[0] * shape[1], len(footprint_offsets(footprint))
     if cells * offsets > arguments.MAX_CELLS:
         read = f"x {offsets} cells read a step " if offsets > 1 else ""
         raise FloorFileError(f"{source.path}: {shape[0]} x {shape[1]} = {cells} cells {read}at cell_size {cell_size}, "
