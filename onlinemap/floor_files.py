@@ -227,28 +227,7 @@ def _pgm(path: Path, what: str = "image") -> tuple[tuple[int, int], int, Callabl
         def pixels() -> np.ndarray:
             return np.frombuffer(raster, dtype=dtype, count=width * height).astype(dtype.newbyteorder("="))
     else:
-        text = data[pos:]  # its tokens are counted before any array of width x height is made
-
-        def line_of(index: int) -> int:
-            match = next(m for i, m in enumerate(re.finditer(rb"\S+", stripped)) if i == index)
-            return last_line + stripped.count(b"\n", 0, match.start())
-
-        stripped = re.sub(rb"#[^\n]*", b"", text)
-        words = stripped.split()
-        if len(words) > width * height:
-            raise FloorFileError(f"{path}, line {line_of(width * height)}: more than {width} x {height} pixel values "
-                                 f"({len(words)})")
-        if len(words) < width * height:
-            line = last_line + stripped.count(b"\n")
-            raise FloorFileError(f"{path}, line {line}: {len(words)} pixel values, a "
-                                 f"{width} x {height} image needs {width * height}")
-        bad = next((i for i, word in enumerate(words) if _whole(word, 65535) is None), None)
-        if bad is not None:
-            raise FloorFileError(f"{path}, line {line_of(bad)}: pixel value {words[bad][:12].decode('latin-1')!r} is not a whole number "
-                                 f"in 0..{maxval} in ASCII digits")
-
-        def pixels() -> np.ndarray:
-            return np.array(words).astype(np.uint16)
+        pixels = _ascii_raster(path, data[pos:], (height, width), maxval, last_line)
 
     def checked() -> np.ndarray:
         image = pixels()
@@ -259,6 +238,37 @@ def _pgm(path: Path, what: str = "image") -> tuple[tuple[int, int], int, Callabl
         return image.reshape(height, width)
 
     return (height, width), maxval, checked
+
+
+def _ascii_raster(path: Path, text: bytes, shape: tuple[int, int], maxval: int,
+                  last_line: int) -> Callable[[], np.ndarray]:
+    """The pixel values of a P2 image, ``text`` the bytes after its header (which ends on
+    ``last_line``), counted and checked as ASCII digits before any array of the image's size is
+    made -> a function giving them, a flat uint16 array of H W values. O(len(text))."""
+    height, width = shape
+
+    def line_of(index: int) -> int:
+        match = next(m for i, m in enumerate(re.finditer(rb"\S+", stripped)) if i == index)
+        return last_line + stripped.count(b"\n", 0, match.start())
+
+    stripped = re.sub(rb"#[^\n]*", b"", text)
+    words = stripped.split()
+    if len(words) > width * height:
+        raise FloorFileError(f"{path}, line {line_of(width * height)}: more than {width} x {height} pixel values "
+                             f"({len(words)})")
+    if len(words) < width * height:
+        line = last_line + stripped.count(b"\n")
+        raise FloorFileError(f"{path}, line {line}: {len(words)} pixel values, a "
+                             f"{width} x {height} image needs {width * height}")
+    bad = next((i for i, word in enumerate(words) if _whole(word, 65535) is None), None)
+    if bad is not None:
+        raise FloorFileError(f"{path}, line {line_of(bad)}: pixel value {words[bad][:12].decode('latin-1')!r} is not a "
+                             f"whole number in 0..{maxval} in ASCII digits")
+
+    def pixels() -> np.ndarray:
+        return np.array(words).astype(np.uint16)
+
+    return pixels
 
 
 def read_pgm(path) -> tuple[np.ndarray, int]:

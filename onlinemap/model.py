@@ -111,6 +111,46 @@ def _change_powers(change: np.ndarray, count: int) -> np.ndarray:
     return powers
 
 
+def _motion_tables(n: int, neighbors, action_names) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
+    """A model's checked motion: (N, A) int64 neighbours (whole cell indices in range), the A
+    action names and the (A, N) predecessor of each cell under each action (-1: none), refused
+    when an action moves two cells into one. O(N A)."""
+    table = _table("neighbors", neighbors, np.float64)
+    if np.any(table != np.round(table)):
+        raise ModelError("neighbors must hold whole cell indices")
+    if table.ndim != 2 or table.shape[0] != n:
+        raise ModelError(f"neighbors must have shape ({n}, n_actions), got {table.shape}")
+    if np.any(table < 0) or np.any(table >= n):
+        raise ModelError("neighbors contains a cell index out of range")
+    table = table.astype(np.int64)
+    n_actions = table.shape[1]
+    names = arguments.names("action_names", action_names, n_actions)
+    predecessor = np.full((n_actions, n), -1, dtype=np.int64)
+    for a in range(n_actions):
+        movers = np.flatnonzero(table[:, a] != np.arange(n))
+        targets = table[movers, a]
+        if len(np.unique(targets)) != len(targets):
+            raise ModelError(f"action {action_names[a]!r} moves two cells into the same cell")
+        predecessor[a, targets] = movers
+    return table, names, predecessor
+
+
+def _label_tables(n: int, change, sensor, label_prior) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A model's checked label tables, read-only float64: C and O (K, K) row-stochastic with
+    2 <= K <= ``MAX_LABELS``, and the label prior broadcast to (N, K). O(N K + K^2)."""
+    change = _table("change matrix C", change)
+    k = change.shape[0] if change.ndim == 2 else -1
+    if not 2 <= k <= arguments.MAX_LABELS:
+        raise ModelError(f"change matrix C must be K x K with 2 <= K <= {arguments.MAX_LABELS}, "
+                         f"got shape {change.shape}")
+    change = _stochastic("change matrix C", change, (k, k))
+    sensor = _stochastic("sensor matrix O", sensor, (k, k))
+    prior = _table("label_prior", label_prior)
+    if prior.shape == (k,):
+        prior = np.broadcast_to(prior, (n, k))
+    return change, sensor, _stochastic("label_prior", prior, (n, k))
+
+
 @dataclass(frozen=True, eq=False)
 class GridModel:
     """An immutable, validated grid model. Build one with :func:`corridor`, :func:`door_world`
@@ -140,37 +180,15 @@ class GridModel:
         set_(self, "rows", rows)
         set_(self, "cols", cols)
         n = self.rows * self.cols
-        neighbors = _table("neighbors", self.neighbors, np.float64)
-        if np.any(neighbors != np.round(neighbors)):
-            raise ModelError("neighbors must hold whole cell indices")
-        if neighbors.ndim != 2 or neighbors.shape[0] != n:
-            raise ModelError(f"neighbors must have shape ({n}, n_actions), got {neighbors.shape}")
-        if np.any(neighbors < 0) or np.any(neighbors >= n):
-            raise ModelError("neighbors contains a cell index out of range")
-        neighbors = neighbors.astype(np.int64)
-        n_actions = neighbors.shape[1]
-        action_names = arguments.names("action_names", self.action_names, n_actions)
-        predecessor = np.full((n_actions, n), -1, dtype=np.int64)
-        for a in range(n_actions):
-            movers = np.flatnonzero(neighbors[:, a] != np.arange(n))
-            targets = neighbors[movers, a]
-            if len(np.unique(targets)) != len(targets):
-                raise ModelError(f"action {self.action_names[a]!r} moves two cells into the same cell")
-            predecessor[a, targets] = movers
+        neighbors, action_names, predecessor = _motion_tables(n, self.neighbors, self.action_names)
         set_(self, "neighbors", neighbors)
         p_move = _probability("p_move", self.p_move)
         set_(self, "p_move", p_move)
-        change = _table("change matrix C", self.change)
-        k = change.shape[0] if change.ndim == 2 else -1
-        if not 2 <= k <= arguments.MAX_LABELS:
-            raise ModelError(f"change matrix C must be K x K with 2 <= K <= {arguments.MAX_LABELS}, "
-                             f"got shape {change.shape}")
-        set_(self, "change", _stochastic("change matrix C", change, (k, k)))
-        set_(self, "sensor", _stochastic("sensor matrix O", self.sensor, (k, k)))
-        prior = _table("label_prior", self.label_prior)
-        if prior.shape == (k,):
-            prior = np.broadcast_to(prior, (n, k))
-        set_(self, "label_prior", _stochastic("label_prior", prior, (n, k)))
+        change, sensor, prior = _label_tables(n, self.change, self.sensor, self.label_prior)
+        k = change.shape[0]
+        set_(self, "change", change)
+        set_(self, "sensor", sensor)
+        set_(self, "label_prior", prior)
         set_(self, "action_names", action_names)
         set_(self, "label_names", arguments.names("label_names", self.label_names, k))
         start = arguments.integer("start", self.start)
