@@ -24,112 +24,30 @@ Two options (DESIGN.md section 7), both off by default (the paper's model, bit f
   ``footprint_cells[l, f]`` through ``O`` (independently of the other readings), or -1 with
   probability 1 when that cell is off the grid. An observation is an int when ``F == 1`` and an
   (F,) int array otherwise.
+
+The parts a model is built of, each checked, live in :mod:`onlinemap.grids` (topology, footprints,
+blocking masks, the symmetric channel) and :mod:`onlinemap.door_layouts` (the door world's labels
+and layouts); their names are importable from here too.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Iterable, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from . import arguments
 from .arrays import cached_by_content, read_only
+# The parts a model is built of live in grids and door_layouts; their names are importable from here too.
+from .door_layouts import (CLOSED_DOOR, DOOR_CHARS, DOOR_LABELS, DOOR_WORLD_10X10, FREE, OPEN_DOOR,
+                           WALL, door_cells, door_change, layout_grid, parse_layout, passable_start)
 from .errors import ModelError
-
-CORRIDOR_ACTIONS = ("left", "right")
-GRID_ACTIONS = ("north", "east", "south", "west")
-DOOR_LABELS = ("free", "wall", "open_door", "closed_door")
-DOOR_CHARS = {".": 0, "#": 1, "o": 2, "c": 3}
-FREE, WALL, OPEN_DOOR, CLOSED_DOOR = range(4)
-
-
-def door_cells(model: GridModel, labels: np.ndarray) -> np.ndarray:
-    """Indices of the door cells (label open or closed) of a door-world map; empty otherwise."""
-    if model.label_names != DOOR_LABELS:
-        return np.empty(0, dtype=np.int64)
-    labels = np.asarray(labels)
-    return np.flatnonzero((labels == OPEN_DOOR) | (labels == CLOSED_DOOR))
-
-
-DOOR_WORLD_10X10 = """\
-.....#....
-.....o....
-.....#....
-##c###..##
-.......#..
-.......o..
-###o####..
-.......c..
-..#....#..
-..#....#..
-"""
+from .grids import (CORRIDOR_ACTIONS, FOOTPRINTS, GRID_ACTIONS, blocking_mask, footprint_offsets,
+                    footprint_table, grid_neighbors, symmetric_channel)
 
 _ATOL = 1e-9
-
-FOOTPRINTS = {
-    "cell": ((0, 0),),
-    "cross": ((0, 0), (-1, 0), (0, 1), (1, 0), (0, -1)),
-    "square": tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)),
-}  # the sensor presets; "cell" is the paper's
-
-
-def _footprint(value) -> tuple[tuple[int, int], ...]:
-    """A footprint preset name or a sequence of (drow, dcol) int pairs -> tuple of int pairs."""
-    if value is None:
-        return FOOTPRINTS["cell"]
-    if isinstance(value, str):
-        try:
-            return FOOTPRINTS[value]
-        except KeyError:
-            raise ModelError(f"unknown footprint {value!r}; expected one of {tuple(FOOTPRINTS)} "
-                             "or a sequence of (drow, dcol) pairs") from None
-    try:
-        array = np.asarray(value)
-    except (TypeError, ValueError):
-        array = np.empty(0)
-    if array.ndim != 2 or array.shape[1] != 2 or array.shape[0] < 1 or array.dtype.kind not in "iu":
-        raise ModelError(f"footprint must be a preset name or a non-empty sequence of (drow, dcol) int "
-                         f"pairs, got {value!r}")
-    pairs = tuple((int(dr), int(dc)) for dr, dc in array)
-    if len(set(pairs)) != len(pairs):
-        raise ModelError(f"footprint {pairs} repeats an offset")
-    return pairs
-
-
-def footprint_table(rows: int, cols: int, footprint) -> np.ndarray:
-    """(N, F) int64: the cell read by offset f from location l, row-major, -1 off the grid. O(N F)."""
-    offsets = np.array(footprint, dtype=np.int64).reshape(-1, 2)
-    r, c = np.divmod(np.arange(rows * cols), cols)
-    rr = r[:, None] + offsets[:, 0]
-    cc = c[:, None] + offsets[:, 1]
-    inside = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
-    return np.where(inside, rr * cols + cc, -1)
-
-
-def blocking_mask(blocking, label_names: Sequence[str]) -> np.ndarray:
-    """(K,) bool mask from blocking labels given by index or name (None: nothing blocks): one
-    label, or an iterable of them; anything else (a bool, a float, a bytes...) is a ModelError."""
-    mask = np.zeros(len(label_names), dtype=bool)
-    if blocking is None:
-        return mask
-    if isinstance(blocking, np.ndarray) and blocking.ndim == 0:
-        blocking = blocking[()]  # the numpy scalar it holds
-    if isinstance(blocking, (str, bytes)) or not isinstance(blocking, Iterable):
-        blocking = [blocking]
-    for label in blocking:
-        if isinstance(label, (str, np.str_)):
-            if str(label) not in label_names:
-                raise ModelError(f"unknown blocking label {label!r}; expected one of {tuple(label_names)}")
-            mask[list(label_names).index(str(label))] = True
-        elif isinstance(label, (int, np.integer)) and not isinstance(label, (bool, np.bool_)) \
-                and 0 <= int(label) < len(label_names):
-            mask[int(label)] = True
-        else:
-            raise ModelError(f"blocking label {label!r} is not a label index in 0..{len(label_names) - 1} "
-                             f"or a name in {tuple(label_names)}")
-    return mask
 
 
 def _probability(name: str, value: float) -> float:
@@ -176,14 +94,6 @@ def _stochastic(name: str, matrix, shape: tuple[int, ...]) -> np.ndarray:
     return read_only(array)
 
 
-def symmetric_channel(n_labels: int, p_same: float) -> np.ndarray:
-    """(K, K) matrix with ``p_same`` on the diagonal and ``(1 - p_same) / (K - 1)`` elsewhere."""
-    n_labels = arguments.integer("n_labels", n_labels, minimum=2, maximum=arguments.MAX_LABELS)
-    p_same = _probability("p_same", p_same)
-    off = (1.0 - p_same) / (n_labels - 1)
-    return np.full((n_labels, n_labels), off) + np.eye(n_labels) * (p_same - off)
-
-
 def change_powers(change: np.ndarray, count: int) -> np.ndarray:
     """(count, K, K) ``C^d`` for d < count, each the last times ``change`` C (K, K): read-only and
     shared per matrix and count (:func:`~onlinemap.arrays.cached_by_content`; copy it to hand a
@@ -199,6 +109,46 @@ def _change_powers(change: np.ndarray, count: int) -> np.ndarray:
     for d in range(1, count):
         powers[d] = powers[d - 1] @ change
     return powers
+
+
+def _motion_tables(n: int, neighbors, action_names) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
+    """A model's checked motion: (N, A) int64 neighbours (whole cell indices in range), the A
+    action names and the (A, N) predecessor of each cell under each action (-1: none), refused
+    when an action moves two cells into one. O(N A)."""
+    table = _table("neighbors", neighbors, np.float64)
+    if np.any(table != np.round(table)):
+        raise ModelError("neighbors must hold whole cell indices")
+    if table.ndim != 2 or table.shape[0] != n:
+        raise ModelError(f"neighbors must have shape ({n}, n_actions), got {table.shape}")
+    if np.any(table < 0) or np.any(table >= n):
+        raise ModelError("neighbors contains a cell index out of range")
+    table = table.astype(np.int64)
+    n_actions = table.shape[1]
+    names = arguments.names("action_names", action_names, n_actions)
+    predecessor = np.full((n_actions, n), -1, dtype=np.int64)
+    for a in range(n_actions):
+        movers = np.flatnonzero(table[:, a] != np.arange(n))
+        targets = table[movers, a]
+        if len(np.unique(targets)) != len(targets):
+            raise ModelError(f"action {action_names[a]!r} moves two cells into the same cell")
+        predecessor[a, targets] = movers
+    return table, names, predecessor
+
+
+def _label_tables(n: int, change, sensor, label_prior) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A model's checked label tables, read-only float64: C and O (K, K) row-stochastic with
+    2 <= K <= ``MAX_LABELS``, and the label prior broadcast to (N, K). O(N K + K^2)."""
+    change = _table("change matrix C", change)
+    k = change.shape[0] if change.ndim == 2 else -1
+    if not 2 <= k <= arguments.MAX_LABELS:
+        raise ModelError(f"change matrix C must be K x K with 2 <= K <= {arguments.MAX_LABELS}, "
+                         f"got shape {change.shape}")
+    change = _stochastic("change matrix C", change, (k, k))
+    sensor = _stochastic("sensor matrix O", sensor, (k, k))
+    prior = _table("label_prior", label_prior)
+    if prior.shape == (k,):
+        prior = np.broadcast_to(prior, (n, k))
+    return change, sensor, _stochastic("label_prior", prior, (n, k))
 
 
 @dataclass(frozen=True, eq=False)
@@ -230,37 +180,15 @@ class GridModel:
         set_(self, "rows", rows)
         set_(self, "cols", cols)
         n = self.rows * self.cols
-        neighbors = _table("neighbors", self.neighbors, np.float64)
-        if np.any(neighbors != np.round(neighbors)):
-            raise ModelError("neighbors must hold whole cell indices")
-        if neighbors.ndim != 2 or neighbors.shape[0] != n:
-            raise ModelError(f"neighbors must have shape ({n}, n_actions), got {neighbors.shape}")
-        if np.any(neighbors < 0) or np.any(neighbors >= n):
-            raise ModelError("neighbors contains a cell index out of range")
-        neighbors = neighbors.astype(np.int64)
-        n_actions = neighbors.shape[1]
-        action_names = arguments.names("action_names", self.action_names, n_actions)
-        predecessor = np.full((n_actions, n), -1, dtype=np.int64)
-        for a in range(n_actions):
-            movers = np.flatnonzero(neighbors[:, a] != np.arange(n))
-            targets = neighbors[movers, a]
-            if len(np.unique(targets)) != len(targets):
-                raise ModelError(f"action {self.action_names[a]!r} moves two cells into the same cell")
-            predecessor[a, targets] = movers
+        neighbors, action_names, predecessor = _motion_tables(n, self.neighbors, self.action_names)
         set_(self, "neighbors", neighbors)
         p_move = _probability("p_move", self.p_move)
         set_(self, "p_move", p_move)
-        change = _table("change matrix C", self.change)
-        k = change.shape[0] if change.ndim == 2 else -1
-        if not 2 <= k <= arguments.MAX_LABELS:
-            raise ModelError(f"change matrix C must be K x K with 2 <= K <= {arguments.MAX_LABELS}, "
-                             f"got shape {change.shape}")
-        set_(self, "change", _stochastic("change matrix C", change, (k, k)))
-        set_(self, "sensor", _stochastic("sensor matrix O", self.sensor, (k, k)))
-        prior = _table("label_prior", self.label_prior)
-        if prior.shape == (k,):
-            prior = np.broadcast_to(prior, (n, k))
-        set_(self, "label_prior", _stochastic("label_prior", prior, (n, k)))
+        change, sensor, prior = _label_tables(n, self.change, self.sensor, self.label_prior)
+        k = change.shape[0]
+        set_(self, "change", change)
+        set_(self, "sensor", sensor)
+        set_(self, "label_prior", prior)
         set_(self, "action_names", action_names)
         set_(self, "label_names", arguments.names("label_names", self.label_names, k))
         start = arguments.integer("start", self.start)
@@ -272,7 +200,7 @@ class GridModel:
             raise ModelError(f"blocking must be a ({k},) bool array (one flag per label), got "
                              f"{blocking.dtype} {blocking.shape}; grid_model(blocking=...) takes labels")
         set_(self, "blocking", read_only(blocking))
-        footprint = _footprint(self.footprint)
+        footprint = footprint_offsets(self.footprint)
         if n * len(footprint) > arguments.MAX_CELLS:  # before the (N, F) tables are built
             raise ModelError(f"a footprint of {len(footprint)} offsets on {n} cells reads {n * len(footprint)} "
                              f"cells per map; at most {arguments.MAX_CELLS} are supported (cells x offsets)")
@@ -460,25 +388,6 @@ def passable_probability(model: GridModel, maps: np.ndarray) -> np.ndarray:
 
 
 # --- constructors ----------------------------------------------------------------------
-def grid_neighbors(rows: int, cols: int) -> tuple[np.ndarray, tuple[str, ...]]:
-    """Neighbour table (N, A) of a rows x cols grid: a 1-row grid is a corridor (left, right),
-    anything else is 4-connected (north, east, south, west). Off-grid moves stay."""
-    r, c = np.divmod(np.arange(rows * cols), cols)
-    if rows == 1:
-        left = np.where(c > 0, c - 1, c)
-        right = np.where(c < cols - 1, c + 1, c)
-        return np.stack([left, right], axis=1), CORRIDOR_ACTIONS
-
-    def cell(rr, cc):
-        return rr * cols + cc
-
-    north = np.where(r > 0, cell(r - 1, c), cell(r, c))
-    east = np.where(c < cols - 1, cell(r, c + 1), cell(r, c))
-    south = np.where(r < rows - 1, cell(r + 1, c), cell(r, c))
-    west = np.where(c > 0, cell(r, c - 1), cell(r, c))
-    return np.stack([north, east, south, west], axis=1), GRID_ACTIONS
-
-
 def grid_model(rows: int, cols: int, n_labels: int = 2, *, p_obs: float = 0.9, p_move: float = 0.8,
                change=None, sensor=None, label_prior=None, start: int = 0,
                label_names: Sequence[str] | None = None, blocking=None, footprint=None) -> GridModel:
@@ -508,7 +417,7 @@ def grid_model(rows: int, cols: int, n_labels: int = 2, *, p_obs: float = 0.9, p
     return GridModel(rows=rows, cols=cols, neighbors=neighbors, p_move=p_move, change=change,
                      sensor=sensor, label_prior=label_prior, start=start,
                      action_names=action_names, label_names=label_names,
-                     blocking=blocking_mask(blocking, label_names), footprint=_footprint(footprint))
+                     blocking=blocking_mask(blocking, label_names), footprint=footprint_offsets(footprint))
 
 
 def corridor(n_cells: int, n_labels: int = 2, p_obs: float = 0.9, p_move: float = 0.8,
@@ -526,61 +435,10 @@ def corridor(n_cells: int, n_labels: int = 2, p_obs: float = 0.9, p_move: float 
                       label_prior=label_prior, start=start, blocking=blocking, footprint=footprint)
 
 
-def parse_layout(layout: str) -> np.ndarray:
-    """Text grid (``.`` free, ``#`` wall, ``o`` open door, ``c`` closed door) -> (rows, cols) labels."""
-    if not isinstance(layout, str):
-        raise ModelError(f"the layout must be a str of . # o c rows, got {type(layout).__name__}")
-    lines = [line.strip() for line in layout.strip().splitlines() if line.strip()]
-    if not lines:
-        raise ModelError("the layout is empty")
-    widths = {len(line) for line in lines}
-    if len(widths) != 1:
-        raise ModelError(f"layout rows have different lengths: {sorted(widths)}")
-    for r, line in enumerate(lines):
-        for c, ch in enumerate(line):
-            if ch not in DOOR_CHARS:
-                raise ModelError(f"layout row {r}, column {c}: unknown character {ch!r} (use . # o c)")
-    return np.array([[DOOR_CHARS[ch] for ch in line] for line in lines], dtype=np.int64)
-
-
-def layout_grid(layout) -> np.ndarray:
-    """A door-world layout -> (rows, cols) int64 labels: a text layout (:func:`parse_layout`) or a
-    2D integer array of door labels in 0..3 (:data:`DOOR_LABELS`), copied."""
-    if isinstance(layout, str):
-        return parse_layout(layout)
-    if isinstance(layout, np.ndarray) and layout.ndim == 2 and layout.size and layout.dtype.kind in "iu":
-        if layout.min() < 0 or layout.max() >= len(DOOR_LABELS):
-            raise ModelError(f"layout labels must lie in 0..{len(DOOR_LABELS) - 1} {DOOR_LABELS}, "
-                             f"got {layout.min()}..{layout.max()}")
-        return layout.astype(np.int64)
-    described = f"{layout.dtype} array of shape {layout.shape}" if isinstance(layout, np.ndarray) \
-        else type(layout).__name__
-    raise ModelError(f"the layout must be a str of . # o c rows or a non-empty 2D int array of door labels "
-                     f"0..3, got {described}")
-
-
-def door_change(p_door: float) -> np.ndarray:
-    """(4, 4) door-world dynamics: doors swap open/closed with ``p_door``; free and wall never change."""
-    p_door = _probability("p_door", p_door)
-    change = np.eye(4)
-    change[OPEN_DOOR] = [0, 0, 1 - p_door, p_door]
-    change[CLOSED_DOOR] = [0, 0, p_door, 1 - p_door]
-    return change
-
-
 def _flag(name: str, value) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise ModelError(f"{name} must be True or False, got {value!r}")
     return bool(value)
-
-
-def passable_start(labels: np.ndarray, start) -> int:
-    """``start`` checked against a door-world layout (rows, cols): a cell index, free or an open door."""
-    start = arguments.integer("start", start, minimum=0, maximum=labels.size - 1)
-    if labels.flat[start] not in (FREE, OPEN_DOOR):
-        raise ModelError(f"start must be a free cell or an open door, cell {start} is "
-                         f"{DOOR_LABELS[labels.flat[start]]}")
-    return start
 
 
 def door_world(layout: str | np.ndarray | None = None, p_obs: float = 0.9, p_move: float = 0.8,
@@ -613,4 +471,5 @@ __all__ = [
     "symmetric_channel", "apply_motion", "apply_motion_transpose", "grid_neighbors",
     "DOOR_WORLD_10X10", "DOOR_LABELS", "CORRIDOR_ACTIONS", "GRID_ACTIONS", "door_cells",
     "passable_start", "FOOTPRINTS", "footprint_table", "blocking_mask", "passable_probability",
+    "footprint_offsets", "DOOR_CHARS", "FREE", "WALL", "OPEN_DOOR", "CLOSED_DOOR",
 ]

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import onlinemap as om
-from onlinemap import layouts
+from onlinemap import floor_files
 from onlinemap.errors import FloorFileError, ModelError
 from onlinemap.layouts import layout_labels, read_pgm
 from onlinemap.worlds import parse_world
@@ -78,7 +78,7 @@ def test_a_yaml_image_that_is_not_a_file_says_what_it_is(tmp_path, alarm, make, 
 
 def test_the_bytes_read_are_bounded(tmp_path, monkeypatch):
     path = write_map(tmp_path / "rooms.map", ROOMS)
-    monkeypatch.setattr(layouts, "MAX_FILE_BYTES", 50)
+    monkeypatch.setattr(floor_files, "MAX_FILE_BYTES", 50)
     with pytest.raises(FloorFileError, match="is larger than 50 bytes"):
         om.read_layout(path)
 
@@ -142,19 +142,19 @@ def test_the_cell_cap_is_checked_after_cell_size_before_decoding(tmp_path, monke
     path = write_map(tmp_path / "big.map", "\n".join(["." * 20] * 20))
     monkeypatch.setattr(om.arguments, "MAX_CELLS", 100)
     decoded = []
-    source = layouts._movingai
-    monkeypatch.setattr(layouts, "_movingai", lambda p: source(p)._replace(decode=lambda: decoded.append(1)))
+    source = floor_files._movingai
+    monkeypatch.setattr(floor_files, "_movingai", lambda p: source(p)._replace(decode=lambda: decoded.append(1)))
     with pytest.raises(FloorFileError, match=r"20 x 20 = 400 cells at cell_size None, above the limit of 100"):
         layout_labels(path)
     assert decoded == []  # refused on the header alone
-    monkeypatch.setattr(layouts, "_movingai", source)
+    monkeypatch.setattr(floor_files, "_movingai", source)
     assert layout_labels(path, cell_size=2).shape == (10, 10)  # 100 cells: within the cap
     # the model reads a cross of 5 cells a step: 100 cells x 5 offsets is above the cap, refused on the header
-    monkeypatch.setattr(layouts, "_movingai", lambda p: source(p)._replace(decode=lambda: decoded.append(1)))
+    monkeypatch.setattr(floor_files, "_movingai", lambda p: source(p)._replace(decode=lambda: decoded.append(1)))
     with pytest.raises(FloorFileError, match=r"10 x 10 = 100 cells x 5 cells read a step at cell_size 2, above"):
         om.read_layout(path, cell_size=2)
     assert decoded == []
-    monkeypatch.setattr(layouts, "_movingai", source)
+    monkeypatch.setattr(floor_files, "_movingai", source)
     assert om.read_layout(path, cell_size=5)[0].shape == (4, 4)  # 16 cells x 5 offsets
 
 

@@ -1,7 +1,8 @@
 """The structure the README's tour states, checked on the code: no import cycle among the modules
 of ``onlinemap`` and ``policies`` (lazy, in-function imports included), every module has a row
 in the tour, and imports run one way: a module imports only modules of its own row or of the
-rows above it.
+rows above it. And the sizes of issue 39: no module over 600 lines, no function with more than 12
+positional parameters (but the files in ``STILL_RESTRUCTURED``).
 
 Imports are read from the source (``ast``), every ``import`` and ``from ... import`` statement
 wherever it stands, but those under ``if TYPE_CHECKING:`` (never executed) and a package face's
@@ -231,3 +232,67 @@ def test_the_private_name_check_sees_each_spelling():
         ["onlinemap.sub.a: onlinemap.simulate._x"]
     assert private_crossings("onlinemap.sub.a", "def _own():\n    pass\nself._y = _own()\nx.__len__\n",
                              known) == []
+MAX_MODULE_LINES = 600
+MAX_POSITIONAL = 12  # keyword-only options (``*, cell_size=None, ...``) do not count: they are named at every call
+#: Files still being restructured by other work (issue 39: the particle filter's kernels and
+#: estimator, the planners' rollouts and information gain), exempt from the two limits below until
+#: that work lands. Shrink it then: a pattern that no longer matches a file over a limit fails
+#: ``test_the_size_allow_list_names_only_files_over_a_limit``, so the list cannot outlive its reason.
+STILL_RESTRUCTURED = (
+    "onlinemap/kernels/rbpf*.py",  # the filter's kernels: long module, kernels taking dozens of arrays
+    "onlinemap/estimators/rbpf*.py",  # the filter: long module
+    "policies/kernels/*.py",  # the rollouts and goal plans: kernels taking dozens of arrays
+)
+
+
+def positional_parameters(node: ast.FunctionDef | ast.AsyncFunctionDef) -> int:
+    """Parameters a caller may pass by position (``self`` included; ``*args`` and keyword-only not)."""
+    return len(node.args.posonlyargs) + len(node.args.args)
+
+
+def size_offences(sources: dict[str, str]) -> dict[str, list[str]]:
+    """file (relative to the root) -> what it does over the limits: more than
+    :data:`MAX_MODULE_LINES` lines, functions (nested ones and methods included) with more than
+    :data:`MAX_POSITIONAL` positional parameters."""
+    found: dict[str, list[str]] = {}
+    for relative, text in sources.items():
+        lines = len(text.splitlines())
+        offences = [f"{lines} lines"] if lines > MAX_MODULE_LINES else []
+        offences += [f"{node.name} (line {node.lineno}) takes {positional_parameters(node)} positional parameters"
+                     for node in ast.walk(ast.parse(text)) if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+                     and positional_parameters(node) > MAX_POSITIONAL]
+        if offences:
+            found[relative] = offences
+    return found
+
+
+def _sources() -> dict[str, str]:
+    return {str(path.relative_to(ROOT)): path.read_text() for path in modules().values()}
+
+
+def _still_restructured(relative: str) -> bool:
+    return any(Path(relative).match(pattern) for pattern in STILL_RESTRUCTURED)
+
+
+def test_the_size_check_sees_a_long_module_and_a_long_signature():
+    """The checker itself: 13 positional parameters and 601 lines are caught; 12, keyword-only
+    options and ``*args`` are not."""
+    fine = "def f(a, b, c, d, e, f, g, h, i, j, k, l, *rest, m=1, n=2, o=3):\n    pass\n"
+    assert size_offences({"fine.py": fine}) == {}
+    crowded = "class A:\n    def f(self, a, b, c, d, e, f, g, h, i, j, k, l):\n        pass\n"
+    assert size_offences({"crowded.py": crowded}) == {"crowded.py": ["f (line 2) takes 13 positional parameters"]}
+    assert size_offences({"long.py": "x = 1\n" * 601}) == {"long.py": ["601 lines"]}
+    assert size_offences({"edge.py": "x = 1\n" * 600}) == {}
+
+
+def test_no_module_over_600_lines_and_no_function_over_12_positional_parameters():
+    found = {relative: offences for relative, offences in size_offences(_sources()).items()
+             if not _still_restructured(relative)}
+    assert not found, "over the size limits (split the module; bundle arrays in a NamedTuple or make options " \
+        "keyword-only):\n" + "\n".join(f"{relative}: {'; '.join(offences)}" for relative, offences in found.items())
+
+
+def test_the_size_allow_list_names_only_files_over_a_limit():
+    offending = size_offences(_sources())
+    stale = [pattern for pattern in STILL_RESTRUCTURED if not any(Path(relative).match(pattern) for relative in offending)]
+    assert not stale, f"STILL_RESTRUCTURED names files now within the limits; remove: {stale}"

@@ -66,13 +66,7 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
         results_dir = default_results_dir(out)
     store = open_store(results_dir) if results_dir is not None else None
     memory: dict[str, TaskRows] = {}
-    done = finished_tasks(spec.tasks, store) if store is not None else set()
-    todo = [t for t in spec.tasks if t.key not in done]
-    # tasks sharing a run one after the other, so the memoised run and reference are reused
-    first: dict[tuple, int] = {}
-    for task in todo:
-        first.setdefault(_run_key(task), len(first))
-    todo.sort(key=lambda task: first[_run_key(task)])
+    todo = _tasks_to_run(spec.tasks, finished_tasks(spec.tasks, store) if store is not None else set())
     failures: list[tuple[Task, str]] = []
 
     def record(task: Task, outcome: runner.Outcome) -> None:
@@ -116,12 +110,29 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     if out is not None:
         write_table(table, out, source=spec.text or spec.source)
     if failures:
-        position = {t.key: i for i, t in enumerate(spec.tasks)}
-        task, error = min(failures, key=lambda failure: position[failure[0].key])  # first in spec order
-        raise SweepError(f"{len(failures)} of {len(spec.tasks)} tasks failed (the others are kept; rerun to "
-                         f"retry); first: {task.estimator}({options_text(task.options)}) on {task.world}, "
-                         f"seed {task.seed}: {error}")
+        raise _sweep_error(spec.tasks, failures)
     return table
+
+
+def _tasks_to_run(tasks: tuple[Task, ...], done: set) -> list[Task]:
+    """The tasks not ``done``, those sharing a run one after the other (in the order their runs
+    first appear), so that the memoised run and reference are reused. O(tasks log tasks)."""
+    todo = [t for t in tasks if t.key not in done]
+    first: dict[tuple, int] = {}
+    for task in todo:
+        first.setdefault(_run_key(task), len(first))
+    todo.sort(key=lambda task: first[_run_key(task)])
+    return todo
+
+
+def _sweep_error(tasks: tuple[Task, ...], failures: list[tuple[Task, str]]) -> SweepError:
+    """The error of a sweep whose ``failures`` (task, message) are not empty: how many, and the
+    first in the spec's order, so that a rerun meets it first too."""
+    position = {t.key: i for i, t in enumerate(tasks)}
+    task, error = min(failures, key=lambda failure: position[failure[0].key])
+    return SweepError(f"{len(failures)} of {len(tasks)} tasks failed (the others are kept; rerun to "
+                      f"retry); first: {task.estimator}({options_text(task.options)}) on {task.world}, "
+                      f"seed {task.seed}: {error}")
 
 
 #: seconds a local cluster costs before it pays: start the processes, import onlinemap and load the
