@@ -25,7 +25,7 @@ import numpy as np
 from .. import state_checks as checks
 from ..checkpoint import state_class
 from ..errors import ModelError
-from ..kernels.rbpf import particle_maps, rbpf_commit, rbpf_commit_cells, rbpf_map_mixture, rbpf_refresh
+from ..kernels.rbpf import Pool, particle_maps, rbpf_map_mixture, rbpf_refresh
 from ..kernels.rbpf_parallel import rbpf_map_mixture_parallel
 from ..model import GridModel, change_powers
 
@@ -190,31 +190,11 @@ class BlockPool:
         """This pool with new row contents (R, B, K) (eager dynamics: ``rows @ C``). O(1)."""
         return dataclasses.replace(self, rows=rows)
 
-    def reads(self) -> tuple:
-        """(rows, stamps, table, cell_block, cell_slot, powers, stamped): the arguments the kernels
-        that read particle maps take (``rbpf_propose``, ``rbpf_enumerate``...), in their order."""
-        return self.rows, self.stamps, self.table, self.cell_block, self.cell_slot, self.powers, self.stamped
-
-    def writes(self) -> tuple:
-        """(rows, stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, stamped,
-        powers, REFRESH_STEPS): the arguments the kernels that write particle maps take
-        (``rbpf_commit``, ``rbpf_commit_children``...), in their order."""
-        return (self.rows, self.stamps, self.row_block, self.refcount, self.free, self.free_top, self.table,
-                self.cell_block, self.cell_slot, self.stamped, self.powers, REFRESH_STEPS)
-
-    def commit(self, locations: np.ndarray, t: int, ancestors: np.ndarray, new_locations: np.ndarray,
-               new_cells: np.ndarray, new_ids: np.ndarray | None = None) -> None:
-        """Write a step into this pool: particle p takes over ``ancestors[p]``'s table row (and
-        ``locations[p] = new_locations[p]``) and its new marginals ``new_cells`` (P, K) of the cell
-        it stands on (:func:`~onlinemap.kernels.rbpf.rbpf_commit`), or (P, W, K) of the cells
-        ``new_ids`` (P, W) (:func:`~onlinemap.kernels.rbpf.rbpf_commit_cells`), copying a shared
-        block before writing it; then :meth:`refresh`. Needs P W free rows (:meth:`reserved`).
-        O(P n_blocks) for the table rows of resampled particles plus O(P W B K) for the copies."""
-        if new_ids is None:
-            rbpf_commit(locations, *self.writes(), t, ancestors, new_locations, new_cells)
-        else:
-            rbpf_commit_cells(locations, *self.writes(), t, ancestors, new_locations, new_ids, new_cells)
-        self.refresh(t)
+    def arrays(self) -> Pool:
+        """The pool's arrays as the kernels take them (:class:`~onlinemap.kernels.rbpf.Pool`, with
+        ``max_age`` = :data:`REFRESH_STEPS`): views, not copies. O(1)."""
+        return Pool(self.rows, self.stamps, self.row_block, self.refcount, self.free, self.free_top, self.table,
+                    self.cell_block, self.cell_slot, self.block_members, self.powers, self.stamped, REFRESH_STEPS)
 
     def refresh(self, t: int) -> None:
         """Bring the next ``ceil(R / REFRESH_STEPS)`` rows up to date (the same values, stamped
@@ -223,7 +203,7 @@ class BlockPool:
         if not self.stamped:
             return
         count = -(-len(self.rows) // REFRESH_STEPS)
-        rbpf_refresh(self.rows, self.stamps, self.refcount, self.powers, t, self.refresh_cursor, count)
+        rbpf_refresh(self.arrays(), t, self.refresh_cursor, count)
         self.refresh_cursor = (self.refresh_cursor + count) % len(self.rows)
 
     def mixture(self, t: int, weights: np.ndarray, threads: int = 1) -> np.ndarray:
@@ -231,12 +211,10 @@ class BlockPool:
         (:func:`~onlinemap.kernels.rbpf_parallel.rbpf_map_mixture_parallel`, the same numbers).
         O(P n_blocks) plus one pass over the rows in use (K^2 flops per out-of-date slot)."""
         out = np.empty((len(self.cell_block), self.rows.shape[2]))
-        args = (self.rows, self.stamps, self.row_block, self.refcount, self.table, self.block_members, self.powers,
-                self.stamped, t, weights, out)
         if threads > 1:
-            rbpf_map_mixture_parallel(*args, threads)
+            rbpf_map_mixture_parallel(self.arrays(), t, weights, out, threads)
         else:
-            rbpf_map_mixture(*args)
+            rbpf_map_mixture(self.arrays(), t, weights, out)
         return out
 
     def particle_maps(self, t: int, which: np.ndarray | None = None) -> np.ndarray:
@@ -244,8 +222,7 @@ class BlockPool:
         them), a fresh array. O(M N K^2)."""
         which = np.arange(len(self.table)) if which is None else which
         out = np.empty((len(which), len(self.cell_block), self.rows.shape[2]))
-        particle_maps(self.rows, self.stamps, self.table, self.cell_block, self.cell_slot, self.powers,
-                      self.stamped, t, which, out)
+        particle_maps(self.arrays(), t, which, out)
         return out
 
     def check(self, n_particles: int, n_labels: int, t: int, name: str = "_blocks") -> None:

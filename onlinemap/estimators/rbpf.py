@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numba
@@ -61,13 +62,11 @@ from .. import state_checks as checks
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
-from ..kernels.rbpf import (in_place_ancestors, rbpf_commit_children, rbpf_commit_children_cells, rbpf_enumerate,
-                             rbpf_enumerate_cells, rbpf_keep_children, rbpf_pick_children, rbpf_place_children,
-                             rbpf_propose, rbpf_relocated_children, rbpf_relocation_weights)
 from ..kernels import rbpf_parallel
-from ..kernels.rbpf_parallel import (rbpf_commit_staged_parallel, rbpf_enumerate_cells_parallel,
-                                      rbpf_enumerate_parallel, rbpf_propose_parallel,
-                                      rbpf_stage_children_cells_parallel, rbpf_stage_children_parallel)
+from ..kernels.rbpf import in_place_ancestors
+from ..kernels.rbpf_commit import Slots, Staged, rbpf_keep_children, rbpf_pick_children
+from ..kernels.rbpf_enumerate import Children, Proposed
+from ..kernels.rbpf_recovery import rbpf_place_children, rbpf_relocated_children, rbpf_relocation_weights
 from ..resampling import RESAMPLERS, effective_sample_size, optimal_keep
 from ..rng import SeedLike, as_generator
 from ..model import GridModel
@@ -75,6 +74,7 @@ from ..validation import check_step
 from .base import register
 from ..checkpoint import state_node
 from .block_pool import FORMAT_1_ATTRIBUTES, REFRESH_STEPS, BlockPool, block_layout
+from .rbpf_kernels import KernelSet, kernel_set, observed, world_tables
 from .rbpf_move import (MoveCounts, PathHistory, map_rows_per_move, move_options, new_history_bytes,
                         path_rows_per_move)
 
@@ -157,11 +157,6 @@ def recovery_bytes(model: GridModel, n_particles: int) -> int:
     (:meth:`RaoBlackwellisedPF._recover`): the N P children's weights, the order the optimal
     resampling walks them and, at worst, its sort (32 N P). O(1)."""
     return 32 * model.n_cells * n_particles
-
-
-def reads_one_cell(model: GridModel) -> bool:
-    """The paper's motion and sensor: no blocking labels, the robot reads only its own cell."""
-    return not model.has_blocking and model.n_readings == 1 and not model.off_grid_patterns.any()
 
 
 def cells_written(model: GridModel) -> int:
@@ -296,7 +291,7 @@ class RaoBlackwellisedPF:
         resample_threshold = arguments.probability("resample_threshold", resample_threshold, error)
         seed = arguments.seed("seed", seed, error)
         lazy_dynamics = arguments.flag("lazy_dynamics", lazy_dynamics, error)
-        if not reads_one_cell(model) and not lazy_dynamics and not model.is_static:
+        if not model.is_paper_model and not lazy_dynamics and not model.is_static:
             raise error("lazy_dynamics=False (the eager reference) does not support blocking labels or a sensor "
                         "footprint")
         if block_cells is not None:
@@ -541,7 +536,7 @@ class RaoBlackwellisedPF:
         """:meth:`update` with a sampling scheme (``a``, ``z`` checked): resample if due, propose,
         weight, commit; when every draw missed, :meth:`_update_fearnhead_clifford` instead."""
         model = self.model
-        blocks = self._reserved(t)
+        blocks = self._step_pool(t, a)
         rng_state = self._rng.bit_generator.state
         n_particles = self.n_particles
         log_weights = self._log_weights
@@ -552,29 +547,9 @@ class RaoBlackwellisedPF:
             chosen = RESAMPLERS[self.resampling](self._weights, self._rng)
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
             log_weights = np.full(n_particles, -math.log(n_particles))
-        one_cell = reads_one_cell(model)
-        if a is not None and not model.is_static and not self.lazy_dynamics:
-            blocks = blocks.with_rows(blocks.rows @ model.change)  # eager: every cell of every block row, fresh array
-        neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
-        new_locations = np.empty(n_particles, dtype=np.int64)
-        log_increments = np.empty(n_particles)
-        new_ids = None
-        if one_cell:
-            new_cells = np.empty((n_particles, model.n_labels))
-            proposal = (self._locations, *blocks.reads(), t, ancestors, neighbors, model.p_move, model.likelihood[z],
-                        self.proposal == "optimal", self._rng.random(n_particles), new_locations, new_cells,
-                        log_increments)
-            if self._parallel:
-                rbpf_propose_parallel(*proposal, rbpf_parallel.CHUNK, self.threads)
-            else:
-                rbpf_propose(*proposal)
-        else:  # the same children Fearnhead-Clifford enumerates, one drawn per particle
-            m, children = self._enumerate_cells(blocks, t, neighbors, z, np.zeros(n_particles))
-            width = cells_written(model)
-            new_ids = np.empty((n_particles, width), dtype=np.int64)
-            new_cells = np.empty((n_particles, width, model.n_labels))
-            rbpf_pick_children(ancestors, *children, m, self.proposal == "optimal", self._rng.random(n_particles),
-                               new_locations, new_ids, new_cells, log_increments)
+        staged, log_increments = self._proposal(self._locations, blocks.arrays(), world_tables(model), t, ancestors,
+                                                self._neighbors(a), observed(model, z), self.proposal == "optimal",
+                                                self._rng.random(n_particles))
         log_weights = log_weights + log_increments
         increment = _logsumexp(log_weights)
         if increment == -math.inf:  # every draw missed: enumerate the particles' successors instead
@@ -584,8 +559,59 @@ class RaoBlackwellisedPF:
                         _describe(model, z))
             self._update_fearnhead_clifford(a, z, t)
             return
-        self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - increment, increment, resample,
-                     new_ids)
+        self._commit(t, blocks, ancestors, staged, log_weights - increment, increment, resample)
+
+    @property
+    def _kernels(self) -> KernelSet:
+        """The filter's kernel set (:func:`~onlinemap.estimators.rbpf_kernels.kernel_set`): fixed by
+        the model and the options (looked up, not stored: a checkpoint holds state, not code)."""
+        return kernel_set(self.model.is_paper_model, self.threads if self._parallel else 1)
+
+    @property
+    def _proposal(self) -> Callable:
+        """The sampling schemes' proposal for this filter's model (:func:`_propose_one_cell`, or
+        :meth:`_propose_by_enumeration` with blocking labels or a footprint)."""
+        return self._propose_one_cell if self.model.is_paper_model else self._propose_by_enumeration
+
+    def _propose_one_cell(self, locations, pool, world, t, ancestors, neighbors, likelihood, optimal,
+                          uniforms) -> tuple[Staged, np.ndarray]:
+        """(the slots' proposed writes, their log increments (P,)): the kernel set's ``propose``.
+        O(P K^2)."""
+        n_particles, k = self.n_particles, self.model.n_labels
+        proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, k)), np.empty(n_particles))
+        self._kernels.propose(locations, pool, world, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed)
+        staged = Staged(proposed.locations, proposed.locations.reshape(n_particles, 1),
+                        proposed.cells.reshape(n_particles, 1, k), None, None)
+        return staged, proposed.log_increments
+
+    def _propose_by_enumeration(self, locations, pool, world, t, ancestors, neighbors, readings, optimal,
+                                uniforms) -> tuple[Staged, np.ndarray]:
+        """:meth:`_propose_one_cell` with blocking labels or a footprint: the same children
+        Fearnhead-Clifford enumerates (every parent's log weight 0), one drawn per slot
+        (``rbpf_pick_children``). O(P F K^2)."""
+        model, n_particles = self.model, self.n_particles
+        size, width = 2 * n_particles, cells_written(model)
+        children = Children(np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size),
+                            np.empty(size), np.empty((size, width), dtype=np.int64),
+                            np.empty((size, width, model.n_labels)))
+        m = self._kernels.enumerate(locations, np.zeros(n_particles), pool, world, t, neighbors, readings, children)
+        proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, width, model.n_labels)),
+                            np.empty(n_particles))
+        new_ids = np.empty((n_particles, width), dtype=np.int64)
+        rbpf_pick_children(ancestors, children, m, optimal, uniforms, proposed, new_ids)
+        return Staged(proposed.locations, new_ids, proposed.cells, None, None), proposed.log_increments
+
+    def _step_pool(self, t: int, a: int | None) -> BlockPool:
+        """The pool step t writes into: :meth:`_reserved`, advanced by C in a dynamic world with
+        eager dynamics (every cell of every block row, a fresh array)."""
+        blocks = self._reserved(t)
+        if a is not None and not self.model.is_static and not self.lazy_dynamics:
+            blocks = blocks.with_rows(blocks.rows @ self.model.change)
+        return blocks
+
+    def _neighbors(self, a: int | None) -> np.ndarray:
+        """(N,) the cell action ``a`` points at from each cell (every cell itself at step 0)."""
+        return _no_moves(self.model.n_cells) if a is None else self.model.moves[a]
 
     def _reserved(self, t: int) -> BlockPool:
         """The pool with the free rows a step writes (:meth:`BlockPool.reserved`: this filter's, or a
@@ -621,23 +647,6 @@ class RaoBlackwellisedPF:
                     f"to continue, or use fewer particles")
         return pool.reserved(need)
 
-    def _enumerate_cells(self, blocks: BlockPool, t, neighbors, z, log_weights):
-        """(M, (parent, location, log weight, log motion, ids, cells)): :func:`rbpf_enumerate_cells`
-        on the current particles with ``log_weights``, the observation ``z`` an int or (F,)."""
-        model = self.model
-        size, width = 2 * self.n_particles, cells_written(model)
-        children = (np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size), np.empty(size),
-                    np.empty((size, width), dtype=np.int64), np.empty((size, width, model.n_labels)))
-        m = self._enumerate(rbpf_enumerate_cells, rbpf_enumerate_cells_parallel, self._locations, log_weights,
-                            *blocks.reads(), t, neighbors, *_motion_and_sensor(model, z), *children)
-        return m, children
-
-    def _enumerate(self, serial, parallel, *args) -> int:
-        """``serial(*args)``, or with threads its parallel driver (which returns the same)."""
-        if not self._parallel:
-            return serial(*args)
-        return parallel(*args, rbpf_parallel.CHUNK, self.threads)
-
     def _fc_buffers(self) -> _FCBuffers:
         """Views of the filter's scratch buffers for one Fearnhead-Clifford step (2P children, P
         slots); every step writes them before reading them. A sampling scheme owns none: it
@@ -645,67 +654,41 @@ class RaoBlackwellisedPF:
         ints, floats, p = self._scratch_ints, self._scratch_floats, self.n_particles
         if not len(ints):
             ints, floats = np.empty((5, 2 * p), dtype=np.int64), np.empty((3, 2 * p))
-        return _FCBuffers(ints[0], ints[1], floats[0], floats[1], ints[2], ints[3, :p], floats[2, :p], ints[3, p:],
-                          ints[4, :p], floats[2, p:])
+        width = cells_written(self.model)
+        children = Children(ints[0], ints[1], floats[0], np.empty(0), np.empty((0, width), dtype=np.int64),
+                            np.empty((0, width, self.model.n_labels)))  # no child's cells stored
+        return _FCBuffers(children, floats[1], ints[2], ints[3, :p], floats[2, :p],
+                          Slots(ints[3, p:], ints[4, :p], floats[2, p:]))
 
     def _update_fearnhead_clifford(self, a: int | None, z, t: int) -> None:
-        """Enumerate every live particle's successors with their exact weights
-        (:func:`rbpf_enumerate`; :func:`rbpf_enumerate_cells` with blocking labels or a sensor
-        footprint), keep P of them by optimal resampling
-        (:func:`~onlinemap.kernels.rbpf.rbpf_keep_children`: none twice, unbiased; its strata walk
-        the children ordered by location, which spreads the draws over the cells: measured 1.6-2x
-        closer to exact than index order) and write them into the slots, each kept child's changed
-        cells computed from its parent's map as the enumeration defines them
-        (:func:`rbpf_commit_children`). O(P K^2 + N) (O(P F K^2) with a footprint of F cells); the
+        """Enumerate every live particle's successors with their exact weights (the kernel set's
+        ``enumerate``), keep P of them by optimal resampling
+        (:func:`~onlinemap.kernels.rbpf_commit.rbpf_keep_children`: none twice, unbiased; its strata
+        walk the children ordered by location, which spreads the draws over the cells: measured
+        1.6-2x closer to exact than index order) and write them into the slots, each kept child's
+        changed cells computed from its parent's map as the enumeration defines them (the kernel
+        set's ``commit_children``). O(P K^2 + N) (O(P F K^2) with a footprint of F cells); the
         resampling is O(P). Works in the filter's scratch buffers: no per-step allocation of size P."""
-        model = self.model
-        n_particles = self.n_particles
-        blocks = self._reserved(t)
-        if a is not None and not model.is_static and not self.lazy_dynamics:
-            blocks = blocks.with_rows(blocks.rows @ model.change)
-        neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
-        one_cell = reads_one_cell(model)
-        parallel = self._parallel
+        model, kernels = self.model, self._kernels
+        blocks = self._step_pool(t, a)
+        pool, world, neighbors, observation = blocks.arrays(), world_tables(model), self._neighbors(a), observed(model, z)
         buffers = self._fc_buffers()
-        children = (buffers.child_parent, buffers.child_location, buffers.child_log_weight)
-        if one_cell:
-            m = self._enumerate(rbpf_enumerate, rbpf_enumerate_parallel, self._locations, self._log_weights,
-                                *blocks.reads(), t, neighbors, model.p_move, model.likelihood[z], *children)
-        else:
-            m = self._enumerate(rbpf_enumerate_cells, rbpf_enumerate_cells_parallel, self._locations, self._log_weights,
-                                *blocks.reads(), t, neighbors, *_motion_and_sensor(model, z), *children,
-                                *_no_child_cells(model))
+        children, slots = buffers.children, buffers.slots
+        m = kernels.enumerate(self._locations, self._log_weights, pool, world, t, neighbors, observation, children)
         if m == 0:  # depletion
             self._recover(a, z, t, blocks)
             return
         weights = buffers.child_weight[:m]
-        increment = _logsumexp(buffers.child_log_weight[:m], weights)
-        np.exp(np.subtract(buffers.child_log_weight[:m], increment, out=weights), out=weights)
-        threshold = rbpf_keep_children(buffers.child_parent, buffers.child_location, weights, model.n_cells,
-                                       self._rng.random(), buffers.order, buffers.kept, buffers.kept_weights,
-                                       buffers.ancestors, buffers.slot_child, buffers.log_weights)
-        if parallel:  # stage every kept child's writes, then commit them (rbpf_parallel: the same state)
-            staged = self._staged_buffers()
-            if one_cell:
-                rbpf_stage_children_parallel(*blocks.reads(), t, buffers.ancestors, buffers.slot_child,
-                                             buffers.child_location, model.likelihood[z], *staged[:3],
-                                             rbpf_parallel.CHUNK, self.threads)
-            else:
-                rbpf_stage_children_cells_parallel(self._locations, *blocks.reads(), t, buffers.ancestors,
-                                                   buffers.slot_child, buffers.child_location, neighbors,
-                                                   *_motion_and_sensor(model, z), *staged[:3], rbpf_parallel.CHUNK,
-                                                   self.threads)
-            rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, buffers.ancestors, *staged,
-                                        rbpf_parallel.CHUNK, self.threads)
-        elif one_cell:
-            rbpf_commit_children(self._locations, *blocks.writes(), t, buffers.ancestors, buffers.slot_child,
-                                 buffers.child_location, model.likelihood[z])
-        else:
-            rbpf_commit_children_cells(self._locations, *blocks.writes(), t, buffers.ancestors, buffers.slot_child,
-                                       buffers.child_location, neighbors, *_motion_and_sensor(model, z))
+        increment = _logsumexp(children.log_weight[:m], weights)
+        np.exp(np.subtract(children.log_weight[:m], increment, out=weights), out=weights)
+        threshold = rbpf_keep_children(children, weights, model.n_cells, self._rng.random(), buffers.order,
+                                       buffers.kept, buffers.kept_weights, slots)
+        kernels.commit_children(self._locations, pool, world, t, slots, children.location, neighbors, observation,
+                                self._staged_buffers())
         blocks.refresh(t)
-        self._advance(t, blocks, buffers.ancestors, buffers.log_weights,
-                      _logsumexp(buffers.log_weights, buffers.kept_weights), increment, threshold > 0)
+        self._advance(t, blocks, slots.ancestors, slots.log_weights, _logsumexp(slots.log_weights,
+                                                                                buffers.kept_weights),
+                      increment, threshold > 0)
 
     def _recover(self, a: int | None, z, t: int, blocks: BlockPool) -> None:
         """The step when no particle explains ``z`` (depletion): the exact limit of the augmented
@@ -734,9 +717,9 @@ class RaoBlackwellisedPF:
         prior = np.array(model.label_prior if model.is_static else  # a writable copy: one kernel compile
                          model.label_prior @ np.linalg.matrix_power(model.change, t), order="C")
         child_log_weight = np.empty((model.n_cells, n_particles))
-        fewest = rbpf_relocation_weights(
-            self._locations, self._log_weights, *blocks.reads(), t, model.moves, RELOCATION_SCALE, model.blocking,
-            model.footprint_cells, model.sensor, readings, prior, child_log_weight)
+        pool, world = blocks.arrays(), world_tables(model)
+        fewest = rbpf_relocation_weights(self._locations, self._log_weights, pool, world, t, RELOCATION_SCALE, readings,
+                                         prior, child_log_weight)
         if fewest < 0:
             raise ImpossibleObservationError(_impossible(model, z, t, n_particles))
         weights = child_log_weight.ravel()  # children ordered by location, then parent
@@ -748,8 +731,7 @@ class RaoBlackwellisedPF:
         child_location, child_parent = np.divmod(kept, n_particles)
         child_ids = np.empty((len(kept), width), dtype=np.int64)
         child_cells = np.empty((len(kept), width, model.n_labels))
-        rbpf_relocated_children(child_parent, child_location, *blocks.reads(), t, model.blocking, model.footprint_cells,
-                                model.sensor, readings, prior, child_ids, child_cells)
+        rbpf_relocated_children(child_parent, child_location, pool, world, t, readings, prior, child_ids, child_cells)
         parents = int(np.count_nonzero(self._weights))
         self._commit_children(t, blocks, (child_parent, child_location, child_ids, child_cells), np.arange(len(kept)),
                               kept_weights, increment, threshold > 0, recovered=True)
@@ -793,33 +775,30 @@ class RaoBlackwellisedPF:
         new_cells = np.empty((n_particles, width, model.n_labels))
         log_weights = np.empty(n_particles)
         rbpf_place_children(*children, kept, kept_weights, ancestors, new_locations, new_ids, new_cells, log_weights)
-        self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights), increment,
-                     resampled, new_ids, recovered)
+        self._commit(t, blocks, ancestors, Staged(new_locations, new_ids, new_cells, None, None),
+                     log_weights - _logsumexp(log_weights), increment, resampled, recovered)
 
-    def _staged_buffers(self) -> tuple:
-        """(new_locations (P,), new_ids (P, W), new_cells (P, W, K), target (P, W), source (P, W)):
-        views of the scratch buffers of the parallel commit (threads > 1)."""
+    def _staged_buffers(self) -> Staged | None:
+        """The threads' staging of a step's writes (:class:`~onlinemap.kernels.rbpf_commit.Staged`:
+        views of the filter's scratch buffers, P slots of W cells), None without threads."""
         p, width = self.n_particles, cells_written(self.model)
         ints = self._scratch_staged_ints
+        if not len(ints):
+            return None
         new_ids, target, source = (ints[i * p * width:(i + 1) * p * width].reshape(p, width) for i in range(3))
-        return ints[3 * p * width:], new_ids, self._scratch_staged_cells, target, source
+        return Staged(ints[3 * p * width:], new_ids, self._scratch_staged_cells, target, source)
 
-    def _commit(self, t, blocks: BlockPool, ancestors, new_locations, new_cells, log_weights, increment, resampled,
-                new_ids=None, recovered: bool = False) -> None:
+    def _commit(self, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, increment, resampled,
+                recovered: bool = False) -> None:
         """Write a validated step whose changed cells are given (the sampling schemes; a recovery's
-        children, :meth:`_commit_children`): the particles' slots and maps into ``blocks``
-        (:meth:`BlockPool.commit`; with threads, :func:`rbpf_commit_staged_parallel`), then
-        :meth:`_advance`; ``recovered``: the step recovered from depletion."""
-        if self._parallel:
-            n_particles = self.n_particles
-            ids = new_locations.reshape(n_particles, 1) if new_ids is None else new_ids
-            cells = new_cells.reshape(n_particles, ids.shape[1], self.model.n_labels)
-            _, _, _, target, source = self._staged_buffers()
-            rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, ancestors, new_locations, ids, cells,
-                                        target, source, rbpf_parallel.CHUNK, self.threads)
-            blocks.refresh(t)
-        else:
-            blocks.commit(self._locations, t, ancestors, new_locations, new_cells, new_ids)
+        children, :meth:`_commit_children`): the particles' slots and maps into ``blocks`` (the
+        kernel set's ``commit``; with threads, planned in the staging buffers' ``target`` and
+        ``source``), then :meth:`_advance`; ``recovered``: the step recovered from depletion."""
+        plan = self._staged_buffers()
+        if plan is not None:
+            staged = staged._replace(target=plan.target, source=plan.source)
+        self._kernels.commit(self._locations, blocks.arrays(), t, ancestors, staged)
+        blocks.refresh(t)
         self._advance(t, blocks, ancestors, log_weights, 0.0, increment, resampled, recovered)
 
     def _advance(self, t, blocks: BlockPool, ancestors, log_weights, normaliser, increment, resampled,
@@ -845,18 +824,15 @@ class RaoBlackwellisedPF:
 
 class _FCBuffers(NamedTuple):
     """One Fearnhead-Clifford step's working arrays (views of the filter's scratch buffers): the
-    children (2P,) and the slots (P,)."""
+    children (2P), their weights (2P,), the order their strata walk, the kept children and their
+    weights (P,), and the slots (P,)."""
 
-    child_parent: np.ndarray
-    child_location: np.ndarray
-    child_log_weight: np.ndarray
+    children: Children
     child_weight: np.ndarray
     order: np.ndarray
     kept: np.ndarray
     kept_weights: np.ndarray
-    ancestors: np.ndarray
-    slot_child: np.ndarray
-    log_weights: np.ndarray
+    slots: Slots
 
 
 def _thread_count(threads) -> int:
@@ -869,19 +845,6 @@ def _thread_count(threads) -> int:
     return arguments.integer(f"threads (at most NUMBA_NUM_THREADS={most}: the cores numba counts, or that "
                              "environment variable set before numba starts)", threads, minimum=1, maximum=most,
                              error=InvalidOptionError)
-
-
-def _motion_and_sensor(model: GridModel, z) -> tuple:
-    """(p_move, blocking, change, footprint_cells, sensor, readings (F,)): the arguments of the
-    kernels for blocking labels and footprints, in their order."""
-    return (model.p_move, model.blocking, model.change, model.footprint_cells, model.sensor,
-            np.atleast_1d(np.asarray(z, dtype=np.int64)))
-
-
-def _no_child_cells(model: GridModel) -> tuple:
-    """Empty (log motion, ids, cells) for :func:`rbpf_enumerate_cells`: store no child's cells."""
-    width = cells_written(model)
-    return np.empty(0), np.empty((0, width), dtype=np.int64), np.empty((0, width, model.n_labels))
 
 
 def _no_particle_explains(model: GridModel, z, t: int, n_particles: int) -> str:
