@@ -40,31 +40,51 @@ class BlockLayout(NamedTuple):
     members: np.ndarray  # (n_blocks, B) cells of each block, -1 for padding
 
 
-def block_layout(model: GridModel, block_cells: int | None = None) -> BlockLayout:
-    """Runs of ``block_cells`` consecutive cells in a corridor; square tiles of side
+def block_shape(model: GridModel, block_cells: int | None = None) -> tuple[int, int]:
+    """(B, n_blocks): the cells per block and the number of blocks of :func:`block_layout`, without
+    building it. Runs of ``block_cells`` consecutive cells in a corridor; square tiles of side
     ``floor(sqrt(block_cells))`` in a 2D grid (a robot crosses a tile's edge less often than a
     row's). Default ``block_cells`` about ``sqrt(N / K)``, which balances the copy of one block
     (B K floats, on a write into a shared block) against the table row of a particle (N / B
-    indices, on resampling)."""
+    indices, on resampling). Raises :class:`~onlinemap.errors.ModelError` for a ``block_cells``
+    that is not a positive integer. O(1)."""
     n = model.n_cells
     if block_cells is None:
         block_cells = max(1, round(math.sqrt(n / model.n_labels)))
     if isinstance(block_cells, bool) or int(block_cells) != block_cells or block_cells < 1:
         raise ModelError(f"block_cells must be a positive integer, got {block_cells!r}")
-    cells = np.arange(n)
     if model.rows == 1:
         size = min(int(block_cells), n)
+        return size, -(-n // size)
+    side = max(1, math.isqrt(int(block_cells)))
+    return side * side, -(-model.rows // side) * -(-model.cols // side)
+
+
+def block_layout(model: GridModel, block_cells: int | None = None) -> BlockLayout:
+    """Which block and slot each cell takes: blocks of :func:`block_shape`. O(N)."""
+    size, _ = block_shape(model, block_cells)
+    cells = np.arange(model.n_cells)
+    if model.rows == 1:
         cell_block, cell_slot = np.divmod(cells, size)
     else:
-        side = max(1, math.isqrt(int(block_cells)))
+        side = math.isqrt(size)
         row, col = np.divmod(cells, model.cols)
         tiles_across = -(-model.cols // side)
         cell_block = (row // side) * tiles_across + col // side
         cell_slot = (row % side) * side + col % side
-        size = side * side
     members = np.full((int(cell_block.max()) + 1, size), -1, dtype=np.int64)
     members[cell_block, cell_slot] = cells
     return BlockLayout(cell_block, cell_slot, members)
+
+
+def pool_bytes(model: GridModel, n_particles: int, block_size: int, n_blocks: int, rows: int, stamped: bool) -> int:
+    """Bytes of a :class:`BlockPool` of ``rows`` block rows of ``block_size`` cells (allocates
+    nothing): the rows, their stamps when ``stamped``, row_block / refcount / free, the particle
+    table (P n_blocks) and the powers of C. O(1)."""
+    k = model.n_labels
+    row_bytes = 8 * (block_size * k + (block_size if stamped else 0) + 3)
+    powers = 8 * k * k * (4 * REFRESH_STEPS + 1 if stamped else 1)
+    return rows * row_bytes + 8 * n_particles * n_blocks + powers
 
 
 def grown(array: np.ndarray, rows: int) -> np.ndarray:

@@ -34,14 +34,14 @@ in a dynamic world). :meth:`RaoBlackwellisedPF.update` advances without building
 the ``belief`` property builds it on first access (then caches it), and :meth:`step` is
 ``update`` followed by ``belief``. Memory: the block rows in use (at most ``8 P N (K + 1)``
 bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of C, and the
-step's buffers, which the filter owns (:func:`state_bytes`; measured 580-710 bytes per particle
+step's buffers, which the filter owns (:func:`~onlinemap.estimators.rbpf_memory.state_bytes`; measured 580-710 bytes per particle
 on the 10 x 10 door world, 2.8 KB on 64 x 64); the guard ``max_bytes`` checks it when the filter
 starts and whenever the pool grows. Measured (``onlinemap bench rbpf``, rows ``per particle``):
 an update 0.26-0.35 us of CPU per particle at 10^4-10^5 particles on the 10 x 10 door world, the
 belief 0.07. With ``threads`` the drivers of :mod:`onlinemap.kernels.rbpf_parallel` run the same
 kernels on runs of particles at once (the same results). A step that recovers from particle
 depletion (see the class docstring) weighs N P children instead: O(P N F K^2) time and at most
-32 P N bytes more (:func:`recovery_bytes`, which the guard checks before they are taken). With the
+32 P N bytes more (:func:`~onlinemap.estimators.rbpf_memory.recovery_bytes`, which the guard checks before they are taken). With the
 resample-move option (class docstring) a move of every particle costs O(P W S (F K + 1)) every
 ``move_every`` steps (S the cells a window's step can take) and the path history up to 2 P t
 bytes (:mod:`onlinemap.estimators.rbpf_move`).
@@ -61,27 +61,26 @@ from .. import arguments
 from .. import state_checks as checks
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
-from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
+from ..checkpoint import state_node
+from ..errors import ImpossibleObservationError, InvalidOptionError, ModelError
 from ..kernels import rbpf_parallel
 from ..kernels.rbpf import in_place_ancestors
 from ..kernels.rbpf_commit import Slots, Staged, rbpf_keep_children, rbpf_pick_children
 from ..kernels.rbpf_enumerate import Children, Proposed
-from ..kernels.rbpf_recovery import rbpf_place_children, rbpf_relocated_children, rbpf_relocation_weights
-from ..resampling import RESAMPLERS, effective_sample_size, optimal_keep
-from ..rng import SeedLike, as_generator
 from ..model import GridModel
+from ..resampling import RESAMPLERS, effective_sample_size
+from ..rng import SeedLike, as_generator
 from ..validation import check_step
 from .base import register
-from ..checkpoint import state_node
-from .block_pool import FORMAT_1_ATTRIBUTES, REFRESH_STEPS, BlockPool, block_layout
+from .block_pool import FORMAT_1_ATTRIBUTES, BlockPool, block_layout
 from .rbpf_kernels import KernelSet, kernel_set, observed, world_tables
-from .rbpf_move import (MoveCounts, PathHistory, map_rows_per_move, move_options, new_history_bytes,
-                        path_rows_per_move)
+from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start
+from .rbpf_move import MoveCounts, PathHistory, map_rows_per_move, move_options, path_rows_per_move
+from .rbpf_recovery import RELOCATION_SCALE, describe, impossible, logsumexp, no_particle_explains, relocate
 
 logger = logging.getLogger(__name__)
 
 PROPOSALS = ("optimal", "transition")
-RELOCATION_SCALE = 3.0  # cells: the length scale of the recovery's relocation kernel exp(-d / scale)
 FEARNHEAD_CLIFFORD = "fearnhead_clifford"
 RESAMPLING = (*RESAMPLERS, FEARNHEAD_CLIFFORD)
 #: the filter's named schemes (the options that make each), which studies, benchmarks and figures
@@ -92,77 +91,6 @@ SCHEMES: dict[str, dict[str, str]] = {
     "optimal+residual": {"proposal": "optimal", "resampling": "residual"},
     "transition+residual": {"proposal": "transition", "resampling": "residual"},
 }
-
-
-def _logsumexp(x: np.ndarray, scratch: np.ndarray | None = None) -> float:
-    """``log sum exp(x)`` (-inf if every entry is); ``scratch`` (len(x),), if given, holds the
-    terms instead of a fresh array."""
-    top = float(np.max(x))
-    if top == -math.inf:
-        return -math.inf
-    terms = np.subtract(x, top, out=scratch)
-    return top + math.log(float(np.exp(terms, out=terms).sum()))
-
-
-def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = None, lazy_dynamics: bool = True,
-               threads: int = 1) -> int:
-    """Worst-case peak memory of the filter, in bytes (exact Python ints; allocates nothing): every
-    particle owning every one of its map blocks, the block pool grown by doubling to hold them
-    plus the rows a step writes (old and new pool alive together while it grows), a fresh copy
-    of the pool for eager dynamics, the table, the powers of C and a step's buffers
-    (:func:`state_bytes`), and the N P children of a step that recovers from depletion
-    (:func:`recovery_bytes`). Particles share most blocks (measured: 1.2-5 rows per particle,
-    against ``n_blocks`` here), so runs stay far below it; the filter's guard (``max_bytes``)
-    checks the memory it actually takes instead, when it starts, whenever its pool grows and
-    before a recovery."""
-    size, n_blocks = _block_shape(model, block_cells)
-    rows = n_blocks + 2 * n_particles
-    while rows - cells_written(model) * n_particles < n_blocks * n_particles:  # doubled until every particle
-        rows *= 2  # can own every block, with the rows a step writes to spare
-    return (state_bytes(model, n_particles, size, n_blocks, rows, rows // 2, lazy_dynamics, threads)
-            + recovery_bytes(model, n_particles))
-
-
-def state_bytes(model: GridModel, n_particles: int, block_size: int, n_blocks: int, rows: int, old_rows: int = 0,
-                lazy_dynamics: bool = True, threads: int = 1) -> int:
-    """Bytes of the filter with a pool of ``rows`` block rows of ``block_size`` cells (``old_rows``
-    more while a smaller pool is copied into it): the pool (rows, stamps in a dynamic world,
-    row_block / refcount / free), a fresh copy of the rows for eager dynamics, the particle table
-    (P n_blocks), the powers of C, and a step's buffers (children, weights, the parallel commit's
-    staging, the belief). O(1)."""
-    n, k, p = model.n_cells, model.n_labels, n_particles
-    stamped = lazy_dynamics and not model.is_static
-    row_bytes = 8 * (block_size * k + (block_size if stamped else 0) + 3)
-    eager = 0 if lazy_dynamics or model.is_static else rows * block_size * k * 8
-    powers = 8 * k * k * (4 * REFRESH_STEPS + 1 if stamped else 1)
-    width = cells_written(model)
-    per_step = 8 * p * (width * (k + 1) * 3 + k + 8) + 8 * n * k + 8 * rows  # children, weights, belief, row weights
-    staged = 8 * p * (3 * width + 1 + width * k) if threads > 1 else 0
-    return (rows + old_rows) * row_bytes + eager + 8 * p * n_blocks + powers + per_step + staged
-
-
-def _block_shape(model: GridModel, block_cells: int | None) -> tuple[int, int]:
-    """(cells per block, number of blocks) of :func:`block_layout`, without building it."""
-    n = model.n_cells
-    block_cells = block_cells or max(1, round(math.sqrt(n / model.n_labels)))  # block_layout's default
-    if model.rows == 1:
-        size = min(block_cells, n)
-        return size, -(-n // size)
-    side = max(1, math.isqrt(block_cells))
-    return side * side, -(-model.rows // side) * -(-model.cols // side)
-
-
-def recovery_bytes(model: GridModel, n_particles: int) -> int:
-    """Bytes a step that recovers from depletion takes on top of the filter's
-    (:meth:`RaoBlackwellisedPF._recover`): the N P children's weights, the order the optimal
-    resampling walks them and, at worst, its sort (32 N P). O(1)."""
-    return 32 * model.n_cells * n_particles
-
-
-def cells_written(model: GridModel) -> int:
-    """W, the most cells one particle's map changes in a step: the F read cells, plus the intended
-    cell of a move with blocking labels (its success or failure tells about it)."""
-    return model.n_readings + int(model.has_blocking)
 
 
 @register("rbpf")
@@ -186,12 +114,12 @@ class RaoBlackwellisedPF:
     ``seed`` (int, None or Generator);
     ``lazy_dynamics`` (False applies C to every cell of every particle every step: O(P N K^2),
     the reference the lazy scheme is tested against); ``block_cells`` B, the cells per shared
-    map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes``, the guard on
-    the filter's memory (:func:`state_bytes`), checked when it starts and whenever the pool of map
+    map block (see :func:`~onlinemap.estimators.block_pool.block_shape`; default about sqrt(N / K)); ``max_bytes``, the guard on
+    the filter's memory (:func:`~onlinemap.estimators.rbpf_memory.state_bytes`), checked when it starts and whenever the pool of map
     blocks must grow (particles share fewer blocks as their trajectories part): a step that would
     take the filter beyond it raises :class:`~onlinemap.errors.MemoryLimitError` and leaves the
     filter as it was; raise ``est.max_bytes`` to continue. Its worst case, every particle owning
-    every block, is :func:`peak_bytes`.
+    every block, is :func:`~onlinemap.estimators.rbpf_memory.peak_bytes`.
 
     **Recovery from depletion.** When no particle explains an observation the model allows (every
     trajectory that did was dropped; in a blocking world with a footprint, the off-grid readings
@@ -223,7 +151,7 @@ class RaoBlackwellisedPF:
     :class:`ImpossibleObservationError`, the state unchanged. Steps that do not deplete run exactly
     as before recovery existed (same numbers, same random draws). A recovery costs O(P N U K^2)
     time (U <= F + 1 the cells a child touches) and at most 32 P N bytes more
-    (:func:`recovery_bytes`; the guard ``max_bytes`` checks them before they are taken:
+    (:func:`~onlinemap.estimators.rbpf_memory.recovery_bytes`; the guard ``max_bytes`` checks them before they are taken:
     :class:`~onlinemap.errors.MemoryLimitError`, the filter unchanged). Its children carry their
     own cells (relocated, some reset), which the commit writes as given (with threads, in
     parallel: the same results). Setting the attribute
@@ -299,18 +227,7 @@ class RaoBlackwellisedPF:
         max_bytes = arguments.byte_limit("max_bytes", max_bytes, error)
         threads = _thread_count(threads)
         move_window, move_every, move_lag = move_options(model, move_window, move_every, move_lag)
-        n, k = model.n_cells, model.n_labels
-        size, n_blocks = _block_shape(model, block_cells)
-        need = state_bytes(model, n_particles, size, n_blocks, n_blocks + 2 * n_particles, 0, lazy_dynamics, threads)
-        need += 0 if move_window is None else new_history_bytes(model, n_particles)
-        if need > max_bytes:
-            raise MemoryLimitError(
-                f"rbpf with {n_particles} particles on N={n} cells, K={k} labels needs {need / 1e9:.3g} GB to start "
-                f"(its pool of map blocks, the particle table, a step's buffers"
-                f"{'' if move_window is None else ', the path history of move_window'}) but the limit is "
-                f"{max_bytes / 1e9:.3g} GB; pass max_bytes=... to raise it (a run may need up to "
-                f"{peak_bytes(model, n_particles, block_cells, lazy_dynamics, threads) / 1e9:.3g} GB, if every "
-                f"particle came to own every map block)")
+        check_start(Sizing(model, n_particles, lazy_dynamics, threads, max_bytes), block_cells, move_window)
         layout = block_layout(model, block_cells)
         self.model = model
         self.n_particles = n_particles
@@ -335,7 +252,7 @@ class RaoBlackwellisedPF:
         staged = n_particles if threads > 1 else 0  # the parallel commit's staging
         width = cells_written(model)
         self._scratch_staged_ints = np.zeros(staged * (3 * width + 1), dtype=np.int64)
-        self._scratch_staged_cells = np.zeros((staged, width, k))
+        self._scratch_staged_cells = np.zeros((staged, width, model.n_labels))
         self._log_evidence = 0.0
         self._ess = float(n_particles)
         self._resampled = False
@@ -551,12 +468,12 @@ class RaoBlackwellisedPF:
                                                 self._neighbors(a), observed(model, z), self.proposal == "optimal",
                                                 self._rng.random(n_particles))
         log_weights = log_weights + log_increments
-        increment = _logsumexp(log_weights)
+        increment = logsumexp(log_weights)
         if increment == -math.inf:  # every draw missed: enumerate the particles' successors instead
             self._rng.bit_generator.state = rng_state
             logger.info("rbpf step %d: every particle's proposal has probability zero for observation %s; the "
                         "step enumerates the particles' successors instead (as Fearnhead-Clifford does)", t,
-                        _describe(model, z))
+                        describe(model, z))
             self._update_fearnhead_clifford(a, z, t)
             return
         self._commit(t, blocks, ancestors, staged, log_weights - increment, increment, resample)
@@ -624,27 +541,14 @@ class RaoBlackwellisedPF:
         needs, never beyond that). O(1)."""
         pool, model, p = self._blocks, self.model, self.n_particles
         need = cells_written(model) * p
-        extra, history_bytes, history_grows = 0, 0, False
+        extra, history_bytes, history_grows = 0, None, False
         if self._history is not None:
             window = self.move_window
             moving = self._history.move_due(t, window, self.move_every, self.move_lag, exact=False)
             extra = p * map_rows_per_move(model, window, pool.table.shape[1]) if moving else 0
             history_bytes, history_grows = self._history.bytes_to_hold(
                 t, p * (1 + (path_rows_per_move(window) if moving else 0)))
-        rows, have = pool.rows_to_hold(need + extra), len(pool.rows)
-        if rows > have or history_grows:
-            n_blocks, size = pool.block_members.shape
-            total = history_bytes + state_bytes(model, p, size, n_blocks, rows, have if rows > have else 0,
-                                                self.lazy_dynamics, self.threads)
-            if total > self.max_bytes:
-                paths = "" if self._history is None else (f", the path history of move_window "
-                                                          f"{history_bytes / 1e9:.3g} GB")
-                raise MemoryLimitError(
-                    f"step {t}: the particles' maps use {np.count_nonzero(pool.refcount)} block rows (particles "
-                    f"share fewer blocks as their trajectories part: {p} x {n_blocks} if they shared none) and the "
-                    f"step needs the pool grown from {have} to {rows} rows{paths}, {total / 1e9:.3g} GB in all, "
-                    f"over max_bytes = {self.max_bytes / 1e9:.3g} GB. The filter is unchanged: raise est.max_bytes "
-                    f"to continue, or use fewer particles")
+        check_growth(self._sizing, pool, t, pool.rows_to_hold(need + extra), history_bytes, history_grows)
         return pool.reserved(need)
 
     def _fc_buffers(self) -> _FCBuffers:
@@ -679,104 +583,53 @@ class RaoBlackwellisedPF:
             self._recover(a, z, t, blocks)
             return
         weights = buffers.child_weight[:m]
-        increment = _logsumexp(children.log_weight[:m], weights)
+        increment = logsumexp(children.log_weight[:m], weights)
         np.exp(np.subtract(children.log_weight[:m], increment, out=weights), out=weights)
         threshold = rbpf_keep_children(children, weights, model.n_cells, self._rng.random(), buffers.order,
                                        buffers.kept, buffers.kept_weights, slots)
         kernels.commit_children(self._locations, pool, world, t, slots, children.location, neighbors, observation,
                                 self._staged_buffers())
         blocks.refresh(t)
-        self._advance(t, blocks, slots.ancestors, slots.log_weights, _logsumexp(slots.log_weights,
+        self._advance(t, blocks, slots.ancestors, slots.log_weights, logsumexp(slots.log_weights,
                                                                                 buffers.kept_weights),
                       increment, threshold > 0)
 
     def _recover(self, a: int | None, z, t: int, blocks: BlockPool) -> None:
         """The step when no particle explains ``z`` (depletion): the exact limit of the augmented
-        model of the class docstring from the particles before the step. Every live particle p and
-        cell l make a child weighted ``w_p K(l | l_p) P(z, l passable | l, map_p)``, with the fewest
-        read cells reset to their model marginal ``label_prior C^t`` that make it possible
-        (:func:`~onlinemap.kernels.rbpf.rbpf_relocation_weights`); P of them are kept by optimal
-        resampling (the strata walk them by location, as Fearnhead-Clifford's do) with one uniform,
-        their maps built (:func:`~onlinemap.kernels.rbpf.rbpf_relocated_children`) and committed
-        with those cells (:meth:`_commit_children`: a relocated child's cells do not follow from its
-        parent's map at its location, as Fearnhead-Clifford's children's do).
-        Raises :class:`ImpossibleObservationError`, changing nothing, at step 0 (no motion, no
+        model of the class docstring from the particles before the step
+        (:func:`~onlinemap.estimators.rbpf_recovery.relocate`), committed with the cells its
+        children carry (:meth:`_commit`: a relocated child's cells do not follow from its parent's
+        map at its location, as Fearnhead-Clifford's children's do). Raises
+        :class:`ImpossibleObservationError`, changing nothing, at step 0 (no motion, no
         relocation), when no child is possible, or when ``recover_from_depletion`` is False; and
-        :class:`~onlinemap.errors.MemoryLimitError`, changing nothing, when the recovery's
-        :func:`recovery_bytes` would take the filter beyond ``max_bytes``. ``blocks``: the step's
-        pool (reserved for P W writes; advanced by C with eager dynamics). Cost O(P N U K^2 +
-        min(P, N) N A) time, U <= W the cells a child touches, A the actions; at most 32 P N bytes."""
-        model = self.model
-        n_particles = self.n_particles
+        :class:`~onlinemap.errors.MemoryLimitError`, changing nothing, when the recovery's bytes
+        would take the filter beyond ``max_bytes``
+        (:func:`~onlinemap.estimators.rbpf_memory.check_recovery`). ``blocks``: the step's pool
+        (reserved for P W writes; advanced by C with eager dynamics)."""
+        model, n_particles = self.model, self.n_particles
         if not self.recover_from_depletion:
-            raise ImpossibleObservationError(_no_particle_explains(model, z, t, n_particles))
+            raise ImpossibleObservationError(no_particle_explains(model, z, t, n_particles))
         if a is None:
-            raise ImpossibleObservationError(_impossible(model, z, t, n_particles))
-        self._check_recovery_memory(t, blocks)
-        readings = np.atleast_1d(np.asarray(z, dtype=np.int64))
-        prior = np.array(model.label_prior if model.is_static else  # a writable copy: one kernel compile
-                         model.label_prior @ np.linalg.matrix_power(model.change, t), order="C")
-        child_log_weight = np.empty((model.n_cells, n_particles))
-        pool, world = blocks.arrays(), world_tables(model)
-        fewest = rbpf_relocation_weights(self._locations, self._log_weights, pool, world, t, RELOCATION_SCALE, readings,
-                                         prior, child_log_weight)
-        if fewest < 0:
-            raise ImpossibleObservationError(_impossible(model, z, t, n_particles))
-        weights = child_log_weight.ravel()  # children ordered by location, then parent
-        increment = _logsumexp(weights)
-        weights -= increment
-        np.exp(weights, out=weights)  # in place: N P floats are the recovery's largest array
-        kept, kept_weights, threshold = optimal_keep(weights, n_particles, self._rng.random(), np.arange(len(weights)))
-        width = cells_written(model)
-        child_location, child_parent = np.divmod(kept, n_particles)
-        child_ids = np.empty((len(kept), width), dtype=np.int64)
-        child_cells = np.empty((len(kept), width, model.n_labels))
-        rbpf_relocated_children(child_parent, child_location, pool, world, t, readings, prior, child_ids, child_cells)
+            raise ImpossibleObservationError(impossible(model, z, t, n_particles))
+        check_recovery(self._sizing, t, blocks, len(self._blocks.rows),
+                       0 if self._history is None else self._history.nbytes)
+        relocation = relocate(model, blocks.arrays(), self._locations, self._log_weights, t, z, self._rng)
+        if relocation is None:
+            raise ImpossibleObservationError(impossible(model, z, t, n_particles))
         parents = int(np.count_nonzero(self._weights))
-        self._commit_children(t, blocks, (child_parent, child_location, child_ids, child_cells), np.arange(len(kept)),
-                              kept_weights, increment, threshold > 0, recovered=True)
+        self._commit(t, blocks, relocation.ancestors, relocation.staged, relocation.log_weights, relocation.increment,
+                     relocation.resampled, recovered=True)
         self._recoveries += 1
         logger.warning("rbpf step %d: no particle explains observation %s (particle depletion); recovered by "
                        "relocating the %d live particles near their last cells (kernel exp(-d / %g), d in moves)%s; "
-                       "%d children kept (recovery %d of this filter)", t, _describe(model, z), parents,
-                       RELOCATION_SCALE, f" and resetting {fewest} read cell(s) to their prior" if fewest else "",
-                       len(kept), self._recoveries)
+                       "%d children kept (recovery %d of this filter)", t, describe(model, z), parents,
+                       RELOCATION_SCALE, f" and resetting {relocation.resets} read cell(s) to their prior"
+                       if relocation.resets else "", relocation.kept, self._recoveries)
 
-    def _check_recovery_memory(self, t: int, blocks: BlockPool) -> None:
-        """Raise :class:`~onlinemap.errors.MemoryLimitError` (nothing changed) when the filter, with
-        the step's pool ``blocks`` (and this filter's own while the step grew it), plus a
-        recovery's :func:`recovery_bytes` would exceed ``max_bytes``. O(1)."""
-        model, p = self.model, self.n_particles
-        n_blocks, size = blocks.block_members.shape
-        rows, have = len(blocks.rows), len(self._blocks.rows)
-        held = state_bytes(model, p, size, n_blocks, rows, have if rows != have else 0, self.lazy_dynamics,
-                           self.threads) + (0 if self._history is None else self._history.nbytes)
-        extra = recovery_bytes(model, p)
-        if held + extra > self.max_bytes:
-            raise MemoryLimitError(
-                f"step {t}: no particle explains the observation (particle depletion), and recovering weighs "
-                f"N P = {model.n_cells * p} children, {extra / 1e9:.3g} GB on top of the filter's {held / 1e9:.3g} "
-                f"GB, over max_bytes = {self.max_bytes / 1e9:.3g} GB. The filter is unchanged: raise "
-                f"est.max_bytes to continue, or use fewer particles")
-
-    def _commit_children(self, t, blocks: BlockPool, children, kept, kept_weights, increment, resampled,
-                         recovered: bool) -> None:
-        """Put the ``kept`` children (indices into ``children`` = (parent, location, ids (M, W),
-        cells (M, W, K)), with ``kept_weights``) into the P slots (:func:`rbpf_place_children`)
-        and :meth:`_commit` them with the cells they carry: the commit of children whose changed
-        cells are given rather than recomputed from the parent's map at the child's location (a
-        recovery's relocated children and reset cells; Fearnhead-Clifford's own children go
-        through :func:`rbpf_commit_children`). O(P W K)."""
-        model, n_particles = self.model, self.n_particles
-        width = cells_written(model)
-        ancestors = np.empty(n_particles, dtype=np.int64)
-        new_locations = np.empty(n_particles, dtype=np.int64)
-        new_ids = np.empty((n_particles, width), dtype=np.int64)
-        new_cells = np.empty((n_particles, width, model.n_labels))
-        log_weights = np.empty(n_particles)
-        rbpf_place_children(*children, kept, kept_weights, ancestors, new_locations, new_ids, new_cells, log_weights)
-        self._commit(t, blocks, ancestors, Staged(new_locations, new_ids, new_cells, None, None),
-                     log_weights - _logsumexp(log_weights), increment, resampled, recovered)
+    @property
+    def _sizing(self) -> Sizing:
+        """What the memory guard needs of this filter (:mod:`~onlinemap.estimators.rbpf_memory`)."""
+        return Sizing(self.model, self.n_particles, self.lazy_dynamics, self.threads, self.max_bytes)
 
     def _staged_buffers(self) -> Staged | None:
         """The threads' staging of a step's writes (:class:`~onlinemap.kernels.rbpf_commit.Staged`:
@@ -791,7 +644,7 @@ class RaoBlackwellisedPF:
     def _commit(self, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, increment, resampled,
                 recovered: bool = False) -> None:
         """Write a validated step whose changed cells are given (the sampling schemes; a recovery's
-        children, :meth:`_commit_children`): the particles' slots and maps into ``blocks`` (the
+        children, :func:`~onlinemap.estimators.rbpf_recovery.relocate`): the particles' slots and maps into ``blocks`` (the
         kernel set's ``commit``; with threads, planned in the staging buffers' ``target`` and
         ``source``), then :meth:`_advance`; ``recovered``: the step recovered from depletion."""
         plan = self._staged_buffers()
@@ -845,30 +698,6 @@ def _thread_count(threads) -> int:
     return arguments.integer(f"threads (at most NUMBA_NUM_THREADS={most}: the cores numba counts, or that "
                              "environment variable set before numba starts)", threads, minimum=1, maximum=most,
                              error=InvalidOptionError)
-
-
-def _no_particle_explains(model: GridModel, z, t: int, n_particles: int) -> str:
-    """The message of a depleted step with recovery off: the filter cannot tell an observation
-    impossible under the model from one only its lost trajectories explained."""
-    return (f"observation {_describe(model, z)} has probability zero for every one of the {n_particles} "
-            f"particles at step {t}: either it is impossible under the model given the past, or the particles "
-            f"have lost every trajectory that explains it (particle depletion; recover_from_depletion is False). "
-            f"The filter is unchanged")
-
-
-def _impossible(model: GridModel, z, t: int, n_particles: int) -> str:
-    """The message of an observation nothing explains, even relocated (see _recover)."""
-    where = ("at the start cell (step 0: no motion yet)" if t == 0 else
-             "and no cell the robot could be relocated to explains it with labels the model allows at that step")
-    return (f"observation {_describe(model, z)} has probability zero for every one of the {n_particles} "
-            f"particles at step {t}, {where}: it is impossible under the model. The filter is unchanged")
-
-
-def _describe(model: GridModel, z) -> str:
-    """An observation for an error message: a label name, or the readings of a footprint."""
-    if np.ndim(z) == 0 and 0 <= int(z) < model.n_labels:
-        return repr(model.label_names[int(z)])
-    return str([model.label_names[int(r)] if r >= 0 else -1 for r in np.atleast_1d(z)])
 
 
 def _no_moves(n: int) -> np.ndarray:
