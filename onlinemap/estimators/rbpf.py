@@ -4,79 +4,65 @@ Each of P particles holds one trajectory of the robot and the exact map marginal
 Given a trajectory the cells are independent (each is a hidden Markov chain with transition C,
 observed through O only at the steps the robot read it), so a particle's map is N marginals of
 K labels: only the read cells change by the sensor (and, with blocking labels, the cell a move
-tried to enter); all cells drift by C, which is applied lazily (``C^dt`` for the ``dt`` steps
-since the cell was last brought up to date, when it is next read). A dynamic world therefore
-costs the same per step as a static one.
+tried to enter); all cells drift by C, applied lazily (``C^dt`` for the ``dt`` steps since the
+cell was last brought up to date, when it is next read), so a dynamic world costs the same per
+step as a static one. The trajectories are chosen by Fearnhead-Clifford's enumeration (the
+default) or sampled from a proposal (the class docstring).
 
-Two ways to choose the trajectories: by default (Fearnhead and Clifford 2003) every step
-enumerates each particle's successors with their exact weights and keeps P of them by optimal
-resampling (:func:`onlinemap.resampling.optimal_resampling`), none twice; or each particle
-samples one successor from a proposal and the population is resampled when the effective
-sample size drops (residual, systematic, stratified or multinomial).
-
-State (plain attributes): locations (P,), normalised log weights (P,), the particles' map
-marginals as shared copy-on-write blocks of B cells (``_blocks``, a
-:class:`~onlinemap.estimators.block_pool.BlockPool`: a pool of (B, K) block rows with
-reference counts, a (P, N / B) table of row indices, stamps per cell for lazy dynamics and the
-powers of C, with its invariants), a ``numpy.random.Generator``. To keep the table of powers
-bounded however long the run, each step also refreshes a few block rows in turn (brings them up
-to date: the same values), so that no stamp is more than ``REFRESH_STEPS`` old:
-O(R_used B K^2 / REFRESH_STEPS) per step.
+State (plain attributes): locations (P,), normalised log weights (P,), the particles' maps as
+shared copy-on-write blocks of B cells (``_blocks``, a
+:class:`~onlinemap.estimators.block_pool.BlockPool`, with its invariants), a
+``numpy.random.Generator``. Each step also refreshes a few block rows in turn (the same values,
+brought up to date), so that no stamp is more than ``REFRESH_STEPS`` old and the table of powers
+of C stays bounded: O(R_used B K^2 / REFRESH_STEPS) per step. The kernels a filter runs are
+chosen once by its model and threads (:mod:`onlinemap.estimators.rbpf_kernels`).
 
 Cost per step: O(P K^2) for the proposal and weighting (a particle reads its cell and the
 intended neighbour; O(P F K^2) for a footprint of F cells) plus O(P B K) at most for
 copy-on-write of shared blocks (O(P W B K), W = F + 1 cells written); a resampling step adds
-O(P_dropped N / B) (table rows copied, not maps). Fearnhead-Clifford resamples every step (its
-2P children to P, O(P) plus O(N) to order them by location). ``belief.location`` is O(P + N);
-``belief.map`` (the weighted mixture) is O(P N / B) plus one pass over the block rows in use
-(at most P N K floats, far fewer while particles share blocks; K^2 flops per out-of-date cell
-in a dynamic world). :meth:`RaoBlackwellisedPF.update` advances without building the belief;
-the ``belief`` property builds it on first access (then caches it), and :meth:`step` is
-``update`` followed by ``belief``. Memory: the block rows in use (at most ``8 P N (K + 1)``
-bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of C, and the
-step's buffers, which the filter owns (:func:`~onlinemap.estimators.rbpf_memory.state_bytes`; measured 580-710 bytes per particle
-on the 10 x 10 door world, 2.8 KB on 64 x 64); the guard ``max_bytes`` checks it when the filter
-starts and whenever the pool grows. Measured (``onlinemap bench rbpf``, rows ``per particle``):
-an update 0.26-0.35 us of CPU per particle at 10^4-10^5 particles on the 10 x 10 door world, the
-belief 0.07. With ``threads`` the drivers of :mod:`onlinemap.kernels.rbpf_parallel` run the same
-kernels on runs of particles at once (the same results). A step that recovers from particle
-depletion (see the class docstring) weighs N P children instead: O(P N F K^2) time and at most
-32 P N bytes more (:func:`~onlinemap.estimators.rbpf_memory.recovery_bytes`, which the guard checks before they are taken). With the
-resample-move option (class docstring) a move of every particle costs O(P W S (F K + 1)) every
-``move_every`` steps (S the cells a window's step can take) and the path history up to 2 P t
-bytes (:mod:`onlinemap.estimators.rbpf_move`).
+O(P_dropped N / B) (table rows copied, not maps); Fearnhead-Clifford adds O(P + N) to keep P of
+its 2P children. ``belief.location`` is O(P + N); ``belief.map`` (the weighted mixture) is
+O(P N / B) plus one pass over the block rows in use (K^2 flops per out-of-date cell in a dynamic
+world), built on first access of ``belief`` (:meth:`RaoBlackwellisedPF.update` does not build
+it). Memory: the block rows in use (at most ``8 P N (K + 1)`` bytes), ``8 P N / B`` for the
+table, ``32 K^2 REFRESH_STEPS`` for the powers of C and the step's buffers
+(:mod:`onlinemap.estimators.rbpf_memory`, the guard ``max_bytes``). Measured (``onlinemap bench
+rbpf``, rows ``per particle``): an update 0.26-0.35 us of CPU per particle at 10^4-10^5 particles
+on the 10 x 10 door world, the belief 0.07. With ``threads`` the drivers of
+:mod:`onlinemap.kernels.rbpf_parallel` run the same kernels on runs of particles at once (the
+same results). A recovery from depletion weighs N P children
+(:mod:`onlinemap.estimators.rbpf_recovery`); resample-move costs O(P W S (F K + 1)) every
+``move_every`` steps and a path history of up to 2 P t bytes (:mod:`onlinemap.estimators.rbpf_move`).
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
 from typing import NamedTuple
 
 import numba
 import numpy as np
 
 from .. import arguments
-from .. import state_checks as checks
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
-from ..checkpoint import state_node
 from ..errors import ImpossibleObservationError, InvalidOptionError, ModelError
 from ..kernels import rbpf_parallel
 from ..kernels.rbpf import in_place_ancestors
-from ..kernels.rbpf_commit import Slots, Staged, rbpf_keep_children, rbpf_pick_children
-from ..kernels.rbpf_enumerate import Children, Proposed
+from ..kernels.rbpf_commit import Slots, Staged, rbpf_keep_children
+from ..kernels.rbpf_enumerate import Children
 from ..model import GridModel
 from ..resampling import RESAMPLERS, effective_sample_size
 from ..rng import SeedLike, as_generator
 from ..validation import check_step
 from .base import register
-from .block_pool import FORMAT_1_ATTRIBUTES, BlockPool, block_layout
+from .block_pool import BlockPool, block_layout
 from .rbpf_kernels import KernelSet, kernel_set, observed, world_tables
 from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start
 from .rbpf_move import MoveCounts, PathHistory, map_rows_per_move, move_options, path_rows_per_move
 from .rbpf_recovery import RELOCATION_SCALE, describe, impossible, logsumexp, no_particle_explains, relocate
+from .rbpf_state import check_state, upgrade_attributes
 
 logger = logging.getLogger(__name__)
 
@@ -114,71 +100,43 @@ class RaoBlackwellisedPF:
     ``seed`` (int, None or Generator);
     ``lazy_dynamics`` (False applies C to every cell of every particle every step: O(P N K^2),
     the reference the lazy scheme is tested against); ``block_cells`` B, the cells per shared
-    map block (see :func:`~onlinemap.estimators.block_pool.block_shape`; default about sqrt(N / K)); ``max_bytes``, the guard on
-    the filter's memory (:func:`~onlinemap.estimators.rbpf_memory.state_bytes`), checked when it starts and whenever the pool of map
-    blocks must grow (particles share fewer blocks as their trajectories part): a step that would
-    take the filter beyond it raises :class:`~onlinemap.errors.MemoryLimitError` and leaves the
-    filter as it was; raise ``est.max_bytes`` to continue. Its worst case, every particle owning
-    every block, is :func:`~onlinemap.estimators.rbpf_memory.peak_bytes`.
+    map block (:func:`~onlinemap.estimators.block_pool.block_shape`; default about sqrt(N / K));
+    ``max_bytes``, the guard on the filter's memory (:mod:`onlinemap.estimators.rbpf_memory`),
+    checked when it starts, whenever the pool of map blocks must grow (particles share fewer
+    blocks as their trajectories part) and before a recovery: a step that would take the filter
+    beyond it raises :class:`~onlinemap.errors.MemoryLimitError` and leaves the filter as it was;
+    raise ``est.max_bytes`` to continue.
 
-    **Recovery from depletion.** When no particle explains an observation the model allows (every
-    trajectory that did was dropped; in a blocking world with a footprint, the off-grid readings
-    -1 rule particles out exactly), the step does not raise. A sampling step whose draws all miss
-    first enumerates the particles' successors as Fearnhead-Clifford does (the same children, so
-    the model's own posterior given the particles); when those all have weight zero too (with
+    **Recovery from depletion.** When no particle explains an observation the model allows, the
+    step does not raise. A sampling step whose draws all miss first enumerates the particles'
+    successors as Fearnhead-Clifford does; when those all have weight zero too (with
     Fearnhead-Clifford, when its enumeration is empty) the filter *recovers*: it takes the exact
-    limit of an augmented model. In it the robot, with probability eps, is lifted and put down on
-    a passable cell l drawn from ``K(l | l') = exp(-d(l, l') / s) / Z(l')`` instead of following
-    T (d the fewest moves from its last cell l', labels ignored; ``s = RELOCATION_SCALE`` = 3
-    cells; Z sums over the cells reachable from l'); and, after such a relocation only, each cell
-    it then reads is, with probability delta, redrawn from its model marginal ``label_prior C^t``.
-    Given the particle set (weights w_p, cells l_p, maps m_p) the posterior is ``(1 - eps) R + eps
-    sum_r delta^r S_r`` (up to factors ``1 - delta`` that tend to 1):
-    R the regular children, S_r the relocated ones with r read cells redrawn. R = 0 here, so as
-    eps, delta -> 0 it tends to S_r for the smallest r with S_r > 0: children (p, l) weighted
-    ``w_p K(l | l_p) P(z, m_l passable | l, m_p)`` where each read cell keeps m_p's marginal
-    unless that marginal rules out its reading (then it takes the model marginal: r such cells).
-    P of these children (N P at most) are kept by optimal resampling, as Fearnhead-Clifford keeps
-    its children. The recovered belief is thus the filter's best account of the data given that
-    the robot was somewhere other than its particles say: it approximates ``P(L_t, M_t | data)``
-    under the augmented model, with the particles before the step standing in for the past; it is
-    not the model's posterior (which the lost trajectories carried). ``log_evidence`` adds the log
-    of the children's total weight, the evidence given the relocation (the vanishing ``log eps``
-    left out). The step's belief has ``recovered=True``, :attr:`recoveries` counts such steps
-    (checkpointed), and a warning on the logger ``onlinemap.estimators.rbpf`` names the step and
-    what was done. Only an observation nothing explains even so (step 0, where there is no motion;
-    or no cell of the grid, with labels the model allows at step t, sees it) raises
-    :class:`ImpossibleObservationError`, the state unchanged. Steps that do not deplete run exactly
-    as before recovery existed (same numbers, same random draws). A recovery costs O(P N U K^2)
-    time (U <= F + 1 the cells a child touches) and at most 32 P N bytes more
-    (:func:`~onlinemap.estimators.rbpf_memory.recovery_bytes`; the guard ``max_bytes`` checks them before they are taken:
-    :class:`~onlinemap.errors.MemoryLimitError`, the filter unchanged). Its children carry their
-    own cells (relocated, some reset), which the commit writes as given (with threads, in
-    parallel: the same results). Setting the attribute
-    ``recover_from_depletion = False`` (checkpointed with the state) makes a depleted step raise
-    :class:`ImpossibleObservationError` instead, the state unchanged, as before recovery existed:
-    for hypothetical steps (a planner enumerating observations gives those the particles rule out
-    probability zero) or to stop a run rather than relocate.
+    limit of a model in which the robot may be lifted and put down near its last cell, and a cell
+    it then reads redrawn from its model marginal (:mod:`onlinemap.estimators.rbpf_recovery`, the
+    math and the cost; ``RELOCATION_SCALE`` = 3 cells). The step's belief has ``recovered=True``,
+    :attr:`recoveries` counts such steps (checkpointed), and a warning on the logger
+    ``onlinemap.estimators.rbpf`` names the step and what was done. Only an observation nothing
+    explains even so (step 0, where there is no motion; or no cell of the grid, with labels the
+    model allows at step t, sees it) raises :class:`ImpossibleObservationError`, the state
+    unchanged. Steps that do not deplete take the same numbers and random draws as a filter
+    without recovery. Setting the attribute ``recover_from_depletion = False`` (checkpointed with
+    the state) makes a depleted step raise :class:`ImpossibleObservationError` instead, the state
+    unchanged: for hypothetical steps (a planner enumerating observations gives those the
+    particles rule out probability zero) or to stop a run rather than relocate.
 
     **Resample-move** (``move_window``, ``move_every``, ``move_lag``; off by default, Gilks and
     Berzuini 2001; the math in :mod:`onlinemap.estimators.rbpf_move`). With ``move_window`` = W
     (1 to 1000), every ``move_every`` steps (default 10, the best measured), after the step's update, each live
-    particle redraws W consecutive past locations ``x_{s+1..s+W}``, s drawn uniformly so that the
-    window ends at least ``move_lag`` steps back (default 100; 0 lets it end at t), by a
-    Metropolis-Hastings move whose invariant law is the posterior over paths (proposal: forward
-    filtering, backward sampling of the window given its two ends and the particle's map with
-    the window's readings divided out; acceptance: the revisits inside the window). Weights,
-    the evidence and the streaming contract are unchanged (``step`` returns the belief at t);
-    each particle's map becomes the exact map given its new path. Moves wait until the filter
-    is no longer exact (Fearnhead-Clifford has dropped a child; the sampling schemes move from
-    the start), so with room for every child (P >= 2^T) the filter is exact Bayes, bit for bit
-    the filter without moves. It needs a static world, no blocking labels and a sensor without
-    zero entries (the readings are divided out of the maps): ``move_window`` is refused
-    otherwise (:class:`~onlinemap.errors.InvalidOptionError` naming the reason). After a
-    recovery from depletion windows start at or after the step that recovered. The filter keeps
-    every particle's path (shared copy-on-write blocks of steps) and every step's action and
-    readings: up to 2 P t bytes more, counted by ``max_bytes``. :attr:`moves` counts the
-    windows proposed and accepted (checkpointed). What it buys: on the paper's world replay at
+    particle redraws W consecutive past locations, the window ending at least ``move_lag`` steps
+    back (default 100; 0 lets it end at t), by a Metropolis-Hastings move whose invariant law is
+    the posterior over paths. Weights, the evidence and the streaming contract are unchanged
+    (``step`` returns the belief at t). Moves wait until the filter is not exact
+    (Fearnhead-Clifford has dropped a child), so with room for every child (P >= 2^T) the filter
+    is bit for bit the filter without moves. It needs a static world, no blocking labels and a
+    sensor without zero entries: ``move_window`` is refused otherwise
+    (:class:`~onlinemap.errors.InvalidOptionError` naming the reason). The filter keeps every
+    particle's path and every step's action and readings: up to 2 P t bytes more, counted by
+    ``max_bytes``. :attr:`moves` counts the windows proposed and accepted (checkpointed). What it buys: on the paper's world replay at
     1,000 particles (W = 20, every 5) the final map error falls from 0.26 to about 0.20 for 3.2x
     the time per step (the README's RBPF section).
 
@@ -208,14 +166,7 @@ class RaoBlackwellisedPF:
                  move_every: int = 10, move_lag: int = 100):
         error = InvalidOptionError
         n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
-        proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
-        if resampling is None:
-            resampling = FEARNHEAD_CLIFFORD if proposal == "optimal" else "residual"
-        resampling = arguments.choice("resampling", resampling, RESAMPLING, error)
-        if resampling == FEARNHEAD_CLIFFORD and proposal != "optimal":
-            raise error(f"proposal={proposal!r} samples one successor per particle; resampling="
-                        f"'{FEARNHEAD_CLIFFORD}' enumerates them all (the optimal proposal's weights): pass "
-                        f"resampling='residual' (or another sampling scheme) to use it")
+        proposal, resampling = _scheme(proposal, resampling)
         resample_threshold = arguments.probability("resample_threshold", resample_threshold, error)
         seed = arguments.seed("seed", seed, error)
         lazy_dynamics = arguments.flag("lazy_dynamics", lazy_dynamics, error)
@@ -262,64 +213,10 @@ class RaoBlackwellisedPF:
         self._t = -1
         self._belief: Belief | None = None
 
-    @staticmethod
-    def upgrade_attributes(attributes: dict, version: int) -> dict:
-        """A checkpoint's encoded attributes of format ``version`` as the current format has them:
-        version 1 kept the block pool as 13 loose attributes (``_pool``, ``_table``...), gathered
-        here into ``_blocks`` (the checks on load then validate it as any other); versions 1 and 2
-        had no recovery from depletion (a filter that never recovered, with recovery on:
-        ``_recoveries`` 0, ``_recovered`` False, ``recover_from_depletion`` True); versions 1 to 3
-        had no resample-move step (``_history`` None: its option ``move_window`` takes its
-        default, None, on load). O(1)."""
-        if version == 1 and all(name in attributes for name in FORMAT_1_ATTRIBUTES):
-            fields = {field: attributes.pop(name) for name, field in FORMAT_1_ATTRIBUTES.items()}
-            attributes["_blocks"] = state_node(BlockPool, fields)
-        if version <= 2:
-            attributes.setdefault("recover_from_depletion", True)
-            attributes.setdefault("_recoveries", 0)
-            attributes.setdefault("_recovered", False)
-        if version <= 3:
-            attributes.setdefault("_history", None)
-            attributes.setdefault("move_window", None)
-            attributes.setdefault("move_every", 10)
-            attributes.setdefault("move_lag", 100)
-        return attributes
-
-    @staticmethod
-    def check_state(state) -> None:
-        """The invariants of a restored state (:mod:`onlinemap.state_checks`): the particles, their
-        weights and the copy-on-write block pool (:meth:`BlockPool.check
-        <onlinemap.estimators.block_pool.BlockPool.check>`)."""
-        model = state.model
-        n, k, p = model.n_cells, model.n_labels, state.n_particles
-        t = checks.step_index(state)
-        checks.indices("_locations", checks.array(state, "_locations", (p,), np.int64, written=True), n)
-        log_weights = checks.array(state, "_log_weights", (p,), np.float64)
-        if np.any(np.isnan(log_weights)) or np.any(log_weights == math.inf) or not np.any(np.isfinite(log_weights)):
-            checks.fail("_log_weights", "must be finite or -inf, at least one finite")
-        top = float(log_weights.max())
-        if abs(top + math.log(float(np.exp(log_weights - top).sum()))) > checks.ATOL:
-            checks.fail("_log_weights", "must be normalised (log-sum-exp 0)")
-        weights = checks.array(state, "_weights", (p,), np.float64)
-        if weights.tobytes() != np.exp(log_weights).tobytes():
-            checks.fail("_weights", "must equal exp(_log_weights)")
-        checks.real(state, "_ess", low=0.0, high=float(p))
-        checks.log_evidence(state)
-        if type(state._resampled) is not bool:
-            checks.fail("_resampled", "must be a bool")
-        if type(state.recover_from_depletion) is not bool:
-            checks.fail("recover_from_depletion", "must be a bool")
-        checks.integer(state, "_recoveries", 0, max(t, 0))  # at most one per step, none at step 0
-        if type(state._recovered) is not bool or (state._recovered and (t < 1 or state._recoveries < 1)):
-            checks.fail("_recovered", "must be a bool, True only after a step >= 1 that counted a recovery")
-        state._blocks.check(p, k, t)  # the copy-on-write pool (estimators/block_pool.py); its kind was checked
-        moving = state.move_window is not None  # CONSTANT_STATE: what the options give
-        if moving != isinstance(state._history, PathHistory):
-            checks.fail("_history", f"must be {'a PathHistory' if moving else 'None'} with move_window="
-                                    f"{state.move_window!r}")
-        if moving:
-            state._history.check(model, state._locations, t)  # estimators/rbpf_move.py
-        checks.belief(state, required=False)
+    #: a checkpoint's attributes of an older format as the current one has them, and the
+    #: invariants of a restored state (:mod:`onlinemap.estimators.rbpf_state`)
+    upgrade_attributes = staticmethod(upgrade_attributes)
+    check_state = staticmethod(check_state)
 
     @property
     def threads(self) -> int:
@@ -464,9 +361,9 @@ class RaoBlackwellisedPF:
             chosen = RESAMPLERS[self.resampling](self._weights, self._rng)
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
             log_weights = np.full(n_particles, -math.log(n_particles))
-        staged, log_increments = self._proposal(self._locations, blocks.arrays(), world_tables(model), t, ancestors,
-                                                self._neighbors(a), observed(model, z), self.proposal == "optimal",
-                                                self._rng.random(n_particles))
+        staged, log_increments = self._kernels.propose(self._locations, blocks.arrays(), world_tables(model), t,
+                                                       ancestors, self._neighbors(a), observed(model, z),
+                                                       self.proposal == "optimal", self._rng.random(n_particles))
         log_weights = log_weights + log_increments
         increment = logsumexp(log_weights)
         if increment == -math.inf:  # every draw missed: enumerate the particles' successors instead
@@ -483,40 +380,6 @@ class RaoBlackwellisedPF:
         """The filter's kernel set (:func:`~onlinemap.estimators.rbpf_kernels.kernel_set`): fixed by
         the model and the options (looked up, not stored: a checkpoint holds state, not code)."""
         return kernel_set(self.model.is_paper_model, self.threads if self._parallel else 1)
-
-    @property
-    def _proposal(self) -> Callable:
-        """The sampling schemes' proposal for this filter's model (:func:`_propose_one_cell`, or
-        :meth:`_propose_by_enumeration` with blocking labels or a footprint)."""
-        return self._propose_one_cell if self.model.is_paper_model else self._propose_by_enumeration
-
-    def _propose_one_cell(self, locations, pool, world, t, ancestors, neighbors, likelihood, optimal,
-                          uniforms) -> tuple[Staged, np.ndarray]:
-        """(the slots' proposed writes, their log increments (P,)): the kernel set's ``propose``.
-        O(P K^2)."""
-        n_particles, k = self.n_particles, self.model.n_labels
-        proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, k)), np.empty(n_particles))
-        self._kernels.propose(locations, pool, world, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed)
-        staged = Staged(proposed.locations, proposed.locations.reshape(n_particles, 1),
-                        proposed.cells.reshape(n_particles, 1, k), None, None)
-        return staged, proposed.log_increments
-
-    def _propose_by_enumeration(self, locations, pool, world, t, ancestors, neighbors, readings, optimal,
-                                uniforms) -> tuple[Staged, np.ndarray]:
-        """:meth:`_propose_one_cell` with blocking labels or a footprint: the same children
-        Fearnhead-Clifford enumerates (every parent's log weight 0), one drawn per slot
-        (``rbpf_pick_children``). O(P F K^2)."""
-        model, n_particles = self.model, self.n_particles
-        size, width = 2 * n_particles, cells_written(model)
-        children = Children(np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size),
-                            np.empty(size), np.empty((size, width), dtype=np.int64),
-                            np.empty((size, width, model.n_labels)))
-        m = self._kernels.enumerate(locations, np.zeros(n_particles), pool, world, t, neighbors, readings, children)
-        proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, width, model.n_labels)),
-                            np.empty(n_particles))
-        new_ids = np.empty((n_particles, width), dtype=np.int64)
-        rbpf_pick_children(ancestors, children, m, optimal, uniforms, proposed, new_ids)
-        return Staged(proposed.locations, new_ids, proposed.cells, None, None), proposed.log_increments
 
     def _step_pool(self, t: int, a: int | None) -> BlockPool:
         """The pool step t writes into: :meth:`_reserved`, advanced by C in a dynamic world with
@@ -686,6 +549,22 @@ class _FCBuffers(NamedTuple):
     kept: np.ndarray
     kept_weights: np.ndarray
     slots: Slots
+
+
+def _scheme(proposal, resampling) -> tuple[str, str]:
+    """The options ``proposal`` and ``resampling``, checked (:class:`InvalidOptionError` naming
+    them), ``resampling`` None resolved: Fearnhead-Clifford for the optimal proposal, residual
+    for the transition one."""
+    error = InvalidOptionError
+    proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
+    if resampling is None:
+        resampling = FEARNHEAD_CLIFFORD if proposal == "optimal" else "residual"
+    resampling = arguments.choice("resampling", resampling, RESAMPLING, error)
+    if resampling == FEARNHEAD_CLIFFORD and proposal != "optimal":
+        raise error(f"proposal={proposal!r} samples one successor per particle; resampling="
+                    f"'{FEARNHEAD_CLIFFORD}' enumerates them all (the optimal proposal's weights): pass "
+                    f"resampling='residual' (or another sampling scheme) to use it")
+    return proposal, resampling
 
 
 def _thread_count(threads) -> int:

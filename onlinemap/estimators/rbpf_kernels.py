@@ -23,8 +23,9 @@ import numpy as np
 
 from ..kernels import rbpf_parallel
 from ..kernels.rbpf import World
-from ..kernels.rbpf_commit import Staged, rbpf_commit_cells, rbpf_commit_children, rbpf_commit_children_cells
-from ..kernels.rbpf_enumerate import rbpf_enumerate, rbpf_enumerate_cells, rbpf_propose
+from ..kernels.rbpf_commit import (Staged, rbpf_commit_cells, rbpf_commit_children, rbpf_commit_children_cells,
+                                   rbpf_pick_children)
+from ..kernels.rbpf_enumerate import Children, Proposed, rbpf_enumerate, rbpf_enumerate_cells, rbpf_propose
 from ..model import GridModel
 
 _WORLDS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -57,8 +58,10 @@ class KernelSet:
       staged)``: Fearnhead-Clifford's kept children written (``staged``: the threads' staging);
     - ``commit(locations, pool, t, ancestors, staged)``: slots taken over, then the given cells
       ``staged.ids`` / ``staged.cells`` written (the sampling schemes, a recovery's children);
-    - ``propose(locations, pool, world, t, ancestors, neighbors, likelihood, optimal, uniforms,
-      proposed)``: the sampling schemes' proposal in the paper's model (``rbpf_propose``);
+    - ``propose(locations, pool, world, t, ancestors, neighbors, observed, optimal, uniforms) ->
+      (staged, log_increments)``: the sampling schemes' proposal, one successor per slot
+      (``rbpf_propose``; with blocking labels or a footprint, one of the enumerated children,
+      ``rbpf_pick_children``), its writes and log increments (P,);
     - ``threads``: the threads they run on (1: serial)."""
 
     enumerate: Callable[..., int]
@@ -73,14 +76,48 @@ def kernel_set(paper: bool, threads: int) -> KernelSet:
     """The kernel set of a filter of the paper's model (``paper``) or not, on ``threads`` threads
     (1: the serial kernels). Built once per pair."""
     if threads == 1:
-        return KernelSet(rbpf_enumerate if paper else rbpf_enumerate_cells,
-                         _commit_children_one_cell if paper else _commit_children_cells, _commit, rbpf_propose, 1)
-    enumerate_ = rbpf_parallel.rbpf_enumerate_parallel if paper else rbpf_parallel.rbpf_enumerate_cells_parallel
+        enumerate_ = rbpf_enumerate if paper else rbpf_enumerate_cells
+        propose = functools.partial(_propose_one_cell, rbpf_propose) if paper else \
+            functools.partial(_propose_by_enumeration, enumerate_)
+        return KernelSet(enumerate_, _commit_children_one_cell if paper else _commit_children_cells, _commit,
+                         propose, 1)
+    enumerate_ = functools.partial(_in_chunks, rbpf_parallel.rbpf_enumerate_parallel if paper else
+                                   rbpf_parallel.rbpf_enumerate_cells_parallel, threads)
     stage = _stage_one_cell if paper else rbpf_parallel.rbpf_stage_children_cells_parallel
-    return KernelSet(functools.partial(_in_chunks, enumerate_, threads),
-                     functools.partial(_commit_children_in_threads, stage, threads),
-                     functools.partial(_commit_in_threads, threads),
-                     functools.partial(_in_chunks, rbpf_parallel.rbpf_propose_parallel, threads), threads)
+    propose = functools.partial(_propose_one_cell, functools.partial(
+        _in_chunks, rbpf_parallel.rbpf_propose_parallel, threads)) if paper else \
+        functools.partial(_propose_by_enumeration, enumerate_)
+    return KernelSet(enumerate_, functools.partial(_commit_children_in_threads, stage, threads),
+                     functools.partial(_commit_in_threads, threads), propose, threads)
+
+
+def _propose_one_cell(run: Callable, locations, pool, world, t, ancestors, neighbors, likelihood, optimal,
+                      uniforms) -> tuple[Staged, np.ndarray]:
+    """The paper's model's proposal (``run``: ``rbpf_propose`` or its threaded driver) into fresh
+    arrays, its writes as :class:`~onlinemap.kernels.rbpf_commit.Staged` (one cell each). O(P K^2)."""
+    n_particles, k = len(ancestors), pool.rows.shape[2]
+    proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, k)), np.empty(n_particles))
+    run(locations, pool, world, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed)
+    staged = Staged(proposed.locations, proposed.locations.reshape(n_particles, 1),
+                    proposed.cells.reshape(n_particles, 1, k), None, None)
+    return staged, proposed.log_increments
+
+
+def _propose_by_enumeration(enumerate_: Callable, locations, pool, world, t, ancestors, neighbors, readings, optimal,
+                            uniforms) -> tuple[Staged, np.ndarray]:
+    """The proposal with blocking labels or a footprint: the children ``enumerate_`` gives (every
+    parent's log weight 0, their cells stored), one drawn per slot (``rbpf_pick_children``).
+    O(P F K^2)."""
+    n_particles, k = len(ancestors), pool.rows.shape[2]
+    size, width = 2 * n_particles, world.footprint_cells.shape[1] + int(world.has_blocking)
+    children = Children(np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size),
+                        np.empty(size), np.empty((size, width), dtype=np.int64), np.empty((size, width, k)))
+    m = enumerate_(locations, np.zeros(n_particles), pool, world, t, neighbors, readings, children)
+    proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, width, k)),
+                        np.empty(n_particles))
+    new_ids = np.empty((n_particles, width), dtype=np.int64)
+    rbpf_pick_children(ancestors, children, m, optimal, uniforms, proposed, new_ids)
+    return Staged(proposed.locations, new_ids, proposed.cells, None, None), proposed.log_increments
 
 
 def _commit_children_one_cell(locations, pool, world, t, slots, child_location, neighbors, likelihood, staged) -> None:
