@@ -448,8 +448,9 @@ class RaoBlackwellisedPF:
         weights = buffers.child_weight[:m]
         increment = logsumexp(children.log_weight[:m], weights)
         np.exp(np.subtract(children.log_weight[:m], increment, out=weights), out=weights)
-        threshold = rbpf_keep_children(children, weights, model.n_cells, self._rng.random(), buffers.order,
-                                       buffers.kept, buffers.kept_weights, slots)
+        threshold = rbpf_keep_children(children.parent, children.location, weights, model.n_cells, self._rng.random(),
+                                       buffers.order, buffers.kept, buffers.kept_weights, slots.ancestors,
+                                       slots.slot_child, slots.log_weights)
         kernels.commit_children(self._locations, pool, world, t, slots, children.location, neighbors, observation,
                                 self._staged_buffers())
         blocks.refresh(t)

@@ -97,7 +97,7 @@ def _propose_one_cell(run: Callable, locations, pool, world, t, ancestors, neigh
     arrays, its writes as :class:`~onlinemap.kernels.rbpf_commit.Staged` (one cell each). O(P K^2)."""
     n_particles, k = len(ancestors), pool.rows.shape[2]
     proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, k)), np.empty(n_particles))
-    run(locations, pool, world, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed)
+    run(locations, pool, world.p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed)
     staged = Staged(proposed.locations, proposed.locations.reshape(n_particles, 1),
                     proposed.cells.reshape(n_particles, 1, k), None, None)
     return staged, proposed.log_increments
@@ -122,7 +122,7 @@ def _propose_by_enumeration(enumerate_: Callable, locations, pool, world, t, anc
 
 def _commit_children_one_cell(locations, pool, world, t, slots, child_location, neighbors, likelihood, staged) -> None:
     """``rbpf_commit_children`` in the :class:`KernelSet` signature."""
-    rbpf_commit_children(locations, pool, t, slots, child_location, likelihood)
+    rbpf_commit_children(locations, pool, t, slots.ancestors, slots.slot_child, child_location, likelihood)
 
 
 def _commit_children_cells(locations, pool, world, t, slots, child_location, neighbors, readings, staged) -> None:

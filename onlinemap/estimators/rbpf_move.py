@@ -1,5 +1,5 @@
 """The RBPF's resample-move step (Gilks and Berzuini 2001; options ``move_window``, ``move_every``,
-``move_lag`` of :class:`~onlinemap.estimators.rbpf.RaoBlackwellisedPF`; issue 21 item 2): every
+``move_lag`` of :class:`~onlinemap.estimators.rbpf.RaoBlackwellisedPF`): every
 ``move_every`` steps each live particle redraws a window of W = ``move_window`` past locations
 by a Metropolis-Hastings move whose invariant law is the filter's target, the posterior over
 paths; weights are unchanged.
@@ -7,8 +7,8 @@ paths; weights are unchanged.
 Why: Fearnhead-Clifford's particles coalesce. In the paper's world, 1,000 particles replaying an
 ``info_gain`` run share one path beyond about 200 steps back, often a wrong one, and no later
 evidence can mend a mistake every particle carries. A move anywhere in the past redraws an old
-stretch given everything seen since; moving only the last steps does not touch it (measured on
-branch ``retain``: windows in the last 300 steps keep little of the gain).
+stretch given everything seen since; moving only the last steps does not touch it (measured:
+windows in the last 300 steps keep little of the gain).
 
 The target. Static world (C = I), no blocking labels: the motion ignores the map, and given a
 path ``x_{0:t}`` the cells are independent, cell c's posterior ``prior_c(k) prod O(k, z)`` over

@@ -25,7 +25,7 @@ The jobs live in their own modules: ``rbpf_enumerate`` (children and proposals),
 
 Bundles and reference counting: a plain ``njit`` kernel (numba counts references) that passed a
 bundle into inlined helpers in a loop ran 250-800x slower (every field access counted each array
-of the tuple; measured, notes of issue 39): such kernels take the bundle's fields into locals
+of the tuple; measured): such kernels take the bundle's fields into locals
 first and use the array helpers; bundles reach inlined helpers only inside
 :data:`~onlinemap.kernels.loop_kernel` and :data:`~onlinemap.kernels.thread_kernel`, where they
 cost nothing (measured).

@@ -116,19 +116,21 @@ def rbpf_pick_children(ancestors, children, m, optimal, uniforms, proposed, new_
 
 
 @njit(cache=True)
-def rbpf_keep_children(children, weights, n_cells, uniform, order, kept, kept_weights, slots):
+def rbpf_keep_children(child_parent, child_location, weights, n_cells, uniform, order, kept, kept_weights, ancestors,
+                       slot_child, new_log_weights):
     """Fearnhead-Clifford's selection of P of the M children (``weights`` (M,), normalised; the
-    first M entries of ``children``): order them by location (:func:`_children_by_location`, into
-    ``order``), keep P by optimal resampling with ``uniform``
+    first M entries of ``child_parent`` and ``child_location``): order them by location
+    (:func:`_children_by_location`, into ``order``), keep P by optimal resampling with ``uniform``
     (:func:`~onlinemap.kernels.resampling.optimal_keep_into`, into ``kept`` and ``kept_weights``)
-    and place them in the ``slots`` (:func:`_place_children`). Returns c (0 when every child was
+    and place them in the slots (:func:`_place_children`: the fields of :class:`Slots`, arrays
+    here: each bundle costs its Python caller some 5 us to type). Returns c (0 when every child was
     kept). O(M + N)."""
     m = weights.shape[0]
-    n_particles = slots.ancestors.shape[0]
-    _children_by_location(children.location[:m], np.zeros(n_cells + 1, dtype=np.int64), order[:m])
+    n_particles = ancestors.shape[0]
+    _children_by_location(child_location[:m], np.zeros(n_cells + 1, dtype=np.int64), order[:m])
     n_kept, c = optimal_keep_into(weights, n_particles, uniform, order[:m], kept, kept_weights)
-    _place_children(children.parent, kept[:n_kept], kept_weights[:n_kept], slots.ancestors, slots.slot_child,
-                    slots.log_weights, np.zeros(n_particles, dtype=np.bool_), np.zeros(n_particles, dtype=np.bool_))
+    _place_children(child_parent, kept[:n_kept], kept_weights[:n_kept], ancestors, slot_child, new_log_weights,
+                    np.zeros(n_particles, dtype=np.bool_), np.zeros(n_particles, dtype=np.bool_))
     return c
 
 
@@ -202,15 +204,15 @@ def rbpf_commit_cells(locations, pool, t, ancestors, new_locations, new_ids, new
 
 
 @njit(cache=True)
-def rbpf_commit_children(locations, pool, t, slots, child_location, likelihood):
-    """Fearnhead-Clifford's commit (:func:`rbpf_keep_children` placed the kept children in
-    ``slots``): each slot p takes over its ancestor's table row, then its child's observed cell,
-    the posterior given z (likelihood (K,)) of cell ``child_location[c]`` of the parent's map, is
-    computed as ``rbpf_enumerate`` defines it and written (needs ``free_top[0] >= P``); the
-    locations follow. ``slot_child[p] = -1`` leaves slot p as it is. O(P B K) at most, O(P K^2)
+def rbpf_commit_children(locations, pool, t, ancestors, slot_child, child_location, likelihood):
+    """Fearnhead-Clifford's commit (:func:`rbpf_keep_children` placed the kept children in the
+    slots: ``ancestors``, ``slot_child``): each slot p takes over its ancestor's table row, then
+    its child's observed cell, the posterior given z (likelihood (K,)) of cell
+    ``child_location[c]`` of the parent's map, is computed as ``rbpf_enumerate`` defines it and
+    written (needs ``free_top[0] >= P``); the locations follow. ``slot_child[p] = -1`` leaves slot p as it is. O(P B K) at most, O(P K^2)
     for the posteriors."""
-    _take_over_slots(pool, slots.ancestors)
-    _write_children(locations, pool, t, slots.slot_child, child_location, likelihood, np.empty(likelihood.shape[0]))
+    _take_over_slots(pool, ancestors)
+    _write_children(locations, pool, t, slot_child, child_location, likelihood, np.empty(likelihood.shape[0]))
 
 
 @njit(cache=True, inline="always")

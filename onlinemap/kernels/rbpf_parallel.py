@@ -34,7 +34,7 @@ serial. No kernel compiles with ``parallel=True``. The enumeration's range kerne
 serial entry points' own; the proposal's and the row weights' are compiled once more for the
 threads (the serial kernels call them with literal bounds, which numba compiles apart), and the
 staged commit, the gather and the mixture's runs of blocks are the threads' alone: about 10 CPU
-seconds in all with a cold cache, against 50 for the ``parallel=True`` kernels they replace.
+seconds in all with a cold cache (``parallel=True`` kernels took 50: none here).
 """
 
 from __future__ import annotations
@@ -137,7 +137,7 @@ def rbpf_enumerate_parallel(locations: np.ndarray, log_weights: np.ndarray, pool
                             likelihood: np.ndarray, children, chunk: int, threads: int) -> int:
     """:func:`~onlinemap.kernels.rbpf_enumerate.rbpf_enumerate` (the same children, in the same
     order)."""
-    return _enumerate_in_threads(_enumerate, (locations, log_weights, pool, world, t, neighbors, likelihood),
+    return _enumerate_in_threads(_enumerate, (locations, log_weights, pool, world.p_move, t, neighbors, likelihood),
                                  lambda: np.empty(1), children, chunk, threads)
 
 
@@ -151,11 +151,11 @@ def rbpf_enumerate_cells_parallel(locations: np.ndarray, log_weights: np.ndarray
                                  lambda: footprint_scratch(*sizes), children, chunk, threads)
 
 
-def rbpf_propose_parallel(locations: np.ndarray, pool, world, t: int, ancestors: np.ndarray, neighbors: np.ndarray,
-                          likelihood: np.ndarray, optimal: bool, uniforms: np.ndarray, proposed, chunk: int,
-                          threads: int) -> None:
+def rbpf_propose_parallel(locations: np.ndarray, pool, p_move: float, t: int, ancestors: np.ndarray,
+                          neighbors: np.ndarray, likelihood: np.ndarray, optimal: bool, uniforms: np.ndarray, proposed,
+                          chunk: int, threads: int) -> None:
     """:func:`~onlinemap.kernels.rbpf_enumerate.rbpf_propose`."""
-    _in_threads([functools.partial(_propose, locations, pool, world, t, ancestors, neighbors, likelihood, optimal,
+    _in_threads([functools.partial(_propose, locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal,
                                    uniforms, proposed, start, stop)
                  for start, stop in _runs(len(ancestors), chunk, threads)])
 
