@@ -223,7 +223,7 @@ class BlockPool:
         if not self.stamped:
             return
         count = -(-len(self.rows) // REFRESH_STEPS)
-        rbpf_refresh(self.arrays(), t, self.refresh_cursor, count)
+        rbpf_refresh(t, self.refresh_cursor, count, *self.arrays())
         self.refresh_cursor = (self.refresh_cursor + count) % len(self.rows)
 
     def mixture(self, t: int, weights: np.ndarray, threads: int = 1) -> np.ndarray:
@@ -234,7 +234,7 @@ class BlockPool:
         if threads > 1:
             rbpf_map_mixture_parallel(self.arrays(), t, weights, out, threads)
         else:
-            rbpf_map_mixture(self.arrays(), t, weights, out)
+            rbpf_map_mixture(t, weights, out, *self.arrays())
         return out
 
     def particle_maps(self, t: int, which: np.ndarray | None = None) -> np.ndarray:
@@ -242,7 +242,7 @@ class BlockPool:
         them), a fresh array. O(M N K^2)."""
         which = np.arange(len(self.table)) if which is None else which
         out = np.empty((len(which), len(self.cell_block), self.rows.shape[2]))
-        particle_maps(self.arrays(), t, which, out)
+        particle_maps(t, which, out, *self.arrays())
         return out
 
     def check(self, n_particles: int, n_labels: int, t: int, name: str = "_blocks") -> None:

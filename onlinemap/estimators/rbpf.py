@@ -37,6 +37,7 @@ same results). A recovery from depletion weighs N P children
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from typing import NamedTuple
@@ -421,9 +422,7 @@ class RaoBlackwellisedPF:
         ints, floats, p = self._scratch_ints, self._scratch_floats, self.n_particles
         if not len(ints):
             ints, floats = np.empty((5, 2 * p), dtype=np.int64), np.empty((3, 2 * p))
-        width = cells_written(self.model)
-        children = Children(ints[0], ints[1], floats[0], np.empty(0), np.empty((0, width), dtype=np.int64),
-                            np.empty((0, width, self.model.n_labels)))  # no child's cells stored
+        children = Children(ints[0], ints[1], floats[0], *_no_cells(cells_written(self.model), self.model.n_labels))
         return _FCBuffers(children, floats[1], ints[2], ints[3, :p], floats[2, :p],
                           Slots(ints[3, p:], ints[4, :p], floats[2, p:]))
 
@@ -578,6 +577,13 @@ def _thread_count(threads) -> int:
     return arguments.integer(f"threads (at most NUMBA_NUM_THREADS={most}: the cores numba counts, or that "
                              "environment variable set before numba starts)", threads, minimum=1, maximum=most,
                              error=InvalidOptionError)
+
+
+@functools.cache
+def _no_cells(width: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Empty (log motion, ids (0, W), cells (0, W, K)) of :class:`~onlinemap.kernels.rbpf_enumerate.Children`
+    that store no child's cells (never written: 0 rows), made once per shape."""
+    return np.empty(0), np.empty((0, width), dtype=np.int64), np.empty((0, width, k))
 
 
 def _no_moves(n: int) -> np.ndarray:

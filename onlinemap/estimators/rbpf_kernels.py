@@ -122,7 +122,7 @@ def _propose_by_enumeration(enumerate_: Callable, locations, pool, world, t, anc
 
 def _commit_children_one_cell(locations, pool, world, t, slots, child_location, neighbors, likelihood, staged) -> None:
     """``rbpf_commit_children`` in the :class:`KernelSet` signature."""
-    rbpf_commit_children(locations, pool, t, slots.ancestors, slots.slot_child, child_location, likelihood)
+    rbpf_commit_children(locations, t, slots.ancestors, slots.slot_child, child_location, likelihood, *pool)
 
 
 def _commit_children_cells(locations, pool, world, t, slots, child_location, neighbors, readings, staged) -> None:
@@ -132,7 +132,7 @@ def _commit_children_cells(locations, pool, world, t, slots, child_location, nei
 
 def _commit(locations, pool, t, ancestors, staged: Staged) -> None:
     """``rbpf_commit_cells`` of the staged writes (their ``target``, ``source`` unused)."""
-    rbpf_commit_cells(locations, pool, t, ancestors, staged.locations, staged.ids, staged.cells)
+    rbpf_commit_cells(locations, t, ancestors, staged.locations, staged.ids, staged.cells, *pool)
 
 
 def _in_chunks(run: Callable, threads: int, *args):

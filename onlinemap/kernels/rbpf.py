@@ -23,6 +23,14 @@ The jobs live in their own modules: ``rbpf_enumerate`` (children and proposals),
 (selection and the writes of a step), ``rbpf_recovery`` (relocation after depletion),
 ``rbpf_parallel`` (the threaded drivers), ``rbpf_move`` (the resample-move step).
 
+Bundles and dispatch: numba types a bundle argument in Python on every call from Python, some 5
+us for a :class:`Pool` against 0.1 us per array typed in C (measured), which a small filter's
+step would pay several times. So the entry points a step calls from Python
+(:func:`rbpf_refresh`, :func:`rbpf_map_mixture`, :func:`particle_maps`, ``rbpf_commit_children``,
+``rbpf_commit_cells``, the enumerations' range kernels) take the pool as its fields, last
+(``*fields``: ``kernel(..., *blocks.arrays())``), and rebuild the bundle (``Pool(*fields)``);
+the order is the NamedTuple's own.
+
 Bundles and reference counting: a plain ``njit`` kernel (numba counts references) that passed a
 bundle into inlined helpers in a loop ran 250-800x slower (every field access counted each array
 of the tuple; measured): such kernels take the bundle's fields into locals
@@ -223,13 +231,14 @@ def _write_cell(pool, t, p, cell, values):
 
 
 @njit(cache=True)
-def rbpf_refresh(pool, t, start, count):
+def rbpf_refresh(t, start, count, *fields):
     """Bring rows ``start, start + 1, ...`` (``count`` of them, cyclically) up to date at step t:
     ``row <- row @ C^(t - stamp)``, stamp ``t``. Same values, bounded ages: called every step
     with ``count = ceil(R / h)``, every row is refreshed at least every h steps; with copies
     refreshed beyond age h (:func:`_copy_row`), no stamp is older than 2 h + 1 steps, so a table
     of powers up to a few h suffices however long the run. O(count B K^2)."""
-    rows, stamps, refcount, powers = pool.rows, pool.stamps, pool.refcount, pool.powers  # locals: see the docstring
+    pool = Pool(*fields)
+    rows, stamps, refcount, powers = pool.rows, pool.stamps, pool.refcount, pool.powers  # locals: module docstring
     n_rows, block, k = rows.shape
     tmp = np.empty(k)
     for step in range(count):
@@ -264,13 +273,14 @@ def in_place_ancestors(counts):
 
 
 @njit(cache=True)
-def rbpf_map_mixture(pool, t, weights, out):
+def rbpf_map_mixture(t, weights, out, *fields):
     """out (N, K) <- ``sum_p weights[p] * current marginals of particle p``.
 
     First the weight of every row (:func:`_row_weights`), O(P n_blocks) at most; then one pass over
     the rows in use, in row order, O(R_used B K), with K^2 flops per out-of-date cell in a dynamic
     world (:func:`_mixture`). R_used <= P n_blocks, and much less when particles share blocks.
     """
+    pool = Pool(*fields)
     n_blocks = pool.table.shape[1]
     row_weight = np.zeros(pool.rows.shape[0])
     _row_weights(pool.table, pool.refcount, weights, _sum(weights), row_weight, np.int64(0), n_blocks,  # one compile
@@ -355,9 +365,10 @@ def _mixture_blocks(pool, t, row_weight, first, last, out):
 
 
 @njit(cache=True)
-def particle_maps(pool, t, which, out):
+def particle_maps(t, which, out, *fields):
     """out (M, N, K) <- the current map marginals of particles ``which`` (M,) (the planners'
     hypotheses, inspection and tests). O(M N K^2)."""
+    pool = Pool(*fields)
     rows, stamps, table, cell_block, cell_slot, powers = (pool.rows, pool.stamps, pool.table, pool.cell_block,
                                                           pool.cell_slot, pool.powers)  # locals: module docstring
     dynamic = pool.stamped

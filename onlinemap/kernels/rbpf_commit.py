@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from . import PREFETCH_AHEAD, loop_kernel, prefetch, thread_kernel
-from .rbpf import (_age, _copy_row, _evidence, _observed_cell, _prefetch_cell, _row_for_write, _set_slot,
+from .rbpf import (Pool, _age, _copy_row, _evidence, _observed_cell, _prefetch_cell, _row_for_write, _set_slot,
                    _take_over_slots, _write_cell)
 from .rbpf_enumerate import FootprintScratch, _footprint_child, _passable_before, _prefetch_footprint
 from .resampling import optimal_keep_into
@@ -187,12 +187,14 @@ def _place_children(child_parent, kept, kept_weights, ancestors, slot_child, new
 
 
 @loop_kernel
-def rbpf_commit_cells(locations, pool, t, ancestors, new_locations, new_ids, new_cells):
+def rbpf_commit_cells(locations, t, ancestors, new_locations, new_ids, new_cells, *fields):
     """Apply a validated step whose changed cells are given, in place: the slots taken over
     (:func:`~onlinemap.kernels.rbpf._take_over_slots`), then each particle with
     ``new_locations[p] >= 0`` writes up to W cells (:func:`~onlinemap.kernels.rbpf._write_cell`):
     ``new_ids`` (P, W) the cells (-1: none), ``new_cells`` (P, W, K) their marginals at step t, and
-    moves there; ``new_locations[p] = -1`` leaves slot p as it is. Needs ``free_top[0] >= W P``."""
+    moves there; ``new_locations[p] = -1`` leaves slot p as it is. Needs ``free_top[0] >= W P``.
+    ``*fields``: the pool's fields (``kernels/rbpf.py``: bundles and dispatch)."""
+    pool = Pool(*fields)
     _take_over_slots(pool, ancestors)
     for p in range(pool.table.shape[0]):
         if new_locations[p] < 0:
@@ -204,13 +206,14 @@ def rbpf_commit_cells(locations, pool, t, ancestors, new_locations, new_ids, new
 
 
 @njit(cache=True)
-def rbpf_commit_children(locations, pool, t, ancestors, slot_child, child_location, likelihood):
+def rbpf_commit_children(locations, t, ancestors, slot_child, child_location, likelihood, *fields):
     """Fearnhead-Clifford's commit (:func:`rbpf_keep_children` placed the kept children in the
     slots: ``ancestors``, ``slot_child``): each slot p takes over its ancestor's table row, then
     its child's observed cell, the posterior given z (likelihood (K,)) of cell
     ``child_location[c]`` of the parent's map, is computed as ``rbpf_enumerate`` defines it and
     written (needs ``free_top[0] >= P``); the locations follow. ``slot_child[p] = -1`` leaves slot p as it is. O(P B K) at most, O(P K^2)
-    for the posteriors."""
+    for the posteriors. ``*fields``: the pool's fields (``kernels/rbpf.py``: bundles and dispatch)."""
+    pool = Pool(*fields)
     _take_over_slots(pool, ancestors)
     _write_children(locations, pool, t, slot_child, child_location, likelihood, np.empty(likelihood.shape[0]))
 

@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from . import PREFETCH_AHEAD, loop_kernel, thread_kernel
-from .rbpf import _age, _carried, _evidence, _observed_cell, _prefetch_cell
+from .rbpf import Pool, _age, _carried, _evidence, _observed_cell, _prefetch_cell
 
 
 class Children(NamedTuple):
@@ -120,15 +120,17 @@ def rbpf_enumerate(locations: np.ndarray, log_weights: np.ndarray, pool, world, 
     posterior of cell j given z) is not stored: ``rbpf_commit_children`` computes it for the
     children kept. O(P K^2). (A Python function: its kernel, :func:`_enumerate` on every parent, is
     the one the threads run on runs of parents, compiled once for both.)"""
-    return _enumerate(locations, log_weights, pool, world.p_move, t, neighbors, likelihood, children, 0, len(locations),
-                      0, np.empty(1))
+    return _enumerate(locations, log_weights, world.p_move, t, neighbors, likelihood, children, 0, len(locations), 0,
+                      np.empty(1), *pool)
 
 
 @thread_kernel
-def _enumerate(locations, log_weights, pool, p_move, t, neighbors, likelihood, children, start, stop, out, lams):
+def _enumerate(locations, log_weights, p_move, t, neighbors, likelihood, children, start, stop, out, lams, *fields):
     """:func:`rbpf_enumerate` of parents ``start..stop - 1``, their children written from index
-    ``out`` on; returns their number. ``lams`` (1,) scratch. (``p_move``, not the model's
-    :class:`~onlinemap.kernels.rbpf.World`: each bundle costs its caller some 5 us to type, measured.)"""
+    ``out`` on; returns their number. ``lams`` (1,) scratch; ``*fields`` the pool's fields and
+    ``p_move``, not the model's :class:`~onlinemap.kernels.rbpf.World` (``kernels/rbpf.py``: bundles
+    and dispatch)."""
+    pool = Pool(*fields)
     rows, powers, table, cell_block, cell_slot = pool.rows, pool.powers, pool.table, pool.cell_block, pool.cell_slot
     m = max(out, 0)  # max(., 0): indices known nonnegative, no code for negative ones (5% faster, measured)
     for q in range(max(start, 0), stop):
@@ -278,8 +280,8 @@ def rbpf_enumerate_cells(locations: np.ndarray, log_weights: np.ndarray, pool, w
     and log weights. Cost O(P F K^2). (A Python function: its kernel, :func:`_enumerate_cells` on
     every parent, is the one the threads run on runs of parents, compiled once for both.)"""
     scratch = footprint_scratch(world.sensor.shape[0], world.footprint_cells.shape[1], children.ids.shape[1])
-    return _enumerate_cells(locations, log_weights, pool, world, t, neighbors, readings, children, 0, len(locations),
-                            0, scratch)
+    return _enumerate_cells(locations, log_weights, world, t, neighbors, readings, children, 0, len(locations), 0,
+                            scratch, *pool)
 
 
 @njit(cache=True, inline="always")
@@ -293,9 +295,12 @@ def _store_child(children, m, ids, cells, probability):
 
 
 @thread_kernel
-def _enumerate_cells(locations, log_weights, pool, world, t, neighbors, readings, children, start, stop, out, scratch):
+def _enumerate_cells(locations, log_weights, world, t, neighbors, readings, children, start, stop, out, scratch,
+                     *fields):
     """:func:`rbpf_enumerate_cells` of parents ``start..stop - 1``, their children written from
-    index ``out`` on; returns their number. ``scratch``: a :class:`FootprintScratch`."""
+    index ``out`` on; returns their number. ``scratch``: a :class:`FootprintScratch`; ``*fields`` the
+    pool's fields (``kernels/rbpf.py``: bundles and dispatch)."""
+    pool = Pool(*fields)
     store = children.cells.shape[0] > 0
     m = max(out, 0)  # as in _enumerate
     for q in range(max(start, 0), stop):
