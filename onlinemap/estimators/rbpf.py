@@ -137,17 +137,15 @@ class RaoBlackwellisedPF:
     sensor without zero entries: ``move_window`` is refused otherwise
     (:class:`~onlinemap.errors.InvalidOptionError` naming the reason). The filter keeps every
     particle's path and every step's action and readings: up to 2 P t bytes more, counted by
-    ``max_bytes``. :attr:`moves` counts the windows proposed and accepted (checkpointed). What it buys: on the paper's world replay at
-    1,000 particles (W = 20, every 5) the final map error falls from 0.26 to about 0.20 for 3.2x
-    the time per step (the README's RBPF section).
+    ``max_bytes``. :attr:`moves` counts the windows proposed and accepted (checkpointed). What it
+    buys: on the paper's world replay at 1,000 particles (W = 20, every 5) the final map error
+    falls from 0.26 to about 0.20 for 3.2x the time per step (the README's RBPF section).
 
     ``threads``: how many threads the update and the belief use, at most ``NUMBA_NUM_THREADS``
-    (the cores numba counts for this process, or that environment variable, read when numba
-    starts; kept as the limit, although the threads are Python threads running numba kernels
-    that release the GIL, :mod:`onlinemap.kernels.rbpf_parallel`); ``None`` for all of them. The results are
-    the same bit for bit whatever the number. The default, 1, runs the serial kernels: threads
-    pay from about 10^4 particles and only on cores nothing else uses, and the few kernels only
-    they use compile once (seconds, then cached).
+    (None: all; Python threads on numba kernels that release the GIL,
+    :mod:`onlinemap.kernels.rbpf_parallel`), the results the same bit for bit whatever the number.
+    The default, 1, runs the serial kernels: threads pay from about 10^4 particles and only on
+    cores nothing else uses.
     """
 
     #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
@@ -322,18 +320,12 @@ class RaoBlackwellisedPF:
         return self.belief
 
     def update(self, action, observation) -> None:
-        """Advance the particles by one action (None at step 0) and observation.
-
-        Resample first if the effective sample size is below ``resample_threshold * P``; then
-        propose, weight and update each particle's observed cell. If the observation has
-        probability zero for every particle (depletion), recover (:meth:`_recover`, see the class
-        docstring); if nothing explains it even then (impossible under the model), raise
-        :class:`ImpossibleObservationError` and leave everything (particles, weights, random
-        generator) as it was; so does a step that would take the filter's memory beyond
-        ``max_bytes`` (:class:`~onlinemap.errors.MemoryLimitError`). With ``move_window``, the
-        step is then recorded in the path history and, when due, followed by the resample-move
-        step (the class docstring).
-        """
+        """Advance the particles by one action (None at step 0) and observation: resample first if
+        due, then propose, weight and update each particle's observed cells; on depletion, recover
+        (:meth:`_recover`). An observation nothing explains (:class:`ImpossibleObservationError`)
+        or a step beyond ``max_bytes`` (:class:`~onlinemap.errors.MemoryLimitError`) leaves
+        everything (particles, weights, random generator) as it was. With ``move_window``, the step
+        is then recorded in the path history and, when due, followed by the resample-move step."""
         a, z = check_step(self.model, self._t + 1, action, observation)
         t = self._t + 1
         if self.resampling == FEARNHEAD_CLIFFORD:
@@ -437,7 +429,8 @@ class RaoBlackwellisedPF:
         resampling is O(P). Works in the filter's scratch buffers: no per-step allocation of size P."""
         model, kernels = self.model, self._kernels
         blocks = self._step_pool(t, a)
-        pool, world, neighbors, observation = blocks.arrays(), world_tables(model), self._neighbors(a), observed(model, z)
+        pool, world = blocks.arrays(), world_tables(model)
+        neighbors, observation = self._neighbors(a), observed(model, z)
         buffers = self._fc_buffers()
         children, slots = buffers.children, buffers.slots
         m = kernels.enumerate(self._locations, self._log_weights, pool, world, t, neighbors, observation, children)
@@ -507,9 +500,10 @@ class RaoBlackwellisedPF:
     def _commit(self, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, increment, resampled,
                 recovered: bool = False) -> None:
         """Write a validated step whose changed cells are given (the sampling schemes; a recovery's
-        children, :func:`~onlinemap.estimators.rbpf_recovery.relocate`): the particles' slots and maps into ``blocks`` (the
-        kernel set's ``commit``; with threads, planned in the staging buffers' ``target`` and
-        ``source``), then :meth:`_advance`; ``recovered``: the step recovered from depletion."""
+        children, :func:`~onlinemap.estimators.rbpf_recovery.relocate`): the particles' slots and
+        maps into ``blocks`` (the kernel set's ``commit``; with threads, planned in the staging
+        buffers' ``target`` and ``source``), then :meth:`_advance`; ``recovered``: the step
+        recovered from depletion."""
         plan = self._staged_buffers()
         if plan is not None:
             staged = staged._replace(target=plan.target, source=plan.source)

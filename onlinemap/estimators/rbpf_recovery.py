@@ -2,28 +2,27 @@
 the relocated children of the live particles, P of them kept by optimal resampling and placed in
 the slots with the cells they carry, and the messages of the steps nothing explains.
 
-When no particle explains an observation the model allows (every trajectory that did was
-dropped; in a blocking world with a footprint, the off-grid readings -1 rule particles out
-exactly), the filter *recovers*: it takes the exact limit of an augmented model. In it the robot, with probability eps, is lifted and put down on
-a passable cell l drawn from ``K(l | l') = exp(-d(l, l') / s) / Z(l')`` instead of following
-T (d the fewest moves from its last cell l', labels ignored; ``s = RELOCATION_SCALE`` = 3
-cells; Z sums over the cells reachable from l'); and, after such a relocation only, each cell
-it then reads is, with probability delta, redrawn from its model marginal ``label_prior C^t``.
-Given the particle set (weights w_p, cells l_p, maps m_p) the posterior is ``(1 - eps) R + eps
-sum_r delta^r S_r`` (up to factors ``1 - delta`` that tend to 1):
-R the regular children, S_r the relocated ones with r read cells redrawn. R = 0 here, so as
-eps, delta -> 0 it tends to S_r for the smallest r with S_r > 0: children (p, l) weighted
-``w_p K(l | l_p) P(z, m_l passable | l, m_p)`` where each read cell keeps m_p's marginal
-unless that marginal rules out its reading (then it takes the model marginal: r such cells).
-P of these children (N P at most) are kept by optimal resampling, as Fearnhead-Clifford keeps
-its children. The recovered belief is thus the filter's best account of the data given that
-the robot was somewhere other than its particles say: it approximates ``P(L_t, M_t | data)``
-under the augmented model, with the particles before the step standing in for the past; it is
-not the model's posterior (which the lost trajectories carried). ``log_evidence`` adds the log
-of the children's total weight, the evidence given the relocation (the vanishing ``log eps``
-left out). The step's belief has ``recovered=True``, :attr:`recoveries` counts such steps
-(checkpointed), and a warning on the logger ``onlinemap.estimators.rbpf`` names the step and
-what was done.
+When no particle explains an observation the model allows (every trajectory that did was dropped; in
+a blocking world with a footprint, the off-grid readings -1 rule particles out exactly), the filter
+*recovers*: it takes the exact limit of an augmented model. In it the robot, with probability eps,
+is lifted and put down on a passable cell l drawn from ``K(l | l') = exp(-d(l, l') / s) / Z(l')``
+instead of following T (d the fewest moves from its last cell l', labels ignored; ``s =
+RELOCATION_SCALE`` = 3 cells; Z sums over the cells reachable from l'); and, after such a relocation
+only, each cell it then reads is, with probability delta, redrawn from its model marginal
+``label_prior C^t``. Given the particle set (weights w_p, cells l_p, maps m_p) the posterior is ``(1
+- eps) R + eps sum_r delta^r S_r`` (up to factors ``1 - delta`` that tend to 1): R the regular
+children, S_r the relocated ones with r read cells redrawn. R = 0 here, so as eps, delta -> 0 it
+tends to S_r for the smallest r with S_r > 0: children (p, l) weighted ``w_p K(l | l_p) P(z, m_l
+passable | l, m_p)`` where each read cell keeps m_p's marginal unless that marginal rules out its
+reading (then it takes the model marginal: r such cells). P of these children (N P at most) are kept
+by optimal resampling, as Fearnhead-Clifford keeps its children. The recovered belief is thus the
+filter's best account of the data given that the robot was somewhere other than its particles say:
+it approximates ``P(L_t, M_t | data)`` under the augmented model, with the particles before the step
+standing in for the past; it is not the model's posterior (which the lost trajectories carried).
+``log_evidence`` adds the log of the children's total weight, the evidence given the relocation (the
+vanishing ``log eps`` left out). The step's belief has ``recovered=True``, :attr:`recoveries` counts
+such steps (checkpointed), and a warning on the logger ``onlinemap.estimators.rbpf`` names the step
+and what was done.
 
 Cost: O(P N U K^2 + min(P, N) N A) time (U <= W the cells a child touches, A the actions), at
 most 32 P N bytes (:func:`~onlinemap.estimators.rbpf_memory.recovery_bytes`).

@@ -211,8 +211,9 @@ def rbpf_commit_children(locations, t, ancestors, slot_child, child_location, li
     slots: ``ancestors``, ``slot_child``): each slot p takes over its ancestor's table row, then
     its child's observed cell, the posterior given z (likelihood (K,)) of cell
     ``child_location[c]`` of the parent's map, is computed as ``rbpf_enumerate`` defines it and
-    written (needs ``free_top[0] >= P``); the locations follow. ``slot_child[p] = -1`` leaves slot p as it is. O(P B K) at most, O(P K^2)
-    for the posteriors. ``*fields``: the pool's fields (``kernels/rbpf.py``: bundles and dispatch)."""
+    written (needs ``free_top[0] >= P``); the locations follow. ``slot_child[p] = -1`` leaves slot
+    p as it is. O(P B K) at most, O(P K^2) for the posteriors. ``*fields``: the pool's fields
+    (``kernels/rbpf.py``: bundles and dispatch)."""
     pool = Pool(*fields)
     _take_over_slots(pool, ancestors)
     _write_children(locations, pool, t, slot_child, child_location, likelihood, np.empty(likelihood.shape[0]))

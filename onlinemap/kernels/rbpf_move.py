@@ -126,7 +126,8 @@ def rbpf_move(locations, log_weights, pool, paths, world, t, first, starts, wind
     used: ``x_s`` is fixed), column W + 1 the acceptance. ``counts (2,)`` += (windows proposed,
     accepted). ``pool`` the maps (:class:`~onlinemap.kernels.rbpf.Pool`), ``paths`` the
     history (:class:`Paths`), ``world`` the model's tables (:class:`~onlinemap.kernels.rbpf.World`:
-    moves, predecessor, footprint_cells, likelihood). Needs, before a particle, ``min(2 W F, n_blocks)`` free map rows and ``W // B + 2`` free path rows.
+    moves, predecessor, footprint_cells, likelihood). Needs, before a particle,
+    ``min(2 W F, n_blocks)`` free map rows and ``W // B + 2`` free path rows.
 
     Cost per particle: O(W S (F K + 1) + W^2) for S the mean number of cells the window can take at
     a step (the reachable support: a few to tens), plus the writes of an accepted move (copy-on-write
