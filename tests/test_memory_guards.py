@@ -15,7 +15,7 @@ import pytest
 import onlinemap as om
 from estimator_cases import assert_state_unchanged, snapshot
 from onlinemap.arrays import DEFAULT_MAX_BYTES
-from onlinemap.estimators.rbpf import peak_bytes, state_bytes
+from onlinemap.estimators.rbpf_memory import peak_bytes, state_bytes
 
 MEASURE = r"""
 import json, sys

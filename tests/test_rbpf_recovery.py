@@ -27,6 +27,7 @@ from scipy.sparse.csgraph import shortest_path
 import onlinemap as om
 from onlinemap import checkpoint
 from onlinemap.estimators import rbpf as rbpf_module
+from onlinemap.estimators import rbpf_memory, rbpf_recovery
 from estimator_cases import assert_valid_belief, beliefs
 
 DATA = Path(__file__).parent / "data"
@@ -102,7 +103,7 @@ def recovery_reference(est, action, readings):
     readings = np.atleast_1d(readings)
     maps = est.particle_maps() @ model.change  # every particle's map at step t
     prior = model.label_prior @ np.linalg.matrix_power(model.change, t)
-    scale = rbpf_module.RELOCATION_SCALE
+    scale = rbpf_recovery.RELOCATION_SCALE
     d = distances(model)
     children = []  # (resets, log weight, location, map)
     for p in np.flatnonzero(est._weights > 0):
@@ -203,7 +204,7 @@ def test_when_every_map_rules_the_reading_out_the_read_cell_is_reset(scheme):
     step_all(est, [(None, 0)] + [("right", 0)] * 4 + [("left", 0)] * 2)
     if scheme == "fc":
         belief = assert_recovery_equals_reference(est, 0, 1)
-        kernel = np.exp(-np.abs(np.arange(5) - 2) / rbpf_module.RELOCATION_SCALE)
+        kernel = np.exp(-np.abs(np.arange(5) - 2) / rbpf_recovery.RELOCATION_SCALE)
         np.testing.assert_allclose(belief.location, kernel / kernel.sum(), atol=1e-12)
     else:
         assert est.step(0, 1).recovered
@@ -398,10 +399,10 @@ def test_the_memory_guard_counts_a_recoverys_children(scheme):
     step_all(est, steps)
     step_all(twin, steps)
     pool = est._blocks
-    assert pool.rows_to_hold(rbpf_module.cells_written(model) * 8) == len(pool.rows)  # the step does not grow it
+    assert pool.rows_to_hold(rbpf_memory.cells_written(model) * 8) == len(pool.rows)  # the step does not grow it
     n_blocks, size = pool.block_members.shape
-    held = rbpf_module.state_bytes(model, 8, size, n_blocks, len(pool.rows))
-    assert rbpf_module.recovery_bytes(model, 8) == 32 * model.n_cells * 8
+    held = rbpf_memory.state_bytes(model, 8, size, n_blocks, len(pool.rows))
+    assert rbpf_memory.recovery_bytes(model, 8) == 32 * model.n_cells * 8
     est.max_bytes = held + 32 * model.n_cells * 8 - 1
     before = est.state_dict()
     with pytest.raises(om.MemoryLimitError, match="particle depletion.*raise est.max_bytes"):

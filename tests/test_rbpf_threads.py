@@ -84,12 +84,10 @@ def test_a_recovering_run_gives_the_serial_result_bit_for_bit(scheme, n_particle
     particles so that every step runs the parallel kernels (each step commits once through
     rbpf_commit_staged_parallel, counted): every belief, its recovered flag, the recovery count
     and the final state equal the serial run's, and the run recovers at least once."""
-    from onlinemap.estimators import rbpf as rbpf_module
-
     monkeypatch.setattr(rbpf_parallel, "CHUNK", 2)
     commits = []
-    staged = rbpf_module.rbpf_commit_staged_parallel
-    monkeypatch.setattr(rbpf_module, "rbpf_commit_staged_parallel", lambda *args: commits.append(1) or staged(*args))
+    staged = rbpf_parallel.rbpf_commit_staged_parallel
+    monkeypatch.setattr(rbpf_parallel, "rbpf_commit_staged_parallel", lambda *args: commits.append(1) or staged(*args))
     model, true_map = om.door_world(blocking=True, footprint="cross")
     run = om.simulate(model, true_map, steps=100, seed=38)
     options = {"fearnhead_clifford": {}, "transition+residual": dict(proposal="transition", resampling="residual")}

@@ -25,7 +25,7 @@ import numpy as np
 from .. import state_checks as checks
 from ..checkpoint import state_class
 from ..errors import ModelError
-from ..kernels.rbpf import particle_maps, rbpf_commit, rbpf_commit_cells, rbpf_map_mixture, rbpf_refresh
+from ..kernels.rbpf import Pool, particle_maps, rbpf_map_mixture, rbpf_refresh
 from ..kernels.rbpf_parallel import rbpf_map_mixture_parallel
 from ..model import GridModel, change_powers
 
@@ -40,31 +40,51 @@ class BlockLayout(NamedTuple):
     members: np.ndarray  # (n_blocks, B) cells of each block, -1 for padding
 
 
-def block_layout(model: GridModel, block_cells: int | None = None) -> BlockLayout:
-    """Runs of ``block_cells`` consecutive cells in a corridor; square tiles of side
+def block_shape(model: GridModel, block_cells: int | None = None) -> tuple[int, int]:
+    """(B, n_blocks): the cells per block and the number of blocks of :func:`block_layout`, without
+    building it. Runs of ``block_cells`` consecutive cells in a corridor; square tiles of side
     ``floor(sqrt(block_cells))`` in a 2D grid (a robot crosses a tile's edge less often than a
     row's). Default ``block_cells`` about ``sqrt(N / K)``, which balances the copy of one block
     (B K floats, on a write into a shared block) against the table row of a particle (N / B
-    indices, on resampling)."""
+    indices, on resampling). Raises :class:`~onlinemap.errors.ModelError` for a ``block_cells``
+    that is not a positive integer. O(1)."""
     n = model.n_cells
     if block_cells is None:
         block_cells = max(1, round(math.sqrt(n / model.n_labels)))
     if isinstance(block_cells, bool) or int(block_cells) != block_cells or block_cells < 1:
         raise ModelError(f"block_cells must be a positive integer, got {block_cells!r}")
-    cells = np.arange(n)
     if model.rows == 1:
         size = min(int(block_cells), n)
+        return size, -(-n // size)
+    side = max(1, math.isqrt(int(block_cells)))
+    return side * side, -(-model.rows // side) * -(-model.cols // side)
+
+
+def block_layout(model: GridModel, block_cells: int | None = None) -> BlockLayout:
+    """Which block and slot each cell takes: blocks of :func:`block_shape`. O(N)."""
+    size, _ = block_shape(model, block_cells)
+    cells = np.arange(model.n_cells)
+    if model.rows == 1:
         cell_block, cell_slot = np.divmod(cells, size)
     else:
-        side = max(1, math.isqrt(int(block_cells)))
+        side = math.isqrt(size)
         row, col = np.divmod(cells, model.cols)
         tiles_across = -(-model.cols // side)
         cell_block = (row // side) * tiles_across + col // side
         cell_slot = (row % side) * side + col % side
-        size = side * side
     members = np.full((int(cell_block.max()) + 1, size), -1, dtype=np.int64)
     members[cell_block, cell_slot] = cells
     return BlockLayout(cell_block, cell_slot, members)
+
+
+def pool_bytes(model: GridModel, n_particles: int, block_size: int, n_blocks: int, rows: int, stamped: bool) -> int:
+    """Bytes of a :class:`BlockPool` of ``rows`` block rows of ``block_size`` cells (allocates
+    nothing): the rows, their stamps when ``stamped``, row_block / refcount / free, the particle
+    table (P n_blocks) and the powers of C. O(1)."""
+    k = model.n_labels
+    row_bytes = 8 * (block_size * k + (block_size if stamped else 0) + 3)
+    powers = 8 * k * k * (4 * REFRESH_STEPS + 1 if stamped else 1)
+    return rows * row_bytes + 8 * n_particles * n_blocks + powers
 
 
 def grown(array: np.ndarray, rows: int) -> np.ndarray:
@@ -190,31 +210,11 @@ class BlockPool:
         """This pool with new row contents (R, B, K) (eager dynamics: ``rows @ C``). O(1)."""
         return dataclasses.replace(self, rows=rows)
 
-    def reads(self) -> tuple:
-        """(rows, stamps, table, cell_block, cell_slot, powers, stamped): the arguments the kernels
-        that read particle maps take (``rbpf_propose``, ``rbpf_enumerate``...), in their order."""
-        return self.rows, self.stamps, self.table, self.cell_block, self.cell_slot, self.powers, self.stamped
-
-    def writes(self) -> tuple:
-        """(rows, stamps, row_block, refcount, free, free_top, table, cell_block, cell_slot, stamped,
-        powers, REFRESH_STEPS): the arguments the kernels that write particle maps take
-        (``rbpf_commit``, ``rbpf_commit_children``...), in their order."""
-        return (self.rows, self.stamps, self.row_block, self.refcount, self.free, self.free_top, self.table,
-                self.cell_block, self.cell_slot, self.stamped, self.powers, REFRESH_STEPS)
-
-    def commit(self, locations: np.ndarray, t: int, ancestors: np.ndarray, new_locations: np.ndarray,
-               new_cells: np.ndarray, new_ids: np.ndarray | None = None) -> None:
-        """Write a step into this pool: particle p takes over ``ancestors[p]``'s table row (and
-        ``locations[p] = new_locations[p]``) and its new marginals ``new_cells`` (P, K) of the cell
-        it stands on (:func:`~onlinemap.kernels.rbpf.rbpf_commit`), or (P, W, K) of the cells
-        ``new_ids`` (P, W) (:func:`~onlinemap.kernels.rbpf.rbpf_commit_cells`), copying a shared
-        block before writing it; then :meth:`refresh`. Needs P W free rows (:meth:`reserved`).
-        O(P n_blocks) for the table rows of resampled particles plus O(P W B K) for the copies."""
-        if new_ids is None:
-            rbpf_commit(locations, *self.writes(), t, ancestors, new_locations, new_cells)
-        else:
-            rbpf_commit_cells(locations, *self.writes(), t, ancestors, new_locations, new_ids, new_cells)
-        self.refresh(t)
+    def arrays(self) -> Pool:
+        """The pool's arrays as the kernels take them (:class:`~onlinemap.kernels.rbpf.Pool`, with
+        ``max_age`` = :data:`REFRESH_STEPS`): views, not copies. O(1)."""
+        return Pool(self.rows, self.stamps, self.row_block, self.refcount, self.free, self.free_top, self.table,
+                    self.cell_block, self.cell_slot, self.block_members, self.powers, self.stamped, REFRESH_STEPS)
 
     def refresh(self, t: int) -> None:
         """Bring the next ``ceil(R / REFRESH_STEPS)`` rows up to date (the same values, stamped
@@ -223,7 +223,7 @@ class BlockPool:
         if not self.stamped:
             return
         count = -(-len(self.rows) // REFRESH_STEPS)
-        rbpf_refresh(self.rows, self.stamps, self.refcount, self.powers, t, self.refresh_cursor, count)
+        rbpf_refresh(t, self.refresh_cursor, count, *self.arrays())
         self.refresh_cursor = (self.refresh_cursor + count) % len(self.rows)
 
     def mixture(self, t: int, weights: np.ndarray, threads: int = 1) -> np.ndarray:
@@ -231,12 +231,10 @@ class BlockPool:
         (:func:`~onlinemap.kernels.rbpf_parallel.rbpf_map_mixture_parallel`, the same numbers).
         O(P n_blocks) plus one pass over the rows in use (K^2 flops per out-of-date slot)."""
         out = np.empty((len(self.cell_block), self.rows.shape[2]))
-        args = (self.rows, self.stamps, self.row_block, self.refcount, self.table, self.block_members, self.powers,
-                self.stamped, t, weights, out)
         if threads > 1:
-            rbpf_map_mixture_parallel(*args, threads)
+            rbpf_map_mixture_parallel(self.arrays(), t, weights, out, threads)
         else:
-            rbpf_map_mixture(*args)
+            rbpf_map_mixture(t, weights, out, *self.arrays())
         return out
 
     def particle_maps(self, t: int, which: np.ndarray | None = None) -> np.ndarray:
@@ -244,8 +242,7 @@ class BlockPool:
         them), a fresh array. O(M N K^2)."""
         which = np.arange(len(self.table)) if which is None else which
         out = np.empty((len(which), len(self.cell_block), self.rows.shape[2]))
-        particle_maps(self.rows, self.stamps, self.table, self.cell_block, self.cell_slot, self.powers,
-                      self.stamped, t, which, out)
+        particle_maps(t, which, out, *self.arrays())
         return out
 
     def check(self, n_particles: int, n_labels: int, t: int, name: str = "_blocks") -> None:

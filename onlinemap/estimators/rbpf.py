@@ -4,51 +4,40 @@ Each of P particles holds one trajectory of the robot and the exact map marginal
 Given a trajectory the cells are independent (each is a hidden Markov chain with transition C,
 observed through O only at the steps the robot read it), so a particle's map is N marginals of
 K labels: only the read cells change by the sensor (and, with blocking labels, the cell a move
-tried to enter); all cells drift by C, which is applied lazily (``C^dt`` for the ``dt`` steps
-since the cell was last brought up to date, when it is next read). A dynamic world therefore
-costs the same per step as a static one.
+tried to enter); all cells drift by C, applied lazily (``C^dt`` for the ``dt`` steps since the
+cell was last brought up to date, when it is next read), so a dynamic world costs the same per
+step as a static one. The trajectories are chosen by Fearnhead-Clifford's enumeration (the
+default) or sampled from a proposal (the class docstring).
 
-Two ways to choose the trajectories: by default (Fearnhead and Clifford 2003) every step
-enumerates each particle's successors with their exact weights and keeps P of them by optimal
-resampling (:func:`onlinemap.resampling.optimal_resampling`), none twice; or each particle
-samples one successor from a proposal and the population is resampled when the effective
-sample size drops (residual, systematic, stratified or multinomial).
-
-State (plain attributes): locations (P,), normalised log weights (P,), the particles' map
-marginals as shared copy-on-write blocks of B cells (``_blocks``, a
-:class:`~onlinemap.estimators.block_pool.BlockPool`: a pool of (B, K) block rows with
-reference counts, a (P, N / B) table of row indices, stamps per cell for lazy dynamics and the
-powers of C, with its invariants), a ``numpy.random.Generator``. To keep the table of powers
-bounded however long the run, each step also refreshes a few block rows in turn (brings them up
-to date: the same values), so that no stamp is more than ``REFRESH_STEPS`` old:
-O(R_used B K^2 / REFRESH_STEPS) per step.
+State (plain attributes): locations (P,), normalised log weights (P,), the particles' maps as
+shared copy-on-write blocks of B cells (``_blocks``, a
+:class:`~onlinemap.estimators.block_pool.BlockPool`, with its invariants), a
+``numpy.random.Generator``. Each step also refreshes a few block rows in turn (the same values,
+brought up to date), so that no stamp is more than ``REFRESH_STEPS`` old and the table of powers
+of C stays bounded: O(R_used B K^2 / REFRESH_STEPS) per step. The kernels a filter runs are
+chosen once by its model and threads (:mod:`onlinemap.estimators.rbpf_kernels`).
 
 Cost per step: O(P K^2) for the proposal and weighting (a particle reads its cell and the
 intended neighbour; O(P F K^2) for a footprint of F cells) plus O(P B K) at most for
 copy-on-write of shared blocks (O(P W B K), W = F + 1 cells written); a resampling step adds
-O(P_dropped N / B) (table rows copied, not maps). Fearnhead-Clifford resamples every step (its
-2P children to P, O(P) plus O(N) to order them by location). ``belief.location`` is O(P + N);
-``belief.map`` (the weighted mixture) is O(P N / B) plus one pass over the block rows in use
-(at most P N K floats, far fewer while particles share blocks; K^2 flops per out-of-date cell
-in a dynamic world). :meth:`RaoBlackwellisedPF.update` advances without building the belief;
-the ``belief`` property builds it on first access (then caches it), and :meth:`step` is
-``update`` followed by ``belief``. Memory: the block rows in use (at most ``8 P N (K + 1)``
-bytes), ``8 P N / B`` for the table, ``32 K^2 REFRESH_STEPS`` for the powers of C, and the
-step's buffers, which the filter owns (:func:`state_bytes`; measured 580-710 bytes per particle
-on the 10 x 10 door world, 2.8 KB on 64 x 64); the guard ``max_bytes`` checks it when the filter
-starts and whenever the pool grows. Measured (``onlinemap bench rbpf``, rows ``per particle``):
-an update 0.26-0.35 us of CPU per particle at 10^4-10^5 particles on the 10 x 10 door world, the
-belief 0.07. With ``threads`` the drivers of :mod:`onlinemap.kernels.rbpf_parallel` run the same
-kernels on runs of particles at once (the same results). A step that recovers from particle
-depletion (see the class docstring) weighs N P children instead: O(P N F K^2) time and at most
-32 P N bytes more (:func:`recovery_bytes`, which the guard checks before they are taken). With the
-resample-move option (class docstring) a move of every particle costs O(P W S (F K + 1)) every
-``move_every`` steps (S the cells a window's step can take) and the path history up to 2 P t
-bytes (:mod:`onlinemap.estimators.rbpf_move`).
+O(P_dropped N / B) (table rows copied, not maps); Fearnhead-Clifford adds O(P + N) to keep P of
+its 2P children. ``belief.location`` is O(P + N); ``belief.map`` (the weighted mixture) is
+O(P N / B) plus one pass over the block rows in use (K^2 flops per out-of-date cell in a dynamic
+world), built on first access of ``belief`` (:meth:`RaoBlackwellisedPF.update` does not build
+it). Memory: the block rows in use (at most ``8 P N (K + 1)`` bytes), ``8 P N / B`` for the
+table, ``32 K^2 REFRESH_STEPS`` for the powers of C and the step's buffers
+(:mod:`onlinemap.estimators.rbpf_memory`, the guard ``max_bytes``). Measured (``onlinemap bench
+rbpf``, rows ``per particle``): an update 0.26-0.35 us of CPU per particle at 10^4-10^5 particles
+on the 10 x 10 door world, the belief 0.07. With ``threads`` the drivers of
+:mod:`onlinemap.kernels.rbpf_parallel` run the same kernels on runs of particles at once (the
+same results). A recovery from depletion weighs N P children
+(:mod:`onlinemap.estimators.rbpf_recovery`); resample-move costs O(P W S (F K + 1)) every
+``move_every`` steps and a path history of up to 2 P t bytes (:mod:`onlinemap.estimators.rbpf_move`).
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from types import MappingProxyType
@@ -58,31 +47,28 @@ import numba
 import numpy as np
 
 from .. import arguments
-from .. import state_checks as checks
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
-from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError, ModelError
-from ..kernels.rbpf import (in_place_ancestors, rbpf_commit_children, rbpf_commit_children_cells, rbpf_enumerate,
-                             rbpf_enumerate_cells, rbpf_keep_children, rbpf_pick_children, rbpf_place_children,
-                             rbpf_propose, rbpf_relocated_children, rbpf_relocation_weights)
+from ..errors import ImpossibleObservationError, InvalidOptionError, ModelError
 from ..kernels import rbpf_parallel
-from ..kernels.rbpf_parallel import (rbpf_commit_staged_parallel, rbpf_enumerate_cells_parallel,
-                                      rbpf_enumerate_parallel, rbpf_propose_parallel,
-                                      rbpf_stage_children_cells_parallel, rbpf_stage_children_parallel)
-from ..resampling import RESAMPLERS, effective_sample_size, optimal_keep
-from ..rng import SeedLike, as_generator
+from ..kernels.rbpf import in_place_ancestors
+from ..kernels.rbpf_commit import Slots, Staged, rbpf_keep_children
+from ..kernels.rbpf_enumerate import Children
 from ..model import GridModel
+from ..resampling import RESAMPLERS, effective_sample_size
+from ..rng import SeedLike, as_generator
 from ..validation import check_step
 from .base import register
-from ..checkpoint import state_node
-from .block_pool import FORMAT_1_ATTRIBUTES, REFRESH_STEPS, BlockPool, block_layout
-from .rbpf_move import (MoveCounts, PathHistory, map_rows_per_move, move_options, new_history_bytes,
-                        path_rows_per_move)
+from .block_pool import BlockPool, block_layout
+from .rbpf_kernels import KernelSet, kernel_set, observed, world_tables
+from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start
+from .rbpf_move import MoveCounts, PathHistory, map_rows_per_move, move_options, path_rows_per_move
+from .rbpf_recovery import RELOCATION_SCALE, describe, impossible, logsumexp, no_particle_explains, relocate
+from .rbpf_state import check_state, upgrade_attributes
 
 logger = logging.getLogger(__name__)
 
 PROPOSALS = ("optimal", "transition")
-RELOCATION_SCALE = 3.0  # cells: the length scale of the recovery's relocation kernel exp(-d / scale)
 FEARNHEAD_CLIFFORD = "fearnhead_clifford"
 RESAMPLING = (*RESAMPLERS, FEARNHEAD_CLIFFORD)
 #: the filter's named schemes (the options that make each), which studies, benchmarks and figures
@@ -93,82 +79,6 @@ SCHEMES: dict[str, dict[str, str]] = {
     "optimal+residual": {"proposal": "optimal", "resampling": "residual"},
     "transition+residual": {"proposal": "transition", "resampling": "residual"},
 }
-
-
-def _logsumexp(x: np.ndarray, scratch: np.ndarray | None = None) -> float:
-    """``log sum exp(x)`` (-inf if every entry is); ``scratch`` (len(x),), if given, holds the
-    terms instead of a fresh array."""
-    top = float(np.max(x))
-    if top == -math.inf:
-        return -math.inf
-    terms = np.subtract(x, top, out=scratch)
-    return top + math.log(float(np.exp(terms, out=terms).sum()))
-
-
-def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = None, lazy_dynamics: bool = True,
-               threads: int = 1) -> int:
-    """Worst-case peak memory of the filter, in bytes (exact Python ints; allocates nothing): every
-    particle owning every one of its map blocks, the block pool grown by doubling to hold them
-    plus the rows a step writes (old and new pool alive together while it grows), a fresh copy
-    of the pool for eager dynamics, the table, the powers of C and a step's buffers
-    (:func:`state_bytes`), and the N P children of a step that recovers from depletion
-    (:func:`recovery_bytes`). Particles share most blocks (measured: 1.2-5 rows per particle,
-    against ``n_blocks`` here), so runs stay far below it; the filter's guard (``max_bytes``)
-    checks the memory it actually takes instead, when it starts, whenever its pool grows and
-    before a recovery."""
-    size, n_blocks = _block_shape(model, block_cells)
-    rows = n_blocks + 2 * n_particles
-    while rows - cells_written(model) * n_particles < n_blocks * n_particles:  # doubled until every particle
-        rows *= 2  # can own every block, with the rows a step writes to spare
-    return (state_bytes(model, n_particles, size, n_blocks, rows, rows // 2, lazy_dynamics, threads)
-            + recovery_bytes(model, n_particles))
-
-
-def state_bytes(model: GridModel, n_particles: int, block_size: int, n_blocks: int, rows: int, old_rows: int = 0,
-                lazy_dynamics: bool = True, threads: int = 1) -> int:
-    """Bytes of the filter with a pool of ``rows`` block rows of ``block_size`` cells (``old_rows``
-    more while a smaller pool is copied into it): the pool (rows, stamps in a dynamic world,
-    row_block / refcount / free), a fresh copy of the rows for eager dynamics, the particle table
-    (P n_blocks), the powers of C, and a step's buffers (children, weights, the parallel commit's
-    staging, the belief). O(1)."""
-    n, k, p = model.n_cells, model.n_labels, n_particles
-    stamped = lazy_dynamics and not model.is_static
-    row_bytes = 8 * (block_size * k + (block_size if stamped else 0) + 3)
-    eager = 0 if lazy_dynamics or model.is_static else rows * block_size * k * 8
-    powers = 8 * k * k * (4 * REFRESH_STEPS + 1 if stamped else 1)
-    width = cells_written(model)
-    per_step = 8 * p * (width * (k + 1) * 3 + k + 8) + 8 * n * k + 8 * rows  # children, weights, belief, row weights
-    staged = 8 * p * (3 * width + 1 + width * k) if threads > 1 else 0
-    return (rows + old_rows) * row_bytes + eager + 8 * p * n_blocks + powers + per_step + staged
-
-
-def _block_shape(model: GridModel, block_cells: int | None) -> tuple[int, int]:
-    """(cells per block, number of blocks) of :func:`block_layout`, without building it."""
-    n = model.n_cells
-    block_cells = block_cells or max(1, round(math.sqrt(n / model.n_labels)))  # block_layout's default
-    if model.rows == 1:
-        size = min(block_cells, n)
-        return size, -(-n // size)
-    side = max(1, math.isqrt(block_cells))
-    return side * side, -(-model.rows // side) * -(-model.cols // side)
-
-
-def recovery_bytes(model: GridModel, n_particles: int) -> int:
-    """Bytes a step that recovers from depletion takes on top of the filter's
-    (:meth:`RaoBlackwellisedPF._recover`): the N P children's weights, the order the optimal
-    resampling walks them and, at worst, its sort (32 N P). O(1)."""
-    return 32 * model.n_cells * n_particles
-
-
-def reads_one_cell(model: GridModel) -> bool:
-    """The paper's motion and sensor: no blocking labels, the robot reads only its own cell."""
-    return not model.has_blocking and model.n_readings == 1 and not model.off_grid_patterns.any()
-
-
-def cells_written(model: GridModel) -> int:
-    """W, the most cells one particle's map changes in a step: the F read cells, plus the intended
-    cell of a move with blocking labels (its success or failure tells about it)."""
-    return model.n_readings + int(model.has_blocking)
 
 
 @register("rbpf")
@@ -192,81 +102,51 @@ class RaoBlackwellisedPF:
     ``seed`` (int, None or Generator);
     ``lazy_dynamics`` (False applies C to every cell of every particle every step: O(P N K^2),
     the reference the lazy scheme is tested against); ``block_cells`` B, the cells per shared
-    map block (see :func:`block_layout`; default about sqrt(N / K)); ``max_bytes``, the guard on
-    the filter's memory (:func:`state_bytes`), checked when it starts and whenever the pool of map
-    blocks must grow (particles share fewer blocks as their trajectories part): a step that would
-    take the filter beyond it raises :class:`~onlinemap.errors.MemoryLimitError` and leaves the
-    filter as it was; raise ``est.max_bytes`` to continue. Its worst case, every particle owning
-    every block, is :func:`peak_bytes`.
+    map block (:func:`~onlinemap.estimators.block_pool.block_shape`; default about sqrt(N / K));
+    ``max_bytes``, the guard on the filter's memory (:mod:`onlinemap.estimators.rbpf_memory`),
+    checked when it starts, whenever the pool of map blocks must grow (particles share fewer
+    blocks as their trajectories part) and before a recovery: a step that would take the filter
+    beyond it raises :class:`~onlinemap.errors.MemoryLimitError` and leaves the filter as it was;
+    raise ``est.max_bytes`` to continue.
 
-    **Recovery from depletion.** When no particle explains an observation the model allows (every
-    trajectory that did was dropped; in a blocking world with a footprint, the off-grid readings
-    -1 rule particles out exactly), the step does not raise. A sampling step whose draws all miss
-    first enumerates the particles' successors as Fearnhead-Clifford does (the same children, so
-    the model's own posterior given the particles); when those all have weight zero too (with
+    **Recovery from depletion.** When no particle explains an observation the model allows, the
+    step does not raise. A sampling step whose draws all miss first enumerates the particles'
+    successors as Fearnhead-Clifford does; when those all have weight zero too (with
     Fearnhead-Clifford, when its enumeration is empty) the filter *recovers*: it takes the exact
-    limit of an augmented model. In it the robot, with probability eps, is lifted and put down on
-    a passable cell l drawn from ``K(l | l') = exp(-d(l, l') / s) / Z(l')`` instead of following
-    T (d the fewest moves from its last cell l', labels ignored; ``s = RELOCATION_SCALE`` = 3
-    cells; Z sums over the cells reachable from l'); and, after such a relocation only, each cell
-    it then reads is, with probability delta, redrawn from its model marginal ``label_prior C^t``.
-    Given the particle set (weights w_p, cells l_p, maps m_p) the posterior is ``(1 - eps) R + eps
-    sum_r delta^r S_r`` (up to factors ``1 - delta`` that tend to 1):
-    R the regular children, S_r the relocated ones with r read cells redrawn. R = 0 here, so as
-    eps, delta -> 0 it tends to S_r for the smallest r with S_r > 0: children (p, l) weighted
-    ``w_p K(l | l_p) P(z, m_l passable | l, m_p)`` where each read cell keeps m_p's marginal
-    unless that marginal rules out its reading (then it takes the model marginal: r such cells).
-    P of these children (N P at most) are kept by optimal resampling, as Fearnhead-Clifford keeps
-    its children. The recovered belief is thus the filter's best account of the data given that
-    the robot was somewhere other than its particles say: it approximates ``P(L_t, M_t | data)``
-    under the augmented model, with the particles before the step standing in for the past; it is
-    not the model's posterior (which the lost trajectories carried). ``log_evidence`` adds the log
-    of the children's total weight, the evidence given the relocation (the vanishing ``log eps``
-    left out). The step's belief has ``recovered=True``, :attr:`recoveries` counts such steps
-    (checkpointed), and a warning on the logger ``onlinemap.estimators.rbpf`` names the step and
-    what was done. Only an observation nothing explains even so (step 0, where there is no motion;
-    or no cell of the grid, with labels the model allows at step t, sees it) raises
-    :class:`ImpossibleObservationError`, the state unchanged. Steps that do not deplete run exactly
-    as before recovery existed (same numbers, same random draws). A recovery costs O(P N U K^2)
-    time (U <= F + 1 the cells a child touches) and at most 32 P N bytes more
-    (:func:`recovery_bytes`; the guard ``max_bytes`` checks them before they are taken:
-    :class:`~onlinemap.errors.MemoryLimitError`, the filter unchanged). Its children carry their
-    own cells (relocated, some reset), which the commit writes as given (with threads, in
-    parallel: the same results). Setting the attribute
-    ``recover_from_depletion = False`` (checkpointed with the state) makes a depleted step raise
-    :class:`ImpossibleObservationError` instead, the state unchanged, as before recovery existed:
-    for hypothetical steps (a planner enumerating observations gives those the particles rule out
-    probability zero) or to stop a run rather than relocate.
+    limit of a model in which the robot may be lifted and put down near its last cell, and a cell
+    it then reads redrawn from its model marginal (:mod:`onlinemap.estimators.rbpf_recovery`, the
+    math and the cost; ``RELOCATION_SCALE`` = 3 cells). The step's belief has ``recovered=True``,
+    :attr:`recoveries` counts such steps (checkpointed), and a warning on the logger
+    ``onlinemap.estimators.rbpf`` names the step and what was done. Only an observation nothing
+    explains even so (step 0, where there is no motion; or no cell of the grid, with labels the
+    model allows at step t, sees it) raises :class:`ImpossibleObservationError`, the state
+    unchanged. Steps that do not deplete take the same numbers and random draws as a filter
+    without recovery. Setting the attribute ``recover_from_depletion = False`` (checkpointed with
+    the state) makes a depleted step raise :class:`ImpossibleObservationError` instead, the state
+    unchanged: for hypothetical steps (a planner enumerating observations gives those the
+    particles rule out probability zero) or to stop a run rather than relocate.
 
     **Resample-move** (``move_window``, ``move_every``, ``move_lag``; off by default, Gilks and
     Berzuini 2001; the math in :mod:`onlinemap.estimators.rbpf_move`). With ``move_window`` = W
     (1 to 1000), every ``move_every`` steps (default 10, the best measured), after the step's update, each live
-    particle redraws W consecutive past locations ``x_{s+1..s+W}``, s drawn uniformly so that the
-    window ends at least ``move_lag`` steps back (default 100; 0 lets it end at t), by a
-    Metropolis-Hastings move whose invariant law is the posterior over paths (proposal: forward
-    filtering, backward sampling of the window given its two ends and the particle's map with
-    the window's readings divided out; acceptance: the revisits inside the window). Weights,
-    the evidence and the streaming contract are unchanged (``step`` returns the belief at t);
-    each particle's map becomes the exact map given its new path. Moves wait until the filter
-    is no longer exact (Fearnhead-Clifford has dropped a child; the sampling schemes move from
-    the start), so with room for every child (P >= 2^T) the filter is exact Bayes, bit for bit
-    the filter without moves. It needs a static world, no blocking labels and a sensor without
-    zero entries (the readings are divided out of the maps): ``move_window`` is refused
-    otherwise (:class:`~onlinemap.errors.InvalidOptionError` naming the reason). After a
-    recovery from depletion windows start at or after the step that recovered. The filter keeps
-    every particle's path (shared copy-on-write blocks of steps) and every step's action and
-    readings: up to 2 P t bytes more, counted by ``max_bytes``. :attr:`moves` counts the
-    windows proposed and accepted (checkpointed). What it buys: on the paper's world replay at
-    1,000 particles (W = 20, every 5) the final map error falls from 0.26 to about 0.20 for 3.2x
-    the time per step (the user guide's Estimators page, RBPF section).
+    particle redraws W consecutive past locations, the window ending at least ``move_lag`` steps
+    back (default 100; 0 lets it end at t), by a Metropolis-Hastings move whose invariant law is
+    the posterior over paths. Weights, the evidence and the streaming contract are unchanged
+    (``step`` returns the belief at t). Moves wait until the filter is not exact
+    (Fearnhead-Clifford has dropped a child), so with room for every child (P >= 2^T) the filter
+    is bit for bit the filter without moves. It needs a static world, no blocking labels and a
+    sensor without zero entries: ``move_window`` is refused otherwise
+    (:class:`~onlinemap.errors.InvalidOptionError` naming the reason). The filter keeps every
+    particle's path and every step's action and readings: up to 2 P t bytes more, counted by
+    ``max_bytes``. :attr:`moves` counts the windows proposed and accepted (checkpointed). What it
+    buys: on the paper's world replay at 1,000 particles (W = 20, every 5) the final map error
+    falls from 0.26 to about 0.20 for 3.2x the time per step (the user guide's Estimators page, RBPF section).
 
     ``threads``: how many threads the update and the belief use, at most ``NUMBA_NUM_THREADS``
-    (the cores numba counts for this process, or that environment variable, read when numba
-    starts; kept as the limit, although the threads are Python threads running numba kernels
-    that release the GIL, :mod:`onlinemap.kernels.rbpf_parallel`); ``None`` for all of them. The results are
-    the same bit for bit whatever the number. The default, 1, runs the serial kernels: threads
-    pay from about 10^4 particles and only on cores nothing else uses, and the few kernels only
-    they use compile once (seconds, then cached).
+    (None: all; Python threads on numba kernels that release the GIL,
+    :mod:`onlinemap.kernels.rbpf_parallel`), the results the same bit for bit whatever the number.
+    The default, 1, runs the serial kernels: threads pay from about 10^4 particles and only on
+    cores nothing else uses.
     """
 
     #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
@@ -289,18 +169,11 @@ class RaoBlackwellisedPF:
                  move_every: int = 10, move_lag: int = 100):
         error = InvalidOptionError
         n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
-        proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
-        if resampling is None:
-            resampling = FEARNHEAD_CLIFFORD if proposal == "optimal" else "residual"
-        resampling = arguments.choice("resampling", resampling, RESAMPLING, error)
-        if resampling == FEARNHEAD_CLIFFORD and proposal != "optimal":
-            raise error(f"proposal={proposal!r} samples one successor per particle; resampling="
-                        f"'{FEARNHEAD_CLIFFORD}' enumerates them all (the optimal proposal's weights): pass "
-                        f"resampling='residual' (or another sampling scheme) to use it")
+        proposal, resampling = _scheme(proposal, resampling)
         resample_threshold = arguments.probability("resample_threshold", resample_threshold, error)
         seed = arguments.seed("seed", seed, error)
         lazy_dynamics = arguments.flag("lazy_dynamics", lazy_dynamics, error)
-        if not reads_one_cell(model) and not lazy_dynamics and not model.is_static:
+        if not model.is_paper_model and not lazy_dynamics and not model.is_static:
             raise error("lazy_dynamics=False (the eager reference) does not support blocking labels or a sensor "
                         "footprint")
         if block_cells is not None:
@@ -308,18 +181,7 @@ class RaoBlackwellisedPF:
         max_bytes = arguments.byte_limit("max_bytes", max_bytes, error)
         threads = _thread_count(threads)
         move_window, move_every, move_lag = move_options(model, move_window, move_every, move_lag)
-        n, k = model.n_cells, model.n_labels
-        size, n_blocks = _block_shape(model, block_cells)
-        need = state_bytes(model, n_particles, size, n_blocks, n_blocks + 2 * n_particles, 0, lazy_dynamics, threads)
-        need += 0 if move_window is None else new_history_bytes(model, n_particles)
-        if need > max_bytes:
-            raise MemoryLimitError(
-                f"rbpf with {n_particles} particles on N={n} cells, K={k} labels needs {need / 1e9:.3g} GB to start "
-                f"(its pool of map blocks, the particle table, a step's buffers"
-                f"{'' if move_window is None else ', the path history of move_window'}) but the limit is "
-                f"{max_bytes / 1e9:.3g} GB; pass max_bytes=... to raise it (a run may need up to "
-                f"{peak_bytes(model, n_particles, block_cells, lazy_dynamics, threads) / 1e9:.3g} GB, if every "
-                f"particle came to own every map block)")
+        check_start(Sizing(model, n_particles, lazy_dynamics, threads, max_bytes), block_cells, move_window)
         layout = block_layout(model, block_cells)
         self.model = model
         self.n_particles = n_particles
@@ -344,7 +206,7 @@ class RaoBlackwellisedPF:
         staged = n_particles if threads > 1 else 0  # the parallel commit's staging
         width = cells_written(model)
         self._scratch_staged_ints = np.zeros(staged * (3 * width + 1), dtype=np.int64)
-        self._scratch_staged_cells = np.zeros((staged, width, k))
+        self._scratch_staged_cells = np.zeros((staged, width, model.n_labels))
         self._log_evidence = 0.0
         self._ess = float(n_particles)
         self._resampled = False
@@ -354,64 +216,10 @@ class RaoBlackwellisedPF:
         self._t = -1
         self._belief: Belief | None = None
 
-    @staticmethod
-    def upgrade_attributes(attributes: dict, version: int) -> dict:
-        """A checkpoint's encoded attributes of format ``version`` as the current format has them:
-        version 1 kept the block pool as 13 loose attributes (``_pool``, ``_table``...), gathered
-        here into ``_blocks`` (the checks on load then validate it as any other); versions 1 and 2
-        had no recovery from depletion (a filter that never recovered, with recovery on:
-        ``_recoveries`` 0, ``_recovered`` False, ``recover_from_depletion`` True); versions 1 to 3
-        had no resample-move step (``_history`` None: its option ``move_window`` takes its
-        default, None, on load). O(1)."""
-        if version == 1 and all(name in attributes for name in FORMAT_1_ATTRIBUTES):
-            fields = {field: attributes.pop(name) for name, field in FORMAT_1_ATTRIBUTES.items()}
-            attributes["_blocks"] = state_node(BlockPool, fields)
-        if version <= 2:
-            attributes.setdefault("recover_from_depletion", True)
-            attributes.setdefault("_recoveries", 0)
-            attributes.setdefault("_recovered", False)
-        if version <= 3:
-            attributes.setdefault("_history", None)
-            attributes.setdefault("move_window", None)
-            attributes.setdefault("move_every", 10)
-            attributes.setdefault("move_lag", 100)
-        return attributes
-
-    @staticmethod
-    def check_state(state) -> None:
-        """The invariants of a restored state (:mod:`onlinemap.state_checks`): the particles, their
-        weights and the copy-on-write block pool (:meth:`BlockPool.check
-        <onlinemap.estimators.block_pool.BlockPool.check>`)."""
-        model = state.model
-        n, k, p = model.n_cells, model.n_labels, state.n_particles
-        t = checks.step_index(state)
-        checks.indices("_locations", checks.array(state, "_locations", (p,), np.int64, written=True), n)
-        log_weights = checks.array(state, "_log_weights", (p,), np.float64)
-        if np.any(np.isnan(log_weights)) or np.any(log_weights == math.inf) or not np.any(np.isfinite(log_weights)):
-            checks.fail("_log_weights", "must be finite or -inf, at least one finite")
-        top = float(log_weights.max())
-        if abs(top + math.log(float(np.exp(log_weights - top).sum()))) > checks.ATOL:
-            checks.fail("_log_weights", "must be normalised (log-sum-exp 0)")
-        weights = checks.array(state, "_weights", (p,), np.float64)
-        if weights.tobytes() != np.exp(log_weights).tobytes():
-            checks.fail("_weights", "must equal exp(_log_weights)")
-        checks.real(state, "_ess", low=0.0, high=float(p))
-        checks.log_evidence(state)
-        if type(state._resampled) is not bool:
-            checks.fail("_resampled", "must be a bool")
-        if type(state.recover_from_depletion) is not bool:
-            checks.fail("recover_from_depletion", "must be a bool")
-        checks.integer(state, "_recoveries", 0, max(t, 0))  # at most one per step, none at step 0
-        if type(state._recovered) is not bool or (state._recovered and (t < 1 or state._recoveries < 1)):
-            checks.fail("_recovered", "must be a bool, True only after a step >= 1 that counted a recovery")
-        state._blocks.check(p, k, t)  # the copy-on-write pool (estimators/block_pool.py); its kind was checked
-        moving = state.move_window is not None  # CONSTANT_STATE: what the options give
-        if moving != isinstance(state._history, PathHistory):
-            checks.fail("_history", f"must be {'a PathHistory' if moving else 'None'} with move_window="
-                                    f"{state.move_window!r}")
-        if moving:
-            state._history.check(model, state._locations, t)  # estimators/rbpf_move.py
-        checks.belief(state, required=False)
+    #: a checkpoint's attributes of an older format as the current one has them, and the
+    #: invariants of a restored state (:mod:`onlinemap.estimators.rbpf_state`)
+    upgrade_attributes = staticmethod(upgrade_attributes)
+    check_state = staticmethod(check_state)
 
     @property
     def threads(self) -> int:
@@ -516,18 +324,12 @@ class RaoBlackwellisedPF:
         return self.belief
 
     def update(self, action, observation) -> None:
-        """Advance the particles by one action (None at step 0) and observation.
-
-        Resample first if the effective sample size is below ``resample_threshold * P``; then
-        propose, weight and update each particle's observed cell. If the observation has
-        probability zero for every particle (depletion), recover (:meth:`_recover`, see the class
-        docstring); if nothing explains it even then (impossible under the model), raise
-        :class:`ImpossibleObservationError` and leave everything (particles, weights, random
-        generator) as it was; so does a step that would take the filter's memory beyond
-        ``max_bytes`` (:class:`~onlinemap.errors.MemoryLimitError`). With ``move_window``, the
-        step is then recorded in the path history and, when due, followed by the resample-move
-        step (the class docstring).
-        """
+        """Advance the particles by one action (None at step 0) and observation: resample first if
+        due, then propose, weight and update each particle's observed cells; on depletion, recover
+        (:meth:`_recover`). An observation nothing explains (:class:`ImpossibleObservationError`)
+        or a step beyond ``max_bytes`` (:class:`~onlinemap.errors.MemoryLimitError`) leaves
+        everything (particles, weights, random generator) as it was. With ``move_window``, the step
+        is then recorded in the path history and, when due, followed by the resample-move step."""
         a, z = check_step(self.model, self._t + 1, action, observation)
         t = self._t + 1
         if self.resampling == FEARNHEAD_CLIFFORD:
@@ -545,7 +347,7 @@ class RaoBlackwellisedPF:
         """:meth:`update` with a sampling scheme (``a``, ``z`` checked): resample if due, propose,
         weight, commit; when every draw missed, :meth:`_update_fearnhead_clifford` instead."""
         model = self.model
-        blocks = self._reserved(t)
+        blocks = self._step_pool(t, a)
         rng_state = self._rng.bit_generator.state
         n_particles = self.n_particles
         log_weights = self._log_weights
@@ -556,40 +358,37 @@ class RaoBlackwellisedPF:
             chosen = RESAMPLERS[self.resampling](self._weights, self._rng)
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
             log_weights = np.full(n_particles, -math.log(n_particles))
-        one_cell = reads_one_cell(model)
-        if a is not None and not model.is_static and not self.lazy_dynamics:
-            blocks = blocks.with_rows(blocks.rows @ model.change)  # eager: every cell of every block row, fresh array
-        neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
-        new_locations = np.empty(n_particles, dtype=np.int64)
-        log_increments = np.empty(n_particles)
-        new_ids = None
-        if one_cell:
-            new_cells = np.empty((n_particles, model.n_labels))
-            proposal = (self._locations, *blocks.reads(), t, ancestors, neighbors, model.p_move, model.likelihood[z],
-                        self.proposal == "optimal", self._rng.random(n_particles), new_locations, new_cells,
-                        log_increments)
-            if self._parallel:
-                rbpf_propose_parallel(*proposal, rbpf_parallel.CHUNK, self.threads)
-            else:
-                rbpf_propose(*proposal)
-        else:  # the same children Fearnhead-Clifford enumerates, one drawn per particle
-            m, children = self._enumerate_cells(blocks, t, neighbors, z, np.zeros(n_particles))
-            width = cells_written(model)
-            new_ids = np.empty((n_particles, width), dtype=np.int64)
-            new_cells = np.empty((n_particles, width, model.n_labels))
-            rbpf_pick_children(ancestors, *children, m, self.proposal == "optimal", self._rng.random(n_particles),
-                               new_locations, new_ids, new_cells, log_increments)
+        staged, log_increments = self._kernels.propose(self._locations, blocks.arrays(), world_tables(model), t,
+                                                       ancestors, self._neighbors(a), observed(model, z),
+                                                       self.proposal == "optimal", self._rng.random(n_particles))
         log_weights = log_weights + log_increments
-        increment = _logsumexp(log_weights)
+        increment = logsumexp(log_weights)
         if increment == -math.inf:  # every draw missed: enumerate the particles' successors instead
             self._rng.bit_generator.state = rng_state
             logger.info("rbpf step %d: every particle's proposal has probability zero for observation %s; the "
                         "step enumerates the particles' successors instead (as Fearnhead-Clifford does)", t,
-                        _describe(model, z))
+                        describe(model, z))
             self._update_fearnhead_clifford(a, z, t)
             return
-        self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - increment, increment, resample,
-                     new_ids)
+        self._commit(t, blocks, ancestors, staged, log_weights - increment, increment, resample)
+
+    @property
+    def _kernels(self) -> KernelSet:
+        """The filter's kernel set (:func:`~onlinemap.estimators.rbpf_kernels.kernel_set`): fixed by
+        the model and the options (looked up, not stored: a checkpoint holds state, not code)."""
+        return kernel_set(self.model.is_paper_model, self.threads if self._parallel else 1)
+
+    def _step_pool(self, t: int, a: int | None) -> BlockPool:
+        """The pool step t writes into: :meth:`_reserved`, advanced by C in a dynamic world with
+        eager dynamics (every cell of every block row, a fresh array)."""
+        blocks = self._reserved(t)
+        if a is not None and not self.model.is_static and not self.lazy_dynamics:
+            blocks = blocks.with_rows(blocks.rows @ self.model.change)
+        return blocks
+
+    def _neighbors(self, a: int | None) -> np.ndarray:
+        """(N,) the cell action ``a`` points at from each cell (every cell itself at step 0)."""
+        return _no_moves(self.model.n_cells) if a is None else self.model.moves[a]
 
     def _reserved(self, t: int) -> BlockPool:
         """The pool with the free rows a step writes (:meth:`BlockPool.reserved`: this filter's, or a
@@ -602,45 +401,15 @@ class RaoBlackwellisedPF:
         needs, never beyond that). O(1)."""
         pool, model, p = self._blocks, self.model, self.n_particles
         need = cells_written(model) * p
-        extra, history_bytes, history_grows = 0, 0, False
+        extra, history_bytes, history_grows = 0, None, False
         if self._history is not None:
             window = self.move_window
             moving = self._history.move_due(t, window, self.move_every, self.move_lag, exact=False)
             extra = p * map_rows_per_move(model, window, pool.table.shape[1]) if moving else 0
             history_bytes, history_grows = self._history.bytes_to_hold(
                 t, p * (1 + (path_rows_per_move(window) if moving else 0)))
-        rows, have = pool.rows_to_hold(need + extra), len(pool.rows)
-        if rows > have or history_grows:
-            n_blocks, size = pool.block_members.shape
-            total = history_bytes + state_bytes(model, p, size, n_blocks, rows, have if rows > have else 0,
-                                                self.lazy_dynamics, self.threads)
-            if total > self.max_bytes:
-                paths = "" if self._history is None else (f", the path history of move_window "
-                                                          f"{history_bytes / 1e9:.3g} GB")
-                raise MemoryLimitError(
-                    f"step {t}: the particles' maps use {np.count_nonzero(pool.refcount)} block rows (particles "
-                    f"share fewer blocks as their trajectories part: {p} x {n_blocks} if they shared none) and the "
-                    f"step needs the pool grown from {have} to {rows} rows{paths}, {total / 1e9:.3g} GB in all, "
-                    f"over max_bytes = {self.max_bytes / 1e9:.3g} GB. The filter is unchanged: raise est.max_bytes "
-                    f"to continue, or use fewer particles")
+        check_growth(self._sizing, pool, t, pool.rows_to_hold(need + extra), history_bytes, history_grows)
         return pool.reserved(need)
-
-    def _enumerate_cells(self, blocks: BlockPool, t, neighbors, z, log_weights):
-        """(M, (parent, location, log weight, log motion, ids, cells)): :func:`rbpf_enumerate_cells`
-        on the current particles with ``log_weights``, the observation ``z`` an int or (F,)."""
-        model = self.model
-        size, width = 2 * self.n_particles, cells_written(model)
-        children = (np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size), np.empty(size),
-                    np.empty((size, width), dtype=np.int64), np.empty((size, width, model.n_labels)))
-        m = self._enumerate(rbpf_enumerate_cells, rbpf_enumerate_cells_parallel, self._locations, log_weights,
-                            *blocks.reads(), t, neighbors, *_motion_and_sensor(model, z), *children)
-        return m, children
-
-    def _enumerate(self, serial, parallel, *args) -> int:
-        """``serial(*args)``, or with threads its parallel driver (which returns the same)."""
-        if not self._parallel:
-            return serial(*args)
-        return parallel(*args, rbpf_parallel.CHUNK, self.threads)
 
     def _fc_buffers(self) -> _FCBuffers:
         """Views of the filter's scratch buffers for one Fearnhead-Clifford step (2P children, P
@@ -649,181 +418,101 @@ class RaoBlackwellisedPF:
         ints, floats, p = self._scratch_ints, self._scratch_floats, self.n_particles
         if not len(ints):
             ints, floats = np.empty((5, 2 * p), dtype=np.int64), np.empty((3, 2 * p))
-        return _FCBuffers(ints[0], ints[1], floats[0], floats[1], ints[2], ints[3, :p], floats[2, :p], ints[3, p:],
-                          ints[4, :p], floats[2, p:])
+        children = Children(ints[0], ints[1], floats[0], *_no_cells(cells_written(self.model), self.model.n_labels))
+        return _FCBuffers(children, floats[1], ints[2], ints[3, :p], floats[2, :p],
+                          Slots(ints[3, p:], ints[4, :p], floats[2, p:]))
 
     def _update_fearnhead_clifford(self, a: int | None, z, t: int) -> None:
-        """Enumerate every live particle's successors with their exact weights
-        (:func:`rbpf_enumerate`; :func:`rbpf_enumerate_cells` with blocking labels or a sensor
-        footprint), keep P of them by optimal resampling
-        (:func:`~onlinemap.kernels.rbpf.rbpf_keep_children`: none twice, unbiased; its strata walk
-        the children ordered by location, which spreads the draws over the cells: measured 1.6-2x
-        closer to exact than index order) and write them into the slots, each kept child's changed
-        cells computed from its parent's map as the enumeration defines them
-        (:func:`rbpf_commit_children`). O(P K^2 + N) (O(P F K^2) with a footprint of F cells); the
+        """Enumerate every live particle's successors with their exact weights (the kernel set's
+        ``enumerate``), keep P of them by optimal resampling
+        (:func:`~onlinemap.kernels.rbpf_commit.rbpf_keep_children`: none twice, unbiased; its strata
+        walk the children ordered by location, which spreads the draws over the cells: measured
+        1.6-2x closer to exact than index order) and write them into the slots, each kept child's
+        changed cells computed from its parent's map as the enumeration defines them (the kernel
+        set's ``commit_children``). O(P K^2 + N) (O(P F K^2) with a footprint of F cells); the
         resampling is O(P). Works in the filter's scratch buffers: no per-step allocation of size P."""
-        model = self.model
-        n_particles = self.n_particles
-        blocks = self._reserved(t)
-        if a is not None and not model.is_static and not self.lazy_dynamics:
-            blocks = blocks.with_rows(blocks.rows @ model.change)
-        neighbors = _no_moves(model.n_cells) if a is None else model.moves[a]
-        one_cell = reads_one_cell(model)
-        parallel = self._parallel
+        model, kernels = self.model, self._kernels
+        blocks = self._step_pool(t, a)
+        pool, world = blocks.arrays(), world_tables(model)
+        neighbors, observation = self._neighbors(a), observed(model, z)
         buffers = self._fc_buffers()
-        children = (buffers.child_parent, buffers.child_location, buffers.child_log_weight)
-        if one_cell:
-            m = self._enumerate(rbpf_enumerate, rbpf_enumerate_parallel, self._locations, self._log_weights,
-                                *blocks.reads(), t, neighbors, model.p_move, model.likelihood[z], *children)
-        else:
-            m = self._enumerate(rbpf_enumerate_cells, rbpf_enumerate_cells_parallel, self._locations, self._log_weights,
-                                *blocks.reads(), t, neighbors, *_motion_and_sensor(model, z), *children,
-                                *_no_child_cells(model))
+        children, slots = buffers.children, buffers.slots
+        m = kernels.enumerate(self._locations, self._log_weights, pool, world, t, neighbors, observation, children)
         if m == 0:  # depletion
             self._recover(a, z, t, blocks)
             return
         weights = buffers.child_weight[:m]
-        increment = _logsumexp(buffers.child_log_weight[:m], weights)
-        np.exp(np.subtract(buffers.child_log_weight[:m], increment, out=weights), out=weights)
-        threshold = rbpf_keep_children(buffers.child_parent, buffers.child_location, weights, model.n_cells,
-                                       self._rng.random(), buffers.order, buffers.kept, buffers.kept_weights,
-                                       buffers.ancestors, buffers.slot_child, buffers.log_weights)
-        if parallel:  # stage every kept child's writes, then commit them (rbpf_parallel: the same state)
-            staged = self._staged_buffers()
-            if one_cell:
-                rbpf_stage_children_parallel(*blocks.reads(), t, buffers.ancestors, buffers.slot_child,
-                                             buffers.child_location, model.likelihood[z], *staged[:3],
-                                             rbpf_parallel.CHUNK, self.threads)
-            else:
-                rbpf_stage_children_cells_parallel(self._locations, *blocks.reads(), t, buffers.ancestors,
-                                                   buffers.slot_child, buffers.child_location, neighbors,
-                                                   *_motion_and_sensor(model, z), *staged[:3], rbpf_parallel.CHUNK,
-                                                   self.threads)
-            rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, buffers.ancestors, *staged,
-                                        rbpf_parallel.CHUNK, self.threads)
-        elif one_cell:
-            rbpf_commit_children(self._locations, *blocks.writes(), t, buffers.ancestors, buffers.slot_child,
-                                 buffers.child_location, model.likelihood[z])
-        else:
-            rbpf_commit_children_cells(self._locations, *blocks.writes(), t, buffers.ancestors, buffers.slot_child,
-                                       buffers.child_location, neighbors, *_motion_and_sensor(model, z))
+        increment = logsumexp(children.log_weight[:m], weights)
+        np.exp(np.subtract(children.log_weight[:m], increment, out=weights), out=weights)
+        threshold = rbpf_keep_children(children.parent, children.location, weights, model.n_cells, self._rng.random(),
+                                       buffers.order, buffers.kept, buffers.kept_weights, slots.ancestors,
+                                       slots.slot_child, slots.log_weights)
+        kernels.commit_children(self._locations, pool, world, t, slots, children.location, neighbors, observation,
+                                self._staged_buffers())
         blocks.refresh(t)
-        self._advance(t, blocks, buffers.ancestors, buffers.log_weights,
-                      _logsumexp(buffers.log_weights, buffers.kept_weights), increment, threshold > 0)
+        self._advance(t, blocks, slots.ancestors, slots.log_weights, logsumexp(slots.log_weights,
+                                                                                buffers.kept_weights),
+                      increment, threshold > 0)
 
     def _recover(self, a: int | None, z, t: int, blocks: BlockPool) -> None:
         """The step when no particle explains ``z`` (depletion): the exact limit of the augmented
-        model of the class docstring from the particles before the step. Every live particle p and
-        cell l make a child weighted ``w_p K(l | l_p) P(z, l passable | l, map_p)``, with the fewest
-        read cells reset to their model marginal ``label_prior C^t`` that make it possible
-        (:func:`~onlinemap.kernels.rbpf.rbpf_relocation_weights`); P of them are kept by optimal
-        resampling (the strata walk them by location, as Fearnhead-Clifford's do) with one uniform,
-        their maps built (:func:`~onlinemap.kernels.rbpf.rbpf_relocated_children`) and committed
-        with those cells (:meth:`_commit_children`: a relocated child's cells do not follow from its
-        parent's map at its location, as Fearnhead-Clifford's children's do).
-        Raises :class:`ImpossibleObservationError`, changing nothing, at step 0 (no motion, no
+        model of the class docstring from the particles before the step
+        (:func:`~onlinemap.estimators.rbpf_recovery.relocate`), committed with the cells its
+        children carry (:meth:`_commit`: a relocated child's cells do not follow from its parent's
+        map at its location, as Fearnhead-Clifford's children's do). Raises
+        :class:`ImpossibleObservationError`, changing nothing, at step 0 (no motion, no
         relocation), when no child is possible, or when ``recover_from_depletion`` is False; and
-        :class:`~onlinemap.errors.MemoryLimitError`, changing nothing, when the recovery's
-        :func:`recovery_bytes` would take the filter beyond ``max_bytes``. ``blocks``: the step's
-        pool (reserved for P W writes; advanced by C with eager dynamics). Cost O(P N U K^2 +
-        min(P, N) N A) time, U <= W the cells a child touches, A the actions; at most 32 P N bytes."""
-        model = self.model
-        n_particles = self.n_particles
+        :class:`~onlinemap.errors.MemoryLimitError`, changing nothing, when the recovery's bytes
+        would take the filter beyond ``max_bytes``
+        (:func:`~onlinemap.estimators.rbpf_memory.check_recovery`). ``blocks``: the step's pool
+        (reserved for P W writes; advanced by C with eager dynamics)."""
+        model, n_particles = self.model, self.n_particles
         if not self.recover_from_depletion:
-            raise ImpossibleObservationError(_no_particle_explains(model, z, t, n_particles))
+            raise ImpossibleObservationError(no_particle_explains(model, z, t, n_particles))
         if a is None:
-            raise ImpossibleObservationError(_impossible(model, z, t, n_particles))
-        self._check_recovery_memory(t, blocks)
-        readings = np.atleast_1d(np.asarray(z, dtype=np.int64))
-        prior = np.array(model.label_prior if model.is_static else  # a writable copy: one kernel compile
-                         model.label_prior @ np.linalg.matrix_power(model.change, t), order="C")
-        child_log_weight = np.empty((model.n_cells, n_particles))
-        fewest = rbpf_relocation_weights(
-            self._locations, self._log_weights, *blocks.reads(), t, model.moves, RELOCATION_SCALE, model.blocking,
-            model.footprint_cells, model.sensor, readings, prior, child_log_weight)
-        if fewest < 0:
-            raise ImpossibleObservationError(_impossible(model, z, t, n_particles))
-        weights = child_log_weight.ravel()  # children ordered by location, then parent
-        increment = _logsumexp(weights)
-        weights -= increment
-        np.exp(weights, out=weights)  # in place: N P floats are the recovery's largest array
-        kept, kept_weights, threshold = optimal_keep(weights, n_particles, self._rng.random(), np.arange(len(weights)))
-        width = cells_written(model)
-        child_location, child_parent = np.divmod(kept, n_particles)
-        child_ids = np.empty((len(kept), width), dtype=np.int64)
-        child_cells = np.empty((len(kept), width, model.n_labels))
-        rbpf_relocated_children(child_parent, child_location, *blocks.reads(), t, model.blocking, model.footprint_cells,
-                                model.sensor, readings, prior, child_ids, child_cells)
+            raise ImpossibleObservationError(impossible(model, z, t, n_particles))
+        check_recovery(self._sizing, t, blocks, len(self._blocks.rows),
+                       0 if self._history is None else self._history.nbytes)
+        relocation = relocate(model, blocks.arrays(), self._locations, self._log_weights, t, z, self._rng)
+        if relocation is None:
+            raise ImpossibleObservationError(impossible(model, z, t, n_particles))
         parents = int(np.count_nonzero(self._weights))
-        self._commit_children(t, blocks, (child_parent, child_location, child_ids, child_cells), np.arange(len(kept)),
-                              kept_weights, increment, threshold > 0, recovered=True)
+        self._commit(t, blocks, relocation.ancestors, relocation.staged, relocation.log_weights, relocation.increment,
+                     relocation.resampled, recovered=True)
         self._recoveries += 1
         logger.warning("rbpf step %d: no particle explains observation %s (particle depletion); recovered by "
                        "relocating the %d live particles near their last cells (kernel exp(-d / %g), d in moves)%s; "
-                       "%d children kept (recovery %d of this filter)", t, _describe(model, z), parents,
-                       RELOCATION_SCALE, f" and resetting {fewest} read cell(s) to their prior" if fewest else "",
-                       len(kept), self._recoveries)
+                       "%d children kept (recovery %d of this filter)", t, describe(model, z), parents,
+                       RELOCATION_SCALE, f" and resetting {relocation.resets} read cell(s) to their prior"
+                       if relocation.resets else "", relocation.kept, self._recoveries)
 
-    def _check_recovery_memory(self, t: int, blocks: BlockPool) -> None:
-        """Raise :class:`~onlinemap.errors.MemoryLimitError` (nothing changed) when the filter, with
-        the step's pool ``blocks`` (and this filter's own while the step grew it), plus a
-        recovery's :func:`recovery_bytes` would exceed ``max_bytes``. O(1)."""
-        model, p = self.model, self.n_particles
-        n_blocks, size = blocks.block_members.shape
-        rows, have = len(blocks.rows), len(self._blocks.rows)
-        held = state_bytes(model, p, size, n_blocks, rows, have if rows != have else 0, self.lazy_dynamics,
-                           self.threads) + (0 if self._history is None else self._history.nbytes)
-        extra = recovery_bytes(model, p)
-        if held + extra > self.max_bytes:
-            raise MemoryLimitError(
-                f"step {t}: no particle explains the observation (particle depletion), and recovering weighs "
-                f"N P = {model.n_cells * p} children, {extra / 1e9:.3g} GB on top of the filter's {held / 1e9:.3g} "
-                f"GB, over max_bytes = {self.max_bytes / 1e9:.3g} GB. The filter is unchanged: raise "
-                f"est.max_bytes to continue, or use fewer particles")
+    @property
+    def _sizing(self) -> Sizing:
+        """What the memory guard needs of this filter (:mod:`~onlinemap.estimators.rbpf_memory`)."""
+        return Sizing(self.model, self.n_particles, self.lazy_dynamics, self.threads, self.max_bytes)
 
-    def _commit_children(self, t, blocks: BlockPool, children, kept, kept_weights, increment, resampled,
-                         recovered: bool) -> None:
-        """Put the ``kept`` children (indices into ``children`` = (parent, location, ids (M, W),
-        cells (M, W, K)), with ``kept_weights``) into the P slots (:func:`rbpf_place_children`)
-        and :meth:`_commit` them with the cells they carry: the commit of children whose changed
-        cells are given rather than recomputed from the parent's map at the child's location (a
-        recovery's relocated children and reset cells; Fearnhead-Clifford's own children go
-        through :func:`rbpf_commit_children`). O(P W K)."""
-        model, n_particles = self.model, self.n_particles
-        width = cells_written(model)
-        ancestors = np.empty(n_particles, dtype=np.int64)
-        new_locations = np.empty(n_particles, dtype=np.int64)
-        new_ids = np.empty((n_particles, width), dtype=np.int64)
-        new_cells = np.empty((n_particles, width, model.n_labels))
-        log_weights = np.empty(n_particles)
-        rbpf_place_children(*children, kept, kept_weights, ancestors, new_locations, new_ids, new_cells, log_weights)
-        self._commit(t, blocks, ancestors, new_locations, new_cells, log_weights - _logsumexp(log_weights), increment,
-                     resampled, new_ids, recovered)
-
-    def _staged_buffers(self) -> tuple:
-        """(new_locations (P,), new_ids (P, W), new_cells (P, W, K), target (P, W), source (P, W)):
-        views of the scratch buffers of the parallel commit (threads > 1)."""
+    def _staged_buffers(self) -> Staged | None:
+        """The threads' staging of a step's writes (:class:`~onlinemap.kernels.rbpf_commit.Staged`:
+        views of the filter's scratch buffers, P slots of W cells), None without threads."""
         p, width = self.n_particles, cells_written(self.model)
         ints = self._scratch_staged_ints
+        if not len(ints):
+            return None
         new_ids, target, source = (ints[i * p * width:(i + 1) * p * width].reshape(p, width) for i in range(3))
-        return ints[3 * p * width:], new_ids, self._scratch_staged_cells, target, source
+        return Staged(ints[3 * p * width:], new_ids, self._scratch_staged_cells, target, source)
 
-    def _commit(self, t, blocks: BlockPool, ancestors, new_locations, new_cells, log_weights, increment, resampled,
-                new_ids=None, recovered: bool = False) -> None:
+    def _commit(self, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, increment, resampled,
+                recovered: bool = False) -> None:
         """Write a validated step whose changed cells are given (the sampling schemes; a recovery's
-        children, :meth:`_commit_children`): the particles' slots and maps into ``blocks``
-        (:meth:`BlockPool.commit`; with threads, :func:`rbpf_commit_staged_parallel`), then
-        :meth:`_advance`; ``recovered``: the step recovered from depletion."""
-        if self._parallel:
-            n_particles = self.n_particles
-            ids = new_locations.reshape(n_particles, 1) if new_ids is None else new_ids
-            cells = new_cells.reshape(n_particles, ids.shape[1], self.model.n_labels)
-            _, _, _, target, source = self._staged_buffers()
-            rbpf_commit_staged_parallel(self._locations, *blocks.writes(), t, ancestors, new_locations, ids, cells,
-                                        target, source, rbpf_parallel.CHUNK, self.threads)
-            blocks.refresh(t)
-        else:
-            blocks.commit(self._locations, t, ancestors, new_locations, new_cells, new_ids)
+        children, :func:`~onlinemap.estimators.rbpf_recovery.relocate`): the particles' slots and
+        maps into ``blocks`` (the kernel set's ``commit``; with threads, planned in the staging
+        buffers' ``target`` and ``source``), then :meth:`_advance`; ``recovered``: the step
+        recovered from depletion."""
+        plan = self._staged_buffers()
+        if plan is not None:
+            staged = staged._replace(target=plan.target, source=plan.source)
+        self._kernels.commit(self._locations, blocks.arrays(), t, ancestors, staged)
+        blocks.refresh(t)
         self._advance(t, blocks, ancestors, log_weights, 0.0, increment, resampled, recovered)
 
     def _advance(self, t, blocks: BlockPool, ancestors, log_weights, normaliser, increment, resampled,
@@ -875,18 +564,31 @@ class RaoBlackwellisedPF:
 
 class _FCBuffers(NamedTuple):
     """One Fearnhead-Clifford step's working arrays (views of the filter's scratch buffers): the
-    children (2P,) and the slots (P,)."""
+    children (2P), their weights (2P,), the order their strata walk, the kept children and their
+    weights (P,), and the slots (P,)."""
 
-    child_parent: np.ndarray
-    child_location: np.ndarray
-    child_log_weight: np.ndarray
+    children: Children
     child_weight: np.ndarray
     order: np.ndarray
     kept: np.ndarray
     kept_weights: np.ndarray
-    ancestors: np.ndarray
-    slot_child: np.ndarray
-    log_weights: np.ndarray
+    slots: Slots
+
+
+def _scheme(proposal, resampling) -> tuple[str, str]:
+    """The options ``proposal`` and ``resampling``, checked (:class:`InvalidOptionError` naming
+    them), ``resampling`` None resolved: Fearnhead-Clifford for the optimal proposal, residual
+    for the transition one."""
+    error = InvalidOptionError
+    proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
+    if resampling is None:
+        resampling = FEARNHEAD_CLIFFORD if proposal == "optimal" else "residual"
+    resampling = arguments.choice("resampling", resampling, RESAMPLING, error)
+    if resampling == FEARNHEAD_CLIFFORD and proposal != "optimal":
+        raise error(f"proposal={proposal!r} samples one successor per particle; resampling="
+                    f"'{FEARNHEAD_CLIFFORD}' enumerates them all (the optimal proposal's weights): pass "
+                    f"resampling='residual' (or another sampling scheme) to use it")
+    return proposal, resampling
 
 
 def _thread_count(threads) -> int:
@@ -901,41 +603,11 @@ def _thread_count(threads) -> int:
                              error=InvalidOptionError)
 
 
-def _motion_and_sensor(model: GridModel, z) -> tuple:
-    """(p_move, blocking, change, footprint_cells, sensor, readings (F,)): the arguments of the
-    kernels for blocking labels and footprints, in their order."""
-    return (model.p_move, model.blocking, model.change, model.footprint_cells, model.sensor,
-            np.atleast_1d(np.asarray(z, dtype=np.int64)))
-
-
-def _no_child_cells(model: GridModel) -> tuple:
-    """Empty (log motion, ids, cells) for :func:`rbpf_enumerate_cells`: store no child's cells."""
-    width = cells_written(model)
-    return np.empty(0), np.empty((0, width), dtype=np.int64), np.empty((0, width, model.n_labels))
-
-
-def _no_particle_explains(model: GridModel, z, t: int, n_particles: int) -> str:
-    """The message of a depleted step with recovery off: the filter cannot tell an observation
-    impossible under the model from one only its lost trajectories explained."""
-    return (f"observation {_describe(model, z)} has probability zero for every one of the {n_particles} "
-            f"particles at step {t}: either it is impossible under the model given the past, or the particles "
-            f"have lost every trajectory that explains it (particle depletion; recover_from_depletion is False). "
-            f"The filter is unchanged")
-
-
-def _impossible(model: GridModel, z, t: int, n_particles: int) -> str:
-    """The message of an observation nothing explains, even relocated (see _recover)."""
-    where = ("at the start cell (step 0: no motion yet)" if t == 0 else
-             "and no cell the robot could be relocated to explains it with labels the model allows at that step")
-    return (f"observation {_describe(model, z)} has probability zero for every one of the {n_particles} "
-            f"particles at step {t}, {where}: it is impossible under the model. The filter is unchanged")
-
-
-def _describe(model: GridModel, z) -> str:
-    """An observation for an error message: a label name, or the readings of a footprint."""
-    if np.ndim(z) == 0 and 0 <= int(z) < model.n_labels:
-        return repr(model.label_names[int(z)])
-    return str([model.label_names[int(r)] if r >= 0 else -1 for r in np.atleast_1d(z)])
+@functools.cache
+def _no_cells(width: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Empty (log motion, ids (0, W), cells (0, W, K)) of :class:`~onlinemap.kernels.rbpf_enumerate.Children`
+    that store no child's cells (never written: 0 rows), made once per shape."""
+    return np.empty(0), np.empty((0, width), dtype=np.int64), np.empty((0, width, k))
 
 
 def _no_moves(n: int) -> np.ndarray:

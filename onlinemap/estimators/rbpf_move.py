@@ -1,5 +1,5 @@
 """The RBPF's resample-move step (Gilks and Berzuini 2001; options ``move_window``, ``move_every``,
-``move_lag`` of :class:`~onlinemap.estimators.rbpf.RaoBlackwellisedPF`; issue 21 item 2): every
+``move_lag`` of :class:`~onlinemap.estimators.rbpf.RaoBlackwellisedPF`): every
 ``move_every`` steps each live particle redraws a window of W = ``move_window`` past locations
 by a Metropolis-Hastings move whose invariant law is the filter's target, the posterior over
 paths; weights are unchanged.
@@ -7,8 +7,8 @@ paths; weights are unchanged.
 Why: Fearnhead-Clifford's particles coalesce. In the paper's world, 1,000 particles replaying an
 ``info_gain`` run share one path beyond about 200 steps back, often a wrong one, and no later
 evidence can mend a mistake every particle carries. A move anywhere in the past redraws an old
-stretch given everything seen since; moving only the last steps does not touch it (measured on
-branch ``retain``: windows in the last 300 steps keep little of the gain).
+stretch given everything seen since; moving only the last steps does not touch it (measured:
+windows in the last 300 steps keep little of the gain).
 
 The target. Static world (C = I), no blocking labels: the motion ignores the map, and given a
 path ``x_{0:t}`` the cells are independent, cell c's posterior ``prior_c(k) prod O(k, z)`` over
@@ -75,9 +75,10 @@ from .. import arguments
 from .. import state_checks as checks
 from ..checkpoint import state_class
 from ..errors import InvalidOptionError
-from ..kernels.rbpf_move import paths_record, rbpf_move
+from ..kernels.rbpf_move import Paths, paths_record, rbpf_move
 from ..model import GridModel
 from .block_pool import BlockPool, Named, check_shared_rows, grown, grown_free_stack, rows_to_hold
+from .rbpf_kernels import world_tables
 
 PATH_BLOCK = 64  # steps per block of a particle's path
 FIRST_STEPS = 64  # the steps the history holds before it first grows (it doubles)
@@ -241,6 +242,12 @@ class PathHistory:
         grows = (size, columns, steps) != (len(self.rows), self.table.shape[1], len(self.actions))
         return after + (self.nbytes if grows else 0), grows
 
+    def arrays(self) -> Paths:
+        """The history's arrays as the kernels take them (:class:`~onlinemap.kernels.rbpf_move.Paths`):
+        views, not copies. O(1)."""
+        return Paths(self.rows, self.row_block, self.refcount, self.free, self.free_top, self.table, self.actions,
+                     self.readings)
+
     @property
     def nbytes(self) -> int:
         """The bytes of the history's arrays."""
@@ -254,8 +261,7 @@ class PathHistory:
         :meth:`reserved` with P rows); a step that dropped a child (``resampled``) or
         ``recovered`` ends exactness, and windows then start at or after a recovery. O(P_copied C
         + P B)."""
-        paths_record(self.rows, self.row_block, self.refcount, self.free, self.free_top, self.table, ancestors,
-                     locations, t)
+        paths_record(self.arrays(), ancestors, locations, t)
         self.exact = self.exact and not resampled and not recovered
         if recovered:
             self.first_start = t
@@ -294,10 +300,8 @@ class PathHistory:
         need_map = map_rows_per_move(model, window, blocks.table.shape[1])
         history, first = self, 0
         while True:
-            first = rbpf_move(locations, log_weights, *blocks.writes(), history.rows, history.row_block,
-                              history.refcount, history.free, history.free_top, history.table, t, first, starts,
-                              window, history.actions, history.readings, model.moves, model.predecessor,
-                              model.p_move, model.footprint_cells, model.likelihood, uniforms, counts)
+            first = rbpf_move(locations, log_weights, blocks.arrays(), history.arrays(), world_tables(model), t, first,
+                              starts, window, uniforms, counts)
             if first == n_particles:
                 break
             blocks = blocks.reserved(need_map)

@@ -1,12 +1,15 @@
 """numba kernels, one module per algorithm: ``exact`` (the joint belief's fused motion + sensor
-pass and map dynamics), ``rbpf`` (particle proposal, commit, resampling bookkeeping and map
-mixtures over copy-on-write blocks), ``resampling`` (Fearnhead-Clifford's optimal resampling) and
-``forward_backward`` (the EM estimators' location HMM): the estimators' kernels. The planners'
-kernels live beside the planners (:mod:`policies.kernels`) and take the decorators below.
+pass and map dynamics), ``rbpf`` and its ``rbpf_*`` modules (the particle filter's maps as
+copy-on-write blocks, its children, commits, recovery, threads and resample-move),
+``resampling`` (Fearnhead-Clifford's optimal resampling) and ``forward_backward`` (the EM
+estimators' location HMM): the estimators' kernels. The planners' kernels live beside the
+planners (:mod:`policies.kernels`) and take the decorators below.
 
 The rule for every kernel here: arrays in, arrays out, no model objects. A kernel takes plain
-numpy arrays and scalars (the model's tables are passed as arrays by the caller), writes its
-results into arrays it is given, and never allocates per step what the caller can keep. Every
+numpy arrays and scalars, or NamedTuples of them (bundles: the object that holds the arrays
+returns its bundle, e.g. the RBPF's ``Pool``; the model's tables are passed as arrays by the
+caller), writes its results into arrays it is given, and never allocates per step what the
+caller can keep. Every
 kernel is ``@njit(cache=True)``: compiled once, cached on disk; an inner loop that allocates
 nothing may be a :data:`loop_kernel`, and one that Python threads run at once on disjoint ranges
 a :data:`thread_kernel` (an entry point that only fills in such a kernel's range and scratch

@@ -34,7 +34,7 @@ serial. No kernel compiles with ``parallel=True``. The enumeration's range kerne
 serial entry points' own; the proposal's and the row weights' are compiled once more for the
 threads (the serial kernels call them with literal bounds, which numba compiles apart), and the
 staged commit, the gather and the mixture's runs of blocks are the threads' alone: about 10 CPU
-seconds in all with a cold cache, against 50 for the ``parallel=True`` kernels they replace.
+seconds in all with a cold cache (``parallel=True`` kernels took 50: none here).
 """
 
 from __future__ import annotations
@@ -48,9 +48,9 @@ import numba
 import numpy as np
 
 from . import loop_kernel
-from .rbpf import (_copy_planned, _enumerate, _enumerate_cells, _footprint_scratch, _mixture_blocks, _plan_writes,
-                   _propose, _row_weights, _stage_children, _stage_children_cells, _sum, _take_over_slots,
-                   _write_planned)
+from .rbpf import _mixture_blocks, _row_weights, _sum, _take_over_slots
+from .rbpf_commit import _copy_planned, _plan_writes, _stage_children, _stage_children_cells, _write_planned
+from .rbpf_enumerate import _enumerate, _enumerate_cells, _propose, footprint_scratch
 
 CHUNK = 1024  # particles per chunk (the drivers' ``chunk``), fixed: the chunks do not depend on the threads
 BLOCK_GROUP = 8  # map blocks per chunk of the row weights: one cache line of a particle's table row
@@ -98,11 +98,12 @@ def _runs(n: int, chunk: int, threads: int) -> list[tuple[int, int]]:
 
 
 @loop_kernel
-def _gather_children(counts, firsts, child_parent, child_location, child_log_weight, child_log_motion, child_ids,
-                     child_cells):
+def _gather_children(counts, firsts, children):
     """Move run i's ``counts[i]`` children from index ``firsts[i]`` (increasing, each at or after
     the previous run's children) to follow the previous runs' (the stored ids, cells and log
-    motion too when ``child_cells`` has rows); returns M. O(M)."""
+    motion too when ``children.cells`` has rows); returns M. O(M)."""
+    child_parent, child_location, child_log_weight = children.parent, children.location, children.log_weight
+    child_log_motion, child_ids, child_cells = children.log_motion, children.ids, children.cells
     m = 0
     for i in range(counts.shape[0]):
         first = firsts[i]
@@ -121,124 +122,88 @@ def _gather_children(counts, firsts, child_parent, child_location, child_log_wei
     return m
 
 
-def _enumerate_in_threads(kernel: Callable[..., int], args: tuple, scratch: Callable[[], tuple], children: tuple,
+def _enumerate_in_threads(kernel: Callable[..., int], args: tuple, scratch: Callable[[], object], children, pool,
                           chunk: int, threads: int) -> int:
-    """``kernel(*args, start, stop, 2 start, *scratch())`` on runs of parents (``args[0]`` their
-    locations), then the children (parent, location, log weight, log motion, ids, cells) moved
-    together; returns M."""
+    """``kernel(*args, children, start, stop, 2 start, scratch(), *pool)`` on runs of parents
+    (``args[0]`` their locations), then the children moved together; returns M."""
     runs = _runs(len(args[0]), chunk, threads)
-    counts = _in_threads([functools.partial(kernel, *args, start, stop, 2 * start, *scratch()) for start, stop in runs])
+    counts = _in_threads([functools.partial(kernel, *args, children, start, stop, 2 * start, scratch(), *pool)
+                          for start, stop in runs])
     firsts = np.array([2 * start for start, _ in runs], dtype=np.int64)
-    return _gather_children(np.array(counts, dtype=np.int64), firsts, *children)
+    return _gather_children(np.array(counts, dtype=np.int64), firsts, children)
 
 
-def rbpf_enumerate_parallel(locations: np.ndarray, log_weights: np.ndarray, pool: np.ndarray, pool_stamps: np.ndarray,
-                            table: np.ndarray, cell_block: np.ndarray, cell_slot: np.ndarray, powers: np.ndarray,
-                            dynamic: bool, t: int, neighbors: np.ndarray, p_move: float, likelihood: np.ndarray,
-                            child_parent: np.ndarray, child_location: np.ndarray, child_log_weight: np.ndarray,
-                            chunk: int, threads: int) -> int:
-    """:func:`~onlinemap.kernels.rbpf.rbpf_enumerate` (the same children, in the same order)."""
-    children = (child_parent, child_location, child_log_weight)
-    return _enumerate_in_threads(
-        _enumerate, (locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
-                     neighbors, p_move, likelihood, *children), lambda: (np.empty(1),),
-        (*children, np.empty(0), np.empty((0, 1), dtype=np.int64), np.empty((0, 1, 1))), chunk, threads)
+def rbpf_enumerate_parallel(locations: np.ndarray, log_weights: np.ndarray, pool, world, t: int, neighbors: np.ndarray,
+                            likelihood: np.ndarray, children, chunk: int, threads: int) -> int:
+    """:func:`~onlinemap.kernels.rbpf_enumerate.rbpf_enumerate` (the same children, in the same
+    order)."""
+    return _enumerate_in_threads(_enumerate, (locations, log_weights, world.p_move, t, neighbors, likelihood),
+                                 lambda: np.empty(1), children, pool, chunk, threads)
 
 
-def rbpf_enumerate_cells_parallel(locations: np.ndarray, log_weights: np.ndarray, pool: np.ndarray,
-                                  pool_stamps: np.ndarray, table: np.ndarray, cell_block: np.ndarray,
-                                  cell_slot: np.ndarray, powers: np.ndarray, dynamic: bool, t: int,
-                                  neighbors: np.ndarray, p_move: float, blocking: np.ndarray, change: np.ndarray,
-                                  footprint_cells: np.ndarray, sensor: np.ndarray, readings: np.ndarray,
-                                  child_parent: np.ndarray, child_location: np.ndarray, child_log_weight: np.ndarray,
-                                  child_log_motion: np.ndarray, child_ids: np.ndarray, child_cells: np.ndarray,
-                                  chunk: int, threads: int) -> int:
-    """:func:`~onlinemap.kernels.rbpf.rbpf_enumerate_cells` (the same children, in the same order)."""
-    children = (child_parent, child_location, child_log_weight, child_log_motion, child_ids, child_cells)
-    sizes = (sensor.shape[0], footprint_cells.shape[1], child_ids.shape[1])
-    return _enumerate_in_threads(
-        _enumerate_cells, (locations, log_weights, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic, t,
-                           neighbors, p_move, blocking, change, footprint_cells, sensor, readings, *children),
-        lambda: _footprint_scratch(*sizes), children, chunk, threads)
+def rbpf_enumerate_cells_parallel(locations: np.ndarray, log_weights: np.ndarray, pool, world, t: int,
+                                  neighbors: np.ndarray, readings: np.ndarray, children, chunk: int,
+                                  threads: int) -> int:
+    """:func:`~onlinemap.kernels.rbpf_enumerate.rbpf_enumerate_cells` (the same children, in the
+    same order)."""
+    sizes = (world.sensor.shape[0], world.footprint_cells.shape[1], children.ids.shape[1])
+    return _enumerate_in_threads(_enumerate_cells, (locations, log_weights, world, t, neighbors, readings),
+                                 lambda: footprint_scratch(*sizes), children, pool, chunk, threads)
 
 
-def rbpf_propose_parallel(locations: np.ndarray, pool: np.ndarray, pool_stamps: np.ndarray, table: np.ndarray,
-                          cell_block: np.ndarray, cell_slot: np.ndarray, powers: np.ndarray, dynamic: bool, t: int,
-                          ancestors: np.ndarray, neighbors: np.ndarray, p_move: float, likelihood: np.ndarray,
-                          optimal: bool, uniforms: np.ndarray, new_locations: np.ndarray, new_cells: np.ndarray,
-                          log_increments: np.ndarray, chunk: int, threads: int) -> None:
-    """:func:`~onlinemap.kernels.rbpf.rbpf_propose`."""
-    _in_threads([functools.partial(_propose, locations, pool, pool_stamps, table, cell_block, cell_slot, powers,
-                                   dynamic, t, ancestors, neighbors, p_move, likelihood, optimal, uniforms,
-                                   new_locations, new_cells, log_increments, start, stop)
+def rbpf_propose_parallel(locations: np.ndarray, pool, p_move: float, t: int, ancestors: np.ndarray,
+                          neighbors: np.ndarray, likelihood: np.ndarray, optimal: bool, uniforms: np.ndarray, proposed,
+                          chunk: int, threads: int) -> None:
+    """:func:`~onlinemap.kernels.rbpf_enumerate.rbpf_propose`."""
+    _in_threads([functools.partial(_propose, locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal,
+                                   uniforms, proposed, start, stop)
                  for start, stop in _runs(len(ancestors), chunk, threads)])
 
 
-def rbpf_stage_children_parallel(pool: np.ndarray, pool_stamps: np.ndarray, table: np.ndarray, cell_block: np.ndarray,
-                                 cell_slot: np.ndarray, powers: np.ndarray, dynamic: bool, t: int,
-                                 ancestors: np.ndarray, slot_child: np.ndarray, child_location: np.ndarray,
-                                 likelihood: np.ndarray, new_locations: np.ndarray, new_ids: np.ndarray,
-                                 new_cells: np.ndarray, chunk: int, threads: int) -> None:
-    """Fearnhead-Clifford's kept children's writes (:func:`~onlinemap.kernels.rbpf._stage_children`),
-    staged from the parents' rows for :func:`rbpf_commit_staged_parallel`; writes only the staging
-    arrays."""
-    _in_threads([functools.partial(_stage_children, pool, pool_stamps, table, cell_block, cell_slot, powers, dynamic,
-                                   t, ancestors, slot_child, child_location, likelihood, new_locations, new_ids,
-                                   new_cells, start, stop)
-                 for start, stop in _runs(len(slot_child), chunk, threads)])
+def rbpf_stage_children_parallel(pool, t: int, slots, child_location: np.ndarray, likelihood: np.ndarray, staged,
+                                 chunk: int, threads: int) -> None:
+    """Fearnhead-Clifford's kept children's writes
+    (:func:`~onlinemap.kernels.rbpf_commit._stage_children`), staged from the parents' rows for
+    :func:`rbpf_commit_staged_parallel`; writes only ``staged``."""
+    _in_threads([functools.partial(_stage_children, pool, t, slots, child_location, likelihood, staged, start, stop)
+                 for start, stop in _runs(len(slots.slot_child), chunk, threads)])
 
 
-def rbpf_stage_children_cells_parallel(locations: np.ndarray, pool: np.ndarray, pool_stamps: np.ndarray,
-                                       table: np.ndarray, cell_block: np.ndarray, cell_slot: np.ndarray,
-                                       powers: np.ndarray, dynamic: bool, t: int, ancestors: np.ndarray,
-                                       slot_child: np.ndarray, child_location: np.ndarray, neighbors: np.ndarray,
-                                       p_move: float, blocking: np.ndarray, change: np.ndarray,
-                                       footprint_cells: np.ndarray, sensor: np.ndarray, readings: np.ndarray,
-                                       new_locations: np.ndarray, new_ids: np.ndarray, new_cells: np.ndarray,
-                                       chunk: int, threads: int) -> None:
+def rbpf_stage_children_cells_parallel(locations: np.ndarray, pool, world, t: int, slots, child_location: np.ndarray,
+                                       neighbors: np.ndarray, readings: np.ndarray, staged, chunk: int,
+                                       threads: int) -> None:
     """:func:`rbpf_stage_children_parallel` for blocking labels and sensor footprints
-    (:func:`~onlinemap.kernels.rbpf._stage_children_cells`); writes only the staging arrays."""
-    sizes = (sensor.shape[0], footprint_cells.shape[1], new_ids.shape[1])
-    _in_threads([functools.partial(_stage_children_cells, locations, pool, pool_stamps, table, cell_block, cell_slot,
-                                   powers, dynamic, t, ancestors, slot_child, child_location, neighbors, p_move,
-                                   blocking, change, footprint_cells, sensor, readings, new_locations, new_ids,
-                                   new_cells, start, stop, *_footprint_scratch(*sizes)[:3])
-                 for start, stop in _runs(len(slot_child), chunk, threads)])
+    (:func:`~onlinemap.kernels.rbpf_commit._stage_children_cells`); writes only ``staged``."""
+    sizes = (world.sensor.shape[0], world.footprint_cells.shape[1], staged.ids.shape[1])
+    _in_threads([functools.partial(_stage_children_cells, locations, pool, world, t, slots, child_location, neighbors,
+                                   readings, staged, start, stop, footprint_scratch(*sizes))
+                 for start, stop in _runs(len(slots.slot_child), chunk, threads)])
 
 
-def rbpf_commit_staged_parallel(locations: np.ndarray, pool: np.ndarray, pool_stamps: np.ndarray,
-                                row_block: np.ndarray, refcount: np.ndarray, free: np.ndarray, free_top: np.ndarray,
-                                table: np.ndarray, cell_block: np.ndarray, cell_slot: np.ndarray, dynamic: bool,
-                                powers: np.ndarray, max_age: int, t: int, ancestors: np.ndarray,
-                                new_locations: np.ndarray, new_ids: np.ndarray, new_cells: np.ndarray,
-                                target: np.ndarray, source: np.ndarray, chunk: int, threads: int) -> None:
-    """:func:`~onlinemap.kernels.rbpf.rbpf_commit_cells`, bit for bit: the take-over and the
-    copy-on-write bookkeeping (:func:`~onlinemap.kernels.rbpf._plan_writes`, into ``target`` and
-    ``source`` (P, W)) serially, then every block copy, then every write and the locations.
-    Needs ``free_top[0] >= W P``."""
-    _take_over_slots(refcount, free, free_top, table, ancestors)
-    _plan_writes(row_block, refcount, free, free_top, table, cell_block, new_locations, new_ids, target, source)
-    runs = _runs(len(new_locations), chunk, threads)
-    _in_threads([functools.partial(_copy_planned, pool, pool_stamps, dynamic, powers, max_age, t, target, source,
-                                   start, stop) for start, stop in runs])
-    _in_threads([functools.partial(_write_planned, pool, pool_stamps, dynamic, t, cell_slot, new_ids, new_cells,
-                                   target, locations, new_locations, start, stop) for start, stop in runs])
+def rbpf_commit_staged_parallel(locations: np.ndarray, pool, t: int, ancestors: np.ndarray, staged, chunk: int,
+                                threads: int) -> None:
+    """:func:`~onlinemap.kernels.rbpf_commit.rbpf_commit_cells`, bit for bit: the take-over and the
+    copy-on-write bookkeeping (:func:`~onlinemap.kernels.rbpf_commit._plan_writes`, into
+    ``staged.target`` and ``staged.source``) serially, then every block copy, then every write and
+    the locations. Needs ``free_top[0] >= W P``."""
+    _take_over_slots(pool, ancestors)
+    _plan_writes(pool, staged)
+    runs = _runs(len(staged.locations), chunk, threads)
+    _in_threads([functools.partial(_copy_planned, pool, t, staged, start, stop) for start, stop in runs])
+    _in_threads([functools.partial(_write_planned, pool, t, staged, locations, start, stop) for start, stop in runs])
 
 
-def rbpf_map_mixture_parallel(pool: np.ndarray, pool_stamps: np.ndarray, row_block: np.ndarray, refcount: np.ndarray,
-                              table: np.ndarray, block_members: np.ndarray, powers: np.ndarray, dynamic: bool, t: int,
-                              weights: np.ndarray, out: np.ndarray, threads: int) -> None:
+def rbpf_map_mixture_parallel(pool, t: int, weights: np.ndarray, out: np.ndarray, threads: int) -> None:
     """:func:`~onlinemap.kernels.rbpf.rbpf_map_mixture`, the same sums, on runs of chunks of
     ``BLOCK_GROUP`` blocks: first the row weights (a row holds one block, and each row's weight
     adds its particles in order), then each run's rows, in row order, into its own cells
     (:func:`~onlinemap.kernels.rbpf._mixture_blocks`: every run scans the rows, O(R) each)."""
-    n_blocks = table.shape[1]
+    n_blocks = pool.table.shape[1]
     runs = _runs(n_blocks, BLOCK_GROUP, threads)
-    row_weight = np.zeros(len(pool))
+    row_weight = np.zeros(len(pool.rows))
     total = _sum(weights)
-    _in_threads([functools.partial(_row_weights, table, refcount, weights, total, row_weight, first, last,
+    _in_threads([functools.partial(_row_weights, pool.table, pool.refcount, weights, total, row_weight, first, last,
                                    np.empty(last - first, dtype=np.int64), np.empty(last - first, dtype=np.int64),
                                    np.empty(last - first)) for first, last in runs])
     out[:] = 0.0
-    _in_threads([functools.partial(_mixture_blocks, pool, pool_stamps, row_block, block_members, powers, dynamic, t,
-                                   row_weight, first, last, out) for first, last in runs])
+    _in_threads([functools.partial(_mixture_blocks, pool, t, row_weight, first, last, out) for first, last in runs])

@@ -1,0 +1,162 @@
+"""The RBPF's kernel sets and the model's tables as its kernels take them.
+
+A filter runs one of four kernel sets, fixed by its model and options: the paper's motion and
+sensor (:attr:`GridModel.is_paper_model <onlinemap.model.GridModel.is_paper_model>`: a child
+changes one cell, its evidence one likelihood row) or blocking labels and sensor footprints (W
+cells, F readings), each serial or on threads (:mod:`onlinemap.kernels.rbpf_parallel`, the same
+results). :func:`kernel_set` builds each once; the filter's every update then takes one path
+through it. The threaded sets read :data:`~onlinemap.kernels.rbpf_parallel.CHUNK` when they run,
+so that tests can make chunks small.
+
+:func:`world_tables` bundles the model's motion and sensor tables (:class:`~onlinemap.kernels.rbpf.World`)
+once per model. Cost: O(1) per call once built.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import weakref
+from collections.abc import Callable
+
+import numpy as np
+
+from ..kernels import rbpf_parallel
+from ..kernels.rbpf import World
+from ..kernels.rbpf_commit import (Staged, rbpf_commit_cells, rbpf_commit_children, rbpf_commit_children_cells,
+                                   rbpf_pick_children)
+from ..kernels.rbpf_enumerate import Children, Proposed, rbpf_enumerate, rbpf_enumerate_cells, rbpf_propose
+from ..model import GridModel
+
+_WORLDS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def world_tables(model: GridModel) -> World:
+    """The model's motion and sensor tables as the RBPF's kernels take them, built on the first call
+    for ``model`` and kept while it lives (the model's own arrays, read-only: one numba type)."""
+    world = _WORLDS.get(model)
+    if world is None:
+        world = World(float(model.p_move), model.blocking, model.has_blocking, model.change, model.footprint_cells,
+                      model.sensor, model.likelihood, model.moves, model.predecessor)
+        _WORLDS[model] = world
+    return world
+
+
+def observed(model: GridModel, z) -> np.ndarray:
+    """What the kernels take of observation ``z``: its likelihood row (K,) in the paper's model,
+    the readings (F,) int64 otherwise."""
+    return model.likelihood[z] if model.is_paper_model else np.atleast_1d(np.asarray(z, dtype=np.int64))
+
+
+@dataclasses.dataclass(frozen=True)
+class KernelSet:
+    """One filter's kernels, each with one signature whatever the set:
+
+    - ``enumerate(locations, log_weights, pool, world, t, neighbors, observed, children) -> M``:
+      every child with its exact weight (``rbpf_enumerate`` or ``rbpf_enumerate_cells``);
+    - ``commit_children(locations, pool, world, t, slots, child_location, neighbors, observed,
+      staged)``: Fearnhead-Clifford's kept children written (``staged``: the threads' staging);
+    - ``commit(locations, pool, t, ancestors, staged)``: slots taken over, then the given cells
+      ``staged.ids`` / ``staged.cells`` written (the sampling schemes, a recovery's children);
+    - ``propose(locations, pool, world, t, ancestors, neighbors, observed, optimal, uniforms) ->
+      (staged, log_increments)``: the sampling schemes' proposal, one successor per slot
+      (``rbpf_propose``; with blocking labels or a footprint, one of the enumerated children,
+      ``rbpf_pick_children``), its writes and log increments (P,);
+    - ``threads``: the threads they run on (1: serial)."""
+
+    enumerate: Callable[..., int]
+    commit_children: Callable[..., None]
+    commit: Callable[..., None]
+    propose: Callable[..., None]
+    threads: int
+
+
+@functools.cache
+def kernel_set(paper: bool, threads: int) -> KernelSet:
+    """The kernel set of a filter of the paper's model (``paper``) or not, on ``threads`` threads
+    (1: the serial kernels). Built once per pair."""
+    if threads == 1:
+        enumerate_ = rbpf_enumerate if paper else rbpf_enumerate_cells
+        propose = functools.partial(_propose_one_cell, rbpf_propose) if paper else \
+            functools.partial(_propose_by_enumeration, enumerate_)
+        return KernelSet(enumerate_, _commit_children_one_cell if paper else _commit_children_cells, _commit,
+                         propose, 1)
+    enumerate_ = functools.partial(_in_chunks, rbpf_parallel.rbpf_enumerate_parallel if paper else
+                                   rbpf_parallel.rbpf_enumerate_cells_parallel, threads)
+    stage = _stage_one_cell if paper else rbpf_parallel.rbpf_stage_children_cells_parallel
+    propose = functools.partial(_propose_one_cell, functools.partial(
+        _in_chunks, rbpf_parallel.rbpf_propose_parallel, threads)) if paper else \
+        functools.partial(_propose_by_enumeration, enumerate_)
+    return KernelSet(enumerate_, functools.partial(_commit_children_in_threads, stage, threads),
+                     functools.partial(_commit_in_threads, threads), propose, threads)
+
+
+def _propose_one_cell(run: Callable, locations, pool, world, t, ancestors, neighbors, likelihood, optimal,
+                      uniforms) -> tuple[Staged, np.ndarray]:
+    """The paper's model's proposal (``run``: ``rbpf_propose`` or its threaded driver) into fresh
+    arrays, its writes as :class:`~onlinemap.kernels.rbpf_commit.Staged` (one cell each). O(P K^2)."""
+    n_particles, k = len(ancestors), pool.rows.shape[2]
+    proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, k)), np.empty(n_particles))
+    run(locations, pool, world.p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed)
+    staged = Staged(proposed.locations, proposed.locations.reshape(n_particles, 1),
+                    proposed.cells.reshape(n_particles, 1, k), None, None)
+    return staged, proposed.log_increments
+
+
+def _propose_by_enumeration(enumerate_: Callable, locations, pool, world, t, ancestors, neighbors, readings, optimal,
+                            uniforms) -> tuple[Staged, np.ndarray]:
+    """The proposal with blocking labels or a footprint: the children ``enumerate_`` gives (every
+    parent's log weight 0, their cells stored), one drawn per slot (``rbpf_pick_children``).
+    O(P F K^2)."""
+    n_particles, k = len(ancestors), pool.rows.shape[2]
+    size, width = 2 * n_particles, world.footprint_cells.shape[1] + int(world.has_blocking)
+    children = Children(np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size),
+                        np.empty(size), np.empty((size, width), dtype=np.int64), np.empty((size, width, k)))
+    m = enumerate_(locations, np.zeros(n_particles), pool, world, t, neighbors, readings, children)
+    proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, width, k)),
+                        np.empty(n_particles))
+    new_ids = np.empty((n_particles, width), dtype=np.int64)
+    rbpf_pick_children(ancestors, children, m, optimal, uniforms, proposed, new_ids)
+    return Staged(proposed.locations, new_ids, proposed.cells, None, None), proposed.log_increments
+
+
+def _commit_children_one_cell(locations, pool, world, t, slots, child_location, neighbors, likelihood, staged) -> None:
+    """``rbpf_commit_children`` in the :class:`KernelSet` signature."""
+    rbpf_commit_children(locations, t, slots.ancestors, slots.slot_child, child_location, likelihood, *pool)
+
+
+def _commit_children_cells(locations, pool, world, t, slots, child_location, neighbors, readings, staged) -> None:
+    """``rbpf_commit_children_cells`` in the :class:`KernelSet` signature."""
+    rbpf_commit_children_cells(locations, pool, world, t, slots, child_location, neighbors, readings)
+
+
+def _commit(locations, pool, t, ancestors, staged: Staged) -> None:
+    """``rbpf_commit_cells`` of the staged writes (their ``target``, ``source`` unused)."""
+    rbpf_commit_cells(locations, t, ancestors, staged.locations, staged.ids, staged.cells, *pool)
+
+
+def _in_chunks(run: Callable, threads: int, *args):
+    """``run(*args, CHUNK, threads)``: a threaded driver, in chunks of the current
+    :data:`~onlinemap.kernels.rbpf_parallel.CHUNK`."""
+    return run(*args, rbpf_parallel.CHUNK, threads)
+
+
+def _commit_in_threads(threads: int, locations, pool, t, ancestors, staged: Staged) -> None:
+    """:func:`~onlinemap.kernels.rbpf_parallel.rbpf_commit_staged_parallel` (looked up when it runs)."""
+    rbpf_parallel.rbpf_commit_staged_parallel(locations, pool, t, ancestors, staged, rbpf_parallel.CHUNK, threads)
+
+
+def _stage_one_cell(locations, pool, world, t, slots, child_location, neighbors, likelihood, staged, chunk,
+                    threads) -> None:
+    """``rbpf_stage_children_parallel`` in the signature of ``rbpf_stage_children_cells_parallel``."""
+    rbpf_parallel.rbpf_stage_children_parallel(pool, t, slots, child_location, likelihood, staged, chunk, threads)
+
+
+def _commit_children_in_threads(stage: Callable, threads: int, locations, pool, world, t, slots, child_location,
+                                neighbors, observation, staged) -> None:
+    """The kept children's writes staged from their parents' rows on the threads (``stage``), then
+    committed (:func:`~onlinemap.kernels.rbpf_parallel.rbpf_commit_staged_parallel`: the serial
+    commit's state)."""
+    chunk = rbpf_parallel.CHUNK
+    stage(locations, pool, world, t, slots, child_location, neighbors, observation, staged, chunk, threads)
+    rbpf_parallel.rbpf_commit_staged_parallel(locations, pool, t, slots.ancestors, staged, chunk, threads)

@@ -1,0 +1,73 @@
+"""The RBPF's checkpointed state (:class:`~onlinemap.estimators.rbpf.RaoBlackwellisedPF`): older
+formats' attributes upgraded to the current one, and the invariants a restored state must hold
+(:mod:`onlinemap.state_checks`). O(the state's size).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import state_checks as checks
+from ..checkpoint import state_node
+from .block_pool import FORMAT_1_ATTRIBUTES, BlockPool
+from .rbpf_move import PathHistory
+
+
+def upgrade_attributes(attributes: dict, version: int) -> dict:
+    """A checkpoint's encoded attributes of format ``version`` as the current format has them:
+    version 1 kept the block pool as 13 loose attributes (``_pool``, ``_table``...), gathered
+    here into ``_blocks`` (the checks on load then validate it as any other); versions 1 and 2
+    had no recovery from depletion (a filter that never recovered, with recovery on:
+    ``_recoveries`` 0, ``_recovered`` False, ``recover_from_depletion`` True); versions 1 to 3
+    had no resample-move step (``_history`` None: its option ``move_window`` takes its
+    default, None, on load). O(1)."""
+    if version == 1 and all(name in attributes for name in FORMAT_1_ATTRIBUTES):
+        fields = {field: attributes.pop(name) for name, field in FORMAT_1_ATTRIBUTES.items()}
+        attributes["_blocks"] = state_node(BlockPool, fields)
+    if version <= 2:
+        attributes.setdefault("recover_from_depletion", True)
+        attributes.setdefault("_recoveries", 0)
+        attributes.setdefault("_recovered", False)
+    if version <= 3:
+        attributes.setdefault("_history", None)
+        attributes.setdefault("move_window", None)
+        attributes.setdefault("move_every", 10)
+        attributes.setdefault("move_lag", 100)
+    return attributes
+
+def check_state(state) -> None:
+    """The invariants of a restored state (:mod:`onlinemap.state_checks`): the particles, their
+    weights and the copy-on-write block pool (:meth:`BlockPool.check
+    <onlinemap.estimators.block_pool.BlockPool.check>`)."""
+    model = state.model
+    n, k, p = model.n_cells, model.n_labels, state.n_particles
+    t = checks.step_index(state)
+    checks.indices("_locations", checks.array(state, "_locations", (p,), np.int64, written=True), n)
+    log_weights = checks.array(state, "_log_weights", (p,), np.float64)
+    if np.any(np.isnan(log_weights)) or np.any(log_weights == math.inf) or not np.any(np.isfinite(log_weights)):
+        checks.fail("_log_weights", "must be finite or -inf, at least one finite")
+    top = float(log_weights.max())
+    if abs(top + math.log(float(np.exp(log_weights - top).sum()))) > checks.ATOL:
+        checks.fail("_log_weights", "must be normalised (log-sum-exp 0)")
+    weights = checks.array(state, "_weights", (p,), np.float64)
+    if weights.tobytes() != np.exp(log_weights).tobytes():
+        checks.fail("_weights", "must equal exp(_log_weights)")
+    checks.real(state, "_ess", low=0.0, high=float(p))
+    checks.log_evidence(state)
+    if type(state._resampled) is not bool:
+        checks.fail("_resampled", "must be a bool")
+    if type(state.recover_from_depletion) is not bool:
+        checks.fail("recover_from_depletion", "must be a bool")
+    checks.integer(state, "_recoveries", 0, max(t, 0))  # at most one per step, none at step 0
+    if type(state._recovered) is not bool or (state._recovered and (t < 1 or state._recoveries < 1)):
+        checks.fail("_recovered", "must be a bool, True only after a step >= 1 that counted a recovery")
+    state._blocks.check(p, k, t)  # the copy-on-write pool (estimators/block_pool.py); its kind was checked
+    moving = state.move_window is not None  # CONSTANT_STATE: what the options give
+    if moving != isinstance(state._history, PathHistory):
+        checks.fail("_history", f"must be {'a PathHistory' if moving else 'None'} with move_window="
+                                f"{state.move_window!r}")
+    if moving:
+        state._history.check(model, state._locations, t)  # estimators/rbpf_move.py
+    checks.belief(state, required=False)
