@@ -194,8 +194,9 @@ def _gated_cell(world, dynamic, moved, scratch, cells):
                                                                                      else 0.0)
         given[b] = before[b] * factor
         total += given[b]
-    for b in range(k):
-        given[b] /= total
+    if total > 0.0:  # else the outcome is impossible (p_move = 1 and the cell surely passable, or the
+        for b in range(k):  # cell surely blocks): the child has probability 0, so its cell is never used
+            given[b] /= total
     for b in range(k):
         if dynamic:
             acc = 0.0
