@@ -96,7 +96,7 @@ display(om.plots.plot_building(b_model, b_map, title=BUILDING))"""),
 ## Planners across buildings
 
 `exploration.building_study` runs every planner in one generated building per seed (the same
-buildings for every planner). Here three 16 x 16 buildings, 600 steps; the README's study uses
+buildings for every planner). Here three 16 x 16 buildings, 600 steps; the results page's study uses
 32 x 32 buildings and 2000 steps. It keeps the true run and the beliefs of `info_gain` in the
 building above (`keep`), for the pictures below."""),
     ("code", """\
@@ -130,7 +130,7 @@ these 6 seeds `info_gain` reaches map error 0.1 after 112 steps on average and `
 passability, gets there on 4 seeds of 6; a random walk and the sweep never do (0.48 and 0.32
 at the end). `info_gain` also keeps its location best (mean location error 0.18 against 0.33 for
 `frontier`). These 6 seeds are among those `info_gain`'s `step_cost` was tuned on; on 20 fresh
-seeds (the README) the gap to `frontier` shrinks to 127 against 139 steps (1.09x), the issue's
+seeds (the results page) the gap to `frontier` shrinks to 127 against 139 steps (1.09x), the project's
 1.3x is missed: a tuned frontier explorer is close to what this small world allows, and
 information gain's advantage is that it does not get lost (its slowest run needs 159 steps,
 `frontier`'s 259).
@@ -142,7 +142,7 @@ the nearest unknown along corridors whose cells read alike, where a move and a s
 same, and nothing in its rule values knowing where it is. The belief pictures show how
 `info_gain` covers a building: room by room from the start, the location sharp where the map is
 known, the far wing still at the prior. No planner maps a whole building within these steps;
-the README's 32 x 32 study measures how far each gets in 2000."""),
+the results page's 32 x 32 study measures how far each gets in 2000."""),
 ]
 
 

@@ -7,7 +7,7 @@ from nbbuild import notebook, write
 
 CELLS = [
     new_markdown_cell("""\
-# EM mapping with footprint sensors and blocking walls (issue 13)
+# EM mapping with footprint sensors and blocking walls
 
 The paper's robot reads one cell and walks through walls. The other background papers map with
 sensors that read many cells at once: the grid EM of the textbook chapter and of Thrun et al.

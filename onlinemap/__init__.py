@@ -29,7 +29,9 @@ from .simulate import Run, random_walk, sample_map, simulate, there_and_back
 # ``import onlinemap`` stays fast and never imports matplotlib, dask, the CLI or ``policies``.
 _LAZY = {"sweep": "sweeps", "load_spec": "sweeps", "summarize": "sweeps", "SpecError": "sweeps",
          "SweepError": "sweeps", "sweeps": None, "plots": None, "studies": None,
-         "peers": None, "bench": None, "cli": None, "envs": None}
+         "peers": None, "bench": None, "cli": None, "envs": None,
+         "fit_layered_map": "layered_em", "LayeredMap": "layered_em", "layered_em": None,
+         "hindsight_map": "hindsight", "HindsightMap": "hindsight", "hindsight": None}
 #: modules that moved into the studies layer: the error says where
 MOVED = {"compare": "onlinemap.studies.accuracy", "reproduce": "onlinemap.studies.corridor",
          "mapping_studies": "onlinemap.studies.mapping"}
@@ -54,5 +56,6 @@ __all__ = [
     "OnlineMapError", "CheckpointError", "ModelError", "InvalidActionError", "InvalidObservationError",
     "ImpossibleObservationError", "InvalidOptionError", "MemoryLimitError", "UnknownEstimatorError",
     "PerformanceWarning",
-    "sweep", "load_spec", "summarize", "SpecError", "SweepError",
+    "sweep", "load_spec", "summarize", "SpecError", "SweepError", "fit_layered_map", "LayeredMap",
+    "hindsight_map", "HindsightMap",
 ]

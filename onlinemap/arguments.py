@@ -13,7 +13,7 @@ import math
 import numbers
 import os
 
-from .errors import ModelError, OnlineMapError
+from .errors import MemoryLimitError, ModelError, OnlineMapError
 
 MAX_CELLS = 2**24  # bounds N, N x K and N x F (footprint offsets): the model's tables stay below about 0.5 GB
 MAX_LABELS = 2**12  # labels K: (K, K) tables stay below 128 MB
@@ -52,6 +52,22 @@ def integer(name: str, value, *, minimum: int | None = None, maximum: int | None
     if maximum is not None and number > maximum:
         raise error(f"{name} must be at most {maximum}, got {number}")
     return number
+
+
+def step_count(name: str, value, *, minimum: int, bytes_per_step: int,
+               error: type[OnlineMapError] = ModelError) -> int:
+    """``value`` as a number of steps (:func:`integer`, at least ``minimum``: ``2.5``, ``"10"``
+    and NaN are refused) whose arrays, ``bytes_per_step`` bytes per step, fit in this machine's
+    memory (:func:`machine_memory`): more raises :class:`~onlinemap.errors.MemoryLimitError`
+    before anything is allocated (the allocation could only end in a raw ``MemoryError`` or the
+    OOM killer)."""
+    steps = integer(name, value, minimum=minimum, error=error)
+    memory = machine_memory()
+    if memory is not None and steps * bytes_per_step > memory:
+        raise MemoryLimitError(f"{name}={steps:,} needs about {steps * bytes_per_step / 2**30:.3g} GiB "
+                               f"({bytes_per_step:,} bytes per step) but this machine has {memory / 2**30:.3g} GiB; "
+                               f"use fewer steps")
+    return steps
 
 
 def real(name: str, value, *, low: float = -math.inf, high: float = math.inf, low_open: bool = False,

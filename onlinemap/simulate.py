@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
+from . import arguments
 from .arrays import read_only
 from .errors import ModelError
 from .model import GridModel
@@ -118,8 +119,10 @@ def sample_map(model: GridModel, seed: SeedLike = None) -> np.ndarray:
     return np.minimum((u[:, None] >= cumulative).sum(axis=1), model.n_labels - 1)
 
 
-def _categorical(rng: np.random.Generator, rows: np.ndarray) -> np.ndarray:
-    """One draw per row of a (R, K) stochastic matrix."""
+def categorical(rng: np.random.Generator, rows: np.ndarray) -> np.ndarray:
+    """(R,) one draw per row of a (R, K) stochastic matrix, by inversion of one uniform each (the
+    world's map changes and readings; a paired world draws its changes from its own stream with
+    it). O(R K)."""
     u = rng.random(rows.shape[0])
     return np.minimum((u[:, None] >= np.cumsum(rows, axis=1)).sum(axis=1), rows.shape[1] - 1)
 
@@ -138,13 +141,13 @@ def simulate(model: GridModel, true_map=None, actions=(), seed: SeedLike = None,
     if steps is not None:
         if len(actions):
             raise ModelError("give either actions or steps, not both")
-        if isinstance(steps, (bool, np.bool_)) or not isinstance(steps, (int, np.integer)) or steps < 1:
-            raise ModelError(f"steps must be a positive int (the run's length T), got {steps!r}")
-        actions = random_walk(model, int(steps) - 1, rng)
+        steps = arguments.step_count("steps", steps, minimum=1, bytes_per_step=run_bytes_per_step(model))
+        actions = random_walk(model, steps - 1, rng)
     n = model.n_cells
     current = sample_map(model, rng) if true_map is None else check_map(model, true_map)
     action_ids = np.array([action_index(model, a) for a in actions], dtype=np.int64)
-    n_steps = len(action_ids) + 1
+    n_steps = arguments.step_count("the run's steps (actions + 1)", len(action_ids) + 1, minimum=1,
+                                   bytes_per_step=run_bytes_per_step(model))
     locations = np.empty(n_steps, dtype=np.int64)
     maps = np.empty((n_steps, n), dtype=np.int64)
     observations = np.empty((n_steps,) + model.observation_shape, dtype=np.int64)
@@ -170,23 +173,31 @@ def world_step(model: GridModel, location: int, labels: np.ndarray, action: int 
             if not model.blocking[labels[target]]:
                 location = target
         if not model.is_static:
-            labels = _categorical(rng, model.change[labels])
+            labels = categorical(rng, model.change[labels])
     if model.n_readings == 1:
         cell = location if model.reads_own_cell else int(model.footprint_cells[location, 0])
         if cell < 0:
             return location, labels, -1
-        return location, labels, int(_categorical(rng, model.sensor[labels[cell]][None])[0])
+        return location, labels, int(categorical(rng, model.sensor[labels[cell]][None])[0])
     cells = model.footprint_cells[location]
     on_grid = cells >= 0
     observation = np.full(model.n_readings, -1, dtype=np.int64)
-    observation[on_grid] = _categorical(rng, model.sensor[labels[cells[on_grid]]])
+    observation[on_grid] = categorical(rng, model.sensor[labels[cells[on_grid]]])
     return location, labels, observation
 
 
 # --- action generators -------------------------------------------------------------------
 def random_walk(model: GridModel, n_actions: int, seed: SeedLike = None) -> np.ndarray:
-    """(n_actions,) actions drawn uniformly."""
-    return as_generator(seed).integers(0, model.n_actions, size=int(n_actions))
+    """(n_actions,) actions drawn uniformly. ``n_actions``: a whole number >= 0 whose int64
+    actions fit in memory (:func:`onlinemap.arguments.step_count`)."""
+    n_actions = arguments.step_count("n_actions", n_actions, minimum=0, bytes_per_step=8)
+    return as_generator(seed).integers(0, model.n_actions, size=n_actions)
+
+
+def run_bytes_per_step(model: GridModel) -> int:
+    """Bytes a simulated :class:`Run` holds per step: its action, location, map and readings
+    (int64)."""
+    return 8 * (2 + model.n_cells + model.n_readings)
 
 
 def there_and_back(model: GridModel, trips: int = 1) -> np.ndarray:

@@ -2,7 +2,8 @@
 ``grid:2x3``, ``door``, ``door,p_door=0.01``, ``door,blocking=1,footprint=cross``,
 ``grid:3x3,blocking=1,footprint=square``, ``building:32x32,seed=3``,
 ``building:20x40,seed=1,p_door=0.01,extra_doors=0.5``, ``layout:floors/office.map``,
-``layout:maps/lab.yaml,cell_size=0.5``.
+``layout:maps/lab.yaml,cell_size=0.5``, ``layout:maps/lab.yaml,cell_size=0.25,region=-2:8x-3:5``,
+``layout:"floors/a,b.map",cell_rule=any,doorways=0``.
 
 Every kind takes ``p_obs``, ``p_move``, ``start``, ``blocking`` and ``footprint``
 (:data:`KIND_KEYS` lists each kind's keys; :func:`world_help` says it in one paragraph, for every
@@ -16,8 +17,10 @@ of unknown state), e.g. ``door,floor_plan=0.95``. A building
 told otherwise (``blocking=0``, ``footprint=cell``) and takes ``seed``, ``corridor_width``,
 ``rooms_deep``, ``extra_doors`` and ``closed_share``. A layout
 (:func:`onlinemap.layouts.read_layout`) reads the file named after ``layout:`` (a ``.map``,
-``.yaml`` or ``.pgm``; a relative path from the working directory; no commas in it), with the
-same defaults and ``cell_size``.
+``.yaml`` or ``.pgm``; a relative path from the working directory; a path with a comma goes in
+double quotes, ``layout:"a,b.map"``), with the same defaults, ``cell_size``, ``cell_rule``
+(majority, any, threshold), ``doorways`` (0/1) and ``region=A:BxC:D``: rows A..B and columns
+C..D of a ``.map`` or ``.pgm``, or x from A to B and y from C to D metres of a ROS map.
 
 ``parse_world(spec) -> WorldSpec`` holds the model and, for door worlds, buildings and layouts,
 the map.
@@ -34,7 +37,7 @@ import numpy as np
 
 from . import arguments
 from .buildings import building
-from .errors import ModelError
+from .errors import ModelError, OnlineMapError
 from .layouts import read_layout
 from .model import CLOSED_DOOR, OPEN_DOOR, GridModel, corridor, door_cells, door_world, grid_model, symmetric_channel
 from .rng import SeedLike
@@ -46,7 +49,9 @@ _FLOAT_KEYS = {"p_obs", "p_move", "p_change", "p_door", "extra_doors", "closed_s
 _INT_KEYS = {"n_labels", "start", "seed", "corridor_width", "rooms_deep"}
 _REAL_KEYS = {"cell_size"}
 _FLAG_KINDS = ("door", "building", "layout")  # kinds whose blocking option is a flag
-_TEXT_KEYS = {"blocking", "footprint"}
+_TEXT_KEYS = {"blocking", "footprint", "cell_rule"}
+_FLAG_KEYS = {"doorways"}
+_FLAGS = {"1": True, "true": True, "0": False, "false": False}
 
 _EVERY_KIND = ("p_obs", "p_move", "start", "blocking", "footprint")
 _DOORS = ("p_door", "floor_plan")
@@ -56,7 +61,7 @@ KIND_KEYS = {
     "grid": ("n_labels", "p_change", *_EVERY_KIND),
     "door": (*_DOORS, *_EVERY_KIND),
     "building": ("seed", "corridor_width", "rooms_deep", "extra_doors", "closed_share", *_DOORS, *_EVERY_KIND),
-    "layout": ("cell_size", *_DOORS, *_EVERY_KIND),
+    "layout": ("cell_size", "cell_rule", "region", "doorways", *_DOORS, *_EVERY_KIND),
 }
 _KIND_FORMS = {"corridor": "corridor:N", "grid": "grid:RxC", "door": "door", "building": "building:RxC",
                "layout": "layout:PATH"}
@@ -134,9 +139,34 @@ def _rows_cols(spec: str, kind: str, size: str) -> tuple[int, int]:
     return _whole(spec, "rows", rows), _whole(spec, "cols", cols)
 
 
-def _value(spec: str, key: str, text: str) -> int | float | str:
+def _region(spec: str, text: str) -> tuple[tuple[float, float], tuple[float, float]]:
+    """``A:BxC:D`` -> ((A, B), (C, D)), whole numbers as int (cells), others as float (metres)."""
+    def number(part: str) -> int | float:
+        part = part.strip()
+        digits = part.removeprefix("-")
+        if digits.isascii() and digits.isdigit() and len(digits) <= 12:
+            return int(part)
+        try:
+            return float(part)
+        except ValueError:
+            raise ModelError(f"world spec {spec!r}: region is A:BxC:D (rows or x, then cols or y), got {text!r}") \
+                from None
+
+    pairs = [pair.split(":") for pair in text.split("x")]
+    if len(pairs) != 2 or any(len(pair) != 2 for pair in pairs):
+        raise ModelError(f"world spec {spec!r}: region is A:BxC:D (rows or x, then cols or y), got {text!r}")
+    return tuple(tuple(number(part) for part in pair) for pair in pairs)
+
+
+def _value(spec: str, key: str, text: str) -> int | float | str | bool | tuple:
     if key in _TEXT_KEYS:
         return text.strip()
+    if key in _FLAG_KEYS:
+        if text.strip().lower() not in _FLAGS:
+            raise ModelError(f"world spec {spec!r}: {key} is 0 or 1, got {text!r}")
+        return _FLAGS[text.strip().lower()]
+    if key == "region":
+        return _region(spec, text)
     if key in _INT_KEYS:
         return _whole(spec, key, text)
     if key in _REAL_KEYS:
@@ -154,10 +184,9 @@ def _value(spec: str, key: str, text: str) -> int | float | str:
 def _blocking(spec: str, kind: str, value: str):
     """A door world's or building's flag (0/1/true/false) or the '+'-joined blocking labels of another world."""
     if kind in _FLAG_KINDS:
-        flags = {"1": True, "true": True, "0": False, "false": False}
-        if value.lower() not in flags:
+        if value.lower() not in _FLAGS:
             raise ModelError(f"world spec {spec!r}: blocking for a {kind} world is 0 or 1, got {value!r}")
-        return flags[value.lower()]
+        return _FLAGS[value.lower()]
     labels = [label.strip() for label in value.split("+")]
     return [int(label) if label.isascii() and label.isdigit() else label for label in labels]  # else a name
 
@@ -169,7 +198,7 @@ def parse_world(spec: str) -> WorldSpec:
     if not isinstance(spec, str) or not spec.strip() or len(spec) > _MAX_SPEC:
         raise ModelError(f"a world spec is a str of at most {_MAX_SPEC} characters like 'corridor:8', "
                          f"got {type(spec).__name__} of length {len(spec) if isinstance(spec, str) else '?'}")
-    head, *pairs = [part.strip() for part in spec.split(",")]
+    head, pairs = _split(spec)
     kind, _, size = head.partition(":")
     if kind not in KIND_KEYS:
         raise ModelError(f"world spec {spec!r}: unknown kind {kind!r} ({', '.join(_KIND_FORMS.values())})")
@@ -178,7 +207,9 @@ def parse_world(spec: str) -> WorldSpec:
         key, eq, value = pair.partition("=")
         key = key.strip()
         if not eq:
-            raise ModelError(f"world spec {spec!r}: expected key=value, got {pair!r}")
+            hint = (f"; a layout path with a comma goes in double quotes: layout:\"{size},{pair}\""
+                    if kind == "layout" else "")
+            raise ModelError(f"world spec {spec!r}: expected key=value, got {pair!r}{hint}")
         if key not in KIND_KEYS[kind]:
             hint = (" (only worlds with a fixed map take a floor plan: door, building, layout; for maps "
                     "drawn per seed use explore --floor-plan or a sweep's floor_plan)") if key == "floor_plan" else ""
@@ -199,12 +230,28 @@ def parse_world(spec: str) -> WorldSpec:
             except ModelError as error:
                 raise ModelError(f"world spec {spec!r}: floor_plan={floor_plan}: {error}") from None
         return world
-    except ModelError as error:
+    except OnlineMapError as error:  # keeps its class (a FloorFileError stays one)
         if str(error).startswith("world spec"):
             raise
-        raise ModelError(f"world spec {spec!r}: {error}") from None
-    except (TypeError, ValueError) as error:
-        raise ModelError(f"world spec {spec!r}: {error}") from None
+        raise type(error)(f"world spec {spec!r}: {error}") from None
+    except (TypeError, ValueError, ArithmeticError, MemoryError, RecursionError) as error:
+        raise ModelError(f"world spec {spec!r}: {type(error).__name__}: {error}") from None
+
+
+def _split(spec: str) -> tuple[str, list[str]]:
+    """``kind[:size]`` and the ``key=value`` parts of a spec; a layout path may be in double quotes
+    (then it may hold commas)."""
+    text = spec.strip()
+    if not text.startswith('layout:"'):
+        head, *pairs = [part.strip() for part in text.split(",")]
+        return head, pairs
+    end = text.find('"', len('layout:"'))
+    if end < 0:
+        raise ModelError(f"world spec {spec!r}: the layout path's closing double quote is missing")
+    rest = text[end + 1:].strip()
+    if rest and not rest.startswith(","):
+        raise ModelError(f"world spec {spec!r}: expected a comma after the quoted path, got {rest[:20]!r}")
+    return "layout:" + text[len('layout:"'):end], [part.strip() for part in rest[1:].split(",")] if rest else []
 
 
 def _build(spec: str, kind: str, size: str, options: dict) -> WorldSpec:

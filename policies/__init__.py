@@ -6,8 +6,8 @@
 >>> frame = policies.explore(model, true_map, "entropy", "rbpf", steps=200, seed=0)  # doctest: +SKIP
 """
 
-from .info_gain import (InfoGainExplorer, MacroScore, expected_information_gain, expected_uncertainty,
-                        information_reward, uncertainty)
+from .info_gain import InfoGainExplorer, MacroScore
+from .information import expected_information_gain, expected_uncertainty, information_reward, uncertainty
 from onlinemap.model import door_cells
 
 from .explore import COLUMNS, Exploration, explore, exploration, explore_env

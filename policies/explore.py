@@ -13,7 +13,8 @@ from typing import Callable, NamedTuple
 import numpy as np
 import pandas as pd
 
-from onlinemap.errors import ModelError
+from onlinemap import arguments
+from onlinemap.errors import InvalidOptionError, ModelError
 from onlinemap.estimators import Estimator, Trajectory, estimator_options, make_estimator
 from onlinemap.evaluate import step_metrics
 from onlinemap.model import GridModel
@@ -22,7 +23,7 @@ from onlinemap.rng import SeedLike
 from onlinemap.simulate import Run, world_step
 from onlinemap.validation import check_map
 
-from .planners import Planner, make_planner
+from .planners import PLANNERS, Planner, make_planner
 
 COLUMNS = ("t", "action", "true_location", "map_error", "location_error", "location_entropy",
            "map_entropy", "door_error")
@@ -38,8 +39,10 @@ def _observation(model: GridModel, observation) -> int | np.ndarray:
     return np.asarray(observation, dtype=np.int64).reshape(model.observation_shape)
 
 
-def _seeds(seed: SeedLike) -> tuple[np.random.Generator, np.random.Generator, int]:
-    """Independent streams for the world, the planner and the estimator, from one seed."""
+def seed_streams(seed: SeedLike) -> tuple[np.random.Generator, np.random.Generator, int]:
+    """Independent streams for the world, the planner and the estimator, from one seed: every
+    closed loop (:func:`exploration`, :func:`explore_env`, :func:`policies.navigate`, the oracle)
+    splits its seed this way, so one seed fixes a whole run."""
     if isinstance(seed, np.random.Generator):
         world, planner = seed.spawn(2)
         return world, planner, int(seed.integers(2**63))
@@ -48,14 +51,16 @@ def _seeds(seed: SeedLike) -> tuple[np.random.Generator, np.random.Generator, in
             int(estimator.generate_state(1, np.uint64)[0]))
 
 
-def _estimator(model: GridModel, estimator: str | Estimator, options: dict | None, seed: int) -> Estimator:
+def loop_estimator(model: GridModel, estimator: str | Estimator, options: dict | None, seed: int) -> Estimator:
+    """The estimator a closed loop runs: a registry name built with ``options`` (and ``seed`` if it
+    takes one), or a fresh instance for ``model`` taken as it is (ModelError otherwise)."""
     if isinstance(estimator, str):
         options = dict(options or {})
         if "seed" in estimator_options(estimator):
             options.setdefault("seed", seed)
         return make_estimator(estimator, model, **options)
     if options:
-        raise ModelError("estimator_options are for an estimator given by name")
+        raise InvalidOptionError("estimator_options are for an estimator given by name")
     if estimator.t != -1:
         raise ModelError(f"the estimator has already taken {estimator.t + 1} steps; pass a fresh one")
     if estimator.model is not model:
@@ -63,12 +68,17 @@ def _estimator(model: GridModel, estimator: str | Estimator, options: dict | Non
     return estimator
 
 
-def _planner(model: GridModel, planner: str | Planner, options: dict | None,
-             rng: np.random.Generator) -> Planner:
+def loop_planner(model: GridModel, planner: str | Planner, options: dict | None,
+                 rng: np.random.Generator) -> Planner:
+    """The planner a closed loop runs: a registry name built with ``options`` and the planner
+    stream ``rng``, or an instance taken as it is (InvalidOptionError if options come with it)."""
     if isinstance(planner, str):
         return make_planner(planner, model, seed=rng, **(options or {}))
+    if not callable(getattr(planner, "choose", None)):
+        raise ModelError(f"planner must be a registered name ({', '.join(PLANNERS)}) or an object with a "
+                         f"choose(belief) method, got {type(planner).__name__} {planner!r}"[:300])
     if options:
-        raise ModelError("planner_options are for a planner given by name")
+        raise InvalidOptionError("planner_options are for a planner given by name")
     return planner
 
 
@@ -80,16 +90,18 @@ class Exploration(NamedTuple):
     trajectory: Trajectory  # the estimator's stacked beliefs; seconds_per_step: estimator + planner
 
 
-def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[int], WorldState],
-          planner: Planner, estimator: Estimator, steps: int, progress: bool | None,
-          until: Callable[[int], bool] | None = None, score: bool = True) -> Exploration:
-    """At most ``steps`` steps; ``until(true location)``, if given, ends the run after the first
-    step at which it holds (that step recorded). The frame is scored by
+def closed_loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[int], WorldState],
+                planner: Planner, estimator: Estimator, steps: int, progress: bool | None,
+                until: Callable[[int], bool] | None = None, score: bool = True) -> Exploration:
+    """The loop every run shares: ``reset()`` gives the first observation, then the planner
+    chooses, ``advance(action)`` moves the world and the estimator updates. At most ``steps``
+    steps; ``until(true location)``, if given, ends the run after the first step at which it
+    holds (that step recorded). The frame is scored by
     :func:`onlinemap.evaluate.step_metrics` unless ``score`` is False (the sweep engine scores the
     run and trajectory itself: frame None)."""
-    steps = int(steps)
-    if steps < 1:
-        raise ModelError(f"steps must be at least 1 (the first observation), got {steps}")
+    n, k = model.n_cells, model.n_labels  # a step's record: action, location, readings, beliefs, true map
+    steps = arguments.step_count("steps", steps, minimum=1,
+                                 bytes_per_step=8 * (3 + model.n_readings + n + n * k + n), error=InvalidOptionError)
     actions = np.full(steps, -1, dtype=np.int64)
     locations = np.empty(steps, dtype=np.int64)
     observations = np.empty((steps,) + model.observation_shape, dtype=np.int64)
@@ -103,7 +115,7 @@ def _loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[
     belief = estimator.step(None, observation)
     started = time.perf_counter()
     bar = tqdm(total=steps, desc=f"explore ({type(planner).__name__}, {estimator.name})",
-               disable=(steps < 200) if progress is None else not progress, leave=False)
+               disable=(steps < 200) if progress is None else not progress, leave=False, unit="step")
     for t in range(steps):
         if t > 0:
             actions[t] = planner.choose(belief)
@@ -165,20 +177,13 @@ def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
 def exploration(model: GridModel, true_map, planner: str | Planner = "entropy",
                 estimator: str | Estimator = "rbpf", steps: int = 500, seed: SeedLike = None, *,
                 estimator_options: dict | None = None, planner_options: dict | None = None,
-                progress: bool | None = None) -> Exploration:
-    """:func:`explore` returning the whole :class:`Exploration` (table, true run, beliefs)."""
-    return _exploration(model, true_map, planner, estimator, steps, seed, estimator_options, planner_options,
-                        progress)
-
-
-def _exploration(model: GridModel, true_map, planner: str | Planner, estimator: str | Estimator, steps: int,
-                 seed: SeedLike, estimator_options: dict | None, planner_options: dict | None,
-                 progress: bool | None, score: bool = True) -> Exploration:
-    """:func:`exploration`, unscored when ``score`` is False (the sweep engine's explore tasks)."""
-    world_rng, planner_rng, estimator_seed = _seeds(seed)
+                progress: bool | None = None, score: bool = True) -> Exploration:
+    """:func:`explore` returning the whole :class:`Exploration` (table, true run, beliefs); with
+    ``score`` False the frame is None (the sweep engine scores the run and trajectory itself)."""
+    world_rng, planner_rng, estimator_seed = seed_streams(seed)
     labels = check_map(model, true_map)
-    est = _estimator(model, estimator, estimator_options, estimator_seed)
-    chooser = _planner(model, planner, planner_options, planner_rng)
+    est = loop_estimator(model, estimator, estimator_options, estimator_seed)
+    chooser = loop_planner(model, planner, planner_options, planner_rng)
     state = {"location": model.start, "labels": labels}
 
     def advance(action: int | None) -> WorldState:
@@ -187,7 +192,7 @@ def _exploration(model: GridModel, true_map, planner: str | Planner, estimator: 
         state["location"] = location
         return observation, location, state["labels"]
 
-    return _loop(model, lambda: advance(None), advance, chooser, est, steps, progress, score=score)
+    return closed_loop(model, lambda: advance(None), advance, chooser, est, steps, progress, score=score)
 
 
 def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estimator = "rbpf",
@@ -197,9 +202,9 @@ def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estima
     ``env.reset(seed=...)`` then ``env.step(action)``; the true state is read from ``info``.
     The episode must last ``steps - 1`` actions (it raises if the env ends it sooner)."""
     model = env.unwrapped.model
-    world_seed, planner_rng, estimator_seed = _seeds(seed)
-    est = _estimator(model, estimator, estimator_options, estimator_seed)
-    chooser = _planner(model, planner, planner_options, planner_rng)
+    world_seed, planner_rng, estimator_seed = seed_streams(seed)
+    est = loop_estimator(model, estimator, estimator_options, estimator_seed)
+    chooser = loop_planner(model, planner, planner_options, planner_rng)
 
     def reset() -> WorldState:
         observation, info = env.reset(seed=int(world_seed.integers(2**31)))
@@ -212,4 +217,4 @@ def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estima
                              f"ask for fewer steps or raise its max_episode_steps")
         return _observation(model, observation), info["location"], info["map"]
 
-    return _loop(model, reset, advance, chooser, est, steps, progress).frame
+    return closed_loop(model, reset, advance, chooser, est, steps, progress).frame

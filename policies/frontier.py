@@ -64,7 +64,7 @@ import numpy as np
 
 from onlinemap import arguments
 from onlinemap.belief import Belief
-from onlinemap.errors import ModelError
+from onlinemap.errors import InvalidOptionError, ModelError
 from onlinemap.metrics import normalized_entropy
 from onlinemap.model import GridModel
 
@@ -112,13 +112,17 @@ class FrontierExplorer:
     def __init__(self, model: GridModel, *, threshold: float = 0.5, distance_cost: float = 0.2,
                  min_passable: float = 0.05, hypotheses: int = 16, lost_entropy: float | None = None,
                  patience: int | None = 3):
-        self.threshold = arguments.real("threshold", threshold, low=0.0, high=1.0, low_open=True, high_open=True)
-        self.distance_cost = arguments.real("distance_cost", distance_cost, low=0.0, high=math.inf, high_open=True)
-        self.min_passable = arguments.real("min_passable", min_passable, low=0.0, high=1.0, low_open=True)
-        self.hypotheses = arguments.integer("hypotheses", hypotheses, minimum=1)
+        self.threshold = arguments.real("threshold", threshold, low=0.0, high=1.0, low_open=True, high_open=True,
+                                        error=InvalidOptionError)
+        self.distance_cost = arguments.real("distance_cost", distance_cost, low=0.0, high=math.inf, high_open=True,
+                                            error=InvalidOptionError)
+        self.min_passable = arguments.real("min_passable", min_passable, low=0.0, high=1.0, low_open=True,
+                                           error=InvalidOptionError)
+        self.hypotheses = arguments.integer("hypotheses", hypotheses, minimum=1, error=InvalidOptionError)
         self.lost_entropy = None if lost_entropy is None else arguments.real(
-            "lost_entropy", lost_entropy, low=0.0, high=1.0, low_open=True)
-        self.patience = None if patience is None else arguments.integer("patience", patience, minimum=1)
+            "lost_entropy", lost_entropy, low=0.0, high=1.0, low_open=True, error=InvalidOptionError)
+        self.patience = None if patience is None else arguments.integer("patience", patience, minimum=1,
+                                                                        error=InvalidOptionError)
         if model.p_move <= 0:
             raise ModelError("frontier needs p_move > 0: with p_move = 0 the robot never reaches a frontier")
         self.model = model

@@ -10,7 +10,7 @@ teach the filter about the location and the map, measured on the filter itself:
 
 ``H(L)`` is the entropy of the location marginal, ``H(m_i)`` that of cell i's label marginal;
 ``I0`` is what one observation teaches about a cell whose label is uniformly unknown
-(:func:`information_reward`: 0.95 nats in the door world at ``p_obs`` 0.9, 0.19 in a binary
+(:func:`~policies.information.information_reward`: 0.95 nats in the door world at ``p_obs`` 0.9, 0.19 in a binary
 world at ``p_obs`` 0.8), so ``step_cost`` and ``location_weight`` mean the same in
 every world (a nat of location is worth ``location_weight`` observations of an unknown cell).
 The expectation is over the observations the robot would make: a hypothetical world (a location
@@ -46,30 +46,15 @@ the true robot in a known cell whatever the particles believed. Measured on the 
 mean location error from 0.70 to 0.50 at the same map error (0.25); every 40 steps, 0.39 but map
 error 0.35; every 30, 0.27 but the robot does little else (map error 0.64).
 
-Backends (who plays "a copy of the filter"):
-
-- ``rbpf``: a thinned copy of the particle belief (``rollout_particles`` particles drawn by
-  weight, or all of them), rolled out by a numba kernel without copying any map:
-  :func:`onlinemap.kernels.planning.rollout_uncertainty` for the paper's sensor and motion,
-  :func:`onlinemap.kernels.planning.plan_rollouts` for any footprint and blocking labels (the
-  RBPF's update with its optimal proposal; it equals the exact forks on exact particle beliefs
-  and Bayes' rule in expectation, ``tests/test_info_gain.py``). Cost per plan:
-  O(P N K^2) to read the particles' maps, plus for each of ``hypotheses`` S worlds and each of
-  the 2 A candidate rollouts of up to H steps, O(H R (H + K^2)) for the steps and O(R N K) per
-  scored length, plus one warm-started policy iteration over N cells. Measured (``onlinemap
-  bench planning``, P = 1000, R = 64, S = 12): 10 x 10, about 20 ms per plan, 2.7 ms per
-  decision; 32 x 32, about 96 ms per plan, 13 ms per decision; with blocking and a cross
-  footprint, 10 x 10: 33 ms per plan, 10.6 ms per decision.
-- any other estimator: :func:`onlinemap.estimators.fork` (the live estimator is never touched)
-  stepped with simulated observations; with ``hypotheses=None`` the expectation is exact: every
-  observation sequence is enumerated with its predictive probability (the ratio of the fork's
-  evidence before and after), Z^H forks for the Z observations of :func:`observations`
-  (K, or up to about 2^F K^F for a footprint of F offsets): for tiny worlds and tests.
+Backends (who plays "a copy of the filter"): a particle filter (an estimator that
+:class:`~onlinemap.estimators.base.HoldsParticles`, ``rbpf``) is rolled out in numba on a thinned
+copy of its particles (:mod:`policies.rollouts`, where the cost per plan and the measured times
+are); any other estimator is forked and stepped with simulated observations, or, with
+``hypotheses=None``, every observation sequence is enumerated (:mod:`policies.information`).
 """
 
 from __future__ import annotations
 
-import itertools
 import math
 from typing import NamedTuple
 
@@ -77,326 +62,31 @@ import numpy as np
 
 from onlinemap import arguments
 from onlinemap.belief import Belief
-from onlinemap.errors import ImpossibleObservationError, ModelError
-from onlinemap.estimators import Estimator, fork
-from onlinemap.kernels.planning import plan_rollouts, rollout_uncertainty
-from onlinemap.model import GridModel, change_powers
+from onlinemap.errors import InvalidOptionError, ModelError
+from onlinemap.estimators import Estimator
+from onlinemap.estimators.base import HoldsParticles
+from onlinemap.model import GridModel
 from onlinemap.rng import SeedLike, as_generator
-from onlinemap.simulate import world_step
 
 from .frontier import FrontierExplorer, FrontierPlan
+from .information import expected_uncertainty, information_reward, observation_count, sample_states
 from .mdp import PolicyIterationResult, policy_iteration
 from .passability import (PressMemory, distances_to, expected_passability, move_chances, steps_after_press,
                           unblocked_actions)
+from .rollouts import (footprint_expected_uncertainty, particle_expected_uncertainty, rollout_operations,
+                       rollout_tables)
 
-
-def _entropy(p: np.ndarray) -> np.ndarray:
-    """Entropy in nats over the last axis. (..., K) -> (...)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(p > 0, -p * np.log(p), 0.0).sum(axis=-1)
-
-
-def uncertainty(belief: Belief, location_weight: float = 1.0) -> float:
-    """``U = location_weight * H(L) + sum_i H(m_i)`` in nats, from the belief's marginals. O(N K)."""
-    return float(location_weight * _entropy(belief.location) + _entropy(belief.map).sum())
-
-
-def information_reward(belief: Belief, sensor: np.ndarray) -> np.ndarray:
-    """(N,) ``R(i) = H(m_i) - sum_z P(z | i) H(m_i | z)``: the expected entropy drop of cell i's
-    marginal from one observation of it (the mutual information of ``m_i`` and ``z``), with
-    ``P(z | i) = sum_k m_i[k] O[k, z]``. O(N K^2)."""
-    joint = belief.map[:, :, None] * sensor[None]  # (N, K, Z) P(m_i = k, z)
-    p_z = joint.sum(axis=1)  # (N, Z)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        posterior = np.where(p_z[:, None, :] > 0, joint / p_z[:, None, :], 0.0)
-    after = (p_z * _entropy(np.moveaxis(posterior, 1, 2))).sum(axis=1)
-    return np.maximum(_entropy(belief.map) - after, 0.0)
-
-
-def _checked_actions(model: GridModel, actions) -> np.ndarray:
-    actions = np.asarray(actions, dtype=np.int64).ravel()
-    if np.any(actions < 0) or np.any(actions >= model.n_actions):
-        raise ModelError(f"actions must be in 0..{model.n_actions - 1}, got {actions.tolist()}")
-    return actions
-
-
-# --- the generic backend: forks of the live estimator -------------------------------------------
-def sample_states(estimator: Estimator, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """``size`` hypothetical worlds drawn from the estimator's belief: locations (S,) and label maps
-    (S, N). Exact: from the joint (O(N K^N)); RBPF: a particle by weight, then each cell's label
-    from that particle's marginals (O(P + S N K^2)); any other estimator: from the product of its
-    marginals (which is its belief for ``bk`` and ``dead_reckoning``)."""
-    model = estimator.model
-    n, k = model.n_cells, model.n_labels
-    if estimator.name == "exact":
-        joint = estimator.joint().ravel()
-        flat = rng.choice(joint.size, size=size, p=joint / joint.sum())
-        index = np.stack(np.unravel_index(flat, (n,) + (k,) * n), axis=1)
-        return index[:, 0].astype(np.int64), index[:, 1:].astype(np.int64)
-    if estimator.name == "rbpf":
-        weights = np.exp(estimator._log_weights)
-        chosen = rng.choice(len(weights), size=size, p=weights / weights.sum())
-        return estimator._locations[chosen], _draw_labels(estimator.particle_maps(chosen), rng)
-    belief = estimator.belief
-    locations = rng.choice(n, size=size, p=belief.location / belief.location.sum())
-    return locations.astype(np.int64), _draw_labels(np.broadcast_to(belief.map, (size, n, k)), rng)
-
-
-def _draw_labels(marginals: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """(S, N, K) marginals -> (S, N) labels drawn independently per cell."""
-    cdf = np.cumsum(marginals, axis=-1)
-    u = rng.random(marginals.shape[:-1])[..., None] * cdf[..., -1:]
-    return np.minimum((u >= cdf).sum(axis=-1), marginals.shape[-1] - 1).astype(np.int64)
-
-
-def expected_uncertainty(estimator: Estimator, actions, *, hypotheses: int | None = None,
-                         seed: SeedLike = None, location_weight: float = 1.0) -> np.ndarray:
-    """(H + 1,) the expected :func:`uncertainty` after each prefix of ``actions`` (H,), entry 0 now.
-
-    ``hypotheses=None``: exact expectation over every observation sequence (Z^H forks of the
-    estimator for the Z :func:`observations`, each outcome weighted by its predictive probability ``exp(log_evidence after -
-    log_evidence before)``). An integer S: the mean over S worlds drawn by :func:`sample_states`
-    and simulated with :func:`onlinemap.simulate.world_step` (S forks, S H steps). A world whose
-    simulated readings the fork cannot explain (an approximate belief, e.g. a particle filter that
-    lost the world's trajectory, gives them probability zero) is left out of the mean: by the
-    fork's own belief it has probability zero. If every world is left out the expectation is
-    ``U(now)`` at every length (nothing to be learnt that the fork can hold). Planning never
-    raises for it: the live filter is not at fault.
-    The estimator itself (state and random generator) is left exactly as it was.
-    """
-    if estimator.belief is None:
-        raise ModelError("the estimator has no belief yet: step it with the first observation first")
-    model = estimator.model
-    actions = _checked_actions(model, actions)
-    out = np.zeros(len(actions) + 1)
-    out[0] = uncertainty(estimator.belief, location_weight)
-    if hypotheses is None:
-        _enumerate(estimator, actions, 0, 1.0, out, location_weight)
-        return out
-    rng = as_generator(seed)
-    locations, maps = sample_states(estimator, int(hypotheses), rng)
-    total, explained = np.zeros(len(actions)), 0
-    row = np.empty(len(actions))
-    for location, labels in zip(locations, maps):
-        copy = fork(estimator)
-        try:
-            for h, a in enumerate(actions):
-                location, labels, z = world_step(model, int(location), labels, int(a), rng)
-                row[h] = uncertainty(copy.step(int(a), z), location_weight)
-        except ImpossibleObservationError:  # the fork cannot explain this world: probability zero to it
-            continue
-        total += row
-        explained += 1
-    out[1:] = total / explained if explained else out[0]
-    return out
-
-
-def observations(model: GridModel) -> list:
-    """Every observation the sensor can return: a label (the robot's own cell), or (F,) readings
-    with -1 exactly at the offsets that leave the grid from some location (one of
-    ``model.off_grid_patterns``) and a label at every other offset. O(their number,
-    :func:`observation_count`)."""
-    out = []
-    for off in model.off_grid_patterns:
-        for labels in itertools.product(range(model.n_labels), repeat=int((~off).sum())):
-            z = np.full(model.n_readings, -1, dtype=np.int64)
-            z[~off] = labels
-            out.append(z)
-    return [int(z[0]) for z in out] if model.observation_shape == () else out
-
-
-def observation_count(model: GridModel) -> int:
-    """``len(observations(model))`` without building them: ``sum over patterns K^(on-grid
-    offsets)``. O(N F)."""
-    return sum(model.n_labels ** int((~off).sum()) for off in model.off_grid_patterns)
-
-
-def _enumerate(node: Estimator, actions: np.ndarray, depth: int, probability: float, out: np.ndarray,
-               location_weight: float) -> None:
-    if depth == len(actions) or probability == 0.0:
-        return
-    before = node.belief.log_evidence
-    model = node.model
-    for z in observations(model):
-        child = fork(node)
-        if hasattr(child, "recover_from_depletion"):  # an RBPF: an outcome its particles rule out has
-            child.recover_from_depletion = False  # probability zero here, not a relocation
-        try:
-            belief = child.step(int(actions[depth]), z)
-        except ImpossibleObservationError:
-            continue
-        p = probability * math.exp(belief.log_evidence - before)
-        out[depth + 1] += p * uncertainty(belief, location_weight)
-        _enumerate(child, actions, depth + 1, p, out, location_weight)
-
-
-def expected_information_gain(estimator: Estimator, actions, *, hypotheses: int | None = None,
-                              seed: SeedLike = None, location_weight: float = 1.0) -> float:
-    """``U(now) - E[U(after actions)]`` (nats), by :func:`expected_uncertainty`."""
-    u = expected_uncertainty(estimator, actions, hypotheses=hypotheses, seed=seed,
-                             location_weight=location_weight)
-    return float(u[0] - u[-1])
-
-
-# --- the particle backend: thinned particle beliefs, rolled out in numba -----------------------
-class ParticleSnapshot(NamedTuple):
-    """A particle belief. R particles, N cells, K labels."""
-
-    locations: np.ndarray  # (R,) int64
-    maps: np.ndarray  # (R, N, K) each particle's current map marginals
-    log_weights: np.ndarray  # (R,) normalised
-
-
-def particle_snapshot(estimator: Estimator, size: int | None = None,
-                      rng: np.random.Generator | None = None) -> ParticleSnapshot:
-    """The particles of an ``rbpf`` estimator (copies), thinned to ``size`` of them drawn by weight
-    (systematic resampling, one uniform of ``rng``) and equally weighted; all of them, weights
-    kept, if ``size`` is None or not below P. Reads its ``_log_weights`` (the log-space weights the
-    rollouts take) and :meth:`particle_maps` of the chosen particles only: O(P + M N K^2) for M
-    kept (a plan keeps 64 of 1000)."""
-    if estimator.name != "rbpf":
-        raise ModelError(f"particle_snapshot needs an rbpf estimator, got {estimator.name!r}")
-    log_weights = estimator._log_weights
-    if size is None or size >= len(log_weights):
-        return ParticleSnapshot(estimator._locations.copy(), estimator.particle_maps(), log_weights.copy())
-    chosen = _systematic_subset(np.exp(log_weights), size, rng)
-    return ParticleSnapshot(estimator._locations[chosen], estimator.particle_maps(chosen),
-                            np.full(size, -math.log(size)))
-
-
-def _systematic_subset(weights: np.ndarray, size: int, rng: np.random.Generator) -> np.ndarray:
-    """``size`` indices by systematic sampling of ``weights`` (one uniform). O(P + size)."""
-    cdf = np.cumsum(weights / weights.sum())
-    positions = (rng.random() + np.arange(size)) / size
-    return np.minimum(np.searchsorted(cdf, positions, side="right"), len(weights) - 1)
-
-
-class RolloutTables(NamedTuple):
-    """The model's tables as the kernel takes them, for horizons up to H."""
-
-    sensor_cdf: np.ndarray  # (K, K)
-    change_cdf: np.ndarray  # (K, K)
-    powers: np.ndarray  # (H + 1, K, K) C^d
-
-
-def particle_rollouts_fit(model: GridModel) -> bool:
-    """Whether the paper's rollouts (:func:`particle_expected_uncertainty`) simulate ``model``:
-    they read the robot's own cell (``model.reads_own_cell``) and move the robot without looking
-    at the map. Any other footprint (one offset such as ``((0, 1),)`` included) or blocking labels
-    take :func:`footprint_expected_uncertainty`."""
-    return model.reads_own_cell and not model.has_blocking
-
-
-def rollout_tables(model: GridModel, horizon: int) -> RolloutTables:
-    """Cumulative sensor and change rows and the powers of C up to ``horizon``. O(H K^3)."""
-    return RolloutTables(np.cumsum(model.sensor, axis=1), np.cumsum(model.change, axis=1),
-                         change_powers(model.change, horizon + 1).copy())  # writable: the kernels' one signature
-
-
-def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot, sequences: np.ndarray,
-                                  checkpoints: np.ndarray, worlds: tuple[np.ndarray, np.ndarray],
-                                  rng: np.random.Generator, location_weight: float = 1.0,
-                                  tables: RolloutTables | None = None) -> np.ndarray:
-    """(C, H + 1) expected uncertainty of each action sequence ``sequences`` (C, H) after each
-    prefix length h with ``checkpoints[h]`` (other entries 0), averaged over the worlds
-    ``(locations (S,), labels (S, N))``; every sequence sees the same worlds and random numbers.
-    Cost O(S C (H R (H + K^2) + n_checkpoints R N K)), the uncertainty now (O(R N K)) once."""
-    n_seq, horizon = sequences.shape
-    tables = rollout_tables(model, horizon) if tables is None else tables
-    dynamic = not model.is_static
-    checkpoints = np.asarray(checkpoints, dtype=np.bool_)
-    total = np.zeros((n_seq, horizon + 1))
-    out = np.zeros(horizon + 1)
-    r_count = len(particles.locations)
-    arrays = (particles.locations, particles.maps, particles.log_weights, model.moves, model.p_move, model.likelihood,
-              tables.sensor_cdf, tables.change_cdf, tables.powers, dynamic)
-    now = 0.0  # the uncertainty now, the same in every world: one rollout of no step
-    if checkpoints[0]:
-        rollout_uncertainty(*arrays, sequences[0, :0], int(worlds[0][0]), worlds[1][0], np.empty((0, 2)),
-                            np.empty((0, model.n_cells if dynamic else 0)), np.empty((0, r_count)),
-                            float(location_weight), checkpoints[:1], out)
-        now = out[0]
-    later = np.concatenate([[False], checkpoints[1:]])  # the rollouts score the steps after now
-    for location, labels in zip(*worlds):
-        world_u = rng.random((horizon, 2))
-        change_u = rng.random((horizon, model.n_cells if dynamic else 0))
-        proposal_u = rng.random((horizon, r_count))
-        for c in range(n_seq):
-            out[:] = 0.0
-            out[0] = now
-            rollout_uncertainty(*arrays, sequences[c], int(location), labels, world_u, change_u, proposal_u,
-                                float(location_weight), later, out)
-            total[c] += out
-    return total / len(worlds[0])
-
-
-def agreement(model: GridModel, particles: ParticleSnapshot, horizon: int,
-              tables: RolloutTables) -> tuple[np.ndarray, np.ndarray]:
-    """The cells whose marginals differ between the particles (D,) sorted, and (H + 1,) the summed
-    entropy at step h of the other cells' common marginal (brought forward by ``C^h``): the part
-    of ``sum_i H(M_i)`` no reweighting changes. O(R N K + H N K^2) (O(R N K) in a static world)."""
-    maps = particles.maps
-    disputed = np.flatnonzero(np.any(maps != maps[:1], axis=(0, 2)))
-    agree = np.ones(model.n_cells, dtype=bool)
-    agree[disputed] = False
-    common = maps[0, agree]
-    if model.is_static:
-        return disputed, np.full(horizon + 1, _entropy(common).sum())
-    return disputed, np.array([_entropy(common @ tables.powers[h]).sum() for h in range(horizon + 1)])
-
-
-def footprint_expected_uncertainty(model: GridModel, particles: ParticleSnapshot, sequences: np.ndarray,
-                                   checkpoints: np.ndarray, worlds: tuple[np.ndarray, np.ndarray],
-                                   rng: np.random.Generator, location_weight: float = 1.0,
-                                   tables: RolloutTables | None = None, distances: np.ndarray | None = None,
-                                   go: np.ndarray | None = None) -> np.ndarray:
-    """(C, H + 1) :func:`particle_expected_uncertainty` for any sensor footprint and blocking
-    labels (:func:`onlinemap.kernels.planning.plan_rollouts`): ``sequences`` (C, H) actions, -1
-    where the action is chosen in closed loop towards candidate c's target by ``distances`` (C, N)
-    and ``go`` (N, A) (the chance each press moves). Every sequence sees the same worlds and random
-    numbers. Cost O(S C (H R (F + 1) K^2 + n_checkpoints R (D + H F) K)), D the disputed cells."""
-    sequences = np.ascontiguousarray(sequences, dtype=np.int64)
-    n_seq, horizon = sequences.shape
-    tables = rollout_tables(model, horizon) if tables is None else tables
-    n_worlds, r_count = len(worlds[0]), len(particles.locations)
-    world_u = rng.random((n_worlds, horizon, 1 + model.n_readings))
-    change_u = rng.random((n_worlds, horizon, 0 if model.is_static else model.n_cells))
-    proposal_u = rng.random((n_worlds, horizon, r_count))
-    disputed, agree_entropy = agreement(model, particles, horizon, tables)
-    if distances is None:
-        distances = np.zeros((n_seq, model.n_cells))
-        go = np.zeros((model.n_cells, model.n_actions))
-    total = np.zeros((n_seq, horizon + 1))
-    plan_rollouts(particles.locations, np.ascontiguousarray(particles.maps), particles.log_weights, model.moves,
-                  model.p_move, model.blocking, model.footprint_cells, model.sensor, tables.sensor_cdf, model.change,
-                  tables.change_cdf, tables.powers, not model.is_static, sequences, np.ascontiguousarray(distances),
-                  np.ascontiguousarray(go, dtype=np.float64), worlds[0].astype(np.int64),
-                  np.ascontiguousarray(worlds[1], dtype=np.int64), world_u, change_u, proposal_u,
-                  float(location_weight), np.asarray(checkpoints, dtype=np.bool_), disputed, agree_entropy, total)
-    return total / n_worlds
-
-
-# --- the planner ------------------------------------------------------------------------------
 MAX_PLAN_FORKS = 10**5  # an exact enumeration forking the estimator more often than this is refused
-
-
-def rollout_operations(model: GridModel, hypotheses: int, candidates: int, horizon: int, lengths: int,
-                       particles: int) -> int:
-    """The estimated floating-point operations of one plan of the particle backend:
-    ``S C (H R (F + 1) K^2 + L R N K)`` for S worlds, C candidates of H steps, L scored lengths,
-    R particles, F footprint offsets (exact Python ints)."""
-    k = model.n_labels
-    return hypotheses * candidates * (horizon * particles * (model.n_readings + 1) * k * k
-                                      + lengths * particles * model.n_cells * k)
 
 
 def _lengths(value) -> np.ndarray:
     """``press_lengths``: a non-empty sequence of whole numbers >= 1, sorted and unique."""
     if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
-        raise ModelError(f"press_lengths must be a sequence of whole numbers >= 1, got {value!r}")
-    lengths = [arguments.integer(f"press_lengths[{i}]", v, minimum=1) for i, v in enumerate(value)]
+        raise InvalidOptionError(f"press_lengths must be a sequence of whole numbers >= 1, got {value!r}")
+    lengths = [arguments.integer(f"press_lengths[{i}]", v, minimum=1, error=InvalidOptionError)
+               for i, v in enumerate(value)]
     if not lengths:
-        raise ModelError("press_lengths must not be empty")
+        raise InvalidOptionError("press_lengths must not be empty")
     return np.unique(np.asarray(lengths, dtype=np.int64))
 
 
@@ -422,8 +112,8 @@ def anchor_actions(model: GridModel, belief: Belief, presses: int) -> np.ndarray
     """(2 presses,) actions that press into the grid corner nearest the belief's expected location:
     ``presses`` times towards the nearer of the two column edges, then as many towards the nearer
     row edge. An action "goes towards" an edge when it moves every cell off that edge and keeps
-    the edge's cells in place (found from ``model.neighbors``, so any 4-connected grid works).
-    O(N A)."""
+    the edge's cells in place (found from ``model.neighbors``, so any 4-connected grid works). A
+    1 x 1 grid: ``presses`` presses of action 0. O(N A)."""
     rows, cols = np.divmod(np.arange(model.n_cells), model.cols)
     expected = (belief.location @ rows, belief.location @ cols)
     sequence = []
@@ -439,6 +129,8 @@ def anchor_actions(model: GridModel, belief: Belief, presses: int) -> np.ndarray
         if not towards:
             raise ModelError("anchor_actions needs a grid whose actions move along its rows and columns")
         sequence += [towards[0]] * presses
+    if model.n_cells == 1:  # a single cell is its own corner: any press anchors (and moves nothing)
+        sequence = [0] * presses
     return np.asarray(sequence, dtype=np.int64)
 
 
@@ -466,11 +158,11 @@ class Candidates(NamedTuple):
 
 
 DEFAULT_TARGETS = 4  # frontier targets among the candidates, outside the paper's world
-STEP_COST = 0.05  # step_cost "auto" in the paper's world (chosen on 8 seeds of it, issue 11)
+STEP_COST = 0.05  # step_cost "auto" in the paper's world (chosen on 8 seeds of it)
 # step_cost "auto" with frontier targets: tuned on the blocking + cross door world, 1000 particles,
 # 300 steps, mean steps to map error 0.1 over 8 seeds: seeds 0-7, 0.05 -> 142, 0.2 -> 131,
 # 0.35 -> 117, 0.6 -> 112, 1.0 -> 133 (frontier 142); seeds 8-15, 0.45 -> 126, 0.6 -> 115,
-# 0.75 -> 117 (frontier 131). Measured apart from these seeds, on seeds 20-39 (README).
+# 0.75 -> 117 (frontier 131). Measured apart from these seeds, on seeds 20-39 (the guide's Exploration page).
 TARGETS_STEP_COST = 0.6
 
 
@@ -540,39 +232,41 @@ class InfoGainExplorer:
                  location_weight: float = 4.0, commit: int = 8, anchor_every: int | str | None = "auto",
                  gamma: float = 0.95, targets: int | str = "auto"):
         self.model = model
-        self.hypotheses = None if hypotheses is None else arguments.integer("hypotheses", hypotheses, minimum=1)
+        self.hypotheses = None if hypotheses is None else arguments.integer("hypotheses", hypotheses, minimum=1,
+                                                                            error=InvalidOptionError)
         self.rollout_particles = None if rollout_particles is None else arguments.integer(
-            "rollout_particles", rollout_particles, minimum=1)
+            "rollout_particles", rollout_particles, minimum=1, error=InvalidOptionError)
         self.location_weight = arguments.real("location_weight", location_weight, low=0.0, high=math.inf,
-                                              high_open=True)
-        self.commit = arguments.integer("commit", commit, minimum=1)
-        self.gamma = arguments.real("gamma", gamma, low=0.0, high=1.0, high_open=True)
+                                              high_open=True, error=InvalidOptionError)
+        self.commit = arguments.integer("commit", commit, minimum=1, error=InvalidOptionError)
+        self.gamma = arguments.real("gamma", gamma, low=0.0, high=1.0, high_open=True, error=InvalidOptionError)
         if press_lengths is None:
             longest = math.ceil((max(model.rows, model.cols) - 1) / max(model.p_move, 0.05)) + 1
             press_lengths = sorted({k for k in (1, 2, 4, 8) if k < longest} | {longest})
         self.press_lengths = _lengths(press_lengths)
-        paper = model.reads_own_cell and not model.has_blocking
+        paper = model.is_paper_model
         if isinstance(targets, str):
-            arguments.choice("targets", targets, ("auto",))
+            arguments.choice("targets", targets, ("auto",), error=InvalidOptionError)
             targets = 0 if paper or model.p_move == 0 else DEFAULT_TARGETS
-        self.targets = arguments.integer("targets", targets, minimum=0)
+        self.targets = arguments.integer("targets", targets, minimum=0, error=InvalidOptionError)
         if isinstance(step_cost, str):
-            arguments.choice("step_cost", step_cost, ("auto",))
+            arguments.choice("step_cost", step_cost, ("auto",), error=InvalidOptionError)
             step_cost = STEP_COST if self.targets == 0 else TARGETS_STEP_COST
-        self.step_cost = arguments.real("step_cost", step_cost, low=0.0, high=math.inf, high_open=True)
+        self.step_cost = arguments.real("step_cost", step_cost, low=0.0, high=math.inf, high_open=True,
+                                        error=InvalidOptionError)
         self._check_cost(self.rollout_particles)
         anchor_length = int(self.press_lengths[-1]) * ((model.rows > 1) + (model.cols > 1))
         if isinstance(anchor_every, str):
-            arguments.choice("anchor_every", anchor_every, ("auto",))
+            arguments.choice("anchor_every", anchor_every, ("auto",), error=InvalidOptionError)
             # 60 in the 10 x 10 world: under half the steps anchoring; no corner to press into in a building
             anchor_every = 2 * anchor_length + 8 if self.targets == 0 else None
         if anchor_every is not None:
-            anchor_every = arguments.integer("anchor_every", anchor_every)
+            anchor_every = arguments.integer("anchor_every", anchor_every, error=InvalidOptionError)
             if anchor_every <= anchor_length:
-                raise ModelError(f"anchor_every must be 'auto', None or longer than the {anchor_length} presses of "
-                                 f"an anchor (the robot would do nothing else), got {anchor_every!r}")
+                raise InvalidOptionError(f"anchor_every must be 'auto', None or longer than the {anchor_length} presses "
+                                         f"of an anchor (the robot would do nothing else), got {anchor_every!r}")
         self.anchor_every = anchor_every
-        self.rng = as_generator(arguments.seed("seed", seed))
+        self.rng = as_generator(arguments.seed("seed", seed, error=InvalidOptionError))
         self.estimator: Estimator | None = None
         self.last_plan: MacroScore | None = None
         self._queue: list[int] = []
@@ -588,7 +282,7 @@ class InfoGainExplorer:
         self._location_nats = self.location_weight * nats
 
     def _check_cost(self, particles: int | None) -> None:
-        """Refuse (ModelError naming the options, with the estimate) a plan of more than
+        """Refuse (InvalidOptionError naming the options, with the estimate) a plan of more than
         :data:`onlinemap.arguments.MAX_OPERATIONS` operations or, enumerating, :data:`MAX_PLAN_FORKS` forks.
         ``particles``: the R particles a rollout carries (None: not known yet, checked at bind)."""
         model, horizon = self.model, int(self.press_lengths[-1])
@@ -600,7 +294,7 @@ class InfoGainExplorer:
                 level *= outcomes
                 forks += candidates * level
                 if forks > MAX_PLAN_FORKS:
-                    raise ModelError(
+                    raise InvalidOptionError(
                         f"info_gain with hypotheses=None enumerates every observation ({outcomes} a step) over "
                         f"press_lengths up to {horizon}: more than {MAX_PLAN_FORKS:.0e} estimator forks a plan "
                         f"(at least {forks:.3g}); give hypotheses (worlds sampled) or shorter press_lengths")
@@ -610,18 +304,25 @@ class InfoGainExplorer:
         work = rollout_operations(model, self.hypotheses, candidates, horizon, len(self.press_lengths), particles)
         arguments.bounded_work(
             f"a plan of info_gain (hypotheses={self.hypotheses} worlds x {candidates} candidates x press_lengths up "
-            f"to {horizon} steps x {particles} particles)", work, "lower hypotheses, rollout_particles or press_lengths")
+            f"to {horizon} steps x {particles} particles)", work,
+            "lower hypotheses, rollout_particles or press_lengths", error=InvalidOptionError)
 
     def bind(self, estimator: Estimator) -> None:
         """Plan on copies of ``estimator`` (the live filter of the exploration loop)."""
         if estimator.model is not self.model:
             raise ModelError("the estimator was built for a different model than the planner")
-        if self.rollout_particles is None and estimator.name == "rbpf":
-            self._check_cost(len(estimator._locations))
+        if self.rollout_particles is None and isinstance(estimator, HoldsParticles):
+            self._check_cost(estimator.n_particles)
         self.estimator = estimator
         self._queue = []
         self._since_anchor = 0
         self._target, self._target_steps = -1, 0
+
+    @property
+    def pending(self) -> int:
+        """The presses of the chosen macro-action (or anchor, or moves towards a target) still to
+        make; 0: the next :meth:`choose` decides anew (it plans, or anchors)."""
+        return len(self._queue) + self._target_steps
 
     def choose(self, belief: Belief) -> int:
         if self.estimator is None:
@@ -667,7 +368,7 @@ class InfoGainExplorer:
 
     def candidates(self, belief: Belief) -> Candidates:
         """Press each direction H times; then, with ``targets`` 0, the :func:`greedy_path` on the
-        policy-iteration ``Q`` of :func:`information_reward` from the most probable location (with
+        policy-iteration ``Q`` of :func:`~policies.information.information_reward` from the most probable location (with
         blocking labels, on the belief's expected passability; one warm-started policy iteration
         over N cells); with ``targets`` T > 0, the moves towards each of the best T frontier
         targets (:func:`frontier_targets`), in closed loop (sequence -1: each press chosen on the
@@ -715,10 +416,10 @@ class InfoGainExplorer:
         checkpoints = np.zeros(horizon + 1, dtype=np.bool_)
         checkpoints[0] = True
         checkpoints[lengths] = True
-        if est.name == "rbpf" and self.hypotheses is not None:
+        if self.hypotheses is not None and isinstance(est, HoldsParticles):
             worlds = sample_states(est, self.hypotheses, self.rng)
-            particles = particle_snapshot(est, self.rollout_particles, self.rng)
-            if particle_rollouts_fit(self.model) and distances is None:
+            particles = est.particle_snapshot(self.rollout_particles, self.rng)
+            if self.model.is_paper_model and distances is None:
                 expected = particle_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
                                                          self.rng, self._location_nats, self._tables)
             else:

@@ -12,7 +12,8 @@ The reward of the cell the robot starts in is not counted (it has been collected
 ``passable`` (N,), optional everywhere: the probability that each cell can be entered (the belief's
 expected passability in a world with blocking labels, :mod:`policies.passability`); the move from
 ``l`` to its neighbour ``j`` then succeeds with ``p_move * passable[j]`` and the robot stays
-otherwise. None: the design's motion (every cell enterable), bit for bit as before.
+otherwise. None: the design's motion (every cell enterable), computed with no passable factor at
+all (not a factor of 1.0), so the paper's planner does not depend on this option's arithmetic.
 """
 
 from __future__ import annotations
@@ -28,9 +29,9 @@ try:  # SuperLU's driver, the one spsolve calls; without spsolve's per-call chec
 except ImportError:  # pragma: no cover - a SciPy that moved it: spsolve, the same solve
     _gssv = None
 
-from onlinemap.errors import ModelError
-from onlinemap.kernels.mdp import action_values as kernel_action_values
-from onlinemap.kernels.mdp import improve_policy, policy_rows
+from onlinemap.errors import InvalidOptionError, ModelError
+from .kernels.mdp import action_values as kernel_action_values
+from .kernels.mdp import improve_policy, policy_rows
 from onlinemap.model import GridModel
 
 
@@ -54,7 +55,7 @@ def action_values(model: GridModel, reward: np.ndarray, value: np.ndarray, gamma
     """(N, A) ``Q(l, a) = sum_j T[a, l, j] (R(j) + gamma V(j))`` for every cell and action, O(N A):
     ``(1 - g) F(l) + g F(j)`` with ``F = R + gamma V`` and g the move's probability
     (:func:`move_probabilities`; with no ``passable``, ``p_move`` for every action, a blocked move
-    staying in place). A numba kernel (:func:`onlinemap.kernels.mdp.action_values`)."""
+    staying in place). A numba kernel (:func:`policies.kernels.mdp.action_values`)."""
     q = np.empty((model.n_cells, model.n_actions))
     kernel_action_values(model.neighbors, model.p_move, _passable_array(passable), np.asarray(reward, dtype=np.float64),
                          np.asarray(value, dtype=np.float64), float(gamma), q)
@@ -71,7 +72,7 @@ def _passable_array(passable) -> np.ndarray:
 def _policy_rows(model: GridModel, policy: np.ndarray, passable: np.ndarray, gamma: float = 0.0,
                  reward: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The CSR (N, N) ``T_pi`` (``reward`` None) or ``I - gamma T_pi`` and ``T_pi R`` (N,)
-    (:func:`onlinemap.kernels.mdp.policy_rows`): data (E,), int32 columns (E,), int32 row
+    (:func:`policies.kernels.mdp.policy_rows`): data (E,), int32 columns (E,), int32 row
     pointers (N + 1,), the right-hand side (N,). At most 2 N entries, O(N)."""
     n = model.n_cells
     data, cols, indptr, rhs = np.empty(2 * n), np.empty(2 * n, dtype=np.intc), np.empty(n + 1, dtype=np.intc), np.empty(n)
@@ -132,12 +133,12 @@ def _check(model: GridModel, reward, gamma: float, initial_policy) -> tuple[np.n
         raise ModelError("reward contains NaN or infinite values")
     gamma = float(gamma)
     if not 0.0 <= gamma < 1.0:
-        raise ModelError(f"the discount gamma must be in [0, 1), got {gamma!r}")
+        raise InvalidOptionError(f"the discount gamma must be in [0, 1), got {gamma!r}")
     if initial_policy is None:
         return reward, gamma, None
     policy = np.array(initial_policy, dtype=np.int64)
     if policy.shape != (model.n_cells,) or np.any(policy < 0) or np.any(policy >= model.n_actions):
-        raise ModelError(f"initial_policy must be ({model.n_cells},) actions in 0..{model.n_actions - 1}")
+        raise InvalidOptionError(f"initial_policy must be ({model.n_cells},) actions in 0..{model.n_actions - 1}")
     return reward, gamma, policy
 
 

@@ -20,14 +20,14 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
 from onlinemap import arguments
-from onlinemap.errors import ModelError
+from onlinemap.errors import InvalidOptionError
 from onlinemap.estimators import Estimator, Trajectory
 from onlinemap.model import GridModel
 from onlinemap.rng import SeedLike
-from onlinemap.simulate import Run, _categorical, world_step
+from onlinemap.simulate import Run, categorical, world_step
 from onlinemap.validation import check_map
 
-from .explore import COLUMNS, WorldState, _estimator, _loop, _planner, _seeds
+from .explore import COLUMNS, WorldState, closed_loop, loop_estimator, loop_planner, seed_streams
 from .navigation import check_goal, plan_to_goal
 from .planners import Planner
 from .planners import planner_options as named_options
@@ -60,7 +60,7 @@ class PairedWorld:
         if moves and not model.blocking[self.labels[target]]:
             self.location = target
         if not model.is_static:
-            self.labels = _categorical(self._maps, model.change[self.labels])
+            self.labels = categorical(self._maps, model.change[self.labels])
         return self._observe()
 
     def _observe(self) -> WorldState:
@@ -76,6 +76,15 @@ class Navigation(NamedTuple):
     reached_at: int | None  # the first step at which the true robot stands on the goal (None: never)
     run: Run
     trajectory: Trajectory
+
+    def __repr__(self) -> str:
+        """One line (the frame's rows are its own to print): the goal, when it was reached, the
+        steps and the fields' sizes."""
+        reached = "never reached" if self.reached_at is None else f"reached at step {self.reached_at}"
+        rows, columns = self.frame.shape
+        return (f"Navigation(goal cell {self.frame.attrs.get('goal')} {reached}; {self.run.n_steps} steps from "
+                f"cell {self.run.locations[0]} to {self.run.locations[-1]}; frame {rows} rows x {columns} columns, "
+                f"run, trajectory)")
 
 
 def true_distances(model: GridModel, labels: np.ndarray, goal: int) -> np.ndarray:
@@ -105,7 +114,8 @@ def _distances_to_goal(model: GridModel, run: Run, goal: int) -> np.ndarray:
 
 def navigate(model: GridModel, true_map, goal, planner: str | Planner = "goto", estimator: str | Estimator = "rbpf",
              *, max_steps: int, seed: SeedLike, estimator_options: dict | None = None,
-             planner_options: dict | None = None, progress: bool | None = None) -> Navigation:
+             planner_options: dict | None = None, progress: bool | None = None,
+             score: bool = True) -> Navigation:
     """Drive the robot towards ``goal`` (a cell index or ``(row, col)``) in closed loop: the loop
     of :func:`policies.explore.exploration` (planner chooses, world moves, estimator updates) in a
     :class:`PairedWorld`, ended when the true robot stands on the goal or after ``max_steps``
@@ -114,42 +124,34 @@ def navigate(model: GridModel, true_map, goal, planner: str | Planner = "goto", 
     ``planner``: a registered name (``goto``, ``static_goto``; a named planner that takes a goal
     is given this one, others, e.g. ``random``, run as they are) or a planner instance (whose
     ``goal``, if it has one, must be this goal). The goal is checked as the goal planners check it
-    (:func:`~policies.navigation.check_goal`: ModelError naming it when off the grid, a wall under
+    (:func:`~policies.navigation.check_goal`: InvalidOptionError naming it when off the grid, a wall under
     the prior or cut off from the start).
 
     Returns a :class:`Navigation`: ``frame`` has one row per step (at most ``max_steps + 1``),
     the columns of :data:`policies.explore.COLUMNS` plus ``distance_to_goal``, the fewest moves
     from the true location to the goal on the true map of that step (:func:`true_distances`; inf
     while the goal is cut off, 0 on the goal); ``reached_at`` the step at which the robot first
-    stands on the goal, or None. Cost: the steps taken x (estimator step + planner choice), plus
+    stands on the goal, or None; with ``score`` False the frame holds only ``distance_to_goal``
+    (the sweep engine scores the run itself). Cost: the steps taken x (estimator step + planner choice), plus
     O(N A) per distinct true map for the distances.
     """
-    return _navigation(model, true_map, goal, planner, estimator, max_steps, seed, estimator_options,
-                       planner_options, progress)
-
-
-def _navigation(model: GridModel, true_map, goal, planner: str | Planner, estimator: str | Estimator,
-                max_steps: int, seed: SeedLike, estimator_options: dict | None, planner_options: dict | None,
-                progress: bool | None, score: bool = True) -> Navigation:
-    """:func:`navigate`; unscored when ``score`` is False (the sweep engine's navigate tasks: the
-    frame is then only ``distance_to_goal``)."""
-    max_steps = arguments.integer("max_steps", max_steps, minimum=0)
+    max_steps = arguments.integer("max_steps", max_steps, minimum=0, error=InvalidOptionError)
     cell = check_goal(model, goal)
     if isinstance(planner, str):
         options = dict(planner_options or {})
         if "goal" in named_options(planner):
             if "goal" in options:
-                raise ModelError("give the goal once, as navigate's goal, not in planner_options")
+                raise InvalidOptionError("give the goal once, as navigate's goal, not in planner_options")
             options["goal"] = goal
         planner_options = options
     elif getattr(planner, "goal", cell) != cell:
-        raise ModelError(f"the planner goes to cell {planner.goal}, not to the goal {goal!r} (cell {cell})")
-    world_rng, planner_rng, estimator_seed = _seeds(seed)
+        raise InvalidOptionError(f"the planner goes to cell {planner.goal}, not to the goal {goal!r} (cell {cell})")
+    world_rng, planner_rng, estimator_seed = seed_streams(seed)
     world = PairedWorld(model, true_map, world_rng)
-    est = _estimator(model, estimator, estimator_options, estimator_seed)
-    chooser = _planner(model, planner, planner_options, planner_rng)
-    found = _loop(model, world.reset, world.advance, chooser, est, max_steps + 1, progress,
-                  until=lambda location: location == cell, score=score)
+    est = loop_estimator(model, estimator, estimator_options, estimator_seed)
+    chooser = loop_planner(model, planner, planner_options, planner_rng)
+    found = closed_loop(model, world.reset, world.advance, chooser, est, max_steps + 1, progress,
+                        until=lambda location: location == cell, score=score)
     frame = found.frame if score else pd.DataFrame(index=range(found.run.n_steps))
     frame["distance_to_goal"] = _distances_to_goal(model, found.run, cell)
     frame.attrs["goal"] = cell
@@ -168,9 +170,9 @@ def oracle_steps(model: GridModel, true_map, goal, *, max_steps: int, seed: Seed
     would, knowing what it knows), taking the cheapest action from its cell. Returns the step at
     which it first stands on the goal, or None after ``max_steps`` actions. Cost: one plan per
     distinct true map met, plus O(N + F) per step."""
-    max_steps = arguments.integer("max_steps", max_steps, minimum=0)
+    max_steps = arguments.integer("max_steps", max_steps, minimum=0, error=InvalidOptionError)
     cell = check_goal(model, goal)
-    world = PairedWorld(model, true_map, _seeds(seed)[0])
+    world = PairedWorld(model, true_map, seed_streams(seed)[0])
     _, location, labels = world.reset()
     plans: dict[bytes, np.ndarray] = {}
     for t in range(max_steps):

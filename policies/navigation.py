@@ -17,7 +17,7 @@ not to hold such a label is planned as a wall (a 5% chance that a wall is free i
 press into it again and again: the model forgets the failure, the belief may not learn from it when
 the chance comes from another location hypothesis's map).
 
-Value iteration over (cell, step) (the kernel :func:`onlinemap.kernels.navigation.goal_value_iteration`):
+Value iteration over (cell, step) (the kernel :func:`policies.kernels.navigation.goal_value_iteration`):
 with ``G[tau](j, k)`` the expected steps of pressing into ``j`` from step ``tau`` on, its label
 being ``k``, and ``m = M[j] C^tau``, ``s`` its permanently blocking mass,
 
@@ -58,8 +58,8 @@ from scipy.sparse.csgraph import breadth_first_order
 
 from onlinemap import arguments
 from onlinemap.belief import Belief
-from onlinemap.errors import ModelError
-from onlinemap.kernels.navigation import goal_value_iteration
+from onlinemap.errors import InvalidOptionError
+from .kernels.navigation import goal_value_iteration
 from onlinemap.model import GridModel
 
 from .passability import paths_to
@@ -71,18 +71,20 @@ NEVER = 1e9  # steps charged for what never ends (a cell from which the goal can
 
 def goal_cell(model: GridModel, goal) -> int:
     """The cell index of ``goal``: an index in ``0..N-1`` or a ``(row, col)`` pair on the grid.
-    Anything else, or a goal off the grid, raises ModelError naming the goal."""
+    Anything else, or a goal off the grid, raises InvalidOptionError naming the goal."""
+    if isinstance(goal, np.ndarray) and goal.ndim == 0:  # np.array(99): a cell index in an array
+        goal = goal.item()
     if isinstance(goal, numbers.Integral) and not isinstance(goal, (bool, np.bool_)):
         if not 0 <= int(goal) < model.n_cells:
-            raise ModelError(f"goal {goal!r} is off the grid: cells are 0..{model.n_cells - 1}")
+            raise InvalidOptionError(f"goal {goal!r} is off the grid: cells are 0..{model.n_cells - 1}")
         return int(goal)
     if isinstance(goal, (tuple, list, np.ndarray)) and len(goal) == 2 and all(
             isinstance(x, numbers.Integral) and not isinstance(x, (bool, np.bool_)) for x in goal):
         row, col = (int(x) for x in goal)
         if not (0 <= row < model.rows and 0 <= col < model.cols):
-            raise ModelError(f"goal {tuple(goal)!r} (row, col) is off the {model.rows} x {model.cols} grid")
+            raise InvalidOptionError(f"goal {tuple(goal)!r} (row, col) is off the {model.rows} x {model.cols} grid")
         return row * model.cols + col
-    raise ModelError(f"goal must be a cell index or a (row, col) pair, got {goal!r}")
+    raise InvalidOptionError(f"goal must be a cell index or a (row, col) pair, got {goal!r}")
 
 
 def default_horizon(model: GridModel) -> int:
@@ -106,13 +108,14 @@ def label_powers(model: GridModel, horizon: int) -> np.ndarray:
     plan_work = model.n_cells * (model.n_labels ** 2 + model.n_actions)  # a plan: O(H N (K^2 + A))
     if not converged:  # C never mixes (it cycles): the powers run to the horizon
         arguments.bounded_work(f"a plan to a goal over horizon={horizon} ({model.n_cells} cells, C never mixes)",
-                               (int(horizon) + 1) * plan_work, "lower horizon")
+                               (int(horizon) + 1) * plan_work, "lower horizon", error=InvalidOptionError)
     powers = [np.eye(model.n_labels)]
     while len(powers) <= int(horizon) and not (converged and np.abs(powers[-1] - limit).max() <= MIXED):
         powers.append(powers[-1] @ model.change)
         if len(powers) % 1024 == 0:  # C mixes slowly: refuse before the plan grows astronomical
             arguments.bounded_work(f"a plan to a goal over horizon={horizon} ({model.n_cells} cells, C mixes after "
-                                   f"more than {len(powers) - 1} steps)", len(powers) * plan_work, "lower horizon")
+                                   f"more than {len(powers) - 1} steps)", len(powers) * plan_work, "lower horizon",
+                                   error=InvalidOptionError)
     return np.stack(powers)
 
 
@@ -213,14 +216,15 @@ def walls_under_prior(model: GridModel) -> np.ndarray:
 
 
 def check_goal(model: GridModel, goal) -> int:
-    """The cell of ``goal`` (:func:`goal_cell`), or ModelError naming it if it is off the grid, a
+    """The cell of ``goal`` (:func:`goal_cell`), or InvalidOptionError naming it if it is off the grid, a
     wall under the prior (:func:`walls_under_prior`), or cut off from the start cell under the
     prior (every path crosses a wall). O(N A)."""
     cell = goal_cell(model, goal)
     walls = walls_under_prior(model)
     if walls[cell]:
-        raise ModelError(f"goal {goal!r} (cell {cell}) is a wall under the prior: it holds a label that never "
-                         f"lets the robot in with probability {model.label_prior[cell, permanent_labels(model)].sum():.3g}")
+        chance = model.label_prior[cell, permanent_labels(model)].sum()
+        raise InvalidOptionError(f"goal {goal!r} (cell {cell}) is a wall under the prior: it holds a label that never "
+                                 f"lets the robot in with probability {chance:.3g}")
     n = model.n_cells
     cells = np.repeat(np.arange(n), model.n_actions)
     targets = model.neighbors.ravel()
@@ -228,8 +232,8 @@ def check_goal(model: GridModel, goal) -> int:
     graph = sp.csr_array((np.ones(keep.sum()), (cells[keep], targets[keep])), shape=(n, n))
     if cell not in breadth_first_order(graph, model.start, directed=True, return_predecessors=False):
         stuck = " (p_move = 0: the robot never moves)" if model.p_move == 0 else ""
-        raise ModelError(f"goal {goal!r} (cell {cell}) cannot be reached from the start cell {model.start} "
-                         f"under the prior: every path crosses a wall{stuck}")
+        raise InvalidOptionError(f"goal {goal!r} (cell {cell}) cannot be reached from the start cell {model.start} "
+                                 f"under the prior: every path crosses a wall{stuck}")
     return cell
 
 
@@ -267,12 +271,12 @@ class GoTo:
     :mod:`policies.navigation` on the belief's map marginals, re-planned at every call; the action
     is chosen under the location belief by :func:`best_action`. ``horizon``: H (None:
     :func:`default_horizon`). A goal off the grid, a wall under the model's label prior or
-    unreachable from the start under it raises ModelError naming the goal (:func:`check_goal`).
+    unreachable from the start under it raises InvalidOptionError naming the goal (:func:`check_goal`).
     Cost per call: the module's (a call whose marginals equal the last call's reuses its plan)."""
 
     def __init__(self, model: GridModel, goal=None, horizon: int | None = None):
         if goal is None:
-            raise ModelError(f"{type(self).__name__} needs a goal: goal=CELL (an index or (row, col))")
+            raise InvalidOptionError(f"{type(self).__name__} needs a goal: goal=CELL (an index or (row, col))")
         self.model = model
         self.goal = check_goal(model, goal)
         self.horizon = default_horizon(model) if horizon is None else _horizon(horizon)
@@ -296,7 +300,7 @@ class GoTo:
 
 
 def _horizon(value) -> int:
-    return arguments.integer("horizon", value, minimum=0)
+    return arguments.integer("horizon", value, minimum=0, error=InvalidOptionError)
 
 
 class StaticGoTo(GoTo):

@@ -12,7 +12,7 @@ It is exact for slips and optimistic about a label that stays blocking (pressing
 door never succeeds); planners re-plan every step, and a failed press lowers ``passable[j]`` in the
 next belief, which raises c(j). A cell with ``passable[j] < min_passable`` (or ``p_move = 0``)
 cannot be entered: c(j) = inf. The expected steps ``d(i, S)`` from cell ``i`` to a set of cells
-``S`` is the cheapest path's total c (Dijkstra, :func:`onlinemap.kernels.planning.shortest_paths`);
+``S`` is the cheapest path's total c (Dijkstra, :func:`policies.kernels.paths.shortest_paths`);
 it satisfies ``d(i) = min over moves i -> j of (1 / q_j + d(j))``, ``q_j = p_move passable[j]``,
 i.e. ``d(i) = min_a [1 + q_j d(j) + (1 - q_j) d(i)]``, the one-step rule planners act by.
 
@@ -26,8 +26,8 @@ import numpy as np
 
 from onlinemap import arguments
 from onlinemap.belief import Belief
-from onlinemap.errors import ModelError
-from onlinemap.kernels.planning import shortest_paths
+from onlinemap.errors import InvalidOptionError, ModelError
+from .kernels.paths import shortest_paths
 from onlinemap.model import GridModel, passable_probability
 
 #: a move the belief says blocks with more than this probability is not pressed when another exists
@@ -46,7 +46,8 @@ def enter_costs(model: GridModel, passable: np.ndarray, min_passable: float = 0.
     """(N,) ``c(j) = 1 / (p_move passable[j])``, inf where ``passable[j] < min_passable`` or
     ``p_move = 0``. ``passable`` (N,) in [0, 1]. O(N)."""
     passable = _passable(model, passable)
-    min_passable = arguments.real("min_passable", min_passable, low=0.0, high=1.0, low_open=True)
+    min_passable = arguments.real("min_passable", min_passable, low=0.0, high=1.0, low_open=True,
+                                  error=InvalidOptionError)
     go = model.p_move * passable
     entered = (passable >= min_passable) & (go > 0)
     return np.divide(1.0, go, out=np.full(len(go), np.inf), where=entered)  # no 1 / tiny outside

@@ -29,7 +29,7 @@ import numpy as np
 
 from onlinemap import arguments
 from onlinemap.belief import Belief
-from onlinemap.errors import ModelError
+from onlinemap.errors import InvalidOptionError, ModelError
 from onlinemap.model import GridModel
 from onlinemap.rng import SeedLike, as_generator
 
@@ -67,10 +67,10 @@ class EntropyExplorer:
     def __init__(self, model: GridModel, gamma: float = 0.95, replan_every: int = 1,
                  reward: RewardFunction = entropy_reward):
         self.model = model
-        self.gamma = arguments.real("gamma", gamma, low=0.0, high=1.0, high_open=True)
-        self.replan_every = arguments.integer("replan_every", replan_every, minimum=1)
+        self.gamma = arguments.real("gamma", gamma, low=0.0, high=1.0, high_open=True, error=InvalidOptionError)
+        self.replan_every = arguments.integer("replan_every", replan_every, minimum=1, error=InvalidOptionError)
         if not callable(reward):
-            raise ModelError(f"reward must be a function of the belief (policies.rewards), got {reward!r}")
+            raise InvalidOptionError(f"reward must be a function of the belief (policies.rewards), got {reward!r}")
         self.reward = reward
         self.plan: PolicyIterationResult | None = None
         self.presses = PressMemory(model)  # with blocking labels: blocked and futile presses
@@ -102,7 +102,7 @@ class RandomWalk:
 
     def __init__(self, model: GridModel, seed: SeedLike = None):
         self.model = model
-        self.rng = as_generator(arguments.seed("seed", seed))
+        self.rng = as_generator(arguments.seed("seed", seed, error=InvalidOptionError))
 
     def choose(self, belief: Belief) -> int:
         if self.model.has_blocking:
@@ -222,13 +222,13 @@ def make_planner(name: str, model: GridModel, seed: SeedLike = None, **options) 
     ``frontier`` (:class:`~policies.frontier.FrontierExplorer`),
     ``goto`` and ``static_goto`` (:class:`~policies.navigation.GoTo`, :class:`~policies.navigation.StaticGoTo`;
     options goal (required), horizon).
-    ``seed`` goes to planners that draw random numbers. Unknown options raise ModelError."""
+    ``seed`` goes to planners that draw random numbers. Unknown options raise InvalidOptionError."""
     entry = _entry(name)
     known = planner_options(name)
     unknown = sorted(set(options) - set(known))
     if unknown:
-        raise ModelError(f"planner {name!r} has no option {', '.join(unknown)}; its options: "
-                         f"{', '.join(known) or 'none'}")
+        raise InvalidOptionError(f"planner {name!r} has no option {', '.join(unknown)}; its options: "
+                                 f"{', '.join(known) or 'none'}")
     if any(p.name == "seed" for p in _parameters(entry.cls)):
         options["seed"] = seed
     return entry.cls(model, **entry.fixed, **options)

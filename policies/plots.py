@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from onlinemap.model import DOOR_LABELS, GridModel, WALL, door_cells
+from onlinemap.model import CLOSED_DOOR, DOOR_LABELS, OPEN_DOOR, WALL, GridModel, door_cells
 
 if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, not with the package
     from matplotlib.figure import Figure
@@ -53,12 +53,15 @@ def plot_visits(model: GridModel, true_map, table: pd.DataFrame, axes=None) -> "
     """The world with the visit counts of each planner (summed over seeds), every panel on one
     square-root colour scale with one colour bar, so panels compare; cells never visited are light
     grey. With the runs' map (``true_map``; None when they used different maps: the counts alone):
-    walls hatched and doors outlined in red in a door world, with a legend; in a world of other
+    walls hatched and doors outlined in the colours of :func:`onlinemap.plots.label_colours` (open
+    doors green, closed doors red, as the map has them) in a door world, with a legend; in a world of other
     labels each cell's label is written in it. ``axes``: one per planner (created when None)."""
     from matplotlib import colormaps
     from matplotlib.colors import PowerNorm
     from matplotlib.figure import Figure
     from matplotlib.patches import Patch, Rectangle
+
+    from onlinemap.plots import label_colours
 
     planners = list(dict.fromkeys(table["planner"]))
     if axes is None:
@@ -72,17 +75,19 @@ def plot_visits(model: GridModel, true_map, table: pd.DataFrame, axes=None) -> "
     labels = None if true_map is None else np.asarray(true_map).reshape(model.rows, model.cols)
     door_world = labels is not None and model.label_names == DOOR_LABELS
     doors = door_cells(model, np.asarray(true_map)) if door_world else np.empty(0, dtype=np.int64)
+    colours = label_colours(model)
     for ax, planner in zip(axes, planners):
         image = ax.imshow(np.ma.masked_equal(counts[planner], 0), cmap=cmap, norm=norm)
         title = planner
         if door_world:
             for (row, col), label in np.ndenumerate(labels):
                 if label == WALL:
-                    ax.add_patch(Rectangle((col - 0.5, row - 0.5), 1, 1, fill=False, hatch="////", edgecolor="0.25",
-                                           linewidth=0))
+                    ax.add_patch(Rectangle((col - 0.5, row - 0.5), 1, 1, fill=False, hatch="////",
+                                           edgecolor=colours[WALL], linewidth=0))
             for cell in doors:
                 row, col = divmod(int(cell), model.cols)
-                ax.add_patch(Rectangle((col - 0.45, row - 0.45), 0.9, 0.9, fill=False, edgecolor="red", linewidth=2))
+                ax.add_patch(Rectangle((col - 0.45, row - 0.45), 0.9, 0.9, fill=False, linewidth=2,
+                                       edgecolor=colours[labels.flat[cell]]))
             where = table.loc[table["planner"] == planner, "true_location"].to_numpy()
             title += f", {np.isin(where, doors).mean():.0%} of steps on doors"
         elif labels is not None:
@@ -93,7 +98,8 @@ def plot_visits(model: GridModel, true_map, table: pd.DataFrame, axes=None) -> "
     figure.colorbar(image, ax=list(axes), shrink=0.8, label="visits (all seeds)")
     legend = [Patch(facecolor=UNVISITED, edgecolor="0.5", label="never visited")]
     if door_world:
-        legend += [Patch(fill=False, hatch="////", edgecolor="0.25", label="wall"),
-                   Patch(fill=False, edgecolor="red", linewidth=2, label="door (open or closed)")]
+        legend += [Patch(fill=False, hatch="////", edgecolor=colours[WALL], label="wall")]
+        legend += [Patch(fill=False, edgecolor=colours[door], linewidth=2, label=model.label_names[door])
+                   for door in (OPEN_DOOR, CLOSED_DOOR) if np.any(labels == door)]
     figure.legend(handles=legend, loc="outside lower center", ncol=len(legend), fontsize=8, frameon=False)
     return figure

@@ -18,11 +18,12 @@ import numpy as np
 
 from onlinemap.evaluate import navigation_metrics
 from onlinemap.model import GridModel
+from onlinemap.progress import step_bars
 from onlinemap.sweeps.kinds import Played, TaskKind
 from onlinemap.sweeps.tasks import Task
 
-from .explore import _exploration
-from .navigate import _navigation, oracle_steps
+from .explore import exploration
+from .navigate import navigate, oracle_steps
 from .planners import Planner, make_planner, planner_class, planner_options
 from .worlds import with_floor_plan
 
@@ -35,8 +36,9 @@ def build_planner(model: GridModel, name: str, options: dict) -> Planner:
 def play_exploration(model: GridModel, true_map: np.ndarray, task: Task) -> Played:
     """:func:`~policies.explore.exploration` of the task's planner and estimator, seeded by the
     task's seed, without its frame (the engine scores the run)."""
-    found = _exploration(model, true_map, task.planner, task.estimator, task.steps, task.seed,
-                         dict(task.options), dict(task.planner_options), progress=False, score=False)
+    found = exploration(model, true_map, task.planner, task.estimator, task.steps, task.seed,
+                        estimator_options=dict(task.options), planner_options=dict(task.planner_options),
+                        progress=step_bars(), score=False)
     return Played(found.run, found.trajectory, {}, {})
 
 
@@ -57,8 +59,9 @@ _ORACLES: dict[tuple, int | None] = {}  # the oracle of a (world, goal, steps, s
 def play_navigation(model: GridModel, true_map: np.ndarray, task: Task) -> Played:
     """:func:`~policies.navigate.navigate` of the task's planner to its goal, unscored, with the
     true distance to the goal per step and the navigation metrics against the oracle."""
-    found = _navigation(model, true_map, task.goal, task.planner, task.estimator, task.steps - 1, task.seed,
-                        dict(task.options), dict(task.planner_options), progress=False, score=False)
+    found = navigate(model, true_map, task.goal, task.planner, task.estimator, max_steps=task.steps - 1,
+                     seed=task.seed, estimator_options=dict(task.options),
+                     planner_options=dict(task.planner_options), progress=step_bars(), score=False)
     key = (task.world, task.floor_plan, task.goal, task.steps, task.seed)
     if key not in _ORACLES:
         if len(_ORACLES) >= 256:  # bounded: a process keeps the oracles of its recent tasks

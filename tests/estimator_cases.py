@@ -114,3 +114,13 @@ def small_chunks(monkeypatch, size: int = 16) -> None:
     from onlinemap.kernels import rbpf_parallel
 
     monkeypatch.setattr(rbpf_parallel, "CHUNK", size)
+
+
+def dead_pid() -> int:
+    """The id of a process that has ended (a child run to its end and reaped)."""
+    import subprocess
+    import sys
+
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    return child.pid

@@ -193,3 +193,45 @@ def test_run_estimator_refuses_lengths_that_do_not_fit_naming_both(n_actions):
     with pytest.raises(om.InvalidObservationError, match="observations must be a sequence"):
         om.run_estimator(est, [], iter([0]))
     estimator_cases.assert_state_unchanged(est, before)
+
+
+def _refusals(calls):
+    """(error type, message) of each call; a call that returns is a test failure."""
+    found = []
+    for call in calls:
+        with pytest.raises(om.OnlineMapError) as info:
+            call()
+        found.append((type(info.value), str(info.value)))
+    return found
+
+
+def test_step_counts_are_whole_numbers_that_fit_in_memory():
+    """Issue 43 section 2 item 6: ``om.simulate(..., steps=10**12)``, ``om.random_walk(m, 10**12)``
+    / ``(m, -5)`` and ``policies.explore(..., steps=10**8)`` / NaN raised raw ``MemoryError`` /
+    ``ValueError``; ``steps=2.5`` and ``'10'`` were accepted silently. Refused before anything
+    is allocated: MemoryLimitError beyond this machine's memory (the bytes named), ModelError
+    for a count that is not a whole number >= the minimum."""
+    import policies
+    from onlinemap.arguments import machine_memory
+
+    model = om.grid_model(3, 3, 2)
+    true_map = om.sample_map(model, 0)
+    huge = [lambda: om.random_walk(model, 10**12), lambda: om.simulate(model, true_map, steps=10**12),
+            lambda: policies.explore(model, true_map, "random", "bk", steps=10**12, seed=0)]
+    if machine_memory() is not None:  # where the memory is unknown, no count is too large to try
+        for kind, message in _refusals(huge):
+            assert kind is om.MemoryLimitError and "1,000,000,000,000" in message and "GiB" in message, message
+    bad = [lambda: om.random_walk(model, -5), lambda: om.random_walk(model, 2.5), lambda: om.random_walk(model, "10"),
+           lambda: om.simulate(model, true_map, steps=2.5), lambda: om.simulate(model, true_map, steps="10"),
+           lambda: om.simulate(model, true_map, steps=0), lambda: om.simulate(model, true_map, steps=float("nan")),
+           lambda: policies.explore(model, true_map, "random", "bk", steps=float("nan"), seed=0),
+           lambda: policies.explore(model, true_map, "random", "bk", steps=2.5, seed=0),
+           lambda: policies.explore(model, true_map, "random", "bk", steps="10", seed=0)]
+    expected = ["at least 0, got -5", "whole number, got 2.5", "integer, got str '10'", "whole number, got 2.5",
+                "integer, got str '10'", "at least 1, got 0", "whole number, got nan", "whole number, got nan",
+                "whole number, got 2.5", "integer, got str '10'"]
+    for (kind, message), words in zip(_refusals(bad), expected):
+        assert issubclass(kind, om.ModelError) and words in message, message  # InvalidOptionError for a planner loop's steps
+    # whole numbers of any type still run, as before
+    assert om.random_walk(model, 4.0, seed=1).tolist() == om.random_walk(model, np.int64(4), seed=1).tolist()
+    assert om.simulate(model, true_map, steps=np.int32(3), seed=2).n_steps == 3

@@ -79,15 +79,25 @@ def test_plot_belief_draws_a_corridor_as_bars():
 
 
 def test_plot_belief_draws_a_grid_as_images(door_run):
+    from matplotlib.colors import to_rgb
+
     from onlinemap import plots
     run, estimator, _ = door_run
     belief = estimator.belief
     fig = plots.plot_belief(run.model, belief, run.final_map, run.locations[-1])
     location_image = fig.axes[0].images[0].get_array()
     np.testing.assert_allclose(location_image, belief.location.reshape(run.model.shape))
-    rgba = np.asarray(fig.axes[1].images[0].get_array())
-    np.testing.assert_allclose(rgba[..., 3], belief.map.max(axis=1).reshape(run.model.shape))
-    with pytest.raises(ValueError, match="does not fit"):
+    rgb = np.asarray(fig.axes[1].images[0].get_array()).reshape(-1, 3)
+    palette = np.array([to_rgb(c) for c in ("white", "#404040", "tab:green", "tab:red")])  # free, wall, doors
+    unknown = np.array(to_rgb(plots.UNKNOWN_COLOUR))
+    for cell in range(run.model.n_cells):  # the label's colour, blended towards blue-grey as P(label) falls to 1/K
+        p = belief.map[cell]
+        sure = (p.max() - 0.25) / 0.75
+        np.testing.assert_allclose(rgb[cell], sure * palette[np.argmax(p)] + (1 - sure) * unknown, atol=1e-12)
+    legend = [text.get_text() for text in fig.axes[1].get_legend().get_texts()]
+    assert legend == [*run.model.label_names, "unknown (uniform belief)", "most likely label wrong"]
+    assert [text.get_text() for text in fig.axes[0].get_legend().get_texts()] == ["true location"]
+    with pytest.raises(om.ModelError, match=r"100 cells x 4 labels does not fit GridModel\(1x4.*\(4 cells x 2 labels\)"):
         plots.plot_belief(om.corridor(4), belief)
 
 
@@ -133,3 +143,32 @@ def test_help_of_make_estimator_points_to_the_names_and_their_options():
         assert pointer in text
     for name in om.available_estimators():
         assert name in text
+
+
+def test_trajectory_gives_the_belief_of_each_step_as_the_estimator_gave_it():
+    """Issue 42 item 3: ``trajectory.belief(t)`` / ``trajectory[t]`` is the Belief the estimator
+    returned at step t (recorded live here, step by step), read-only."""
+    run = om.scenarios.murphy_corridor()
+    live = om.make_estimator("exact", run.model)
+    beliefs = [live.step(None if t == 0 else int(run.actions[t - 1]), run.observations[t])
+               for t in range(run.n_steps)]
+    trajectory = om.run_estimator(om.make_estimator("exact", run.model), run.actions, run.observations)
+    assert trajectory.n_steps == run.n_steps == len(beliefs)
+    for t in (0, 3, run.n_steps - 1, -1, -run.n_steps):
+        got, want = trajectory.belief(t), beliefs[t]
+        assert got.t == want.t == t % run.n_steps
+        np.testing.assert_array_equal(got.location, want.location)
+        np.testing.assert_array_equal(got.map, want.map)
+        assert got.log_evidence == want.log_evidence
+        assert not got.location.flags.writeable and not got.map.flags.writeable
+        np.testing.assert_array_equal(trajectory[t].map, got.map)
+    with pytest.raises(ValueError):
+        trajectory.belief(0).map[0, 0] = 0.5  # read-only: the trajectory cannot be changed through it
+    assert trajectory.map[0, 0, 0] == beliefs[0].map[0, 0]
+    location, maps, evidence, seconds = trajectory  # still a named tuple of its four fields
+    assert location is trajectory.location and len(trajectory) == 4
+    for bad in (run.n_steps, -run.n_steps - 1, 1.5, "0", slice(0, 2)):
+        with pytest.raises(om.errors.StepIndexError, match="step|integer"):
+            trajectory.belief(bad)
+        with pytest.raises(IndexError):
+            trajectory[bad]

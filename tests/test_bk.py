@@ -165,3 +165,22 @@ def test_noiseless_footprint_worlds_stay_in_zero_one(footprint, blocking, n_labe
             est = om.make_estimator("bk", model)
             for t, belief in enumerate(beliefs(est, om.simulate(model, steps=60, seed=seed))):
                 assert_probabilities(belief, t)
+
+
+def test_an_observation_below_float64s_range_is_refused_not_a_map_of_zeros():
+    """Issue 43 section 2 item 10: with a sensor entry of 5e-324 (the smallest subnormal) bk
+    returned map rows of all zeros for the cells never read: the total P(z) = 5e-324 was
+    subnormal (O[:, z]'s largest entry is 1, so the rescaling by it does nothing) and
+    ``maps * Z / Z`` rounded 0.5 * 5e-324 to 0. Exact Bayes refuses the step; bk now does too,
+    leaving its state as it was. The filter's own arithmetic, worked by hand: the robot at cell 0,
+    surely label 0 (prior row [1, 0]), reads 1: P(z) = 1 * O[0, 1] = 5e-324."""
+    sensor = np.array([[1.0, 5e-324], [0.0, 1.0]])
+    prior = np.array([[1.0, 0.0], [0.5, 0.5], [0.5, 0.5], [0.5, 0.5]])
+    model = om.grid_model(1, 4, 2, sensor=sensor, label_prior=prior)
+    for name in ("exact", "bk"):
+        est = om.make_estimator(name, model)
+        with pytest.raises(om.ImpossibleObservationError, match="below float64's range"):
+            est.step(None, 1)
+        assert est.t == -1 and est.belief is None
+        belief = est.step(None, 0)  # the state was left as it was: the likely reading goes through
+        np.testing.assert_allclose(belief.map, prior)

@@ -368,3 +368,97 @@ def test_a_bad_option_value_names_the_option_not_an_internal_spec_path(capsys):
         assert main(argv) == 2
         error = capsys.readouterr().err
         assert "--option" in error and "<spec>" not in error and "must be int" in error, error
+
+
+@pytest.mark.parametrize("world, suggestion", [
+    ("building:12x12", "--world building:12x12,floor_plan=0.95."),
+    ("corridor:8", "--world corridor:8 --floor-plan 0.95."),  # a map drawn per seed: the option, not the key
+])
+def test_the_why_it_is_hard_hint_names_the_users_own_world(world, suggestion):
+    """Issue 42 item 7: the hint proposed the door world's spec (``--world
+    door,floor_plan=0.95,p_move=0.9``) on ``building:`` and ``layout:`` worlds. It names the
+    user's own world with the floor plan, and what it proposes runs (no hint: a floor plan)."""
+    code, out, _ = cli(["explore", "--world", world, "--planner", "random", "--steps", "2", "-o", "n_particles=5",
+                        "--no-progress"])
+    hint = [line for line in out.splitlines() if line.startswith("why it is hard")]
+    assert code == 0 and len(hint) == 1 and hint[0].endswith(f"Give it the floor plan with {suggestion}"), out
+    assert "\nwrong_cells: cells whose most probable label is wrong at the end\n" in out  # the table's legend
+    proposed = suggestion.rstrip(".").split()
+    code, out, err = cli(["explore", *proposed, "--planner", "random", "--steps", "2", "-o", "n_particles=5",
+                          "--no-progress"])
+    assert code == 0 and "why it is hard" not in out and "label prior: the floor plan, confidence 0.95" in out, err
+
+
+def test_goal_planners_without_a_goal_get_command_line_wording():
+    """Issue 42 item 7: ``track --planner goto`` without ``--goal`` said ``GoTo needs a goal:
+    goal=CELL (an index or (row, col))``, Python wording; ``explore --planner goto`` named an
+    internal ``<spec>: planners.goto``. Issue 43 item 14: ``track --goal ²`` printed a raw
+    ValueError (``str.isdigit`` is true for a superscript)."""
+    code, _, err = cli(["track", "--world", "door", "--estimator", "rbpf", "--planner", "goto"])
+    assert_one_line_error(code, err, "--planner goto needs --goal CELL")
+    assert "GoTo" not in err and "goal=CELL" not in err
+    code, _, err = cli(["track", "--world", "door", "--estimator", "rbpf", "--planner", "goto", "--goal", "²"])
+    assert_one_line_error(code, err, "--goal must be a cell index or ROW,COL", "'²'")
+    assert "ValueError" not in err
+    code, _, err = cli(["explore", "--planner", "random,goto", "--steps", "3", "-o", "n_particles=5"])
+    assert_one_line_error(code, err, "--planner goto", "navigate --goal CELL")
+    assert "<spec>" not in err and "GoTo" not in err
+
+
+def test_the_exploration_example_header_says_what_the_spec_and_explore_do():
+    """Issue 42 item 7: ``examples/exploration.toml``'s header said that, as in ``onlinemap
+    explore``, the robot knows the floor plan with confidence 0.8: explore's default is a uniform
+    prior. The header's numbers are the spec's, and what it says of explore is explore's default."""
+    import re
+    import tomllib
+    from pathlib import Path
+
+    from onlinemap.cli.explore import DEFAULT_WORLD
+    from onlinemap.worlds import parse_world
+
+    path = Path(__file__).parent.parent / "examples" / "exploration.toml"
+    text = path.read_text()
+    header = " ".join(line.lstrip("# ") for line in text.splitlines() if line.startswith("#"))
+    spec = tomllib.loads(text)
+    assert f"floor plan with confidence {spec['floor_plan']}" in header
+    world = parse_world(spec["worlds"][0])
+    slip = re.search(r"slip (\d+)% of the time \(p_move=([\d.]+)\)", header)
+    assert float(slip.group(2)) == world.model.p_move == 1 - int(slip.group(1)) / 100
+    assert f"explore's default world is `{DEFAULT_WORLD}`" in header and "uniform label prior" in header
+    default = parse_world(DEFAULT_WORLD).model
+    assert np.allclose(default.label_prior, 1 / default.n_labels)
+
+
+@pytest.mark.parametrize("depth", [9, 3000])
+def test_an_option_nested_thousands_deep_is_one_clean_error(depth):
+    """Issue 43 section 2 item 7: ``-o "n_particles=[[[...]]]"`` nested 3000 deep ended in a
+    ``RecursionError`` traceback in ``run`` and ``track``. No option takes lists nested more than
+    8 deep: one line naming the option."""
+    value = "[" * depth + "]" * depth
+    for argv in (["run", "--estimators", "rbpf"], ["track", "--world", "door", "--estimator", "rbpf"]):
+        code, _, err = cli([*argv, "-o", f"n_particles={value}"])
+        assert_one_line_error(code, err, "--option n_particles", "more than 8 deep")
+        assert "RecursionError" not in err
+    code, _, err = cli(["run", "--estimators", "rbpf", "-o", "n_particles=" + "[" * 8 + "]" * 8])
+    assert_one_line_error(code, err, "n_particles", "must be int")  # 8 deep parses: the type check speaks
+
+
+def test_option_values_agree_with_make_estimator_and_name_the_option():
+    """Issue 43 section 2 item 14: ``move_window=5.0`` was accepted by ``make_estimator`` (a whole
+    number) but refused by ``-o``; ``-o seed=-1`` on ``explore`` named an internal ``<spec>``
+    (the sweep's task). A whole float is the int, as make_estimator takes it; a value the
+    estimator refuses is an --option error before any task runs."""
+    model = om.grid_model(3, 3, 2)
+    assert om.make_estimator("rbpf", model, move_window=5.0).move_window == 5
+    from onlinemap.cli.common import options_per_estimator
+
+    routed = options_per_estimator(["rbpf"], ["move_window=5.0", "n_particles=20.0"])["rbpf"]
+    assert routed == {"move_window": 5, "n_particles": 20} and all(type(v) is int for v in routed.values())
+    code, out, err = cli(["run", "--world", "corridor:6", "--estimators", "rbpf", "--steps", "5",
+                          "-o", "move_window=5.0"])
+    assert code == 0, err
+    for argv in (["explore", "--steps", "3", "--planner", "random"], ["navigate", "--repeats", "1", "--steps", "3"],
+                 ["compare", "--runs", "1", "--steps", "3"]):
+        code, out, err = cli([*argv, "-o", "seed=-1"])
+        assert_one_line_error(code, err, "--option: rbpf's seed must be at least 0, got -1")
+        assert "<spec>" not in err

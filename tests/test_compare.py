@@ -31,6 +31,8 @@ def test_study_distances_and_ordering():
     fc = per_step[per_step["estimator"] == "rbpf FC P=10"]
     assert (fc["resampling"] == "fearnhead_clifford").all() and (fc["proposal"] == "optimal").all()
     assert (fc["scheme"] == "FC").all() and (fc["particles"] == 10).all()  # read as data, not parsed
+    # issue 42 item 7: each said once (compare_steps.csv repeated them as opt_n_particles, ...)
+    assert not {"opt_n_particles", "opt_proposal", "opt_resampling"} & set(per_step.columns)
     # Fearnhead-Clifford keeps each child at most once: at equal particles it is closer to exact than
     # sampling the same (optimal) proposal with residual resampling. optimal+residual / FC, as above:
     # map TV at P=1000 g = 5.9, s = 0.47: bound 1.37; location TV at P=1000 15, 0.45: 3.8 (2 asserted);

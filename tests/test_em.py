@@ -264,16 +264,16 @@ def corridor_outcome(name, **options):
     return p_true, metrics.wrong_cells(trajectory.map[-1], RUN.final_map, VISITED)
 
 
-# The README's numbers for this run, at the precision it states them (the run is deterministic).
+# The guide's numbers for this run (Estimators page), at the precision it states them (the run is deterministic).
 def test_exact_bayes_learns_the_corridor_and_knows_where_it_is():
     p_true, wrong = corridor_outcome("exact")
-    assert f"{p_true[-1]:.2f}" == "0.92"  # README: "ends at P(true location) 0.92"
+    assert f"{p_true[-1]:.2f}" == "0.92"  # the guide: "ends at P(true location) 0.92"
     assert wrong == 0
 
 
 @pytest.mark.parametrize("window,decay", WINDOWS_DECAYS)
 def test_online_em_locks_onto_a_wrong_map_and_gets_lost(window, decay):
-    """README: every pair ends with 3 to 6 visited cells wrong, P(true location) on the way back
+    """The guide: every pair ends with 3 to 6 visited cells wrong, P(true location) on the way back
     falling to 0.0002-0.02 (one significant digit: [0.00015, 0.025))."""
     p_true, wrong = corridor_outcome("online_em", window=window, decay=decay)
     assert 3 <= wrong <= 6
@@ -281,7 +281,7 @@ def test_online_em_locks_onto_a_wrong_map_and_gets_lost(window, decay):
 
 
 def test_online_em_corridor_ranges_are_the_readmes():
-    """The ends of the README's ranges over the 20 pairs are reached: "3 to 6" wrong visited cells,
+    """The ends of the guide's ranges over the 20 pairs are reached: "3 to 6" wrong visited cells,
     and "0.0002-0.02" for the lowest P(true location) on the way back."""
     outcomes = [corridor_outcome("online_em", window=window, decay=decay) for window, decay in WINDOWS_DECAYS]
     wrong = [w for _, w in outcomes]
@@ -293,7 +293,7 @@ def test_online_em_corridor_ranges_are_the_readmes():
 def test_offline_em_gets_every_visited_cell_right():
     p_true, wrong = corridor_outcome("offline_em")
     assert wrong == 0
-    assert f"{p_true[-1]:.2f}" == "0.99"  # README: "(P 0.99)"
+    assert f"{p_true[-1]:.2f}" == "0.99"  # the guide: "(P 0.99)"
 
 
 # --- bad input -----------------------------------------------------------------------------
@@ -316,7 +316,7 @@ def test_bad_step_raises_and_keeps_state(name, action, observation, error):
 
 @pytest.mark.parametrize("window,decay", WINDOWS_DECAYS)
 def test_online_em_without_pseudo_counts_refuses_an_impossible_observation_and_keeps_state(window, decay):
-    """README: for every window and decay, the observation at step 11 is impossible."""
+    """The guide: for every window and decay, the observation at step 11 is impossible."""
     est = om.make_estimator("online_em", RUN.model, window=window, decay=decay, pseudo_count=0.0)
     list(beliefs(est, RUN, stop=11))  # B becomes certain of a wrong map; z_11 has probability zero under it
     before = snapshot(est)

@@ -13,7 +13,7 @@ from onlinemap.cli import main
 from onlinemap.studies.exploration import compare_planners, summarize_planners as summarize
 from policies import (COLUMNS, EntropyExplorer, door_cells, explore, explore_env, exploration_world,
                       floor_plan_prior)
-from policies.explore import _seeds, exploration
+from policies.explore import exploration, seed_streams
 from estimator_cases import exact_trajectory
 
 TINY = ".o.\n#c.\n"  # 2 x 3 door world: small enough for exact Bayes (4^6 maps)
@@ -28,7 +28,7 @@ def replay_metrics(model, true_map, frame, seed):
     """Replay the frame's actions through onlinemap.simulate with the world's random stream,
     filter with a fresh exact estimator, and compute the metrics here, by hand."""
     actions = [model.action_names.index(a) for a in frame["action"].iloc[1:]]
-    world_rng, _, _ = _seeds(seed)
+    world_rng, _, _ = seed_streams(seed)
     run = om.simulate(model, true_map, actions, seed=world_rng)
     trajectory = exact_trajectory(run)
     steps = np.arange(run.n_steps)
@@ -61,15 +61,13 @@ def test_every_planner_explores_a_blocking_world_with_a_cross_footprint(planner)
     """(F,) observations (F = 5 readings) and blocking walls: the loop stores what the world
     emitted (a replay through onlinemap.simulate with the world's stream gives the same run), and
     info_gain plans on estimator forks (its numba rollouts model neither footprints nor blocking)."""
-    from policies.info_gain import particle_rollouts_fit
-
     model, true_map = om.door_world(blocking=True, footprint="cross")
-    assert model.observation_shape == (5,) and not particle_rollouts_fit(model)
+    assert model.observation_shape == (5,) and not model.is_paper_model
     found = exploration(model, true_map, planner, "rbpf", steps=5, seed=3, progress=False,
                         estimator_options={"n_particles": 20},
                         planner_options={"hypotheses": 2} if planner == "info_gain" else None)
     assert found.run.observations.shape == (5, 5) and np.isfinite(found.frame["map_error"]).all()
-    world_rng, _, _ = _seeds(3)
+    world_rng, _, _ = seed_streams(3)
     replay = om.simulate(model, true_map, found.run.actions, seed=world_rng)
     np.testing.assert_array_equal(found.run.observations, replay.observations)
     np.testing.assert_array_equal(found.run.locations, replay.locations)
@@ -146,7 +144,7 @@ def test_explore_env_drives_the_gymnasium_environment(tiny):
     assert tuple(frame.columns) == COLUMNS and len(frame) == 30
     pd.testing.assert_frame_equal(explore_env(env, "entropy", "exact", steps=30, seed=4, progress=False), frame)
     # replay the episode in the environment: same true locations
-    world_seed, _, _ = _seeds(4)
+    world_seed, _, _ = seed_streams(4)
     _, info = env.reset(seed=int(world_seed.integers(2**31)))
     locations = [info["location"]]
     for action in frame["action"].iloc[1:]:
@@ -287,6 +285,12 @@ def test_visits_share_one_colour_scale_show_unvisited_cells_and_name_doors():
     assert unvisited[3] == 1 and not np.allclose(unvisited[:3], 1)  # opaque, not white
     assert np.ma.is_masked(images[0].get_array()[5, 5])  # a cell nobody visited takes that colour
     (legend,) = figure.legends
-    assert [text.get_text() for text in legend.get_texts()] == ["never visited", "wall", "door (open or closed)"]
+    assert [text.get_text() for text in legend.get_texts()] == ["never visited", "wall", "open_door", "closed_door"]
+    # each door outlined in its label's colour of the one palette (open green, closed red)
+    outlines = {(round(p.get_x() + 0.45), round(p.get_y() + 0.45)): colors.to_hex(p.get_edgecolor())
+                for p in figure.axes[0].patches if p.get_linewidth() == 2}
+    palette = {om.model.OPEN_DOOR: colors.to_hex("tab:green"), om.model.CLOSED_DOOR: colors.to_hex("tab:red")}
+    assert outlines == {(col, row): palette[true_map[row * model.cols + col]]
+                        for row, col in zip(*np.nonzero(np.isin(true_map.reshape(model.shape), list(palette))))}
     assert len(figure.axes) == 3  # two panels and one colour bar
     assert colors.to_hex(unvisited) != colors.to_hex("white")

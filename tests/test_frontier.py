@@ -8,7 +8,7 @@ from scipy.sparse.csgraph import dijkstra
 
 import onlinemap as om
 from onlinemap.belief import Belief
-from onlinemap.errors import ModelError
+from onlinemap.errors import InvalidOptionError, ModelError
 from onlinemap.model import GridModel, symmetric_channel
 from policies import make_planner
 from policies.frontier import FrontierExplorer, location_hypotheses
@@ -114,7 +114,7 @@ def test_passability_refuses_bad_input():
         distances_to(model, np.ones(6), [])
     with pytest.raises(ModelError, match="sources"):
         distances_from(model, np.ones(6), [0.5])
-    with pytest.raises(ModelError, match="min_passable"):
+    with pytest.raises(InvalidOptionError, match="min_passable"):
         distances_to(model, np.ones(6), [0], min_passable=0.0)
 
 
@@ -235,9 +235,9 @@ def test_frontier_action_costs_equal_their_definition():
                                           ("min_passable", 0.0), ("min_passable", 1.5), ("hypotheses", 0),
                                           ("hypotheses", 1.5), ("lost_entropy", 0.0), ("patience", 0),
                                           ("patience", True)])
-def test_frontier_bad_options_raise_model_errors_naming_them(option, value):
+def test_frontier_bad_options_raise_invalid_option_errors_naming_them(option, value):
     model = om.corridor(5)
-    with pytest.raises(ModelError, match=option):
+    with pytest.raises(InvalidOptionError, match=option):
         make_planner("frontier", model, **{option: value})
     with pytest.raises(ModelError, match="p_move"):
         make_planner("frontier", om.corridor(5, p_move=0.0))

@@ -12,11 +12,13 @@ from scipy import stats
 
 import onlinemap as om
 from onlinemap import checkpoint
-from onlinemap.errors import ModelError
+from onlinemap.errors import InvalidOptionError, ModelError
 from onlinemap.estimators import fork, make_estimator
 from oracles import BruteForce
 from policies import InfoGainExplorer, expected_uncertainty, explore, exploration_world, make_planner
-from policies.info_gain import ParticleSnapshot, footprint_expected_uncertainty, particle_expected_uncertainty, uncertainty
+from onlinemap.estimators.base import ParticleSnapshot
+from policies.information import uncertainty
+from policies.rollouts import footprint_expected_uncertainty, particle_expected_uncertainty
 
 
 def entropy(p):
@@ -221,6 +223,80 @@ def test_planning_leaves_the_live_estimator_bit_identical(name, options):
         np.testing.assert_array_equal(est.step(a, z).map, twin.step(a, z).map)
 
 
+def test_exact_sample_states_follow_the_joint():
+    """Drawn states against the brute-force joint of the oracle (independent of the filter): a
+    chi-square test over the (location, map) states, 20 000 draws."""
+    model = om.corridor(3, 2, p_obs=0.85, p_move=0.7)
+    actions, observations = [1, 1], [0, 1, 1]
+    est = make_estimator("exact", model)
+    for t, z in enumerate(observations):
+        est.step(None if t == 0 else actions[t - 1], z)
+    oracle = BruteForce.of(model)
+    joint = brute_joint(oracle, actions, observations)
+    locations, maps = est.sample_states(20_000, np.random.default_rng(3))
+    assert locations.dtype == maps.dtype == np.int64 and maps.shape == (20_000, 3)
+    index = {state: i for i, state in enumerate(oracle.states)}
+    counts = np.bincount([index[(int(l), tuple(int(v) for v in m))] for l, m in zip(locations, maps)],
+                         minlength=len(joint))
+    keep = joint > 0
+    assert counts[~keep].sum() == 0
+    assert stats.chisquare(counts[keep], 20_000 * joint[keep] / joint[keep].sum()).pvalue > 1e-4
+
+
+def test_particle_snapshot_and_sampled_states_read_the_particles():
+    """All particles: the filter's public particles, weights and maps; thinned to M by systematic
+    sampling: each particle kept floor or ceil of M times its weight (summed per cell), each map a
+    particle's, weights equal; sampled states: locations with the particles' weights (chi-square)."""
+    model, true_map = exploration_world(p_door=0.01, p_move=0.8, floor_plan=None)
+    est = make_estimator("rbpf", model, n_particles=200, seed=4)
+    run = om.simulate(model, true_map, np.random.default_rng(0).integers(4, size=15), seed=1)
+    for t in range(run.n_steps):
+        est.step(None if t == 0 else int(run.actions[t - 1]), int(run.observations[t]))
+    whole = est.particle_snapshot()
+    np.testing.assert_array_equal(whole.locations, est.particles)
+    np.testing.assert_allclose(np.exp(whole.log_weights), est.weights, rtol=1e-12)
+    np.testing.assert_array_equal(whole.maps, est.particle_maps())
+    thinned = est.particle_snapshot(64, np.random.default_rng(1))
+    assert len(thinned.locations) == 64 and np.allclose(thinned.log_weights, -math.log(64))
+    share = 64 * est.weights / est.weights.sum()
+    low = np.bincount(est.particles, weights=np.floor(share), minlength=model.n_cells)
+    high = np.bincount(est.particles, weights=np.ceil(share), minlength=model.n_cells)
+    got = np.bincount(thinned.locations, minlength=model.n_cells)
+    assert np.all((low - 1e-9 <= got) & (got <= high + 1e-9))
+    for location, maps in zip(thinned.locations, thinned.maps):  # each a copy of a particle's map
+        assert any(np.array_equal(maps, whole.maps[i]) for i in np.flatnonzero(whole.locations == location))
+    locations, maps = est.sample_states(20_000, np.random.default_rng(2))
+    p = np.bincount(est.particles, weights=est.weights, minlength=model.n_cells)
+    seen = p > 0
+    counts = np.bincount(locations, minlength=model.n_cells)
+    assert counts[~seen].sum() == 0 and maps.shape == (20_000, model.n_cells)
+    assert stats.chisquare(counts[seen], 20_000 * p[seen] / p[seen].sum()).pvalue > 1e-4
+    mixture = np.einsum("p,pnk->nk", est.weights / est.weights.sum(), whole.maps)  # each cell's label marginal
+    cell = int(np.argmax(-(mixture * np.log(np.maximum(mixture, 1e-300))).sum(axis=1)))  # the least certain
+    labels = np.bincount(maps[:, cell], minlength=model.n_labels)
+    assert stats.chisquare(labels[mixture[cell] > 0], 20_000 * mixture[cell][mixture[cell] > 0]).pvalue > 1e-4
+
+
+def test_pending_counts_the_presses_left_of_the_chosen_macro_action():
+    """After a plan, ``pending`` is the committed presses not yet made (the chosen length, at most
+    ``commit``, minus the one just made); it falls by one a decision and the next plan comes at 0."""
+    model, true_map = exploration_world(p_door=0.0, p_move=0.8, floor_plan=None)
+    est = make_estimator("rbpf", model, n_particles=100, seed=0)
+    planner = make_planner("info_gain", model, seed=0, hypotheses=2, commit=3)
+    planner.bind(est)
+    belief = est.step(None, int(om.simulate(model, true_map, [], seed=0).observations[0]))
+    assert planner.pending == 0
+    planner.choose(belief)
+    plan = planner.last_plan
+    committed = min(int(plan.lengths[plan.chosen[1]]), 3)
+    assert planner.pending == committed - 1
+    for left in range(committed - 2, -1, -1):
+        planner.choose(belief)
+        assert planner.pending == left and planner.last_plan is plan
+    planner.choose(belief)
+    assert planner.last_plan is not plan
+
+
 def test_fork_is_independent_and_continues_like_the_original():
     model = om.corridor(6, 2)
     est = make_estimator("rbpf", model, n_particles=50, seed=2)
@@ -234,11 +310,11 @@ def test_fork_is_independent_and_continues_like_the_original():
     assert est.t == 1 and copy.t == 2
 
 
-def test_bad_options_and_unbound_use_raise_model_errors():
+def test_bad_options_raise_invalid_option_errors_and_unbound_use_model_errors():
     model, _ = exploration_world(p_door=0.0, p_move=0.8, floor_plan=None)
     for options in ({"hypotheses": 0}, {"rollout_particles": 0}, {"commit": 0}, {"gamma": 1.0},
                     {"step_cost": -1.0}, {"press_lengths": [0, 2]}):
-        with pytest.raises(ModelError):
+        with pytest.raises(InvalidOptionError):
             make_planner("info_gain", model, **options)
     planner = make_planner("info_gain", model, seed=0)
     est = make_estimator("rbpf", model, n_particles=10, seed=0)
@@ -278,7 +354,7 @@ def test_info_gain_maps_the_papers_world_better_than_the_entropy_planner():
     particles, 600 steps, paired seeds: info_gain's map error, averaged over the run (the area
     under its map-error curve), is lower than the paper's entropy planner's, one-sided paired
     t-test p < 0.05 (power 0.95 for the effect measured on other seeds, above). (Full size, 20
-    seeds of 1000 steps with 1000 particles, final map error: see the README.)"""
+    seeds of 1000 steps with 1000 particles, final map error: see the guide's Exploration page.)"""
     model, true_map = exploration_world(p_door=0.0, p_move=0.8, floor_plan=None)
     mean_error = {planner: np.array([explore(model, true_map, planner, "rbpf", steps=600, seed=seed,
                                              estimator_options={"n_particles": 100})["map_error"].mean()
@@ -319,6 +395,21 @@ def test_anchor_actions_press_into_the_nearest_corner(shape):
         for a in actions:
             end = int(model.neighbors[end, a])
         assert end == corner_of(model, cell)
+
+
+def test_info_gain_explores_a_one_cell_grid_past_its_first_anchor():
+    """Issue 43 section 2 item 9: on a 1 x 1 grid ``anchor_actions`` returned no press (both
+    axes of size 1 skipped) and info_gain's queue ran empty at its first anchor: ``IndexError:
+    pop from empty list`` at step 8. The one cell is its own corner: the anchor presses in place."""
+    import policies
+    from policies.info_gain import anchor_actions
+
+    model = om.grid_model(1, 1, 2)
+    belief = om.Belief(0, np.ones(1), np.full((1, 2), 0.5))
+    assert anchor_actions(model, belief, 3).tolist() == [0, 0, 0]
+    frame = policies.explore(model, om.sample_map(model, 0), "info_gain", "rbpf", steps=30, seed=0,
+                             estimator_options={"n_particles": 5})
+    assert len(frame) == 30 and (frame["true_location"] == 0).all()
 
 
 def test_info_gain_re_anchors_every_anchor_every_steps():
@@ -402,7 +493,7 @@ def test_rollouts_read_the_cell_the_sensor_reads():
     assert want > 0.1
 
 
-# --- the rollouts of footprint and blocking models (onlinemap.kernels.planning.plan_rollouts) ------
+# --- the rollouts of footprint and blocking models (policies.kernels.footprint.plan_rollouts) ------
 def one_hot_particles(model, joint):
     """Every (location, map) state of the oracle with positive probability as a particle whose map
     is certain: an exact particle belief of ``joint``."""
@@ -478,8 +569,8 @@ def test_a_rollout_step_is_bayes_in_expectation(world):
     action and the simulated reading, computed here by brute force over (l, m) states. Mean over
     4000 draws; an entry whose draws vary must lie within 4.5 standard errors (a false failure of
     about 7e-6 per entry, under 1e-3 over the at most 60 entries), the others to rounding."""
-    from onlinemap.kernels.planning import rollout_beliefs
-    from policies.info_gain import rollout_tables
+    from policies.kernels.footprint import rollout_beliefs
+    from policies.rollouts import rollout_tables
 
     model = STEP_WORLDS[world]()
     oracle = BruteForce.of(model)
@@ -517,8 +608,8 @@ def test_rollout_uncertainty_equals_the_whole_beliefs(p_door):
     """plan_rollouts sums the entropy of the cells every particle agrees on once and recomputes
     only the disputed and touched cells: its U after every step equals U of the whole weighted
     particle belief that rollout_beliefs returns for the same world and random numbers."""
-    from onlinemap.kernels.planning import plan_rollouts, rollout_beliefs
-    from policies.info_gain import agreement, rollout_tables
+    from policies.kernels.footprint import plan_rollouts, rollout_beliefs
+    from policies.rollouts import agreement, rollout_tables
 
     model, _ = om.door_world(blocking=True, footprint="cross", p_door=p_door)
     rng = np.random.default_rng(1)
@@ -551,8 +642,8 @@ def test_candidates_pressing_alike_share_a_rollout_and_score_as_if_alone(p_door)
     with that candidate alone. Fixed sequences that share prefixes of 0 to 7 presses, and
     candidates choosing in closed loop (towards random distance fields), part at every step; half
     the cells agreed (their entropy is summed once and a touched one recomputed)."""
-    from onlinemap.kernels.planning import plan_rollouts
-    from policies.info_gain import agreement, rollout_tables
+    from policies.kernels.footprint import plan_rollouts
+    from policies.rollouts import agreement, rollout_tables
 
     model, _ = om.door_world(blocking=True, footprint="cross", p_door=p_door)
     rng = np.random.default_rng(3)

@@ -11,7 +11,7 @@ the default run.
 By default 6000 steps per case (about 30 s for the whole file on a loaded 2-core machine).
 The 10^6-step versions are marked ``million`` (and ``slow``) and deselected by default
 (``addopts`` in pyproject.toml); run them with ``pytest -m million tests/test_long_runs.py``.
-They take about 25 minutes in all on a loaded 2-core machine (times per case in the README).
+They take about 25 minutes in all on a loaded 2-core machine (times per case on the docs site's development page).
 """
 
 from __future__ import annotations

@@ -96,3 +96,22 @@ def test_cli_prints_and_writes_the_table(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "plain EM" in text and "local_maximum" in text
     assert len(pd.read_csv(tmp_path / "anneal_runs.csv")) == 4
+
+
+def test_cli_reports_a_refused_estimator_below_the_table_not_in_a_column(tmp_path, capsys):
+    """Issue 42 item 7: ``reproduce loop`` padded every row with an ``error`` column (empty but
+    for exact Bayes, which refuses 25 cells). The table holds the estimators that ran; a refused
+    one is a line below it naming the error. The CSV keeps its ``error`` column."""
+    from onlinemap.cli import main
+
+    assert main(["reproduce", "loop", "--runs", "2", "--out", str(tmp_path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    header = next(line for line in lines if line.split()[:2] == ["estimator", "runs"])
+    assert "error" not in header.split()
+    table = lines[lines.index(header) + 1:lines.index(header) + 1 + len(ms.LOOP_ESTIMATORS) - 1]
+    assert all(line.split()[-1].endswith("]") for line in table)  # no trailing error text on any row
+    assert not any(line.lstrip().startswith("exact ") for line in table)
+    refused = [line for line in lines if line.startswith("exact: not run (MemoryLimitError: ")]
+    assert len(refused) == 1
+    summary = pd.read_csv(tmp_path / "loop_summary.csv", keep_default_na=False)
+    assert summary.set_index("estimator").loc["exact", "error"].startswith("MemoryLimitError")

@@ -9,17 +9,18 @@ import itertools
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
 import onlinemap as om
 from onlinemap.belief import Belief
-from onlinemap.errors import ModelError
+from onlinemap.errors import InvalidOptionError, ModelError
 from onlinemap.model import CLOSED_DOOR, DOOR_LABELS, FREE, OPEN_DOOR, WALL, door_change
 from onlinemap.worlds import parse_world
 from policies import (NAVIGATION_COLUMNS, make_planner, navigate, oracle_steps, planner_options, true_distances,
                       with_floor_plan)
 from estimator_cases import assert_state_unchanged, snapshot
-from policies.explore import _seeds
+from policies.explore import seed_streams
 from policies.navigate import PairedWorld
 from policies.navigation import GoTo, StaticGoTo, goal_cell, label_powers, plan_to_goal
 
@@ -305,25 +306,25 @@ def test_bad_goals_raise_model_errors_naming_the_goal():
     model, true_map = om.door_world(blocking=True, footprint="cross", p_door=0.05)
     model = with_floor_plan(model, true_map, 0.95)
     for goal in (100, -1, (10, 0), (0, 10), (-1, 3)):
-        with pytest.raises(ModelError, match=rf"goal {__import__('re').escape(repr(goal))} .*off the"):
+        with pytest.raises(InvalidOptionError, match=rf"goal {__import__('re').escape(repr(goal))} .*off the"):
             make_planner("goto", model, goal=goal)
     for goal in ("north", 2.5, (1, 2, 3), True, None):
-        with pytest.raises(ModelError, match="goal"):
+        with pytest.raises(InvalidOptionError, match="goal"):
             make_planner("goto", model, goal=goal)
     wall = int(np.flatnonzero(true_map == WALL)[0])
-    with pytest.raises(ModelError, match=rf"goal {wall} \(cell {wall}\) is a wall under the prior.* 0.95"):
+    with pytest.raises(InvalidOptionError, match=rf"goal {wall} \(cell {wall}\) is a wall under the prior.* 0.95"):
         make_planner("goto", model, goal=wall)
-    with pytest.raises(ModelError, match=r"goal \(3, 0\) \(cell 30\) is a wall"):
+    with pytest.raises(InvalidOptionError, match=r"goal \(3, 0\) \(cell 30\) is a wall"):
         make_planner("static_goto", model, goal=(3, 0))
     enclosed, enclosed_map = om.door_world("..#.\n..#.\n", blocking=True)
     enclosed = with_floor_plan(enclosed, enclosed_map, 0.95)
-    with pytest.raises(ModelError, match=r"goal \(0, 3\) \(cell 3\) cannot be reached from the start cell 0"):
+    with pytest.raises(InvalidOptionError, match=r"goal \(0, 3\) \(cell 3\) cannot be reached from the start cell 0"):
         make_planner("goto", enclosed, goal=(0, 3))
     assert make_planner("goto", enclosed, goal=(1, 1)).goal == 5
     stuck, stuck_map = om.door_world("...\n...\n", blocking=True, p_move=0.0)
     with pytest.raises(ModelError, match="p_move = 0"):
         make_planner("goto", stuck, goal=2)
-    with pytest.raises(ModelError, match="horizon"):
+    with pytest.raises(InvalidOptionError, match="horizon"):
         make_planner("goto", model, goal=0, horizon=-1)
     assert planner_options("goto") == planner_options("static_goto") == {"goal": None, "horizon": None}
 
@@ -337,7 +338,7 @@ def test_a_door_the_prior_believes_closed_is_a_wall_only_if_it_never_opens():
         prior[2] = [0, 0, 0.05, 0.95]  # the door: believed closed
         model = om.GridModel(**{**{f: getattr(model, f) for f in om.model.DEFINING_FIELDS}, "label_prior": prior})
         if fails:
-            with pytest.raises(ModelError, match=r"goal \(0, 4\) \(cell 4\) cannot be reached"):
+            with pytest.raises(InvalidOptionError, match=r"goal \(0, 4\) \(cell 4\) cannot be reached"):
                 GoTo(model, goal=(0, 4))
         else:
             assert GoTo(model, goal=(0, 4)).goal == 4
@@ -363,7 +364,7 @@ def test_navigate_reaches_the_goal_in_a_small_open_world(open_world):
     rows, cols = np.divmod(frame["true_location"].to_numpy(), 4)
     np.testing.assert_array_equal(frame["distance_to_goal"], (2 - rows) + (3 - cols))  # Manhattan, no walls
     # the estimator saw what the world emitted: a fresh filter fed the run's record agrees
-    replay = om.make_estimator("rbpf", model, n_particles=200, seed=_seeds(4)[2])
+    replay = om.make_estimator("rbpf", model, n_particles=200, seed=seed_streams(4)[2])
     for t, observation in enumerate(found.run.observations):
         belief = replay.step(None if t == 0 else int(found.run.actions[t - 1]), observation)
         assert belief.location.tobytes() == found.trajectory.location[t].tobytes()
@@ -399,13 +400,13 @@ def test_navigate_stops_after_max_steps_and_takes_any_planner(open_world):
     assert home.reached_at == 0 and len(home.frame) == 1 and home.frame["distance_to_goal"].iloc[0] == 0
     walk = navigate(model, true_map, 5, "random", max_steps=300, seed=1, estimator_options={"n_particles": 50})
     assert walk.reached_at is not None and walk.frame["true_location"].iloc[-1] == 5
-    with pytest.raises(ModelError, match="goal once"):
+    with pytest.raises(InvalidOptionError, match="goal once"):
         navigate(model, true_map, 5, max_steps=5, seed=0, planner_options={"goal": 6})
-    with pytest.raises(ModelError, match=r"goes to cell 6, not to the goal 5"):
+    with pytest.raises(InvalidOptionError, match=r"goes to cell 6, not to the goal 5"):
         navigate(model, true_map, 5, GoTo(model, goal=6), max_steps=5, seed=0)
-    with pytest.raises(ModelError, match=r"goal \(3, 0\) .*off the"):
+    with pytest.raises(InvalidOptionError, match=r"goal \(3, 0\) .*off the"):
         navigate(model, true_map, (3, 0), max_steps=5, seed=0)
-    with pytest.raises(ModelError, match="max_steps"):
+    with pytest.raises(InvalidOptionError, match="max_steps"):
         navigate(model, true_map, 5, max_steps=-1, seed=0)
 
 
@@ -507,7 +508,7 @@ def test_track_refuses_a_bad_goal_or_a_goal_without_planner(monkeypatch, capsys)
     assert main(spec + ["--planner", "goto", "--goal", "9,9"]) == 2
     assert "goal (9, 9) (row, col) is off the 3 x 4 grid" in capsys.readouterr().err
     assert main(spec + ["--planner", "goto", "--goal", "x"]) == 2 and "--goal must be" in capsys.readouterr().err
-    assert main(spec + ["--planner", "goto"]) == 2 and "needs a goal" in capsys.readouterr().err
+    assert main(spec + ["--planner", "goto"]) == 2 and "--planner goto needs --goal CELL" in capsys.readouterr().err
 
 
 # --- the navigation study on the sweep engine (onlinemap.studies.navigation) ------------------------
@@ -571,3 +572,91 @@ def test_navigate_command_prints_and_writes(tmp_path, capsys):
         assert (tmp_path / name).stat().st_size > 0
     assert main(["navigate", "--goal", "0,5", "--repeats", "1"]) == 2  # a wall: refused, one line
     assert "goal" in capsys.readouterr().err
+
+
+def test_navigate_command_without_goal_in_a_world_without_free_labels_goes_to_the_far_cell(capsys):
+    """Issue 42 item 7: ``navigate --world corridor:8`` (labels '0', '1', none named free) died in
+    ``far_goals(...)[0]`` with an IndexError. Every label lets the robot in, so the far goal is the
+    cell farthest from the start: the corridor's other end, the 3 x 3 grid's opposite corner."""
+    from onlinemap.cli import main
+    from onlinemap.studies.navigation import far_goals
+
+    for world, goal in (("corridor:8", 7), ("grid:3x3", 8)):
+        spec = parse_world(world)
+        assert far_goals(spec.model, spec.initial_map(0)) == [goal]
+        assert main(["navigate", "--world", world, "--repeats", "1", "--steps", "12", "-o", "n_particles=20"]) == 0
+        out = capsys.readouterr().out
+        assert f"goal cell {goal} " in out
+        # every metric of the table defined under it (issue 42 item 7)
+        assert "\nsuccess: share of runs reaching the goal within 4x the oracle's steps\n" in out
+        assert "\nsteps_over_oracle: steps_to_goal / oracle_steps, per run\n" in out
+
+
+def test_navigate_command_refuses_a_wall_goal_before_running_anything(capsys):
+    """Issue 42 item 7: ``navigate --goal 3,0`` (a wall of the door world's floor plan) ran all its
+    tasks, then said "rerun to retry". The goal is checked against the floor plan first."""
+    from onlinemap.cli import main
+
+    assert main(["navigate", "--goal", "3,0", "--repeats", "1", "-o", "n_particles=20"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""  # no run started
+    assert "wall" in captured.err and "cell 30" in captured.err and "rerun" not in captured.err
+
+
+def test_navigate_command_refuses_planners_that_ignore_the_goal(capsys):
+    """Issue 42 item 7: ``navigate --planner info_gain`` / ``frontier`` were accepted, and reached
+    the goal in no run, since they never read it."""
+    from onlinemap.cli import main
+
+    for planners, named in (("info_gain", "info_gain"), ("goto,frontier", "frontier")):
+        assert main(["navigate", "--planner", planners, "--repeats", "1"]) == 2
+        err = capsys.readouterr().err
+        assert f"--planner {named}" in err and "goal" in err and "goto, static_goto" in err
+        assert len(err.strip().splitlines()) == 1
+
+
+def test_navigate_command_says_so_when_no_oracle_reaches_the_goal(tmp_path, capsys):
+    """Issue 43 section 2 item 2: with no run's oracle at the goal within --steps, ``navigate``
+    ended in ``KeyError: 'n'`` (an empty summary), wrote no table with --out, and its rerun (which
+    resumes) crashed again. Now it says why there is nothing to compare and writes the tables."""
+    from onlinemap.cli import main
+
+    argv = ["navigate", "--goal", "99", "--steps", "10", "--repeats", "1", "-o", "n_particles=20",
+            "--out", str(tmp_path)]
+    for _ in range(2):  # the rerun resumes from navigate.parts
+        assert main(argv) == 0
+        out = capsys.readouterr().out
+        assert "the oracle reaches goal cell 99 within 10 steps in none of the 1 run(s)" in out
+    runs = pd.read_csv(tmp_path / "navigate_runs.csv")
+    assert len(runs) == 2 and not runs["oracle_reached"].any()
+    summary = pd.read_csv(tmp_path / "navigate_summary.csv")
+    assert summary.empty and {"planner", "runs", "success"} <= set(summary.columns)
+
+
+def test_a_navigation_prints_on_one_line(open_world):
+    """Issue 42 item 7: ``repr`` of a Navigation was 29 lines (the frame printed whole)."""
+    model, true_map = open_world
+    found = navigate(model, true_map, 8, "goto", max_steps=40, seed=0, estimator_options={"n_particles": 20})
+    text = repr(found)
+    assert "\n" not in text and len(text) < 200, text
+    where = "never reached" if found.reached_at is None else f"reached at step {found.reached_at}"
+    assert text.startswith(f"Navigation(goal cell 8 {where}; {len(found.frame)} steps from cell {model.start} to "
+                           f"{found.run.locations[-1]}; frame {len(found.frame)} rows x ")
+
+
+def test_navigate_takes_a_goal_in_a_0d_array_and_refuses_planners_that_are_not_planners(open_world):
+    """Issue 43 section 2 item 8: ``policies.navigate(m, tm, np.array(99), ...)`` raised
+    ``TypeError: len() of unsized object``; a planner of None or 5 raised AttributeError. A 0-d
+    integer array is the cell it holds; anything without ``choose`` is a ModelError naming it."""
+    model, true_map = open_world
+    options = {"n_particles": 20}
+    in_array = navigate(model, true_map, np.array(11), "goto", max_steps=30, seed=1, estimator_options=options)
+    plain = navigate(model, true_map, 11, "goto", max_steps=30, seed=1, estimator_options=options)
+    assert in_array.frame.attrs["goal"] == 11 and in_array.reached_at == plain.reached_at
+    assert in_array.run.locations.tolist() == plain.run.locations.tolist()
+    with pytest.raises(ModelError, match=r"goal must be a cell index or a \(row, col\) pair, got 2.5"):
+        navigate(model, true_map, np.array(2.5), "goto", max_steps=3, seed=1, estimator_options=options)
+    for planner in (None, 5):
+        with pytest.raises(ModelError, match=f"planner must be a registered name .* or an object with a "
+                                             f"choose\\(belief\\) method, got {type(planner).__name__} {planner}"):
+            navigate(model, true_map, 11, planner, max_steps=3, seed=1, estimator_options=options)

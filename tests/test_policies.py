@@ -12,7 +12,7 @@ from scipy.stats import entropy
 
 import onlinemap as om
 from onlinemap.belief import Belief
-from onlinemap.errors import ModelError
+from onlinemap.errors import InvalidOptionError, ModelError
 from onlinemap.model import GridModel, symmetric_channel
 from estimator_cases import binomial_ok
 from policies import (PLANNERS, EntropyExplorer, RandomWalk, Sweep, action_values, collected_entropy_reward, entropy_reward,
@@ -199,9 +199,9 @@ def test_policy_iteration_rejects_bad_input():
         policy_iteration(model, np.zeros(5))
     with pytest.raises(ModelError, match="NaN"):
         policy_iteration(model, np.full(6, np.nan))
-    with pytest.raises(ModelError, match="gamma"):
+    with pytest.raises(InvalidOptionError, match="gamma"):
         policy_iteration(model, np.zeros(6), gamma=1.0)
-    with pytest.raises(ModelError, match="initial_policy"):
+    with pytest.raises(InvalidOptionError, match="initial_policy"):
         policy_iteration(model, np.zeros(6), initial_policy=np.full(6, 4))
 
 
@@ -278,7 +278,7 @@ def test_explorer_replans_every_k_steps():
         explorer.choose(b)
         plans.append(explorer.plan)
     assert [plans[i] is plans[i - 1] for i in range(1, 7)] == [True, True, False, True, True, False]
-    with pytest.raises(ModelError):
+    with pytest.raises(InvalidOptionError):
         EntropyExplorer(model, replan_every=0)
 
 
@@ -442,18 +442,18 @@ BAD_OPTIONS = {
 
 
 @pytest.mark.parametrize("planner,option,value", [(p, o, v) for p, cases in BAD_OPTIONS.items() for o, v in cases])
-def test_bad_planner_options_raise_model_errors_naming_them(planner, option, value):
+def test_bad_planner_options_raise_invalid_option_errors_naming_them(planner, option, value):
     model, _ = om.door_world()
     options = {"goal": 99} if planner in ("goto", "static_goto") else {}
     options[option] = value
-    with pytest.raises(ModelError, match=option):
+    with pytest.raises(InvalidOptionError, match=option):
         make_planner(planner, model, seed=0, **options)
 
 
 @pytest.mark.parametrize("planner", ["random", "info_gain"])
 @pytest.mark.parametrize("seed", ["x", -1, 1.5, True])
-def test_bad_planner_seeds_raise_model_errors(planner, seed):
-    with pytest.raises(ModelError, match="seed"):
+def test_bad_planner_seeds_raise_invalid_option_errors(planner, seed):
+    with pytest.raises(InvalidOptionError, match="seed"):
         make_planner(planner, om.door_world()[0], seed=seed)
 
 
@@ -466,13 +466,13 @@ def test_astronomical_plans_are_refused_with_their_cost():
     model, _ = om.door_world(blocking=True, footprint="cross")
     for options, named in (({"hypotheses": 10**6}, "hypotheses"), ({"press_lengths": [10**6]}, "press_lengths"),
                            ({"rollout_particles": 10**7}, "rollout_particles")):
-        with pytest.raises(ModelError, match=f"(?s)operations.*{named}"):
+        with pytest.raises(InvalidOptionError, match=f"(?s)operations.*{named}"):
             make_planner("info_gain", model, **options)
     square, _ = om.door_world(footprint="square")
-    with pytest.raises(ModelError, match=re.escape(f"{MAX_PLAN_FORKS:.0e} estimator forks")):
+    with pytest.raises(InvalidOptionError, match=re.escape(f"{MAX_PLAN_FORKS:.0e} estimator forks")):
         make_planner("info_gain", square, hypotheses=None, press_lengths=(1,))
     make_planner("info_gain", om.corridor(4), hypotheses=None, press_lengths=(1, 2, 6))  # 2^6 forks: fine
     cycling, _ = om.door_world(p_door=1.0)  # doors swap every step: C never mixes
-    with pytest.raises(ModelError, match="(?s)horizon=1000000000.*operations.*horizon"):
+    with pytest.raises(InvalidOptionError, match="(?s)horizon=1000000000.*operations.*horizon"):
         make_planner("goto", cycling, goal=99, horizon=10**9)
     make_planner("goto", om.door_world()[0], goal=99, horizon=10**9)  # static: a plan is one Dijkstra

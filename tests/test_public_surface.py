@@ -174,3 +174,24 @@ def test_make_estimator_and_load_refuse_bad_arguments(tmp_path):
         om.load(tmp_path)
     with pytest.raises(om.OnlineMapError):
         om.make_estimator("exact", om.corridor(3), **{"max_bytes": fractions.Fraction(1, 2)})
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_estimator_options_show_the_defaults_the_estimator_runs(name):
+    """Issue 42 item 7: ``om.estimator_options("rbpf")`` showed ``resampling: None``, a
+    placeholder; the filter runs Fearnhead-Clifford (the class docstring's default with the
+    optimal proposal). No option shows None where the estimator resolves it, and building with
+    the listed defaults runs, step for step, as building with none."""
+    options = om.estimator_options(name)
+    if name == "rbpf":
+        assert options["resampling"] == "fearnhead_clifford" and options["proposal"] == "optimal"
+    model = small_model(name)
+    seeded = {"seed": 3} if "seed" in options else {}
+    plain = om.make_estimator(name, model, **seeded)
+    listed = om.make_estimator(name, model, **{**options, **seeded})
+    shown = getattr(plain, "effective_options", plain.options)
+    assert shown == getattr(listed, "effective_options", listed.options)
+    assert all(shown[key] == value for key, value in options.items() if key in shown and key != "seed")
+    run = om.simulate(model, om.sample_map(model, 0), om.random_walk(model, 6, seed=1), seed=1)
+    a, b = om.run_estimator(plain, run.actions, run.observations), om.run_estimator(listed, run.actions, run.observations)
+    assert a.location.tobytes() == b.location.tobytes() and a.map.tobytes() == b.map.tobytes()

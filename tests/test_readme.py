@@ -1,11 +1,20 @@
-"""The README's two commands: CI runs the test command verbatim."""
+"""The README, a front page, and the user guide's pages (``onlinemap/docs/pages/``): CI runs the
+README's test command verbatim, the README stays short and its links resolve, and the guide's
+examples give what they say."""
 
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+PAGES = ROOT / "onlinemap" / "docs" / "pages"
+
+
+def python_blocks(path: Path) -> list[str]:
+    """The ```python blocks of a markdown file."""
+    return [b.split("```", 1)[0] for b in path.read_text().split("```python\n")[1:]]
 
 
 def test_ci_runs_the_readme_test_command():
@@ -16,14 +25,56 @@ def test_ci_runs_the_readme_test_command():
     assert block[1] in (ROOT / ".ci" / "run").read_text()
 
 
-def test_the_readme_door_world_example_gives_what_it_says():
-    """The door-world block of the README runs and prints the values its comments give, and what
+def test_the_readme_is_a_front_page():
+    """At most about 200 lines; five tasks of 3-6 lines each; every local link and image it names
+    exists (the animation may come later: its path is the one the docs site shows); no heading
+    names an internal issue number."""
+    readme = (ROOT / "README.md").read_text()
+    assert len(readme.splitlines()) <= 200
+    tasks = readme[readme.index("## Five things to try"):readme.index("## Where to go next")]
+    numbered = re.split(r"\n\*\*\d\. ", tasks)[1:]
+    assert len(numbered) == 5
+    for task in numbered:
+        lines = sum(len(block.strip().splitlines()) for block in task.split("```")[1::2])
+        assert 3 <= lines <= 6, task[:60]
+    for target in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", readme):
+        if "://" not in target:
+            assert (ROOT / target).exists(), target
+    assert not [line for line in readme.splitlines() if line.startswith("#") and re.search(r"issue \d", line)]
+
+
+def test_the_guide_names_no_issue_numbers_in_headings():
+    """Users read headings (the notebooks' included); the project's issue numbers mean nothing to them."""
+    import nbformat
+
+    texts = [page.read_text() for page in PAGES.rglob("*.md")]
+    texts += [cell.source for path in (ROOT / "notebooks").glob("*.ipynb")  # rendered on the site too
+              for cell in nbformat.read(path, as_version=4).cells if cell.cell_type == "markdown"]
+    headings = [line for text in texts for line in text.splitlines()
+                if line.startswith("#") and re.search(r"issue \d", line, re.IGNORECASE)]
+    assert not headings
+
+
+def test_the_readme_navigation_example_gives_what_it_says():
+    """The README's navigation block prints the steps its comment gives (robot and oracle)."""
+    (block,) = [b for b in python_blocks(ROOT / "README.md") if "policies.navigate(" in b]
+    lines = block.strip().splitlines()
+    namespace: dict = {}
+    exec("\n".join(lines[:-1]), namespace)
+    expression, expected = lines[-1].split("  # ")
+    values = eval(expression.removeprefix("print(").removesuffix(")"), namespace)
+    assert " ".join(str(v) for v in values) == expected.strip()
+    run = namespace["run"]  # the robot stands on the goal at the step it says, and not before
+    assert run.reached_at is not None and list(run.frame["distance_to_goal"])[-1] == 0
+
+
+def test_the_guide_door_world_example_gives_what_it_says():
+    """The door-world block of the getting-started page runs and prints the values its comments give, and what
     they claim holds by hand: the most likely cell (an argmax written here) is the true one, the
     mean location error over steps 100-199 is 1 - P(true cell) averaged here, and the run's map
     has the one wrong cell the text says."""
-    readme = (ROOT / "README.md").read_text()
-    blocks = [b.split("```", 1)[0] for b in readme.split("```python\n")[1:]]
-    (block,) = [b for b in blocks if "exploration_world(p_door=0.0," in b]
+    page = PAGES / "guide" / "getting-started.md"
+    (block,) = [b for b in python_blocks(page) if "exploration_world(p_door=0.0," in b]
     lines = block.strip().splitlines()
     namespace: dict = {}
     exec("\n".join(line for line in lines if "#" not in line), namespace)
@@ -47,17 +98,16 @@ def test_the_readme_door_world_example_gives_what_it_says():
     assert claims[0] == f"({most_likely}, {run.locations[-1]})" and most_likely == run.locations[-1]
     errors = [1.0 - trajectory.location[t][run.locations[t]] for t in range(100, run.n_steps)]
     assert claims[1] == f"{sum(errors) / len(errors):.2f}"  # "0.34": 1 - P(true cell), mean over steps 100-199
-    assert "in the run above one cell's most likely label is wrong" in " ".join(readme.split())
+    assert "in the run above one cell's most likely label is wrong" in " ".join(page.read_text().split())
     labels = est.belief.map
     assert sum(max(range(model.n_labels), key=lambda k: labels[i][k]) != run.final_map[i]
                for i in range(model.n_cells)) == 1
 
 
-def test_the_readme_gym_example_runs():
-    """Issue 24 item 18: the README shows the import that registers the gym id, and the id."""
+def test_the_guide_gym_example_runs():
+    """The robot-loop page shows the import that registers the gym id, and the id."""
     pytest.importorskip("gymnasium")
-    readme = (ROOT / "README.md").read_text()
-    (block,) = [b.split("```", 1)[0] for b in readme.split("```python\n")[1:] if "import onlinemap.envs" in b]
+    (block,) = [b for b in python_blocks(PAGES / "guide" / "robot-loop.md") if "import onlinemap.envs" in b]
     namespace: dict = {}
     exec(block, namespace)
     assert namespace["env"].spec.id == "onlinemap/DoorWorld-v0" and namespace["truncated"] is False
@@ -84,3 +134,36 @@ def test_the_test_command_keeps_a_files_tests_on_one_worker_and_runs_each_notebo
     # the RBPF's files share its kernels, serial and threaded: one unit
     assert work_unit("tests/test_rbpf.py::test_known_location_equals_exact") \
         == work_unit("tests/test_rbpf_threads.py::test_threads_option") != work_unit("tests/test_bk.py::test_x")
+
+
+def test_every_results_table_comes_with_the_command_that_reproduces_it():
+    """The results page: each section holds its command (a code block naming `onlinemap` or a
+    study) before its first table."""
+    text = (PAGES / "results.md").read_text()
+    sections = text.split("\n## ")[1:]
+    assert len(sections) >= 10
+    for section in sections:
+        title, body = section.split("\n", 1)
+        assert "|---" in body.replace(" ", "") or "| ---" in body, title
+        before_table = body.split("\n|", 1)[0]
+        commands = before_table.split("```")[1::2]
+        assert commands and all("onlinemap" in c for c in commands), title
+
+
+def test_the_results_pages_corridor_rows_are_current():
+    """The deterministic rows of the results page's Murphy-corridor table (exact, dead reckoning,
+    offline EM, BK) are what the study gives today, at the precision the page prints."""
+    from onlinemap.scenarios import murphy_corridor
+    from onlinemap.studies.corridor import CORRIDOR_ESTIMATORS, corridor_table
+
+    text = (PAGES / "results.md").read_text()
+    table = text[text.index("## Murphy's corridor"):].split("\n## ", 1)[0]
+    stated = {cells[0]: cells[1:] for line in table.splitlines() if line.startswith("| ")
+              for cells in [[c.strip() for c in line.strip("|").split("|")]]}
+    names = ("exact", "dead_reckoning", "offline_em", "bk")
+    frame, _ = corridor_table(murphy_corridor(), [e for e in CORRIDOR_ESTIMATORS if e[0] in names], progress=False)
+    for row in frame.itertuples():
+        error, wrong, low, final = stated[row.estimator]
+        for value, text_value in ((row.final_map_error, error), (row.min_p_true_way_back, low), (row.final_p_true, final)):
+            assert float(text_value) == pytest.approx(value, rel=0.01, abs=5e-4), (row.estimator, text_value, value)
+        assert int(wrong) == row.wrong_visited

@@ -70,14 +70,14 @@ def forged(est, edit):
     bytes of a file (the attacker's view)."""
     state = est.state_dict()
     arrays: dict[str, np.ndarray] = {}
-    meta = checkpoint._externalise(state, arrays)
+    meta = checkpoint.externalise_arrays(state, arrays)
     edit(meta, arrays)
     meta_bytes = json.dumps(meta).encode()
     return meta_bytes, arrays
 
 
 def write_forged(path, meta_bytes, arrays):
-    digest = checkpoint._digest(meta_bytes, arrays).encode()
+    digest = checkpoint.checkpoint_digest(meta_bytes, arrays).encode()
     with open(path, "wb") as file:
         np.savez(file, meta=np.frombuffer(meta_bytes, np.uint8), sha256=np.frombuffer(digest, np.uint8), **arrays)
 

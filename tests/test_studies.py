@@ -40,13 +40,6 @@ def test_told_location_map_equals_the_exact_filter_when_the_floor_never_slips(fo
     np.testing.assert_allclose(told_location_map(model, run), exact.belief.map, atol=1e-12)
 
 
-def test_told_location_map_refuses_blocking_worlds():
-    model, true_map = om.door_world(".o.\n#c.\n", blocking=True)
-    run = om.simulate(model, true_map, [1, 2], seed=0)
-    with pytest.raises(ModelError, match="blocking"):
-        told_location_map(model, run)
-
-
 def test_replay_study_feeds_the_live_runs_data_to_fresh_filters():
     """Each replay row is a fresh RBPF (seed 10000 + replay) fed the live run's actions and
     observations (the live run: policies.exploration of the same seed, 64 particles); the

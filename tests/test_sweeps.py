@@ -493,7 +493,9 @@ def test_a_failed_table_write_keeps_the_previous_file_and_no_temporary(tmp_path,
 def test_failed_part_writes_leave_no_temporaries_and_old_ones_are_cleaned(tmp_path, monkeypatch):
     parts = tmp_path / "parts"
     parts.mkdir()
-    (parts / ".abc.npz.x1y2.tmp").write_bytes(b"half a file")  # a killed process's leftover
+    from estimator_cases import dead_pid
+
+    (parts / f".abc.npz.{dead_pid()}-0a1b2c3d.tmp").write_bytes(b"half a file")  # a killed process's leftover
     real, calls = sweeps.store.atomic_write, []
 
     def flaky(path, write):  # every third part: the disk fills up halfway through writing it
@@ -723,3 +725,60 @@ def test_a_part_keeps_every_column_and_type(tmp_path):
     (tmp_path / f"{task.key}.npz").write_bytes(b"PK\x03\x04 not a zip")
     with pytest.raises(om.OnlineMapError, match="cannot read sweep part"):
         sweeps.collect(tmp_path)
+
+
+def test_intervals_of_counts_steps_ratios_and_shares_stay_in_their_range():
+    """Issue 42 item 7: intervals of counts, steps, ratios and times went below 0
+    (``steps_over_oracle 12.649 [-45.951, 71.249]``). Each is clipped to its range: the t
+    interval of [0, 0, 0, 40] is 10 +- 3.182 * 20 / 2 = [-21.8, 41.8] before clipping (worked by
+    hand: sd 20, t(0.975, 3) = 3.182), so its low end is 0 after; a share stored as 0/1 floats
+    (a table read back) stays in [0, 1]; a log evidence stays signed."""
+    table = pd.DataFrame({"planner": "goto", "steps_to_goal": [0.0, 0.0, 0.0, 40.0],
+                          "oracle_steps": [0.0, 0.0, 0.0, 40.0], "steps_over_oracle": [0.0, 0.0, 0.0, 40.0],
+                          "objective_gap": [0.0, 0.0, 0.0, 40.0], "success": [1.0, 1.0, 1.0, 0.0],
+                          "failed": [0.0, 0.0, 0.0, 1.0], "final_log_evidence": [0.0, 0.0, 0.0, 40.0]})
+    summary = sweeps.summarize(table, list(table.columns[1:]), by=["planner"]).set_index("metric")
+    half = stats.t.ppf(0.975, 3) * 20.0 / 2.0
+    assert half == pytest.approx(31.82, abs=0.01)
+    for metric in ("steps_to_goal", "oracle_steps", "steps_over_oracle", "objective_gap"):
+        assert (summary.loc[metric, "low"], summary.loc[metric, "high"]) == pytest.approx((0.0, 10.0 + half)), metric
+    for metric in ("success", "failed"):  # mean 0.75 / 0.25 +- 3.182 * 0.5 / 2 = 0.795: past both ends
+        assert (summary.loc[metric, "low"], summary.loc[metric, "high"]) == pytest.approx((0.0, 1.0)), metric
+    assert summary.loc["final_log_evidence", "low"] == pytest.approx(10.0 - half)
+
+
+def test_a_summary_of_no_runs_is_an_empty_table_with_its_columns():
+    """Issue 43 section 2 item 2: summarising no rows (no run where the oracle reached the goal)
+    raised ``KeyError: 'n'``."""
+    from onlinemap.studies.base import summary_of
+
+    empty = pd.DataFrame({"planner": pd.Series([], dtype=object), "success": pd.Series([], dtype=bool)})
+    assert list(sweeps.summarize(empty, ["success"], by=["planner"]).columns) == \
+        ["planner", "metric", "n", "mean", "low", "high"]
+    wide = summary_of(empty, ["success"], ["planner"])
+    assert wide.empty and list(wide.columns) == ["planner", "runs", "success", "success_low", "success_high"]
+
+
+def test_sweep_summary_of_a_missing_path_says_not_found(tmp_path, capsys):
+    """Issue 42 item 7: ``sweep --summary nowhere`` said it needs pyarrow (the base install's
+    reader of a path without .csv) instead of "not found"."""
+    for missing in (tmp_path / "nowhere", tmp_path / "results.parquet", tmp_path / "results.csv"):
+        assert main(["sweep", "--summary", str(missing)]) == 2
+        err = capsys.readouterr().err
+        assert f"--summary {missing}: not found" in err and "pyarrow" not in err, err
+
+
+def test_sweep_tables_define_every_metric_they_print(tmp_path, capsys):
+    """Issue 42 item 7: ``failed`` (0.8 on plain corridors) was defined nowhere a user sees. The
+    table is followed by one ``NAME: definition`` line per metric it prints."""
+    table = pd.DataFrame({"task": [0, 1, 2, 3], "estimator": "rbpf", "seed": [0, 1, 2, 3],
+                          "final_map_error": [0.1, 0.2, 0.3, 0.2], "failed": [True, False, True, True],
+                          "mean_location_tv": [0.1, 0.1, 0.2, 0.3], "ms_per_step": [1.0, 1.1, 1.2, 1.0]})
+    table.to_csv(tmp_path / "results.csv", index=False)
+    assert main(["sweep", "--summary", str(tmp_path / "results.csv")]) == 0
+    out = capsys.readouterr().out
+    printed = ["final_map_error", "failed", "mean_location_tv", "ms_per_step"]
+    legend = [line.split(":")[0] for line in out.splitlines() if ": " in line and not line.startswith("mean [")]
+    assert legend == printed, out
+    assert "failed: share of runs that end lost (P(true cell) < 0.5) or with a visited cell's most probable " \
+           "label wrong" in out

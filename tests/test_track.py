@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -310,10 +311,18 @@ def test_start_event_gives_the_footprint_in_reading_order_and_a_list_gets_a_hint
 
 def test_temporaries_of_a_killed_save_are_removed_at_start(tmp_path, monkeypatch, capsys):
     """Regression (issue 24 item 7): ``kill -9`` during a save left ``.NAME.*.tmp`` files that piled
-    up over restarts. Only this checkpoint's are removed: another process may be saving beside it."""
-    ck = tmp_path / "ck.npz"
-    mine = [tmp_path / ".ck.npz.k1l2m3.tmp", tmp_path / ".ck.npz.x9y8z7.tmp"]
-    others = [tmp_path / ".other.npz.a1b2c3.tmp", tmp_path / "ck.npz.notes.tmp"]
+    up over restarts. Only this checkpoint's are removed: another process may be saving beside it.
+    Issue 43 item 12: the clean-up deleted files it did not write, ``.ck.npz.bak.<x>.tmp`` (the
+    temporary of a second tracker, saving ``ck.npz.bak``) and a user's ``.ck.npz.my-notes.tmp``;
+    it matches exactly the names the atomic writer makes, of writers that are gone."""
+    from estimator_cases import dead_pid
+
+    ck, gone = tmp_path / "ck.npz", dead_pid()
+    mine = [tmp_path / f".ck.npz.{gone}-0a1b2c3d.tmp", tmp_path / f".ck.npz.{gone}-ffffffff.tmp"]
+    others = [tmp_path / f".other.npz.{gone}-0a1b2c3d.tmp", tmp_path / "ck.npz.notes.tmp",
+              tmp_path / f".ck.npz.bak.{gone}-0a1b2c3d.tmp", tmp_path / ".ck.npz.my-notes.tmp",
+              tmp_path / ".ck.npz.k1l2m3.tmp", tmp_path / f".ck.npz.{os.getpid()}-0a1b2c3d.tmp",  # a live writer's
+              tmp_path / f".ck.npz.{gone}-0a1b2c3d.tmp.tmp", tmp_path / f".ck.npz.{gone}-0A1B2C3D.tmp"]
     for path in mine + others:
         path.write_bytes(b"half a file")
     assert track_in_process(monkeypatch, ["--checkpoint", str(ck)], '{"observation": 0}\n') == 0

@@ -85,7 +85,7 @@ def test_steps_draws_a_random_walk_from_the_same_seed():
     np.testing.assert_array_equal(run.observations, expected.observations)
     with pytest.raises(ModelError, match="either actions or steps"):
         om.simulate(model, actions=[0], steps=3)
-    with pytest.raises(ModelError, match="positive int"):
+    with pytest.raises(ModelError, match="steps must be at least 1"):
         om.simulate(model, steps=0)
 
 

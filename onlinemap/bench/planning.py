@@ -93,7 +93,7 @@ def bench_info_gain(quick: bool) -> list[dict]:
             belief = est.step(int(a), z)
         filter_steps, decisions, plans = [], [], []
         for _ in range(12 if quick else 60):
-            planned = not planner._queue and not planner._target_steps
+            planned = not planner.pending
             t0 = time.perf_counter()
             a = planner.choose(belief)
             (plans if planned else decisions).append(time.perf_counter() - t0)

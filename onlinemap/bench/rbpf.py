@@ -39,8 +39,8 @@ final map error (mean over cells of 1 - P(true label)), mean over the replays, w
 filter's. The issue's accuracy target, final map error <= 0.19 at 1000 particles
 (``map_error_target``), is judged on the resample-move row in ``meets_map_error_target`` (the
 table's ``meets_target`` judges only the ms ratio). A single replay's final map error has a
-standard deviation of about 0.1 (README, Resample-move) and the rows hold one run's data, so
-they show a filter's cost and a rough error; the README's 72 replays of 6 runs are the accuracy
+standard deviation of about 0.1 (the guide's Estimators page, Resample-move) and the rows hold one run's data, so
+they show a filter's cost and a rough error; the guide's 72 replays of 6 runs are the accuracy
 evidence. With ``--quick`` the run is too short for a map error near the target.
 
 Scale rows: ms per RBPF step for 100, 1000 and 10000 particles on corridors of

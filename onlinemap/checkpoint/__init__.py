@@ -26,7 +26,8 @@ import numpy as np  # noqa: F401  (tests make np.savez fail through checkpoint.n
 
 from .codec import (STATE_CLASSES, decode_model, decode_options, encode_model, first_difference, same_tree,
                     state_class, state_node)
-from .files import _digest, _externalise, check_writable, read, save, write  # noqa: F401  (tests forge files)
+from .files import check_writable, read, save, write
+from .files import checkpoint_digest, externalise_arrays  # noqa: F401  (tests forge files)
 from .protocol import (FORMAT, FORMAT_VERSION, OLDEST_FORMAT_VERSION, check_header, check_state, load_state_dict,
                        state_dict)
 

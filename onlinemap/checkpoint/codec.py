@@ -45,8 +45,8 @@ from ..belief import Belief
 from ..errors import CheckpointError, OnlineMapError
 from ..model import DEFINING_FIELDS, OPTIONAL_FIELDS, GridModel
 
-_TAG = "$"
-_ARRAY_KINDS = "biufcUSmM"  # numpy dtype kinds that npy stores without pickling
+TAG = "$"  # the key of a tagged node (a tuple, a Generator, an array reference...) in a tree
+ARRAY_KINDS = "biufcUSmM"  # numpy dtype kinds that npy stores without pickling (the file checks them again)
 _BIT_GENERATORS = ("PCG64", "PCG64DXSM", "MT19937", "Philox", "SFC64")
 
 
@@ -67,11 +67,11 @@ def state_class(cls: type) -> type:
 def state_node(cls: type, fields: dict) -> dict:
     """The encoded-tree node of a :func:`state_class` instance from its fields' nodes (for
     ``upgrade_attributes``)."""
-    return {_TAG: "object", "class": cls.__qualname__, "fields": fields}
+    return {TAG: "object", "class": cls.__qualname__, "fields": fields}
 
 
 # --- encoding: Python objects -> tree (JSON values, raw ndarrays, tagged dicts) ----------------------
-class _Encoder:
+class Encoder:
     """Turns attribute values into a tree; remembers arrays to keep aliases and refuse views."""
 
     def __init__(self) -> None:
@@ -84,20 +84,20 @@ class _Encoder:
         if kind is np.ndarray:
             return self._array(value, path)
         if isinstance(value, np.generic):
-            return {_TAG: "numpy_scalar", "array": self._array(np.asarray(value), path)}
+            return {TAG: "numpy_scalar", "array": self._array(np.asarray(value), path)}
         if kind is list:
             return [self.encode(v, f"{path}[{i}]") for i, v in enumerate(value)]
         if kind is tuple:
-            return {_TAG: "tuple", "items": [self.encode(v, f"{path}[{i}]") for i, v in enumerate(value)]}
+            return {TAG: "tuple", "items": [self.encode(v, f"{path}[{i}]") for i, v in enumerate(value)]}
         if kind is dict:
             bad = [k for k in value if type(k) is not str]
             if bad:
                 raise CheckpointError(f"attribute {path}: dict keys must be str, got {bad[0]!r}")
-            return {_TAG: "dict", "items": [[k, self.encode(v, f"{path}[{k!r}]")] for k, v in value.items()]}
+            return {TAG: "dict", "items": [[k, self.encode(v, f"{path}[{k!r}]")] for k, v in value.items()]}
         if kind is np.random.Generator:
-            return {_TAG: "generator", "state": self.encode(value.bit_generator.state, f"{path}.state")}
+            return {TAG: "generator", "state": self.encode(value.bit_generator.state, f"{path}.state")}
         if kind is Belief:
-            return {_TAG: "belief", "fields": {f.name: self.encode(getattr(value, f.name), f"{path}.{f.name}")
+            return {TAG: "belief", "fields": {f.name: self.encode(getattr(value, f.name), f"{path}.{f.name}")
                                               for f in dataclasses.fields(Belief)}}
         if kind is GridModel:
             return encode_model(value)
@@ -105,23 +105,23 @@ class _Encoder:
             return state_node(kind, {f.name: self.encode(getattr(value, f.name), f"{path}.{f.name}")
                                      for f in dataclasses.fields(value)})
         if isinstance(value, np.dtype):
-            return {_TAG: "dtype", "name": value.str}
+            return {TAG: "dtype", "name": value.str}
         if isinstance(value, type) and issubclass(value, np.generic):
-            return {_TAG: "scalar_type", "name": np.dtype(value).str}
-        name = _callable_name(value)
+            return {TAG: "scalar_type", "name": np.dtype(value).str}
+        name = callable_name(value)
         if name is not None:
-            return {_TAG: "callable", "name": name}
+            return {TAG: "callable", "name": name}
         raise CheckpointError(
             f"attribute {path}: cannot checkpoint a {kind.__module__}.{kind.__qualname__}; supported: numpy "
             f"arrays and scalars, None/bool/int/float/str, tuples, lists, str-keyed dicts, numpy Generators, "
             f"Belief, GridModel, functions (see onlinemap.checkpoint)")
 
     def _array(self, array: np.ndarray, path: str):
-        if array.dtype.kind not in _ARRAY_KINDS or array.dtype.fields is not None:
+        if array.dtype.kind not in ARRAY_KINDS or array.dtype.fields is not None:
             raise CheckpointError(f"attribute {path}: arrays of dtype {array.dtype} cannot be stored without pickle")
         for seen, seen_path in self._arrays:
             if seen is array:
-                return {_TAG: "same_as", "path": seen_path}
+                return {TAG: "same_as", "path": seen_path}
             if array.flags.writeable and seen.flags.writeable and np.may_share_memory(array, seen):
                 raise CheckpointError(f"attributes {seen_path} and {path} are writable views of the same memory; "
                                       "a checkpoint cannot keep them linked")
@@ -131,13 +131,15 @@ class _Encoder:
         return copy
 
 
-def _scratch_node(value, name: str) -> dict:
+def scratch_node(value, name: str) -> dict:
+    """The tree of a scratch array attribute: its dtype and shape only (the loader makes a fresh
+    one); CheckpointError naming ``name`` if it is not an ndarray."""
     if type(value) is not np.ndarray:
         raise CheckpointError(f"attribute {name}: scratch_attributes must be arrays, got {type(value).__name__}")
-    return {_TAG: "scratch", "dtype": value.dtype.str, "shape": list(value.shape)}
+    return {TAG: "scratch", "dtype": value.dtype.str, "shape": list(value.shape)}
 
 
-def _callable_name(value) -> str | None:
+def callable_name(value) -> str | None:
     """``module.qualname`` of a named function (plain, builtin, numpy, numba dispatcher); the name
     of a method bound to an object (``self.method``); None for anything else (instances with
     ``__call__`` and ``functools.partial`` carry state, so they are not accepted)."""
@@ -152,12 +154,12 @@ def _callable_name(value) -> str | None:
 
 def encode_model(model: GridModel) -> dict:
     """Tree of a model's defining tables (the derived ones are rebuilt by the constructor)."""
-    encoder = _Encoder()
-    return {_TAG: "model", "fields": {name: encoder.encode(getattr(model, name), name) for name in DEFINING_FIELDS}}
+    encoder = Encoder()
+    return {TAG: "model", "fields": {name: encoder.encode(getattr(model, name), name) for name in DEFINING_FIELDS}}
 
 
 # --- decoding: tree -> fresh Python objects (arrays copied) ------------------------------------------
-class _KeepFresh:
+class KeepFresh:
     """A function attribute (configuration the fresh instance re-derives; its name is checked) or a
     scratch buffer (its dtype and shape are checked)."""
 
@@ -165,7 +167,9 @@ class _KeepFresh:
         self.name, self.dtype, self.shape = name, dtype, shape
 
 
-class _Decoder:
+class Decoder:
+    """Turns a tree back into fresh Python objects (arrays copied, aliases restored)."""
+
     def __init__(self) -> None:
         self._arrays: dict[str, np.ndarray] = {}
 
@@ -179,9 +183,9 @@ class _Decoder:
             return array
         if type(node) is list:
             return [self.decode(v, f"{path}[{i}]") for i, v in enumerate(node)]
-        if type(node) is not dict or not isinstance(node.get(_TAG), str):
-            raise CheckpointError(f"attribute {path}: malformed checkpoint entry {_short(node)}")
-        tag = node[_TAG]
+        if type(node) is not dict or not isinstance(node.get(TAG), str):
+            raise CheckpointError(f"attribute {path}: malformed checkpoint entry {shortened(node)}")
+        tag = node[TAG]
         try:
             if tag == "tuple":
                 return tuple(self.decode(v, f"{path}[{i}]") for i, v in enumerate(node["items"]))
@@ -204,38 +208,40 @@ class _Decoder:
             if tag == "scalar_type":
                 return _dtype(node["name"]).type
             if tag == "callable":
-                return _KeepFresh(str(node["name"]))
+                return KeepFresh(str(node["name"]))
             if tag == "scratch":
-                return _KeepFresh("scratch", str(node["dtype"]), list(node["shape"]))
+                return KeepFresh("scratch", str(node["dtype"]), list(node["shape"]))
         except CheckpointError:
             raise
         except (KeyError, TypeError, ValueError, AttributeError, OverflowError, IndexError) as error:
-            raise CheckpointError(f"attribute {path}: malformed {tag!r} entry: {_short(str(error))}") from None
+            raise CheckpointError(f"attribute {path}: malformed {tag!r} entry: {shortened(str(error))}") from None
         raise CheckpointError(f"attribute {path}: unknown entry type {tag!r}")
 
 
     def _object(self, node: dict, path: str):
         cls = STATE_CLASSES.get(node["class"]) if isinstance(node["class"], str) else None
         if cls is None:
-            raise CheckpointError(f"attribute {path}: unknown state class {_short(node['class'])}")
+            raise CheckpointError(f"attribute {path}: unknown state class {shortened(node['class'])}")
         names = [f.name for f in dataclasses.fields(cls)]
         given = node["fields"]
         if type(given) is not dict or sorted(given) != sorted(names):
             raise CheckpointError(f"attribute {path}: a {cls.__name__} needs the fields {names}")
         fields = {name: self.decode(given[name], f"{path}.{name}") for name in names}
-        if any(isinstance(value, _KeepFresh) for value in fields.values()):
+        if any(isinstance(value, KeepFresh) for value in fields.values()):
             raise CheckpointError(f"attribute {path}: a {cls.__name__} holds only values, not functions")
         return cls(**fields)
 
 
-def _short(node) -> str:
+def shortened(node) -> str:
+    """``node`` (a str as it is, anything else by ``repr``) cut to 80 characters, for error
+    messages about crafted files."""
     text = node if isinstance(node, str) else repr(node)
     return text if len(text) <= 80 else text[:77] + "..."
 
 
 def _dtype(name: str) -> np.dtype:
     dtype = np.dtype(str(name))
-    if dtype.kind not in _ARRAY_KINDS:
+    if dtype.kind not in ARRAY_KINDS:
         raise CheckpointError(f"dtype {name!r} is not allowed in a checkpoint")
     return dtype
 
@@ -252,9 +258,9 @@ def _generator(state: dict) -> np.random.Generator:
 def decode_model(node) -> GridModel:
     """Rebuild a :class:`GridModel` from :func:`encode_model`'s tree (validated by its constructor)."""
     names = set(node.get("fields", ())) if type(node) is dict else set()
-    if type(node) is not dict or node.get(_TAG) != "model" or not set(DEFINING_FIELDS) - set(OPTIONAL_FIELDS) <= names <= set(DEFINING_FIELDS):
+    if type(node) is not dict or node.get(TAG) != "model" or not set(DEFINING_FIELDS) - set(OPTIONAL_FIELDS) <= names <= set(DEFINING_FIELDS):
         raise CheckpointError("the checkpoint's model entry is malformed")
-    fields = {name: _Decoder().decode(value, name) for name, value in node["fields"].items()}
+    fields = {name: Decoder().decode(value, name) for name, value in node["fields"].items()}
     try:
         return GridModel(**fields)
     except (OnlineMapError, TypeError, ValueError) as error:
@@ -263,7 +269,7 @@ def decode_model(node) -> GridModel:
 
 def decode_options(node) -> dict:
     """The estimator options stored by :func:`state_dict` (a dict of plain values)."""
-    options = _Decoder().decode(node, "options")
+    options = Decoder().decode(node, "options")
     if type(options) is not dict:
         raise CheckpointError("malformed options entry")
     return options

@@ -23,32 +23,31 @@ import hashlib
 import json
 import os
 import stat
-import tempfile
 import tokenize
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_write, file_mode
+from ..atomic import atomic_write, create_temporary, file_mode, remove_temporaries
 from ..errors import CheckpointError
-from .codec import _ARRAY_KINDS, _TAG, _short
+from .codec import ARRAY_KINDS, TAG, shortened
 from .protocol import check_header
 
 _ZIP_MAGIC = b"PK\x03\x04"
 
 
-def _externalise(node, arrays: dict[str, np.ndarray]):
+def externalise_arrays(node, arrays: dict[str, np.ndarray]):
     """Replace every ndarray in a tree by a reference ``{"$": "ndarray", "key": ...}``."""
     if type(node) is np.ndarray:
         key = f"a{len(arrays)}"
         arrays[key] = node
-        return {_TAG: "ndarray", "key": key, "dtype": node.dtype.str, "shape": list(node.shape),
+        return {TAG: "ndarray", "key": key, "dtype": node.dtype.str, "shape": list(node.shape),
                 "writeable": bool(node.flags.writeable)}
     if type(node) is list:
-        return [_externalise(v, arrays) for v in node]
+        return [externalise_arrays(v, arrays) for v in node]
     if type(node) is dict:
-        return {k: _externalise(v, arrays) for k, v in node.items()}
+        return {k: externalise_arrays(v, arrays) for k, v in node.items()}
     return node
 
 
@@ -57,7 +56,7 @@ def _internalise(node, arrays: dict[str, np.ndarray], used: set[str]):
         return [_internalise(v, arrays, used) for v in node]
     if type(node) is not dict:
         return node
-    if node.get(_TAG) == "ndarray":
+    if node.get(TAG) == "ndarray":
         key = node.get("key")
         if key not in arrays or key in used:
             raise CheckpointError(f"checkpoint refers to a missing or repeated array {key!r}")
@@ -77,7 +76,7 @@ def _array_keys(node, keys: list[str]) -> list[str]:
         for v in node:
             _array_keys(v, keys)
     elif type(node) is dict:
-        if node.get(_TAG) == "ndarray":
+        if node.get(TAG) == "ndarray":
             keys.append(str(node.get("key")))
         else:
             for v in node.values():
@@ -85,7 +84,7 @@ def _array_keys(node, keys: list[str]) -> list[str]:
     return keys
 
 
-def _digest(meta: bytes, arrays: dict[str, np.ndarray]) -> str:
+def checkpoint_digest(meta: bytes, arrays: dict[str, np.ndarray]) -> str:
     """SHA-256 of the metadata bytes, then every array's key and bytes, in the dict's order."""
     sha = hashlib.sha256(meta)
     for key, array in arrays.items():
@@ -103,8 +102,8 @@ def write(state: dict, path: str | os.PathLike) -> Path:
     file is left as it was."""
     path = Path(path)
     arrays: dict[str, np.ndarray] = {}
-    meta = json.dumps(_externalise(state, arrays), separators=(",", ":")).encode()
-    digest = _digest(meta, arrays).encode()
+    meta = json.dumps(externalise_arrays(state, arrays), separators=(",", ":")).encode()
+    digest = checkpoint_digest(meta, arrays).encode()
     try:
         return atomic_write(path, lambda file: np.savez(file, meta=np.frombuffer(meta, np.uint8),
                                                           sha256=np.frombuffer(digest, np.uint8), **arrays))
@@ -121,7 +120,7 @@ def check_writable(path: str | os.PathLike) -> None:
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         file_mode(target)
-        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
+        fd, tmp = create_temporary(target)
         os.close(fd)
         os.unlink(tmp)
     except OSError as error:
@@ -160,14 +159,14 @@ def read(path: str | os.PathLike) -> dict:
                 RuntimeError, ValueError, TypeError, SyntaxError, RecursionError, MemoryError,
                 tokenize.TokenError) as error:
             raise CheckpointError(f"{path} is truncated or corrupt: {type(error).__name__}: "
-                                  f"{_short(str(error))}") from None
+                                  f"{shortened(str(error))}") from None
     meta_bytes, digest = contents.pop("meta", None), contents.pop("sha256", None)
     if meta_bytes is None or digest is None or meta_bytes.dtype != np.uint8 or digest.dtype != np.uint8:
         raise CheckpointError(f"{path} is not an onlinemap checkpoint (no metadata or checksum)")
     try:
         meta = json.loads(meta_bytes.tobytes().decode())
     except (UnicodeDecodeError, ValueError, RecursionError) as error:
-        raise CheckpointError(f"{path}: unreadable metadata: {_short(str(error))}") from None
+        raise CheckpointError(f"{path}: unreadable metadata: {shortened(str(error))}") from None
     if _depth(meta) > _MAX_DEPTH:
         raise CheckpointError(f"{path}: metadata nested more than {_MAX_DEPTH} levels deep")
     try:
@@ -176,9 +175,9 @@ def read(path: str | os.PathLike) -> dict:
         raise CheckpointError(f"{path}: {error}") from None
     keys = _array_keys(meta, [])
     if sorted(keys) != sorted(contents):
-        raise CheckpointError(f"{path}: entries {_short(sorted(contents))} do not match the metadata's "
-                              f"{_short(sorted(keys))}")
-    if _digest(meta_bytes.tobytes(), {key: contents[key] for key in keys}) != \
+        raise CheckpointError(f"{path}: entries {shortened(sorted(contents))} do not match the metadata's "
+                              f"{shortened(sorted(keys))}")
+    if checkpoint_digest(meta_bytes.tobytes(), {key: contents[key] for key in keys}) != \
             digest.tobytes().decode(errors="replace"):
         raise CheckpointError(f"{path}: checksum mismatch: the file was modified or damaged")
     return _internalise(meta, contents, set())
@@ -199,7 +198,7 @@ def _read_npz(file, file_size: int, path: Path) -> dict[str, np.ndarray]:
             if info.flag_bits & 0x1:
                 raise CheckpointError(f"{path}: entry {name!r} is marked encrypted; refused")
             if not name.endswith(".npy") or name[:-4] in contents or not name[:-4].isidentifier():
-                raise CheckpointError(f"{path}: unexpected zip entry {_short(name)}")
+                raise CheckpointError(f"{path}: unexpected zip entry {shortened(name)}")
             if info.file_size > file_size:
                 raise CheckpointError(f"{path}: entry {name!r} claims {info.file_size} bytes, more than the "
                                       f"file's {file_size}")
@@ -221,7 +220,7 @@ def _read_npy(member, size: int, where: str) -> np.ndarray:
         raise CheckpointError(f"{where}: npy format version {version}")
     if dtype.hasobject:
         raise CheckpointError(f"{where} contains a pickled object; refused (nothing was loaded or run)")
-    if dtype.kind not in _ARRAY_KINDS or dtype.fields is not None or dtype.subdtype is not None:
+    if dtype.kind not in ARRAY_KINDS or dtype.fields is not None or dtype.subdtype is not None:
         raise CheckpointError(f"{where}: dtype {dtype} is not allowed in a checkpoint")
     count = 1
     for extent in shape:
@@ -253,5 +252,13 @@ def _depth(node) -> int:
 
 
 def save(est, path: str | os.PathLike) -> Path:
-    """Checkpoint ``est`` (its ``state_dict()``) to ``path``, atomically. Returns the path."""
+    """Checkpoint ``est`` (its ``state_dict()``) to ``path``, atomically, first removing the
+    temporaries of earlier saves to ``path`` whose process was killed mid-write
+    (:func:`~onlinemap.atomic.remove_temporaries`). Returns the path. Anything but an estimator
+    raises :class:`CheckpointError` naming it."""
+    if not callable(getattr(est, "state_dict", None)):
+        raise CheckpointError(f"save checkpoints an estimator (om.make_estimator(...)), not a "
+                              f"{type(est).__name__}")
+    target = Path(os.path.realpath(path))  # a symlink's temporaries are beside its target
+    remove_temporaries(target.parent, target.name)
     return write(est.state_dict(), path)

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..errors import CheckpointError
 from ..model import GridModel, model_difference
-from .codec import (_Decoder, _Encoder, _KeepFresh, _callable_name, _scratch_node, _short, decode_model,
+from .codec import (Decoder, Encoder, KeepFresh, callable_name, scratch_node, shortened, decode_model,
                     decode_options, encode_model, same_tree)
 
 FORMAT = "onlinemap-checkpoint"
@@ -61,12 +61,12 @@ def state_dict(est) -> dict:
                               "om.make_estimator or a class decorated with om.register")
     if not isinstance(est.model, GridModel):
         raise CheckpointError(f"{type(est).__name__}.model is not a GridModel")
-    encoder = _Encoder()
+    encoder = Encoder()
     scratch = set(getattr(type(est), "scratch_attributes", ()))
-    attributes = {name: _scratch_node(value, name) if name in scratch else encoder.encode(value, name)
+    attributes = {name: scratch_node(value, name) if name in scratch else encoder.encode(value, name)
                   for name, value in vars(est).items() if name not in _SEPARATE}
     return {"format": FORMAT, "format_version": FORMAT_VERSION, "onlinemap_version": _package_version(),
-            "estimator": est.name, "t": int(est.t), "options": _Encoder().encode(dict(options), "options"),
+            "estimator": est.name, "t": int(est.t), "options": Encoder().encode(dict(options), "options"),
             "model": encode_model(est.model), "attributes": attributes}
 
 
@@ -81,16 +81,17 @@ def check_header(state: dict, *, strict_version: bool = False, allow_newer: bool
         raise CheckpointError("not an onlinemap checkpoint (missing format marker)")
     version = state.get("format_version")
     if type(version) is not int or version < OLDEST_FORMAT_VERSION:
-        raise CheckpointError(f"checkpoint format version {_short(repr(version))}; this onlinemap "
+        raise CheckpointError(f"checkpoint format version {shortened(repr(version))}; this onlinemap "
                               f"({_package_version()}) reads versions {OLDEST_FORMAT_VERSION} to {FORMAT_VERSION}")
     if version > FORMAT_VERSION and not allow_newer:
         raise CheckpointError(f"checkpoint format version {version} was written by a newer onlinemap "
-                              f"({_short(repr(state.get('onlinemap_version')))}); this one ({_package_version()}) reads "
-                              f"up to version {FORMAT_VERSION}: upgrade onlinemap, or pass allow_newer=True "
-                              "(track: --allow-newer-checkpoint) to try anyway")
+                              f"({shortened(repr(state.get('onlinemap_version')))}); this one "
+                              f"({_package_version()}) reads up to version {FORMAT_VERSION}: upgrade onlinemap, "
+                              "or pass allow_newer=True (track: --allow-newer-checkpoint) to try anyway")
     if strict_version and state.get("onlinemap_version") != _package_version():
-        raise CheckpointError(f"checkpoint written by onlinemap {_short(repr(state.get('onlinemap_version')))}, this is "
-                              f"{_package_version()}, and strict_version=True asks for the same version")
+        written = shortened(repr(state.get("onlinemap_version")))
+        raise CheckpointError(f"checkpoint written by onlinemap {written}, this is {_package_version()}, and "
+                              "strict_version=True asks for the same version")
     for key in ("estimator", "t", "options", "model", "attributes"):
         if key not in state:
             raise CheckpointError(f"checkpoint has no {key!r} entry")
@@ -111,8 +112,8 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
     if field is not None:
         raise CheckpointError(f"checkpoint's model differs from the estimator's model in {field!r}")
     if not same_tree(_with_later_options(state["options"], est),
-                     _Encoder().encode(dict(getattr(est, "options", {})), "options")):
-        options = _Decoder().decode(state["options"], "options")
+                     Encoder().encode(dict(getattr(est, "options", {})), "options")):
+        options = Decoder().decode(state["options"], "options")
         raise CheckpointError(f"checkpoint was written with options {options}, the estimator has {est.options}")
     if type(state["attributes"]) is not dict:
         raise CheckpointError("checkpoint's attributes entry is malformed")
@@ -126,13 +127,13 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
     if missing or extra:
         raise CheckpointError(f"checkpoint does not fit {type(est).__name__}: missing attributes {missing}, "
                               f"unexpected {extra}")
-    decoder = _Decoder()
+    decoder = Decoder()
     restored = {}
     try:
         for name, node in state["attributes"].items():
             value = decoder.decode(node, name)
             _check_kind(name, current[name], value)
-            if not isinstance(value, _KeepFresh):
+            if not isinstance(value, KeepFresh):
                 restored[name] = value
     except RecursionError:
         raise CheckpointError("checkpoint's attributes are nested too deeply") from None
@@ -149,7 +150,7 @@ def _with_later_options(node, est):
     defaults = {p.name: p.default for p in inspect.signature(type(est).__init__).parameters.values()
                 if p.kind is inspect.Parameter.KEYWORD_ONLY and p.default is not inspect.Parameter.empty}
     merged = {**defaults, **options}  # the signature's order, then any option it does not name
-    return _Encoder().encode(merged, "options")
+    return Encoder().encode(merged, "options")
 
 
 def check_state(est, restored: dict) -> None:
@@ -166,7 +167,7 @@ def check_state(est, restored: dict) -> None:
         mine, theirs = vars(est)[head], restored[head]
         if field:
             mine, theirs = getattr(mine, field), getattr(theirs, field)
-        if not same_tree(_Encoder().encode(theirs, name), _Encoder().encode(mine, name)):
+        if not same_tree(Encoder().encode(theirs, name), Encoder().encode(mine, name)):
             raise CheckpointError(f"invalid state: attribute {name} differs from what the model and options give")
     check = getattr(cls, "check_state", None)
     if check is not None:
@@ -184,15 +185,15 @@ def _kind(value) -> str:
 
 
 def _check_kind(name: str, current, value) -> None:
-    if isinstance(value, _KeepFresh) and value.dtype is not None:
+    if isinstance(value, KeepFresh) and value.dtype is not None:
         if type(current) is not np.ndarray or current.dtype.str != value.dtype or list(current.shape) != value.shape:
             raise CheckpointError(f"attribute {name}: checkpoint has a scratch array {value.dtype} {value.shape}, "
                                   f"the estimator a {_kind(current)} {getattr(current, 'shape', '')}")
         return
-    if isinstance(value, _KeepFresh):
-        if _callable_name(current) != value.name:
+    if isinstance(value, KeepFresh):
+        if callable_name(current) != value.name:
             raise CheckpointError(f"attribute {name}: checkpoint has {value.name}, the estimator has "
-                                  f"{_callable_name(current) or _kind(current)}")
+                                  f"{callable_name(current) or _kind(current)}")
         return
     if current is None or value is None:
         return

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..bench import _COLUMNS as _STANDARD
+from ..bench import COLUMNS as STANDARD_COLUMNS
 from ..bench import available_benchmarks, benchmark_figures, benchmark_record, run_benchmarks
 from ..progress import show_progress
 from .common import add_out_argument, check_table_format, print_table, write_tables
@@ -43,7 +43,7 @@ def benchmark_name(text: str) -> str:
 def readable(table: pd.DataFrame) -> pd.DataFrame:
     """The standard columns, and every benchmark's own extra columns folded into one ``notes``
     column (``name=value`` where set), so that the table stays narrow."""
-    extras = [c for c in table.columns if c not in _STANDARD]
+    extras = [c for c in table.columns if c not in STANDARD_COLUMNS]
     if not extras:
         return table
 
@@ -51,7 +51,7 @@ def readable(table: pd.DataFrame) -> pd.DataFrame:
         return ", ".join(f"{c}={row[c]:.3g}" if isinstance(row[c], float) else f"{c}={row[c]}"
                          for c in extras if row[c] is not None and not (isinstance(row[c], float) and np.isnan(row[c])))
 
-    return table[[c for c in table.columns if c in _STANDARD]].assign(notes=table.apply(notes, axis=1))
+    return table[[c for c in table.columns if c in STANDARD_COLUMNS]].assign(notes=table.apply(notes, axis=1))
 
 
 def bench(args: argparse.Namespace) -> int:

@@ -136,9 +136,26 @@ OPTION_HELP = ("VALUE is read as JSON when it parses (4, 0.9, null, [1, 0.9, 0.0
                "otherwise (e.g. window=max)")
 
 
+MAX_OPTION_DEPTH = 8  # lists in an option value nest at most this deep (options hold flat lists)
+
+
+def _nesting(value) -> int:
+    """How deep lists and objects nest in a JSON value (1: none), without recursion."""
+    deepest, stack = 0, [(value, 1)]
+    while stack and deepest <= MAX_OPTION_DEPTH:
+        node, level = stack.pop()
+        deepest = max(deepest, level)
+        if isinstance(node, list):
+            stack.extend((item, level + 1) for item in node)
+        elif isinstance(node, dict):
+            stack.extend((item, level + 1) for item in node.values())
+    return deepest
+
+
 def parse_options(pairs: list[str]) -> dict[str, object]:
     """``["window=4", "decay=0.9", "window=max"]`` -> dict; JSON values where they parse (lists
-    become tuples), strings otherwise."""
+    become tuples), strings otherwise. A value nested deeper than :data:`MAX_OPTION_DEPTH`
+    raises OnlineMapError (no option takes one; a hostile one would exhaust the stack)."""
     options: dict[str, object] = {}
     for pair in pairs:
         key, eq, text = pair.partition("=")
@@ -146,8 +163,13 @@ def parse_options(pairs: list[str]) -> dict[str, object]:
             raise OnlineMapError(f"--option {pair!r}: expected KEY=VALUE")
         try:
             value = json.loads(text)
+            too_deep = _nesting(value) > MAX_OPTION_DEPTH
         except ValueError:
-            value = text
+            value, too_deep = text, False
+        except RecursionError:  # thousands of nested brackets: deeper than any option
+            too_deep = True
+        if too_deep:
+            raise OnlineMapError(f"--option {key.strip()}: its value nests lists more than {MAX_OPTION_DEPTH} deep")
         options[key.strip()] = tuple(value) if isinstance(value, list) else value
     return options
 
@@ -192,13 +214,16 @@ def print_table(frame: pd.DataFrame, float_format: str = "{:.4g}") -> None:
     sys.stdout.flush()
 
 
-def options_per_estimator(names: list[str], pairs: list[str]) -> dict[str, dict[str, object]]:
+def options_per_estimator(names: list[str], pairs: list[str], model=None) -> dict[str, dict[str, object]]:
     """Route ``-o`` options: ``KEY=V`` to every estimator in ``names`` with option KEY, ``NAME.KEY=V``
     to NAME. Unknown names and keys that no listed estimator takes raise ``UnknownEstimatorError``;
     a value of the wrong type (the sweep spec's check, :func:`onlinemap.sweeps.spec.matches_annotation`)
-    raises ``InvalidOptionError`` naming the ``-o`` option, before any spec or estimator is built."""
-    from ..estimators import estimator_options  # lazily: ``onlinemap --help`` imports no estimator
-    from ..estimators.base import _lookup
+    raises ``InvalidOptionError`` naming the ``-o`` option, before any spec or estimator is built.
+    A whole float for an int option (``move_window=5.0``) is that int, as ``make_estimator`` takes
+    it. With ``model``, each estimator given options is built once on it, so that a value its
+    own check refuses (``seed=-1``) is reported as an ``--option`` error, not from a sweep's task."""
+    # lazily: ``onlinemap --help`` imports no estimator
+    from ..estimators import estimator_class, estimator_options, make_estimator
     from ..sweeps.spec import describe_type, expected_type, matches_annotation
 
     known = {name: estimator_options(name) for name in names}  # raises for an unknown name
@@ -213,9 +238,18 @@ def options_per_estimator(names: list[str], pairs: list[str]) -> dict[str, dict[
             raise UnknownEstimatorError(f"--option {key}: no estimator in {', '.join(takers or names)} "
                                         f"has an option {option!r}")
         for name in takers:
-            expected = expected_type(_lookup(name), option, known[name][option])
+            expected = expected_type(estimator_class(name), option, known[name][option])
+            if isinstance(value, float) and value.is_integer() and not matches_annotation(value, expected) \
+                    and matches_annotation(int(value), expected):
+                value = int(value)
             if not matches_annotation(value, expected):
                 raise InvalidOptionError(f"--option {key}={json.dumps(value)}: {name}'s {option} must be "
                                          f"{describe_type(expected)}")
             routed[name][option] = value
+    for name, options in routed.items():
+        if model is not None and options:
+            try:
+                make_estimator(name, model, **options)
+            except InvalidOptionError as error:
+                raise InvalidOptionError(f"--option: {name}'s {error}") from None
     return routed

@@ -10,7 +10,7 @@ from ..studies.accuracy import (DEFAULT_PARTICLES, DEFAULT_WORLDS, accuracy_stud
                                 error_over_time_figure, error_vs_particles_figure, error_vs_time_figure, summarise)
 from ..errors import OnlineMapError
 from ..evaluate import TIMING_NOTE
-from ..worlds import world_help
+from ..worlds import parse_world, world_help
 from .common import (OPTION_HELP, non_negative_int, options_per_estimator, positive_int, print_table, split_list,
                      write_table)
 
@@ -54,7 +54,7 @@ def compare(args: argparse.Namespace) -> int:
     if args.workers < 0:
         raise OnlineMapError(f"--workers must be >= 0, got {args.workers}")
     names = ["exact", *dict.fromkeys(name for _, name, _ in compare_estimators(particles))]
-    options = options_per_estimator(names, args.option)
+    options = options_per_estimator(names, args.option, parse_world(worlds[0]).model)
     out = Path(args.out) if args.out else None
     print(f"{args.runs} runs x {args.steps} steps on {', '.join(worlds)}; rbpf with {particles} particles; "
           f"seed {args.seed}")

@@ -9,21 +9,23 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ModelError
-from ..evaluate import TIMING_NOTE, from_steps
+from ..evaluate import HONEST_METRICS, from_steps, metric_legend
 from ..worlds import parse_world, world_help
 from .common import (OPTION_HELP, non_negative_int, open_unit_interval, options_per_estimator, parse_options, positive_int,
                      print_table, split_list, write_table)
+from .views import add_view_arguments, check_view_arguments, first_played, keeper, wanted, write_views
 
 #: the paper's world: the built-in 10 x 10 door world, uniform label prior, p_move 0.8
 DEFAULT_WORLD = "door,p_move=0.8"
 DEFAULT_PLANNERS = "info_gain,entropy,random,sweep"  # the best planner first, then the baselines
-#: printed when the robot starts knowing nothing of the map (a uniform label prior)
+#: printed when the robot starts knowing nothing of the map (a uniform label prior); ``{floor_plan}``:
+#: the user's world with the floor plan
 HARD = ("the robot knows nothing of the map (uniform label prior): a cell seen for the first time says "
         "nothing about where it is, so it localises only on cells it has already mapped, while its moves "
         "fail with probability 1 - p_move. Expect high location errors (0.5-0.9 in the paper's world, where "
-        "info_gain, which re-anchors in a corner, does best). Give it the floor plan with "
-        "--world door,floor_plan=0.95,p_move=0.9.")
-SUMMARY_METRICS = ("final_map_error", "wrong_cells", "mean_location_error", "late_door_error", "ms_per_step")
+        "info_gain, which re-anchors in a corner, does best). Give it the floor plan with {floor_plan}.")
+SUMMARY_METRICS = ("final_map_error", "wrong_cells", "mean_location_error", "late_door_error", *HONEST_METRICS,
+                   "ms_per_step")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -36,7 +38,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "the same seeds (paired), as a sweep (onlinemap.sweeps). Prints, per planner, the final "
                     "map error, the wrong cells (most probable label wrong) at the end, the mean location "
                     "error and, in a world with doors, the late door-state error (mean over the last two "
-                    "thirds of the run), each with a confidence interval over seeds. With --out DIR, writes "
+                    "thirds of the run), the honest metrics (how far off the location belief is, how "
+                    "calibrated the location and map beliefs are, the map error of a robot told its path "
+                    "and the excess over it; a legend under the table says each in one sentence), each with "
+                    "a confidence interval over seeds. With --out DIR, writes "
                     "explore_steps.csv, explore_runs.csv, explore_summary.csv, explore_errors.png and "
                     "explore_visits.png there (and explore.parts/: a rerun resumes).")
     p.add_argument("--world", default=DEFAULT_WORLD,
@@ -58,22 +63,24 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=non_negative_int, default=0,
                    help="0 (default): run in this process; N: on a local dask cluster of N processes")
     p.add_argument("--out", metavar="DIR", help="directory for the tables and figures (nothing is written without it)")
+    add_view_arguments(p, "the first planner's run with the first seed")
     p.set_defaults(func=run)
 
 
-def exploration_spec(args: argparse.Namespace, planners: list[str]) -> dict:
+def exploration_spec(args: argparse.Namespace, planners: list[str], model=None) -> dict:
     """The sweep spec of an ``explore`` command line (:func:`onlinemap.studies.exploration.exploration_spec`;
-    an option's list value is one value, not a grid)."""
+    an option's list value is one value, not a grid); ``model``: the world's, to check the
+    options' values on (:func:`~onlinemap.cli.common.options_per_estimator`)."""
     from ..studies.exploration import exploration_spec as spec
 
-    options = {key: tuple(value) if isinstance(value, list) else value
-               for key, value in options_per_estimator([args.estimator], args.option)[args.estimator].items()}
+    routed = options_per_estimator([args.estimator], args.option, model)[args.estimator]
+    options = {key: tuple(value) if isinstance(value, list) else value for key, value in routed.items()}
     return spec(args.world, planners, args.steps, range(args.seed, args.seed + args.repeats),
                 estimator=args.estimator, estimator_options=options, floor_plan=args.floor_plan, rows="step")
 
 
 def run(args: argparse.Namespace) -> int:
-    from policies import PLANNERS, plot_errors, plot_visits
+    from policies import PLANNERS, planner_options, plot_errors, plot_visits
 
     from .. import plots
     from ..sweeps import played_map, summarize, summary_table, sweep
@@ -86,6 +93,11 @@ def run(args: argparse.Namespace) -> int:
     unknown = [name for name in planners if name not in PLANNERS]
     if unknown or not planners:
         raise ModelError(f"--planner: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(PLANNERS)}")
+    goal_planners = [name for name in planners if "goal" in planner_options(name)]
+    if goal_planners:
+        raise ModelError(f"--planner {', '.join(goal_planners)}: a goal planner goes to a goal, it does not explore; "
+                         f"send it to one with onlinemap navigate --goal CELL")
+    check_view_arguments(args)
     world = parse_world(args.world)
     if args.floor_plan is not None and world.floor_plan is not None:
         raise ModelError(f"--floor-plan {args.floor_plan} and --world {args.world}: give the floor plan once")
@@ -98,18 +110,23 @@ def run(args: argparse.Namespace) -> int:
              "uniform" if uniform else "the world's own")
     print(f"world {args.world}: {world.model}; label prior: {prior}")
     if uniform:
-        print("why it is hard: " + HARD)
+        # the user's own world with the floor plan: a world key where the map is fixed, else the option
+        suggestion = (f"--world {args.world},floor_plan=0.95" if world.true_map is not None else
+                      f"--world {args.world} --floor-plan 0.95")
+        print("why it is hard: " + HARD.format(floor_plan=suggestion))
     print(f"planners {', '.join(planners)}; estimator {args.estimator} with {options}; {args.steps} steps, "
           f"seeds {args.seed}..{args.seed + args.repeats - 1}")
-    steps = sweep(exploration_spec(args, planners), workers=args.workers, progress=True,
-                  results_dir=None if out is None else out / "explore.parts")
+    spec = exploration_spec(args, planners, world.model)
+    kept, on_played = keeper(planners[0], args.seed)
+    steps = sweep(spec, workers=args.workers, progress=True, results_dir=None if out is None else out / "explore.parts",
+                  on_played=on_played if wanted(args) and args.workers == 0 else None)
     runs = from_steps(steps, ["world", "planner", "seed"])  # the world: counts of cells are bounded by its N
     runs.insert(2, "kind", "explore")
     metrics = [m for m in SUMMARY_METRICS if m in runs]
     summary = summarize(runs, metrics, args.confidence)
     print(f"mean [{args.confidence:.0%} confidence interval] over {args.repeats} seed(s), per planner:")
     print_table(summary_table(summary))
-    print(TIMING_NOTE + "; wrong_cells: cells whose most probable label is wrong at the end")
+    print("\n".join(metric_legend(metrics)))
     if out is not None:
         written = [write_table(steps, out / "explore_steps.csv"), write_table(runs, out / "explore_runs.csv"),
                    write_table(summary, out / "explore_summary.csv")]
@@ -120,5 +137,10 @@ def run(args: argparse.Namespace) -> int:
         columns = [c for c in ("map_error", "door_error") if c in steps]
         written += [plots.save(plot_errors(steps, columns=columns), out / "explore_errors.png", dpi=110),
                     plots.save(plot_visits(world.model, true_map, steps), out / "explore_visits.png", dpi=110)]
+        print(f"wrote {', '.join(str(p) for p in written)}")
+    if wanted(args):
+        played = first_played(spec, kept, planners[0], args.seed)
+        written = write_views(args, world.model, played.run, played.trajectory,
+                              f"{args.world}: {planners[0]}, {args.estimator}, seed {args.seed}")
         print(f"wrote {', '.join(str(p) for p in written)}")
     return 0

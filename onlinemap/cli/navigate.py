@@ -9,6 +9,7 @@ from pathlib import Path
 from ..errors import ModelError
 from .common import (non_negative_int, open_unit_interval, options_per_estimator, positive_int, print_table,
                      split_list, write_table)
+from .views import add_view_arguments, check_view_arguments, first_played, keeper, wanted, write_views
 
 DEFAULT_WORLD = "door,blocking=1,footprint=cross,p_door=0.05"
 DEFAULT_PLANNERS = "goto,static_goto"
@@ -59,26 +60,40 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=non_negative_int, default=0,
                    help="0 (default): run in this process; N: on a local dask cluster of N processes")
     p.add_argument("--out", metavar="DIR", help="directory for the tables and figures (nothing is written without it)")
+    add_view_arguments(p, "the first planner's run with the first seed")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from policies import PLANNERS, check_goal
+    from policies import PLANNERS, check_goal, planner_options, with_floor_plan
 
     from .. import plots
+    from ..evaluate import metric_legend
     from ..studies.base import summary_of, with_intervals
-    from ..studies.navigation import far_goals, navigation_spec, oracle_figure, route_figure
-    from ..sweeps import sweep
+    from ..studies.navigation import far_goals, fixed_map, navigation_spec, oracle_figure, route_figure
+    from ..sweeps import played_map, sweep
     from ..worlds import parse_world
 
+    check_view_arguments(args)
     planners = split_list(args.planner)
     unknown = [name for name in planners if name not in PLANNERS]
     if unknown or not planners:
         raise ModelError(f"--planner: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(PLANNERS)}")
+    goal_planners = [name for name in PLANNERS if "goal" in planner_options(name)]
+    aimless = [name for name in planners if name not in goal_planners]
+    if aimless:
+        raise ModelError(f"--planner {', '.join(aimless)}: {'does' if len(aimless) == 1 else 'do'} not take a goal; "
+                         f"navigate compares goal planners: {', '.join(goal_planners)}")
     world = parse_world(args.world)
-    true_map = world.initial_map(0)
-    goal = far_goals(world.model, true_map)[0] if args.goal is None else check_goal(world.model, args.goal)
-    options = options_per_estimator(["rbpf"], args.option)["rbpf"]
+    true_map = fixed_map(world)
+    if args.goal is None:
+        goals = far_goals(world.model, true_map)
+        if not goals:
+            raise ModelError(f"--world {args.world}: no free cell to send the robot to; give one with --goal CELL")
+        goal = goals[0]
+    else:  # checked as the runs will see it, before any run: a wall of the floor plan refuses it
+        goal = check_goal(with_floor_plan(world.model, true_map, args.floor_plan), args.goal)
+    options = options_per_estimator(["rbpf"], args.option, world.model)["rbpf"]
     options.setdefault("n_particles", 500)
     row, col = divmod(goal, world.model.cols)
     print(f"world {args.world} (floor plan {args.floor_plan}); goal cell {goal} (row {row}, col {col}); rbpf with "
@@ -87,16 +102,23 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else None
     spec = navigation_spec(args.world, planners, [goal], range(args.seed, args.seed + args.repeats),
                            max_steps=args.steps, estimator_options=options, floor_plan=args.floor_plan)
-    runs = sweep(spec, workers=args.workers, progress=True,
-                 results_dir=None if out is None else out / "navigate.parts")
+    kept, on_played = keeper(planners[0], args.seed)
+    runs = sweep(spec, workers=args.workers, progress=True, results_dir=None if out is None else out / "navigate.parts",
+                 on_played=on_played if wanted(args) and args.workers == 0 else None)
     judged = runs[runs["oracle_reached"].astype(bool)]
     summary = summary_of(judged, SUMMARY_METRICS, ["planner"], args.confidence)
-    print(f"mean [{args.confidence:.0%} interval] over the {len(judged) // max(len(planners), 1)} run(s) per planner "
-          f"where the oracle reaches the goal; success: within 4x the oracle's steps")
-    print_table(with_intervals(summary, SUMMARY_METRICS))
+    if judged.empty:
+        print(f"the oracle reaches goal cell {goal} within {args.steps} steps in none of the {args.repeats} run(s): "
+              f"nothing to compare the planners against; give more --steps or a nearer --goal")
+    else:
+        print(f"mean [{args.confidence:.0%} interval] over the {len(judged) // max(len(planners), 1)} run(s) per "
+              f"planner where the oracle reaches the goal; success: within 4x the oracle's steps")
+        print_table(with_intervals(summary, SUMMARY_METRICS))
+        print("\n".join(metric_legend(SUMMARY_METRICS)))
     if out is not None:
         from policies import navigate, with_floor_plan
 
+        true_map = played_map(args.world, args.seed)  # the first run's: the route figure replays it
         model = with_floor_plan(world.model, true_map, args.floor_plan)
         first = navigate(model, true_map, goal, planners[0], "rbpf", max_steps=args.steps, seed=args.seed,
                          estimator_options=options)
@@ -104,5 +126,10 @@ def run(args: argparse.Namespace) -> int:
                    plots.save(route_figure(world.model, first.run, goal, f"{planners[0]}, seed {args.seed}"),
                               out / "navigate_route.png", dpi=110),
                    plots.save(oracle_figure(runs), out / "navigate_vs_oracle.png", dpi=110)]
+        print(f"wrote {', '.join(str(p) for p in written)}")
+    if wanted(args):
+        played = first_played(spec, kept, planners[0], args.seed)
+        written = write_views(args, world.model, played.run, played.trajectory,
+                              f"{planners[0]} to cell {goal}, seed {args.seed}", goal=goal)
         print(f"wrote {', '.join(str(p) for p in written)}")
     return 0

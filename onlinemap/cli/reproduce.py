@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from .. import plots
 from ..errors import OnlineMapError
@@ -103,7 +104,12 @@ def mapping_study(name: str, args: argparse.Namespace, out: Path | None) -> None
     result = study_function(args.runs, args.seed, **options)
     steps = f"; {args.steps} steps" if name == "blocking" else ""
     print(f"{name}: {description}{steps}; {args.runs} runs from seed {args.seed}; mean [{args.confidence:.0%} interval]")
-    print_table(mapping_studies.with_intervals(result.summary, measures))
+    table = mapping_studies.with_intervals(result.summary, measures)
+    errors = table.pop("error") if "error" in table else pd.Series("", index=table.index)
+    refused = errors.fillna("") != ""
+    print_table(table[~refused])  # an estimator that refused the world: a line below, not a column
+    for estimator, error in zip(table.loc[refused, "estimator"], errors[refused]):
+        print(f"{estimator}: not run ({error})")
     if out is not None:
         written = [write_table(result.runs, out / f"{name}_runs.csv"),
                    write_table(result.summary, out / f"{name}_summary.csv")]

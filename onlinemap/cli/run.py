@@ -42,7 +42,7 @@ def check_run_size(model, n_steps: int, max_bytes: int = DEFAULT_MAX_BYTES) -> N
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..evaluate import compare_on_run  # here: `onlinemap run --help` loads no pandas
+    from ..evaluate import compare_on_run, metric_legend  # here: `onlinemap run --help` loads no pandas
 
     check_table_format(args.out, args.format)
     options = options_per_estimator(args.estimators, args.option)
@@ -55,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
         raise MemoryLimitError(f"none of {', '.join(args.estimators)} fits in memory on {spec.spec} (see the "
                                "warnings above); use an approximate estimator (bk, rbpf)")
     print_table(summary)
+    print("\n".join(metric_legend(summary.columns)))
     print("ms per step: " + ", ".join(f"{name} {ms:.3g}" for name, ms in summary.attrs["ms_per_step"].items()))
     if args.out is not None:
         write_tables({"summary": summary, "steps": per_step}, args.out, args.format)

@@ -10,7 +10,7 @@ from pathlib import Path
 import pandas as pd
 
 from ..errors import OnlineMapError
-from ..evaluate import TIMING_NOTE
+from ..evaluate import metric_legend
 from ..sweeps import MAX_TASKS, collect, finished_tasks, load_spec, plot_sweep, summarize, summary_table, sweep
 from ..tables import check_writable
 from .common import open_unit_interval, print_table, split_list
@@ -62,6 +62,9 @@ def _read(path: str) -> pd.DataFrame:
     """A results table: a .csv / .parquet file, or a sweep's ``--out`` directory (its results
     table, or, for an unfinished sweep, the parts finished so far)."""
     path = Path(path)
+    if not path.exists():  # before choosing a reader: a missing .parquet is not a missing pyarrow
+        raise OnlineMapError(f"--summary {path}: not found (give a results .csv / .parquet or a sweep's --out "
+                             "directory)")
     if path.is_dir():
         tables = [path / f"{RESULTS}{suffix}" for suffix in (".csv", ".parquet")]
         existing = [table for table in tables if table.exists()]
@@ -92,8 +95,7 @@ def _print_summary(table: pd.DataFrame, args: argparse.Namespace) -> None:
     step_note = " at each task's last step" if "t" in table.columns else ""
     print(f"mean [{args.confidence:.0%} confidence interval] over seeds, per configuration{step_note}:")
     print_table(summary_table(summary))
-    if "ms_per_step" in args.metrics:
-        print(TIMING_NOTE)
+    print("\n".join(metric_legend(summary["metric"]) if len(summary) else []))
     if args.plot:
         if not args.x:
             raise OnlineMapError("--plot needs --x (an option such as n_particles, or world, steps)")

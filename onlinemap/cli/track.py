@@ -40,9 +40,9 @@ resuming from the checkpoint), a signal is recorded the same way: the process em
 event and stops before reading input. Only while Python imports the package (``import
 onlinemap``, before any of this module runs) do the interpreter's defaults apply. The path is
 checked writable at start-up, and temporary files of saves that a ``kill -9`` cut short
-(``.NAME.*.tmp`` beside it) are removed; a save that fails later (full disk) reports one JSON
-error line, keeps the previous file and the loop goes on (the exit status is 1 if the final save
-failed). A restarted process finds the file and resumes from it
+(``.NAME.<pid>-<8 hex digits>.tmp`` beside it, of processes gone; nothing else) are removed; a
+save that fails later (full disk) reports one JSON error line, keeps the previous file and the
+loop goes on (the exit status is 1 if the final save failed). A restarted process finds the file and resumes from it
 (the next line is step ``t + 1``), after checking that the world, estimator and options are the
 ones it was saved with; a file from another onlinemap version of the same checkpoint format
 loads, one of a newer format only with ``--allow-newer-checkpoint``. Cost per line: one
@@ -73,6 +73,7 @@ from ..metrics import map_entropy, normalized_entropy
 from ..model import model_difference
 from ..worlds import parse_world, world_help
 from .common import OPTION_HELP, parse_options
+from .views import StreamViews, add_stream_arguments, check_stream_arguments
 
 _KEYS = ("action", "observation")
 MAX_LINE = 65536  # characters of one input line (a record is a few dozen)
@@ -103,6 +104,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="a registered planner (goto, static_goto, entropy, ...): each output line carries its "
                         "next action")
     p.add_argument("--goal", metavar="CELL", help="the goal of a goal planner: a cell index or ROW,COL")
+    add_stream_arguments(p)
     p.set_defaults(func=track)
 
 
@@ -244,11 +246,15 @@ def read_lines(stream, stop: "_GracefulStop", limit: int = MAX_LINE):
 
 def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int:
     stdin, stdout, stderr = stdin or sys.stdin, stdout or sys.stdout, stderr or sys.stderr
+    check_stream_arguments(args)
     with _GracefulStop() as stop, _log_as_json(stderr):  # from the start: a signal during start-up
         est, planner, every = _start(args, stderr)        # (resume included) stops cleanly
         delivered, status = _Delivered(est, args.checkpoint), 0
+        views = StreamViews(args, est.model)
+        if views.port is not None:
+            _emit(stderr, {"event": "foxglove", "url": f"ws://localhost:{views.port}", "port": views.port})
         try:
-            _loop(est, planner, args, every, stop, stdin, stdout, stderr, delivered)
+            _loop(est, planner, args, every, stop, stdin, stdout, stderr, delivered, views)
         except BrokenPipeError:  # the reader is gone: save what it was given, not the step it missed
             _quiet_stdout(stdout)
             _emit(stderr, {"event": "stdout closed", "t": delivered.t, "undelivered": est.t - delivered.t})
@@ -256,6 +262,9 @@ def track(args: argparse.Namespace, stdin=None, stdout=None, stderr=None) -> int
                     not _save(delivered.state(), args.checkpoint, stderr):
                 status = 1
             return status
+        finally:
+            for path in views.close():
+                _emit(stderr, {"event": "written", "path": str(path)})
         if args.checkpoint is not None and est.t != delivered.saved_t and not _save(est, args.checkpoint, stderr):
             status = 1
     if stop.requested is not None:
@@ -297,7 +306,8 @@ def _start(args: argparse.Namespace, stderr):
 def _goal(text: str) -> int | tuple[int, int]:
     """``--goal``: ``CELL`` or ``ROW,COL`` (whole numbers), unchecked against the world."""
     parts = text.split(",")
-    if len(parts) > 2 or not all(part.strip().isdigit() for part in parts):
+    # ASCII digits only: str.isdigit is true for "²", which int() refuses
+    if len(parts) > 2 or not all(part.strip().isascii() and part.strip().isdigit() for part in parts):
         raise ModelError(f"--goal must be a cell index or ROW,COL (whole numbers), got {text!r}")
     numbers = tuple(int(part) for part in parts)
     return numbers[0] if len(numbers) == 1 else numbers
@@ -309,8 +319,10 @@ def _planner(args: argparse.Namespace, model, est):
         if args.goal is not None:
             raise OnlineMapError("--goal needs --planner (e.g. --planner goto)")
         return None
-    from policies import make_planner
+    from policies import make_planner, planner_options
 
+    if args.goal is None and "goal" in planner_options(args.planner):
+        raise OnlineMapError(f"--planner {args.planner} needs --goal CELL (a cell index or ROW,COL)")
     planner = make_planner(args.planner, model, seed=0, **({} if args.goal is None else {"goal": _goal(args.goal)}))
     if hasattr(planner, "bind"):
         planner.bind(est)
@@ -349,10 +361,10 @@ class _Delivered:
 
 
 def _loop(est, planner, args, every: int, stop: "_GracefulStop", stdin, stdout, stderr,
-          delivered: _Delivered) -> None:
+          delivered: _Delivered, views: StreamViews) -> None:
     """Step through the input until its end or a stop signal. Every step is printed (with the
     ``planner``'s next action, if any) before any checkpoint that includes it (``delivered``
-    keeps track)."""
+    keeps track), and shown to the ``views`` (recording, live server, animation)."""
     try:
         for number, line in read_lines(stdin, stop):
             if isinstance(line, OnlineMapError):
@@ -373,6 +385,7 @@ def _loop(est, planner, args, every: int, stop: "_GracefulStop", stdin, stdout, 
                 record["action"] = est.model.action_names[planner.choose(belief)]
             _emit(stdout, record)  # a closed stdout raises BrokenPipeError here
             delivered.stepped(belief.t, *step)
+            views.step(belief, planner)
             if args.checkpoint is not None and (belief.t + 1) % every == 0 and _save(est, args.checkpoint, stderr):
                 delivered.saved(est)
     except _Stopped:  # a signal while waiting for input
@@ -459,15 +472,19 @@ class _JsonLines(logging.Handler):
 
 @contextlib.contextmanager
 def _log_as_json(stderr):
-    """The ``onlinemap`` loggers' warnings go to ``stderr`` as JSON lines (not through the root
-    logger's text handler) while the loop runs."""
-    library, handler = logging.getLogger("onlinemap"), _JsonLines(stderr)
+    """The warnings of the ``onlinemap`` loggers and of the Foxglove SDK's (``--foxglove``: e.g. a
+    client dropped) go to ``stderr`` as JSON lines (not through the root logger's text handler)
+    while the loop runs."""
+    handler = _JsonLines(stderr)
     handler.setLevel(logging.WARNING)
-    propagate = library.propagate
-    library.addHandler(handler)
-    library.propagate = False
+    loggers = [logging.getLogger(name) for name in ("onlinemap", "foxglove")]
+    propagate = [logger.propagate for logger in loggers]
+    for logger in loggers:
+        logger.addHandler(handler)
+        logger.propagate = False
     try:
         yield
     finally:
-        library.removeHandler(handler)
-        library.propagate = propagate
+        for logger, before in zip(loggers, propagate):
+            logger.removeHandler(handler)
+            logger.propagate = before

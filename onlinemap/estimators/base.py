@@ -10,6 +10,7 @@ from __future__ import annotations
 import copy
 import functools
 import inspect
+import operator
 import os
 import time
 from types import MappingProxyType
@@ -20,7 +21,7 @@ import numpy as np
 from .. import checkpoint
 from ..belief import Belief, beliefs_frame
 from ..errors import (CheckpointError, InvalidActionError, InvalidObservationError, ModelError, OnlineMapError,
-                      UnknownEstimatorError)
+                      StepIndexError, UnknownEstimatorError)
 from ..model import GridModel
 
 _REGISTRY: dict[str, type] = {}
@@ -53,6 +54,43 @@ class Estimator(Protocol):
         """Restore a :meth:`state_dict` (checked against this estimator's name, model, options and
         state invariants; refused if its format is newer than this onlinemap reads, unless
         ``allow_newer``; with ``strict_version``, also against this onlinemap's version)."""
+
+
+class ParticleSnapshot(NamedTuple):
+    """A particle belief as the planners' rollouts take it. R particles, N cells, K labels."""
+
+    locations: np.ndarray  # (R,) int64
+    maps: np.ndarray  # (R, N, K) each particle's current map marginals
+    log_weights: np.ndarray  # (R,) normalised
+
+
+@runtime_checkable
+class SamplesStates(Protocol):
+    """An estimator that draws whole states (a location and a map) from its own belief, not from
+    the product of its marginals (``exact``: the joint; ``rbpf``: a particle, then its map)."""
+
+    def sample_states(self, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """``size`` states drawn from the belief: locations (S,) and label maps (S, N), int64."""
+
+
+@runtime_checkable
+class HoldsParticles(Protocol):
+    """A particle filter whose particles a planner may roll out (copies; the filter is untouched)."""
+
+    n_particles: int
+
+    def particle_snapshot(self, size: int | None = None,
+                          rng: np.random.Generator | None = None) -> ParticleSnapshot:
+        """The particles, all of them or ``size`` drawn by weight."""
+
+
+def draw_labels(marginals: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(S, N, K) per-cell label marginals -> (S, N) int64 labels, drawn independently per cell by
+    inversion (one uniform each, scaled by the row's total, so rows need not sum to 1 exactly).
+    O(S N K)."""
+    cdf = np.cumsum(marginals, axis=-1)
+    u = rng.random(marginals.shape[:-1])[..., None] * cdf[..., -1:]
+    return np.minimum((u >= cdf).sum(axis=-1), marginals.shape[-1] - 1).astype(np.int64)
 
 
 def register(name: str) -> Callable[[type], type]:
@@ -116,8 +154,13 @@ def available_estimators() -> tuple[str, ...]:
 
 
 def estimator_options(name: str) -> dict[str, object]:
-    """The keyword options of an estimator and their defaults (a fresh dict)."""
-    return dict(_keyword_options(_lookup(name)))
+    """The keyword options of an estimator and their effective defaults (a fresh dict): the
+    signature's, except where a placeholder default is resolved when the estimator is built with
+    the other defaults (the class's ``resolved_defaults``: e.g. rbpf's ``resampling=None`` runs
+    ``fearnhead_clifford`` with the default optimal proposal). Building with this dict runs as
+    building with no option does."""
+    cls = estimator_class(name)
+    return {**_keyword_options(cls), **getattr(cls, "resolved_defaults", {})}
 
 
 @functools.cache
@@ -129,7 +172,9 @@ def _keyword_options(cls: type) -> MappingProxyType:
     return MappingProxyType({p.name: p.default for p in params if p.kind is inspect.Parameter.KEYWORD_ONLY})
 
 
-def _lookup(name: str) -> type:
+def estimator_class(name: str) -> type:
+    """The class registered as ``name`` (its options' annotations are the sweep spec's and the
+    CLI's type checks); :class:`UnknownEstimatorError` listing the known names otherwise."""
     try:
         return _REGISTRY[name]
     except (KeyError, TypeError):  # TypeError: an unhashable name
@@ -147,7 +192,7 @@ def make_estimator(name: str, model: GridModel, **options) -> Estimator:
     bad value :class:`InvalidOptionError`. Example:
     ``make_estimator("rbpf", model, n_particles=500, seed=0)``.
     """
-    cls = _lookup(name)
+    cls = estimator_class(name)
     if not isinstance(model, GridModel):
         raise ModelError(f"model must be a GridModel, got {type(model).__name__}")
     known = _keyword_options(cls)
@@ -160,12 +205,43 @@ def make_estimator(name: str, model: GridModel, **options) -> Estimator:
 
 
 class Trajectory(NamedTuple):
-    """Beliefs of one estimator over a run, stacked. T = number of steps."""
+    """Beliefs of one estimator over a run, stacked. T = number of steps (:attr:`n_steps`).
+
+    ``trajectory.belief(t)``, or ``trajectory[t]``, is the :class:`~onlinemap.belief.Belief` after
+    step ``t`` (negative ``t`` counts from the end). Iterating or unpacking gives the four fields,
+    as for any named tuple (``len(trajectory)`` is 4; the steps are :attr:`n_steps`).
+    """
 
     location: np.ndarray  # (T, N)
     map: np.ndarray  # (T, N, K)
     log_evidence: np.ndarray  # (T,)
     seconds_per_step: float
+
+    @property
+    def n_steps(self) -> int:
+        """T, the number of steps stacked."""
+        return len(self.location)
+
+    def belief(self, t: int) -> Belief:
+        """The read-only :class:`~onlinemap.belief.Belief` after step ``t`` (0..T-1, or -T..-1 from the
+        end): copies of ``location[t]`` (N,) and ``map[t]`` (N, K) and ``log_evidence[t]``. A particle
+        filter's per-step health signals (effective sample size, distinct locations, recovery) are not
+        stacked, so they are absent. Raises :class:`~onlinemap.errors.StepIndexError` for ``t`` out of
+        range or not an integer. Cost O(N K)."""
+        steps = self.n_steps
+        try:
+            index = operator.index(t)
+        except TypeError:
+            raise StepIndexError(f"a step of a trajectory is an integer, got {type(t).__name__} {t!r}") from None
+        if not -steps <= index < steps:
+            raise StepIndexError(f"step {index} is not in a trajectory of {steps} steps (0..{steps - 1}, "
+                                 f"or -{steps}..-1 from the end)")
+        index %= steps
+        return Belief(index, self.location[index], self.map[index], self.log_evidence[index])
+
+    def __getitem__(self, t: int) -> Belief:
+        """``trajectory[t]`` is :meth:`belief` ``(t)``, not the tuple's ``t``-th field (use the field names)."""
+        return self.belief(t)
 
     def __repr__(self) -> str:
         """One line: T, the arrays' shapes and the last step's most likely cell and log evidence."""

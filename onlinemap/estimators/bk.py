@@ -131,11 +131,14 @@ class BoyenKoller:
                 log_scale = math.log(likelihood.max())
                 updated = bk_update(location, maps, likelihood / likelihood.max())
             location, maps, total = updated
-        if total == 0.0:
+        # a subnormal total (after rescaling O[:, z]) has lost its precision, and the projection's
+        # maps * (Z - q lam) / Z with it: rows of cells never read came out all zeros. Refused, as
+        # exact Bayes refuses (the observation's probability is below float64's range)
+        if not total >= _SMALLEST_NORMAL:
             raise ImpossibleObservationError(
                 f"observation {self.model.label_names[z] if self.model.reads_own_cell else np.asarray(z).tolist()!r} "
-                f"has probability zero under the factored "
-                f"(Boyen-Koller) belief at step {self._t + 1}")
+                f"has probability zero under the factored (Boyen-Koller) belief at step {self._t + 1} (or below "
+                f"float64's range even after rescaling)")
         self._location, self._maps = location, maps
         self._log_evidence += math.log(total) + log_scale
         self._t += 1

@@ -29,6 +29,7 @@ from .. import state_checks as checks
 from ..arrays import DEFAULT_MAX_BYTES, frozen, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, MemoryLimitError
+from ..label_prior import LabelPrior, dirichlet_multinomial_prior, resolve_label_prior
 from ..kernels.exact import change_every_axis, map_marginals as _map_marginals_kernel, motion_observe
 from ..model import GridModel, apply_motion, apply_motion_transpose
 from ..validation import check_sequence, check_step
@@ -48,14 +49,10 @@ def tensor_bytes(model: GridModel, copies: int = 1) -> int:
     return 8 * copies * model.n_cells * model.n_labels ** model.n_cells
 
 
-def _general(model: GridModel) -> bool:
-    return model.has_blocking or not model.reads_own_cell
-
-
 def filter_bytes(model: GridModel) -> int:
     """Peak bytes of the exact filter: two tensors and the (K**N,) joint map for the paper's
     model; :data:`GENERAL_FILTER_TENSORS` tensors with blocking labels or a footprint."""
-    if _general(model):
+    if not model.is_paper_model:
         return tensor_bytes(model, GENERAL_FILTER_TENSORS)
     return tensor_bytes(model, 2) + 8 * model.n_labels ** model.n_cells
 
@@ -63,7 +60,8 @@ def filter_bytes(model: GridModel) -> int:
 def smooth_bytes(model: GridModel, n_steps: int) -> int:
     """Peak bytes of :func:`exact_smooth` over ``n_steps`` steps: one tensor per step plus
     :data:`SMOOTH_EXTRA_TENSORS` (or :data:`GENERAL_SMOOTH_EXTRA_TENSORS`)."""
-    return tensor_bytes(model, n_steps + (GENERAL_SMOOTH_EXTRA_TENSORS if _general(model) else SMOOTH_EXTRA_TENSORS))
+    extra = SMOOTH_EXTRA_TENSORS if model.is_paper_model else GENERAL_SMOOTH_EXTRA_TENSORS
+    return tensor_bytes(model, n_steps + extra)
 
 
 PLAUSIBLE_BYTES = 2 ** 40  # 1 TiB: beyond this, raising max_bytes is not advice anyone can follow
@@ -102,9 +100,17 @@ def check_memory(model: GridModel, need: int, max_bytes: int | float, what: str)
             f"{limit / 1e9:.3g} GB; {advice}, or use an approximate estimator (bk, rbpf)")
 
 
-def prior_tensor(model: GridModel) -> np.ndarray:
-    """(N, K**N) joint prior: one-hot start cell times the product of the cells' label priors."""
-    joint = reduce(np.multiply.outer, model.label_prior).ravel()
+def prior_tensor(model: GridModel, label_prior: LabelPrior | None = None) -> np.ndarray:
+    """(N, K**N) joint prior: one-hot start cell times the map prior: the product of the cells'
+    label priors (the model's, or the fixed frequencies of ``label_prior``), or, for
+    ``label_prior.kind == "learn"``, the Dirichlet-multinomial over maps
+    (:func:`onlinemap.label_prior.dirichlet_multinomial_prior`: the exact hierarchical prior)."""
+    if label_prior is not None and label_prior.kind == "learn":
+        joint = dirichlet_multinomial_prior(model.n_cells, label_prior.alpha)
+    elif label_prior is not None and label_prior.kind == "fixed":
+        joint = reduce(np.multiply.outer, [label_prior.frequencies] * model.n_cells).ravel()
+    else:
+        joint = reduce(np.multiply.outer, model.label_prior).ravel()
     x = np.zeros((model.n_cells, joint.size))
     x[model.start] = joint
     return x
@@ -120,19 +126,26 @@ def map_marginals(joint_map: np.ndarray, n_cells: int, n_labels: int) -> np.ndar
 
 @register("exact")
 class ExactFilter:
-    """Exact filtering of ``P(L_t, M_t | z_0:t, a_1:t)``. Options: ``max_bytes`` (memory guard)."""
+    """Exact filtering of ``P(L_t, M_t | z_0:t, a_1:t)``. Options: ``max_bytes`` (memory guard);
+    ``label_prior`` and ``prior_strength`` (:mod:`onlinemap.label_prior`): None keeps the model's
+    prior; a (K,) vector gives every cell those frequencies; ``"learn"`` puts the frequencies
+    under a Dirichlet (total pseudo-count ``prior_strength``, default K) and filters the exact
+    posterior of that hierarchical model (its map prior the Dirichlet-multinomial): the reference
+    for the approximate filters that learn the label prior."""
 
     scratch_attributes = ("_scratch", "_joint_map")  # overwritten by every step: not checkpointed
     #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
     CONSTANT_STATE = ("max_bytes", "_no_motion", "_flat")
 
-    def __init__(self, model: GridModel, *, max_bytes: int = DEFAULT_MAX_BYTES):
+    def __init__(self, model: GridModel, *, max_bytes: int = DEFAULT_MAX_BYTES, label_prior=None,
+                 prior_strength=None):
         max_bytes = arguments.requested_bytes("max_bytes", max_bytes, InvalidOptionError)
+        prior = resolve_label_prior(model.n_labels, label_prior, prior_strength)
         check_memory(model, filter_bytes(model), max_bytes, "the exact filter")
         self.model = model
         self.max_bytes = max_bytes
         n, k = model.n_cells, model.n_labels
-        self._x = prior_tensor(model)  # current belief, unnormalised by the factor 1/_norm
+        self._x = prior_tensor(model, prior)  # current belief, unnormalised by the factor 1/_norm
         self._scratch = np.empty_like(self._x)
         self._joint_map = np.empty(k**n)
         self._norm = 1.0
@@ -160,7 +173,7 @@ class ExactFilter:
 
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
-        if self.model.has_blocking or not self.model.reads_own_cell:
+        if not self.model.is_paper_model:
             return self._general_step(a, z)
         model = self.model
         likelihood = model.likelihood[z]
@@ -251,6 +264,15 @@ class ExactFilter:
         """A normalised copy of the joint belief, shape (N, K, ..., K) (N + 1 axes)."""
         shape = (self.model.n_cells,) + (self.model.n_labels,) * self.model.n_cells
         return (self._x / self._norm).reshape(shape)
+
+    def sample_states(self, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """``size`` states drawn from the joint belief (one ``rng.choice`` over its N K^N entries):
+        locations (S,) and label maps (S, N), int64. O(N K^N + S N)."""
+        n, k = self.model.n_cells, self.model.n_labels
+        joint = self.joint().ravel()
+        flat = rng.choice(joint.size, size=size, p=joint / joint.sum())
+        index = np.stack(np.unravel_index(flat, (n,) + (k,) * n), axis=1)
+        return index[:, 0].astype(np.int64), index[:, 1:].astype(np.int64)
 
 
 # --- blocking and footprints (numpy; DESIGN.md section 7) ---------------------------------
@@ -359,7 +381,7 @@ def exact_smooth(model: GridModel, actions, observations, *, max_bytes: int = DE
     alphas = np.empty((n_steps, n, k**n))
     log_evidence = 0.0
     scales = np.empty(n_steps)
-    general = model.has_blocking or not model.reads_own_cell
+    general = not model.is_paper_model
     passable = passable_tensor(model) if model.has_blocking else None
 
     def move(x, a, transpose=False):

@@ -40,6 +40,7 @@ from __future__ import annotations
 import functools
 import logging
 import math
+from types import MappingProxyType
 from typing import NamedTuple
 
 import numba
@@ -139,7 +140,7 @@ class RaoBlackwellisedPF:
     particle's path and every step's action and readings: up to 2 P t bytes more, counted by
     ``max_bytes``. :attr:`moves` counts the windows proposed and accepted (checkpointed). What it buys: on the paper's world replay at
     1,000 particles (W = 20, every 5) the final map error falls from 0.26 to about 0.20 for 3.2x
-    the time per step (the README's RBPF section).
+    the time per step (the user guide's Estimators page, RBPF section).
 
     ``threads``: how many threads the update and the belief use, at most ``NUMBA_NUM_THREADS``
     (the cores numba counts for this process, or that environment variable, read when numba
@@ -159,6 +160,9 @@ class RaoBlackwellisedPF:
     #: per-step buffers (:meth:`_fc_buffers`, :meth:`_staged_buffers`), overwritten by every step
     #: before being read: not state (a checkpoint records their dtype and shape only)
     scratch_attributes = ("_scratch_ints", "_scratch_floats", "_scratch_staged_ints", "_scratch_staged_cells")
+
+    #: what the placeholder defaults run with the other defaults (estimator_options shows these)
+    resolved_defaults = MappingProxyType({"resampling": FEARNHEAD_CLIFFORD})
 
     def __init__(self, model: GridModel, *, n_particles: int = 100, proposal: str = "optimal",
                  resampling: str | None = None, resample_threshold: float = 0.5, seed: SeedLike = None,
@@ -536,6 +540,32 @@ class RaoBlackwellisedPF:
         self._recovered = recovered
         self._t = t
         self._belief = None
+
+    def sample_states(self, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """``size`` states drawn from the belief: a particle by weight (one ``rng.choice``), then each
+        cell's label from that particle's map marginals (:func:`~onlinemap.estimators.base.draw_labels`).
+        Locations (S,) and label maps (S, N), int64. O(P + S N K^2)."""
+        from .base import draw_labels
+
+        weights = np.exp(self._log_weights)
+        chosen = rng.choice(len(weights), size=size, p=weights / weights.sum())
+        return self._locations[chosen], draw_labels(self.particle_maps(chosen), rng)
+
+    def particle_snapshot(self, size: int | None = None, rng: np.random.Generator | None = None):
+        """The particles as a :class:`~onlinemap.estimators.base.ParticleSnapshot` (copies): all
+        of them, weights kept, if ``size`` is None or not below P; else ``size`` of them drawn by
+        weight (systematic sampling: one uniform of ``rng``) and equally weighted. Reads
+        :meth:`particle_maps` of the kept particles only: O(P + M N K^2) for M kept."""
+        from .base import ParticleSnapshot
+
+        log_weights = self._log_weights
+        if size is None or size >= len(log_weights):
+            return ParticleSnapshot(self._locations.copy(), self.particle_maps(), log_weights.copy())
+        weights = np.exp(log_weights)
+        cdf = np.cumsum(weights / weights.sum())
+        positions = (rng.random() + np.arange(size)) / size
+        chosen = np.minimum(np.searchsorted(cdf, positions, side="right"), len(weights) - 1)
+        return ParticleSnapshot(self._locations[chosen], self.particle_maps(chosen), np.full(size, -math.log(size)))
 
 
 class _FCBuffers(NamedTuple):

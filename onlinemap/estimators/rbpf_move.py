@@ -61,7 +61,7 @@ Cost: a move of every particle is O(P W S (F K + 1)) (S the cells a window's ste
 few to tens), every ``move_every`` steps; the history O(P_copied C + P B) per step (B =
 :data:`PATH_BLOCK`) and, once moves have made the particles' pasts differ, up to 2 P t bytes (4
 beyond 32,767 cells). Measured on the paper's world replay at 1,000 particles (W = 20, every 5):
-3.2x the time per step of the filter without moves (the README's RBPF section).
+3.2x the time per step of the filter without moves (the user guide's Estimators page, RBPF section).
 """
 
 from __future__ import annotations

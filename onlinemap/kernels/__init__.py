@@ -1,9 +1,9 @@
 """numba kernels, one module per algorithm: ``exact`` (the joint belief's fused motion + sensor
 pass and map dynamics), ``rbpf`` and its ``rbpf_*`` modules (the particle filter's maps as
-copy-on-write blocks, its children, commits, recovery, threads and resample-move), ``resampling`` (Fearnhead-Clifford's optimal resampling)
-``forward_backward`` (the EM estimators' location HMM), and the planners' ``planning`` (information
-gain's rollouts, shortest paths), ``navigation`` (the goal planner's value iteration) and ``mdp``
-(policy iteration's system and greedy improvement).
+copy-on-write blocks, its children, commits, recovery, threads and resample-move),
+``resampling`` (Fearnhead-Clifford's optimal resampling) and ``forward_backward`` (the EM
+estimators' location HMM): the estimators' kernels. The planners' kernels live beside the
+planners (:mod:`policies.kernels`) and take the decorators below.
 
 The rule for every kernel here: arrays in, arrays out, no model objects. A kernel takes plain
 numpy arrays and scalars, or NamedTuples of them (bundles: the object that holds the arrays

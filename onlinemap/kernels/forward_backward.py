@@ -109,7 +109,8 @@ def forward_backward_pass(self_prob, predecessor, neighbors, enter, prior, actio
 
 @njit(cache=True)
 def accumulate_counts(posterior, observations, counts):
-    """counts (N, K) += sum_tau posterior[tau, i] [observations[tau] = k]: posterior (W, N). O(W N)."""
+    """``counts[i, k] += sum_tau posterior[tau, i] [observations[tau] = k]``: counts (N, K), posterior (W, N).
+    O(W N)."""
     for t in range(posterior.shape[0]):
         z = observations[t]
         for i in range(posterior.shape[1]):

@@ -78,7 +78,8 @@ def accuracy_study(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_s
     :func:`onlinemap.sweeps.sweep`: 0 runs serially here; ``out``: a folder of parts, so a rerun
     resumes; ``options`` as in :func:`study_spec`). One row per (world, run, estimator, t): the sweep's per-step columns
     (:mod:`onlinemap.evaluate`: ``location_tv``, ``map_tv``, ``map_error``, ``ms_per_step``, ...)
-    plus ``run`` (the seed), ``particles`` (NaN unless rbpf), ``proposal``, ``resampling`` and
+    plus ``run`` (the seed), ``particles`` (NaN unless rbpf), ``proposal``, ``resampling`` (in
+    place of the sweep's ``opt_n_particles``, ``opt_proposal``, ``opt_resampling``) and
     ``estimator`` relabelled by :func:`label`. Cost: n_runs * n_steps steps of exact and of every estimator,
     per world."""
     from ..sweeps import sweep
@@ -93,15 +94,25 @@ def accuracy_study(worlds: Sequence[str] = DEFAULT_WORLDS, n_runs: int = 20, n_s
     table["run"] = table["seed"]
     for column in ("proposal", "resampling"):
         table[column] = table[f"opt_{column}"] if f"opt_{column}" in table else None
-    return table
+    # the scheme's options are the columns above now: their opt_ copies would repeat them
+    return table.drop(columns=["opt_n_particles", "opt_proposal", "opt_resampling"], errors="ignore")
 
 
 def summarise(per_step: pd.DataFrame) -> pd.DataFrame:
     """One row per (world, estimator): mean and worst (over runs and steps) location and map
     distances to exact, mean map error against the truth (over runs and steps) and at the last
-    step, and ms per step (after a warm-up run)."""
+    step, the honest metrics (:data:`onlinemap.evaluate.HONEST_METRICS`; over runs and steps: the
+    expected location distance and the calibration gaps; at the last step: the excess map error
+    over the told-location map), and ms per step (after a warm-up run)."""
     grouped = per_step.groupby(["world", "estimator"], sort=False)
     last = per_step[per_step["t"] == per_step["t"].max()].groupby(["world", "estimator"], sort=False)
+    honest = {}
+    if "location_distance" in per_step:  # tables written before the honest metrics lack them
+        honest = {"mean_location_distance": grouped["location_distance"].mean(),
+                  "location_calibration_gap": (1.0 - grouped["location_error"].mean())
+                  - grouped["location_claimed"].mean(),
+                  "map_calibration_gap": grouped["read_map_p_true"].mean() - grouped["read_map_claimed"].mean(),
+                  "excess_map_error": last["excess_map_error"].mean()}
     return pd.DataFrame({
         "scheme": grouped["scheme"].first(),
         "particles": grouped["particles"].first(),
@@ -111,6 +122,7 @@ def summarise(per_step: pd.DataFrame) -> pd.DataFrame:
         "worst_map_tv": grouped["map_tv"].max(),
         "mean_map_error": grouped["map_error"].mean(),
         "final_map_error": last["map_error"].mean(),
+        **honest,
         "ms_per_step": grouped["ms_per_step"].mean(),
     }).reset_index()
 

@@ -28,12 +28,12 @@ import numpy as np
 import pandas as pd
 
 import policies
-from policies.explore import Exploration, _exploration
+from policies.explore import Exploration, exploration
 from policies.tasks import EXPLORE, build_planner
 
 from .. import metrics as metric_functions
 from ..estimators import make_estimator, run_estimator
-from ..evaluate import COVERAGE_THRESHOLDS, from_steps
+from ..evaluate import COVERAGE_THRESHOLDS, HONEST_METRICS, from_steps
 from ..errors import ModelError
 from ..model import GridModel, door_cells
 from ..rng import ESTIMATOR_STREAM, derived_seed
@@ -44,7 +44,8 @@ from ..worlds import parse_world
 from .base import Study, ordered, summary_of
 
 METRICS = ("final_map_error", "wrong_cells", "unsure_or_wrong", "confidently_wrong", "mean_location_error",
-           "late_door_error", "told_location_map_error", "told_location_wrong", "told_location_unsure_or_wrong",
+           "late_door_error", "mean_location_distance", "late_location_distance", "location_calibration_gap",
+           "map_calibration_gap", "excess_map_error", "told_location_map_error", "told_location_wrong", "told_location_unsure_or_wrong",
            "told_location_confidently_wrong", "final_observable_map_error", "final_known_cells", "map_error_area",
            "steps_to_map_error_20", "steps_to_map_error_10", "steps_to_map_error_05", "reached_map_error_20",
            "reached_map_error_10", "reached_map_error_05", "ms_per_step")
@@ -92,19 +93,26 @@ def compare_planners(world: str = "door,p_door=0.01,p_move=0.9", planners=("entr
                              kind="stable").reset_index(drop=True)
 
 
+def _with_ms_per_step(table: pd.DataFrame) -> pd.DataFrame:
+    """``table`` with ``ms_per_step``: the engine's own column where it has one (a
+    :func:`compare_planners` table), else from ``seconds_per_step`` (a table built by hand)."""
+    return table if "ms_per_step" in table else table.assign(ms_per_step=1e3 * table["seconds_per_step"])
+
+
 def summarize_planners(table: pd.DataFrame, model: GridModel, true_map) -> pd.DataFrame:
     """One row per planner from a :func:`compare_planners` table, averaged over seeds: the
     per-run metrics of :func:`onlinemap.evaluate.from_steps` (final map error, mean door error
-    over the last two thirds of the run, mean location error), the share of steps spent on door
-    cells, distinct cells visited, and milliseconds per step (estimator + planner)."""
+    over the last two thirds of the run, mean location error, the honest metrics of
+    :data:`onlinemap.evaluate.HONEST_METRICS`), the share of steps spent on door cells, distinct
+    cells visited, and milliseconds per step (estimator + planner)."""
     doors = door_cells(model, true_map)
-    table = table.assign(ms_per_step=1e3 * table["seconds_per_step"])
+    table = _with_ms_per_step(table)
     per_run = from_steps(table, ["planner", "seed"])
     visits = table.groupby(["planner", "seed"], sort=False)["true_location"]
     per_run["time_at_doors"] = visits.apply(lambda cells: np.isin(cells, doors).mean()).to_numpy()
     per_run["cells_visited"] = visits.nunique().to_numpy()
-    columns = ["planner", "final_map_error", "late_door_error", "mean_location_error", "time_at_doors",
-               "cells_visited", "ms_per_step"]
+    columns = ["planner", "final_map_error", "late_door_error", "mean_location_error", *HONEST_METRICS,
+               "time_at_doors", "cells_visited", "ms_per_step"]
     summary = per_run[[c for c in columns if c in per_run]].groupby("planner", sort=False).mean().reset_index()
     summary.insert(1, "runs", per_run.groupby("planner", sort=False).size().to_numpy())
     return summary
@@ -156,7 +164,7 @@ def steps_study(table: pd.DataFrame, planners: Sequence[str] | None = None, conf
     same values :func:`planners_study` gives for those runs; ``planners``: their order (default:
     the table's). Cost O(rows)."""
     by = ["planner", "planner_options", "world", "seed"]
-    runs = from_steps(table.assign(ms_per_step=1e3 * table["seconds_per_step"]), by)
+    runs = from_steps(_with_ms_per_step(table), by)
     order = list(dict.fromkeys(table["planner"])) if planners is None else list(planners)
     return _planners_summary(runs, order, confidence)
 
@@ -177,7 +185,7 @@ def paper_world_study(planners: Sequence[str] = ("info_gain", "entropy", "random
                       seeds: Sequence[int] = range(20), steps: int = 1000, n_particles: int = 1000,
                       p_door: float = 0.0, planner_options: dict | None = None, workers: int | None = 0,
                       progress: bool = True) -> Study:
-    """Issue 11's main study: the 10 x 10 door world, uniform prior, ``p_move`` 0.8, ``p_obs`` 0.9."""
+    """The planners' main study: the 10 x 10 door world, uniform prior, ``p_move`` 0.8, ``p_obs`` 0.9."""
     world = PAPER_WORLD + (f",p_door={p_door}" if p_door else "")
     return planners_study(world, planners, seeds=seeds, steps=steps, estimator_options={"n_particles": n_particles},
                           planner_options=planner_options, workers=workers, progress=progress)
@@ -243,8 +251,9 @@ def live_exploration(model: GridModel, true_map: np.ndarray, planner: str, steps
     (N,), ``steps`` steps, the world, the planner and the live filter seeded from ``seed`` (as
     :func:`policies.exploration`); unscored (its ``frame`` is None). Cost: ``steps`` x (an RBPF
     step of ``live_particles`` + a planner decision)."""
-    return _exploration(model, true_map, planner, "rbpf", steps, seed, {"n_particles": int(live_particles)},
-                        planner_options, progress=False, score=False)
+    return exploration(model, true_map, planner, "rbpf", steps, seed,
+                       estimator_options={"n_particles": int(live_particles)}, planner_options=planner_options,
+                       progress=False, score=False)
 
 
 @functools.lru_cache(maxsize=4)

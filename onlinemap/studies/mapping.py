@@ -1,4 +1,4 @@
-"""The other papers' EM-mapping claims (issue 13), each a study over many seeded random runs
+"""The other papers' EM-mapping claims, each a study over many seeded random runs
 with confidence intervals (``onlinemap reproduce loop|anneal|blocking``, notebook
 ``notebooks/em_mapping.ipynb``).
 
@@ -40,7 +40,7 @@ import pandas as pd
 from .. import metrics
 from ..estimators import make_estimator
 from ..estimators.offline_em import baum_welch
-from ..evaluate import LOST_BELOW, read_cells
+from ..evaluate import HONEST_METRICS, LOST_BELOW, read_cells
 from ..hmm import log_dirichlet_prior
 from ..model import GridModel, door_world, grid_model
 from ..progress import tqdm
@@ -57,10 +57,12 @@ MEASURED = ("read_map_error", "read_wrong_cells", "final_location_error", "ends_
 
 
 def _scored(runs: pd.DataFrame, groups: list[str]) -> pd.DataFrame:
-    """A sweep's runs as the study's rows: ``run`` (the seed), ``seed``, the groups, the measures."""
+    """A sweep's runs as the study's rows: ``run`` (the seed), ``seed``, the groups, the measures and
+    the honest metrics (:data:`onlinemap.evaluate.HONEST_METRICS`: in the rows, not in the printed
+    summaries)."""
     table = runs.drop(columns="estimator").rename(columns={"label": "estimator"})
     table.insert(0, "run", table["seed"])
-    return table[["run", "seed", *groups, *MEASURED]]
+    return table[["run", "seed", *groups, *MEASURED, *HONEST_METRICS]]
 
 
 def _refused(model: GridModel, estimators) -> tuple[list, list[dict]]:

@@ -1,4 +1,4 @@
-"""Navigation studies (DESIGN.md section 8; issue 23): goal planners taking the robot through a
+"""Navigation studies (DESIGN.md section 8): goal planners taking the robot through a
 building whose doors open and close, against the omniscient oracle of the same world history
 and the floor-plan baseline ``static_goto``, on the sweep engine (``navigate`` tasks, played by
 :mod:`policies`).
@@ -28,28 +28,42 @@ from matplotlib.figure import Figure
 from policies.navigate import true_distances
 
 from .. import plots
+from ..errors import InvalidOptionError
 from ..model import GridModel
 from ..simulate import Run
 from ..sweeps import sweep
-from ..worlds import parse_world
+from ..worlds import WorldSpec, parse_world
 from .base import Study, ordered, summary_of
 
 DOOR_WORLD = "door,blocking=1,footprint=cross"  # the 10 x 10 door world with blocking and a cross footprint
 FLOOR_PLAN = 0.95  # the confidence of the floor plan the robot is given
 METRICS = ("success", "reached", "steps_to_goal", "oracle_steps", "steps_over_oracle", "mean_location_error",
-           "ms_per_step")
+           "mean_location_distance", "location_calibration_gap", "map_calibration_gap", "ms_per_step")
 
 
 def far_goals(model: GridModel, true_map: np.ndarray, count: int = 1) -> list[int]:
     """The ``count`` free cells farthest from the start by the fewest moves with every door open
-    (ties: the lowest cell), the goals a navigation study sends the robot to. O(N A)."""
+    (ties: the lowest cell), the goals a navigation study sends the robot to; in a world without a
+    ``free`` label (``corridor``, ``grid``), the cells whose label does not block. Fewer than
+    ``count`` (none) when fewer are reachable. O(N A)."""
     labels = np.asarray(true_map).copy()
-    doors = np.isin(np.asarray(model.label_names)[labels], ("open_door", "closed_door"))
+    names = np.asarray(model.label_names)
+    doors = np.isin(names[labels], ("open_door", "closed_door"))
     labels[doors] = model.label_names.index("open_door") if "open_door" in model.label_names else labels[doors]
     distance = true_distances(model, labels, model.start)  # symmetric moves: from the start = to it
-    free = np.flatnonzero((np.asarray(model.label_names)[np.asarray(true_map)] == "free") & np.isfinite(distance))
+    free = names[np.asarray(true_map)] == "free" if "free" in model.label_names else ~model.blocking[labels]
+    free = np.flatnonzero(free & np.isfinite(distance))
     order = free[np.lexsort((free, -distance[free]))]
     return [int(cell) for cell in order[:count]]
+
+
+def fixed_map(world: WorldSpec) -> np.ndarray:
+    """(N,) the world's own map, on which a navigation study chooses the goals every seed shares
+    (:func:`far_goals`): door worlds, buildings and layouts have one; a world that draws its map
+    from its prior, one per seed, has none (InvalidOptionError: give the goals)."""
+    if world.true_map is None:
+        raise InvalidOptionError(f"{world.spec} draws its map from its prior, one per seed: give the goals")
+    return world.true_map
 
 
 def navigation_spec(world: str, planners: Sequence[str], goals: Sequence[int], seeds: Sequence[int], *,
@@ -79,7 +93,7 @@ def navigation_study(worlds: str | Sequence[str], planners: Sequence[str] = ("go
     frames = []
     for world in [worlds] if isinstance(worlds, str) else worlds:
         spec = parse_world(world)
-        chosen = goals if goals is not None else far_goals(spec.model, spec.initial_map(0))
+        chosen = goals if goals is not None else far_goals(spec.model, fixed_map(spec))
         frames.append(sweep(navigation_spec(world, planners, chosen, seeds, max_steps=max_steps,
                                             estimator_options={"n_particles": n_particles}, floor_plan=floor_plan,
                                             planner_options=planner_options),
@@ -96,7 +110,7 @@ def navigation_study(worlds: str | Sequence[str], planners: Sequence[str] = ("go
 def door_world_study(p_door: float = 0.05, planners: Sequence[str] = ("goto", "static_goto"), *,
                      seeds: Sequence[int] = range(20), max_steps: int = 400, n_particles: int = 500,
                      workers: int | None = 0, progress: bool = True) -> Study:
-    """Issue 23's setting: the door world with blocking and a cross footprint, the floor plan
+    """The navigation study's main setting: the door world with blocking and a cross footprint, the floor plan
     known with confidence 0.95, doors flipping at ``p_door``, the far goal."""
     return navigation_study(f"{DOOR_WORLD},p_door={p_door}", planners, seeds=seeds, max_steps=max_steps,
                             n_particles=n_particles, workers=workers, progress=progress)

@@ -17,7 +17,7 @@ from typing import Callable
 import pandas as pd
 
 from ..errors import OnlineMapError
-from ..progress import show_progress, tqdm
+from ..progress import FEW_TASKS, counting_steps, show_progress, tqdm
 from ..tables import check_writable, write_table
 from . import runner
 from .kinds import Played
@@ -51,7 +51,9 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     on_played: called with each task run and what it played (its true run and the estimator's
     beliefs, :class:`~.kinds.Played`), to keep what a figure needs without running it again;
     with ``workers=0`` only (they stay in this process), and not for tasks resumed from
-    ``results_dir``.
+    ``results_dir``. progress: a bar of tasks; when at most
+    :data:`~onlinemap.progress.FEW_TASKS` tasks run in this process, a bar of steps per played
+    task instead (:func:`onlinemap.progress.counting_steps`).
     """
     if client is not None and workers is not None:
         raise OnlineMapError("workers sizes a local cluster or picks serial mode (0); not with a client")
@@ -89,10 +91,16 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
             on_played(task, outcome.played)
         bar.update()
 
+    # few tasks in this process (a serial sweep of FEW_TASKS never moves to dask): their loops count steps
+    steps_counted = show_progress(progress) and client is None and workers in (0, None) and len(todo) <= FEW_TASKS
     bar = tqdm(total=len(spec.tasks), initial=len(spec.tasks) - len(todo), desc=f"sweep {spec.name}",
-               unit="task", disable=not show_progress(progress), smoothing=0.1)
+               unit="task", disable=not show_progress(progress) or steps_counted, smoothing=0.1)
     try:
-        if todo and client is None and workers == 0:
+        if todo and steps_counted:
+            with counting_steps():
+                for task in todo:
+                    record(task, runner.attempt(task, keep=on_played is not None))
+        elif todo and client is None and workers == 0:
             for task in todo:
                 record(task, runner.attempt(task, keep=on_played is not None))
         elif todo and client is None and workers is None:

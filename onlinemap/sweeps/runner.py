@@ -29,6 +29,7 @@ from ..estimators import estimator_options
 from ..estimators.base import Trajectory
 from ..evaluate import RUN_METRICS, STEP_METRICS, WARM_UP_STEPS, run_metrics, step_columns, timed_trajectory
 from ..model import GridModel
+from ..progress import counting_steps
 from ..rng import ESTIMATOR_STREAM, derived_seed
 from ..scenarios import one_slip_corridor
 from ..simulate import Run, random_walk, there_and_back
@@ -188,7 +189,8 @@ def _play(task: Task) -> Played:
             tuple(option for option in task.options if option[0] != "seed"), model.n_cells, model.n_labels,
             model.n_actions, model.is_static, model.has_blocking, model.n_readings)
     if warm not in _WARMED_PLAYS and isinstance(task.steps, int) and task.steps > 1:
-        kind.play(model, true_map, dataclasses.replace(task, steps=min(task.steps, WARM_UP_STEPS)))
+        with counting_steps(False):  # no bar for the warm-up
+            kind.play(model, true_map, dataclasses.replace(task, steps=min(task.steps, WARM_UP_STEPS)))
         _WARMED_PLAYS.add(warm)
     return kind.play(model, true_map, task)
 

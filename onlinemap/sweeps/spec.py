@@ -30,7 +30,7 @@ from typing import Callable
 
 from ..errors import OnlineMapError
 from ..estimators import available_estimators, estimator_options, make_estimator
-from ..estimators.base import _lookup as _estimator_class
+from ..estimators.base import estimator_class
 from ..worlds import WorldSpec, parse_world
 from .kinds import TaskKind, task_kind
 from .tasks import MAX_TASKS, SweepSpec, expand, frozen, options_text, plain
@@ -156,7 +156,7 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
             if key in data:
                 raise where.error((key,), "applies to exploration sweeps (with [planners]) only")
         floor_plans, goals = [None], [None]
-    estimators = _configs(data, "estimators", where, estimator_options, _estimator_class, max_tasks)
+    estimators = _configs(data, "estimators", where, estimator_options, estimator_class, max_tasks)
     if "trip" in steps and not set(walks) <= {"there_and_back", "scripted_trip"}:
         raise where.error(("steps",), 'steps = "trip" (one there-and-back trip) needs walk = "there_and_back" '
                                       'or "scripted_trip"')
@@ -164,8 +164,7 @@ def spec_from_dict(data: dict, locator: _Locator | None = None, name: str = "swe
         raise where.error(("walk",), 'walk = "scripted_trip" is one trip: it needs steps = "trip"')
     if {"there_and_back", "scripted_trip"} & set(walks):
         bad = [w.spec for w in worlds if w.model.action_names != ("left", "right")
-               or ("scripted_trip" in walks and not (w.model.is_static and w.model.reads_own_cell
-                                                     and not w.model.has_blocking))]
+               or ("scripted_trip" in walks and not (w.model.is_static and w.model.is_paper_model))]
         if bad:
             raise where.error(("walk",), f"there_and_back needs corridor worlds (scripted_trip static ones whose "
                                          f"sensor reads the robot's own cell, without blocking labels: it writes "

@@ -84,7 +84,7 @@ def summarize(table: pd.DataFrame, metrics_: Iterable[str] | None = None, confid
                 continue
             rows.append({**dict(zip(config, keys)), "metric": metric, "n": len(group),
                          "mean": interval.mean, "low": interval.low, "high": interval.high})
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows, columns=[*config, "metric", "n", "mean", "low", "high"])
 
 
 def summary_wide(summary: pd.DataFrame) -> pd.DataFrame:
@@ -92,6 +92,8 @@ def summary_wide(summary: pd.DataFrame) -> pd.DataFrame:
     metric, columns ``NAME``, ``NAME_low``, ``NAME_high``."""
     config = [c for c in summary.columns if c not in ("metric", "n", "mean", "low", "high")]
     rows = []
+    if summary.empty:  # no run to summarise (e.g. none where the oracle reached the goal)
+        return pd.DataFrame(columns=[*config, "runs"])
     for keys, group in summary.groupby(config, sort=False, dropna=False) if config else [((), summary)]:
         keys = keys if isinstance(keys, tuple) else (keys,)
         row = {**dict(zip(config, keys)), "runs": int(group["n"].max())}

@@ -1,0 +1,148 @@
+"""Hindsight maps (DESIGN.md section 9): the best map of a recorded run, made after the run with
+all its data, compared in one table with the filter's last belief and the told-location map.
+
+Methods (:data:`METHODS`):
+
+- ``flat_em``: Baum-Welch over the whole run (:func:`onlinemap.estimators.offline_em.baum_welch`),
+  the map read off the fitted observation matrix: one global map, each reading placed by its own
+  step's location posterior;
+- ``layered_em``: :func:`onlinemap.layered_em.fit_layered_map`, local maps from stretches of the
+  run aligned by EM and assembled at the end;
+- ``told_location``: the map of a robot told its true path (needs a :class:`~onlinemap.simulate.Run`):
+  :func:`onlinemap.evaluate.told_location_map`, and with blocking labels in a static world the
+  same with every press's outcome as evidence about the cell pressed into (:func:`told_location`).
+
+A smoothed map from the RBPF's particle paths is not here: it needs the filter's ancestry, which
+its module does not hand out.
+
+Scores (:func:`hindsight_table`): ``final_map_error`` (mean over cells of 1 - P(true label)),
+``wrong_cells`` (most probable label wrong) and ``confidently_wrong`` (P(wrong label) > 0.9, i.e.
+P(true label) < :data:`CONFIDENTLY_WRONG_BELOW`).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Mapping, NamedTuple
+
+import numpy as np
+import pandas as pd
+
+from . import metrics
+from .errors import InvalidOptionError, ModelError
+from .estimators.offline_em import baum_welch
+from .evaluate import told_location_map
+from .layered_em import fit_layered_map
+from .model import GridModel
+from .simulate import Run
+
+METHODS = ("flat_em", "layered_em", "told_location")
+IMPOSSIBLE = -1e300  # the log-likelihood of a reading a label cannot give (sums of T of them stay finite)
+CONFIDENTLY_WRONG_BELOW = 0.1  # a cell whose true label has less probability is confidently wrong
+
+
+class HindsightMap(NamedTuple):
+    """One hindsight method's map of a run."""
+
+    method: str
+    map: np.ndarray  # (N, K) P(m_i = k | the whole run)
+    seconds: float  # wall time of the fit
+
+
+def told_location(model: GridModel, run: Run) -> np.ndarray:
+    """(N, K) the told-location map of ``run``: :func:`~onlinemap.evaluate.told_location_map`,
+    and with blocking labels (static worlds) the readings' evidence times every press's outcome
+    along the true path, ``P(moved | m_j) = p_move [m_j passable]`` and ``P(stayed | m_j) = 1 -
+    p_move [m_j passable]`` for the cell j pressed into (a known failed press is evidence about
+    the cell not entered). Raises ModelError for blocking labels in a dynamic world. O(T F K)."""
+    if not model.has_blocking:
+        return told_location_map(model, run)
+    if not model.is_static:
+        raise ModelError("the told-location map with blocking labels is computed for static worlds only")
+    n, k = model.n_cells, model.n_labels
+    cells = model.footprint_cells[run.locations]
+    readings = np.asarray(run.observations).reshape(cells.shape)
+    read = (cells >= 0) & (readings >= 0)
+    counts = np.bincount((cells * k + readings)[read], minlength=n * k).reshape(n, k)
+    passable = (~model.blocking).astype(np.float64)
+    here = run.locations[:-1]
+    target = model.neighbors[here, run.actions]
+    presses = target != here
+    moved = run.locations[1:] == target
+    entered = np.bincount(target[presses & moved], minlength=n)
+    bumped = np.bincount(target[presses & ~moved], minlength=n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # a reading a label cannot give: a huge finite penalty (not -inf, which 0 counts would turn into NaN)
+        log_belief = np.log(model.label_prior) + counts @ np.maximum(np.log(model.sensor), IMPOSSIBLE).T
+        # 0 * log 0 is no evidence, not NaN: a count of zero leaves the label alone
+        log_belief += np.where(entered[:, None] > 0, entered[:, None] * np.log(model.p_move * passable), 0.0)
+        log_belief += np.where(bumped[:, None] > 0, bumped[:, None] * np.log(1.0 - model.p_move * passable), 0.0)
+    log_belief -= log_belief.max(axis=1, keepdims=True)
+    belief = np.exp(log_belief)
+    return belief / belief.sum(axis=1, keepdims=True)
+
+
+def _data(run_or_data) -> tuple[np.ndarray, np.ndarray, Run | None]:
+    if isinstance(run_or_data, Run):
+        return run_or_data.actions, run_or_data.observations, run_or_data
+    if isinstance(run_or_data, tuple) and len(run_or_data) == 2:
+        return run_or_data[0], run_or_data[1], None
+    raise InvalidOptionError(f"run_or_data must be a Run or (actions, observations), got {type(run_or_data).__name__}")
+
+
+def hindsight_map(model: GridModel, run_or_data, method: str = "layered_em", **options) -> HindsightMap:
+    """The map of a recorded run by ``method`` (:data:`METHODS`), ``run_or_data`` a
+    :class:`~onlinemap.simulate.Run` or ``(actions (T - 1,), observations (T,) or (T, F))``;
+    ``options`` go to the fitter (``baum_welch`` for flat_em, ``fit_layered_map`` for layered_em).
+    Raises InvalidOptionError for an unknown method, or told_location without a Run. Cost: the
+    method's (flat EM O(iterations T (N F + E)), layered EM its module's, told-location O(T F K))."""
+    actions, observations, run = _data(run_or_data)
+    if method not in METHODS:
+        raise InvalidOptionError(f"unknown hindsight method {method!r}; expected one of {METHODS}")
+    started = time.perf_counter()
+    if method == "flat_em":
+        belief = baum_welch(model, actions, observations, **options).map
+    elif method == "layered_em":
+        belief = fit_layered_map(model, actions, observations, **options).map
+    else:
+        if run is None:
+            raise InvalidOptionError("told_location needs the true path: pass a Run, not (actions, observations)")
+        if options:
+            raise InvalidOptionError(f"told_location takes no options, got {sorted(options)}")
+        belief = told_location(model, run)
+    return HindsightMap(method, belief, time.perf_counter() - started)
+
+
+def hindsight_table(true_map: np.ndarray, maps: Mapping[str, np.ndarray],
+                    seconds: Mapping[str, float] | None = None) -> pd.DataFrame:
+    """One row per map (name -> (N, K) belief) scored against the true labels (N,): ``method``,
+    ``final_map_error``, ``wrong_cells``, ``confidently_wrong`` and, where given, ``seconds``.
+    O(N K) per map."""
+    true_map = np.asarray(true_map)
+    rows = []
+    for name, belief in maps.items():
+        p_true = np.asarray(belief)[np.arange(len(true_map)), true_map]
+        rows.append({"method": name, "final_map_error": float(metrics.map_error(belief, true_map)),
+                     "wrong_cells": int(np.sum(np.argmax(belief, axis=1) != true_map)),
+                     "confidently_wrong": int(np.sum(p_true < CONFIDENTLY_WRONG_BELOW)),
+                     "seconds": float((seconds or {}).get(name, np.nan))})
+    return pd.DataFrame(rows)
+
+
+def compare_hindsight(run: Run, filter_map: np.ndarray | None = None, methods=("flat_em", "layered_em"),
+                      options: Mapping[str, dict] | None = None) -> pd.DataFrame:
+    """Remap ``run`` by each of ``methods`` and score them with the filter's final map
+    (``filter_map`` (N, K), row ``filter``, if given) and the told-location map (row
+    ``told_location``; left out where it is not defined, blocking labels in a dynamic world):
+    :func:`hindsight_table` against the run's final true labels. Cost: the methods' fits."""
+    options = options or {}
+    maps, seconds = {}, {}
+    if filter_map is not None:
+        maps["filter"] = np.asarray(filter_map)
+    for method in methods:
+        fit = hindsight_map(run.model, run, method, **options.get(method, {}))
+        maps[method], seconds[method] = fit.map, fit.seconds
+    if "told_location" not in maps and (run.model.is_static or not run.model.has_blocking):
+        fit = hindsight_map(run.model, run, "told_location")
+        maps["told_location"], seconds["told_location"] = fit.map, fit.seconds
+    return hindsight_table(run.final_map, maps, seconds)

@@ -1,0 +1,8 @@
+"""numba kernels of the planners, beside the planners that call them: ``planning`` (information
+gain's rollouts through a thinned particle belief in the paper's world), ``footprint`` (the same
+for any footprint and blocking labels), ``paths`` (shortest expected paths), ``navigation`` (the
+goal planner's value iteration over (cell, step)) and ``mdp`` (policy iteration's system and
+greedy improvement). The rule of :mod:`onlinemap.kernels` holds here too: arrays in, arrays out, no
+model objects, every kernel ``@njit(cache=True)`` (inner loops that allocate nothing
+:data:`onlinemap.kernels.loop_kernel`s). This package imports numpy, numba and those decorators.
+"""
