@@ -50,6 +50,7 @@ from .. import arguments
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, ModelError
+from ..label_prior import LEARN
 from ..kernels import rbpf_parallel
 from ..kernels.rbpf import in_place_ancestors
 from ..kernels.rbpf_commit import Slots, Staged, rbpf_keep_children
@@ -63,6 +64,7 @@ from .block_pool import BlockPool, block_layout
 from .rbpf_kernels import KernelSet, kernel_set, observed, world_tables
 from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start
 from .rbpf_move import MoveCounts, PathHistory, map_rows_per_move, move_options, path_rows_per_move
+from .rbpf_prior import learn, prior_options, resolved_prior, retilt
 from .rbpf_recovery import RELOCATION_SCALE, describe, impossible, logsumexp, no_particle_explains, relocate
 from .rbpf_state import check_state, upgrade_attributes
 
@@ -142,6 +144,18 @@ class RaoBlackwellisedPF:
     buys: on the paper's world replay at 1,000 particles (W = 20, every 5) the final map error
     falls from 0.26 to about 0.20 for 3.2x the time per step (the user guide's Estimators page, RBPF section).
 
+    **Label prior** (``label_prior``, ``prior_strength``, ``learn_every``; :mod:`onlinemap.label_prior`,
+    the math in :mod:`onlinemap.estimators.rbpf_prior`). None (the default): the model's prior,
+    every run as without the option. A (K,) frequency vector: every cell's prior is the model's
+    tilted by it, ``normalise(prior_i * v)`` (``v`` itself under the default uniform prior).
+    ``"learn"`` (static worlds only): the frequencies, under a Dirichlet of total pseudo-count
+    ``prior_strength`` (default K), are re-estimated every ``learn_every`` steps (default 1) from
+    the expected labels of the cells read so far, and every cell's prior is moved to them (one
+    pass over the block rows in use): the plug-in (empirical Bayes) approximation of the
+    hierarchical model the exact filter computes exactly; particle weights are not changed.
+    :attr:`label_frequencies` gives the current frequencies (checkpointed). Refused with
+    ``move_window``.
+
     ``threads``: how many threads the update and the belief use, at most ``NUMBA_NUM_THREADS``
     (None: all; Python threads on numba kernels that release the GIL,
     :mod:`onlinemap.kernels.rbpf_parallel`), the results the same bit for bit whatever the number.
@@ -159,6 +173,10 @@ class RaoBlackwellisedPF:
     #: before being read: not state (a checkpoint records their dtype and shape only)
     scratch_attributes = ("_scratch_ints", "_scratch_floats", "_scratch_staged_ints", "_scratch_staged_cells")
 
+    #: label_prior="learn"'s current label frequencies (K,): an attribute of such a filter only (and
+    #: of its checkpoints); None, this class default, for the other filters, whose state is as without the option
+    _label_frequencies: np.ndarray | None = None
+
     #: what the placeholder defaults run with the other defaults (estimator_options shows these)
     resolved_defaults = MappingProxyType({"resampling": FEARNHEAD_CLIFFORD})
 
@@ -166,7 +184,8 @@ class RaoBlackwellisedPF:
                  resampling: str | None = None, resample_threshold: float = 0.5, seed: SeedLike = None,
                  lazy_dynamics: bool = True, block_cells: int | None = None,
                  max_bytes: int = DEFAULT_MAX_BYTES, threads: int | None = 1, move_window: int | None = None,
-                 move_every: int = 10, move_lag: int = 100):
+                 move_every: int = 10, move_lag: int = 100, label_prior=None, prior_strength=None,
+                 learn_every: int | None = None):
         error = InvalidOptionError
         n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
         proposal, resampling = _scheme(proposal, resampling)
@@ -181,6 +200,7 @@ class RaoBlackwellisedPF:
         max_bytes = arguments.byte_limit("max_bytes", max_bytes, error)
         threads = _thread_count(threads)
         move_window, move_every, move_lag = move_options(model, move_window, move_every, move_lag)
+        prior = prior_options(model, label_prior, prior_strength, learn_every, move_window)
         check_start(Sizing(model, n_particles, lazy_dynamics, threads, max_bytes), block_cells, move_window)
         layout = block_layout(model, block_cells)
         self.model = model
@@ -198,6 +218,10 @@ class RaoBlackwellisedPF:
             self._log_weights[0] = 0.0
         self._weights = np.exp(self._log_weights)  # exp(_log_weights), kept beside them
         self._blocks = BlockPool.new(model, layout, n_particles, not model.is_static and self.lazy_dynamics)
+        if prior.kind == "fixed":  # every cell's prior tilted by the vector (rbpf_prior.py)
+            retilt(self._blocks, prior.frequencies)
+        elif prior.kind == LEARN:  # pi_0 = alpha / A, uniform: the rows as they are
+            self._label_frequencies = prior.alpha / prior.alpha.sum()
         fc = resampling == FEARNHEAD_CLIFFORD
         # the resample-move step's paths (rbpf_move.py); None without it
         self._history = None if move_window is None else PathHistory.new(model, n_particles, exact=fc)
@@ -264,6 +288,9 @@ class RaoBlackwellisedPF:
         if self.move_window is None:
             for name in ("move_window", "move_every", "move_lag"):
                 options.pop(name, None)
+        if options.get("label_prior") is None:
+            for name in ("label_prior", "prior_strength", "learn_every"):
+                options.pop(name, None)
         return options
 
     @property
@@ -277,6 +304,15 @@ class RaoBlackwellisedPF:
     def weights(self) -> np.ndarray:
         """(P,) the particles' normalised weights, a read-only copy."""
         return read_only(self._weights / self._weights.sum())
+
+    @property
+    def label_frequencies(self) -> np.ndarray | None:
+        """(K,) the label frequencies every cell's prior is tilted by, a read-only copy: the current
+        estimate with ``label_prior="learn"``, the given vector, or None (the model's own prior)."""
+        if self._label_frequencies is not None:
+            return read_only(self._label_frequencies.copy())
+        fixed = resolved_prior(self.model, self.options).frequencies
+        return None if fixed is None else read_only(fixed.copy())
 
     @property
     def recoveries(self) -> int:
@@ -342,6 +378,11 @@ class RaoBlackwellisedPF:
             if history.move_due(t, self.move_window, self.move_every, self.move_lag):
                 self._history, self._blocks = history.move(self._blocks, self._locations, self._log_weights,
                                                            self.model, t, self.move_window, self.move_lag, self._rng)
+        frequencies = self._label_frequencies
+        if frequencies is not None and t % (self.options["learn_every"] or 1) == 0:
+            alpha = resolved_prior(self.model, self.options).alpha
+            self._label_frequencies = learn(self._blocks, self.model, t, self._weights / self._weights.sum(),
+                                            frequencies, alpha, self.threads if self._parallel else 1)
 
     def _update_sampling(self, a: int | None, z, t: int) -> None:
         """:meth:`update` with a sampling scheme (``a``, ``z`` checked): resample if due, propose,

@@ -39,8 +39,9 @@ def upgrade_attributes(attributes: dict, version: int) -> dict:
 
 def check_state(state) -> None:
     """The invariants of a restored state (:mod:`onlinemap.state_checks`): the particles, their
-    weights and the copy-on-write block pool (:meth:`BlockPool.check
-    <onlinemap.estimators.block_pool.BlockPool.check>`)."""
+    weights, the copy-on-write block pool (:meth:`BlockPool.check
+    <onlinemap.estimators.block_pool.BlockPool.check>`) and, with ``label_prior="learn"``, the
+    label frequencies (positive, summing to 1: a Dirichlet posterior mean)."""
     model = state.model
     n, k, p = model.n_cells, model.n_labels, state.n_particles
     t = checks.step_index(state)
@@ -70,4 +71,10 @@ def check_state(state) -> None:
                                 f"{state.move_window!r}")
     if moving:
         state._history.check(model, state._locations, t)  # estimators/rbpf_move.py
+    frequencies = getattr(state, "_label_frequencies", None)  # label_prior="learn" only (rbpf_prior.py)
+    if frequencies is not None:
+        frequencies = checks.array(state, "_label_frequencies", (k,), np.float64)
+        if not np.all(np.isfinite(frequencies)) or np.any(frequencies <= 0) or np.any(frequencies > 1) \
+                or abs(frequencies.sum() - 1) > checks.ATOL:
+            checks.fail("_label_frequencies", "must be label frequencies in (0, 1] summing to 1")
     checks.belief(state, required=False)
