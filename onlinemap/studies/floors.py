@@ -96,8 +96,14 @@ def floor_worlds(floors: Sequence[str] = tuple(REAL_FLOORS), *, buildings: Seque
         worlds = {name: f"{spec},{keys}" for name, spec in worlds.items()}
     if len(set(worlds.values())) < len(worlds):
         raise ModelError(f"floor_worlds: a world is named twice: {list(worlds.values())}")
-    for spec in worlds.values():
-        parse_world(spec)
+    for name, spec in worlds.items():
+        try:
+            parse_world(spec)
+        except ModelError as error:
+            if name in REAL_FLOORS or name.startswith("building:"):
+                raise
+            raise type(error)(f"{name!r} is neither a real floor ({', '.join(REAL_FLOORS)}) nor a world spec: "
+                              f"{error}") from None
     return worlds
 
 
