@@ -132,3 +132,24 @@ def test_label_prior_floor_is_the_maps_label_frequencies(spec):
 def test_label_prior_key_refused(spec, message):
     with pytest.raises(ModelError, match=message):
         parse_world(spec)
+
+
+def test_world_list_keeps_a_specs_keys_with_it():
+    from onlinemap.cli.reproduce import world_list
+
+    assert world_list("maze, layout:a.map,cell_size=2,region=0:12x0:12,room") == [
+        "maze", "layout:a.map,cell_size=2,region=0:12x0:12", "room"]
+    assert world_list("building:16x16,seed=3") == ["building:16x16,seed=3"]
+
+
+def test_command_line_writes_the_tables(tmp_path, capsys):
+    from onlinemap.cli import main
+
+    status = main(["--no-progress", "reproduce", "floors", "--floors", CROP, "--buildings", "", "--planners",
+                   "random", "--runs", "1", "--steps", str(STEPS), "-o", "n_particles=50", "--out", str(tmp_path)])
+    assert status == 0
+    printed = capsys.readouterr().out
+    assert "told_location_map_error" in printed and "excess_map_error" in printed
+    runs = pd.read_csv(tmp_path / "floors_runs.csv")
+    assert list(runs.columns[-len(COLUMNS):]) == list(COLUMNS) and len(runs) == 1
+    assert (tmp_path / "floors.parts").is_dir()
