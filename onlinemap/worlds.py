@@ -12,7 +12,9 @@ Every kind takes ``p_obs``, ``p_move``, ``start``, ``blocking`` and ``footprint`
 labels, joined by ``+``, for corridors and grids (``blocking=1``, ``blocking=1+2``). Worlds
 with a fixed map (door, building, layout) take ``floor_plan=C``: the robot's label prior is the
 floor plan (:func:`floor_plan_prior`: each cell's true label with confidence C, door cells a door
-of unknown state), e.g. ``door,floor_plan=0.95``. A building
+of unknown state), e.g. ``door,floor_plan=0.95``; or ``label_prior=floor``: the robot's label
+prior is the map's own label frequencies, the same for every cell (:func:`frequency_prior`: what
+a robot told its building's mix of free cells, walls and doors would assume). A building
 (:func:`onlinemap.buildings.building`; default 32x32, seed 0) blocks and reads a cross unless
 told otherwise (``blocking=0``, ``footprint=cell``) and takes ``seed``, ``corridor_width``,
 ``rooms_deep``, ``extra_doors`` and ``closed_share``. A layout
@@ -49,12 +51,12 @@ _FLOAT_KEYS = {"p_obs", "p_move", "p_change", "p_door", "extra_doors", "closed_s
 _INT_KEYS = {"n_labels", "start", "seed", "corridor_width", "rooms_deep"}
 _REAL_KEYS = {"cell_size"}
 _FLAG_KINDS = ("door", "building", "layout")  # kinds whose blocking option is a flag
-_TEXT_KEYS = {"blocking", "footprint", "cell_rule"}
+_TEXT_KEYS = {"blocking", "footprint", "cell_rule", "label_prior"}
 _FLAG_KEYS = {"doorways"}
 _FLAGS = {"1": True, "true": True, "0": False, "false": False}
 
 _EVERY_KIND = ("p_obs", "p_move", "start", "blocking", "footprint")
-_DOORS = ("p_door", "floor_plan")
+_DOORS = ("p_door", "floor_plan", "label_prior")
 #: the keys each kind of world spec takes, after its own size or path
 KIND_KEYS = {
     "corridor": ("n_labels", "p_change", *_EVERY_KIND),
@@ -73,7 +75,8 @@ def world_help() -> str:
                       for kind, keys in KIND_KEYS.items())
     return (f"world spec KIND[,KEY=VALUE...]: {kinds}; every kind also takes {', '.join(_EVERY_KIND)} "
             "(blocking=0/1 for door worlds, labels joined by + otherwise; footprint=cell|cross|square); "
-            "floor_plan=C gives the robot the floor plan as its prior (confidence C, door states unknown)")
+            "floor_plan=C gives the robot the floor plan as its prior (confidence C, door states unknown); "
+            "label_prior=floor gives it the map's label frequencies")
 
 
 def floor_plan_prior(model: GridModel, true_map, confidence: float = 0.8) -> np.ndarray:
@@ -93,6 +96,13 @@ def floor_plan_prior(model: GridModel, true_map, confidence: float = 0.8) -> np.
     return prior
 
 
+def frequency_prior(model: GridModel, true_map) -> np.ndarray:
+    """(K,) label prior from a map's label frequencies: ``n_k / N``, the share of the N cells of
+    ``true_map`` whose label is k (a label the map lacks gets 0). Cost O(N + K)."""
+    labels = check_map(model, true_map)
+    return np.bincount(labels, minlength=model.n_labels) / labels.size
+
+
 def with_floor_plan(model: GridModel, true_map, confidence: float = 0.8) -> GridModel:
     """``model`` with the :func:`floor_plan_prior` of ``true_map`` as its label prior."""
     return dataclasses.replace(model, label_prior=floor_plan_prior(model, true_map, confidence))
@@ -103,6 +113,7 @@ class WorldSpec(NamedTuple):
     model: GridModel
     true_map: np.ndarray | None  # fixed map (door worlds, buildings, layouts); None = draw one from the prior
     floor_plan: float | None = None  # the floor_plan key: the model's label prior is the map's floor plan
+    label_prior: str | None = None  # the label_prior key ("floor": the map's label frequencies), if given
 
     def initial_map(self, seed: SeedLike = None) -> np.ndarray:
         """The fixed map, or one drawn from the label prior with ``seed``."""
@@ -221,8 +232,17 @@ def parse_world(spec: str) -> WorldSpec:
     if "blocking" in options:
         options["blocking"] = _blocking(spec, kind, str(options["blocking"]))
     floor_plan = options.pop("floor_plan", None)
+    label_prior = options.pop("label_prior", None)
+    if label_prior is not None and label_prior != "floor":
+        raise ModelError(f"world spec {spec!r}: label_prior takes 'floor' (the map's own label frequencies), "
+                         f"got {label_prior!r}")
+    if label_prior is not None and floor_plan is not None:
+        raise ModelError(f"world spec {spec!r}: floor_plan and label_prior both set the label prior; give one")
     try:
         world = _build(spec, kind, size, options)
+        if label_prior is not None:
+            world = world._replace(model=dataclasses.replace(world.model, label_prior=frequency_prior(
+                world.model, world.true_map)), label_prior=label_prior)
         if floor_plan is not None:
             try:
                 world = world._replace(model=with_floor_plan(world.model, world.true_map, floor_plan),

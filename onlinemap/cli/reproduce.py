@@ -10,13 +10,19 @@ import pandas as pd
 
 from .. import plots
 from ..errors import OnlineMapError
-from ..evaluate import ASTRAY_BELOW, LOST_BELOW, TIMING_NOTE
+from ..evaluate import ASTRAY_BELOW, HONEST_METRICS, LOST_BELOW, TIMING_NOTE
 from ..scenarios import murphy_corridor
 from ..studies import corridor as reproductions
 from ..studies.corridor import corridor_table, random_corridor_study, steps_table, with_intervals
-from .common import non_negative_int, open_unit_interval, positive_int, print_table, write_table
+from .common import (OPTION_HELP, non_negative_int, open_unit_interval, options_per_estimator, positive_int,
+                     print_table, split_list, write_table)
 
 MAPPING_STUDIES = ("loop", "anneal", "blocking")  # onlinemap.studies.mapping.STUDIES, imported lazily
+#: the defaults of --runs and --steps per scenario (a flag left out takes its scenario's)
+DEFAULTS = {"runs": 200, "steps": 150}
+SCENARIO_DEFAULTS = {"floors": {"runs": 3, "steps": 1000}}
+FLOOR_METRICS = ("final_map_error", "late_location_error", "late_location_distance", "location_calibration_gap",
+                 "map_calibration_gap", "told_location_map_error", "excess_map_error")
 OVERVIEW_ONLINE_EM = "online_em W=max decay=1.0"  # the one online EM row of the overview figure
 
 
@@ -34,9 +40,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "a multiple of 7; random labels and slip time) and report how often each "
                     "estimator goes astray on the way back (P(true location) < 0.05), ends lost (< 0.5) or "
                     "with a wrong map, with Wilson confidence intervals.")
-    p.add_argument("scenario", choices=["corridor", *MAPPING_STUDIES],
+    p.add_argument("scenario", choices=["corridor", *MAPPING_STUDIES, "floors"],
                    help="which reproduction; loop, anneal and blocking are the EM-mapping studies of "
-                        "onlinemap.studies.mapping (a table with intervals over --runs random runs)")
+                        "onlinemap.studies.mapping (a table with intervals over --runs random runs); floors: "
+                        "planners exploring real floors read from files and generated buildings "
+                        "(onlinemap.studies.floors: --runs seeds per planner and world, --steps steps, the "
+                        "honest metrics and the told-location map error per run; --out DIR resumes)")
     p.add_argument("--out", metavar="DIR", help="directory for CSV tables and PNG figures")
     p.add_argument("--random", metavar="N_RUNS", type=positive_int, default=0,
                    help="run the random-corridor study over N_RUNS runs (rounded up to a multiple of 7) "
@@ -46,13 +55,27 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="random study: 0 (default) runs in this process, N on a local dask cluster of N processes")
     p.add_argument("--confidence", type=open_unit_interval, default=0.95,
                    help="confidence of the intervals, in (0, 1) (default 0.95)")
-    p.add_argument("--runs", type=positive_int, default=200,
-                   help="loop, anneal, blocking: number of random runs (default 200)")
+    p.add_argument("--runs", type=positive_int, default=None,
+                   help="loop, anneal, blocking: number of random runs (default 200); floors: seeds per planner "
+                        "and world (default 3)")
     p.add_argument("--planners", default="",
                    help="blocking: comma-separated planners of policies.explore run besides the random walk "
-                        "(e.g. entropy,info_gain; default none), each closed on rbpf P=200")
-    p.add_argument("--steps", type=positive_int, default=150,
-                   help="blocking: steps per run, first observation included (default 150)")
+                        "(e.g. entropy,info_gain; default none), each closed on rbpf P=200; floors: the planners "
+                        "(default info_gain,frontier,random)")
+    p.add_argument("--steps", type=positive_int, default=None,
+                   help="blocking: steps per run, first observation included (default 150); floors: default 1000")
+    p.add_argument("--floors", default="maze,room,random,arena,tb3_world,nav2_depot",
+                   help="floors: comma-separated shipped floors (onlinemap.studies.floors.REAL_FLOORS) or "
+                        "world specs, whose key=value parts follow them (default all six shipped floors; run from a clone of "
+                        "the project)")
+    p.add_argument("--buildings", default="32x32,64x64",
+                   help="floors: sizes of generated buildings, comma-separated RxC (default 32x32,64x64; '' none)")
+    p.add_argument("--building-seeds", default="0", help="floors: building seeds, comma-separated (default 0)")
+    p.add_argument("--world-keys", default="",
+                   help="floors: world keys added to every world, e.g. label_prior=floor (the robot is told the "
+                        "floor's label frequencies) or p_move=0.95")
+    p.add_argument("-o", "--option", action="append", default=[], metavar="KEY=VALUE",
+                   help=f"floors: RBPF option, repeatable (default n_particles=1000); {OPTION_HELP}")
     p.set_defaults(func=reproduce)
 
 
@@ -116,7 +139,55 @@ def mapping_study(name: str, args: argparse.Namespace, out: Path | None) -> None
         print(f"wrote {', '.join(str(p) for p in written)}")
 
 
+def world_list(text: str) -> list[str]:
+    """Comma-separated floor names and world specs: a ``key=value`` part belongs to the spec
+    before it (``maze,layout:a.map,cell_size=2,room`` is three)."""
+    worlds: list[str] = []
+    for part in split_list(text):
+        key = part.partition("=")[0]
+        if worlds and "=" in part and ":" not in key:
+            worlds[-1] += f",{part}"
+        else:
+            worlds.append(part)
+    return worlds
+
+
+def floors(args: argparse.Namespace, out: Path | None) -> None:
+    """Run :func:`onlinemap.studies.floors.floor_study` from the command line: print the summary,
+    write the runs and the summary under ``out`` (with its parts, to resume)."""
+    from ..studies.base import with_intervals as intervals
+    from ..studies.floors import PLANNERS, floor_study
+
+    options = {"n_particles": 1000, **options_per_estimator(["rbpf"], args.option)["rbpf"]}
+    particles = options.pop("n_particles")
+    planners = split_list(args.planners) or list(PLANNERS)
+    seeds = range(args.seed, args.seed + args.runs)
+    print(f"floors: {', '.join(planners)} on {args.floors}; buildings {args.buildings or 'none'} (seeds "
+          f"{args.building_seeds}); world keys: {args.world_keys or 'none'}; rbpf n_particles={particles} "
+          f"{''.join(f' {k}={v}' for k, v in options.items())}; {args.steps} steps; seeds {args.seed}..{args.seed + args.runs - 1}")
+    runs, summary = floor_study(world_list(args.floors), buildings=split_list(args.buildings),
+                                building_seeds=[int(s) for s in split_list(args.building_seeds)], planners=planners,
+                                seeds=seeds, steps=args.steps, n_particles=particles, estimator_options=options,
+                                world_keys=args.world_keys, confidence=args.confidence, workers=args.workers,
+                                out=None if out is None else out / "floors.parts")
+    print(f"mean [{args.confidence:.0%} interval] over seeds; stalled, died: runs")
+    shown = ["floor", "planner", "options", "runs", *FLOOR_METRICS, "stalled", "died"]
+    print_table(intervals(summary[[c for c in summary if c in shown or c.removesuffix("_low").removesuffix("_high")
+                                   in FLOOR_METRICS]], FLOOR_METRICS))
+    for name, meaning in HONEST_METRICS.items():
+        print(f"{name}: {meaning}")
+    if out is not None:
+        written = [write_table(runs, out / "floors_runs.csv"), write_table(summary, out / "floors_summary.csv")]
+        print(f"wrote {', '.join(str(p) for p in written)}")
+
+
 def reproduce(args: argparse.Namespace) -> int:
+    for name, value in {**DEFAULTS, **SCENARIO_DEFAULTS.get(args.scenario, {})}.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
+    if args.scenario == "floors":
+        floors(args, Path(args.out) if args.out else None)
+        return 0
     if args.scenario in MAPPING_STUDIES:
         mapping_study(args.scenario, args, Path(args.out) if args.out else None)
         return 0
