@@ -276,3 +276,35 @@ def test_ties_go_to_the_shorter_macro_action():
     right = plan.names.index("press right")
     np.testing.assert_allclose(plan.utility[right], [math.log(2)] * 2, atol=1e-12)
     assert plan.chosen == (right, 0)
+
+
+def test_a_macro_action_whose_first_press_meets_a_wall_is_never_chosen():
+    """At cell 0 (the corridor's left end), with press_lengths [1] and step_cost 0, nothing is learnt
+    either way: every utility is 0 and the first candidate, "press left", would win the tie; but its
+    press surely leaves the robot where it is, so "press right" is chosen."""
+    model, est, b = walked(0)
+    planner = InfoGainExplorer(model, seed=0, hypotheses=None, press_lengths=[1], step_cost=0.0)
+    planner.bind(est)
+    plan = planner.plan(b)
+    np.testing.assert_allclose(plan.utility, 0.0, atol=1e-12)
+    assert plan.names[plan.chosen[0]] == "press right"
+
+
+def test_a_first_press_that_leaves_the_robot_in_place_half_the_time_is_left_out():
+    """Cell 1 is free or a wall, half and half, the rest of the corridor known free. From cell 0 a
+    press right with perfect wheels either moves (cell 1 free) or not (a wall), and both read 0: the
+    robot is at cell 0 or 1 with 1/2 each. "press left" would tell them apart (both end at cell 0):
+    the most informative press, but it leaves the robot in place with probability exactly 1/2,
+    which the rule ("with probability >= 1/2") leaves out."""
+    prior = [[1.0, 0.0, 0.0], [0.5, 0.0, 0.5]] + [[1.0, 0.0, 0.0]] * 5
+    model = om.corridor(7, 3, p_obs=1.0, p_move=1.0, blocking=[2], label_prior=prior, start=0)
+    est = om.make_estimator("exact", model)
+    est.step(None, 0)
+    b = est.step(model.action_names.index("right"), 0)
+    np.testing.assert_allclose(b.location, [0.5, 0.5, 0, 0, 0, 0, 0], atol=1e-12)
+    planner = InfoGainExplorer(model, seed=0, hypotheses=None, press_lengths=[1], step_cost=0.0)
+    planner.bind(est)
+    plan = planner.plan(b)
+    left = plan.names.index("press left")
+    assert plan.utility[left, 0] > np.delete(plan.utility[:, 0], left).max()
+    assert plan.chosen[0] != left
