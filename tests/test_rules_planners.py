@@ -142,6 +142,35 @@ def test_a_target_behind_a_wall_is_reachable_only_if_some_hypothesis_reaches_it(
     assert plan.targets.tolist() == [4]  # u = 0.63 > 0.61 and no distance cost
 
 
+def test_with_no_reachable_frontier_the_robot_revisits_by_the_unthresholded_gain():
+    """The corridor with the wall at cell 2; the only uncertain cell (4, u = 0.63) lies behind it,
+    and cell 0 is [0.9, 0.1, 0] (u = H(0.9, 0.1) / ln 3 = 0.296, below the threshold). Surely at
+    cell 1 no frontier is reachable: the gain drops the threshold, g = u = [0.296, 0, 0, 0, 0.63],
+    and the target is the reachable cell of positive gain, cell 0 ("left")."""
+    model = om.corridor(5, 3, p_move=1.0, blocking=[2])
+    maps = np.array(BLOCKED, dtype=float)
+    maps[0] = [0.9, 0.1, 0.0]
+    planner = FrontierExplorer(model)
+    action = planner.choose(belief(one_hot(5, 1), maps))
+    plan = planner.last_plan
+    assert plan.mode == "revisit"
+    np.testing.assert_allclose(plan.gain, [h([0.9, 0.1]) / math.log(3), 0, 0, 0, math.log(2) / math.log(3)],
+                               rtol=1e-12, atol=1e-15)
+    assert plan.targets.tolist() == [0] and model.action_names[action] == "left"
+
+
+def test_a_lost_robot_scores_the_footprints_certain_cells():
+    """lost_entropy 0.5 and the location uniform over a 1 x 5 corridor (normalised entropy 1): the
+    gain is sum_f (1 - u) over the footprint (the robot's cell and both neighbours), with u = [0, 1,
+    0.722, 1, 1]: g = [1, 1.278, 0.278, 0.278, 0]."""
+    model = om.corridor(5, 2, footprint=((0, -1), (0, 0), (0, 1)))
+    maps = [[1, 0], [0.5, 0.5], [0.8, 0.2], [0.5, 0.5], [0.5, 0.5]]
+    c2 = 1 - h([0.8, 0.2]) / math.log(2)
+    plan = FrontierExplorer(model, lost_entropy=0.5).plan(belief(np.full(5, 0.2), maps))
+    assert plan.mode == "relocalise"
+    np.testing.assert_allclose(plan.gain, [1, 1 + c2, c2, c2, 0], rtol=1e-12, atol=1e-15)
+
+
 # --- frontier: progress and the blacklist -------------------------------------------------------------
 def tracked(positions, patience=2):
     """A 1 x 9 corridor, perfect wheels, only cell 8 uncertain: its E = 8 - (mean location), a
