@@ -163,3 +163,24 @@ def test_move_windows_never_start_before_the_step_that_recovered():
         est.step(RIGHT, np.array([int(rng.integers(0, 2)), -1]))
         assert paths(est)[0, :3].tolist() == [5, 5, 7], "a window redrew a step before the recovery"
     assert est.recoveries == 1 and est.moves.proposed >= 28 and est.moves.accepted > 0
+
+
+def test_a_relocated_robot_is_put_down_on_a_passable_cell():
+    """1 x 5 corridor, labels 0, 1 passable and 2 blocking, p_obs 0.9 (0.05 for each other label),
+    perfect wheels, the sensor reading the robot's cell and its right neighbour. The floor plan
+    says cells 0-3 hold 0; cell 4 is unknown (1/3 each). From cell 2 the robot presses right and
+    reads [0, -1]: only cell 4 reads -1 on the right, and no particle can be there. The one child
+    at cell 4 weighs K(4 | 2) P(cell 4 passable and reads 0) = e^(-2/3) / Z (0.9 + 0.05 + 0) / 3
+    (a blocking label holds no robot), and cell 4's marginal becomes [0.9, 0.05, 0] / 0.95."""
+    prior = [[1.0, 0.0, 0.0]] * 4 + [[1 / 3] * 3]
+    model = om.corridor(5, 3, p_obs=0.9, p_move=1.0, blocking=[2], label_prior=prior,
+                        footprint=((0, 0), (0, 1)))
+    zero = np.array([0, 0])
+    est = om.make_estimator("rbpf", model, n_particles=4, seed=0)
+    before = walk(est, [(None, zero), (RIGHT, zero), (RIGHT, zero)])
+    assert before.location.tolist() == [0, 0, 1, 0, 0]
+    after = est.step(RIGHT, np.array([0, -1]))
+    assert after.recovered
+    np.testing.assert_allclose(after.location, one_hot(5, 4), atol=1e-12)
+    np.testing.assert_allclose(after.map[4], [0.9 / 0.95, 0.05 / 0.95, 0.0], atol=1e-12)
+    assert after.log_evidence - before.log_evidence == pytest.approx(math.log(E2 / Z_FROM_2 * 0.95 / 3), abs=1e-12)
