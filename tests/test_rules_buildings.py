@@ -180,6 +180,57 @@ def test_every_room_that_touches_a_corridor_opens_onto_it(floors):
                     assert pair[1] in opens, f"room {pair[1]} touches the corridor at ({r}, {c}) but has no door onto it"
 
 
+def blocks_of(grid, corridor):
+    """The blocks (parts between corridors, each cut into rooms): the 4-connected components of the
+    interior cells more than one cell (Chebyshev) from every corridor cell, i.e. without the
+    corridors and the wall lines along them; each as (r0, r1, c0, c1, sides), interior
+    ``[r0, r1) x [c0, c1)`` after checking it is a full rectangle, ``sides`` the subset of "NESW"
+    where a corridor runs beyond the wall line."""
+    rows, cols = grid.shape
+    near = ndimage.binary_dilation(corridor, structure=np.ones((3, 3), dtype=bool))
+    inside = np.zeros_like(corridor)
+    inside[1:-1, 1:-1] = True
+    labels, count = ndimage.label(inside & ~near)
+    found = []
+    for block in range(1, count + 1):
+        r, c = np.nonzero(labels == block)
+        r0, r1, c0, c1 = r.min(), r.max() + 1, c.min(), c.max() + 1
+        assert (r1 - r0) * (c1 - c0) == len(r), "a block is not a rectangle"
+        sides = set()
+        if r0 >= 2 and corridor[r0 - 2, c0:c1].all():
+            sides.add("N")
+        if r1 + 1 < rows and corridor[r1 + 1, c0:c1].all():
+            sides.add("S")
+        if c0 >= 2 and corridor[r0:r1, c0 - 2].all():
+            sides.add("W")
+        if c1 + 1 < cols and corridor[r0:r1, c1 + 1].all():
+            sides.add("E")
+        found.append((r0, r1, c0, c1, sides))
+    return found
+
+
+def test_no_block_is_left_deeper_than_rooms_deep_where_a_corridor_fits(floors):
+    """A part is cut by a corridor while it is more than ``rooms_deep`` rooms deep, ``rooms_deep
+    (room_max + 1) - 1`` cells, a corridor fits (two parts at least ``room_min`` wide, the corridor
+    and its two wall lines: ``2 room_min + corridor_width + 2`` cells) and the new corridor's ends
+    meet a corridor: a block more than that deep across its rows has no corridor on its west or
+    east side, and across its columns none on its north or south side. And every block borders a
+    corridor (the corridors reach every part of the floor)."""
+    _, _, options, found = floors
+    low, high = options.get("room_size", (2, 6))
+    width, rooms_deep = options.get("corridor_width", 1), options.get("rooms_deep", 2)
+    deep, fits = rooms_deep * (high + 1) - 1, 2 * low + width + 2
+    for _, grid, corridor in found:
+        blocks = blocks_of(grid, corridor)
+        assert blocks
+        for r0, r1, c0, c1, sides in blocks:
+            assert sides, (r0, r1, c0, c1)
+            if r1 - r0 >= fits and r1 - r0 > deep:
+                assert not sides & {"W", "E"}, (r0, r1, c0, c1, sides)
+            if c1 - c0 >= fits and c1 - c0 > deep:
+                assert not sides & {"N", "S"}, (r0, r1, c0, c1, sides)
+
+
 @pytest.mark.parametrize("rows, cols", [(20, 20), (32, 32)])
 def test_without_extra_doors_the_open_doors_are_a_spanning_tree(rows, cols):
     """extra_doors 0: no closed door, and the open doors, as edges between regions, form a tree:
