@@ -231,6 +231,30 @@ def test_no_block_is_left_deeper_than_rooms_deep_where_a_corridor_fits(floors):
                 assert not sides & {"N", "S"}, (r0, r1, c0, c1, sides)
 
 
+def test_rooms_are_cut_so_that_both_stay_on_the_corridor(floors):
+    """When both sides of a part are longer than ``room_max`` the cut that keeps both rooms on a
+    corridor is taken: in a block whose corridors run only along its north or south side, the walls
+    between rooms side by side are cut first, so each runs across the whole block (every cell of its
+    column in the block a wall or a door); likewise across rows for a block with corridors only on
+    its west or east side. (Such blocks arise in narrow floors: 13 x 27 and 64 x 10 have some.)"""
+    rows, cols, _, found = floors
+    checked = 0
+    for _, grid, corridor in found:
+        room = (grid == FREE) & ~corridor
+        for r0, r1, c0, c1, sides in blocks_of(grid, corridor):
+            if sides <= {"N", "S"}:
+                part, lines = grid[r0:r1, c0:c1], room[r0:r1, c0:c1]
+            elif sides <= {"W", "E"}:
+                part, lines = grid[r0:r1, c0:c1].T, room[r0:r1, c0:c1].T
+            else:
+                continue
+            for r, c in zip(*np.nonzero(~lines[:, 1:-1])):  # a wall or door with rooms on both sides
+                if lines[r, c] and lines[r, c + 2]:
+                    assert not lines[:, c + 1].any(), (r0, r1, c0, c1, sides)
+                    checked += 1
+    assert checked or (rows, cols) not in ((13, 27), (64, 10))
+
+
 @pytest.mark.parametrize("rows, cols", [(20, 20), (32, 32)])
 def test_without_extra_doors_the_open_doors_are_a_spanning_tree(rows, cols):
     """extra_doors 0: no closed door, and the open doors, as edges between regions, form a tree:
