@@ -101,7 +101,7 @@ RUN_METRICS = ("final_map_error", "mean_map_error", "final_location_error", "mea
                "mean_door_error", "late_door_error", "ms_per_step")
 UNIT_METRICS = ("error", "_tv", "entropy", "p_true", "claimed")  # names containing these lie in [0, 1]
 #: yes/no outcomes per run: their means (shares of runs) lie in [0, 1]
-PROPORTION_METRICS = ("reached", "oracle_reached", "success", "ends_lost", "failed", "astray_way_back",
+PROPORTION_METRICS = ("reached", "oracle_reached", "stalled", "success", "ends_lost", "failed", "astray_way_back",
                       "any_wrong_cell", "wrong_map", "ends_lost_or_wrong_map", "local_maximum")
 #: the honest metrics (issue 40), one sentence each, for the legend of a printed table
 HONEST_METRICS = {
@@ -144,6 +144,7 @@ METRIC_DEFINITIONS = {
     "late_door_error": "mean door_error over the last two thirds of the run",
     "ms_per_step": "wall time per step, measured after a warm-up run (numba kernels compiled first)",
     "reached": "share of runs in which the robot reaches the goal",
+    "stalled": "share of runs that stalled: the belief did not move for stall_after presses in a row (the run ends)",
     "steps_to_goal": "steps until the robot first stands on the goal",
     "oracle_steps": "steps of a robot that knows its cell and the true map, in the same world history",
     "steps_over_oracle": "steps_to_goal / oracle_steps, per run",
@@ -424,15 +425,17 @@ def coverage(map_error: np.ndarray) -> dict[str, float]:
     return row
 
 
-def navigation_metrics(reached_at: int | None, oracle: int | None) -> dict[str, float | bool]:
-    """A navigation run's metrics from the step it first stood on the goal (None: never) and the
-    oracle's (None: the oracle never got there either). O(1)."""
+def navigation_metrics(reached_at: int | None, oracle: int | None,
+                       stalled_at: int | None = None) -> dict[str, float | bool]:
+    """A navigation run's metrics from the step it first stood on the goal (None: never), the
+    oracle's (None: the oracle never got there either) and the step at which the run stalled
+    (None: it did not; ``stalled``). O(1)."""
     reached, oracle_reached = reached_at is not None, oracle is not None
     both = reached and oracle_reached
     return {"reached": reached, "steps_to_goal": float(reached_at) if reached else math.nan,
             "oracle_reached": oracle_reached, "oracle_steps": float(oracle) if oracle_reached else math.nan,
             "steps_over_oracle": reached_at / max(oracle, 1) if both else math.nan,
-            "success": bool(both and reached_at <= SUCCESS_WITHIN * max(oracle, 1))}
+            "success": bool(both and reached_at <= SUCCESS_WITHIN * max(oracle, 1)), "stalled": stalled_at is not None}
 
 
 def way_back(run: Run) -> np.ndarray:

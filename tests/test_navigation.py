@@ -699,3 +699,21 @@ def test_goto_with_a_finite_plan_records_no_event():
     model, belief = _cut_corridor(0.4)
     planner = GoTo(model, goal=3)
     assert model.action_names[planner.choose(belief)] == "east" and planner.events == []
+
+
+def test_navigation_metrics_say_whether_the_run_stalled():
+    from onlinemap.evaluate import navigation_metrics
+    assert navigation_metrics(None, 40, stalled_at=57)["stalled"] is True
+    assert navigation_metrics(30, 40)["stalled"] is False
+
+
+def test_navigate_ends_a_stalled_run_and_reports_its_step():
+    # dead reckoning never moves its belief in a static corridor pressing left at the left end (cell 0)
+    model = om.grid_model(1, 6, 2, blocking=[1])
+    class Left:
+        goal = 5
+        def choose(self, belief):
+            return 0
+    found = navigate(model, np.zeros(6, dtype=int), 5, Left(), "dead_reckoning", max_steps=200, seed=1, stall_after=4)
+    assert found.stalled_at == 4 and found.reached_at is None and found.run.n_steps == 5
+    assert "stalled at step 4" in repr(found)
