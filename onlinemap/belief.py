@@ -8,7 +8,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .arguments import integer
 from .arrays import read_only
+from .errors import InvalidOptionError
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -98,6 +100,39 @@ class Belief:
         extra += ", recovered from depletion" if self.recovered else ""
         return (f"Belief(t={self.t}, most likely cell {where} with p={self.location[where]:.3f}, "
                 f"N={self.n_cells}, K={self.n_labels}, log_evidence={self.log_evidence:.4g}{undefined}{extra})")
+
+
+STALL_AFTER = 50  # a closed loop whose belief has not moved for this many presses has stalled
+
+
+def same_belief(one: Belief, other: Belief) -> bool:
+    """Whether two beliefs have the same location and map marginals (to 1e-12 each). O(N K)."""
+    return (one.location.shape == other.location.shape and one.map.shape == other.map.shape
+            and np.allclose(one.location, other.location, rtol=0, atol=1e-12)
+            and np.allclose(one.map, other.map, rtol=0, atol=1e-12))
+
+
+class StallWatch:
+    """Stall detection for a closed loop: ``after`` presses in a row after each of which the
+    belief equals the one before it (:func:`same_belief`) are a stall. Give :meth:`update` each
+    step's belief; it returns True at the step the stall is declared (once per stall: the count
+    starts again when the belief moves). ``after`` None: never. O(N K) per step."""
+
+    def __init__(self, after: int | None = STALL_AFTER):
+        self.after = None if after is None else integer("stall_after", after, minimum=1, error=InvalidOptionError)
+        self.unchanged = 0  # presses in a row that left the belief as it was
+        self.stalled_at: int | None = None  # the step of the first stall declared
+        self._last: Belief | None = None
+
+    def update(self, belief: Belief) -> bool:
+        unchanged = self._last is not None and same_belief(belief, self._last)
+        self._last = belief
+        self.unchanged = self.unchanged + 1 if unchanged else 0
+        if self.after is None or self.unchanged != self.after:
+            return False
+        if self.stalled_at is None:
+            self.stalled_at = belief.t
+        return True
 
 
 def beliefs_frame(location: np.ndarray, maps: np.ndarray, model: GridModel | None = None,

@@ -162,15 +162,17 @@ def coverage(map_error: np.ndarray) -> dict[str, float]:
     return row
 
 
-def navigation_metrics(reached_at: int | None, oracle: int | None) -> dict[str, float | bool]:
-    """A navigation run's metrics from the step it first stood on the goal (None: never) and the
-    oracle's (None: the oracle never got there either). O(1)."""
+def navigation_metrics(reached_at: int | None, oracle: int | None,
+                       stalled_at: int | None = None) -> dict[str, float | bool]:
+    """A navigation run's metrics from the step it first stood on the goal (None: never), the
+    oracle's (None: the oracle never got there either) and the step at which the run stalled
+    (None: it did not; ``stalled``). O(1)."""
     reached, oracle_reached = reached_at is not None, oracle is not None
     both = reached and oracle_reached
     return {"reached": reached, "steps_to_goal": float(reached_at) if reached else math.nan,
             "oracle_reached": oracle_reached, "oracle_steps": float(oracle) if oracle_reached else math.nan,
             "steps_over_oracle": reached_at / max(oracle, 1) if both else math.nan,
-            "success": bool(both and reached_at <= SUCCESS_WITHIN * max(oracle, 1))}
+            "success": bool(both and reached_at <= SUCCESS_WITHIN * max(oracle, 1)), "stalled": stalled_at is not None}
 
 
 def _honest_columns(run: Run, trajectory: Trajectory, p_true: np.ndarray) -> dict[str, np.ndarray]:

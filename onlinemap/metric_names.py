@@ -35,7 +35,7 @@ RUN_METRICS = ("final_map_error", "mean_map_error", "final_location_error", "mea
                "mean_door_error", "late_door_error", "ms_per_step")
 UNIT_METRICS = ("error", "_tv", "entropy", "p_true", "claimed")  # names containing these lie in [0, 1]
 #: yes/no outcomes per run: their means (shares of runs) lie in [0, 1]
-PROPORTION_METRICS = ("reached", "oracle_reached", "success", "ends_lost", "failed", "astray_way_back",
+PROPORTION_METRICS = ("reached", "oracle_reached", "stalled", "success", "ends_lost", "failed", "astray_way_back",
                       "any_wrong_cell", "wrong_map", "ends_lost_or_wrong_map", "local_maximum")
 #: the honest metrics (issue 40), one sentence each, for the legend of a printed table
 HONEST_METRICS = {
@@ -82,6 +82,7 @@ METRIC_DEFINITIONS = {
     "oracle_steps": "steps of a robot that knows its cell and the true map, in the same world history",
     "steps_over_oracle": "steps_to_goal / oracle_steps, per run",
     "success": f"share of runs reaching the goal within {SUCCESS_WITHIN}x the oracle's steps",
+    "stalled": "share of runs that stalled: the belief did not move for stall_after presses in a row (the run ends)",
     **HONEST_METRICS,
 }
 #: a footnote for printed tables: what ``ms_per_step`` includes

@@ -7,6 +7,7 @@ dynamics as :func:`onlinemap.simulate`); :func:`explore_env` drives a gymnasium
 
 from __future__ import annotations
 
+import logging
 import time
 from typing import Callable, NamedTuple
 
@@ -15,6 +16,7 @@ import pandas as pd
 
 from onlinemap import arguments
 from onlinemap.errors import InvalidOptionError, ModelError
+from onlinemap.belief import STALL_AFTER, StallWatch
 from onlinemap.estimators import Estimator, Trajectory, estimator_options, make_estimator
 from onlinemap.evaluate import step_metrics
 from onlinemap.model import GridModel
@@ -24,6 +26,8 @@ from onlinemap.simulate import Run, world_step
 from onlinemap.validation import check_map
 
 from .planners import PLANNERS, Planner, make_planner
+
+logger = logging.getLogger(__name__)
 
 COLUMNS = ("t", "action", "true_location", "map_error", "location_error", "location_entropy",
            "map_entropy", "door_error")
@@ -88,17 +92,22 @@ class Exploration(NamedTuple):
     frame: pd.DataFrame  # one row per step: COLUMNS
     run: Run  # the actions the planner chose, true locations, maps and observations
     trajectory: Trajectory  # the estimator's stacked beliefs; seconds_per_step: estimator + planner
+    stalled_at: int | None = None  # the step at which the run stalled and ended (StallWatch), None if it did not
 
 
 def closed_loop(model: GridModel, reset: Callable[[], WorldState], advance: Callable[[int], WorldState],
                 planner: Planner, estimator: Estimator, steps: int, progress: bool | None,
-                until: Callable[[int], bool] | None = None, score: bool = True) -> Exploration:
+                until: Callable[[int], bool] | None = None, score: bool = True,
+                stall_after: int | None = STALL_AFTER) -> Exploration:
     """The loop every run shares: ``reset()`` gives the first observation, then the planner
     chooses, ``advance(action)`` moves the world and the estimator updates. At most ``steps``
     steps; ``until(true location)``, if given, ends the run after the first step at which it
     holds (that step recorded). The frame is scored by
     :func:`onlinemap.evaluate.step_metrics` unless ``score`` is False (the sweep engine scores the
-    run and trajectory itself: frame None)."""
+    run and trajectory itself: frame None). ``stall_after`` presses in a row that leave the belief
+    as it was (:class:`onlinemap.belief.StallWatch`; None: never) are a stall: the run ends there,
+    its step in ``stalled_at``, and it is logged as a warning (a stalled run is not run on to
+    ``steps``)."""
     n, k = model.n_cells, model.n_labels  # a step's record: action, location, readings, beliefs, true map
     steps = arguments.step_count("steps", steps, minimum=1,
                                  bytes_per_step=8 * (3 + model.n_readings + n + n * k + n), error=InvalidOptionError)
@@ -109,6 +118,7 @@ def closed_loop(model: GridModel, reset: Callable[[], WorldState], advance: Call
     map_belief = np.empty((steps, model.n_cells, model.n_labels))
     evidence = np.empty(steps)
     true_maps = np.empty((steps, model.n_cells), dtype=np.int64)
+    watch = StallWatch(stall_after)
     if hasattr(planner, "bind"):  # planners that roll hypotheses out on copies of the live filter
         planner.bind(estimator)
     observation, location, labels = reset()
@@ -126,6 +136,10 @@ def closed_loop(model: GridModel, reset: Callable[[], WorldState], advance: Call
         bar.update()
         if until is not None and until(location):
             break
+        if watch.update(belief):
+            logger.warning("%r with %s stalled at step %d: %d presses left the belief as it was; the run ends",
+                           planner, estimator.name, t, watch.after)
+            break
     bar.close()
     if t + 1 < steps:  # stopped early: keep the steps taken
         steps = t + 1
@@ -136,20 +150,21 @@ def closed_loop(model: GridModel, reset: Callable[[], WorldState], advance: Call
     run = Run(model, actions[1:], locations, true_maps, observations)
     trajectory = Trajectory(location_belief, map_belief, evidence, seconds)
     if not score:
-        return Exploration(None, run, trajectory)
+        return Exploration(None, run, trajectory, watch.stalled_at)
     scores = step_metrics(run, trajectory)
     frame = pd.DataFrame({"t": scores["t"], "action": [None] + [model.action_names[a] for a in actions[1:]],
                           "true_location": locations})
     for column in COLUMNS[3:]:
         frame[column] = scores[column] if column in scores else np.nan
-    frame.attrs.update(planner=repr(planner), estimator=estimator.name, seconds_per_step=seconds)
-    return Exploration(frame, run, trajectory)
+    frame.attrs.update(planner=repr(planner), estimator=estimator.name, seconds_per_step=seconds,
+                       stalled_at=watch.stalled_at)
+    return Exploration(frame, run, trajectory, watch.stalled_at)
 
 
 def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
             estimator: str | Estimator = "rbpf", steps: int = 500, seed: SeedLike = None, *,
             estimator_options: dict | None = None, planner_options: dict | None = None,
-            progress: bool | None = None) -> pd.DataFrame:
+            progress: bool | None = None, stall_after: int | None = STALL_AFTER) -> pd.DataFrame:
     """Run a closed exploration loop for ``steps`` steps (the first observation included).
 
     Each step: the planner chooses an action from the estimator's belief, the true world moves
@@ -167,17 +182,20 @@ def explore(model: GridModel, true_map, planner: str | Planner = "entropy",
     ``location_error`` (1 - P(true cell)), ``location_entropy`` and ``map_entropy``
     (normalised to [0, 1]) and ``door_error`` (``map_error`` over the door cells; NaN if the
     world has none); ``frame.attrs`` holds the planner, the estimator and seconds per step.
-    ``progress``: a tqdm bar (None: shown for runs of 200 steps or more).
+    ``progress``: a tqdm bar (None: shown for runs of 200 steps or more). ``stall_after``: the
+    run ends after that many presses in a row leave the belief as it was (a stall, :func:`closed_loop`;
+    ``frame.attrs["stalled_at"]`` its step; None: never).
     Cost: ``steps`` x (estimator step + planner choice) plus O(steps N K) memory and metrics.
     """
     return exploration(model, true_map, planner, estimator, steps, seed, estimator_options=estimator_options,
-                       planner_options=planner_options, progress=progress).frame
+                       planner_options=planner_options, progress=progress, stall_after=stall_after).frame
 
 
 def exploration(model: GridModel, true_map, planner: str | Planner = "entropy",
                 estimator: str | Estimator = "rbpf", steps: int = 500, seed: SeedLike = None, *,
                 estimator_options: dict | None = None, planner_options: dict | None = None,
-                progress: bool | None = None, score: bool = True) -> Exploration:
+                progress: bool | None = None, score: bool = True,
+                stall_after: int | None = STALL_AFTER) -> Exploration:
     """:func:`explore` returning the whole :class:`Exploration` (table, true run, beliefs); with
     ``score`` False the frame is None (the sweep engine scores the run and trajectory itself)."""
     world_rng, planner_rng, estimator_seed = seed_streams(seed)
@@ -192,7 +210,8 @@ def exploration(model: GridModel, true_map, planner: str | Planner = "entropy",
         state["location"] = location
         return observation, location, state["labels"]
 
-    return closed_loop(model, lambda: advance(None), advance, chooser, est, steps, progress, score=score)
+    return closed_loop(model, lambda: advance(None), advance, chooser, est, steps, progress, score=score,
+                       stall_after=stall_after)
 
 
 def explore_env(env, planner: str | Planner = "entropy", estimator: str | Estimator = "rbpf",

@@ -20,6 +20,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
 from onlinemap import arguments
+from onlinemap.belief import STALL_AFTER
 from onlinemap.errors import InvalidOptionError
 from onlinemap.estimators import Estimator, Trajectory
 from onlinemap.model import GridModel
@@ -76,11 +77,14 @@ class Navigation(NamedTuple):
     reached_at: int | None  # the first step at which the true robot stands on the goal (None: never)
     run: Run
     trajectory: Trajectory
+    stalled_at: int | None = None  # the step at which the run stalled and ended (closed_loop), None if it did not
 
     def __repr__(self) -> str:
         """One line (the frame's rows are its own to print): the goal, when it was reached, the
         steps and the fields' sizes."""
         reached = "never reached" if self.reached_at is None else f"reached at step {self.reached_at}"
+        if self.stalled_at is not None:
+            reached += f", stalled at step {self.stalled_at}"
         rows, columns = self.frame.shape
         return (f"Navigation(goal cell {self.frame.attrs.get('goal')} {reached}; {self.run.n_steps} steps from "
                 f"cell {self.run.locations[0]} to {self.run.locations[-1]}; frame {rows} rows x {columns} columns, "
@@ -115,7 +119,7 @@ def _distances_to_goal(model: GridModel, run: Run, goal: int) -> np.ndarray:
 def navigate(model: GridModel, true_map, goal, planner: str | Planner = "goto", estimator: str | Estimator = "rbpf",
              *, max_steps: int, seed: SeedLike, estimator_options: dict | None = None,
              planner_options: dict | None = None, progress: bool | None = None,
-             score: bool = True) -> Navigation:
+             score: bool = True, stall_after: int | None = STALL_AFTER) -> Navigation:
     """Drive the robot towards ``goal`` (a cell index or ``(row, col)``) in closed loop: the loop
     of :func:`policies.explore.exploration` (planner chooses, world moves, estimator updates) in a
     :class:`PairedWorld`, ended when the true robot stands on the goal or after ``max_steps``
@@ -132,7 +136,9 @@ def navigate(model: GridModel, true_map, goal, planner: str | Planner = "goto", 
     from the true location to the goal on the true map of that step (:func:`true_distances`; inf
     while the goal is cut off, 0 on the goal); ``reached_at`` the step at which the robot first
     stands on the goal, or None; with ``score`` False the frame holds only ``distance_to_goal``
-    (the sweep engine scores the run itself). Cost: the steps taken x (estimator step + planner choice), plus
+    (the sweep engine scores the run itself); ``stalled_at`` the step at which the run stalled and
+    ended (``stall_after`` presses in a row left the belief as it was,
+    :func:`policies.explore.closed_loop`; None: never). Cost: the steps taken x (estimator step + planner choice), plus
     O(N A) per distinct true map for the distances.
     """
     max_steps = arguments.integer("max_steps", max_steps, minimum=0, error=InvalidOptionError)
@@ -151,12 +157,13 @@ def navigate(model: GridModel, true_map, goal, planner: str | Planner = "goto", 
     est = loop_estimator(model, estimator, estimator_options, estimator_seed)
     chooser = loop_planner(model, planner, planner_options, planner_rng)
     found = closed_loop(model, world.reset, world.advance, chooser, est, max_steps + 1, progress,
-                        until=lambda location: location == cell, score=score)
+                        until=lambda location: location == cell, score=score, stall_after=stall_after)
     frame = found.frame if score else pd.DataFrame(index=range(found.run.n_steps))
     frame["distance_to_goal"] = _distances_to_goal(model, found.run, cell)
     frame.attrs["goal"] = cell
     at_goal = np.flatnonzero(found.run.locations == cell)
-    return Navigation(frame, int(at_goal[0]) if len(at_goal) else None, found.run, found.trajectory)
+    return Navigation(frame, int(at_goal[0]) if len(at_goal) else None, found.run, found.trajectory,
+                      found.stalled_at)
 
 
 def oracle_steps(model: GridModel, true_map, goal, *, max_steps: int, seed: SeedLike,

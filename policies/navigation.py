@@ -49,6 +49,7 @@ value iteration; memory O(H N K).
 
 from __future__ import annotations
 
+import logging
 import numbers
 from typing import NamedTuple
 
@@ -62,10 +63,13 @@ from onlinemap.errors import InvalidOptionError
 from .kernels.navigation import goal_value_iteration
 from onlinemap.model import GridModel
 
-from .passability import paths_to
+from .passability import PressMemory, paths_to
+
+logger = logging.getLogger(__name__)
 
 MIXED = 1e-3  # the horizon ends where C^tau is this close to its limit (label_powers)
 CREDIBLE = 0.95  # the location hypotheses that vote for the action (best_action): the likeliest cells holding this
+RELAXED_WALL = 0.999  # with no finite plan: only a cell believed a wall above this is planned as one
 NEVER = 1e9  # steps charged for what never ends (a cell from which the goal cannot be reached); values cap here
 
 
@@ -188,14 +192,16 @@ class GoalPlan(NamedTuple):
 
 
 def plan_to_goal(model: GridModel, maps: np.ndarray, goal: int, horizon: int | None = None, *,
-                 tables: LabelTables | None = None) -> GoalPlan:
+                 tables: LabelTables | None = None, wall_above: float = 0.5) -> GoalPlan:
     """The value iteration of the module docstring for map marginals ``maps`` (N, K) and the goal
     cell ``goal`` (an index). ``horizon`` None: :func:`default_horizon`; ``tables``: the model's
-    :func:`label_tables` for that horizon, if already computed. Costs: the module's."""
+    :func:`label_tables` for that horizon, if already computed. A cell whose permanently blocking
+    mass exceeds ``wall_above`` is planned as a wall (1/2: more likely than not; :class:`GoTo`
+    raises it to :data:`RELAXED_WALL` when the belief's map leaves no finite plan). Costs: the module's."""
     tables = label_tables(model, horizon) if tables is None else tables
     maps = np.array(maps, dtype=np.float64)
     wall = maps[:, tables.permanent].sum(axis=1)
-    walls = wall > 0.5  # planned as walls: their permanent part alone, renormalised
+    walls = wall > wall_above  # planned as walls: their permanent part alone, renormalised
     maps[walls] = np.where(tables.permanent, maps[walls], 0.0) / wall[walls, None]
     h = tables.powers.shape[0] - 1
     arrival = np.matmul(maps[None], tables.powers)  # (H + 1, N, K): M C^tau
@@ -237,6 +243,16 @@ def check_goal(model: GridModel, goal) -> int:
     return cell
 
 
+def likely_cells(location: np.ndarray, goal: int) -> np.ndarray:
+    """The cells that vote in :func:`best_action`: the location belief's :data:`CREDIBLE` set (its
+    most likely cells holding that much of the probability), less the goal and cells of
+    probability 0. ``location`` (N,). O(N log N)."""
+    order = np.argsort(location, kind="stable")[::-1]
+    held = np.cumsum(location[order])
+    likely = order[:int(np.searchsorted(held, CREDIBLE * held[-1])) + 1]
+    return likely[(likely != goal) & (location[likely] > 0)]
+
+
 def best_action(location: np.ndarray, q: np.ndarray, goal: int) -> int:
     """The action most likely to be the best one: the largest total probability of the cells of
     the location belief's :data:`CREDIBLE` set (its most likely cells holding that much of the
@@ -253,10 +269,7 @@ def best_action(location: np.ndarray, q: np.ndarray, goal: int) -> int:
     hypotheses want, and moving tells them apart. ``location`` (N,), ``q`` (N, A). O(N log N + N A)."""
     q = np.minimum(q, NEVER)
     costs = location @ q
-    order = np.argsort(location, kind="stable")[::-1]
-    held = np.cumsum(location[order])
-    likely = order[:int(np.searchsorted(held, CREDIBLE * held[-1])) + 1]
-    likely = likely[(likely != goal) & (location[likely] > 0)]
+    likely = likely_cells(location, goal)
     if not len(likely):
         return int(np.argmin(costs))
     here = q[likely]
@@ -269,7 +282,18 @@ def best_action(location: np.ndarray, q: np.ndarray, goal: int) -> int:
 class GoTo:
     """Go to ``goal`` (a cell index or ``(row, col)``) by the value iteration of
     :mod:`policies.navigation` on the belief's map marginals, re-planned at every call; the action
-    is chosen under the location belief by :func:`best_action`. ``horizon``: H (None:
+    is chosen under the location belief by :func:`best_action`.
+
+    With no finite plan (every Q value infinite at every likely cell, :func:`likely_cells`: the
+    belief's map cuts the goal off, e.g. two doors on the route learned as walls while the robot
+    was lost) the planner falls back, first to a plan in which only cells believed a wall above
+    :data:`RELAXED_WALL` are walls (a door believed a wall at 0.95 may still be one), then, if that
+    is cut off too, to moving towards the goal as the crow flies (Q = 1 + the grid distance from
+    the target cell to the goal); in both it leaves out the presses a
+    :class:`~policies.passability.PressMemory` found futile, so it never presses one futile action
+    for ever (presses believed blocked stay allowed: they are what the relaxed plan tries). Each such step is recorded in ``events`` (``{"event": "no_plan", "t": step,
+    "fallback": "relaxed" | "towards_goal"}``; ``no_plan`` counts them) and the first one is
+    logged as a warning by this module's logger. ``horizon``: H (None:
     :func:`default_horizon`). A goal off the grid, a wall under the model's label prior or
     unreachable from the start under it raises InvalidOptionError naming the goal (:func:`check_goal`).
     Cost per call: the module's (a call whose marginals equal the last call's reuses its plan)."""
@@ -283,6 +307,13 @@ class GoTo:
         self.tables = label_tables(model, self.horizon)
         self.plan: GoalPlan | None = None
         self._planned_on: np.ndarray | None = None
+        self.memory = PressMemory(model)
+        self.events: list[dict] = []  # the steps with no finite plan (see the class docstring)
+
+    @property
+    def no_plan(self) -> int:
+        """The number of steps at which the belief's map left no finite plan."""
+        return len(self.events)
 
     def marginals(self, belief: Belief) -> np.ndarray:
         """(N, K) the label marginals the plan is made on: the belief's."""
@@ -293,7 +324,30 @@ class GoTo:
         if self._planned_on is None or not np.array_equal(maps, self._planned_on):
             self.plan = plan_to_goal(self.model, maps, self.goal, tables=self.tables)
             self._planned_on = np.array(maps)
+        likely = likely_cells(belief.location, self.goal)
+        if len(likely) and np.isinf(self.plan.q[likely]).all():
+            return self._fallback(belief, maps, likely)
         return best_action(belief.location, self.plan.q, self.goal)
+
+    def _fallback(self, belief: Belief, maps: np.ndarray, likely: np.ndarray) -> int:
+        """The action when the plan on ``maps`` is infinite at every ``likely`` cell (class docstring)."""
+        q = plan_to_goal(self.model, maps, self.goal, tables=self.tables, wall_above=RELAXED_WALL).q
+        fallback = "relaxed"
+        if np.isinf(q[likely]).all():
+            fallback = "towards_goal"
+            rows, cols = np.divmod(self.model.neighbors, self.model.cols)
+            goal_row, goal_col = divmod(self.goal, self.model.cols)
+            q = 1.0 + np.abs(rows - goal_row) + np.abs(cols - goal_col)
+        self.memory.allowed(belief)  # updates which presses were futile; a press it believes blocked is still
+        allowed = ~self.memory.futile if not self.memory.futile.all() else np.ones_like(self.memory.futile)
+        action = best_action(belief.location, np.where(allowed, q, np.inf), self.goal)
+        self.memory.pressed(belief, action)
+        if not self.events:
+            logger.warning("%r: no finite plan at step %d (the belief's map cuts the goal off); falling back to %s",
+                           self, belief.t, "a plan with walls believed below %g as passable" % RELAXED_WALL
+                           if fallback == "relaxed" else "moving towards the goal")
+        self.events.append({"event": "no_plan", "t": int(belief.t), "fallback": fallback})
+        return action
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(goal={self.goal}, horizon={self.horizon})"

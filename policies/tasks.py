@@ -68,7 +68,7 @@ def play_navigation(model: GridModel, true_map: np.ndarray, task: Task) -> Playe
             _ORACLES.clear()
         _ORACLES[key] = oracle_steps(model, true_map, task.goal, max_steps=task.steps - 1, seed=task.seed)
     return Played(found.run, found.trajectory, {"distance_to_goal": found.frame["distance_to_goal"].to_numpy()},
-                  navigation_metrics(found.reached_at, _ORACLES[key]))
+                  navigation_metrics(found.reached_at, _ORACLES[key], found.stalled_at))
 
 
 NAVIGATE = TaskKind("navigate", "planners", planner_options, planner_class, build_goal_planner, with_floor_plan,

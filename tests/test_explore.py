@@ -294,3 +294,35 @@ def test_visits_share_one_colour_scale_show_unvisited_cells_and_name_doors():
                         for row, col in zip(*np.nonzero(np.isin(true_map.reshape(model.shape), list(palette))))}
     assert len(figure.axes) == 3  # two panels and one colour bar
     assert colors.to_hex(unvisited) != colors.to_hex("white")
+
+
+class _North:
+    """A planner that presses north for ever."""
+
+    def choose(self, belief):
+        return 0
+
+
+def test_stall_watch_counts_presses_in_a_row_that_leave_the_belief_as_it_was():
+    from onlinemap.belief import Belief, StallWatch
+    a, b = (Belief(t, np.array([p, 1 - p]), np.full((2, 2), 0.5)) for t, p in ((0, 0.3), (0, 0.3 + 1e-9)))
+    watch = StallWatch(2)
+    steps = [a, a, b, b, b, b, a]  # unchanged: -, 1, 0, 1, 2 (stall), 3, 0
+    assert [watch.update(x) for x in steps] == [False, False, False, False, True, False, False]
+    never = StallWatch(None)
+    assert not any(never.update(a) for _ in range(100))
+    with pytest.raises(om.errors.InvalidOptionError, match="stall_after"):
+        StallWatch(0)
+
+
+def test_a_closed_loop_whose_belief_stops_moving_ends_and_reports_the_stall(caplog):
+    # dead reckoning at the top-left corner pressing north: the robot and its belief stay as they are,
+    # so presses 1..5 each leave the belief unchanged and the fifth (step 5) declares the stall
+    model = om.grid_model(3, 3, 2)
+    true_map = np.zeros(9, dtype=int)
+    with caplog.at_level("WARNING", logger="policies.explore"):
+        found = exploration(model, true_map, _North(), "dead_reckoning", steps=100, seed=0, stall_after=5)
+    assert found.stalled_at == 5 and len(found.frame) == 6 and found.frame.attrs["stalled_at"] == 5
+    assert any("stalled at step 5" in r.getMessage() for r in caplog.records)
+    unwatched = exploration(model, true_map, _North(), "dead_reckoning", steps=30, seed=0, stall_after=None)
+    assert unwatched.stalled_at is None and len(unwatched.frame) == 30

@@ -660,3 +660,60 @@ def test_navigate_takes_a_goal_in_a_0d_array_and_refuses_planners_that_are_not_p
         with pytest.raises(ModelError, match=f"planner must be a registered name .* or an object with a "
                                              f"choose\\(belief\\) method, got {type(planner).__name__} {planner}"):
             navigate(model, true_map, 11, planner, max_steps=3, seed=1, estimator_options=options)
+
+
+def _cut_corridor(wall_chance):
+    """A 2 x 4 static grid, start 0 (top left), goal 3 (top right), column 1 (cells 1 and 5)
+    believed a wall with ``wall_chance``: the belief's map cuts the goal off."""
+    model = om.grid_model(2, 4, 2, blocking=[1], p_move=0.8)
+    maps = np.tile([1.0, 0.0], (8, 1))
+    maps[[1, 5]] = [1 - wall_chance, wall_chance]
+    return model, Belief(0, np.eye(8)[0], maps)
+
+
+def test_goto_without_a_finite_plan_plans_walls_below_the_relaxed_threshold_as_passable(caplog):
+    model, belief = _cut_corridor(0.9)
+    planner = GoTo(model, goal=3)
+    assert np.isinf(plan_to_goal(model, belief.map, 3).q[0]).all()  # the cut: no finite plan
+    # Relaxed, by hand (alpha = 1 / p_move = 1.25 for a free cell, a wall at 0.9 costs (0.9 + 0.1 alpha) / 0.1):
+    # east 1 + 10.25 + 1.25 + 1.25 ... its Q is finite; the others only via cell 5 or by waiting, dearer.
+    with caplog.at_level("WARNING", logger="policies.navigation"):
+        first = planner.choose(belief)
+        second = planner.choose(belief)
+    assert model.action_names[first] == "east" and first != 0  # not the lowest index (north, into the edge)
+    assert planner.no_plan == 2 and planner.events[0] == {"event": "no_plan", "t": 0, "fallback": "relaxed"}
+    assert len([r for r in caplog.records if r.name == "policies.navigation"]) == 1  # warned once
+
+
+def test_goto_cut_off_even_when_relaxed_moves_towards_the_goal_and_drops_futile_presses():
+    model, belief = _cut_corridor(0.9995)  # above RELAXED_WALL: cut off even when relaxed
+    planner = GoTo(model, goal=3)
+    # towards the goal at cell 0: east enters cell 1 (2 moves from 3), south cell 4 (4 moves), north/west stay (3)
+    assert model.action_names[planner.choose(belief)] == "east"
+    assert planner.events[-1]["fallback"] == "towards_goal"
+    # the same belief again: the press of east changed nothing (futile), so the planner leaves it out
+    assert model.action_names[planner.choose(belief)] != "east"
+
+
+def test_goto_with_a_finite_plan_records_no_event():
+    model, belief = _cut_corridor(0.4)
+    planner = GoTo(model, goal=3)
+    assert model.action_names[planner.choose(belief)] == "east" and planner.events == []
+
+
+def test_navigation_metrics_say_whether_the_run_stalled():
+    from onlinemap.evaluate import navigation_metrics
+    assert navigation_metrics(None, 40, stalled_at=57)["stalled"] is True
+    assert navigation_metrics(30, 40)["stalled"] is False
+
+
+def test_navigate_ends_a_stalled_run_and_reports_its_step():
+    # dead reckoning never moves its belief in a static corridor pressing left at the left end (cell 0)
+    model = om.grid_model(1, 6, 2, blocking=[1])
+    class Left:
+        goal = 5
+        def choose(self, belief):
+            return 0
+    found = navigate(model, np.zeros(6, dtype=int), 5, Left(), "dead_reckoning", max_steps=200, seed=1, stall_after=4)
+    assert found.stalled_at == 4 and found.reached_at is None and found.run.n_steps == 5
+    assert "stalled at step 4" in repr(found)

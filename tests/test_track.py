@@ -388,3 +388,15 @@ def test_action_errors_speak_of_lines_and_unknown_or_repeated_keys_are_refused(m
     reference_est = om.make_estimator("exact", parse_world(WORLD).model)  # the refused lines changed nothing
     reference_est.step(None, 0)
     assert json.loads(out.splitlines()[1]) == json.loads(json.dumps(summarize(reference_est.step(1, 1))))
+
+
+def test_track_reports_a_stall_once_with_its_step(monkeypatch, capsys):
+    # dead reckoning in a static corridor, pressing left at the start (cell 0, the left end): the belief
+    # stays as it was at every step, so the third unchanged step (t = 3) is a stall, reported once
+    lines = ['{"observation": 0}'] + ['{"action": "left", "observation": 0}'] * 6
+    monkeypatch.setattr(sys, "stdin", io.StringIO("\n".join(lines) + "\n"))
+    assert main(["track", "--world", "corridor:6", "--estimator", "dead_reckoning", "--stall-after", "3"]) == 0
+    events = [json.loads(line) for line in capsys.readouterr().err.splitlines()]
+    assert [e for e in events if e.get("event") == "stalled"] == [{"event": "stalled", "t": 3, "unchanged_steps": 3}]
+    assert track_in_process(monkeypatch, ["--stall-after", "-1"]) == 2
+    assert "--stall-after N needs N >= 0" in capsys.readouterr().err

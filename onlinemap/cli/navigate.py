@@ -85,7 +85,9 @@ def run(args: argparse.Namespace) -> int:
         raise ModelError(f"--planner {', '.join(aimless)}: {'does' if len(aimless) == 1 else 'do'} not take a goal; "
                          f"navigate compares goal planners: {', '.join(goal_planners)}")
     world = parse_world(args.world)
-    true_map = fixed_map(world)
+    # a world that draws its map per seed has no fixed map; without blocking labels every cell is
+    # reachable on every seed's map, so the first seed's map serves to choose and check the goal
+    true_map = world.initial_map(0) if world.true_map is None and not world.model.has_blocking else fixed_map(world)
     if args.goal is None:
         goals = far_goals(world.model, true_map)
         if not goals:

@@ -23,7 +23,9 @@ checkpoint written) are JSON lines on stderr too, and so are the library's log m
 (``{"event": "log", "level": ..., "logger": ..., "message": ...}``, e.g. the RBPF's warning
 when it recovers from depletion); the start (or resume) event names the world's ``actions`` and
 ``labels`` in index order and its sensor ``footprint``: the (drow, dcol) offsets in the order an
-observation lists its readings (``[[0, 0]]``: one reading, a label).
+observation lists its readings (``[[0, 0]]``: one reading, a label). When ``--stall-after N``
+(default 50; 0: never) steps in a row leave the belief as it was, a ``{"event": "stalled", "t":
+step}`` line goes to stderr (once per stall: the robot presses in vain; the process keeps reading).
 
 A line longer than :data:`MAX_LINE` characters, with more than :data:`MAX_BRACKETS` brackets,
 or not UTF-8 is refused the same way (memory stays bounded; messages quote at most a short
@@ -66,7 +68,7 @@ from pathlib import Path
 
 from .. import checkpoint
 from ..atomic import remove_temporaries
-from ..belief import Belief
+from ..belief import STALL_AFTER, Belief, StallWatch
 from ..errors import CheckpointError, InvalidActionError, ModelError, OnlineMapError
 from ..estimators import fork, load, make_estimator
 from ..metrics import map_entropy, normalized_entropy
@@ -104,6 +106,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="a registered planner (goto, static_goto, entropy, ...): each output line carries its "
                         "next action")
     p.add_argument("--goal", metavar="CELL", help="the goal of a goal planner: a cell index or ROW,COL")
+    p.add_argument("--stall-after", type=int, default=STALL_AFTER, metavar="N",
+                   help=f"report a stall (an event on stderr) after N steps in a row leave the belief as it was "
+                        f"(default {STALL_AFTER}; 0: never)")
     add_stream_arguments(p)
     p.set_defaults(func=track)
 
@@ -279,6 +284,8 @@ def _start(args: argparse.Namespace, stderr):
     if args.every is not None and (args.checkpoint is None or args.every < 1):
         raise OnlineMapError("--every K needs --checkpoint FILE and K >= 1")
     every = args.every or 100
+    if args.stall_after < 0:
+        raise OnlineMapError(f"--stall-after N needs N >= 0 (0: never), got {args.stall_after}")
     world = parse_world(args.world)
     given = parse_options(args.option)
     est = make_estimator(args.estimator, world.model, **given)  # validates the names and values
@@ -365,6 +372,7 @@ def _loop(est, planner, args, every: int, stop: "_GracefulStop", stdin, stdout, 
     """Step through the input until its end or a stop signal. Every step is printed (with the
     ``planner``'s next action, if any) before any checkpoint that includes it (``delivered``
     keeps track), and shown to the ``views`` (recording, live server, animation)."""
+    watch = StallWatch(args.stall_after or None)
     try:
         for number, line in read_lines(stdin, stop):
             if isinstance(line, OnlineMapError):
@@ -384,6 +392,8 @@ def _loop(est, planner, args, every: int, stop: "_GracefulStop", stdin, stdout, 
             if planner is not None:
                 record["action"] = est.model.action_names[planner.choose(belief)]
             _emit(stdout, record)  # a closed stdout raises BrokenPipeError here
+            if watch.update(belief):
+                _emit(stderr, {"event": "stalled", "t": belief.t, "unchanged_steps": watch.after})
             delivered.stepped(belief.t, *step)
             views.step(belief, planner)
             if args.checkpoint is not None and (belief.t + 1) % every == 0 and _save(est, args.checkpoint, stderr):
