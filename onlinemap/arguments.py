@@ -126,7 +126,8 @@ def byte_limit(name: str, value, error: type[OnlineMapError] = ModelError) -> in
 
 def machine_memory() -> int | None:
     """Bytes of memory this process can have: the machine's physical memory (``os.sysconf``),
-    or its control group's limit (Linux containers) where lower; None where neither is known."""
+    or its control group's limit (Linux containers), or the address space its ``RLIMIT_AS`` still
+    leaves it (:func:`_address_space_left`), whichever is lowest; None where none is known."""
     sizes = []
     try:
         sizes.append(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
@@ -140,7 +141,30 @@ def machine_memory() -> int | None:
             continue
         if text.isdigit():  # "max": no limit
             sizes.append(int(text))
+    room = _address_space_left()
+    if room is not None:
+        sizes.append(room)
     return min(sizes) if sizes else None
+
+
+def _address_space_left() -> int | None:
+    """Bytes of address space this process may still map under its ``RLIMIT_AS`` (``ulimit -v``,
+    some containers), less what it has mapped already (``/proc/self/statm``); None without a
+    limit. The limit counts virtual memory, so an allocation beyond it ends in a raw
+    ``MemoryError`` however much physical memory is free."""
+    try:
+        import resource
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    except (ImportError, OSError, ValueError, AttributeError):  # not POSIX
+        return None
+    if soft == resource.RLIM_INFINITY:
+        return None
+    try:
+        with open("/proc/self/statm") as statm:
+            mapped = int(statm.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        mapped = 0
+    return max(soft - mapped, 0)
 
 
 def names(name: str, values, count: int, error: type[OnlineMapError] = ModelError) -> tuple[str, ...]:

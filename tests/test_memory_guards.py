@@ -245,3 +245,28 @@ def test_exact_memory_estimate_bounds_the_measured_peak(variant, what):
     old = tensor_bytes(model, 2 if what == "filter" else steps + 2)
     if variant == "both" or what == "smooth":
         assert old < measured / 1.5  # what the old guard missed
+
+
+def test_an_address_space_limit_below_physical_memory_is_a_memory_limit_error():
+    """``ulimit -v`` (RLIMIT_AS) caps what the process may map whatever the machine has: with
+    ``max_bytes=inf`` a filter beyond it is refused with MemoryLimitError, never a raw
+    MemoryError (issue 43, section 2, item 13). Run in a child process: the limit is for life."""
+    import subprocess
+    import sys
+    import textwrap
+    script = textwrap.dedent("""
+        import resource, onlinemap as om
+        model, _ = om.building(64, 64, seed=0)
+        with open("/proc/self/statm") as f:
+            mapped = int(f.read().split()[0]) * resource.getpagesize()
+        resource.setrlimit(resource.RLIMIT_AS, (mapped + 1_500_000_000, resource.RLIM_INFINITY))
+        try:
+            om.make_estimator("rbpf", model, n_particles=3_000_000, max_bytes=float("inf"), seed=0)
+            print("built")
+        except om.MemoryLimitError as exc:
+            print("MemoryLimitError", "1.5 GB" in str(exc) or "GB" in str(exc))
+        except MemoryError:
+            print("raw MemoryError")
+    """)
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert out.stdout.strip() == "MemoryLimitError True", out.stdout + out.stderr
