@@ -20,8 +20,8 @@ import numpy as np
 
 from .. import checkpoint
 from ..belief import Belief, beliefs_frame
-from ..errors import (CheckpointError, InvalidActionError, InvalidObservationError, ModelError, OnlineMapError,
-                      StepIndexError, UnknownEstimatorError)
+from ..errors import (CheckpointError, InvalidActionError, InvalidObservationError, InvalidOptionError, ModelError,
+                      OnlineMapError, StepIndexError, UnknownEstimatorError)
 from ..model import GridModel
 
 _REGISTRY: dict[str, type] = {}
@@ -93,6 +93,53 @@ def draw_labels(marginals: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.minimum((u >= cdf).sum(axis=-1), marginals.shape[-1] - 1).astype(np.int64)
 
 
+class FixedAfterBuild:
+    """An estimator option fixed when the estimator is built (it sizes or defines the state): read
+    like a plain attribute and kept in the instance's ``__dict__`` (so checkpoints, which store
+    ``vars(est)``, see it unchanged), but assigning it again raises
+    :class:`~onlinemap.errors.InvalidOptionError` and leaves the estimator as it was. O(1)."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        try:
+            return obj.__dict__[self.name]
+        except KeyError:
+            raise AttributeError(self.name) from None
+
+    def __set__(self, obj, value) -> None:
+        if self.name in obj.__dict__:
+            raise InvalidOptionError(f"{self.name} is fixed when the {type(obj).name} estimator is built (it sizes or "
+                                     f"defines its state); build a new one with {self.name}={value!r}")
+        obj.__dict__[self.name] = value
+
+
+class BooleanFlag:
+    """A boolean switch of an estimator that may change between steps (e.g. the RBPF's
+    ``recover_from_depletion``): kept in the instance's ``__dict__`` like a plain attribute, and
+    anything but a bool is refused with :class:`~onlinemap.errors.InvalidOptionError` (a
+    checkpoint of a non-bool would not load). O(1)."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        try:
+            return obj.__dict__[self.name]
+        except KeyError:
+            raise AttributeError(self.name) from None
+
+    def __set__(self, obj, value) -> None:
+        if not isinstance(value, (bool, np.bool_)):
+            raise InvalidOptionError(f"{self.name} must be True or False, got {value!r}")
+        obj.__dict__[self.name] = bool(value)
+
+
 def register(name: str) -> Callable[[type], type]:
     """Class decorator: make an estimator available to :func:`make_estimator` under ``name``.
 
@@ -101,6 +148,9 @@ def register(name: str) -> Callable[[type], type]:
     properties ``t`` (from ``self._t``) and ``belief`` (from ``self._belief``), the generic
     checkpoint methods ``state_dict()`` / ``load_state_dict(state, ...)`` of
     :mod:`onlinemap.checkpoint`, and a ``repr`` naming the estimator, its model, options and t.
+    The public attributes its ``CONSTANT_STATE`` names (the options that size or define the state,
+    checked equal on load) become :class:`FixedAfterBuild`: set once in ``__init__``, refused after,
+    so that no assignment makes a checkpoint that cannot be loaded.
     """
 
     def decorate(cls: type) -> type:
@@ -114,6 +164,11 @@ def register(name: str) -> Callable[[type], type]:
                                 ("__repr__", _estimator_repr)):
             if member not in vars(cls):
                 setattr(cls, member, default)
+        for attribute in getattr(cls, "CONSTANT_STATE", ()):
+            if not attribute.startswith("_") and "." not in attribute and attribute not in vars(cls):
+                fixed = FixedAfterBuild()
+                fixed.__set_name__(cls, attribute)
+                setattr(cls, attribute, fixed)
         _REGISTRY[name] = cls
         return cls
 

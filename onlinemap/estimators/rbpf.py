@@ -59,7 +59,7 @@ from ..model import GridModel
 from ..resampling import RESAMPLERS, effective_sample_size
 from ..rng import SeedLike, as_generator
 from ..validation import check_step
-from .base import register
+from .base import BooleanFlag, register
 from .block_pool import BlockPool, block_layout
 from .rbpf_kernels import KernelSet, kernel_set, observed, world_tables
 from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start
@@ -171,6 +171,9 @@ class RaoBlackwellisedPF:
 
     #: per-step buffers (:meth:`_fc_buffers`, :meth:`_staged_buffers`), overwritten by every step
     #: before being read: not state (a checkpoint records their dtype and shape only)
+    #: False: a depleted step raises instead of recovering (see above); a bool, checked when set
+    recover_from_depletion = BooleanFlag()
+
     scratch_attributes = ("_scratch_ints", "_scratch_floats", "_scratch_staged_ints", "_scratch_staged_cells")
 
     #: label_prior="learn"'s current label frequencies (K,): an attribute of such a filter only (and
