@@ -270,3 +270,27 @@ def test_an_address_space_limit_below_physical_memory_is_a_memory_limit_error():
     """)
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
     assert out.stdout.strip() == "MemoryLimitError True", out.stdout + out.stderr
+
+
+def test_the_resample_move_scratch_is_counted_before_the_step_is_taken():
+    """A move's scratch, about 48 (W + 1) N bytes, is counted by max_bytes: a limit that holds the
+    filter but not the scratch is refused when the filter is built, before any step (issue 43,
+    section 2, item 3), and the scratch's size is the sum of its arrays, counted by hand here."""
+    from onlinemap.estimators.rbpf_move import move_scratch_bytes
+    from onlinemap.kernels.rbpf_move import MoveScratch
+    model = om.corridor(50)
+    window = 30
+    n, k, width, f = 50, 2, window + 1, 1
+    by_hand = 8 * (2 * n * k + 5 * n + 2 * n + width * n + width + width * n + 2 * width * n + 2 * width * n
+                   + 2 * width + 2 * 2 * n + window * f + k)
+    assert move_scratch_bytes(model, window) == by_hand
+    assert len(MoveScratch._fields) == 16  # the arrays counted above: a new one must be counted too
+    from onlinemap.estimators.block_pool import block_shape
+    from onlinemap.estimators.rbpf_memory import state_bytes
+    from onlinemap.estimators.rbpf_move import new_history_bytes
+    size, n_blocks = block_shape(model, None)
+    without = state_bytes(model, 4, size, n_blocks, n_blocks + 8, 0, True, 1) + new_history_bytes(model, 4)
+    scratch = move_scratch_bytes(model, window)
+    with pytest.raises(om.MemoryLimitError, match="move_window"):
+        om.make_estimator("rbpf", model, n_particles=4, seed=0, move_window=window, max_bytes=without + scratch // 2)
+    om.make_estimator("rbpf", model, n_particles=4, seed=0, move_window=window, max_bytes=without + scratch)

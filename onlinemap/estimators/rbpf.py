@@ -63,7 +63,8 @@ from .base import BooleanFlag, register
 from .block_pool import BlockPool, block_layout
 from .rbpf_kernels import KernelSet, kernel_set, observed, world_tables
 from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start
-from .rbpf_move import MoveCounts, PathHistory, map_rows_per_move, move_options, path_rows_per_move
+from .rbpf_move import (MoveCounts, PathHistory, map_rows_per_move, move_options, move_scratch_bytes,
+                        path_rows_per_move)
 from .rbpf_prior import learn, prior_options, resolved_prior, retilt
 from .rbpf_recovery import RELOCATION_SCALE, describe, impossible, logsumexp, no_particle_explains, relocate
 from .rbpf_state import check_state, upgrade_attributes
@@ -452,6 +453,8 @@ class RaoBlackwellisedPF:
             extra = p * map_rows_per_move(model, window, pool.table.shape[1]) if moving else 0
             history_bytes, history_grows = self._history.bytes_to_hold(
                 t, p * (1 + (path_rows_per_move(window) if moving else 0)))
+            if moving:  # the move allocates its scratch after the step is taken: counted, and checked, before
+                history_bytes, history_grows = history_bytes + move_scratch_bytes(model, window), True
         check_growth(self._sizing, pool, t, pool.rows_to_hold(need + extra), history_bytes, history_grows)
         return pool.reserved(need)
 

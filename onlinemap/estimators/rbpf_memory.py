@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import MemoryLimitError
 from ..model import GridModel
 from .block_pool import BlockPool, block_shape, pool_bytes
-from .rbpf_move import new_history_bytes
+from .rbpf_move import move_scratch_bytes, new_history_bytes
 
 
 class Sizing(NamedTuple):
@@ -77,11 +77,12 @@ def peak_bytes(model: GridModel, n_particles: int, block_cells: int | None = Non
 
 def check_start(sizing: Sizing, block_cells: int | None, move_window: int | None) -> None:
     """Refuse a filter whose first pool (every particle sharing one row per block, 2P rows to
-    spare), buffers and, with ``move_window``, path history exceed ``max_bytes``."""
+    spare), buffers and, with ``move_window``, path history and a move's scratch exceed
+    ``max_bytes``."""
     model, p, lazy, threads, limit = sizing
     size, n_blocks = block_shape(model, block_cells)
     need = state_bytes(model, p, size, n_blocks, n_blocks + 2 * p, 0, lazy, threads)
-    need += 0 if move_window is None else new_history_bytes(model, p)
+    need += 0 if move_window is None else new_history_bytes(model, p) + move_scratch_bytes(model, move_window)
     if need > limit:
         raise MemoryLimitError(
             f"rbpf with {p} particles on N={model.n_cells} cells, K={model.n_labels} labels needs "

@@ -147,6 +147,15 @@ def history_bytes(n_particles: int, itemsize: int, n_readings: int, rows: int, c
     return rows * row + 8 * n_particles * columns + 8 * steps * (1 + n_readings) + 8
 
 
+def move_scratch_bytes(model: GridModel, window: int) -> int:
+    """Bytes of one resample-move step's scratch (:class:`~onlinemap.kernels.rbpf_move.MoveScratch`
+    for N cells, K labels, a window of W steps and F readings: ``8 (2 N K + 11 N + 6 (W + 1) N +
+    3 (W + 1) + W F + K)``, about 48 (W + 1) N), allocated afresh by every move: the memory guard
+    counts it on the steps that may move (allocates nothing). O(1)."""
+    n, k, width = model.n_cells, model.n_labels, window + 1
+    return 8 * (2 * n * k + 11 * n + 6 * width * n + 3 * width + window * model.n_readings + k)
+
+
 def new_history_bytes(model: GridModel, n_particles: int) -> int:
     """Bytes of :meth:`PathHistory.new`'s history (allocates nothing). O(1)."""
     return history_bytes(n_particles, path_dtype(model.n_cells).itemsize, model.n_readings, 2 * n_particles,
