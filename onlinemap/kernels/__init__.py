@@ -1,7 +1,8 @@
 """numba kernels, one module per algorithm: ``exact`` (the joint belief's fused motion + sensor
 pass and map dynamics), ``rbpf`` (particle proposal, commit, resampling bookkeeping and map
 mixtures over copy-on-write blocks), ``resampling`` (Fearnhead-Clifford's optimal resampling)
-``forward_backward`` (the EM estimators' location HMM), and the planners' ``planning`` (information
+``forward_backward`` (the EM estimators' location HMM), ``layered`` (layered EM's stretches:
+forward-backward over start cells and offsets), and the planners' ``planning`` (information
 gain's rollouts, shortest paths), ``navigation`` (the goal planner's value iteration) and ``mdp``
 (policy iteration's system and greedy improvement).
 
