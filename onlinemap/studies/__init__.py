@@ -8,6 +8,7 @@ and provenance for free) and summarised one way (:mod:`.base`: intervals over se
 - :mod:`.mapping`: the EM-mapping claims (loop, annealing, blocking walls);
 - :mod:`.exploration`: planners exploring (the paper's world, blocking walls, buildings, replays);
 - :mod:`.navigation`: goal planners through changing doors, against the oracle;
+- :mod:`.hindsight`: flat against layered EM on recorded runs in 32 x 32 floors (issue 41);
 
 Modules load on first use (``onlinemap.studies.exploration`` imports ``policies``).
 The layer sits above the engine and ``policies``; nothing below imports it.
@@ -17,7 +18,7 @@ from __future__ import annotations
 
 import importlib
 
-MODULES = ("base", "corridor", "accuracy", "mapping", "exploration", "navigation")
+MODULES = ("base", "corridor", "accuracy", "mapping", "exploration", "navigation", "hindsight")
 
 
 def __getattr__(name: str):
