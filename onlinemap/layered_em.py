@@ -75,6 +75,8 @@ EVIDENCE_FLOOR = 1e-6  # the least probability a reading or a press outcome coun
 PRUNE_BELOW = 1e-9  # poses whose tempered posterior is below this add no evidence in the M-step
 MAX_STRETCH = 16  # the default stretch length never exceeds this (p_move near 1); D grows as S^2
 DEFAULT_ANNEAL = (1.0, 0.6, 0.05)  # tau: 1, 0.6, 0.36, ... down to 0.05 by the 7th iteration
+DEFAULT_STARTS = (1.0, 0.3)  # the forward sweeps' placement temperatures EM starts from
+SELECT_AFTER = 2  # iterations each start runs before the likeliest continues
 
 
 class LayeredMap(NamedTuple):
@@ -419,36 +421,71 @@ def _sweep(model: GridModel, run: _Run, prior: _Prior, tau: float, learn: bool) 
     return evidence, reads, prior
 
 
+class _Fit(NamedTuple):
+    """One EM fit in progress."""
+
+    evidence: list  # M arrays (N, K)
+    reads: list  # M arrays (N,)
+    prior: _Prior
+    log_likelihoods: list  # float per E-step so far
+    posterior: np.ndarray | None  # (M, N) the last E-step's
+
+
+def _iterate(model: GridModel, run: _Run, fit: _Fit, schedule: Anneal | None, first: int, last: int) -> _Fit:
+    """EM iterations ``first .. last - 1`` (the annealing schedule's temperatures 1 + iteration)."""
+    evidence, reads, prior = fit.evidence, fit.reads, fit.prior
+    log_likelihoods, posterior = list(fit.log_likelihoods), fit.posterior
+    total = np.sum(evidence, axis=0)
+    for iteration in range(first, last):
+        passable = _passability(model, run, _softmax(prior.log_prior + total))
+        step = _smooth(model, run, lambda m: _softmax(prior.log_prior + total - evidence[m]), passable,
+                       1.0 if schedule is None else schedule.tau(iteration + 1), prior.ratio)
+        log_likelihoods.append(step.log_evidence)
+        evidence, reads, posterior = step.evidence, step.reads, step.posterior
+        total = np.sum(evidence, axis=0)
+        prior = prior.update(model, total, np.sum(reads, axis=0))
+    return _Fit(evidence, reads, prior, log_likelihoods, posterior)
+
+
+def _check_starts(starts) -> tuple[float, ...]:
+    if isinstance(starts, (str, bytes)) or not isinstance(starts, (tuple, list, np.ndarray)) or len(starts) == 0:
+        raise InvalidOptionError(f"starts must be a non-empty sequence of sweep temperatures, got {starts!r}")
+    values = tuple(arguments.real(f"starts[{i}]", x, error=InvalidOptionError) for i, x in enumerate(starts))
+    if not all(0 < x <= 1 for x in values):
+        raise InvalidOptionError(f"starts are sweep temperatures in (0, 1], got {starts!r}")
+    return values
+
+
 def fit_layered_map(model: GridModel, actions, observations, *, stretch: int | None = None, n_iter: int = 8,
-                    anneal=DEFAULT_ANNEAL, label_prior=None, prior_strength=None) -> LayeredMap:
+                    anneal=DEFAULT_ANNEAL, label_prior=None, prior_strength=None,
+                    starts=DEFAULT_STARTS) -> LayeredMap:
     """Layered EM on a recorded run (actions (T - 1,), observations (T,) or (T, F), by index or
     name): the module docstring's algorithm, ``n_iter`` E- and M-steps after the forward sweep.
 
     ``stretch``: steps per local map, 1..:data:`MAX_STRETCH` (None: :func:`default_stretch` of
     the model's p_move); ``anneal``: None or ``(tau0, rate, tau_min)`` as offline EM's
-    (:class:`Anneal`), iteration 0 at tau0; ``label_prior``, ``prior_strength``: as the
-    estimators' (:mod:`onlinemap.label_prior`): None the model's prior, a (K,) vector, or
-    ``"learn"``. Raises InvalidOptionError for bad options and ModelError for a dynamic world.
-    Cost: the module docstring's, per iteration.
+    (:class:`Anneal`), the E-step of iteration i at tau(i + 1); ``label_prior``,
+    ``prior_strength``: as the estimators' (:mod:`onlinemap.label_prior`): None the model's
+    prior, a (K,) vector, or ``"learn"`` (learned from a first sweep at ``starts[0]``, then in
+    every M-step). ``starts``: the temperatures in (0, 1] of the forward sweeps EM starts from
+    (each stretch placed by its filtered pose posterior to the power 1/t: 1 spreads it, small t
+    places it at its most likely pose); each start runs :data:`SELECT_AFTER` iterations, and the
+    one with the highest log-likelihood continues (a start that loses the robot explains the
+    readings worse). Raises InvalidOptionError for bad options and ModelError for a dynamic
+    world. Cost: the module docstring's per iteration, ``len(starts) (1 + SELECT_AFTER) +
+    n_iter - SELECT_AFTER`` iterations (one more with ``"learn"``).
     """
     run = _prepare(model, actions, observations, stretch)
     n_iter = check_n_iter(n_iter)
     schedule = check_anneal(anneal)
+    starts = _check_starts(starts)
     prior = _label_prior(model, label_prior, prior_strength)
-    tau0 = 1.0 if schedule is None else schedule.tau(0)
-    evidence, reads, prior = _sweep(model, run, prior, tau0, True)
-    if prior.alpha is not None:  # again, with what the whole first sweep learned of the labels from the start
-        evidence, reads, _ = _sweep(model, run, prior, tau0, False)
-    total, read = np.sum(evidence, axis=0), np.sum(reads, axis=0)
-    log_likelihoods = []
-    for iteration in range(n_iter):
-        passable = _passability(model, run, _softmax(prior.log_prior + total))
-        step = _smooth(model, run, lambda m: _softmax(prior.log_prior + total - evidence[m]), passable,
-                       1.0 if schedule is None else schedule.tau(iteration + 1), prior.ratio)
-        log_likelihoods.append(step.log_evidence)
-        evidence, reads = step.evidence, step.reads
-        total, read = np.sum(evidence, axis=0), np.sum(reads, axis=0)
-        prior = prior.update(model, total, read)
-    labels = _softmax(prior.log_prior + total)
-    return LayeredMap(labels, np.array(evidence), step.posterior, run.starts[:-1].copy(), np.array(log_likelihoods),
-                      np.exp(prior.log_prior).mean(axis=0))
+    if prior.alpha is not None:  # what a first sweep learns of the labels, from the start of the run on
+        _, _, prior = _sweep(model, run, prior, starts[0], True)
+    selected = min(n_iter, SELECT_AFTER)
+    fits = [_iterate(model, run, _Fit(*_sweep(model, run, prior, tau, False)[:2], prior, [], None), schedule, 0,
+                     selected) for tau in starts]
+    best = _iterate(model, run, max(fits, key=lambda fit: fit.log_likelihoods[-1]), schedule, selected, n_iter)
+    labels = _softmax(best.prior.log_prior + np.sum(best.evidence, axis=0))
+    return LayeredMap(labels, np.array(best.evidence), best.posterior, run.starts[:-1].copy(),
+                      np.array(best.log_likelihoods), np.exp(best.prior.log_prior).mean(axis=0))

@@ -75,16 +75,18 @@ def remap_rows(run, filter_map: np.ndarray | None, fit_options: Mapping[str, dic
     for method in METHODS:
         if method == "filter":
             if filter_map is not None:
-                rows.append(_scored(method, np.asarray(filter_map), run.final_map, np.nan))
+                rows.append(score_map(method, np.asarray(filter_map), run.final_map, np.nan))
             continue
         kind, extra = options[method]
         started = time.process_time()
         belief = hindsight_map(run.model, run, kind, **{**extra, **fit_options.get(method, {})}).map
-        rows.append(_scored(method, belief, run.final_map, time.process_time() - started))
+        rows.append(score_map(method, belief, run.final_map, time.process_time() - started))
     return rows
 
 
-def _scored(method: str, belief: np.ndarray, true_map: np.ndarray, seconds: float) -> dict:
+def score_map(method: str, belief: np.ndarray, true_map: np.ndarray, seconds: float) -> dict:
+    """One row: ``method``, ``final_map_error`` and ``confidently_wrong`` of ``belief`` (N, K)
+    against the true labels (N,), and ``seconds``. O(N K)."""
     p_true = belief[np.arange(len(true_map)), true_map]
     return {"method": method, "final_map_error": float(map_error(belief, true_map)),
             "confidently_wrong": int(np.sum(p_true < CONFIDENTLY_WRONG_BELOW)), "seconds": seconds}
