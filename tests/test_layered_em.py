@@ -11,7 +11,7 @@ import pytest
 
 import onlinemap as om
 from onlinemap.errors import InvalidOptionError, ModelError
-from onlinemap.layered_em import default_stretch, fit_layered_map, localize_stretches
+from onlinemap.layered_em import MAX_STRETCH, SELECT_AFTER, default_stretch, fit_layered_map, localize_stretches
 
 
 def brute_force_poses(model, actions, observations, labels):
@@ -104,6 +104,11 @@ def test_bad_options_raise_and_name_the_problem():
         fit_layered_map(model, run.actions, run.observations, anneal=(0.5, 0.5, 1.0))
     with pytest.raises(InvalidOptionError, match="n_iter"):
         fit_layered_map(model, run.actions, run.observations, n_iter=0)
+    for starts in ((), (0.0,), (1.5,), "1"):
+        with pytest.raises(InvalidOptionError, match="starts"):
+            fit_layered_map(model, run.actions, run.observations, starts=starts)
+    with pytest.raises(InvalidOptionError, match="stretch"):
+        fit_layered_map(model, run.actions, run.observations, stretch=MAX_STRETCH + 1)
     dynamic = om.corridor(6, p_change=0.1)
     with pytest.raises(ModelError, match="static"):
         fit_layered_map(dynamic, [1, 1], [0, 1, 0])
@@ -167,3 +172,17 @@ def test_learned_label_prior_of_known_poses():
     np.testing.assert_allclose(fit.map[unread], np.broadcast_to(fit.frequencies, (len(unread), model.n_labels)),
                                atol=1e-12)
     assert np.array_equal(np.argmax(fit.map[read], axis=1), true_map[read])
+
+
+def test_the_likelier_start_continues():
+    """Two sweep temperatures: the fit is the one of the start whose log-likelihood is higher
+    after SELECT_AFTER iterations, continued (the same as starting from it alone)."""
+    model, true_map = om.building(12, 12, seed=6, p_move=0.8)
+    run = om.simulate(model, true_map, om.random_walk(model, 80, seed=6), seed=6)
+    alone = {tau: fit_layered_map(model, run.actions, run.observations, starts=(tau,), n_iter=SELECT_AFTER)
+             for tau in (1.0, 0.1)}
+    best = max(alone, key=lambda tau: alone[tau].log_likelihoods[-1])
+    both = fit_layered_map(model, run.actions, run.observations, starts=(1.0, 0.1), n_iter=SELECT_AFTER + 1)
+    single = fit_layered_map(model, run.actions, run.observations, starts=(best,), n_iter=SELECT_AFTER + 1)
+    np.testing.assert_array_equal(both.map, single.map)
+    np.testing.assert_array_equal(both.log_likelihoods[:SELECT_AFTER], alone[best].log_likelihoods)
