@@ -49,6 +49,8 @@ FLOOR_FILES = ("movingai/arena.map,region=0:32x0:32", "movingai/random-32-32-20.
 PLANNERS = ("random", "frontier", "info_gain")
 METHODS = ("flat_em", "layered_em", "layered_em_learned", "filter", "told_location", "told_location_learned")
 MEASURES = ("final_map_error", "confidently_wrong", "seconds")
+STEPS = 200  # per run: the study records 48 runs; a few CPU minutes, RBPF and remapping alike
+N_PARTICLES = 200
 SEEDS = {"building": (0,), "floor": (0, 1)}  # 8 buildings x 3 planners x 1 seed, 4 floors x 3 planners x 2 seeds: 24 runs each
 
 
@@ -104,8 +106,8 @@ class Recorded(NamedTuple):
 
 
 def record_runs(kinds: Mapping[str, Sequence[str]] | None = None, *, planners: Sequence[str] = PLANNERS,
-                seeds: Mapping[str, Sequence[int]] | Sequence[int] | None = None, steps: int = 300,
-                n_particles: int = 300, progress: bool = True) -> list[Recorded]:
+                seeds: Mapping[str, Sequence[int]] | Sequence[int] | None = None, steps: int = STEPS,
+                n_particles: int = N_PARTICLES, progress: bool = True) -> list[Recorded]:
     """Every planner of ``planners`` on every world of every kind (``kinds``: name -> world specs,
     default :func:`world_kinds`) and seed (``seeds``: one sequence, or one per kind; default
     :data:`SEEDS`), ``steps`` steps with the RBPF of ``n_particles`` particles, played on the
@@ -141,8 +143,8 @@ def remap_study(recorded: Sequence[Recorded], *, fit_options: Mapping[str, dict]
 
 
 def hindsight_study(kinds: Mapping[str, Sequence[str]] | None = None, *, planners: Sequence[str] = PLANNERS,
-                    seeds: Mapping[str, Sequence[int]] | Sequence[int] | None = None, steps: int = 300,
-                    n_particles: int = 300, fit_options: Mapping[str, dict] | None = None,
+                    seeds: Mapping[str, Sequence[int]] | Sequence[int] | None = None, steps: int = STEPS,
+                    n_particles: int = N_PARTICLES, fit_options: Mapping[str, dict] | None = None,
                     confidence: float = 0.95, progress: bool = True) -> Study:
     """:func:`record_runs` then :func:`remap_study` (the arguments theirs). Cost: the module
     docstring's, per run."""
