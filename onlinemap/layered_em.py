@@ -89,6 +89,14 @@ class LayeredMap(NamedTuple):
     log_likelihoods: np.ndarray  # (iterations,) log sum_x prod_m l_m(x_m) P(x) of each E-step
     frequencies: np.ndarray  # (K,) the label prior of the cells at the end (learned with label_prior="learn")
 
+    def map_with_prior(self, label_prior: np.ndarray) -> np.ndarray:
+        """(N, K) the global map with another label prior (N, K) or (K,), the local maps kept where
+        the fit placed them: ``softmax(log prior + sum_m E_m)``. With ``label_prior="learn"`` and the
+        model's prior here, the robot is aligned with the learned statistics and the map keeps the
+        model's prior for what the readings do not say (a like-for-like map). O(M N K)."""
+        with np.errstate(divide="ignore"):
+            return _softmax(np.log(np.broadcast_to(label_prior, self.map.shape)) + self.local_maps.sum(axis=0))
+
 
 def default_stretch(p_move: float) -> int:
     """The default stretch length: ``round(1 / (2 (1 - p_move)))`` (halves rounded up), one

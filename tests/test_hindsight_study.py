@@ -44,6 +44,9 @@ def test_remap_rows_score_each_method_on_the_run():
     run = om.simulate(model, true_map, om.random_walk(model, 60, seed=1), seed=1)
     rows = {row["method"]: row for row in remap_rows(run, None, {"flat_em": {"n_iter": 3}})}
     assert sorted(rows) == sorted(m for m in METHODS if m != "filter")
+    np.testing.assert_allclose(rows["layered_em_learned_alignment"]["final_map_error"],
+                               map_error(om.fit_layered_map(model, run.actions, run.observations, label_prior="learn")
+                                         .map_with_prior(model.label_prior), true_map))
     told = told_location(model, run, label_prior="learn")
     assert rows["told_location_learned"]["final_map_error"] == pytest.approx(map_error(told, true_map))
     assert rows["told_location_learned"]["confidently_wrong"] == int(np.sum(told[np.arange(len(true_map)), true_map] < 0.1))

@@ -186,3 +186,15 @@ def test_the_likelier_start_continues():
     single = fit_layered_map(model, run.actions, run.observations, starts=(best,), n_iter=SELECT_AFTER + 1)
     np.testing.assert_array_equal(both.map, single.map)
     np.testing.assert_array_equal(both.log_likelihoods[:SELECT_AFTER], alone[best].log_likelihoods)
+
+
+def test_map_with_another_prior_is_the_local_maps_under_it():
+    """map_with_prior(the fit's own prior) is the fit's map; under another prior every cell's
+    odds change by the prior's odds alone (the evidence of the local maps is kept)."""
+    model, true_map = om.building(12, 12, seed=7, p_move=0.9)
+    run = om.simulate(model, true_map, om.random_walk(model, 60, seed=7), seed=7)
+    fit = fit_layered_map(model, run.actions, run.observations, label_prior="learn", n_iter=2)
+    np.testing.assert_allclose(fit.map_with_prior(fit.frequencies), fit.map, atol=1e-12)
+    uniform = fit.map_with_prior(model.label_prior)
+    odds = np.log(uniform) - np.log(fit.map) + np.log(fit.frequencies)
+    np.testing.assert_allclose(odds - odds[:, :1], 0.0, atol=1e-9)
