@@ -23,7 +23,10 @@ Figure 5). `om.fit_layered_map` is that fitter on the grid (`onlinemap/layered_e
   at two placement temperatures; the likelier fit continues;
 * `label_prior="learn"`: the label frequencies of unread cells, and how adjacent labels go
   together, are re-estimated in every M-step (a uniform prior says half of every unseen cell is a
-  wall; a building is about 55% free).
+  wall; a building is about 55% free);
+* `fit.map_with_prior(model.label_prior)`: the local maps where that fit placed them, the global
+  map under the model's uniform prior: aligned with what the run taught about maps, mapped like
+  for like with flat EM (`layered_em_learned_alignment` below).
 
 Both EM fits remap a recorded run after the fact (`om.hindsight_map`). The references: the
 told-location map (the map a robot told its true path makes from the same readings), with the
@@ -61,9 +64,11 @@ rows, kept = [], {}
 for p_move, seed in RUNS:
     model, true_map = om.building(32, 32, seed=seed, p_move=p_move)
     run = om.simulate(model, true_map, om.random_walk(model, STEPS - 1, seed=seed), seed=seed)
+    learned = om.fit_layered_map(model, run.actions, run.observations, label_prior="learn")
     maps = {"flat_em": om.hindsight_map(model, run, "flat_em").map,
             "layered_em": om.fit_layered_map(model, run.actions, run.observations).map,
-            "layered_em_learned": om.fit_layered_map(model, run.actions, run.observations, label_prior="learn").map,
+            "layered_em_learned_alignment": learned.map_with_prior(model.label_prior),
+            "layered_em_learned": learned.map,
             "told_location": told_location(model, run),
             "told_location_learned": told_location(model, run, label_prior="learn")}
     kept[p_move, seed] = (model, true_map, run, maps)
@@ -75,7 +80,7 @@ print(table.to_string(index=False))"""),
 ## 2. The maps (the paper's Figures 4 and 5)
 
 The most likely label of every cell, flat EM against layered EM on the same run, beside the true
-map and the told-location map. Grey: cells whose most likely label has probability below 0.5
+map and the told-location maps (the blue dots: the cells the robot visited). Grey: cells whose most likely label has probability below 0.5
 (the map is unsure)."""),
     new_code_cell("""\
 def show(ax, belief, title):
@@ -89,40 +94,38 @@ def show(ax, belief, title):
 
 
 for (p_move, seed), (model, true_map, run, maps) in kept.items():
-    fig, axes = plt.subplots(1, 5, figsize=(15, 3.4))
+    fig, axes = plt.subplots(1, 6, figsize=(18, 3.4))
     show(axes[0], np.eye(model.n_labels)[true_map], f"true map (p_move {p_move}, seed {seed})")
     visited = np.unique(run.locations)
     axes[0].plot(visited % 32, visited // 32, ".", color="tab:blue", markersize=2)
-    for ax, method in zip(axes[1:], ["flat_em", "layered_em", "layered_em_learned", "told_location_learned"]):
+    for ax, method in zip(axes[1:], ["flat_em", "layered_em_learned_alignment", "told_location", "layered_em_learned",
+                                     "told_location_learned"]):
         error = map_error(maps[method], true_map)
         show(ax, maps[method], f"{method} ({error:.3f})")
     fig.tight_layout()"""),
     new_markdown_cell("""\
 ## Conclusions (from the study)
 
-The study `onlinemap.studies.hindsight.hindsight_study()` (24 recorded runs per world kind: random
-walks and the `frontier` and `info_gain` planners with the RBPF, 200 steps, 200 particles; 32 x 32
-generated buildings at `p_move` 0.95 and 0.8, and 32 x 32 cells of the MovingAI and ROS map files).
-Final map error, mean and 95% interval:
+The study `onlinemap.studies.hindsight.hindsight_study()`: 24 recorded runs per world kind (random
+walks and the `frontier` and `info_gain` planners with the RBPF, 200 steps, 200 particles) in 32 x 32
+generated buildings at `p_move` 0.95 and 0.8, and in 32 x 32 cells of the MovingAI and ROS map
+files. Final map error over all cells, mean and 95% interval:
 
-| kind | flat EM | layered EM | layered EM, learned prior | RBPF's map | told location | told location, learned prior |
-| --- | --- | --- | --- | --- | --- | --- |
-| building | 0.718 [0.713, 0.723] | 0.716 [0.708, 0.725] | 0.528 [0.519, 0.537] | 0.706 [0.695, 0.717] | 0.675 [0.663, 0.687] | 0.500 [0.488, 0.511] |
-| floor | 0.672 [0.651, 0.693] | 0.706 [0.700, 0.712] | 0.236 [0.191, 0.280] | 0.707 [0.698, 0.715] | 0.622 [0.594, 0.650] | 0.226 [0.186, 0.266] |
+| kind | flat EM | layered EM | layered EM, learned alignment | RBPF's map | told location |
+| --- | --- | --- | --- | --- | --- |
+| building | 0.718 [0.713, 0.723] | 0.716 [0.708, 0.725] | 0.705 [0.696, 0.714] | 0.706 [0.695, 0.717] | 0.675 [0.663, 0.687] |
+| floor | 0.672 [0.651, 0.693] | 0.706 [0.700, 0.712] | 0.642 [0.615, 0.669] | 0.707 [0.698, 0.715] | 0.622 [0.594, 0.650] |
 
-* **With the same (uniform) prior, layered EM does not beat flat EM**: in buildings it is lower on
-  16 of 24 runs by 0.002 on average (Wilcoxon one-sided p = 0.43); on the floors from files flat EM
-  is better (layered lower on 4 of 24). Layered EM is within 0.1 of the told-location map (0.042 and
-  0.084) and has fewer confidently wrong cells than flat EM (28 against 33; 17 against 23). Under a
-  uniform prior a move into unread cells predicts each new reading at 1 in 4 while a slip re-reads
-  at about 0.86, so the exact decoding within a stretch calls many moves slips, as in the maps above
-  where the robot's path is short and sometimes doubled.
-* **With the learned prior, layered EM is within 0.028 (buildings) and 0.010 (floors) of the
-  told-location map with the same prior**, and below flat EM on all 48 runs (p = 6e-8 per kind).
-  Most of that gap to flat EM is the prior itself, not the alignment: in 200 steps most cells are
-  never read, and the learned frequencies score them better; the told-location map drops by as much.
-* The issue's target (layered beats flat with p < 0.01 and within 0.1 of the told-location map) is
-  met only with the learned prior, which flat EM does not have; like for like it is missed."""),
+* **Layered EM aligned with the learned statistics beats flat EM, like for like** (both maps under
+  the uniform prior): lower on 19 of 24 building runs (Wilcoxon one-sided p = 0.003) and 23 of 24
+  floor runs (p = 2e-7), within 0.030 and 0.020 of the told-location map. It beats the RBPF's
+  filtered map on the floors (21 of 24, p = 2e-6) and ties it in the buildings (p = 0.23).
+* **Layered EM with the uniform prior throughout does not**: 0.716 against 0.718 in buildings
+  (p = 0.43), worse on the floors. Under a uniform prior a move into unread cells predicts each new
+  reading at 1 in 4 while a slip re-reads at about 0.86, so moves through new space look like slips.
+* With the learned prior also in the map (`fit.map`), the errors drop to 0.528 and 0.236, within
+  0.028 and 0.010 of the told-location map with the same prior; most of that drop is the prior
+  scoring the cells never read, not the alignment."""),
 ]
 
 
