@@ -32,6 +32,7 @@ from . import metrics
 from .errors import InvalidOptionError, ModelError
 from .estimators.offline_em import baum_welch
 from .evaluate import told_location_map
+from .label_prior import posterior_frequencies, resolve_label_prior
 from .layered_em import fit_layered_map
 from .model import GridModel
 from .simulate import Run
@@ -39,6 +40,7 @@ from .simulate import Run
 METHODS = ("flat_em", "layered_em", "told_location")
 IMPOSSIBLE = -1e300  # the log-likelihood of a reading a label cannot give (sums of T of them stay finite)
 CONFIDENTLY_WRONG_BELOW = 0.1  # a cell whose true label has less probability is confidently wrong
+MAX_PRIOR_ITERATIONS = 1000  # the told-location map's learned frequencies: a contraction, settled long before
 
 
 class HindsightMap(NamedTuple):
@@ -49,16 +51,22 @@ class HindsightMap(NamedTuple):
     seconds: float  # wall time of the fit
 
 
-def told_location(model: GridModel, run: Run) -> np.ndarray:
+def told_location(model: GridModel, run: Run, label_prior=None, prior_strength=None) -> np.ndarray:
     """(N, K) the told-location map of ``run``: :func:`~onlinemap.evaluate.told_location_map`,
     and with blocking labels (static worlds) the readings' evidence times every press's outcome
     along the true path, ``P(moved | m_j) = p_move [m_j passable]`` and ``P(stayed | m_j) = 1 -
     p_move [m_j passable]`` for the cell j pressed into (a known failed press is evidence about
-    the cell not entered). Raises ModelError for blocking labels in a dynamic world. O(T F K)."""
-    if not model.has_blocking:
+    the cell not entered). ``label_prior="learn"`` (:mod:`onlinemap.label_prior`, static worlds):
+    the cells' prior is the label frequencies theta, the fixed point of theta = the Dirichlet
+    posterior mean given the expected labels of the cells read (iterated until it moves less
+    than 1e-12), as layered EM learns them. Raises ModelError for blocking labels or a learned
+    prior in a dynamic world. O(T F K + iterations N K)."""
+    prior = resolve_label_prior(model.n_labels, label_prior, prior_strength)
+    if prior.kind == "model" and not model.has_blocking:
         return told_location_map(model, run)
     if not model.is_static:
-        raise ModelError("the told-location map with blocking labels is computed for static worlds only")
+        raise ModelError("the told-location map with blocking labels or a learned prior is computed for static "
+                         "worlds only")
     n, k = model.n_cells, model.n_labels
     cells = model.footprint_cells[run.locations]
     readings = np.asarray(run.observations).reshape(cells.shape)
@@ -69,15 +77,32 @@ def told_location(model: GridModel, run: Run) -> np.ndarray:
     target = model.neighbors[here, run.actions]
     presses = target != here
     moved = run.locations[1:] == target
-    entered = np.bincount(target[presses & moved], minlength=n)
-    bumped = np.bincount(target[presses & ~moved], minlength=n)
+    entered = np.bincount(target[presses & moved], minlength=n) if model.has_blocking else np.zeros(n)
+    bumped = np.bincount(target[presses & ~moved], minlength=n) if model.has_blocking else np.zeros(n)
     with np.errstate(divide="ignore", invalid="ignore"):
         # a reading a label cannot give: a huge finite penalty (not -inf, which 0 counts would turn into NaN)
-        log_belief = np.log(model.label_prior) + counts @ np.maximum(np.log(model.sensor), IMPOSSIBLE).T
+        start = 0.0 if prior.kind == "learn" else \
+            np.log(model.label_prior if prior.kind == "model" else prior.frequencies)
+        log_evidence = start + counts @ np.maximum(np.log(model.sensor), IMPOSSIBLE).T
         # 0 * log 0 is no evidence, not NaN: a count of zero leaves the label alone
-        log_belief += np.where(entered[:, None] > 0, entered[:, None] * np.log(model.p_move * passable), 0.0)
-        log_belief += np.where(bumped[:, None] > 0, bumped[:, None] * np.log(1.0 - model.p_move * passable), 0.0)
-    log_belief -= log_belief.max(axis=1, keepdims=True)
+        log_evidence += np.where(entered[:, None] > 0, entered[:, None] * np.log(model.p_move * passable), 0.0)
+        log_evidence += np.where(bumped[:, None] > 0, bumped[:, None] * np.log(1.0 - model.p_move * passable), 0.0)
+    if prior.kind != "learn":
+        return _normalised_rows(log_evidence)
+    seen = np.minimum(counts.sum(axis=1), 1.0)
+    theta = prior.alpha / prior.alpha.sum()
+    for _ in range(MAX_PRIOR_ITERATIONS):
+        belief = _normalised_rows(np.log(theta) + log_evidence)
+        updated = posterior_frequencies(prior.alpha, seen @ belief)
+        if np.abs(updated - theta).max() < 1e-12:
+            break
+        theta = updated
+    return _normalised_rows(np.log(theta) + log_evidence)
+
+
+def _normalised_rows(log_belief: np.ndarray) -> np.ndarray:
+    """Rows of exp(log_belief) normalised. (N, K) -> (N, K)."""
+    log_belief = log_belief - log_belief.max(axis=1, keepdims=True)
     belief = np.exp(log_belief)
     return belief / belief.sum(axis=1, keepdims=True)
 
@@ -107,9 +132,10 @@ def hindsight_map(model: GridModel, run_or_data, method: str = "layered_em", **o
     else:
         if run is None:
             raise InvalidOptionError("told_location needs the true path: pass a Run, not (actions, observations)")
-        if options:
-            raise InvalidOptionError(f"told_location takes no options, got {sorted(options)}")
-        belief = told_location(model, run)
+        unknown = set(options) - {"label_prior", "prior_strength"}
+        if unknown:
+            raise InvalidOptionError(f"told_location takes label_prior and prior_strength only, got {sorted(unknown)}")
+        belief = told_location(model, run, **options)
     return HindsightMap(method, belief, time.perf_counter() - started)
 
 

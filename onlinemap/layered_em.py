@@ -6,64 +6,77 @@ by its step's own location posterior: where the robot is unsure, the map is the 
 convolved with the pose uncertainty, and localising in that blurred map fails. Here the run is
 cut into M **stretches** of S steps; each stretch is a **local map** (its readings, and its
 presses that moved or bumped, along its path relative to its first cell), and the hidden
-variable is the stretch's **pose** ``x_m``: the cell it starts in. The local map is placed
-rigidly: all its readings move together with ``x_m``.
+variable is the stretch's **pose** ``x_m``: the cell it starts in.
 
-- Within a stretch the path from ``x`` is dead reckoning's most likely one, ``pos_m(x, tau)``
-  (the paper neglects odometry error within a local map): a press moves when ``p_move P(target
-  passable) >= 1/2``, the passability read from the other stretches' map and the stretch's own
-  latest reading of the target cell (a cross footprint reads it before the press), so a bump
-  into a wall the stretch saw keeps the path in place. Slips within a stretch are not modelled
-  there; they are absorbed by the motion between stretches.
-- The map is the label posterior per cell from **expected log-evidence**: stretch m placed at x
-  with weight ``pi_m(x)`` adds ``pi_m(x) log O[k, z]`` to cell c's label k for each reading z
-  of c, and with blocking labels ``log P(moved | k)`` or ``log P(bumped | k)`` to each press's
-  target (a failed press is evidence). ``q = softmax(log prior + sum_m E_m)``: the global map,
-  assembled from the local maps at their poses (the paper's post-processing, eq. 18, with
-  probabilities in place of a single pose). Probabilities below :data:`EVIDENCE_FLOOR` count as
-  the floor, so a misplaced reading of a perfect sensor cannot make a label impossible.
-- E-step: the likelihood of stretch m at pose x, ``l_m(x) = prod_tau P(z_tau | pos_m(x, tau);
-  q_-m) prod_presses P(outcome | q_-m)``, is computed against the map of the **other** stretches
-  ``q_-m = softmax(log prior + E - E_m)`` (the paper's product over the other local maps, eq. 8:
-  a stretch never confirms its own pose); then forward-backward over the poses x_0..x_{M-1}
-  with the S-step motion kernel between consecutive stretch starts (the model's motion, with the
-  global map's passability). With S = 1 and a fixed map this is exactly forward-backward over
-  locations.
+- Within a stretch the path is a hidden sequence of **offsets** ``d_tau`` from the start
+  (``d_0 = 0``), decoded exactly by forward-backward over the ``(x, d)`` pairs (the offsets the
+  stretch's actions can reach: at most ``(S/2 + 1)^2``): a press from cell c moves with
+  ``p_move P(target passable)``, the passability read from the other stretches' map and the
+  stretch's own latest reading of the target (a cross footprint reads it before the press, so a
+  bump into a wall the stretch saw stays in place); the readings of step tau are predicted by
+  the other stretches' map **updated by step tau - 1's readings of the same cells**, so a slip,
+  which reads again what it read, is told apart from a move into cells the map knows nothing of.
+- The map is the label posterior per cell from **expected log-evidence**: stretch m adds, for
+  each reading z of cell c, ``P(the reading was of c) log O[k, z]`` to cell c's label k, the
+  probability from its tempered pose posterior and its offsets' posterior given the pose, and
+  with blocking labels ``log P(moved | k)`` or ``log P(bumped | k)`` for each press's target (a
+  failed press is evidence). ``q = softmax(log prior + sum_m E_m)``: the global map, assembled
+  from the local maps at their poses (the paper's eq. 18, with probabilities in place of one
+  pose). Probabilities below :data:`EVIDENCE_FLOOR` count as the floor, so a misplaced reading of
+  a perfect sensor cannot make a label impossible.
+- E-step: stretch m is scored against the map of the **other** stretches ``q_-m = softmax(log
+  prior + E - E_m)`` (the paper's product over the other local maps, eq. 8: a stretch never
+  confirms its own pose); forward-backward runs over the poses ``x_0..x_{M-1}``, the pose of
+  stretch m + 1 one motion step (the model's, with the global map's passability) from the cell
+  where stretch m ends. With S = 1 and a fixed map this is exactly forward-backward over
+  locations; with S > 1 it is the exact posterior of the path under the emissions above.
 - M-step: ``E_m`` from the tempered pose posteriors ``pi_m^(1/tau)`` (deterministic annealing,
   the paper's softmax M-step, eq. 15: tau from tau0 towards tau_min, :class:`Anneal`).
+- Label prior (``label_prior="learn"``, :mod:`onlinemap.label_prior`): the prior of every cell
+  is the label frequencies theta, re-estimated in every M-step as the Dirichlet posterior mean
+  given the expected labels of the cells read (EM for what maps look like). Under a uniform
+  prior half of every unread cell blocks and a reading of free space there is a 1-in-K event,
+  so stretches are pulled onto mapped cells; the learned frequencies make unread cells as likely
+  to be free as the building's cells are.
 - Start: a forward sweep that localises each stretch against the map of the stretches before it
-  (the Markov localization of a robot that maps as it goes), so the first E-step does not see the
-  prior's featureless map.
+  (the Markov localization of a robot that maps as it goes: the paper's incremental alignment),
+  so the first E-step does not see the prior's featureless map.
 
-Stretch length: the rule for the default, :func:`default_stretch`, keeps the spread of dead
-reckoning within a stretch about one cell: the number of slips in S presses has variance
-``S p_move (1 - p_move)``, so ``S = round(1 / (p_move (1 - p_move)))`` (21 steps at p_move 0.95,
-6 at 0.8), at most :data:`MAX_STRETCH`.
+Stretch length: :func:`default_stretch`, ``S = round(1 / (2 (1 - p_move)))``, one expected slip
+every two stretches (10 steps at p_move 0.95, 3 at 0.8), at most :data:`MAX_STRETCH`. Longer
+stretches cost D ~ (S/2)^2 offsets per start; shorter ones leave less of the run out of each
+stretch's map.
 
-Cost per iteration, T steps, N cells, M = T / S stretches, K labels, F readings, E motion edges:
-O(T N F) for the likelihood of every stretch at every pose, O(M N K^2) for the maps without each
-stretch, O(T (N + E)) for forward-backward, and O(T F n) for the M-step over the n poses per
-stretch with posterior above :data:`PRUNE_BELOW` (n << N once localised). Memory O(T N) for the
-paths and O(M N K) for the local maps. Static worlds only (the map is a parameter).
+Cost per iteration, T steps, N cells, M = T / S stretches, K labels, F readings, D offsets per
+stretch: O(T N F K) for the emissions under each stretch's map, O(M N K) for the maps without
+each stretch, O(T N D) for forward-backward within the stretches (the forward pass twice),
+O(M N) for the motion between them, and O(T F n D) for the M-step over the n poses per stretch
+with tempered posterior above :data:`PRUNE_BELOW` (n << N once localised). Memory O(T N) for the
+emissions, O(S N D) for one stretch's messages and O(M N K) for the local maps. Static worlds
+only (the map is a parameter).
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
 from . import arguments
 from .errors import InvalidOptionError, ModelError
 from .estimators.offline_em import Anneal, check_anneal, check_n_iter
-from .hmm import footprint_emission, temper
+from .hmm import temper
+from .kernels import layered as kernels
+from .label_prior import posterior_frequencies, resolve_label_prior
 from .model import GridModel, apply_motion, apply_motion_transpose
 from .validation import check_sequence
 
 EVIDENCE_FLOOR = 1e-6  # the least probability a reading or a press outcome counts with
 PRUNE_BELOW = 1e-9  # poses whose tempered posterior is below this add no evidence in the M-step
-MAX_STRETCH = 64  # the default stretch length never exceeds this (p_move near 0 or 1)
+MAX_STRETCH = 16  # the default stretch length never exceeds this (p_move near 1); D grows as S^2
 DEFAULT_ANNEAL = (1.0, 0.6, 0.05)  # tau: 1, 0.6, 0.36, ... down to 0.05 by the 7th iteration
+DEFAULT_STARTS = (1.0, 0.3)  # the forward sweeps' placement temperatures EM starts from
+SELECT_AFTER = 2  # iterations each start runs before the likeliest continues
 
 
 class LayeredMap(NamedTuple):
@@ -74,16 +87,24 @@ class LayeredMap(NamedTuple):
     poses: np.ndarray  # (M, N) P(x_m = cell | all data; the other stretches' maps), the last E-step
     starts: np.ndarray  # (M,) the first step of each stretch
     log_likelihoods: np.ndarray  # (iterations,) log sum_x prod_m l_m(x_m) P(x) of each E-step
+    frequencies: np.ndarray  # (K,) the label prior of the cells at the end (learned with label_prior="learn")
+
+    def map_with_prior(self, label_prior: np.ndarray) -> np.ndarray:
+        """(N, K) the global map with another label prior (N, K) or (K,), the local maps kept where
+        the fit placed them: ``softmax(log prior + sum_m E_m)``. With ``label_prior="learn"`` and the
+        model's prior here, the robot is aligned with the learned statistics and the map keeps the
+        model's prior for what the readings do not say (a like-for-like map). O(M N K)."""
+        with np.errstate(divide="ignore"):
+            return _softmax(np.log(np.broadcast_to(label_prior, self.map.shape)) + self.local_maps.sum(axis=0))
 
 
 def default_stretch(p_move: float) -> int:
-    """The default stretch length: ``round(1 / (p_move (1 - p_move)))``, the number of presses
-    after which the variance of the number of slips is one cell; in 1..:data:`MAX_STRETCH`
-    (p_move 0 or 1: dead reckoning never errs, so :data:`MAX_STRETCH`)."""
-    spread = p_move * (1.0 - p_move)
-    if spread <= 1.0 / MAX_STRETCH:
+    """The default stretch length: ``round(1 / (2 (1 - p_move)))`` (halves rounded up), one
+    expected slip in two stretches; in 1..:data:`MAX_STRETCH` (p_move 1: dead reckoning never
+    errs, so :data:`MAX_STRETCH`)."""
+    if 1.0 - p_move <= 1.0 / (2 * MAX_STRETCH):
         return MAX_STRETCH
-    return max(1, min(MAX_STRETCH, round(1.0 / spread)))
+    return max(1, min(MAX_STRETCH, int(0.5 + 1.0 / (2.0 * (1.0 - p_move)))))
 
 
 class _Run(NamedTuple):
@@ -95,18 +116,28 @@ class _Run(NamedTuple):
     log_sensor: np.ndarray  # (K, K) log max(O[k, z], floor)
     log_move: np.ndarray  # (K,) log P(a press into a cell of label k moves), floored
     log_stay: np.ndarray  # (K,) log P(it fails), floored
-    log_prior: np.ndarray  # (N, K)
     passable_label: np.ndarray  # (K,) 1.0 for labels a robot can enter
     sensor: np.ndarray  # (K, K) max(O, floor): a perfect sensor's contradicted reading stays possible
     shifts: np.ndarray  # (A + 1, F) _shifted_offsets
     ahead: np.ndarray  # (A,) the footprint offset that reads the cell an action moves into, -1 if none
+    displacement: np.ndarray  # (A, 2) rows and columns an action moves by (0, 0) if it never moves
 
 
-class _Local(NamedTuple):
-    """A stretch's path from every pose and its likelihood there."""
+class _Stretch(NamedTuple):
+    """The offsets a stretch's actions can reach from its start, a row-major box of D cells."""
 
-    path: np.ndarray  # (S, N) cell at each step of the stretch, per starting cell
-    log_likelihood: np.ndarray  # (N,) log l_m(x)
+    cell_shift: np.ndarray  # (D,) offset d is the cell x + cell_shift[d] for the start x
+    delta: np.ndarray  # (A,) an action moves offset d to d + delta[a]
+    origin: int  # the offset of the start
+
+
+class _Tables(NamedTuple):
+    """A stretch's emissions and move probabilities under one map (kernels.stretch_tables)."""
+
+    first: np.ndarray  # (N,)
+    stay: np.ndarray  # (S, N)
+    move: np.ndarray  # (S, N)
+    enter: np.ndarray  # (S, N)
 
 
 def _softmax(log_weights: np.ndarray) -> np.ndarray:
@@ -121,31 +152,33 @@ def _prepare(model: GridModel, actions, observations, stretch) -> _Run:
     a_seq, z_seq = check_sequence(model, actions, observations)
     t = len(z_seq)
     length = default_stretch(model.p_move) if stretch is None else \
-        arguments.integer("stretch", stretch, minimum=1, error=InvalidOptionError)
+        arguments.integer("stretch", stretch, minimum=1, maximum=MAX_STRETCH, error=InvalidOptionError)
     starts = np.append(np.arange(0, t, length), t)
     passable = (~model.blocking).astype(np.float64)
     with np.errstate(divide="ignore"):
         log_sensor = np.log(np.maximum(model.sensor, EVIDENCE_FLOOR))
         log_move = np.log(np.maximum(model.p_move * passable, EVIDENCE_FLOOR))
         log_stay = np.log(np.maximum(1.0 - model.p_move * passable, EVIDENCE_FLOOR))
-        log_prior = np.log(model.label_prior)
-    shifts = _shifted_offsets(model)
+    shifts, displacement = _shifted_offsets(model)
     # the offset f that reads the target is the one that reads the cell itself (offset (0, 0)) after the move
     own = model.footprint.index((0, 0)) if (0, 0) in model.footprint else -1
     ahead = shifts[:-1, own] if own >= 0 else np.full(model.n_actions, -1, dtype=np.int64)
-    return _Run(a_seq, z_seq.reshape(t, -1), starts, log_sensor, log_move, log_stay, log_prior, passable,
-                np.maximum(model.sensor, EVIDENCE_FLOOR), shifts, ahead)
+    return _Run(np.asarray(a_seq, dtype=np.int64), np.ascontiguousarray(z_seq.reshape(t, -1), dtype=np.int64),
+                starts, log_sensor, log_move, log_stay, passable, np.maximum(model.sensor, EVIDENCE_FLOOR), shifts,
+                np.ascontiguousarray(ahead, dtype=np.int64), displacement)
 
 
-def _shifted_offsets(model: GridModel) -> np.ndarray:
-    """(A + 1, F) int64: ``g[a, f]`` the footprint offset of the cell before a move by action a
-    that offset f reads after it (-1 if none); row A is "no move" (g = f). Raises ModelError if an
-    action moves cells by different displacements (the local maps need a translation-invariant
-    grid). O(N A + F^2 A)."""
+def _shifted_offsets(model: GridModel) -> tuple[np.ndarray, np.ndarray]:
+    """``(g, displacement)``: g (A + 1, F) int64, ``g[a, f]`` the footprint offset of the cell
+    before a move by action a that offset f reads after it (-1 if none), row A "no move" (g = f);
+    displacement (A, 2) the (row, column) move of each action. Raises ModelError if an action
+    moves cells by different displacements (the local maps need a translation-invariant grid).
+    O(N A + F^2 A)."""
     cells = np.arange(model.n_cells)
     offsets = np.array(model.footprint, dtype=np.int64).reshape(-1, 2)
     shifts = np.full((model.n_actions + 1, len(offsets)), -1, dtype=np.int64)
     shifts[-1] = np.arange(len(offsets))
+    displacement = np.zeros((model.n_actions, 2), dtype=np.int64)
     for a in range(model.n_actions):
         target = model.neighbors[:, a]
         movers = target != cells
@@ -156,215 +189,311 @@ def _shifted_offsets(model: GridModel) -> np.ndarray:
         if moves.shape[1] != 1:
             raise ModelError(f"action {model.action_names[a]!r} moves cells by different displacements; layered EM "
                              f"needs every move of an action to shift the grid the same way")
+        displacement[a] = moves[:, 0]
         after = offsets + moves[:, 0]  # offset f after the move is this offset from the cell before it
         same = (after[:, None, :] == offsets[None, :, :]).all(axis=2)  # (F, F')
         shifts[a] = np.where(same.any(axis=1), same.argmax(axis=1), -1)
-    return shifts
+    return shifts, displacement
 
 
-def _log_predictive(model: GridModel, run: _Run, labels: np.ndarray, at: np.ndarray, shift: np.ndarray,
-                    previous: np.ndarray, current: np.ndarray) -> np.ndarray:
-    """(n,) log P(readings ``current`` (F,) from cells ``at`` (n,)) under ``labels`` (N, K) updated
-    by the step before's readings ``previous`` (F,), of which offset ``shift[f]`` (-1: none) read
-    the cell that offset f reads now: ``sum_k q_c(k) O[k, z'] O[k, z] / sum_k q_c(k) O[k, z']``,
-    floored. O(N K F + n F)."""
-    earlier = np.where(shift >= 0, previous[np.maximum(shift, 0)], -1)
-    before = np.where(earlier >= 0, run.sensor[:, np.maximum(earlier, 0)], 1.0)  # (K, F)
-    now = np.where(current >= 0, run.sensor[:, np.maximum(current, 0)], 1.0)
-    cells = model.footprint_cells[at]  # (n, F)
-    column = np.arange(cells.shape[1])
-    index = np.maximum(cells, 0)
-    predictive = (labels @ (before * now))[index, column] / (labels @ before)[index, column]
-    predictive = np.where(cells < 0, 1.0, predictive) * ((cells < 0) == (current < 0)[None, :])
-    return np.log(np.maximum(predictive, EVIDENCE_FLOOR)).sum(axis=1)
+def _stretch(model: GridModel, run: _Run, m: int) -> _Stretch:
+    """The box of offsets stretch m's actions reach: each axis from the sum of the actions'
+    negative moves to the sum of their positive ones. O(S + D)."""
+    moves = run.displacement[run.actions[run.starts[m]:run.starts[m + 1] - 1]].reshape(-1, 2)
+    low = np.minimum(moves, 0).sum(axis=0)
+    high = np.maximum(moves, 0).sum(axis=0)
+    height, width = high - low + 1
+    rows, cols = np.divmod(np.arange(height * width), width)
+    cell_shift = (rows + low[0]) * model.cols + cols + low[1]
+    delta = run.displacement[:, 0] * width + run.displacement[:, 1]
+    return _Stretch(cell_shift.astype(np.int64), delta.astype(np.int64), int(-low[0] * width - low[1]))
 
 
-def stretch_likelihood(model: GridModel, run: _Run, m: int, labels: np.ndarray) -> _Local:
-    """Stretch m's path and log-likelihood from every starting cell under map marginals
-    ``labels`` (N, K) (the other stretches' map). The path (module docstring): a press moves
-    when moving explains the step's readings better, ``p_move P(target passable) P(z_tau | target)
-    >= (1 - p_move P(target passable)) P(z_tau | stay)``, both under ``labels`` updated by the
-    readings of the step before (so a slip, which leaves the robot reading what it read, is
-    told apart from a move). O(S N F^2 + S N F K)."""
+def _tables(model: GridModel, run: _Run, m: int, labels: np.ndarray, ratio: np.ndarray | None) -> _Tables:
+    """Stretch m's emissions and move probabilities under map marginals ``labels`` (N, K) and,
+    unless None, the adjacent labels' ratio (K, K) for the cells a move reads first: the module
+    docstring's, by :func:`onlinemap.kernels.layered.stretch_tables`. O(S N F K^2)."""
     first, end = run.starts[m], run.starts[m + 1]
-    readings = run.readings[first:end]
     n = model.n_cells
-    # floored: a path gone wrong (a missed bump) can put the footprint off the grid, where the
-    # readings' off-grid pattern does not fit; that is unlikely, not impossible
-    log_emission = np.log(np.maximum(footprint_emission(model, labels @ model.sensor, readings),
-                                     EVIDENCE_FLOOR ** model.n_readings))  # (S, N)
-    passable = labels @ run.passable_label
-    path = np.empty((end - first, n), dtype=np.int64)
-    path[0] = np.arange(n)
-    total = log_emission[0].copy()
-    for tau in range(1, end - first):
-        here = path[tau - 1]
-        action = run.actions[first + tau - 1]
-        target = model.neighbors[here, action]
-        presses = target != here
-        previous, current = readings[tau - 1], readings[tau]
-        p_enter = np.full(n, model.p_move)
-        if model.has_blocking and run.ahead[action] >= 0:  # the target's passability after its latest reading
-            z = previous[run.ahead[action]]
-            seen = run.sensor[:, z] if z >= 0 else np.ones(model.n_labels)
-            p_enter *= (labels @ (seen * run.passable_label))[target] / (labels @ seen)[target]
-        elif model.has_blocking:
-            p_enter *= passable[target]
-        with np.errstate(divide="ignore"):
-            move = np.log(p_enter) + _log_predictive(model, run, labels, target, run.shifts[action], previous, current)
-            stay = np.log(1.0 - p_enter) + _log_predictive(model, run, labels, here, run.shifts[-1], previous, current)
-        moves = presses & (move >= stay)
-        if model.has_blocking:
-            p_global = model.p_move * passable[target]
-            outcome = np.where(moves, p_global, 1.0 - p_global)
-            total += np.where(presses, np.log(np.maximum(outcome, EVIDENCE_FLOOR)), 0.0)
-        path[tau] = np.where(moves, target, here)
-        total += log_emission[tau, path[tau]]
-    return _Local(path, total)
+    tables = _Tables(np.empty(n), np.ones((end - first, n)), np.ones((end - first, n)), np.zeros((end - first, n)))
+    kernels.stretch_tables(np.ascontiguousarray(labels), run.sensor, run.passable_label, run.readings[first:end],
+                           run.shifts, model.footprint_cells, model.neighbors, model.predecessor,
+                           run.actions[first:end - 1], run.ahead, float(model.p_move), bool(model.has_blocking),
+                           EVIDENCE_FLOOR, ratio is not None,
+                           np.ones((model.n_labels, model.n_labels)) if ratio is None else ratio, *tables)
+    return tables
 
 
-def local_evidence(model: GridModel, run: _Run, m: int, local: _Local, weights: np.ndarray) -> np.ndarray:
-    """(N, K) stretch m's expected log-evidence ``E_m`` with pose weights (N,) (tempered
-    posterior): its readings and, with blocking labels, its presses' outcomes at every pose with
-    weight above :data:`PRUNE_BELOW`. O(S F n) for n such poses."""
+class _Forward(NamedTuple):
+    """Stretch m's forward messages and its likelihood at every start."""
+
+    f: np.ndarray  # (S, N, D) scaled per start
+    log_f: np.ndarray  # (S, N)
+    log_likelihood: np.ndarray  # (N,) log l_m(x)
+
+
+def _forward(model: GridModel, run: _Run, m: int, geometry: _Stretch, tables: _Tables) -> _Forward:
+    """The forward pass within stretch m for every start. O(S N D)."""
+    length = run.starts[m + 1] - run.starts[m]
+    f = np.empty((length, model.n_cells, len(geometry.cell_shift)))
+    log_f = np.empty((length, model.n_cells))
+    kernels.stretch_forward(model.neighbors, run.actions[run.starts[m]:run.starts[m + 1] - 1], geometry.cell_shift,
+                            geometry.delta, geometry.origin, tables.first, tables.stay, tables.move, tables.enter,
+                            f, log_f)
+    return _Forward(f, log_f, log_f[-1] + np.log(f[-1].sum(axis=1)))
+
+
+def _end_cells(model: GridModel, run: _Run, m: int, geometry: _Stretch, forward: _Forward, weight: np.ndarray,
+               passable) -> tuple[np.ndarray, float]:
+    """The distribution of stretch m + 1's start given start weights (N,) of stretch m (before its
+    data), and the log of its normaliser, ``log sum_x weight[x] l_m(x)``: where stretch m ends,
+    then the press across the boundary. O(N D)."""
+    reachable = weight > 0
+    shift = forward.log_f[-1][reachable].max()
+    scaled = np.where(reachable, weight * np.exp(forward.log_f[-1] - shift), 0.0)
+    ends = np.empty(model.n_cells)
+    kernels.collapse(forward.f[-1], geometry.cell_shift, scaled, ends)
+    total = ends.sum()
+    if total <= 0 or not np.isfinite(total):
+        raise ModelError(f"stretch {m} (from step {run.starts[m]}) has probability zero at every pose reachable "
+                         f"from the start")
+    ends /= total
+    if m + 1 < len(run.starts) - 1:
+        ends = apply_motion(model, ends, int(run.actions[run.starts[m + 1] - 1]), passable)
+    return ends, float(np.log(total) + shift)
+
+
+def _backward(model: GridModel, run: _Run, m: int, geometry: _Stretch, tables: _Tables, forward: _Forward,
+              end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The backward pass within stretch m from ``end`` (N,), the message of the cell it ends in:
+    ``(b (S, N, D), log B (N,))`` with ``B(x) = P(stretch m's data and the rest | x_m = x)`` up
+    to one constant. O(S N D)."""
+    b = np.empty_like(forward.f)
+    log_b = np.empty_like(forward.log_f)
+    kernels.stretch_backward(model.neighbors, run.actions[run.starts[m]:run.starts[m + 1] - 1], geometry.cell_shift,
+                             geometry.delta, tables.stay, tables.move, tables.enter, forward.f, end, b, log_b)
+    with np.errstate(divide="ignore"):
+        return b, np.log(tables.first * b[0, :, geometry.origin]) + log_b[0]
+
+
+def _evidence(model: GridModel, run: _Run, m: int, geometry: _Stretch, tables: _Tables, forward: _Forward,
+              b: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Stretch m's expected log-evidence ``E_m`` (N, K) with start weights (N,) (the tempered
+    pose posterior) and the expected number of readings of each cell (N,). O(S F n D)."""
     n, k = model.n_cells, model.n_labels
-    poses = np.flatnonzero(weights > PRUNE_BELOW)
-    w = weights[poses]
-    path = local.path[:, poses]  # (S, n)
-    readings = run.readings[run.starts[m]:run.starts[m + 1]]
-    cells = model.footprint_cells[path]  # (S, n, F)
-    z = np.broadcast_to(readings[:, None, :], cells.shape)
-    valid = (cells >= 0) & (z >= 0)
-    counts = np.bincount((cells * k + z)[valid], weights=np.broadcast_to(w[None, :, None], cells.shape)[valid],
-                         minlength=n * k).reshape(n, k)
+    counts = np.zeros((n, k))
+    entered, bumped = np.zeros(n), np.zeros(n)
+    first, end = run.starts[m], run.starts[m + 1]
+    kernels.stretch_counts(model.neighbors, run.actions[first:end - 1], geometry.cell_shift, geometry.delta,
+                           tables.stay, tables.move, tables.enter, forward.f, b, weight, PRUNE_BELOW,
+                           run.readings[first:end], model.footprint_cells, counts, entered, bumped)
     evidence = counts @ run.log_sensor.T  # counts[c, z] log O[k, z] summed over z
-    if model.has_blocking and len(path) > 1:
-        actions = run.actions[run.starts[m]:run.starts[m + 1] - 1]
-        target = model.neighbors[path[:-1], actions[:, None]]  # (S - 1, n)
-        presses = target != path[:-1]
-        moved = path[1:] != path[:-1]
-        ww = np.broadcast_to(w[None, :], target.shape)
-        entered = np.bincount(target[moved], weights=ww[moved], minlength=n)
-        bumped = np.bincount(target[presses & ~moved], weights=ww[presses & ~moved], minlength=n)
+    if model.has_blocking:
         evidence += entered[:, None] * run.log_move + bumped[:, None] * run.log_stay
-    return evidence
-
-
-def _motion(model: GridModel, run: _Run, m: int, belief: np.ndarray, passable, backward: bool) -> np.ndarray:
-    """The S-step motion kernel from stretch m's start to stretch m + 1's (forward: predict a
-    distribution over cells; backward: pull a message back). O(S (N + E))."""
-    actions = run.actions[run.starts[m]:run.starts[m + 1]]
-    if backward:
-        for a in actions[::-1]:
-            belief = apply_motion_transpose(model, belief, int(a), passable)
-    else:
-        for a in actions:
-            belief = apply_motion(model, belief, int(a), passable)
-    return belief
-
-
-def pose_posteriors(model: GridModel, run: _Run, log_likelihood: np.ndarray,
-                    passable: np.ndarray | None) -> tuple[np.ndarray, float]:
-    """Forward-backward over the stretch poses: (M, N) ``P(x_m | data)`` and the log evidence
-    ``log sum_x P(x_0..x_M-1) prod_m l_m(x_m)``, from the log-likelihoods (M, N), the start cell
-    prior and the S-step motion with ``passable`` (N,) (None: the paper's motion). Raises ModelError
-    when no pose sequence has positive probability. O(T (N + E))."""
-    n_stretch, n = log_likelihood.shape
-    likelihood = np.empty((n_stretch, n))
-    filtered = np.empty((n_stretch, n))
-    log_evidence = 0.0
-    predicted = model.location_prior()
-    for m in range(n_stretch):
-        if m > 0:
-            predicted = _motion(model, run, m - 1, filtered[m - 1], passable, backward=False)
-        # scaled by the best pose the motion allows: another pose may be e^-1000 likelier than all of those
-        shift = log_likelihood[m][predicted > 0].max()
-        if not np.isfinite(shift):
-            raise ModelError(f"stretch {m} (from step {run.starts[m]}) has probability zero at every pose reachable "
-                             f"from the start")
-        np.exp(log_likelihood[m] - shift, out=likelihood[m])
-        joint = predicted * likelihood[m]
-        total = joint.sum()
-        filtered[m] = joint / total
-        log_evidence += float(np.log(total)) + float(shift)
-    posterior = np.empty_like(filtered)
-    posterior[-1] = filtered[-1]
-    beta = np.ones(n)
-    for m in range(n_stretch - 2, -1, -1):
-        beta = _motion(model, run, m, beta * likelihood[m + 1], passable, backward=True)
-        beta /= beta.max()
-        joint = filtered[m] * beta
-        posterior[m] = joint / joint.sum()
-    return posterior, log_evidence
+    return evidence, counts.sum(axis=1)
 
 
 def _passability(model: GridModel, run: _Run, labels: np.ndarray) -> np.ndarray | None:
     return labels @ run.passable_label if model.has_blocking else None
 
 
+class _EStep(NamedTuple):
+    posterior: np.ndarray  # (M, N)
+    log_evidence: float
+    evidence: list  # M arrays (N, K), the M-step's E_m
+    reads: list  # M arrays (N,)
+
+
+def _smooth(model: GridModel, run: _Run, labels_of: Callable[[int], np.ndarray], passable, tau: float,
+            ratio: np.ndarray | None = None) -> _EStep:
+    """Forward-backward over the stretch poses, stretch m scored under ``labels_of(m)`` (N, K)
+    (and the adjacent labels' ``ratio`` (K, K) for cells first read, unless None),
+    the motion across boundaries with ``passable`` (N,) (None: the paper's motion); then each
+    stretch's evidence with its pose posterior tempered by ``tau``. Raises ModelError when no
+    pose sequence has positive probability. Cost: the module docstring's, per iteration."""
+    n_stretch = len(run.starts) - 1
+    geometry = [_stretch(model, run, m) for m in range(n_stretch)]
+    tables = [_tables(model, run, m, labels_of(m), ratio) for m in range(n_stretch)]
+    predicted = np.empty((n_stretch, model.n_cells))
+    predicted[0] = model.location_prior()
+    log_evidence = 0.0
+    for m in range(n_stretch):
+        forward = _forward(model, run, m, geometry[m], tables[m])
+        ends, log_total = _end_cells(model, run, m, geometry[m], forward, predicted[m], passable)
+        log_evidence += log_total
+        if m + 1 < n_stretch:
+            predicted[m + 1] = ends
+    posterior = np.empty_like(predicted)
+    evidence, reads = [None] * n_stretch, [None] * n_stretch
+    end = np.ones(model.n_cells)
+    for m in range(n_stretch - 1, -1, -1):
+        forward = _forward(model, run, m, geometry[m], tables[m])
+        b, log_back = _backward(model, run, m, geometry[m], tables[m], forward, end)
+        posterior[m] = _normalised(predicted[m], log_back)
+        evidence[m], reads[m] = _evidence(model, run, m, geometry[m], tables[m], forward, b, temper(posterior[m], tau))
+        if m > 0:
+            message = np.exp(log_back - log_back[np.isfinite(log_back)].max())
+            end = apply_motion_transpose(model, message, int(run.actions[run.starts[m] - 1]), passable)
+    return _EStep(posterior, log_evidence, evidence, reads)
+
+
+def _normalised(weight: np.ndarray, log_likelihood: np.ndarray) -> np.ndarray:
+    """``weight * exp(log_likelihood)`` normalised (N,), scaled by the best weighted entry."""
+    reachable = (weight > 0) & np.isfinite(log_likelihood)
+    joint = np.where(reachable, weight * np.exp(log_likelihood - log_likelihood[reachable].max()), 0.0)
+    return joint / joint.sum()
+
+
 def localize_stretches(model: GridModel, actions, observations, labels, *, stretch: int | None = None
                        ) -> tuple[np.ndarray, float]:
     """The E-step in a given map: (M, N) ``P(x_m | data; labels)`` for the stretches of a run and
-    the log evidence of the stretch likelihoods, every stretch scored against the same map marginals
-    ``labels`` (N, K) (no stretch left out). With ``stretch=1`` this is forward-backward over the
-    locations of the location HMM with observation matrix ``labels @ O``. Cost O(T N F + T (N + E))."""
+    the log evidence ``log P(data; labels)`` under the module docstring's emissions, every stretch
+    scored against the same map marginals ``labels`` (N, K) (no stretch left out). With
+    ``stretch=1`` this is forward-backward over the locations of the location HMM with
+    observation matrix ``labels @ O``. Cost O(T N F K + T N D)."""
     run = _prepare(model, actions, observations, stretch)
     labels = np.asarray(labels, dtype=np.float64)
     if labels.shape != (model.n_cells, model.n_labels):
         raise ModelError(f"labels must have shape {(model.n_cells, model.n_labels)}, got {labels.shape}")
-    log_likelihood = np.array([stretch_likelihood(model, run, m, labels).log_likelihood
-                               for m in range(len(run.starts) - 1)])
-    return pose_posteriors(model, run, log_likelihood, _passability(model, run, labels))
+    fit = _smooth(model, run, lambda m: labels, _passability(model, run, labels), 1.0)
+    return fit.posterior, fit.log_evidence
 
 
-def _initial_evidence(model: GridModel, run: _Run, schedule: Anneal | None) -> list[np.ndarray]:
-    """The forward sweep's local maps: stretch m localised (filtered) against the map of stretches
-    0..m-1 and placed by its tempered filtered posterior. O(T N F + M N K)."""
-    tau = 1.0 if schedule is None else schedule.tau(0)
-    total = np.zeros((model.n_cells, model.n_labels))
-    evidence = []
+class _Prior(NamedTuple):
+    """The label prior of a fit: fixed log frequencies, or a Dirichlet's concentrations to learn them."""
+
+    log_prior: np.ndarray  # (N, K) the prior now
+    alpha: np.ndarray | None  # (K,) with label_prior="learn"
+    ratio: np.ndarray | None  # (K, K) P(l, k) / (P(l) P(k)) of adjacent cells' labels, learned with "learn"
+
+    def update(self, model: GridModel, evidence: np.ndarray, reads: np.ndarray) -> "_Prior":
+        """With ``"learn"``, from the map q under the current prior and the total evidence (N, K),
+        and w_c = min(1, reads_c), reads (N,) the expected readings per cell: theta, the Dirichlet
+        posterior mean given the expected labels of the cells read, ``sum_c w_c q_c``; and the
+        adjacent labels' ratio from the pairs' expected counts ``sum_(c, c') w_c w_c' q_c q_c'^T``
+        over neighbouring cells, with the Dirichlet's concentrations spread over the K^2 pairs
+        (A / K each) as pseudo-counts. O(N A K^2) for A actions."""
+        if self.alpha is None:
+            return self
+        labels = _softmax(self.log_prior + evidence)
+        weight = np.minimum(reads, 1.0)
+        theta = posterior_frequencies(self.alpha, weight @ labels)
+        weighted = weight[:, None] * labels
+        pairs = np.zeros((model.n_labels, model.n_labels))
+        cells = np.arange(model.n_cells)
+        for a in range(model.n_actions):
+            moves = model.neighbors[:, a] != cells
+            pairs += weighted[moves].T @ weighted[model.neighbors[moves, a]]
+        pairs = pairs + pairs.T + np.add.outer(self.alpha, self.alpha) / (2 * model.n_labels)
+        joint = pairs / pairs.sum()
+        marginal = joint.sum(axis=1)
+        return _Prior(np.broadcast_to(np.log(theta), self.log_prior.shape), self.alpha,
+                      joint / np.outer(marginal, marginal))
+
+
+def _label_prior(model: GridModel, label_prior, prior_strength) -> _Prior:
+    resolved = resolve_label_prior(model.n_labels, label_prior, prior_strength)
+    shape = (model.n_cells, model.n_labels)
+    with np.errstate(divide="ignore"):
+        if resolved.kind == "model":
+            return _Prior(np.log(model.label_prior), None, None)
+        if resolved.kind == "fixed":
+            return _Prior(np.broadcast_to(np.log(resolved.frequencies), shape), None, None)
+    return _Prior(np.broadcast_to(np.log(resolved.alpha / resolved.alpha.sum()), shape), resolved.alpha, None)
+
+
+def _sweep(model: GridModel, run: _Run, prior: _Prior, tau: float, learn: bool) -> tuple[list, list, _Prior]:
+    """The forward sweep's local maps: stretch m localised (filtered, and smoothed within the
+    stretch) against the map of stretches 0..m-1 and placed by its tempered filtered posterior;
+    with ``learn`` the learned prior re-estimated after each stretch, else held. O(T N F K^2 + T N D)."""
+    total, read = np.zeros((model.n_cells, model.n_labels)), np.zeros(model.n_cells)
+    evidence, reads = [], []
     predicted = model.location_prior()
+    ones = np.ones(model.n_cells)
     for m in range(len(run.starts) - 1):
-        labels = _softmax(run.log_prior + total)
-        if m > 0:
-            predicted = _motion(model, run, m - 1, filtered, _passability(model, run, labels), backward=False)
-        local = stretch_likelihood(model, run, m, labels)
-        shift = local.log_likelihood[predicted > 0].max()
-        if not np.isfinite(shift):
-            raise ModelError(f"stretch {m} (from step {run.starts[m]}) has probability zero at every pose reachable "
-                             f"from the start")
-        joint = predicted * np.exp(local.log_likelihood - shift)
-        filtered = joint / joint.sum()
-        evidence.append(local_evidence(model, run, m, local, temper(filtered, tau)))
-        total += evidence[-1]
-    return evidence
+        labels = _softmax(prior.log_prior + total)
+        geometry = _stretch(model, run, m)
+        tables = _tables(model, run, m, labels, prior.ratio)
+        forward = _forward(model, run, m, geometry, tables)
+        filtered = _normalised(predicted, forward.log_likelihood)
+        b, _ = _backward(model, run, m, geometry, tables, forward, ones)
+        local, count = _evidence(model, run, m, geometry, tables, forward, b, temper(filtered, tau))
+        evidence.append(local)
+        reads.append(count)
+        total += local
+        read += count
+        if learn:
+            prior = prior.update(model, total, read)
+        predicted, _ = _end_cells(model, run, m, geometry, forward, predicted,
+                                  _passability(model, run, _softmax(prior.log_prior + total)))
+    return evidence, reads, prior
+
+
+class _Fit(NamedTuple):
+    """One EM fit in progress."""
+
+    evidence: list  # M arrays (N, K)
+    reads: list  # M arrays (N,)
+    prior: _Prior
+    log_likelihoods: list  # float per E-step so far
+    posterior: np.ndarray | None  # (M, N) the last E-step's
+
+
+def _iterate(model: GridModel, run: _Run, fit: _Fit, schedule: Anneal | None, first: int, last: int) -> _Fit:
+    """EM iterations ``first .. last - 1`` (the annealing schedule's temperatures 1 + iteration)."""
+    evidence, reads, prior = fit.evidence, fit.reads, fit.prior
+    log_likelihoods, posterior = list(fit.log_likelihoods), fit.posterior
+    total = np.sum(evidence, axis=0)
+    for iteration in range(first, last):
+        passable = _passability(model, run, _softmax(prior.log_prior + total))
+        step = _smooth(model, run, lambda m: _softmax(prior.log_prior + total - evidence[m]), passable,
+                       1.0 if schedule is None else schedule.tau(iteration + 1), prior.ratio)
+        log_likelihoods.append(step.log_evidence)
+        evidence, reads, posterior = step.evidence, step.reads, step.posterior
+        total = np.sum(evidence, axis=0)
+        prior = prior.update(model, total, np.sum(reads, axis=0))
+    return _Fit(evidence, reads, prior, log_likelihoods, posterior)
+
+
+def _check_starts(starts) -> tuple[float, ...]:
+    if isinstance(starts, (str, bytes)) or not isinstance(starts, (tuple, list, np.ndarray)) or len(starts) == 0:
+        raise InvalidOptionError(f"starts must be a non-empty sequence of sweep temperatures, got {starts!r}")
+    values = tuple(arguments.real(f"starts[{i}]", x, error=InvalidOptionError) for i, x in enumerate(starts))
+    if not all(0 < x <= 1 for x in values):
+        raise InvalidOptionError(f"starts are sweep temperatures in (0, 1], got {starts!r}")
+    return values
 
 
 def fit_layered_map(model: GridModel, actions, observations, *, stretch: int | None = None, n_iter: int = 8,
-                    anneal=DEFAULT_ANNEAL) -> LayeredMap:
+                    anneal=DEFAULT_ANNEAL, label_prior=None, prior_strength=None,
+                    starts=DEFAULT_STARTS) -> LayeredMap:
     """Layered EM on a recorded run (actions (T - 1,), observations (T,) or (T, F), by index or
     name): the module docstring's algorithm, ``n_iter`` E- and M-steps after the forward sweep.
 
-    ``stretch``: steps per local map (None: :func:`default_stretch` of the model's p_move);
-    ``anneal``: None or ``(tau0, rate, tau_min)`` as offline EM's (:class:`Anneal`), iteration 0
-    at tau0. Raises InvalidOptionError for bad options and ModelError for a dynamic world.
-    Cost: the module docstring's, per iteration.
+    ``stretch``: steps per local map, 1..:data:`MAX_STRETCH` (None: :func:`default_stretch` of
+    the model's p_move); ``anneal``: None or ``(tau0, rate, tau_min)`` as offline EM's
+    (:class:`Anneal`), the E-step of iteration i at tau(i + 1); ``label_prior``,
+    ``prior_strength``: as the estimators' (:mod:`onlinemap.label_prior`): None the model's
+    prior, a (K,) vector, or ``"learn"`` (learned from a first sweep at ``starts[0]``, then in
+    every M-step). ``starts``: the temperatures in (0, 1] of the forward sweeps EM starts from
+    (each stretch placed by its filtered pose posterior to the power 1/t: 1 spreads it, small t
+    places it at its most likely pose); each start runs :data:`SELECT_AFTER` iterations, and the
+    one with the highest log-likelihood continues (a start that loses the robot explains the
+    readings worse). Raises InvalidOptionError for bad options and ModelError for a dynamic
+    world. Cost: the module docstring's per iteration, ``len(starts) (1 + SELECT_AFTER) +
+    n_iter - SELECT_AFTER`` iterations (one more with ``"learn"``).
     """
     run = _prepare(model, actions, observations, stretch)
     n_iter = check_n_iter(n_iter)
     schedule = check_anneal(anneal)
-    evidence = _initial_evidence(model, run, schedule)
-    total = np.sum(evidence, axis=0)
-    log_likelihoods = []
-    for iteration in range(n_iter):
-        passable = _passability(model, run, _softmax(run.log_prior + total))
-        locals_ = [stretch_likelihood(model, run, m, _softmax(run.log_prior + total - evidence[m]))
-                   for m in range(len(evidence))]
-        posterior, log_evidence = pose_posteriors(model, run, np.array([loc.log_likelihood for loc in locals_]),
-                                                  passable)
-        log_likelihoods.append(log_evidence)
-        tau = 1.0 if schedule is None else schedule.tau(iteration + 1)
-        evidence = [local_evidence(model, run, m, locals_[m], temper(posterior[m], tau)) for m in range(len(locals_))]
-        total = np.sum(evidence, axis=0)
-    return LayeredMap(_softmax(run.log_prior + total), np.array(evidence), posterior, run.starts[:-1].copy(),
-                      np.array(log_likelihoods))
+    starts = _check_starts(starts)
+    prior = _label_prior(model, label_prior, prior_strength)
+    if prior.alpha is not None:  # what a first sweep learns of the labels, from the start of the run on
+        _, _, prior = _sweep(model, run, prior, starts[0], True)
+    selected = min(n_iter, SELECT_AFTER)
+    fits = [_iterate(model, run, _Fit(*_sweep(model, run, prior, tau, False)[:2], prior, [], None), schedule, 0,
+                     selected) for tau in starts]
+    best = _iterate(model, run, max(fits, key=lambda fit: fit.log_likelihoods[-1]), schedule, selected, n_iter)
+    labels = _softmax(best.prior.log_prior + np.sum(best.evidence, axis=0))
+    return LayeredMap(labels, np.array(best.evidence), best.posterior, run.starts[:-1].copy(),
+                      np.array(best.log_likelihoods), np.exp(best.prior.log_prior).mean(axis=0))

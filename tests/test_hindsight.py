@@ -71,3 +71,20 @@ def test_bad_requests_raise():
         hindsight_map(model, (run.actions, run.observations), "told_location")
     with pytest.raises(InvalidOptionError, match="run_or_data"):
         hindsight_map(model, run.observations, "flat_em")
+
+
+def test_told_location_with_a_learned_prior_is_the_fixed_point():
+    """label_prior="learn": the frequencies theta of the told-location map satisfy theta =
+    (alpha + sum over cells read of P(label)) / (A + cells read), checked here with the map's own
+    rows; every unread cell has theta; the cells read match the model-prior map's evidence."""
+    model, true_map = om.building(12, 12, seed=2, p_move=0.9)
+    run = om.simulate(model, true_map, om.random_walk(model, 120, seed=2), seed=2)
+    learned = told_location(model, run, label_prior="learn")
+    cells = model.footprint_cells[run.locations]
+    read = np.unique(cells[cells >= 0])
+    unread = np.setdiff1d(np.arange(model.n_cells), read)
+    theta = learned[unread[0]]
+    np.testing.assert_allclose(learned[unread], np.broadcast_to(theta, (len(unread), model.n_labels)), atol=1e-15)
+    np.testing.assert_allclose(theta, (1.0 + learned[read].sum(axis=0)) / (model.n_labels + len(read)), atol=1e-9)
+    uniform = told_location(model, run)[read] * theta  # the uniform prior's map times theta: the same evidence
+    np.testing.assert_allclose(learned[read], uniform / uniform.sum(axis=1, keepdims=True), atol=1e-9)

@@ -62,3 +62,18 @@ def test_remap_refuses_bad_input_in_one_line(tmp_path, lines, word):
 def test_remap_refuses_an_unknown_method():
     code, _, err = cli(["remap", "--world", WORLD, "--methods", "smoothed"])
     assert_one_line_error(code, err, "smoothed")
+
+
+def test_remap_with_a_learned_label_prior(tmp_path):
+    """--label-prior learn: layered EM and the told-location map with the learned frequencies,
+    the same numbers as the library's."""
+    spec = parse_world(WORLD)
+    run = spec.simulate(30, 4)
+    write_run(tmp_path / "run.jsonl", run)
+    code, out, err = cli(["remap", "--world", WORLD, "--seed", "4", "--input", str(tmp_path / "run.jsonl"), "--estimator", "bk",
+                          "--methods", "layered_em", "--label-prior", "learn", "--out", str(tmp_path / "out")])
+    assert code == 0, err
+    errors = dict(pd.read_csv(tmp_path / "out" / "remap.csv")[["method", "final_map_error"]].values)
+    for method in ("layered_em", "told_location"):
+        belief = hindsight_map(spec.model, run, method, label_prior="learn").map
+        assert errors[method] == pytest.approx(1 - belief[np.arange(12), run.final_map].mean())

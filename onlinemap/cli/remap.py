@@ -45,7 +45,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--methods", type=name_list, default=["flat_em", "layered_em"],
                    help="hindsight methods, comma-separated (default flat_em,layered_em)")
     p.add_argument("--stretch", type=positive_int, default=None,
-                   help="layered EM's steps per local map (default: round(1 / (p_move (1 - p_move))))")
+                   help="layered EM's steps per local map (default: 1 / (2 (1 - p_move)), rounded)")
+    p.add_argument("--label-prior", choices=["model", "learn"], default="model",
+                   help="layered EM's and the told-location map's label prior: the model's (default) or 'learn' "
+                        "(the label frequencies re-estimated in every M-step)")
     add_out_argument(p, "remap.csv (one row per map)")
     p.set_defaults(func=remap)
 
@@ -115,6 +118,8 @@ def remap(args: argparse.Namespace) -> int:
         methods.append("told_location")
     for method in methods:
         options = {"stretch": args.stretch} if method == "layered_em" else {}
+        if args.label_prior == "learn" and method in ("layered_em", "told_location"):
+            options["label_prior"] = "learn"
         fit = hindsight_map(model, data, method, **options)
         maps[method], seconds[method] = fit.map, fit.seconds
     steps = data.n_steps if isinstance(data, Run) else len(data[1])

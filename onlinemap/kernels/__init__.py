@@ -1,8 +1,9 @@
 """numba kernels, one module per algorithm: ``exact`` (the joint belief's fused motion + sensor
 pass and map dynamics), ``rbpf`` and its ``rbpf_*`` modules (the particle filter's maps as
 copy-on-write blocks, its children, commits, recovery, threads and resample-move),
-``resampling`` (Fearnhead-Clifford's optimal resampling) and ``forward_backward`` (the EM
-estimators' location HMM): the estimators' kernels. The planners' kernels live beside the
+``resampling`` (Fearnhead-Clifford's optimal resampling), ``forward_backward`` (the EM
+estimators' location HMM) and ``layered`` (layered EM's stretches: forward-backward over start
+cells and offsets): the estimators' kernels. The planners' kernels live beside the
 planners (:mod:`policies.kernels`) and take the decorators below.
 
 The rule for every kernel here: arrays in, arrays out, no model objects. A kernel takes plain

@@ -9,6 +9,7 @@ and provenance for free) and summarised one way (:mod:`.base`: intervals over se
 - :mod:`.exploration`: planners exploring (the paper's world, blocking walls, buildings, replays);
 - :mod:`.navigation`: goal planners through changing doors, against the oracle;
 - :mod:`.floors`: real floors read from files and generated buildings, with the told-location anchor;
+- :mod:`.hindsight`: flat against layered EM on recorded runs in 32 x 32 floors (issue 41);
 
 Modules load on first use (``onlinemap.studies.exploration`` imports ``policies``).
 The layer sits above the engine and ``policies``; nothing below imports it.
@@ -18,7 +19,7 @@ from __future__ import annotations
 
 import importlib
 
-MODULES = ("base", "corridor", "accuracy", "mapping", "exploration", "navigation", "floors")
+MODULES = ("base", "corridor", "accuracy", "mapping", "exploration", "navigation", "floors", "hindsight")
 
 
 def __getattr__(name: str):
