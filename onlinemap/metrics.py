@@ -28,10 +28,13 @@ def total_variation(p: np.ndarray, q: np.ndarray) -> np.ndarray | float:
 
 
 def normalized_entropy(p: np.ndarray) -> np.ndarray | float:
-    """Entropy over the last axis divided by ``log(size)``, in [0, 1]. (..., K) -> (...)."""
+    """Entropy over the last axis divided by ``log(size)``, in [0, 1]; 0 over a single outcome
+    (a one-cell world: nothing is uncertain). (..., K) -> (...)."""
     p = np.asarray(p, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
         terms = np.where(p > 0, -p * np.log(p), 0.0)
+    if p.shape[-1] == 1:
+        return terms.sum(axis=-1) * 0.0
     return terms.sum(axis=-1) / np.log(p.shape[-1])
 
 
