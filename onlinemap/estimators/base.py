@@ -93,11 +93,9 @@ def draw_labels(marginals: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.minimum((u >= cdf).sum(axis=-1), marginals.shape[-1] - 1).astype(np.int64)
 
 
-class FixedAfterBuild:
-    """An estimator option fixed when the estimator is built (it sizes or defines the state): read
-    like a plain attribute and kept in the instance's ``__dict__`` (so checkpoints, which store
-    ``vars(est)``, see it unchanged), but assigning it again raises
-    :class:`~onlinemap.errors.InvalidOptionError` and leaves the estimator as it was. O(1)."""
+class _InstanceOption:
+    """A descriptor for an estimator attribute kept in the instance's ``__dict__`` under its own
+    name (so checkpoints, which store ``vars(est)``, see a plain attribute) and checked when set."""
 
     def __set_name__(self, owner: type, name: str) -> None:
         self.name = name
@@ -109,6 +107,12 @@ class FixedAfterBuild:
             return obj.__dict__[self.name]
         except KeyError:
             raise AttributeError(self.name) from None
+
+
+class FixedAfterBuild(_InstanceOption):
+    """An estimator option fixed when the estimator is built (it sizes or defines the state):
+    assigning it again raises :class:`~onlinemap.errors.InvalidOptionError` and leaves the
+    estimator as it was. O(1)."""
 
     def __set__(self, obj, value) -> None:
         if self.name in obj.__dict__:
@@ -117,22 +121,10 @@ class FixedAfterBuild:
         obj.__dict__[self.name] = value
 
 
-class BooleanFlag:
+class BooleanFlag(_InstanceOption):
     """A boolean switch of an estimator that may change between steps (e.g. the RBPF's
-    ``recover_from_depletion``): kept in the instance's ``__dict__`` like a plain attribute, and
-    anything but a bool is refused with :class:`~onlinemap.errors.InvalidOptionError` (a
-    checkpoint of a non-bool would not load). O(1)."""
-
-    def __set_name__(self, owner: type, name: str) -> None:
-        self.name = name
-
-    def __get__(self, obj, owner=None):
-        if obj is None:
-            return self
-        try:
-            return obj.__dict__[self.name]
-        except KeyError:
-            raise AttributeError(self.name) from None
+    ``recover_from_depletion``): anything but a bool is refused with
+    :class:`~onlinemap.errors.InvalidOptionError` (a checkpoint of a non-bool would not load). O(1)."""
 
     def __set__(self, obj, value) -> None:
         if not isinstance(value, (bool, np.bool_)):
