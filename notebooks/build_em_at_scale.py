@@ -7,7 +7,7 @@ from nbbuild import notebook, write
 
 CELLS = [
     new_markdown_cell("""\
-# EM at building scale: flat against layered maps (issue 41)
+# EM at building scale: flat against layered maps
 
 Burgard, Fox, Jans, Matenar and Thrun (ICML 1999) say that EM over one flat grid map fails in
 large environments: each reading is placed by where the robot might have been, so the map is the
