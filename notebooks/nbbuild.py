@@ -74,13 +74,21 @@ def notebook(cells) -> nbformat.NotebookNode:
 def execute(nb: nbformat.NotebookNode, timeout: int = TIMEOUT) -> nbformat.NotebookNode:
     """Run ``nb`` top to bottom in a fresh kernel (in ``notebooks/``, with :data:`ENVIRONMENT`);
     outputs are stored in ``nb`` (no timing metadata). Raises on the first failing cell."""
+    import tempfile
+
+    from jupyter_client.manager import KernelManager
     from nbclient import NotebookClient
 
     saved = {key: os.environ.get(key) for key in ENVIRONMENT}
     os.environ.update(ENVIRONMENT)
     try:
-        NotebookClient(nb, timeout=timeout, kernel_name=KERNELSPEC["name"], record_timing=False,
-                       resources={"metadata": {"path": str(HERE)}}).execute()
+        # The kernel talks over Unix sockets in a private directory, not TCP ports: ports chosen
+        # free can be taken by another kernel starting at the same moment (parallel test workers)
+        with tempfile.TemporaryDirectory(prefix="nb") as sockets:
+            manager = KernelManager(kernel_name=KERNELSPEC["name"], transport="ipc",
+                                    ip=os.path.join(sockets, "kernel"))
+            NotebookClient(nb, km=manager, timeout=timeout, record_timing=False,
+                           resources={"metadata": {"path": str(HERE)}}).execute()
     finally:
         for key, value in saved.items():
             if value is None:
