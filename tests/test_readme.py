@@ -68,6 +68,24 @@ def test_the_readme_navigation_example_gives_what_it_says():
     assert run.reached_at is not None and list(run.frame["distance_to_goal"])[-1] == 0
 
 
+@pytest.mark.slow  # two closed loops of 300 steps
+def test_the_readme_building_example_prints_what_it_says(capsys):
+    """The "Mapping a building from nothing" block prints, run by run, the numbers the sentence
+    after it gives; and the first number of each line is the run's final map error computed here by
+    hand (1 - P(true label), averaged over the cells)."""
+    readme = (ROOT / "README.md").read_text()
+    (block,) = [b for b in python_blocks(ROOT / "README.md") if 'label_prior=prior' in b]
+    namespace: dict = {}
+    exec(block.replace("steps=300, seed=0)", "steps=300, seed=0, progress=False)"), namespace)
+    printed = capsys.readouterr().out.strip().splitlines()
+    claimed = re.search(r"It prints `([^`]*)`, then `([^`]*)`", readme).groups()
+    assert printed == list(claimed)
+    last = namespace["run"]  # the learned prior's run
+    final, truth = last.trajectory.map[-1], last.run.final_map
+    by_hand = 1.0 - sum(final[i][truth[i]] for i in range(len(truth))) / len(truth)
+    assert f"{by_hand:.2f}" == printed[-1].split()[0]
+
+
 def test_the_guide_door_world_example_gives_what_it_says():
     """The door-world block of the getting-started page runs and prints the values its comments give, and what
     they claim holds by hand: the most likely cell (an argmax written here) is the true one, the
