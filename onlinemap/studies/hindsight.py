@@ -73,9 +73,11 @@ def world_kinds(maps: str | os.PathLike = MAPS) -> dict[str, tuple[str, ...]]:
     return {"building": BUILDING_WORLDS, "floor": floor_worlds(maps)}
 
 
-def remap_rows(run, filter_map: np.ndarray | None, fit_options: Mapping[str, dict] | None = None) -> list[dict]:
+def remap_rows(run, filter_map: np.ndarray | None, fit_options: Mapping[str, dict] | None = None,
+               methods: Sequence[str] = METHODS) -> list[dict]:
     """The study's rows of one recorded run (:class:`~onlinemap.simulate.Run`): every method of
-    :data:`METHODS` (``filter`` only when ``filter_map`` (N, K) is given) scored against the run's
+    ``methods`` (default :data:`METHODS`; ``layered_em_learned`` brings its alignment's row and
+    ``rbpf_smoothed`` the row ``rbpf_filtered``) (``filter`` only when ``filter_map`` (N, K) is given) scored against the run's
     true map, with its CPU seconds (``layered_em_learned_alignment`` is the learned fit's map under
     the model's prior, :meth:`~onlinemap.layered_em.LayeredMap.map_with_prior`: the same fit's
     seconds; ``rbpf_filtered`` is the replay of ``rbpf_smoothed``, the same seconds).
@@ -84,7 +86,7 @@ def remap_rows(run, filter_map: np.ndarray | None, fit_options: Mapping[str, dic
     options = {"flat_em": ("flat_em", {}), "layered_em": ("layered_em", {}),
                "told_location": ("told_location", {}), "told_location_learned": ("told_location", {"label_prior": "learn"})}
     rows = []
-    for method in METHODS:
+    for method in methods:
         started = time.process_time()
         if method == "filter":
             if filter_map is not None:
@@ -151,13 +153,13 @@ def record_runs(kinds: Mapping[str, Sequence[str]] | None = None, *, planners: S
 
 
 def remap_study(recorded: Sequence[Recorded], *, fit_options: Mapping[str, dict] | None = None,
-                confidence: float = 0.95, progress: bool = True) -> Study:
-    """Each recorded run remapped by :func:`remap_rows`: ``Study(per_run, summary)``, per_run
+                confidence: float = 0.95, progress: bool = True, methods: Sequence[str] = METHODS) -> Study:
+    """Each recorded run remapped by :func:`remap_rows` (``methods``): ``Study(per_run, summary)``, per_run
     one row per (kind, world, planner, seed, method), the summary per (kind, method) with
     intervals. Cost: the fits, per run."""
     rows = []
     for item in tqdm(recorded, desc="remap", disable=not progress):
-        for row in remap_rows(item.run, item.filter_map, fit_options):
+        for row in remap_rows(item.run, item.filter_map, fit_options, methods):
             rows.append({"kind": item.kind, "world": item.world, "planner": item.planner, "seed": item.seed, **row})
     per_run = pd.DataFrame(rows)
     summary = summary_of(per_run, list(MEASURES), ["kind", "method"], confidence,
