@@ -65,6 +65,7 @@ class SmoothedMap(NamedTuple):
     distinct_paths: int  # distinct ancestral paths among the final live particles (D)
     live_particles: int  # final particles with nonzero weight
     common_steps: int  # steps 0..common_steps - 1 on which every live path agrees (the genealogy's collapse)
+    lineages: np.ndarray  # (T,) distinct ancestors of the final live particles at each step (1 where collapsed)
     recoveries: int  # the filter's steps that recovered from depletion
 
 
@@ -148,9 +149,9 @@ def smoothed_rbpf_map(model: GridModel, actions, observations, *, n_particles: i
     where the filter's map is not the map given the path: a recovery reset read cells to their
     prior (here every reading counts), and ``label_prior="learn"`` (the filter's plug-in
     frequencies learned along the run, here each path's own fixed point). ``distinct_paths`` and
-    ``common_steps`` measure the genealogy's degeneracy. Raises ModelError in a dynamic world and
+    ``common_steps`` and ``lineages`` measure the genealogy's degeneracy. Raises ModelError in a dynamic world and
     InvalidOptionError for ``move_window`` (a move redraws past locations the genealogy does not
-    record). Cost: the replay O(T P F K^2), the genealogy O(T P) time and 16 T P bytes, the
+    record). Cost: the replay O(T P F K^2), the genealogy O(T P log P) time and 8 T P bytes, the
     distinct paths O(T P log P), the maps O(D (T F K + iterations N K)) for D distinct paths."""
     if not model.is_static:
         raise ModelError("rbpf_smoothed needs a static world: in a dynamic one the final map is the filter's own "
@@ -170,8 +171,10 @@ def smoothed_rbpf_map(model: GridModel, actions, observations, *, n_particles: i
     weights = filter_.weights
     slots = np.flatnonzero(weights > 0)
     paths = np.empty((len(slots), steps), dtype=np.int64)
+    lineages = np.empty(steps, dtype=np.int64)
     for t in range(steps - 1, -1, -1):
         paths[:, t] = locations[t, slots]
+        lineages[t] = len(np.unique(slots))
         slots = ancestors[t, slots]
     distinct, which = np.unique(paths, axis=0, return_inverse=True)
     path_weights = np.bincount(which.ravel(), weights=weights[weights > 0], minlength=len(distinct))
@@ -181,7 +184,7 @@ def smoothed_rbpf_map(model: GridModel, actions, observations, *, n_particles: i
     agree = np.all(paths == paths[0], axis=0)
     common = steps if agree.all() else int(np.argmin(agree))
     return SmoothedMap(belief / belief.sum(axis=1, keepdims=True), filter_.belief.map, len(distinct), len(paths),
-                       common, filter_.recoveries)
+                       common, lineages, filter_.recoveries)
 
 
 def _normalised_rows(log_belief: np.ndarray) -> np.ndarray:
