@@ -151,7 +151,7 @@ def smoothed_rbpf_map(model: GridModel, actions, observations, *, n_particles: i
     frequencies learned along the run, here each path's own fixed point). ``distinct_paths`` and
     ``common_steps`` and ``lineages`` measure the genealogy's degeneracy. Raises ModelError in a dynamic world and
     InvalidOptionError for ``move_window`` (a move redraws past locations the genealogy does not
-    record). Cost: the replay O(T P F K^2), the genealogy O(T P log P) time and 8 T P bytes, the
+    record). Cost: the replay O(T P F K^2), the genealogy O(T P log P) time and 16 T P bytes, the
     distinct paths O(T P log P), the maps O(D (T F K + iterations N K)) for D distinct paths."""
     if not model.is_static:
         raise ModelError("rbpf_smoothed needs a static world: in a dynamic one the final map is the filter's own "
