@@ -202,14 +202,17 @@ def _data(run_or_data) -> tuple[np.ndarray, np.ndarray, Run | None]:
     raise InvalidOptionError(f"run_or_data must be a Run or (actions, observations), got {type(run_or_data).__name__}")
 
 
-def hindsight_map(model: GridModel, run_or_data, method: str = "layered_em", **options) -> HindsightMap:
+def hindsight_map(model: GridModel, run_or_data, method: str = "layered_em_learned_alignment",
+                  **options) -> HindsightMap:
     """The map of a recorded run by ``method`` (:data:`METHODS`), ``run_or_data`` a
     :class:`~onlinemap.simulate.Run` or ``(actions (T - 1,), observations (T,) or (T, F))``;
     ``options`` go to the fitter (``baum_welch`` for flat_em, ``fit_layered_map`` for layered_em
     and layered_em_learned_alignment, :func:`smoothed_rbpf_map` for rbpf_smoothed).
-    ``layered_em_learned_alignment``: layered EM with ``label_prior="learn"`` (the robot aligned
-    with the learned label statistics), its map under the model's prior
-    (:meth:`~onlinemap.layered_em.LayeredMap.map_with_prior`). ``rbpf_smoothed``: the result's
+    ``layered_em_learned_alignment`` (the default): layered EM with ``label_prior="learn"`` (the
+    robot aligned with the learned label statistics), its map under the model's prior
+    (:meth:`~onlinemap.layered_em.LayeredMap.map_with_prior`): measured lower final map error
+    than ``layered_em`` on 10 of 10 400-step runs in 32 x 32 buildings (Wilcoxon one-sided p =
+    0.001) and 8 of 10 on real floors (p = 0.02), the study :mod:`onlinemap.studies.hindsight`. ``rbpf_smoothed``: the result's
     ``filtered`` is the replaying filter's final map. Raises InvalidOptionError for an unknown
     method, or told_location without a Run. Cost: the method's (flat EM O(iterations T (N F +
     E)), layered EM its module's, rbpf_smoothed :func:`smoothed_rbpf_map`'s, told-location O(T F K))."""
