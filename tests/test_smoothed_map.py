@@ -93,11 +93,11 @@ def test_in_a_static_world_the_genealogy_mixture_is_the_filters_map():
     np.testing.assert_allclose(smoothed.map, smoothed.filtered, atol=1e-9)
     assert 1 <= smoothed.distinct_paths <= smoothed.live_particles <= 300
     assert 0 <= smoothed.common_steps < run.n_steps
-    # distinct ancestors: never fewer going forward; Fearnhead-Clifford keeps no child twice, so one lineage is
-    # exactly where the paths agree
+    # distinct ancestors: never fewer going forward, all the live particles at the end; the paths
+    # agree at least while one lineage holds them, and no longer than the step where two split
     lineages = smoothed.lineages
     assert np.all(np.diff(lineages) >= 0) and lineages[-1] == smoothed.live_particles
-    assert np.all(lineages[:smoothed.common_steps] == 1) and lineages[smoothed.common_steps] > 1
+    assert np.argmax(lineages > 1) <= smoothed.common_steps and lineages[smoothed.common_steps] > 1
 
 
 def test_path_map_takes_no_press_evidence_from_a_relocation():
