@@ -8,14 +8,14 @@ Methods (:data:`METHODS`):
   step's location posterior;
 - ``layered_em``: :func:`onlinemap.layered_em.fit_layered_map`, local maps from stretches of the
   run aligned by EM and assembled at the end;
+- ``layered_em_learned_alignment`` (the default): layered EM with the label prior learned (the
+  alignment), its map under the model's prior;
+- ``rbpf_smoothed``: :func:`smoothed_rbpf_map`, the RBPF replayed over the run and the map given
+  each final particle's ancestral path, mixed by the final weights (genealogy smoothing; in a
+  static world the filter's own final map, but after a recovery from depletion);
 - ``told_location``: the map of a robot told its true path (needs a :class:`~onlinemap.simulate.Run`):
   :func:`onlinemap.evaluate.told_location_map`, and with blocking labels in a static world the
   same with every press's outcome as evidence about the cell pressed into (:func:`told_location`).
-
-- ``layered_em_learned_alignment``: layered EM with the label prior learned (the alignment),
-  its map under the model's prior;
-- ``rbpf_smoothed``: :func:`smoothed_rbpf_map`, the RBPF replayed over the run and the map given
-  each final particle's ancestral path, mixed by the final weights (genealogy smoothing);
 
 Scores (:func:`hindsight_table`): ``final_map_error`` (mean over cells of 1 - P(true label)),
 ``wrong_cells`` (most probable label wrong) and ``confidently_wrong`` (P(wrong label) > 0.9, i.e.
@@ -148,10 +148,10 @@ def smoothed_rbpf_map(model: GridModel, actions, observations, *, n_particles: i
     final map (up to rounding): the genealogy adds no path the filter did not weigh. It differs
     where the filter's map is not the map given the path: a recovery reset read cells to their
     prior (here every reading counts), and ``label_prior="learn"`` (the filter's plug-in
-    frequencies learned along the run, here each path's own fixed point). ``distinct_paths`` and
-    ``common_steps`` and ``lineages`` measure the genealogy's degeneracy. Raises ModelError in a dynamic world and
-    InvalidOptionError for ``move_window`` (a move redraws past locations the genealogy does not
-    record). Cost: the replay O(T P F K^2), the genealogy O(T P log P) time and 16 T P bytes, the
+    frequencies learned along the run, here each path's own fixed point). ``distinct_paths``,
+    ``common_steps`` and ``lineages`` measure the genealogy's degeneracy. Raises ModelError in a
+    dynamic world and InvalidOptionError for ``move_window`` (a move redraws past locations the
+    genealogy does not record). Cost: the replay O(T P F K^2), the genealogy O(T P log P) time and 16 T P bytes, the
     distinct paths O(T P log P), the maps O(D (T F K + iterations N K)) for D distinct paths."""
     if not model.is_static:
         raise ModelError("rbpf_smoothed needs a static world: in a dynamic one the final map is the filter's own "
