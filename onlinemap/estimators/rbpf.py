@@ -532,8 +532,8 @@ class RaoBlackwellisedPF:
         if relocation is None:
             raise ImpossibleObservationError(impossible(model, z, t, n_particles))
         parents = int(np.count_nonzero(self._weights))
-        ancestors = self._commit(t, blocks, relocation.ancestors, relocation.staged, relocation.log_weights, relocation.increment,
-                     relocation.resampled, recovered=True)
+        ancestors = self._commit(t, blocks, relocation.ancestors, relocation.staged, relocation.log_weights,
+                                 relocation.increment, relocation.resampled, recovered=True)
         self._recoveries += 1
         logger.warning("rbpf step %d: no particle explains observation %s (particle depletion); recovered by "
                        "relocating the %d live particles near their last cells (kernel exp(-d / %g), d in moves)%s; "

@@ -77,8 +77,8 @@ def remap_rows(run, filter_map: np.ndarray | None, fit_options: Mapping[str, dic
                methods: Sequence[str] = METHODS) -> list[dict]:
     """The study's rows of one recorded run (:class:`~onlinemap.simulate.Run`): every method of
     ``methods`` (default :data:`METHODS`; ``layered_em_learned`` brings its alignment's row and
-    ``rbpf_smoothed`` the row ``rbpf_filtered``) (``filter`` only when ``filter_map`` (N, K) is given) scored against the run's
-    true map, with its CPU seconds (``layered_em_learned_alignment`` is the learned fit's map under
+    ``rbpf_smoothed`` the row ``rbpf_filtered``; ``filter`` only when ``filter_map`` (N, K) is
+    given) scored against the run's true map, with its CPU seconds (``layered_em_learned_alignment`` is the learned fit's map under
     the model's prior, :meth:`~onlinemap.layered_em.LayeredMap.map_with_prior`: the same fit's
     seconds; ``rbpf_filtered`` is the replay of ``rbpf_smoothed``, the same seconds).
     ``fit_options``: extra options per method. Cost: the fits."""
