@@ -27,7 +27,8 @@ of 1 - P(true label)) and ``confidently_wrong`` (cells with P(true label) < 0.1)
 has, per kind and method, the means with intervals at ``confidence`` (Student t), and
 :func:`paired_tests` the Wilcoxon signed-rank test of "A's map error is lower than B's" on the
 same runs. Cost: one RBPF exploration per (world, planner, seed) (O(steps particles F K)), then
-flat EM (O(iterations T (N F + E))) and layered EM twice (:mod:`onlinemap.layered_em`) per run.
+flat EM (O(iterations T (N F + E))), layered EM twice (:mod:`onlinemap.layered_em`) and one
+RBPF replay with its genealogy (:func:`onlinemap.hindsight.smoothed_rbpf_map`) per run.
 """
 
 from __future__ import annotations
