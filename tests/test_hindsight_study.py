@@ -52,6 +52,9 @@ def test_remap_rows_score_each_method_on_the_run():
     assert rows["told_location_learned"]["confidently_wrong"] == int(np.sum(told[np.arange(len(true_map)), true_map] < 0.1))
     fit = om.fit_layered_map(model, run.actions, run.observations, label_prior="learn")
     assert rows["layered_em_learned"]["final_map_error"] == pytest.approx(map_error(fit.map, true_map))
+    # one replay gives both RBPF rows; in a static world the genealogy's mixture is the filter's map
+    assert rows["rbpf_smoothed"]["final_map_error"] == pytest.approx(rows["rbpf_filtered"]["final_map_error"], abs=1e-9)
+    assert 1 <= rows["rbpf_smoothed"]["distinct_paths"] <= 1000
 
 
 def test_floor_worlds_name_the_files_under_the_folder():

@@ -77,3 +77,23 @@ def test_remap_with_a_learned_label_prior(tmp_path):
     for method in ("layered_em", "told_location"):
         belief = hindsight_map(spec.model, run, method, label_prior="learn").map
         assert errors[method] == pytest.approx(1 - belief[np.arange(12), run.final_map].mean())
+
+
+def test_remap_with_the_smoother_and_the_learned_alignment(tmp_path):
+    """--methods rbpf_smoothed,layered_em_learned_alignment: the smoother's replay (--particles,
+    seed --seed) adds the row rbpf_filtered; the numbers are the library's on the same run."""
+    from onlinemap.hindsight import smoothed_rbpf_map
+
+    spec = parse_world(WORLD)
+    run = spec.simulate(30, 4)
+    write_run(tmp_path / "run.jsonl", run)
+    code, out, err = cli(["remap", "--world", WORLD, "--seed", "4", "--input", str(tmp_path / "run.jsonl"),
+                          "--estimator", "bk", "--methods", "rbpf_smoothed,layered_em_learned_alignment",
+                          "--particles", "50", "--out", str(tmp_path / "out")])
+    assert code == 0, err
+    errors = dict(pd.read_csv(tmp_path / "out" / "remap.csv")[["method", "final_map_error"]].values)
+    smoothed = smoothed_rbpf_map(spec.model, run.actions, run.observations, n_particles=50, seed=4)
+    expected = {"rbpf_smoothed": smoothed.map, "rbpf_filtered": smoothed.filtered,
+                "layered_em_learned_alignment": hindsight_map(spec.model, run, "layered_em_learned_alignment").map}
+    for method, belief in expected.items():
+        assert errors[method] == pytest.approx(1 - belief[np.arange(12), run.final_map].mean())

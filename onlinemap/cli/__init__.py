@@ -32,7 +32,7 @@ COMMANDS = {
     "compare": "accuracy of the approximate estimators against exact Bayes on random runs",
     "explore": "let planners explore a world (information gain vs entropy vs random walk vs sweep)",
     "navigate": "send the robot to a goal through changing doors (goto vs static_goto vs the oracle)",
-    "remap": "remap a recorded run with hindsight (flat EM, layered EM, told location)",
+    "remap": "remap a recorded run with hindsight (flat EM, layered EM, smoothed RBPF, told location)",
 }
 
 EPILOG = ("Conventions: --out DIR writes a command's tables and figures under fixed names (nothing is "

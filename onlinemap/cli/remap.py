@@ -6,7 +6,11 @@ with ``"location"``, the true cell: with every location given, the told-location
 too), or made afresh from ``--world`` and ``--seed``: a random walk (``--planner random_walk``,
 the run ``onlinemap run`` simulates) or an exploration run of a planner of :mod:`policies` with the
 ``--estimator`` in the loop (``policies.exploration``). The filter (``--estimator``) is run over a
-read or random-walk run to give its final map. Prints one row per map (:mod:`onlinemap.hindsight`):
+read or random-walk run to give its final map. ``--methods`` also takes
+``layered_em_learned_alignment`` (layered EM aligned with learned label statistics, mapped
+under the model's prior) and ``rbpf_smoothed`` (the run replayed through an RBPF of
+``--particles`` particles, seed ``--seed``, and its genealogy smoother; adds the row
+``rbpf_filtered``, that replay's final map). Prints one row per map (:mod:`onlinemap.hindsight`):
 ``final_map_error``, ``wrong_cells``, ``confidently_wrong`` (P(wrong label) > 0.9), ``seconds``;
 ``--out DIR`` writes it as ``remap.csv``.
 """
@@ -28,7 +32,8 @@ RANDOM_WALK = "random_walk"
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("remap", help="remap a recorded run with hindsight (flat EM, layered EM, told location)",
+    p = sub.add_parser("remap", help="remap a recorded run with hindsight (flat EM, layered EM, smoothed RBPF, "
+                                     "told location)",
                        description="Remap a recorded run after the fact: flat EM (Baum-Welch) and layered EM "
                                    "(Burgard et al. 1999), scored with the filter's final map and the map of a "
                                    "robot told its true path. The run comes from --input (track's JSON lines, "
@@ -43,7 +48,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=positive_int, default=800, help="steps of a run made afresh (default 800)")
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of a run made afresh (default 0)")
     p.add_argument("--methods", type=name_list, default=["flat_em", "layered_em"],
-                   help="hindsight methods, comma-separated (default flat_em,layered_em)")
+                   help="hindsight methods, comma-separated (default flat_em,layered_em): flat_em, layered_em, "
+                        "layered_em_learned_alignment, rbpf_smoothed, told_location")
+    p.add_argument("--particles", type=positive_int, default=None,
+                   help="rbpf_smoothed's particles (default 1000)")
     p.add_argument("--stretch", type=positive_int, default=None,
                    help="layered EM's steps per local map (default: 1 / (2 (1 - p_move)), rounded)")
     p.add_argument("--label-prior", choices=["model", "learn"], default="model",
@@ -117,10 +125,14 @@ def remap(args: argparse.Namespace) -> int:
     if isinstance(data, Run) and "told_location" not in methods:
         methods.append("told_location")
     for method in methods:
-        options = {"stretch": args.stretch} if method == "layered_em" else {}
-        if args.label_prior == "learn" and method in ("layered_em", "told_location"):
+        options = {"stretch": args.stretch} if method in ("layered_em", "layered_em_learned_alignment") else {}
+        if args.label_prior == "learn" and method in ("layered_em", "told_location", "rbpf_smoothed"):
             options["label_prior"] = "learn"
+        if method == "rbpf_smoothed":
+            options.update({"seed": args.seed, **({} if args.particles is None else {"n_particles": args.particles})})
         fit = hindsight_map(model, data, method, **options)
+        if fit.filtered is not None:
+            maps["rbpf_filtered"] = fit.filtered
         maps[method], seconds[method] = fit.map, fit.seconds
     steps = data.n_steps if isinstance(data, Run) else len(data[1])
     print(f"world {args.world.spec}: {model}; {steps} steps")

@@ -370,12 +370,21 @@ class RaoBlackwellisedPF:
         or a step beyond ``max_bytes`` (:class:`~onlinemap.errors.MemoryLimitError`) leaves
         everything (particles, weights, random generator) as it was. With ``move_window``, the step
         is then recorded in the path history and, when due, followed by the resample-move step."""
+        self.update_with_ancestors(action, observation)
+
+    def update_with_ancestors(self, action, observation) -> np.ndarray:
+        """:meth:`update`, returning the step's genealogy: (P,) int64, ``ancestors[p]`` the index
+        (into :attr:`particles` before the step) of the particle slot p descends from (its parent,
+        or the particle relocated into it by a recovery from depletion). Following them back from
+        the last step gives each particle's path (:func:`onlinemap.hindsight.smoothed_rbpf_map`);
+        with ``move_window`` a move may then redraw the paths' past, which the genealogy does not
+        show. O(P) on top of the update."""
         a, z = check_step(self.model, self._t + 1, action, observation)
         t = self._t + 1
         if self.resampling == FEARNHEAD_CLIFFORD:
-            self._update_fearnhead_clifford(a, z, t)
+            ancestors = self._update_fearnhead_clifford(a, z, t)
         else:
-            self._update_sampling(a, z, t)
+            ancestors = self._update_sampling(a, z, t)
         history = self._history
         if history is not None:  # the step is taken: its record, then the resample-move step if due
             history.record_step(t, a, z)
@@ -387,8 +396,9 @@ class RaoBlackwellisedPF:
             alpha = resolved_prior(self.model, self.options).alpha
             self._label_frequencies = learn(self._blocks, self.model, t, self._weights / self._weights.sum(),
                                             frequencies, alpha, self.threads if self._parallel else 1)
+        return ancestors
 
-    def _update_sampling(self, a: int | None, z, t: int) -> None:
+    def _update_sampling(self, a: int | None, z, t: int) -> np.ndarray:
         """:meth:`update` with a sampling scheme (``a``, ``z`` checked): resample if due, propose,
         weight, commit; when every draw missed, :meth:`_update_fearnhead_clifford` instead."""
         model = self.model
@@ -413,9 +423,8 @@ class RaoBlackwellisedPF:
             logger.info("rbpf step %d: every particle's proposal has probability zero for observation %s; the "
                         "step enumerates the particles' successors instead (as Fearnhead-Clifford does)", t,
                         describe(model, z))
-            self._update_fearnhead_clifford(a, z, t)
-            return
-        self._commit(t, blocks, ancestors, staged, log_weights - increment, increment, resample)
+            return self._update_fearnhead_clifford(a, z, t)
+        return self._commit(t, blocks, ancestors, staged, log_weights - increment, increment, resample)
 
     @property
     def _kernels(self) -> KernelSet:
@@ -469,7 +478,7 @@ class RaoBlackwellisedPF:
         return _FCBuffers(children, floats[1], ints[2], ints[3, :p], floats[2, :p],
                           Slots(ints[3, p:], ints[4, :p], floats[2, p:]))
 
-    def _update_fearnhead_clifford(self, a: int | None, z, t: int) -> None:
+    def _update_fearnhead_clifford(self, a: int | None, z, t: int) -> np.ndarray:
         """Enumerate every live particle's successors with their exact weights (the kernel set's
         ``enumerate``), keep P of them by optimal resampling
         (:func:`~onlinemap.kernels.rbpf_commit.rbpf_keep_children`: none twice, unbiased; its strata
@@ -486,8 +495,7 @@ class RaoBlackwellisedPF:
         children, slots = buffers.children, buffers.slots
         m = kernels.enumerate(self._locations, self._log_weights, pool, world, t, neighbors, observation, children)
         if m == 0:  # depletion
-            self._recover(a, z, t, blocks)
-            return
+            return self._recover(a, z, t, blocks)
         weights = buffers.child_weight[:m]
         increment = logsumexp(children.log_weight[:m], weights)
         np.exp(np.subtract(children.log_weight[:m], increment, out=weights), out=weights)
@@ -497,11 +505,11 @@ class RaoBlackwellisedPF:
         kernels.commit_children(self._locations, pool, world, t, slots, children.location, neighbors, observation,
                                 self._staged_buffers())
         blocks.refresh(t)
-        self._advance(t, blocks, slots.ancestors, slots.log_weights, logsumexp(slots.log_weights,
+        return self._advance(t, blocks, slots.ancestors, slots.log_weights, logsumexp(slots.log_weights,
                                                                                 buffers.kept_weights),
                       increment, threshold > 0)
 
-    def _recover(self, a: int | None, z, t: int, blocks: BlockPool) -> None:
+    def _recover(self, a: int | None, z, t: int, blocks: BlockPool) -> np.ndarray:
         """The step when no particle explains ``z`` (depletion): the exact limit of the augmented
         model of the class docstring from the particles before the step
         (:func:`~onlinemap.estimators.rbpf_recovery.relocate`), committed with the cells its
@@ -524,14 +532,15 @@ class RaoBlackwellisedPF:
         if relocation is None:
             raise ImpossibleObservationError(impossible(model, z, t, n_particles))
         parents = int(np.count_nonzero(self._weights))
-        self._commit(t, blocks, relocation.ancestors, relocation.staged, relocation.log_weights, relocation.increment,
-                     relocation.resampled, recovered=True)
+        ancestors = self._commit(t, blocks, relocation.ancestors, relocation.staged, relocation.log_weights,
+                                 relocation.increment, relocation.resampled, recovered=True)
         self._recoveries += 1
         logger.warning("rbpf step %d: no particle explains observation %s (particle depletion); recovered by "
                        "relocating the %d live particles near their last cells (kernel exp(-d / %g), d in moves)%s; "
                        "%d children kept (recovery %d of this filter)", t, describe(model, z), parents,
                        RELOCATION_SCALE, f" and resetting {relocation.resets} read cell(s) to their prior"
                        if relocation.resets else "", relocation.kept, self._recoveries)
+        return ancestors
 
     @property
     def _sizing(self) -> Sizing:
@@ -549,7 +558,7 @@ class RaoBlackwellisedPF:
         return Staged(ints[3 * p * width:], new_ids, self._scratch_staged_cells, target, source)
 
     def _commit(self, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, increment, resampled,
-                recovered: bool = False) -> None:
+                recovered: bool = False) -> np.ndarray:
         """Write a validated step whose changed cells are given (the sampling schemes; a recovery's
         children, :func:`~onlinemap.estimators.rbpf_recovery.relocate`): the particles' slots and
         maps into ``blocks`` (the kernel set's ``commit``; with threads, planned in the staging
@@ -560,15 +569,16 @@ class RaoBlackwellisedPF:
             staged = staged._replace(target=plan.target, source=plan.source)
         self._kernels.commit(self._locations, blocks.arrays(), t, ancestors, staged)
         blocks.refresh(t)
-        self._advance(t, blocks, ancestors, log_weights, 0.0, increment, resampled, recovered)
+        return self._advance(t, blocks, ancestors, log_weights, 0.0, increment, resampled, recovered)
 
     def _advance(self, t, blocks: BlockPool, ancestors, log_weights, normaliser, increment, resampled,
-                 recovered: bool = False) -> None:
+                 recovered: bool = False) -> np.ndarray:
         """Take the committed step: keep ``blocks`` (this filter's pool, or its grown copy), the log
         weights ``log_weights - normaliser`` (normalised; written into the filter's own arrays), the
         evidence ``increment`` and whether the step ``recovered`` from depletion; with a path
         history, each slot's path: its ancestor's (``ancestors`` (P,), the commit's), then its
-        location (:meth:`PathHistory.record_paths`; :meth:`_reserved` checked the memory)."""
+        location (:meth:`PathHistory.record_paths`; :meth:`_reserved` checked the memory). Returns a
+        copy of ``ancestors``."""
         self._blocks = blocks
         if self._history is not None:
             self._history = self._history.reserved(t, self.n_particles)
@@ -581,6 +591,7 @@ class RaoBlackwellisedPF:
         self._recovered = recovered
         self._t = t
         self._belief = None
+        return np.array(ancestors, dtype=np.int64)  # a copy: Fearnhead-Clifford's are in the scratch buffers
 
     def sample_states(self, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """``size`` states drawn from the belief: a particle by weight (one ``rng.choice``), then each

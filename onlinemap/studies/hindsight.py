@@ -11,7 +11,11 @@ and remaps every run after the fact (:mod:`onlinemap.hindsight`):
   adjacent labels' statistics learned in every M-step);
 - ``layered_em_learned_alignment``: that fit's local maps where it placed them, the global map
   under the model's prior (aligned with the learned statistics, mapped like for like with flat EM);
-- ``filter``: the RBPF's map at the last step (filtered, not smoothed);
+- ``filter``: the recording RBPF's map at the last step (filtered, not smoothed);
+- ``rbpf_filtered`` and ``rbpf_smoothed``: the run replayed through an RBPF of
+  :data:`~onlinemap.hindsight.SMOOTHER_PARTICLES` particles (seed 0), its final map and its
+  genealogy smoother (:func:`onlinemap.hindsight.smoothed_rbpf_map`; the rows add
+  ``distinct_paths`` and ``common_steps``);
 - ``told_location`` and ``told_location_learned``: the map of a robot told its true path, with
   the model's prior and with the learned frequencies: the references for the two priors.
 
@@ -23,7 +27,8 @@ of 1 - P(true label)) and ``confidently_wrong`` (cells with P(true label) < 0.1)
 has, per kind and method, the means with intervals at ``confidence`` (Student t), and
 :func:`paired_tests` the Wilcoxon signed-rank test of "A's map error is lower than B's" on the
 same runs. Cost: one RBPF exploration per (world, planner, seed) (O(steps particles F K)), then
-flat EM (O(iterations T (N F + E))) and layered EM twice (:mod:`onlinemap.layered_em`) per run.
+flat EM (O(iterations T (N F + E))), layered EM twice (:mod:`onlinemap.layered_em`) and one
+RBPF replay with its genealogy (:func:`onlinemap.hindsight.smoothed_rbpf_map`) per run.
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ from typing import Mapping, NamedTuple, Sequence
 import numpy as np
 import pandas as pd
 
-from ..hindsight import CONFIDENTLY_WRONG_BELOW, hindsight_map
+from ..hindsight import CONFIDENTLY_WRONG_BELOW, hindsight_map, smoothed_rbpf_map
 from ..layered_em import fit_layered_map
 from ..metrics import map_error
 from ..progress import tqdm
@@ -50,8 +55,8 @@ FLOOR_FILES = ("movingai/arena.map,region=0:32x0:32", "movingai/random-32-32-20.
                "ros/nav2_depot/depot.yaml,cell_size=0.25,region=16:24x0:8",
                "ros/tb3_world/map.yaml,cell_size=0.1,region=-1.6:1.6x-1.6:1.6")
 PLANNERS = ("random", "frontier", "info_gain")
-METHODS = ("flat_em", "layered_em", "layered_em_learned", "layered_em_learned_alignment", "filter", "told_location",
-           "told_location_learned")
+METHODS = ("flat_em", "layered_em", "layered_em_learned", "layered_em_learned_alignment", "filter", "rbpf_filtered",
+           "rbpf_smoothed", "told_location", "told_location_learned")
 MEASURES = ("final_map_error", "confidently_wrong", "seconds")
 STEPS = 200  # per run: the study records 48 runs; a few CPU minutes, RBPF and remapping alike
 N_PARTICLES = 200
@@ -69,17 +74,20 @@ def world_kinds(maps: str | os.PathLike = MAPS) -> dict[str, tuple[str, ...]]:
     return {"building": BUILDING_WORLDS, "floor": floor_worlds(maps)}
 
 
-def remap_rows(run, filter_map: np.ndarray | None, fit_options: Mapping[str, dict] | None = None) -> list[dict]:
+def remap_rows(run, filter_map: np.ndarray | None, fit_options: Mapping[str, dict] | None = None,
+               methods: Sequence[str] = METHODS) -> list[dict]:
     """The study's rows of one recorded run (:class:`~onlinemap.simulate.Run`): every method of
-    :data:`METHODS` (``filter`` only when ``filter_map`` (N, K) is given) scored against the run's
-    true map, with its CPU seconds (``layered_em_learned_alignment`` is the learned fit's map under
+    ``methods`` (default :data:`METHODS`; ``layered_em_learned`` brings its alignment's row and
+    ``rbpf_smoothed`` the row ``rbpf_filtered``; ``filter`` only when ``filter_map`` (N, K) is
+    given) scored against the run's true map, with its CPU seconds (``layered_em_learned_alignment`` is the learned fit's map under
     the model's prior, :meth:`~onlinemap.layered_em.LayeredMap.map_with_prior`: the same fit's
-    seconds). ``fit_options``: extra options per method. Cost: the fits."""
+    seconds; ``rbpf_filtered`` is the replay of ``rbpf_smoothed``, the same seconds).
+    ``fit_options``: extra options per method. Cost: the fits."""
     fit_options = fit_options or {}
     options = {"flat_em": ("flat_em", {}), "layered_em": ("layered_em", {}),
                "told_location": ("told_location", {}), "told_location_learned": ("told_location", {"label_prior": "learn"})}
     rows = []
-    for method in METHODS:
+    for method in methods:
         started = time.process_time()
         if method == "filter":
             if filter_map is not None:
@@ -91,7 +99,13 @@ def remap_rows(run, filter_map: np.ndarray | None, fit_options: Mapping[str, dic
             rows.append(score_map(method, fit.map, run.final_map, seconds))
             rows.append(score_map(f"{method}_alignment", fit.map_with_prior(run.model.label_prior), run.final_map,
                                   seconds))
-        elif method != "layered_em_learned_alignment":
+        elif method == "rbpf_smoothed":
+            smoothed = smoothed_rbpf_map(run.model, run.actions, run.observations, **fit_options.get(method, {}))
+            seconds = time.process_time() - started
+            genealogy = {"distinct_paths": smoothed.distinct_paths, "common_steps": smoothed.common_steps}
+            rows.append({**score_map("rbpf_filtered", smoothed.filtered, run.final_map, seconds), **genealogy})
+            rows.append({**score_map(method, smoothed.map, run.final_map, seconds), **genealogy})
+        elif method not in ("layered_em_learned_alignment", "rbpf_filtered"):
             kind, extra = options[method]
             belief = hindsight_map(run.model, run, kind, **{**extra, **fit_options.get(method, {})}).map
             rows.append(score_map(method, belief, run.final_map, time.process_time() - started))
@@ -140,13 +154,13 @@ def record_runs(kinds: Mapping[str, Sequence[str]] | None = None, *, planners: S
 
 
 def remap_study(recorded: Sequence[Recorded], *, fit_options: Mapping[str, dict] | None = None,
-                confidence: float = 0.95, progress: bool = True) -> Study:
-    """Each recorded run remapped by :func:`remap_rows`: ``Study(per_run, summary)``, per_run
+                confidence: float = 0.95, progress: bool = True, methods: Sequence[str] = METHODS) -> Study:
+    """Each recorded run remapped by :func:`remap_rows` (``methods``): ``Study(per_run, summary)``, per_run
     one row per (kind, world, planner, seed, method), the summary per (kind, method) with
     intervals. Cost: the fits, per run."""
     rows = []
     for item in tqdm(recorded, desc="remap", disable=not progress):
-        for row in remap_rows(item.run, item.filter_map, fit_options):
+        for row in remap_rows(item.run, item.filter_map, fit_options, methods):
             rows.append({"kind": item.kind, "world": item.world, "planner": item.planner, "seed": item.seed, **row})
     per_run = pd.DataFrame(rows)
     summary = summary_of(per_run, list(MEASURES), ["kind", "method"], confidence,
