@@ -241,7 +241,6 @@ MAX_POSITIONAL = 12  # keyword-only options (``*, cell_size=None, ...``) do not 
 STILL_RESTRUCTURED = (
     "onlinemap/estimators/rbpf*.py",  # the filter: long module
     "policies/kernels/*.py",  # the rollouts and goal plans: kernels taking dozens of arrays
-    "onlinemap/kernels/layered.py",  # layered EM's stretch kernels (19 and 16 arrays): not yet bundled
 )
 
 
