@@ -117,27 +117,9 @@ class _Run(NamedTuple):
     log_move: np.ndarray  # (K,) log P(a press into a cell of label k moves), floored
     log_stay: np.ndarray  # (K,) log P(it fails), floored
     passable_label: np.ndarray  # (K,) 1.0 for labels a robot can enter
-    sensor: np.ndarray  # (K, K) max(O, floor): a perfect sensor's contradicted reading stays possible
-    shifts: np.ndarray  # (A + 1, F) _shifted_offsets
-    ahead: np.ndarray  # (A,) the footprint offset that reads the cell an action moves into, -1 if none
     displacement: np.ndarray  # (A, 2) rows and columns an action moves by (0, 0) if it never moves
-
-
-class _Stretch(NamedTuple):
-    """The offsets a stretch's actions can reach from its start, a row-major box of D cells."""
-
-    cell_shift: np.ndarray  # (D,) offset d is the cell x + cell_shift[d] for the start x
-    delta: np.ndarray  # (A,) an action moves offset d to d + delta[a]
-    origin: int  # the offset of the start
-
-
-class _Tables(NamedTuple):
-    """A stretch's emissions and move probabilities under one map (kernels.stretch_tables)."""
-
-    first: np.ndarray  # (N,)
-    stay: np.ndarray  # (S, N)
-    move: np.ndarray  # (S, N)
-    enter: np.ndarray  # (S, N)
+    grid: kernels.Grid  # the model's tables the stretch kernels read; its sensor max(O, floor): a perfect
+    #                     sensor's contradicted reading stays possible
 
 
 def _softmax(log_weights: np.ndarray) -> np.ndarray:
@@ -163,9 +145,11 @@ def _prepare(model: GridModel, actions, observations, stretch) -> _Run:
     # the offset f that reads the target is the one that reads the cell itself (offset (0, 0)) after the move
     own = model.footprint.index((0, 0)) if (0, 0) in model.footprint else -1
     ahead = shifts[:-1, own] if own >= 0 else np.full(model.n_actions, -1, dtype=np.int64)
+    grid = kernels.Grid(np.maximum(model.sensor, EVIDENCE_FLOOR), passable, model.footprint_cells, model.neighbors,
+                        model.predecessor, shifts, np.ascontiguousarray(ahead, dtype=np.int64), float(model.p_move),
+                        bool(model.has_blocking), EVIDENCE_FLOOR)
     return _Run(np.asarray(a_seq, dtype=np.int64), np.ascontiguousarray(z_seq.reshape(t, -1), dtype=np.int64),
-                starts, log_sensor, log_move, log_stay, passable, np.maximum(model.sensor, EVIDENCE_FLOOR), shifts,
-                np.ascontiguousarray(ahead, dtype=np.int64), displacement)
+                starts, log_sensor, log_move, log_stay, passable, displacement, grid)
 
 
 def _shifted_offsets(model: GridModel) -> tuple[np.ndarray, np.ndarray]:
@@ -196,31 +180,31 @@ def _shifted_offsets(model: GridModel) -> tuple[np.ndarray, np.ndarray]:
     return shifts, displacement
 
 
-def _stretch(model: GridModel, run: _Run, m: int) -> _Stretch:
-    """The box of offsets stretch m's actions reach: each axis from the sum of the actions'
-    negative moves to the sum of their positive ones. O(S + D)."""
-    moves = run.displacement[run.actions[run.starts[m]:run.starts[m + 1] - 1]].reshape(-1, 2)
+def _stretch(model: GridModel, run: _Run, m: int) -> kernels.Stretch:
+    """Stretch m's readings and actions, and the box of offsets its actions reach: each axis from
+    the sum of the actions' negative moves to the sum of their positive ones. O(S + D)."""
+    first, end = run.starts[m], run.starts[m + 1]
+    moves = run.displacement[run.actions[first:end - 1]].reshape(-1, 2)
     low = np.minimum(moves, 0).sum(axis=0)
     high = np.maximum(moves, 0).sum(axis=0)
     height, width = high - low + 1
     rows, cols = np.divmod(np.arange(height * width), width)
     cell_shift = (rows + low[0]) * model.cols + cols + low[1]
     delta = run.displacement[:, 0] * width + run.displacement[:, 1]
-    return _Stretch(cell_shift.astype(np.int64), delta.astype(np.int64), int(-low[0] * width - low[1]))
+    return kernels.Stretch(run.readings[first:end], run.actions[first:end - 1], cell_shift.astype(np.int64),
+                           delta.astype(np.int64), int(-low[0] * width - low[1]))
 
 
-def _tables(model: GridModel, run: _Run, m: int, labels: np.ndarray, ratio: np.ndarray | None) -> _Tables:
-    """Stretch m's emissions and move probabilities under map marginals ``labels`` (N, K) and,
+def _tables(model: GridModel, run: _Run, stretch: kernels.Stretch, labels: np.ndarray,
+            ratio: np.ndarray | None) -> kernels.Emissions:
+    """A stretch's emissions and move probabilities under map marginals ``labels`` (N, K) and,
     unless None, the adjacent labels' ratio (K, K) for the cells a move reads first: the module
     docstring's, by :func:`onlinemap.kernels.layered.stretch_tables`. O(S N F K^2)."""
-    first, end = run.starts[m], run.starts[m + 1]
-    n = model.n_cells
-    tables = _Tables(np.empty(n), np.ones((end - first, n)), np.ones((end - first, n)), np.zeros((end - first, n)))
-    kernels.stretch_tables(np.ascontiguousarray(labels), run.sensor, run.passable_label, run.readings[first:end],
-                           run.shifts, model.footprint_cells, model.neighbors, model.predecessor,
-                           run.actions[first:end - 1], run.ahead, float(model.p_move), bool(model.has_blocking),
-                           EVIDENCE_FLOOR, ratio is not None,
-                           np.ones((model.n_labels, model.n_labels)) if ratio is None else ratio, *tables)
+    length, n = len(stretch.readings), model.n_cells
+    tables = kernels.Emissions(np.empty(n), np.ones((length, n)), np.ones((length, n)), np.zeros((length, n)))
+    kernels.stretch_tables(run.grid, stretch, np.ascontiguousarray(labels),
+                           np.ones((model.n_labels, model.n_labels)) if ratio is None else ratio, ratio is not None,
+                           tables)
     return tables
 
 
@@ -232,19 +216,17 @@ class _Forward(NamedTuple):
     log_likelihood: np.ndarray  # (N,) log l_m(x)
 
 
-def _forward(model: GridModel, run: _Run, m: int, geometry: _Stretch, tables: _Tables) -> _Forward:
-    """The forward pass within stretch m for every start. O(S N D)."""
-    length = run.starts[m + 1] - run.starts[m]
-    f = np.empty((length, model.n_cells, len(geometry.cell_shift)))
-    log_f = np.empty((length, model.n_cells))
-    kernels.stretch_forward(model.neighbors, run.actions[run.starts[m]:run.starts[m + 1] - 1], geometry.cell_shift,
-                            geometry.delta, geometry.origin, tables.first, tables.stay, tables.move, tables.enter,
-                            f, log_f)
+def _forward(run: _Run, stretch: kernels.Stretch, tables: kernels.Emissions) -> _Forward:
+    """The forward pass within a stretch for every start. O(S N D)."""
+    length, n = len(stretch.readings), len(tables.first)
+    f = np.empty((length, n, len(stretch.cell_shift)))
+    log_f = np.empty((length, n))
+    kernels.stretch_forward(run.grid, stretch, tables, f, log_f)
     return _Forward(f, log_f, log_f[-1] + np.log(f[-1].sum(axis=1)))
 
 
-def _end_cells(model: GridModel, run: _Run, m: int, geometry: _Stretch, forward: _Forward, weight: np.ndarray,
-               passable) -> tuple[np.ndarray, float]:
+def _end_cells(model: GridModel, run: _Run, m: int, stretch: kernels.Stretch, forward: _Forward,
+               weight: np.ndarray, passable) -> tuple[np.ndarray, float]:
     """The distribution of stretch m + 1's start given start weights (N,) of stretch m (before its
     data), and the log of its normaliser, ``log sum_x weight[x] l_m(x)``: where stretch m ends,
     then the press across the boundary. O(N D)."""
@@ -252,7 +234,7 @@ def _end_cells(model: GridModel, run: _Run, m: int, geometry: _Stretch, forward:
     shift = forward.log_f[-1][reachable].max()
     scaled = np.where(reachable, weight * np.exp(forward.log_f[-1] - shift), 0.0)
     ends = np.empty(model.n_cells)
-    kernels.collapse(forward.f[-1], geometry.cell_shift, scaled, ends)
+    kernels.collapse(forward.f[-1], stretch.cell_shift, scaled, ends)
     total = ends.sum()
     if total <= 0 or not np.isfinite(total):
         raise ModelError(f"stretch {m} (from step {run.starts[m]}) has probability zero at every pose reachable "
@@ -263,34 +245,29 @@ def _end_cells(model: GridModel, run: _Run, m: int, geometry: _Stretch, forward:
     return ends, float(np.log(total) + shift)
 
 
-def _backward(model: GridModel, run: _Run, m: int, geometry: _Stretch, tables: _Tables, forward: _Forward,
+def _backward(run: _Run, stretch: kernels.Stretch, tables: kernels.Emissions, forward: _Forward,
               end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The backward pass within stretch m from ``end`` (N,), the message of the cell it ends in:
+    """The backward pass within a stretch from ``end`` (N,), the message of the cell it ends in:
     ``(b (S, N, D), log B (N,))`` with ``B(x) = P(stretch m's data and the rest | x_m = x)`` up
     to one constant. O(S N D)."""
     b = np.empty_like(forward.f)
     log_b = np.empty_like(forward.log_f)
-    kernels.stretch_backward(model.neighbors, run.actions[run.starts[m]:run.starts[m + 1] - 1], geometry.cell_shift,
-                             geometry.delta, tables.stay, tables.move, tables.enter, forward.f, end, b, log_b)
+    kernels.stretch_backward(run.grid, stretch, tables, forward.f, end, b, log_b)
     with np.errstate(divide="ignore"):
-        return b, np.log(tables.first * b[0, :, geometry.origin]) + log_b[0]
+        return b, np.log(tables.first * b[0, :, stretch.origin]) + log_b[0]
 
 
-def _evidence(model: GridModel, run: _Run, m: int, geometry: _Stretch, tables: _Tables, forward: _Forward,
+def _evidence(model: GridModel, run: _Run, stretch: kernels.Stretch, tables: kernels.Emissions, forward: _Forward,
               b: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Stretch m's expected log-evidence ``E_m`` (N, K) with start weights (N,) (the tempered
+    """A stretch's expected log-evidence ``E_m`` (N, K) with start weights (N,) (the tempered
     pose posterior) and the expected number of readings of each cell (N,). O(S F n D)."""
     n, k = model.n_cells, model.n_labels
-    counts = np.zeros((n, k))
-    entered, bumped = np.zeros(n), np.zeros(n)
-    first, end = run.starts[m], run.starts[m + 1]
-    kernels.stretch_counts(model.neighbors, run.actions[first:end - 1], geometry.cell_shift, geometry.delta,
-                           tables.stay, tables.move, tables.enter, forward.f, b, weight, PRUNE_BELOW,
-                           run.readings[first:end], model.footprint_cells, counts, entered, bumped)
-    evidence = counts @ run.log_sensor.T  # counts[c, z] log O[k, z] summed over z
+    counts = kernels.Counts(np.zeros((n, k)), np.zeros(n), np.zeros(n))
+    kernels.stretch_counts(run.grid, stretch, tables, forward.f, b, weight, PRUNE_BELOW, counts)
+    evidence = counts.counts @ run.log_sensor.T  # counts[c, z] log O[k, z] summed over z
     if model.has_blocking:
-        evidence += entered[:, None] * run.log_move + bumped[:, None] * run.log_stay
-    return evidence, counts.sum(axis=1)
+        evidence += counts.entered[:, None] * run.log_move + counts.bumped[:, None] * run.log_stay
+    return evidence, counts.counts.sum(axis=1)
 
 
 def _passability(model: GridModel, run: _Run, labels: np.ndarray) -> np.ndarray | None:
@@ -312,14 +289,14 @@ def _smooth(model: GridModel, run: _Run, labels_of: Callable[[int], np.ndarray],
     stretch's evidence with its pose posterior tempered by ``tau``. Raises ModelError when no
     pose sequence has positive probability. Cost: the module docstring's, per iteration."""
     n_stretch = len(run.starts) - 1
-    geometry = [_stretch(model, run, m) for m in range(n_stretch)]
-    tables = [_tables(model, run, m, labels_of(m), ratio) for m in range(n_stretch)]
+    stretches = [_stretch(model, run, m) for m in range(n_stretch)]
+    tables = [_tables(model, run, stretches[m], labels_of(m), ratio) for m in range(n_stretch)]
     predicted = np.empty((n_stretch, model.n_cells))
     predicted[0] = model.location_prior()
     log_evidence = 0.0
     for m in range(n_stretch):
-        forward = _forward(model, run, m, geometry[m], tables[m])
-        ends, log_total = _end_cells(model, run, m, geometry[m], forward, predicted[m], passable)
+        forward = _forward(run, stretches[m], tables[m])
+        ends, log_total = _end_cells(model, run, m, stretches[m], forward, predicted[m], passable)
         log_evidence += log_total
         if m + 1 < n_stretch:
             predicted[m + 1] = ends
@@ -327,10 +304,10 @@ def _smooth(model: GridModel, run: _Run, labels_of: Callable[[int], np.ndarray],
     evidence, reads = [None] * n_stretch, [None] * n_stretch
     end = np.ones(model.n_cells)
     for m in range(n_stretch - 1, -1, -1):
-        forward = _forward(model, run, m, geometry[m], tables[m])
-        b, log_back = _backward(model, run, m, geometry[m], tables[m], forward, end)
+        forward = _forward(run, stretches[m], tables[m])
+        b, log_back = _backward(run, stretches[m], tables[m], forward, end)
         posterior[m] = _normalised(predicted[m], log_back)
-        evidence[m], reads[m] = _evidence(model, run, m, geometry[m], tables[m], forward, b, temper(posterior[m], tau))
+        evidence[m], reads[m] = _evidence(model, run, stretches[m], tables[m], forward, b, temper(posterior[m], tau))
         if m > 0:
             message = np.exp(log_back - log_back[np.isfinite(log_back)].max())
             end = apply_motion_transpose(model, message, int(run.actions[run.starts[m] - 1]), passable)
@@ -412,19 +389,19 @@ def _sweep(model: GridModel, run: _Run, prior: _Prior, tau: float, learn: bool) 
     ones = np.ones(model.n_cells)
     for m in range(len(run.starts) - 1):
         labels = _softmax(prior.log_prior + total)
-        geometry = _stretch(model, run, m)
-        tables = _tables(model, run, m, labels, prior.ratio)
-        forward = _forward(model, run, m, geometry, tables)
+        stretch = _stretch(model, run, m)
+        tables = _tables(model, run, stretch, labels, prior.ratio)
+        forward = _forward(run, stretch, tables)
         filtered = _normalised(predicted, forward.log_likelihood)
-        b, _ = _backward(model, run, m, geometry, tables, forward, ones)
-        local, count = _evidence(model, run, m, geometry, tables, forward, b, temper(filtered, tau))
+        b, _ = _backward(run, stretch, tables, forward, ones)
+        local, count = _evidence(model, run, stretch, tables, forward, b, temper(filtered, tau))
         evidence.append(local)
         reads.append(count)
         total += local
         read += count
         if learn:
             prior = prior.update(model, total, read)
-        predicted, _ = _end_cells(model, run, m, geometry, forward, predicted,
+        predicted, _ = _end_cells(model, run, m, stretch, forward, predicted,
                                   _passability(model, run, _softmax(prior.log_prior + total)))
     return evidence, reads, prior
 

@@ -111,13 +111,7 @@ def closed_loop(model: GridModel, reset: Callable[[], WorldState], advance: Call
     n, k = model.n_cells, model.n_labels  # a step's record: action, location, readings, beliefs, true map
     steps = arguments.step_count("steps", steps, minimum=1,
                                  bytes_per_step=8 * (3 + model.n_readings + n + n * k + n), error=InvalidOptionError)
-    actions = np.full(steps, -1, dtype=np.int64)
-    locations = np.empty(steps, dtype=np.int64)
-    observations = np.empty((steps,) + model.observation_shape, dtype=np.int64)
-    location_belief = np.empty((steps, model.n_cells))
-    map_belief = np.empty((steps, model.n_cells, model.n_labels))
-    evidence = np.empty(steps)
-    true_maps = np.empty((steps, model.n_cells), dtype=np.int64)
+    record = _Record.empty(model, steps)
     watch = StallWatch(stall_after)
     if hasattr(planner, "bind"):  # planners that roll hypotheses out on copies of the live filter
         planner.bind(estimator)
@@ -128,11 +122,10 @@ def closed_loop(model: GridModel, reset: Callable[[], WorldState], advance: Call
                disable=(steps < 200) if progress is None else not progress, leave=False, unit="step")
     for t in range(steps):
         if t > 0:
-            actions[t] = planner.choose(belief)
-            observation, location, labels = advance(actions[t])
-            belief = estimator.step(int(actions[t]), observation)
-        locations[t], true_maps[t], observations[t] = location, labels, observation
-        location_belief[t], map_belief[t], evidence[t] = belief.location, belief.map, belief.log_evidence
+            record.actions[t] = planner.choose(belief)
+            observation, location, labels = advance(record.actions[t])
+            belief = estimator.step(int(record.actions[t]), observation)
+        record.write(t, location, labels, observation, belief)
         bar.update()
         if until is not None and until(location):
             break
@@ -143,22 +136,55 @@ def closed_loop(model: GridModel, reset: Callable[[], WorldState], advance: Call
     bar.close()
     if t + 1 < steps:  # stopped early: keep the steps taken
         steps = t + 1
-        actions, locations, observations = actions[:steps], locations[:steps], observations[:steps]
-        location_belief, map_belief, evidence = location_belief[:steps], map_belief[:steps], evidence[:steps]
-        true_maps = true_maps[:steps]
+        record = record.first(steps)
     seconds = (time.perf_counter() - started) / steps
-    run = Run(model, actions[1:], locations, true_maps, observations)
-    trajectory = Trajectory(location_belief, map_belief, evidence, seconds)
-    if not score:
-        return Exploration(None, run, trajectory, watch.stalled_at)
+    run = Run(model, record.actions[1:], record.locations, record.true_maps, record.observations)
+    trajectory = Trajectory(record.location_belief, record.map_belief, record.evidence, seconds)
+    frame = _scored(record, run, trajectory, repr(planner), estimator.name, watch.stalled_at) if score else None
+    return Exploration(frame, run, trajectory, watch.stalled_at)
+
+
+class _Record(NamedTuple):
+    """What a closed loop keeps of each of its T steps (action -1 at step 0)."""
+
+    actions: np.ndarray  # (T,)
+    locations: np.ndarray  # (T,)
+    observations: np.ndarray  # (T,) + the model's observation shape
+    location_belief: np.ndarray  # (T, N)
+    map_belief: np.ndarray  # (T, N, K)
+    evidence: np.ndarray  # (T,)
+    true_maps: np.ndarray  # (T, N)
+
+    @classmethod
+    def empty(cls, model: GridModel, steps: int) -> "_Record":
+        return cls(np.full(steps, -1, dtype=np.int64), np.empty(steps, dtype=np.int64),
+                   np.empty((steps,) + model.observation_shape, dtype=np.int64), np.empty((steps, model.n_cells)),
+                   np.empty((steps, model.n_cells, model.n_labels)), np.empty(steps),
+                   np.empty((steps, model.n_cells), dtype=np.int64))
+
+    def write(self, t: int, location: int, labels: np.ndarray, observation, belief) -> None:
+        """Step t: the true location and labels, the observation, the estimator's belief after it."""
+        self.locations[t], self.true_maps[t], self.observations[t] = location, labels, observation
+        self.location_belief[t], self.map_belief[t], self.evidence[t] = belief.location, belief.map, belief.log_evidence
+
+    def first(self, steps: int) -> "_Record":
+        """The first ``steps`` steps (views)."""
+        return _Record(*(array[:steps] for array in self))
+
+
+def _scored(record: _Record, run: Run, trajectory: Trajectory, planner: str, estimator: str,
+            stalled_at: int | None) -> pd.DataFrame:
+    """The per-step table (:data:`COLUMNS`) of a closed loop (its ``record``, as ``run`` and
+    ``trajectory``), by :func:`onlinemap.evaluate.step_metrics`; its attrs name the planner and
+    estimator, the seconds per step and the stall."""
     scores = step_metrics(run, trajectory)
-    frame = pd.DataFrame({"t": scores["t"], "action": [None] + [model.action_names[a] for a in actions[1:]],
-                          "true_location": locations})
+    frame = pd.DataFrame({"t": scores["t"], "action": [None] + [run.model.action_names[a] for a in record.actions[1:]],
+                          "true_location": record.locations})
     for column in COLUMNS[3:]:
         frame[column] = scores[column] if column in scores else np.nan
-    frame.attrs.update(planner=repr(planner), estimator=estimator.name, seconds_per_step=seconds,
-                       stalled_at=watch.stalled_at)
-    return Exploration(frame, run, trajectory, watch.stalled_at)
+    frame.attrs.update(planner=planner, estimator=estimator, seconds_per_step=trajectory.seconds_per_step,
+                       stalled_at=stalled_at)
+    return frame
 
 
 def explore(model: GridModel, true_map, planner: str | Planner = "entropy",

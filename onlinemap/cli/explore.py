@@ -80,10 +80,39 @@ def exploration_spec(args: argparse.Namespace, planners: list[str], model=None) 
 
 
 def run(args: argparse.Namespace) -> int:
-    from policies import PLANNERS, planner_options, plot_errors, plot_visits
+    from ..sweeps import summarize, summary_table, sweep
 
-    from .. import plots
-    from ..sweeps import played_map, summarize, summary_table, sweep
+    planners = _check_arguments(args)
+    world = parse_world(args.world)
+    if args.floor_plan is not None and world.floor_plan is not None:
+        raise ModelError(f"--floor-plan {args.floor_plan} and --world {args.world}: give the floor plan once")
+    out = Path(args.out) if args.out else None
+    _print_setting(args, world, planners)
+    spec = exploration_spec(args, planners, world.model)
+    kept, on_played = keeper(planners[0], args.seed)
+    steps = sweep(spec, workers=args.workers, progress=True, results_dir=None if out is None else out / "explore.parts",
+                  on_played=on_played if wanted(args) and args.workers == 0 else None)
+    runs = from_steps(steps, ["world", "planner", "seed"])  # the world: counts of cells are bounded by its N
+    runs.insert(2, "kind", "explore")
+    metrics = [m for m in SUMMARY_METRICS if m in runs]
+    summary = summarize(runs, metrics, args.confidence)
+    print(f"mean [{args.confidence:.0%} confidence interval] over {args.repeats} seed(s), per planner:")
+    print_table(summary_table(summary))
+    print("\n".join(metric_legend(metrics)))
+    if out is not None:
+        _write_tables_and_figures(args, world, steps, runs, summary)
+    if wanted(args):
+        played = first_played(spec, kept, planners[0], args.seed)
+        written = write_views(args, world.model, played.run, played.trajectory,
+                              f"{args.world}: {planners[0]}, {args.estimator}, seed {args.seed}")
+        print(f"wrote {', '.join(str(p) for p in written)}")
+    return 0
+
+
+def _check_arguments(args: argparse.Namespace) -> list[str]:
+    """The planners of ``--planner``, with the numbers and views checked: ModelError for a bad
+    count, an unknown planner or a goal planner (it does not explore)."""
+    from policies import PLANNERS, planner_options
 
     if args.steps < 1 or args.repeats < 1 or args.workers < 0:
         raise ModelError("--steps and --repeats must be at least 1, --workers at least 0")
@@ -98,10 +127,12 @@ def run(args: argparse.Namespace) -> int:
         raise ModelError(f"--planner {', '.join(goal_planners)}: a goal planner goes to a goal, it does not explore; "
                          f"send it to one with onlinemap navigate --goal CELL")
     check_view_arguments(args)
-    world = parse_world(args.world)
-    if args.floor_plan is not None and world.floor_plan is not None:
-        raise ModelError(f"--floor-plan {args.floor_plan} and --world {args.world}: give the floor plan once")
-    out = Path(args.out) if args.out else None
+    return planners
+
+
+def _print_setting(args: argparse.Namespace, world, planners: list[str]) -> None:
+    """The world, the robot's label prior (and why a uniform one makes exploring hard), the
+    planners and the estimator's options."""
     given = parse_options(args.option)
     options = ", ".join(f"{key}={value}" for key, value in given.items()) or "its default options"
     floor_plan = world.floor_plan if world.floor_plan is not None else args.floor_plan
@@ -116,31 +147,22 @@ def run(args: argparse.Namespace) -> int:
         print("why it is hard: " + HARD.format(floor_plan=suggestion))
     print(f"planners {', '.join(planners)}; estimator {args.estimator} with {options}; {args.steps} steps, "
           f"seeds {args.seed}..{args.seed + args.repeats - 1}")
-    spec = exploration_spec(args, planners, world.model)
-    kept, on_played = keeper(planners[0], args.seed)
-    steps = sweep(spec, workers=args.workers, progress=True, results_dir=None if out is None else out / "explore.parts",
-                  on_played=on_played if wanted(args) and args.workers == 0 else None)
-    runs = from_steps(steps, ["world", "planner", "seed"])  # the world: counts of cells are bounded by its N
-    runs.insert(2, "kind", "explore")
-    metrics = [m for m in SUMMARY_METRICS if m in runs]
-    summary = summarize(runs, metrics, args.confidence)
-    print(f"mean [{args.confidence:.0%} confidence interval] over {args.repeats} seed(s), per planner:")
-    print_table(summary_table(summary))
-    print("\n".join(metric_legend(metrics)))
-    if out is not None:
-        written = [write_table(steps, out / "explore_steps.csv"), write_table(runs, out / "explore_runs.csv"),
-                   write_table(summary, out / "explore_summary.csv")]
-        # the map the runs used: the world's own, or the one drawn for the only seed (with several
-        # seeds each run has its own map: the visits are drawn without one)
-        true_map = world.true_map if world.true_map is not None or args.repeats > 1 else played_map(args.world,
-                                                                                                      args.seed)
-        columns = [c for c in ("map_error", "door_error") if c in steps]
-        written += [plots.save(plot_errors(steps, columns=columns), out / "explore_errors.png", dpi=110),
-                    plots.save(plot_visits(world.model, true_map, steps), out / "explore_visits.png", dpi=110)]
-        print(f"wrote {', '.join(str(p) for p in written)}")
-    if wanted(args):
-        played = first_played(spec, kept, planners[0], args.seed)
-        written = write_views(args, world.model, played.run, played.trajectory,
-                              f"{args.world}: {planners[0]}, {args.estimator}, seed {args.seed}")
-        print(f"wrote {', '.join(str(p) for p in written)}")
-    return 0
+
+
+def _write_tables_and_figures(args: argparse.Namespace, world, steps, runs, summary) -> None:
+    """``--out``: the steps, runs and summary tables, the errors over time and the cells visited."""
+    from policies import plot_errors, plot_visits
+
+    from .. import plots
+    from ..sweeps import played_map
+
+    out = Path(args.out)
+    written = [write_table(steps, out / "explore_steps.csv"), write_table(runs, out / "explore_runs.csv"),
+               write_table(summary, out / "explore_summary.csv")]
+    # the map the runs used: the world's own, or the one drawn for the only seed (with several
+    # seeds each run has its own map: the visits are drawn without one)
+    true_map = world.true_map if world.true_map is not None or args.repeats > 1 else played_map(args.world, args.seed)
+    columns = [c for c in ("map_error", "door_error") if c in steps]
+    written += [plots.save(plot_errors(steps, columns=columns), out / "explore_errors.png", dpi=110),
+                plots.save(plot_visits(world.model, true_map, steps), out / "explore_visits.png", dpi=110)]
+    print(f"wrote {', '.join(str(p) for p in written)}")

@@ -65,36 +65,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from policies import PLANNERS, check_goal, planner_options, with_floor_plan
-
-    from .. import plots
-    from ..evaluate import metric_legend
-    from ..studies.base import summary_of, with_intervals
-    from ..studies.navigation import far_goals, fixed_map, navigation_spec, oracle_figure, route_figure
-    from ..sweeps import played_map, sweep
+    from ..studies.base import summary_of
+    from ..studies.navigation import navigation_spec
+    from ..sweeps import sweep
     from ..worlds import parse_world
 
     check_view_arguments(args)
-    planners = split_list(args.planner)
-    unknown = [name for name in planners if name not in PLANNERS]
-    if unknown or not planners:
-        raise ModelError(f"--planner: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(PLANNERS)}")
-    goal_planners = [name for name in PLANNERS if "goal" in planner_options(name)]
-    aimless = [name for name in planners if name not in goal_planners]
-    if aimless:
-        raise ModelError(f"--planner {', '.join(aimless)}: {'does' if len(aimless) == 1 else 'do'} not take a goal; "
-                         f"navigate compares goal planners: {', '.join(goal_planners)}")
+    planners = _goal_planners(split_list(args.planner))
     world = parse_world(args.world)
-    # a world that draws its map per seed has no fixed map; without blocking labels every cell is
-    # reachable on every seed's map, so the first seed's map serves to choose and check the goal
-    true_map = world.initial_map(0) if world.true_map is None and not world.model.has_blocking else fixed_map(world)
-    if args.goal is None:
-        goals = far_goals(world.model, true_map)
-        if not goals:
-            raise ModelError(f"--world {args.world}: no free cell to send the robot to; give one with --goal CELL")
-        goal = goals[0]
-    else:  # checked as the runs will see it, before any run: a wall of the floor plan refuses it
-        goal = check_goal(with_floor_plan(world.model, true_map, args.floor_plan), args.goal)
+    goal = _goal(world, args)
     options = options_per_estimator(["rbpf"], args.option, world.model)["rbpf"]
     options.setdefault("n_particles", 500)
     row, col = divmod(goal, world.model.cols)
@@ -109,29 +88,83 @@ def run(args: argparse.Namespace) -> int:
                  on_played=on_played if wanted(args) and args.workers == 0 else None)
     judged = runs[runs["oracle_reached"].astype(bool)]
     summary = summary_of(judged, SUMMARY_METRICS, ["planner"], args.confidence)
-    if judged.empty:
-        print(f"the oracle reaches goal cell {goal} within {args.steps} steps in none of the {args.repeats} run(s): "
-              f"nothing to compare the planners against; give more --steps or a nearer --goal")
-    else:
-        print(f"mean [{args.confidence:.0%} interval] over the {len(judged) // max(len(planners), 1)} run(s) per "
-              f"planner where the oracle reaches the goal; success: within 4x the oracle's steps")
-        print_table(with_intervals(summary, SUMMARY_METRICS))
-        print("\n".join(metric_legend(SUMMARY_METRICS)))
+    _print_summary(args, judged, summary, len(planners), goal)
     if out is not None:
-        from policies import navigate, with_floor_plan
-
-        true_map = played_map(args.world, args.seed)  # the first run's: the route figure replays it
-        model = with_floor_plan(world.model, true_map, args.floor_plan)
-        first = navigate(model, true_map, goal, planners[0], "rbpf", max_steps=args.steps, seed=args.seed,
-                         estimator_options=options)
-        written = [write_table(runs, out / "navigate_runs.csv"), write_table(summary, out / "navigate_summary.csv"),
-                   plots.save(route_figure(world.model, first.run, goal, f"{planners[0]}, seed {args.seed}"),
-                              out / "navigate_route.png", dpi=110),
-                   plots.save(oracle_figure(runs), out / "navigate_vs_oracle.png", dpi=110)]
-        print(f"wrote {', '.join(str(p) for p in written)}")
+        _write_tables_and_figures(args, world, goal, planners[0], options, runs, summary)
     if wanted(args):
         played = first_played(spec, kept, planners[0], args.seed)
         written = write_views(args, world.model, played.run, played.trajectory,
                               f"{planners[0]} to cell {goal}, seed {args.seed}", goal=goal)
         print(f"wrote {', '.join(str(p) for p in written)}")
     return 0
+
+
+def _goal_planners(planners: list[str]) -> list[str]:
+    """``planners``, checked: known, at least one, each taking a goal (ModelError naming the others)."""
+    from policies import PLANNERS, planner_options
+
+    unknown = [name for name in planners if name not in PLANNERS]
+    if unknown or not planners:
+        raise ModelError(f"--planner: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(PLANNERS)}")
+    goal_planners = [name for name in PLANNERS if "goal" in planner_options(name)]
+    aimless = [name for name in planners if name not in goal_planners]
+    if aimless:
+        raise ModelError(f"--planner {', '.join(aimless)}: {'does' if len(aimless) == 1 else 'do'} not take a goal; "
+                         f"navigate compares goal planners: {', '.join(goal_planners)}")
+    return planners
+
+
+def _goal(world, args: argparse.Namespace) -> int:
+    """The goal cell: ``--goal`` checked against the floor plan, else the free cell farthest from
+    the start with every door open (ModelError if there is none)."""
+    from policies import check_goal, with_floor_plan
+
+    from ..studies.navigation import far_goals, fixed_map
+
+    # a world that draws its map per seed has no fixed map; without blocking labels every cell is
+    # reachable on every seed's map, so the first seed's map serves to choose and check the goal
+    true_map = world.initial_map(0) if world.true_map is None and not world.model.has_blocking else fixed_map(world)
+    if args.goal is None:
+        goals = far_goals(world.model, true_map)
+        if not goals:
+            raise ModelError(f"--world {args.world}: no free cell to send the robot to; give one with --goal CELL")
+        return goals[0]
+    # checked as the runs will see it, before any run: a wall of the floor plan refuses it
+    return check_goal(with_floor_plan(world.model, true_map, args.floor_plan), args.goal)
+
+
+def _print_summary(args: argparse.Namespace, judged, summary, n_planners: int, goal: int) -> None:
+    """The summary table over the runs where the oracle reaches the goal, or why there is none."""
+    from ..evaluate import metric_legend
+    from ..studies.base import with_intervals
+
+    if judged.empty:
+        print(f"the oracle reaches goal cell {goal} within {args.steps} steps in none of the {args.repeats} run(s): "
+              f"nothing to compare the planners against; give more --steps or a nearer --goal")
+        return
+    print(f"mean [{args.confidence:.0%} interval] over the {len(judged) // max(n_planners, 1)} run(s) per "
+          f"planner where the oracle reaches the goal; success: within 4x the oracle's steps")
+    print_table(with_intervals(summary, SUMMARY_METRICS))
+    print("\n".join(metric_legend(SUMMARY_METRICS)))
+
+
+def _write_tables_and_figures(args: argparse.Namespace, world, goal: int, planner: str, options: dict, runs,
+                              summary) -> None:
+    """``--out``: the runs and summary tables, the route of ``planner``'s first run (replayed) and
+    the planners against the oracle."""
+    from policies import navigate, with_floor_plan
+
+    from .. import plots
+    from ..studies.navigation import oracle_figure, route_figure
+    from ..sweeps import played_map
+
+    out = Path(args.out)
+    true_map = played_map(args.world, args.seed)  # the first run's: the route figure replays it
+    model = with_floor_plan(world.model, true_map, args.floor_plan)
+    first = navigate(model, true_map, goal, planner, "rbpf", max_steps=args.steps, seed=args.seed,
+                     estimator_options=options)
+    written = [write_table(runs, out / "navigate_runs.csv"), write_table(summary, out / "navigate_summary.csv"),
+               plots.save(route_figure(world.model, first.run, goal, f"{planner}, seed {args.seed}"),
+                          out / "navigate_route.png", dpi=110),
+               plots.save(oracle_figure(runs), out / "navigate_vs_oracle.png", dpi=110)]
+    print(f"wrote {', '.join(str(p) for p in written)}")

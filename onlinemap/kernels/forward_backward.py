@@ -59,9 +59,24 @@ def forward_backward_pass(self_prob, predecessor, neighbors, enter, prior, actio
     maximum ``s`` (``log_scales = log s``, 0 for every other step), so its messages stay normal
     floats. Forward and backward messages below ``_TINY`` (relative to rows summing to 1) are set to 0.
     """
-    w, n = filtered.shape
-    scales = np.ones(w)
-    for t in range(w):
+    scales = np.ones(filtered.shape[0])
+    bad = _forward_pass(self_prob, predecessor, enter, prior, actions, observations, emission, filtered,
+                        normalizers, log_scales, scales)
+    if bad < 0:
+        _backward_pass(self_prob, neighbors, enter, actions, observations, emission, filtered, posterior,
+                       normalizers, scales)
+    return bad
+
+
+@njit(cache=True, inline="always")
+def _forward_pass(self_prob, predecessor, enter, prior, actions, observations, emission, filtered, normalizers,
+                  log_scales, scales):
+    """The filtered rows, each normalised, their normalisers, and the scales of the steps redone
+    with their column of B rescaled (``scales`` (W,) of ones on entry). Returns the first step
+    whose observation has probability zero, or -1 (rows after it are left unwritten). O(W (N + E))."""
+    n = filtered.shape[1]
+    bad = -1
+    for t in range(filtered.shape[0]):
         z = observations[t]
         total = _forward_row(self_prob, predecessor, enter, prior, filtered, actions, emission, t, z, 1.0)
         log_scales[t] = 0.0
@@ -74,11 +89,21 @@ def forward_backward_pass(self_prob, predecessor, neighbors, enter, prior, actio
                 scales[t] = top
                 log_scales[t] = np.log(top)
             if not total >= _TINY:
-                return t
+                bad = t
+                break
         normalizers[t] = total
         inverse = 1.0 / total
         for j in range(n):
             filtered[t, j] *= inverse
+    return bad
+
+
+@njit(cache=True, inline="always")
+def _backward_pass(self_prob, neighbors, enter, actions, observations, emission, filtered, posterior, normalizers,
+                   scales):
+    """The posterior rows from the filtered ones, by the scaled backward messages (the forward
+    pass's normalisers and scales). O(W (N + E))."""
+    w, n = filtered.shape
     beta = np.ones(n)
     scaled = np.empty(n)
     for j in range(n):
@@ -104,7 +129,6 @@ def forward_backward_pass(self_prob, predecessor, neighbors, enter, prior, actio
         inverse = 1.0 / total
         for i in range(n):
             posterior[t - 1, i] *= inverse
-    return -1
 
 
 @njit(cache=True)

@@ -65,53 +65,69 @@ def sweep(spec, client=None, *, workers: int | None = None, out: str | os.PathLi
     if results_dir is None and out is not None:
         results_dir = default_results_dir(out)
     store = open_store(results_dir) if results_dir is not None else None
-    memory: dict[str, TaskRows] = {}
     todo = _tasks_to_run(spec.tasks, finished_tasks(spec.tasks, store) if store is not None else set())
-    failures: list[tuple[Task, str]] = []
-
-    def record(task: Task, outcome: runner.Outcome) -> None:
-        if outcome.error is not None:  # keep going; every failure is reported at the end
-            failures.append((task, outcome.error))
-            return
-        if store is not None:
-            try:
-                write_part(store, task, outcome.rows.frame())
-            except OSError as error:  # e.g. a full disk: the task counts as failed, the sweep goes on
-                failures.append((task, f"{type(error).__name__}: {error}"))
-                return
-        else:
-            memory[task.key] = outcome.rows
-        if on_played is not None:
-            on_played(task, outcome.played)
-        bar.update()
-
     # few tasks in this process (a serial sweep of FEW_TASKS never moves to dask): their loops count steps
     steps_counted = show_progress(progress) and client is None and workers in (0, None) and len(todo) <= FEW_TASKS
     bar = tqdm(total=len(spec.tasks), initial=len(spec.tasks) - len(todo), desc=f"sweep {spec.name}",
                unit="task", disable=not show_progress(progress) or steps_counted, smoothing=0.1)
+    record = _Recorder(store, on_played, bar)
     try:
-        if todo and steps_counted:
-            with counting_steps():
-                for task in todo:
-                    record(task, runner.attempt(task, keep=on_played is not None))
-        elif todo and client is None and workers == 0:
-            for task in todo:
-                record(task, runner.attempt(task, keep=on_played is not None))
-        elif todo and client is None and workers is None:
-            _run_auto(todo, record)
-        elif todo:
-            _run_dask(todo, client, workers, record)
+        _run_tasks(todo, client, workers, record, steps_counted)
     finally:
         bar.close()
     if store is not None:
         table = collect(store, spec.tasks)
     else:
-        table = assemble_rows([memory[t.key] for t in spec.tasks if t.key in memory])
+        table = assemble_rows([record.memory[t.key] for t in spec.tasks if t.key in record.memory])
     if out is not None:
         write_table(table, out, source=spec.text or spec.source)
-    if failures:
-        raise _sweep_error(spec.tasks, failures)
+    if record.failures:
+        raise _sweep_error(spec.tasks, record.failures)
     return table
+
+
+class _Recorder:
+    """Keeps each finished task: its rows in the part store (or in ``memory`` without one), what
+    it played to ``on_played``, a tick of the bar; a failed task (or one whose part cannot be
+    written, e.g. a full disk) joins ``failures`` and the sweep goes on."""
+
+    def __init__(self, store, on_played: Callable[[Task, Played], None] | None, bar) -> None:
+        self.store, self.on_played, self.bar = store, on_played, bar
+        self.memory: dict[str, TaskRows] = {}
+        self.failures: list[tuple[Task, str]] = []
+
+    def __call__(self, task: Task, outcome: runner.Outcome) -> None:
+        if outcome.error is not None:  # keep going; every failure is reported at the end
+            self.failures.append((task, outcome.error))
+            return
+        if self.store is not None:
+            try:
+                write_part(self.store, task, outcome.rows.frame())
+            except OSError as error:
+                self.failures.append((task, f"{type(error).__name__}: {error}"))
+                return
+        else:
+            self.memory[task.key] = outcome.rows
+        if self.on_played is not None:
+            self.on_played(task, outcome.played)
+        self.bar.update()
+
+
+def _run_tasks(todo: list[Task], client, workers: int | None, record: _Recorder, steps_counted: bool) -> None:
+    """Run ``todo`` in the mode :func:`sweep` describes, each outcome to ``record``: one by one in
+    this process (counting steps when ``steps_counted``), by :func:`_run_auto`, or on dask."""
+    keep = record.on_played is not None
+    if todo and steps_counted:
+        with counting_steps():
+            for task in todo:
+                record(task, runner.attempt(task, keep=keep))
+    elif todo and client is None and workers == 0:
+        for task in todo:
+            record(task, runner.attempt(task, keep=keep))
+    elif todo and client is None and workers is None:
+        _run_auto(todo, record)
+    elif todo:
+        _run_dask(todo, client, workers, record)
 
 
 def _tasks_to_run(tasks: tuple[Task, ...], done: set) -> list[Task]:

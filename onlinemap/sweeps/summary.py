@@ -139,6 +139,27 @@ def plot_sweep(table: pd.DataFrame, x: str, metrics_: Iterable[str], path: str |
         options = sorted(c[4:] for c in table.columns if c.startswith("opt_"))
         raise OnlineMapError(f"--x {x!r}: not an option or column of the table; options: {', '.join(options)}")
     metrics_ = [m for m in metrics_ if m in table.columns] or ["final_map_error"]
+    table = _with_line_labels(table, column)
+    flat = table[table[column].isna()]  # configurations without that option: horizontal lines
+    table = table[table[column].notna()]
+    numeric = pd.api.types.is_numeric_dtype(table[column])
+    positions = None if numeric else {v: i for i, v in enumerate(dict.fromkeys(table[column]))}
+    figure, axes = plt.subplots(1, len(metrics_), figsize=(5 * len(metrics_), 3.8), squeeze=False,
+                                layout="constrained")
+    for axis, metric in zip(axes[0], metrics_):
+        _draw_panel(axis, table, flat, x, column, metric, confidence, positions)
+    _legend_below(figure, *axes[0][0].get_legend_handles_labels())
+    figure.suptitle(f"mean over seeds with {confidence:.0%} intervals")
+    if path is not None:
+        from .. import plots
+
+        plots.save(figure, path, dpi=120)
+    return figure
+
+
+def _with_line_labels(table: pd.DataFrame, column: str) -> pd.DataFrame:
+    """``table`` with a column ``_line``: the label of each row's configuration, the columns
+    besides ``column`` that vary across the table ("all" if none does)."""
     varying = [c for c in ("world", "estimator", "planner", "walk", "steps", "reference")
                if c in table.columns and c != column and table[c].nunique() > 1]
     varying += [c for c in table.columns if c.startswith(("opt_", "planner_opt_")) and c != column
@@ -149,36 +170,40 @@ def plot_sweep(table: pd.DataFrame, x: str, metrics_: Iterable[str], path: str |
                  else str(row[c]) for c in varying if pd.notna(row[c]) and row[c] != ""]
         return ", ".join(parts) or "all"
 
-    table = table.assign(_line=table.apply(label, axis=1) if len(table) else [])
-    flat = table[table[column].isna()]  # configurations without that option: horizontal lines
-    table = table[table[column].notna()]
-    numeric = pd.api.types.is_numeric_dtype(table[column])
-    positions = None if numeric else {v: i for i, v in enumerate(dict.fromkeys(table[column]))}
-    figure, axes = plt.subplots(1, len(metrics_), figsize=(5 * len(metrics_), 3.8), squeeze=False,
-                                layout="constrained")
-    for axis, metric in zip(axes[0], metrics_):
-        for line, group in table.groupby("_line", sort=False):
-            points = [(value, _interval(g[metric], metric, confidence, cell_count(g)))
-                      for value, g in group.groupby(column, sort=True)]
-            xs = np.array([v if numeric else positions[v] for v, _ in points], dtype=np.float64)
-            means = np.array([i.mean for _, i in points])
-            errors = np.array([[i.mean - i.low, i.high - i.mean] for _, i in points]).T
-            # bounds can round a hair past the mean (a Wilson bound at 0 or 1 successes): never negative
-            axis.errorbar(xs, means, yerr=np.maximum(np.nan_to_num(errors), 0.0), marker="o", capsize=3, label=line)
-        for style, (line, group) in zip(itertools.cycle(("--", ":", "-.")), flat.groupby("_line", sort=False)):
-            level = _interval(group[metric], metric, confidence, cell_count(group))
-            axis.axhline(level.mean, linestyle=style, color="gray", label=f"{line} (no {x})")
-        if numeric and table[column].min() > 0 and table[column].max() / table[column].min() > 2:
-            axis.set_xscale("log")  # particle counts and the like: a grid of doublings or decades
-            axis.set_xticks(sorted(set(table[column])), [f"{v:g}" for v in sorted(set(table[column]))])
-        if positions is not None:
-            axis.set_xticks(range(len(positions)), list(positions), rotation=20)
-        axis.set_xlabel(x)
-        axis.set_ylabel(metric)
-        axis.grid(alpha=0.3)
-    handles, labels = axes[0][0].get_legend_handles_labels()
-    # as many columns (at most 3) as the labels fit across the figure, long labels wrapped to fit
-    # one: "outside", the constrained layout makes room below the panels, so nothing is cut
+    return table.assign(_line=table.apply(label, axis=1) if len(table) else [])
+
+
+def _draw_panel(axis, table: pd.DataFrame, flat: pd.DataFrame, x: str, column: str, metric: str, confidence: float,
+                positions: dict | None) -> None:
+    """One panel: ``metric``'s mean and interval against ``column`` per line of ``table``, a
+    horizontal line per configuration of ``flat`` (without the option); a positive numeric
+    ``column`` spanning more than a doubling on a log axis, categories (``positions``) in order."""
+    numeric = positions is None
+    for line, group in table.groupby("_line", sort=False):
+        points = [(value, _interval(g[metric], metric, confidence, cell_count(g)))
+                  for value, g in group.groupby(column, sort=True)]
+        xs = np.array([v if numeric else positions[v] for v, _ in points], dtype=np.float64)
+        means = np.array([i.mean for _, i in points])
+        errors = np.array([[i.mean - i.low, i.high - i.mean] for _, i in points]).T
+        # bounds can round a hair past the mean (a Wilson bound at 0 or 1 successes): never negative
+        axis.errorbar(xs, means, yerr=np.maximum(np.nan_to_num(errors), 0.0), marker="o", capsize=3, label=line)
+    for style, (line, group) in zip(itertools.cycle(("--", ":", "-.")), flat.groupby("_line", sort=False)):
+        level = _interval(group[metric], metric, confidence, cell_count(group))
+        axis.axhline(level.mean, linestyle=style, color="gray", label=f"{line} (no {x})")
+    if numeric and table[column].min() > 0 and table[column].max() / table[column].min() > 2:
+        axis.set_xscale("log")  # particle counts and the like: a grid of doublings or decades
+        axis.set_xticks(sorted(set(table[column])), [f"{v:g}" for v in sorted(set(table[column]))])
+    if positions is not None:
+        axis.set_xticks(range(len(positions)), list(positions), rotation=20)
+    axis.set_xlabel(x)
+    axis.set_ylabel(metric)
+    axis.grid(alpha=0.3)
+
+
+def _legend_below(figure, handles: list, labels: list[str]) -> None:
+    """The legend below the panels, the figure made taller to hold it: as many columns (at most 3)
+    as the labels fit across the figure, long labels wrapped to fit one ("outside": the
+    constrained layout makes room below the panels, so nothing is cut)."""
     width = figure.get_figwidth() / LEGEND_CHAR_INCHES  # characters across the figure
     longest = max((len(label) for label in labels), default=1) + 6  # with the marker
     columns = max(1, min(3, len(labels), int(width // longest)))
@@ -186,9 +211,3 @@ def plot_sweep(table: pd.DataFrame, x: str, metrics_: Iterable[str], path: str |
     lines = sum(label.count("\n") + 1 for label in labels[::columns])  # one row of the legend per line
     figure.set_figheight(3.8 + 0.15 * lines)
     figure.legend(handles, labels, loc="outside lower center", ncol=columns, fontsize=7, frameon=False)
-    figure.suptitle(f"mean over seeds with {confidence:.0%} intervals")
-    if path is not None:
-        from .. import plots
-
-        plots.save(figure, path, dpi=120)
-    return figure
