@@ -37,11 +37,10 @@ same results). A recovery from depletion weighs N P children
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
+import weakref
 from types import MappingProxyType
-from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -51,17 +50,15 @@ from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, ModelError
 from ..label_prior import LEARN
-from ..kernels import rbpf_parallel
 from ..kernels.rbpf import in_place_ancestors
-from ..kernels.rbpf_commit import Slots, Staged, rbpf_keep_children
-from ..kernels.rbpf_enumerate import Children
+from ..kernels.rbpf_commit import Staged, rbpf_keep_children
 from ..model import GridModel
 from ..resampling import RESAMPLERS, effective_sample_size
 from ..rng import SeedLike, as_generator
 from ..validation import check_step
 from .base import BooleanFlag, register
 from .block_pool import BlockPool, block_layout
-from .rbpf_kernels import KernelSet, kernel_set, observed, world_tables
+from .rbpf_kernels import FCBuffers, StepKit, fc_buffers, observed, step_kit
 from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start
 from .rbpf_move import (MoveCounts, PathHistory, map_rows_per_move, move_options, move_scratch_bytes,
                         path_rows_per_move)
@@ -70,6 +67,10 @@ from .rbpf_recovery import RELOCATION_SCALE, describe, impossible, logsumexp, no
 from .rbpf_state import check_state, upgrade_attributes
 
 logger = logging.getLogger(__name__)
+
+#: each filter's :class:`~onlinemap.estimators.rbpf_kernels.StepKit`, built on its first step and
+#: kept while it lives: beside the filter, not in it (not state: a checkpoint stores ``vars(est)``)
+_KITS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 PROPOSALS = ("optimal", "transition")
 FEARNHEAD_CLIFFORD = "fearnhead_clifford"
@@ -170,11 +171,11 @@ class RaoBlackwellisedPF:
                       "_blocks.stamped", "_blocks.cell_block", "_blocks.cell_slot", "_blocks.block_members",
                       "_blocks.powers")
 
-    #: per-step buffers (:meth:`_fc_buffers`, :meth:`_staged_buffers`), overwritten by every step
-    #: before being read: not state (a checkpoint records their dtype and shape only)
     #: False: a depleted step raises instead of recovering (see above); a bool, checked when set
     recover_from_depletion = BooleanFlag()
 
+    #: per-step buffers (:func:`~onlinemap.estimators.rbpf_kernels.step_kit` makes their views),
+    #: overwritten by every step before being read: not state (a checkpoint records their dtype and shape only)
     scratch_attributes = ("_scratch_ints", "_scratch_floats", "_scratch_staged_ints", "_scratch_staged_cells")
 
     #: label_prior="learn"'s current label frequencies (K,): an attribute of such a filter only (and
@@ -257,10 +258,22 @@ class RaoBlackwellisedPF:
 
     @property
     def _parallel(self) -> bool:
-        """Whether a step runs the parallel kernels: with threads, and more particles than one
-        chunk (:data:`~onlinemap.kernels.rbpf_parallel.CHUNK`; fewer would run on one thread
-        anyway, the same results at the threads' overhead)."""
-        return self.threads > 1 and self.n_particles > rbpf_parallel.CHUNK
+        """Whether a step runs the parallel kernels (:meth:`StepKit.kernels
+        <onlinemap.estimators.rbpf_kernels.StepKit.kernels>`)."""
+        return self._kit.kernels().threads > 1
+
+    @property
+    def _kit(self) -> StepKit:
+        """The filter's :class:`~onlinemap.estimators.rbpf_kernels.StepKit`: its kernels, the
+        model's tables and views of its scratch buffers, built on first use and kept beside the
+        filter (``_KITS``). A checkpoint's load keeps the filter's own scratch buffers, so the kit
+        stays valid."""
+        kit = _KITS.get(self)
+        if kit is None:
+            kit = _KITS[self] = step_kit(self.model, self.n_particles, cells_written(self.model), self.threads,
+                                         (self._scratch_ints, self._scratch_floats, self._scratch_staged_ints,
+                                          self._scratch_staged_cells))
+        return kit
 
     @property
     def max_bytes(self) -> int | float:
@@ -338,7 +351,7 @@ class RaoBlackwellisedPF:
             weights = self._weights / self._weights.sum()
             location = np.bincount(self._locations, weights=weights, minlength=self.model.n_cells)
             location /= location.sum()  # rounding: keep every probability <= 1
-            maps = self._blocks.mixture(self._t, weights, self.threads if self._parallel else 1)
+            maps = self._blocks.mixture(self._t, weights, self._kit.kernels().threads)
             maps /= maps.sum(axis=1, keepdims=True)
             live = self._locations[self._weights > 0]
             distinct = int(np.count_nonzero(np.bincount(live, minlength=self.model.n_cells)))
@@ -386,15 +399,15 @@ class RaoBlackwellisedPF:
         if frequencies is not None and t % (self.options["learn_every"] or 1) == 0:
             alpha = resolved_prior(self.model, self.options).alpha
             self._label_frequencies = learn(self._blocks, self.model, t, self._weights / self._weights.sum(),
-                                            frequencies, alpha, self.threads if self._parallel else 1)
+                                            frequencies, alpha, self._kit.kernels().threads)
 
     def _update_sampling(self, a: int | None, z, t: int) -> None:
         """:meth:`update` with a sampling scheme (``a``, ``z`` checked): resample if due, propose,
         weight, commit; when every draw missed, :meth:`_update_fearnhead_clifford` instead."""
-        model = self.model
-        blocks = self._step_pool(t, a)
+        model, kit = self.model, self._kit
+        blocks = self._step_pool(t, a, kit)
         rng_state = self._rng.bit_generator.state
-        n_particles = self.n_particles
+        n_particles = kit.n_particles
         log_weights = self._log_weights
         ancestors = np.arange(n_particles)
         resample = a is not None and (self.resample_threshold >= 1.0 or
@@ -403,8 +416,8 @@ class RaoBlackwellisedPF:
             chosen = RESAMPLERS[self.resampling](self._weights, self._rng)
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
             log_weights = np.full(n_particles, -math.log(n_particles))
-        staged, log_increments = self._kernels.propose(self._locations, blocks.arrays(), world_tables(model), t,
-                                                       ancestors, self._neighbors(a), observed(model, z),
+        staged, log_increments = kit.kernels().propose(self._locations, blocks.arrays(), kit.world, t, ancestors,
+                                                       self._neighbors(a), observed(model, z),
                                                        self.proposal == "optimal", self._rng.random(n_particles))
         log_weights = log_weights + log_increments
         increment = logsumexp(log_weights)
@@ -417,16 +430,10 @@ class RaoBlackwellisedPF:
             return
         self._commit(t, blocks, ancestors, staged, log_weights - increment, increment, resample)
 
-    @property
-    def _kernels(self) -> KernelSet:
-        """The filter's kernel set (:func:`~onlinemap.estimators.rbpf_kernels.kernel_set`): fixed by
-        the model and the options (looked up, not stored: a checkpoint holds state, not code)."""
-        return kernel_set(self.model.is_paper_model, self.threads if self._parallel else 1)
-
-    def _step_pool(self, t: int, a: int | None) -> BlockPool:
+    def _step_pool(self, t: int, a: int | None, kit: StepKit) -> BlockPool:
         """The pool step t writes into: :meth:`_reserved`, advanced by C in a dynamic world with
         eager dynamics (every cell of every block row, a fresh array)."""
-        blocks = self._reserved(t)
+        blocks = self._reserved(t, kit.width * kit.n_particles)
         if a is not None and not self.model.is_static and not self.lazy_dynamics:
             blocks = blocks.with_rows(blocks.rows @ self.model.change)
         return blocks
@@ -435,39 +442,29 @@ class RaoBlackwellisedPF:
         """(N,) the cell action ``a`` points at from each cell (every cell itself at step 0)."""
         return _no_moves(self.model.n_cells) if a is None else self.model.moves[a]
 
-    def _reserved(self, t: int) -> BlockPool:
-        """The pool with the free rows a step writes (:meth:`BlockPool.reserved`: this filter's, or a
-        grown copy), after checking that growing it keeps the filter within ``max_bytes``
-        (:class:`~onlinemap.errors.MemoryLimitError` otherwise, nothing changed). With a path
-        history (``move_window``) the check counts its growth for the step and, on a step that may
-        move (:meth:`PathHistory.move_due`, whether the filter is still exact aside), the move's
-        worst case: P times :func:`map_rows_per_move` more map rows and
+    def _reserved(self, t: int, need: int) -> BlockPool:
+        """The pool with ``need`` free rows, those a step writes (:meth:`BlockPool.reserved`: this
+        filter's, or a grown copy), after checking that growing it keeps the filter within
+        ``max_bytes`` (:class:`~onlinemap.errors.MemoryLimitError` otherwise, nothing changed).
+        With a path history (``move_window``) the check counts its growth for the step and, on a
+        step that may move (:meth:`PathHistory.move_due`, whether the filter is still exact aside),
+        the move's worst case: P times :func:`map_rows_per_move` more map rows and
         :func:`path_rows_per_move` more history rows (the pools grow by doubling as the move
         needs, never beyond that). O(1)."""
-        pool, model, p = self._blocks, self.model, self.n_particles
-        need = cells_written(model) * p
+        pool, history = self._blocks, self._history
         extra, history_bytes, history_grows = 0, None, False
-        if self._history is not None:
-            window = self.move_window
-            moving = self._history.move_due(t, window, self.move_every, self.move_lag, exact=False)
-            extra = p * map_rows_per_move(model, window, pool.table.shape[1]) if moving else 0
-            history_bytes, history_grows = self._history.bytes_to_hold(
-                t, p * (1 + (path_rows_per_move(window) if moving else 0)))
+        if history is not None:
+            p, window = self.n_particles, self.move_window
+            moving = history.move_due(t, window, self.move_every, self.move_lag, exact=False)
+            extra = p * map_rows_per_move(self.model, window, pool.table.shape[1]) if moving else 0
+            history_bytes, history_grows = history.bytes_to_hold(t, p * (1 + (path_rows_per_move(window)
+                                                                                if moving else 0)))
             if moving:  # the move allocates its scratch after the step is taken: counted, and checked, before
-                history_bytes, history_grows = history_bytes + move_scratch_bytes(model, window), True
-        check_growth(self._sizing, pool, t, pool.rows_to_hold(need + extra), history_bytes, history_grows)
+                history_bytes, history_grows = history_bytes + move_scratch_bytes(self.model, window), True
+        rows = pool.rows_to_hold(need + extra)
+        if rows > len(pool.rows) or history_grows:
+            check_growth(self._sizing, pool, t, rows, history_bytes, history_grows)
         return pool.reserved(need)
-
-    def _fc_buffers(self) -> _FCBuffers:
-        """Views of the filter's scratch buffers for one Fearnhead-Clifford step (2P children, P
-        slots); every step writes them before reading them. A sampling scheme owns none: it
-        enumerates only when every draw missed (:meth:`update`), into fresh arrays."""
-        ints, floats, p = self._scratch_ints, self._scratch_floats, self.n_particles
-        if not len(ints):
-            ints, floats = np.empty((5, 2 * p), dtype=np.int64), np.empty((3, 2 * p))
-        children = Children(ints[0], ints[1], floats[0], *_no_cells(cells_written(self.model), self.model.n_labels))
-        return _FCBuffers(children, floats[1], ints[2], ints[3, :p], floats[2, :p],
-                          Slots(ints[3, p:], ints[4, :p], floats[2, p:]))
 
     def _update_fearnhead_clifford(self, a: int | None, z, t: int) -> None:
         """Enumerate every live particle's successors with their exact weights (the kernel set's
@@ -477,12 +474,14 @@ class RaoBlackwellisedPF:
         1.6-2x closer to exact than index order) and write them into the slots, each kept child's
         changed cells computed from its parent's map as the enumeration defines them (the kernel
         set's ``commit_children``). O(P K^2 + N) (O(P F K^2) with a footprint of F cells); the
-        resampling is O(P). Works in the filter's scratch buffers: no per-step allocation of size P."""
-        model, kernels = self.model, self._kernels
-        blocks = self._step_pool(t, a)
-        pool, world = blocks.arrays(), world_tables(model)
+        resampling is O(P). Works in the filter's scratch buffers (a sampling scheme, which
+        enumerates only when every draw missed, in fresh ones): no per-step allocation of size P."""
+        model, kit = self.model, self._kit
+        kernels = kit.kernels()
+        blocks = self._step_pool(t, a, kit)
+        pool, world = blocks.arrays(), kit.world
         neighbors, observation = self._neighbors(a), observed(model, z)
-        buffers = self._fc_buffers()
+        buffers = kit.fc or _fresh_fc_buffers(kit, model.n_labels)
         children, slots = buffers.children, buffers.slots
         m = kernels.enumerate(self._locations, self._log_weights, pool, world, t, neighbors, observation, children)
         if m == 0:  # depletion
@@ -495,7 +494,7 @@ class RaoBlackwellisedPF:
                                        buffers.order, buffers.kept, buffers.kept_weights, slots.ancestors,
                                        slots.slot_child, slots.log_weights)
         kernels.commit_children(self._locations, pool, world, t, slots, children.location, neighbors, observation,
-                                self._staged_buffers())
+                                kit.staged)
         blocks.refresh(t)
         self._advance(t, blocks, slots.ancestors, slots.log_weights, logsumexp(slots.log_weights,
                                                                                 buffers.kept_weights),
@@ -538,16 +537,6 @@ class RaoBlackwellisedPF:
         """What the memory guard needs of this filter (:mod:`~onlinemap.estimators.rbpf_memory`)."""
         return Sizing(self.model, self.n_particles, self.lazy_dynamics, self.threads, self.max_bytes)
 
-    def _staged_buffers(self) -> Staged | None:
-        """The threads' staging of a step's writes (:class:`~onlinemap.kernels.rbpf_commit.Staged`:
-        views of the filter's scratch buffers, P slots of W cells), None without threads."""
-        p, width = self.n_particles, cells_written(self.model)
-        ints = self._scratch_staged_ints
-        if not len(ints):
-            return None
-        new_ids, target, source = (ints[i * p * width:(i + 1) * p * width].reshape(p, width) for i in range(3))
-        return Staged(ints[3 * p * width:], new_ids, self._scratch_staged_cells, target, source)
-
     def _commit(self, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, increment, resampled,
                 recovered: bool = False) -> None:
         """Write a validated step whose changed cells are given (the sampling schemes; a recovery's
@@ -555,10 +544,10 @@ class RaoBlackwellisedPF:
         maps into ``blocks`` (the kernel set's ``commit``; with threads, planned in the staging
         buffers' ``target`` and ``source``), then :meth:`_advance`; ``recovered``: the step
         recovered from depletion."""
-        plan = self._staged_buffers()
-        if plan is not None:
-            staged = staged._replace(target=plan.target, source=plan.source)
-        self._kernels.commit(self._locations, blocks.arrays(), t, ancestors, staged)
+        kit = self._kit
+        if kit.staged is not None:
+            staged = staged._replace(target=kit.staged.target, source=kit.staged.source)
+        kit.kernels().commit(self._locations, blocks.arrays(), t, ancestors, staged)
         blocks.refresh(t)
         self._advance(t, blocks, ancestors, log_weights, 0.0, increment, resampled, recovered)
 
@@ -570,13 +559,14 @@ class RaoBlackwellisedPF:
         history, each slot's path: its ancestor's (``ancestors`` (P,), the commit's), then its
         location (:meth:`PathHistory.record_paths`; :meth:`_reserved` checked the memory)."""
         self._blocks = blocks
+        n_particles = len(ancestors)
         if self._history is not None:
-            self._history = self._history.reserved(t, self.n_particles)
+            self._history = self._history.reserved(t, n_particles)
             self._history.record_paths(t, ancestors, self._locations, resampled, recovered)
         np.subtract(log_weights, normaliser, out=self._log_weights)
         self._log_evidence += increment
         np.exp(self._log_weights, out=self._weights)
-        self._ess = min(float(self.n_particles), effective_sample_size(self._weights))  # rounding: <= P
+        self._ess = min(float(n_particles), effective_sample_size(self._weights))  # rounding: <= P
         self._resampled = resampled
         self._recovered = recovered
         self._t = t
@@ -609,19 +599,6 @@ class RaoBlackwellisedPF:
         return ParticleSnapshot(self._locations[chosen], self.particle_maps(chosen), np.full(size, -math.log(size)))
 
 
-class _FCBuffers(NamedTuple):
-    """One Fearnhead-Clifford step's working arrays (views of the filter's scratch buffers): the
-    children (2P), their weights (2P,), the order their strata walk, the kept children and their
-    weights (P,), and the slots (P,)."""
-
-    children: Children
-    child_weight: np.ndarray
-    order: np.ndarray
-    kept: np.ndarray
-    kept_weights: np.ndarray
-    slots: Slots
-
-
 def _scheme(proposal, resampling) -> tuple[str, str]:
     """The options ``proposal`` and ``resampling``, checked (:class:`InvalidOptionError` naming
     them), ``resampling`` None resolved: Fearnhead-Clifford for the optimal proposal, residual
@@ -650,14 +627,14 @@ def _thread_count(threads) -> int:
                              error=InvalidOptionError)
 
 
-@functools.cache
-def _no_cells(width: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Empty (log motion, ids (0, W), cells (0, W, K)) of :class:`~onlinemap.kernels.rbpf_enumerate.Children`
-    that store no child's cells (never written: 0 rows), made once per shape."""
-    return np.empty(0), np.empty((0, width), dtype=np.int64), np.empty((0, width, k))
-
-
 def _no_moves(n: int) -> np.ndarray:
     """Read-only ``arange(n)`` (every cell stays): the same numba type as a row of ``model.moves``,
     so rbpf_propose is compiled once."""
     return read_only(np.arange(n))
+
+
+def _fresh_fc_buffers(kit: StepKit, n_labels: int) -> FCBuffers:
+    """Fearnhead-Clifford's buffers in fresh arrays, for a sampling scheme's step that enumerates
+    (every draw missed): such a filter keeps none."""
+    p = kit.n_particles
+    return fc_buffers(np.empty((5, 2 * p), dtype=np.int64), np.empty((3, 2 * p)), p, kit.width, n_labels)

@@ -18,12 +18,13 @@ import dataclasses
 import functools
 import weakref
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 
 from ..kernels import rbpf_parallel
 from ..kernels.rbpf import World
-from ..kernels.rbpf_commit import (Staged, rbpf_commit_cells, rbpf_commit_children, rbpf_commit_children_cells,
+from ..kernels.rbpf_commit import (Slots, Staged, rbpf_commit_cells, rbpf_commit_children, rbpf_commit_children_cells,
                                    rbpf_pick_children)
 from ..kernels.rbpf_enumerate import Children, Proposed, rbpf_enumerate, rbpf_enumerate_cells, rbpf_propose
 from ..model import GridModel
@@ -77,7 +78,7 @@ def kernel_set(paper: bool, threads: int) -> KernelSet:
     (1: the serial kernels). Built once per pair."""
     if threads == 1:
         enumerate_ = rbpf_enumerate if paper else rbpf_enumerate_cells
-        propose = functools.partial(_propose_one_cell, rbpf_propose) if paper else \
+        propose = functools.partial(_propose_one_cell, _propose_serially) if paper else \
             functools.partial(_propose_by_enumeration, enumerate_)
         return KernelSet(enumerate_, _commit_children_one_cell if paper else _commit_children_cells, _commit,
                          propose, 1)
@@ -101,6 +102,12 @@ def _propose_one_cell(run: Callable, locations, pool, world, t, ancestors, neigh
     staged = Staged(proposed.locations, proposed.locations.reshape(n_particles, 1),
                     proposed.cells.reshape(n_particles, 1, k), None, None)
     return staged, proposed.log_increments
+
+
+def _propose_serially(locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms,
+                      proposed: Proposed) -> None:
+    """``rbpf_propose`` in the signature of its threaded driver (``rbpf_propose_parallel``)."""
+    rbpf_propose(locations, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, *proposed, *pool)
 
 
 def _propose_by_enumeration(enumerate_: Callable, locations, pool, world, t, ancestors, neighbors, readings, optimal,
@@ -160,3 +167,79 @@ def _commit_children_in_threads(stage: Callable, threads: int, locations, pool, 
     chunk = rbpf_parallel.CHUNK
     stage(locations, pool, world, t, slots, child_location, neighbors, observation, staged, chunk, threads)
     rbpf_parallel.rbpf_commit_staged_parallel(locations, pool, t, slots.ancestors, staged, chunk, threads)
+
+
+class FCBuffers(NamedTuple):
+    """One Fearnhead-Clifford step's working arrays (views of the filter's scratch buffers): the
+    children (2P), their weights (2P,), the order their strata walk, the kept children and their
+    weights (P,), and the slots (P,)."""
+
+    children: Children
+    child_weight: np.ndarray
+    order: np.ndarray
+    kept: np.ndarray
+    kept_weights: np.ndarray
+    slots: Slots
+
+
+def fc_buffers(ints: np.ndarray, floats: np.ndarray, n_particles: int, width: int, n_labels: int) -> FCBuffers:
+    """Views of scratch buffers ``ints`` (5, 2P) int64 and ``floats`` (3, 2P) as
+    :class:`FCBuffers`; the children store no cells (W = ``width`` cells of K = ``n_labels``). O(1)."""
+    p = n_particles
+    children = Children(ints[0], ints[1], floats[0], *_no_cells(width, n_labels))
+    return FCBuffers(children, floats[1], ints[2], ints[3, :p], floats[2, :p],
+                     Slots(ints[3, p:], ints[4, :p], floats[2, p:]))
+
+
+def staged_buffers(ints: np.ndarray, cells: np.ndarray, n_particles: int, width: int) -> Staged | None:
+    """The threads' staging of a step's writes (P slots of W = ``width`` cells): views of scratch
+    buffers ``ints`` (P (3 W + 1),) int64 and ``cells`` (P, W, K); None when they are empty (no
+    threads). O(1)."""
+    p = n_particles
+    if not len(ints):
+        return None
+    new_ids, target, source = (ints[i * p * width:(i + 1) * p * width].reshape(p, width) for i in range(3))
+    return Staged(ints[3 * p * width:], new_ids, cells, target, source)
+
+
+class StepKit(NamedTuple):
+    """What every step of one filter reads and no step changes, built once per filter
+    (:func:`step_kit`): P, W (the cells a particle's step writes), the threads, the model's
+    :class:`~onlinemap.kernels.rbpf.World`, the serial and the threaded :class:`KernelSet`, the
+    Fearnhead-Clifford buffers (None for the sampling schemes) and the threads' staging (None on
+    one thread). A step then reads its arrays and kernels here: no per-step lookups of options
+    or rebuilt bundles (each some microseconds, which a step of a few hundred particles pays
+    in full)."""
+
+    n_particles: int
+    width: int
+    threads: int
+    world: World
+    serial: KernelSet
+    threaded: KernelSet
+    fc: FCBuffers | None
+    staged: Staged | None
+
+    def kernels(self) -> KernelSet:
+        """The kernel set a step runs: the threaded one with threads and more particles than one
+        chunk (the current :data:`~onlinemap.kernels.rbpf_parallel.CHUNK`: fewer would run on one
+        thread anyway, the same results at the threads' overhead), else the serial one."""
+        return self.threaded if self.threads > 1 and self.n_particles > rbpf_parallel.CHUNK else self.serial
+
+
+def step_kit(model: GridModel, n_particles: int, width: int, threads: int, scratch: tuple[np.ndarray, ...]) -> StepKit:
+    """A filter's :class:`StepKit` from its model, P, W, threads and its four scratch buffers
+    (``ints``, ``floats`` of :func:`fc_buffers`, empty for a sampling scheme; the staging's ``ints``
+    and ``cells`` of :func:`staged_buffers`). O(1)."""
+    ints, floats, staged_ints, staged_cells = scratch
+    paper = model.is_paper_model
+    fc = fc_buffers(ints, floats, n_particles, width, model.n_labels) if len(ints) else None
+    return StepKit(n_particles, width, threads, world_tables(model), kernel_set(paper, 1), kernel_set(paper, threads),
+                   fc, staged_buffers(staged_ints, staged_cells, n_particles, width))
+
+
+@functools.cache
+def _no_cells(width: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Empty (log motion, ids (0, W), cells (0, W, K)) of :class:`~onlinemap.kernels.rbpf_enumerate.Children`
+    that store no child's cells (never written: 0 rows), made once per shape."""
+    return np.empty(0), np.empty((0, width), dtype=np.int64), np.empty((0, width, k))

@@ -120,17 +120,19 @@ def rbpf_enumerate(locations: np.ndarray, log_weights: np.ndarray, pool, world, 
     posterior of cell j given z) is not stored: ``rbpf_commit_children`` computes it for the
     children kept. O(P K^2). (A Python function: its kernel, :func:`_enumerate` on every parent, is
     the one the threads run on runs of parents, compiled once for both.)"""
-    return _enumerate(locations, log_weights, world.p_move, t, neighbors, likelihood, children, 0, len(locations), 0,
-                      np.empty(1), *pool)
+    return _enumerate(locations, log_weights, world.p_move, t, neighbors, likelihood, 0, len(locations), 0, np.empty(1),
+                      *children[:3], *pool)
 
 
 @thread_kernel
-def _enumerate(locations, log_weights, p_move, t, neighbors, likelihood, children, start, stop, out, lams, *fields):
+def _enumerate(locations, log_weights, p_move, t, neighbors, likelihood, start, stop, out, lams, *fields):
     """:func:`rbpf_enumerate` of parents ``start..stop - 1``, their children written from index
-    ``out`` on; returns their number. ``lams`` (1,) scratch; ``*fields`` the pool's fields and
-    ``p_move``, not the model's :class:`~onlinemap.kernels.rbpf.World` (``kernels/rbpf.py``: bundles
-    and dispatch)."""
-    pool = Pool(*fields)
+    ``out`` on; returns their number. ``lams`` (1,) scratch; ``*fields``: the children's
+    ``parent``, ``location`` and ``log_weight`` (the first three fields of :class:`Children`),
+    then the pool's fields; ``p_move``, not the model's :class:`~onlinemap.kernels.rbpf.World`
+    (``kernels/rbpf.py``: bundles and dispatch)."""
+    child_parent, child_location, child_log_weight = fields[0], fields[1], fields[2]
+    pool = Pool(*fields[3:])
     rows, powers, table, cell_block, cell_slot = pool.rows, pool.powers, pool.table, pool.cell_block, pool.cell_slot
     m = max(out, 0)  # max(., 0): indices known nonnegative, no code for negative ones (5% faster, measured)
     for q in range(max(start, 0), stop):
@@ -149,9 +151,9 @@ def _enumerate(locations, log_weights, p_move, t, neighbors, likelihood, childre
             if lam <= 0.0:
                 continue
             lams[0] = lam
-            children.log_weight[m] = _log_weight(log_weights[q], probability, lam, lams, 1)
-            children.parent[m] = q
-            children.location[m] = j
+            child_log_weight[m] = _log_weight(log_weights[q], probability, lam, lams, 1)
+            child_parent[m] = q
+            child_location[m] = j
             m += 1
     return m - out
 
@@ -335,7 +337,7 @@ def _enumerate_cells(locations, log_weights, world, t, neighbors, readings, chil
 
 
 @loop_kernel
-def rbpf_propose(locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed):
+def rbpf_propose(locations, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, *fields):
     """Propose every particle's step-t location and weight it; writes nothing to the state.
 
     Particle ``p`` descends from ``ancestors[p]``. ``neighbors`` (N,) is ``moves[a]`` (``arange(N)``
@@ -345,7 +347,10 @@ def rbpf_propose(locations, pool, p_move, t, ancestors, neighbors, likelihood, o
     ``P(l_t | l, a, z, map_p)``, increment = ``sum_l' T[a, l, l'] P(z | l', map_p)``. Outputs
     (:class:`Proposed`): the new locations (P,), the observed cell's updated marginal (P, K), the
     log increments (P,) (-inf where z is impossible). One uniform per particle. O(P K^2).
+    ``*fields``: the :class:`Proposed` arrays, then the pool's fields (``kernels/rbpf.py``: bundles
+    and dispatch).
     """
+    proposed, pool = Proposed(fields[0], fields[1], fields[2]), Pool(*fields[3:])
     _propose(locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed, np.int64(0),
              ancestors.shape[0])  # np.int64(0), not 0: one compile shared with the threads' calls
 

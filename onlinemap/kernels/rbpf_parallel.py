@@ -122,13 +122,9 @@ def _gather_children(counts, firsts, children):
     return m
 
 
-def _enumerate_in_threads(kernel: Callable[..., int], args: tuple, scratch: Callable[[], object], children, pool,
-                          chunk: int, threads: int) -> int:
-    """``kernel(*args, children, start, stop, 2 start, scratch(), *pool)`` on runs of parents
-    (``args[0]`` their locations), then the children moved together; returns M."""
-    runs = _runs(len(args[0]), chunk, threads)
-    counts = _in_threads([functools.partial(kernel, *args, children, start, stop, 2 * start, scratch(), *pool)
-                          for start, stop in runs])
+def _gathered(counts: list[int], runs: list[tuple[int, int]], children) -> int:
+    """M, once the ``counts`` children each run of parents wrote from index ``2 * start`` on are
+    moved together (:func:`_gather_children`)."""
     firsts = np.array([2 * start for start, _ in runs], dtype=np.int64)
     return _gather_children(np.array(counts, dtype=np.int64), firsts, children)
 
@@ -137,8 +133,11 @@ def rbpf_enumerate_parallel(locations: np.ndarray, log_weights: np.ndarray, pool
                             likelihood: np.ndarray, children, chunk: int, threads: int) -> int:
     """:func:`~onlinemap.kernels.rbpf_enumerate.rbpf_enumerate` (the same children, in the same
     order)."""
-    return _enumerate_in_threads(_enumerate, (locations, log_weights, world.p_move, t, neighbors, likelihood),
-                                 lambda: np.empty(1), children, pool, chunk, threads)
+    runs = _runs(len(locations), chunk, threads)
+    counts = _in_threads([functools.partial(_enumerate, locations, log_weights, world.p_move, t, neighbors, likelihood,
+                                            start, stop, 2 * start, np.empty(1), *children[:3], *pool)
+                          for start, stop in runs])
+    return _gathered(counts, runs, children)
 
 
 def rbpf_enumerate_cells_parallel(locations: np.ndarray, log_weights: np.ndarray, pool, world, t: int,
@@ -147,8 +146,11 @@ def rbpf_enumerate_cells_parallel(locations: np.ndarray, log_weights: np.ndarray
     """:func:`~onlinemap.kernels.rbpf_enumerate.rbpf_enumerate_cells` (the same children, in the
     same order)."""
     sizes = (world.sensor.shape[0], world.footprint_cells.shape[1], children.ids.shape[1])
-    return _enumerate_in_threads(_enumerate_cells, (locations, log_weights, world, t, neighbors, readings),
-                                 lambda: footprint_scratch(*sizes), children, pool, chunk, threads)
+    runs = _runs(len(locations), chunk, threads)
+    counts = _in_threads([functools.partial(_enumerate_cells, locations, log_weights, world, t, neighbors, readings,
+                                            children, start, stop, 2 * start, footprint_scratch(*sizes), *pool)
+                          for start, stop in runs])
+    return _gathered(counts, runs, children)
 
 
 def rbpf_propose_parallel(locations: np.ndarray, pool, p_move: float, t: int, ancestors: np.ndarray,
