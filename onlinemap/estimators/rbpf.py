@@ -404,14 +404,13 @@ class RaoBlackwellisedPF:
     def _update_sampling(self, a: int | None, z, t: int) -> None:
         """:meth:`update` with a sampling scheme (``a``, ``z`` checked): resample if due, propose,
         weight, commit; when every draw missed, :meth:`_update_fearnhead_clifford` instead."""
-        model, kit = self.model, self._kit
+        model, kit, threshold = self.model, self._kit, self.resample_threshold
         blocks = self._step_pool(t, a, kit)
         rng_state = self._rng.bit_generator.state
         n_particles = kit.n_particles
         log_weights = self._log_weights
         ancestors = np.arange(n_particles)
-        resample = a is not None and (self.resample_threshold >= 1.0 or
-                                      self._ess < self.resample_threshold * n_particles)
+        resample = a is not None and (threshold >= 1.0 or self._ess < threshold * n_particles)
         if resample:
             chosen = RESAMPLERS[self.resampling](self._weights, self._rng)
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
@@ -428,7 +427,7 @@ class RaoBlackwellisedPF:
                         describe(model, z))
             self._update_fearnhead_clifford(a, z, t)
             return
-        self._commit(t, blocks, ancestors, staged, log_weights - increment, increment, resample)
+        self._commit(kit, t, blocks, ancestors, staged, log_weights - increment, increment, resample)
 
     def _step_pool(self, t: int, a: int | None, kit: StepKit) -> BlockPool:
         """The pool step t writes into: :meth:`_reserved`, advanced by C in a dynamic world with
@@ -523,8 +522,8 @@ class RaoBlackwellisedPF:
         if relocation is None:
             raise ImpossibleObservationError(impossible(model, z, t, n_particles))
         parents = int(np.count_nonzero(self._weights))
-        self._commit(t, blocks, relocation.ancestors, relocation.staged, relocation.log_weights, relocation.increment,
-                     relocation.resampled, recovered=True)
+        self._commit(self._kit, t, blocks, relocation.ancestors, relocation.staged, relocation.log_weights,
+                     relocation.increment, relocation.resampled, recovered=True)
         self._recoveries += 1
         logger.warning("rbpf step %d: no particle explains observation %s (particle depletion); recovered by "
                        "relocating the %d live particles near their last cells (kernel exp(-d / %g), d in moves)%s; "
@@ -537,14 +536,13 @@ class RaoBlackwellisedPF:
         """What the memory guard needs of this filter (:mod:`~onlinemap.estimators.rbpf_memory`)."""
         return Sizing(self.model, self.n_particles, self.lazy_dynamics, self.threads, self.max_bytes)
 
-    def _commit(self, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, increment, resampled,
+    def _commit(self, kit: StepKit, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, increment, resampled,
                 recovered: bool = False) -> None:
         """Write a validated step whose changed cells are given (the sampling schemes; a recovery's
         children, :func:`~onlinemap.estimators.rbpf_recovery.relocate`): the particles' slots and
         maps into ``blocks`` (the kernel set's ``commit``; with threads, planned in the staging
         buffers' ``target`` and ``source``), then :meth:`_advance`; ``recovered``: the step
-        recovered from depletion."""
-        kit = self._kit
+        recovered from depletion; ``kit``: the filter's."""
         if kit.staged is not None:
             staged = staged._replace(target=kit.staged.target, source=kit.staged.source)
         kit.kernels().commit(self._locations, blocks.arrays(), t, ancestors, staged)

@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..kernels import rbpf_parallel
-from ..kernels.rbpf import World
+from ..kernels.rbpf import Pool, World
 from ..kernels.rbpf_commit import (Slots, Staged, rbpf_commit_cells, rbpf_commit_children, rbpf_commit_children_cells,
                                    rbpf_pick_children)
 from ..kernels.rbpf_enumerate import Children, Proposed, rbpf_enumerate, rbpf_enumerate_cells, rbpf_propose
@@ -78,15 +78,14 @@ def kernel_set(paper: bool, threads: int) -> KernelSet:
     (1: the serial kernels). Built once per pair."""
     if threads == 1:
         enumerate_ = rbpf_enumerate if paper else rbpf_enumerate_cells
-        propose = functools.partial(_propose_one_cell, _propose_serially) if paper else \
+        propose = functools.partial(_propose_one_cell, rbpf_propose) if paper else \
             functools.partial(_propose_by_enumeration, enumerate_)
         return KernelSet(enumerate_, _commit_children_one_cell if paper else _commit_children_cells, _commit,
                          propose, 1)
     enumerate_ = functools.partial(_in_chunks, rbpf_parallel.rbpf_enumerate_parallel if paper else
                                    rbpf_parallel.rbpf_enumerate_cells_parallel, threads)
     stage = _stage_one_cell if paper else rbpf_parallel.rbpf_stage_children_cells_parallel
-    propose = functools.partial(_propose_one_cell, functools.partial(
-        _in_chunks, rbpf_parallel.rbpf_propose_parallel, threads)) if paper else \
+    propose = functools.partial(_propose_one_cell, functools.partial(_propose_in_threads, threads)) if paper else \
         functools.partial(_propose_by_enumeration, enumerate_)
     return KernelSet(enumerate_, functools.partial(_commit_children_in_threads, stage, threads),
                      functools.partial(_commit_in_threads, threads), propose, threads)
@@ -94,20 +93,25 @@ def kernel_set(paper: bool, threads: int) -> KernelSet:
 
 def _propose_one_cell(run: Callable, locations, pool, world, t, ancestors, neighbors, likelihood, optimal,
                       uniforms) -> tuple[Staged, np.ndarray]:
-    """The paper's model's proposal (``run``: ``rbpf_propose`` or its threaded driver) into fresh
-    arrays, its writes as :class:`~onlinemap.kernels.rbpf_commit.Staged` (one cell each). O(P K^2)."""
+    """The paper's model's proposal (``run``: ``rbpf_propose`` or :func:`_propose_in_threads`, in
+    the signature of the first) into fresh arrays, its writes as
+    :class:`~onlinemap.kernels.rbpf_commit.Staged` (one cell each). O(P K^2)."""
     n_particles, k = len(ancestors), pool.rows.shape[2]
     proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, k)), np.empty(n_particles))
-    run(locations, pool, world.p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed)
+    run(locations, world.p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, *proposed, *pool)
     staged = Staged(proposed.locations, proposed.locations.reshape(n_particles, 1),
                     proposed.cells.reshape(n_particles, 1, k), None, None)
     return staged, proposed.log_increments
 
 
-def _propose_serially(locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms,
-                      proposed: Proposed) -> None:
-    """``rbpf_propose`` in the signature of its threaded driver (``rbpf_propose_parallel``)."""
-    rbpf_propose(locations, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, *proposed, *pool)
+def _propose_in_threads(threads: int, locations, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms,
+                        *fields) -> None:
+    """:func:`~onlinemap.kernels.rbpf_parallel.rbpf_propose_parallel` in the signature of
+    ``rbpf_propose`` (``*fields``: the :class:`Proposed` arrays, then the pool's fields), in chunks
+    of the current :data:`~onlinemap.kernels.rbpf_parallel.CHUNK`."""
+    proposed, pool = Proposed(*fields[:3]), Pool(*fields[3:])
+    rbpf_parallel.rbpf_propose_parallel(locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms,
+                                        proposed, rbpf_parallel.CHUNK, threads)
 
 
 def _propose_by_enumeration(enumerate_: Callable, locations, pool, world, t, ancestors, neighbors, readings, optimal,
@@ -123,7 +127,7 @@ def _propose_by_enumeration(enumerate_: Callable, locations, pool, world, t, anc
     proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, width, k)),
                         np.empty(n_particles))
     new_ids = np.empty((n_particles, width), dtype=np.int64)
-    rbpf_pick_children(ancestors, children, m, optimal, uniforms, proposed, new_ids)
+    rbpf_pick_children(ancestors, m, optimal, uniforms, new_ids, *children, *proposed)
     return Staged(proposed.locations, new_ids, proposed.cells, None, None), proposed.log_increments
 
 
@@ -134,7 +138,7 @@ def _commit_children_one_cell(locations, pool, world, t, slots, child_location, 
 
 def _commit_children_cells(locations, pool, world, t, slots, child_location, neighbors, readings, staged) -> None:
     """``rbpf_commit_children_cells`` in the :class:`KernelSet` signature."""
-    rbpf_commit_children_cells(locations, pool, world, t, slots, child_location, neighbors, readings)
+    rbpf_commit_children_cells(locations, t, child_location, neighbors, readings, *slots, *world, *pool)
 
 
 def _commit(locations, pool, t, ancestors, staged: Staged) -> None:

@@ -14,9 +14,10 @@ import numpy as np
 from numba import njit
 
 from . import PREFETCH_AHEAD, loop_kernel, prefetch, thread_kernel
-from .rbpf import (Pool, _age, _copy_row, _evidence, _observed_cell, _prefetch_cell, _row_for_write, _set_slot,
+from .rbpf import (Pool, World, _age, _copy_row, _evidence, _observed_cell, _prefetch_cell, _row_for_write, _set_slot,
                    _take_over_slots, _write_cell)
-from .rbpf_enumerate import FootprintScratch, _footprint_child, _passable_before, _prefetch_footprint
+from .rbpf_enumerate import (Children, FootprintScratch, Proposed, _footprint_child, _passable_before,
+                             _prefetch_footprint)
 from .resampling import optimal_keep_into
 
 
@@ -41,6 +42,13 @@ class Staged(NamedTuple):
     cells: np.ndarray
     target: np.ndarray
     source: np.ndarray
+
+
+#: where each bundle's fields end in the ``*fields`` of :func:`rbpf_commit_children_cells` (slots, world, pool)
+#: and of :func:`rbpf_pick_children` (children, proposed)
+_CHILDREN_END = len(Children._fields)
+_SLOTS_END = len(Slots._fields)
+_WORLD_END = _SLOTS_END + len(World._fields)
 
 
 @njit(cache=True, inline="always")
@@ -75,7 +83,7 @@ def _drawn_optimally(child_log_weight, first, stop, uniform):
 
 
 @njit(cache=True)
-def rbpf_pick_children(ancestors, children, m, optimal, uniforms, proposed, new_ids):
+def rbpf_pick_children(ancestors, m, optimal, uniforms, new_ids, *fields):
     """The sampling schemes on enumerated children (``rbpf_enumerate_cells`` with every parent's
     log weight 0, into ``children``, M = ``m`` of them): slot p draws one child of its ancestor
     ``ancestors[p]`` with ``uniforms[p]``. Optimal proposal: in proportion to ``T P(z | child)``,
@@ -83,7 +91,10 @@ def rbpf_pick_children(ancestors, children, m, optimal, uniforms, proposed, new_
     successor (one the observation rules out, left out of the children, gives weight 0),
     increment ``log P(z | child)``. Writes ``proposed`` (locations (P,), cells (P, W, K),
     log_increments (P,)) and ``new_ids`` (P, W). A slot with weight 0 gets location -1 (no write).
-    O(P W K)."""
+    O(P W K). ``*fields``: the fields of the :class:`~onlinemap.kernels.rbpf_enumerate.Children`,
+    then those of the :class:`~onlinemap.kernels.rbpf_enumerate.Proposed` (``kernels/rbpf.py``:
+    bundles and dispatch)."""
+    children, proposed = Children(*fields[:_CHILDREN_END]), Proposed(*fields[_CHILDREN_END:])
     child_parent, child_location, child_log_weight = children.parent, children.location, children.log_weight
     child_log_motion, child_ids, child_cells = children.log_motion, children.ids, children.cells  # locals: NRT
     new_locations, new_cells, log_increments = proposed.locations, proposed.cells, proposed.log_increments
@@ -263,11 +274,14 @@ def _write_children(locations, pool, t, slot_child, child_location, likelihood, 
 
 
 @njit(cache=True)
-def rbpf_commit_children_cells(locations, pool, world, t, slots, child_location, neighbors, readings):
+def rbpf_commit_children_cells(locations, t, child_location, neighbors, readings, *fields):
     """:func:`rbpf_commit_children` for blocking labels and sensor footprints: each kept child's
     W changed cells are computed from its parent's map as ``rbpf_enumerate_cells`` defines them
     (:func:`~onlinemap.kernels.rbpf_enumerate._footprint_child`; the parent's location is read
-    before any slot moves) and written. Needs ``free_top[0] >= W P``. O(P F K^2 + P W B K)."""
+    before any slot moves) and written. Needs ``free_top[0] >= W P``. O(P F K^2 + P W B K).
+    ``*fields``: the fields of the :class:`Slots`, the :class:`~onlinemap.kernels.rbpf.World` and
+    the pool, in that order (``kernels/rbpf.py``: bundles and dispatch)."""
+    slots, world, pool = Slots(*fields[:_SLOTS_END]), World(*fields[_SLOTS_END:_WORLD_END]), Pool(*fields[_WORLD_END:])
     k = world.sensor.shape[0]
     n_reads = world.footprint_cells.shape[1]
     width = n_reads + int(world.has_blocking)

@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from . import PREFETCH_AHEAD, loop_kernel, thread_kernel
-from .rbpf import Pool, _age, _carried, _evidence, _observed_cell, _prefetch_cell
+from .rbpf import Pool, World, _age, _carried, _evidence, _observed_cell, _prefetch_cell
 
 
 class Children(NamedTuple):
@@ -39,6 +39,12 @@ class FootprintScratch(NamedTuple):
     lams: np.ndarray
     ids: np.ndarray
     cells: np.ndarray
+
+
+#: where each bundle's fields end in the ``*fields`` of :func:`_enumerate_cells` (children, scratch, world, pool)
+_CHILDREN_END = len(Children._fields)
+_SCRATCH_END = _CHILDREN_END + len(FootprintScratch._fields)
+_WORLD_END = _SCRATCH_END + len(World._fields)
 
 
 def footprint_scratch(k: int, f: int, width: int) -> FootprintScratch:
@@ -283,8 +289,8 @@ def rbpf_enumerate_cells(locations: np.ndarray, log_weights: np.ndarray, pool, w
     and log weights. Cost O(P F K^2). (A Python function: its kernel, :func:`_enumerate_cells` on
     every parent, is the one the threads run on runs of parents, compiled once for both.)"""
     scratch = footprint_scratch(world.sensor.shape[0], world.footprint_cells.shape[1], children.ids.shape[1])
-    return _enumerate_cells(locations, log_weights, world, t, neighbors, readings, children, 0, len(locations), 0,
-                            scratch, *pool)
+    return _enumerate_cells(locations, log_weights, t, neighbors, readings, 0, len(locations), 0, *children, *scratch,
+                            *world, *pool)
 
 
 @njit(cache=True, inline="always")
@@ -298,12 +304,13 @@ def _store_child(children, m, ids, cells, probability):
 
 
 @thread_kernel
-def _enumerate_cells(locations, log_weights, world, t, neighbors, readings, children, start, stop, out, scratch,
-                     *fields):
+def _enumerate_cells(locations, log_weights, t, neighbors, readings, start, stop, out, *fields):
     """:func:`rbpf_enumerate_cells` of parents ``start..stop - 1``, their children written from
-    index ``out`` on; returns their number. ``scratch``: a :class:`FootprintScratch`; ``*fields`` the
-    pool's fields (``kernels/rbpf.py``: bundles and dispatch)."""
-    pool = Pool(*fields)
+    index ``out`` on; returns their number. ``*fields``: the fields of the :class:`Children`, a
+    :class:`FootprintScratch`, the :class:`~onlinemap.kernels.rbpf.World` and the pool, in that
+    order (``kernels/rbpf.py``: bundles and dispatch)."""
+    children, scratch = Children(*fields[:_CHILDREN_END]), FootprintScratch(*fields[_CHILDREN_END:_SCRATCH_END])
+    world, pool = World(*fields[_SCRATCH_END:_WORLD_END]), Pool(*fields[_WORLD_END:])
     store = children.cells.shape[0] > 0
     m = max(out, 0)  # as in _enumerate
     for q in range(max(start, 0), stop):

@@ -147,8 +147,8 @@ def rbpf_enumerate_cells_parallel(locations: np.ndarray, log_weights: np.ndarray
     same order)."""
     sizes = (world.sensor.shape[0], world.footprint_cells.shape[1], children.ids.shape[1])
     runs = _runs(len(locations), chunk, threads)
-    counts = _in_threads([functools.partial(_enumerate_cells, locations, log_weights, world, t, neighbors, readings,
-                                            children, start, stop, 2 * start, footprint_scratch(*sizes), *pool)
+    counts = _in_threads([functools.partial(_enumerate_cells, locations, log_weights, t, neighbors, readings, start,
+                                            stop, 2 * start, *children, *footprint_scratch(*sizes), *world, *pool)
                           for start, stop in runs])
     return _gathered(counts, runs, children)
 
