@@ -158,12 +158,6 @@ def test_imports_run_one_way_down_the_tour():
     assert not upward, "imports against the tour's order:\n" + "\n".join(upward)
 
 
-#: modules whose private names other modules still import: the RBPF's kernel modules, split from one,
-#: share inlined numba helpers (``_successor``, ``_write_cell``, ...) among themselves; making them
-#: public is a rename across the family (several collide with local names); nothing may join this set
-SHARED_PRIVATES = {"onlinemap.kernels.rbpf", "onlinemap.kernels.rbpf_enumerate", "onlinemap.kernels.rbpf_commit"}
-
-
 def _private(name: str) -> bool:
     return name.startswith("_") and not name.startswith("__")
 
@@ -206,7 +200,7 @@ def private_crossings(name: str, source: str, known: set[str]) -> list[str]:
                 owner = ".".join([aliases[value.id]] + chain[::-1])
                 if owner != name and owner in known | set(PACKAGES):
                     found.append(f"{name}: {owner}.{node.attr}")
-    return [f for f in found if not any(f" {shared}." in f or f" {shared} " in f for shared in SHARED_PRIVATES)]
+    return found
 
 
 def test_no_private_name_crosses_a_module():

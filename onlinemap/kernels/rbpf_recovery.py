@@ -10,8 +10,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .rbpf import _age, _carried
-from .rbpf_commit import _children_by_location, _copy_child, _place_children
+from .rbpf import age, carried
+from .rbpf_commit import children_by_location, copy_child, place_children
 
 
 @njit(cache=True)
@@ -56,10 +56,10 @@ def _landing_cell(rows, stamps, powers, dynamic, t, r, j, prior_cell, factor, q)
     marginal gives what the child sees of the cell (``factor`` (K,)) probability 0. Returns
     ``(q @ factor, reset)``. O(K^2)."""
     k = factor.shape[0]
-    d = _age(stamps, dynamic, t, r, j)
+    d = age(stamps, dynamic, t, r, j)
     lam = 0.0
     for b in range(k):
-        q[b] = _carried(rows, powers, d, r, j, b)
+        q[b] = carried(rows, powers, d, r, j, b)
         lam += q[b] * factor[b]
     if lam > 0.0:
         return lam, False
@@ -123,7 +123,7 @@ def rbpf_relocation_weights(locations, log_weights, pool, world, t, scale, readi
     source = -1
     log_z = 0.0
     order = np.empty(n_particles, dtype=np.int64)  # by location (a counting sort; the result needs no other order)
-    _children_by_location(locations, np.zeros(n_cells + 1, dtype=np.int64), order)
+    children_by_location(locations, np.zeros(n_cells + 1, dtype=np.int64), order)
     for p in order:
         if log_weights[p] == -np.inf:
             continue
@@ -198,13 +198,13 @@ def rbpf_place_children(child_parent, child_location, child_ids, child_cells, ke
     """Put kept children that carry their own changed cells (the recovery's relocated ones,
     :func:`rbpf_relocated_children`: their cells do not follow from the parent's map at the
     child's location, so :func:`rbpf_commit_children` cannot recompute them) into the P slots as
-    :func:`_place_children` places Fearnhead-Clifford's, for :func:`rbpf_commit_cells`. A child's
+    :func:`place_children` places Fearnhead-Clifford's, for :func:`rbpf_commit_cells`. A child's
     ``child_ids`` (M, W) and ``child_cells`` (M, W, K) go with it. Slots left without a child
     (fewer children than P) get ``new_locations = -1`` (no write) and weight 0. Outputs (P,)
     ancestors, (P,), (P, W), (P, W, K), (P,). O(P W K)."""
     n_particles = ancestors.shape[0]
     slot_child = np.empty(n_particles, dtype=np.int64)
-    _place_children(child_parent, kept, kept_weights, ancestors, slot_child, new_log_weights,
+    place_children(child_parent, kept, kept_weights, ancestors, slot_child, new_log_weights,
                     np.zeros(n_particles, dtype=np.bool_), np.zeros(n_particles, dtype=np.bool_))
     new_ids[:] = -1
     new_cells[:] = 0.0
@@ -213,4 +213,4 @@ def rbpf_place_children(child_parent, child_location, child_ids, child_cells, ke
         new_locations[p] = -1
         if c >= 0:
             new_locations[p] = child_location[c]
-            _copy_child(child_ids, child_cells, c, new_ids, new_cells, p)
+            copy_child(child_ids, child_cells, c, new_ids, new_cells, p)
