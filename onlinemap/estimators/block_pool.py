@@ -222,6 +222,17 @@ class BlockPool:
         ``max_age`` = :data:`REFRESH_STEPS`): the arrays themselves, not copies, bundled once. O(1)."""
         return self._arrays
 
+    @property
+    def nbytes(self) -> int:
+        """The bytes of the pool's arrays."""
+        return sum(getattr(self, f.name).nbytes for f in dataclasses.fields(self)
+                   if isinstance(getattr(self, f.name), np.ndarray))
+
+    @property
+    def free_bytes(self) -> int:
+        """The bytes of the free rows: their marginals, stamps, ``row_block``, ``refcount`` and ``free`` entries."""
+        return int(self.free_top[0]) * (self.rows.strides[0] + self.stamps.strides[0] + 3 * 8)
+
     def refresh(self, t: int) -> None:
         """Bring the next ``ceil(R / REFRESH_STEPS)`` rows up to date (the same values, stamped
         ``t``), so that no stamp is more than ``REFRESH_STEPS`` old and ``powers`` stays bounded

@@ -42,7 +42,6 @@ import math
 import weakref
 from types import MappingProxyType
 
-import numba
 import numpy as np
 
 from .. import arguments
@@ -56,14 +55,13 @@ from ..model import GridModel
 from ..resampling import RESAMPLERS, effective_sample_size
 from ..rng import SeedLike, as_generator
 from ..validation import check_step
-from .base import BooleanFlag, register
+from .base import BooleanFlag, ParticleSnapshot, draw_labels, register
 from .block_pool import BlockPool, block_layout
-from .rbpf_kernels import FCBuffers, StepKit, fc_buffers, observed, step_kit
-from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start
-from .rbpf_move import (MoveCounts, PathHistory, map_rows_per_move, move_options, move_scratch_bytes,
-                        path_rows_per_move)
+from .rbpf_kernels import StepKit, no_moves, observed, scratch_buffers, step_kit, thread_count
+from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start, history_growth
+from .rbpf_move import MoveCounts, PathHistory, move_options
 from .rbpf_prior import learn, prior_options, resolved_prior, retilt
-from .rbpf_recovery import RELOCATION_SCALE, describe, impossible, logsumexp, no_particle_explains, relocate
+from .rbpf_recovery import describe, impossible, logsumexp, no_particle_explains, recovery_note, relocate
 from .rbpf_state import check_state, upgrade_attributes
 
 logger = logging.getLogger(__name__)
@@ -203,7 +201,7 @@ class RaoBlackwellisedPF:
         if block_cells is not None:
             block_cells = arguments.integer("block_cells", block_cells, minimum=1, maximum=model.n_cells, error=error)
         max_bytes = arguments.byte_limit("max_bytes", max_bytes, error)
-        threads = _thread_count(threads)
+        threads = thread_count(threads)
         move_window, move_every, move_lag = move_options(model, move_window, move_every, move_lag)
         prior = prior_options(model, label_prior, prior_strength, learn_every, move_window)
         check_start(Sizing(model, n_particles, lazy_dynamics, threads, max_bytes), block_cells, move_window)
@@ -230,12 +228,8 @@ class RaoBlackwellisedPF:
         fc = resampling == FEARNHEAD_CLIFFORD
         # the resample-move step's paths (rbpf_move.py); None without it
         self._history = None if move_window is None else PathHistory.new(model, n_particles, exact=fc)
-        self._scratch_ints = np.zeros((5 if fc else 0, 2 * n_particles), dtype=np.int64)
-        self._scratch_floats = np.zeros((3 if fc else 0, 2 * n_particles))
-        staged = n_particles if threads > 1 else 0  # the parallel commit's staging
-        width = cells_written(model)
-        self._scratch_staged_ints = np.zeros(staged * (3 * width + 1), dtype=np.int64)
-        self._scratch_staged_cells = np.zeros((staged, width, model.n_labels))
+        (self._scratch_ints, self._scratch_floats, self._scratch_staged_ints,
+         self._scratch_staged_cells) = scratch_buffers(n_particles, cells_written(model), model.n_labels, fc, threads)
         self._log_evidence = 0.0
         self._ess = float(n_particles)
         self._resampled = False
@@ -254,7 +248,7 @@ class RaoBlackwellisedPF:
     def threads(self) -> int:
         """The number of threads the update and the belief use (the ``threads`` option; with None,
         ``NUMBA_NUM_THREADS``)."""
-        return _thread_count(self.options["threads"])
+        return thread_count(self.options["threads"])
 
     @property
     def _parallel(self) -> bool:
@@ -371,6 +365,13 @@ class RaoBlackwellisedPF:
             which = indices.astype(np.int64)
         return self._blocks.particle_maps(max(self._t, 0), which)
 
+    def array_bytes(self) -> tuple[int, int]:
+        """(allocated, in use): the bytes of every array the filter holds, its block pool's
+        included, and the same without the pool's free rows (:attr:`BlockPool.free_bytes`). O(1)."""
+        allocated = sum(value.nbytes for value in vars(self).values() if isinstance(value, np.ndarray))
+        allocated += self._blocks.nbytes
+        return allocated, allocated - self._blocks.free_bytes
+
     def step(self, action, observation) -> Belief:
         """``update`` then ``belief``."""
         self.update(action, observation)
@@ -439,27 +440,17 @@ class RaoBlackwellisedPF:
 
     def _neighbors(self, a: int | None) -> np.ndarray:
         """(N,) the cell action ``a`` points at from each cell (every cell itself at step 0)."""
-        return _no_moves(self.model.n_cells) if a is None else self.model.moves[a]
+        return no_moves(self.model.n_cells) if a is None else self.model.moves[a]
 
     def _reserved(self, t: int, need: int) -> BlockPool:
         """The pool with ``need`` free rows, those a step writes (:meth:`BlockPool.reserved`: this
-        filter's, or a grown copy), after checking that growing it keeps the filter within
-        ``max_bytes`` (:class:`~onlinemap.errors.MemoryLimitError` otherwise, nothing changed).
-        With a path history (``move_window``) the check counts its growth for the step and, on a
-        step that may move (:meth:`PathHistory.move_due`, whether the filter is still exact aside),
-        the move's worst case: P times :func:`map_rows_per_move` more map rows and
-        :func:`path_rows_per_move` more history rows (the pools grow by doubling as the move
-        needs, never beyond that). O(1)."""
+        filter's, or a grown copy), after checking that growing it, and the path history's growth
+        with ``move_window`` (:func:`~onlinemap.estimators.rbpf_memory.history_growth`), keep the
+        filter within ``max_bytes`` (:class:`~onlinemap.errors.MemoryLimitError` otherwise,
+        nothing changed). O(1)."""
         pool, history = self._blocks, self._history
-        extra, history_bytes, history_grows = 0, None, False
-        if history is not None:
-            p, window = self.n_particles, self.move_window
-            moving = history.move_due(t, window, self.move_every, self.move_lag, exact=False)
-            extra = p * map_rows_per_move(self.model, window, pool.table.shape[1]) if moving else 0
-            history_bytes, history_grows = history.bytes_to_hold(t, p * (1 + (path_rows_per_move(window)
-                                                                                if moving else 0)))
-            if moving:  # the move allocates its scratch after the step is taken: counted, and checked, before
-                history_bytes, history_grows = history_bytes + move_scratch_bytes(self.model, window), True
+        extra, history_bytes, history_grows = (0, None, False) if history is None else history_growth(
+            self.model, history, pool, t, self.n_particles, self.move_window, self.move_every, self.move_lag)
         rows = pool.rows_to_hold(need + extra)
         if rows > len(pool.rows) or history_grows:
             check_growth(self._sizing, pool, t, rows, history_bytes, history_grows)
@@ -480,7 +471,7 @@ class RaoBlackwellisedPF:
         blocks = self._step_pool(t, a, kit)
         pool, world = blocks.arrays(), kit.world
         neighbors, observation = self._neighbors(a), observed(model, z)
-        buffers = kit.fc or _fresh_fc_buffers(kit, model.n_labels)
+        buffers = kit.fc_buffers(model.n_labels)
         children, slots = buffers.children, buffers.slots
         m = kernels.enumerate(self._locations, self._log_weights, pool, world, t, neighbors, observation, children)
         if m == 0:  # depletion
@@ -525,11 +516,7 @@ class RaoBlackwellisedPF:
         self._commit(self._kit, t, blocks, relocation.ancestors, relocation.staged, relocation.log_weights,
                      relocation.increment, relocation.resampled, recovered=True)
         self._recoveries += 1
-        logger.warning("rbpf step %d: no particle explains observation %s (particle depletion); recovered by "
-                       "relocating the %d live particles near their last cells (kernel exp(-d / %g), d in moves)%s; "
-                       "%d children kept (recovery %d of this filter)", t, describe(model, z), parents,
-                       RELOCATION_SCALE, f" and resetting {relocation.resets} read cell(s) to their prior"
-                       if relocation.resets else "", relocation.kept, self._recoveries)
+        logger.warning(recovery_note(model, z, t, parents, relocation, self._recoveries))
 
     @property
     def _sizing(self) -> Sizing:
@@ -574,8 +561,6 @@ class RaoBlackwellisedPF:
         """``size`` states drawn from the belief: a particle by weight (one ``rng.choice``), then each
         cell's label from that particle's map marginals (:func:`~onlinemap.estimators.base.draw_labels`).
         Locations (S,) and label maps (S, N), int64. O(P + S N K^2)."""
-        from .base import draw_labels
-
         weights = np.exp(self._log_weights)
         chosen = rng.choice(len(weights), size=size, p=weights / weights.sum())
         return self._locations[chosen], draw_labels(self.particle_maps(chosen), rng)
@@ -585,8 +570,6 @@ class RaoBlackwellisedPF:
         of them, weights kept, if ``size`` is None or not below P; else ``size`` of them drawn by
         weight (systematic sampling: one uniform of ``rng``) and equally weighted. Reads
         :meth:`particle_maps` of the kept particles only: O(P + M N K^2) for M kept."""
-        from .base import ParticleSnapshot
-
         log_weights = self._log_weights
         if size is None or size >= len(log_weights):
             return ParticleSnapshot(self._locations.copy(), self.particle_maps(), log_weights.copy())
@@ -611,28 +594,3 @@ def _scheme(proposal, resampling) -> tuple[str, str]:
                     f"'{FEARNHEAD_CLIFFORD}' enumerates them all (the optimal proposal's weights): pass "
                     f"resampling='residual' (or another sampling scheme) to use it")
     return proposal, resampling
-
-
-def _thread_count(threads) -> int:
-    """The ``threads`` option as a count, 1 to ``NUMBA_NUM_THREADS`` (None: all of them)."""
-    most = numba.config.NUMBA_NUM_THREADS
-    if threads is None:
-        return most
-    if type(threads) is int and 1 <= threads <= most:  # a valid count, as checked below (read 3 times a step)
-        return threads
-    return arguments.integer(f"threads (at most NUMBA_NUM_THREADS={most}: the cores numba counts, or that "
-                             "environment variable set before numba starts)", threads, minimum=1, maximum=most,
-                             error=InvalidOptionError)
-
-
-def _no_moves(n: int) -> np.ndarray:
-    """Read-only ``arange(n)`` (every cell stays): the same numba type as a row of ``model.moves``,
-    so rbpf_propose is compiled once."""
-    return read_only(np.arange(n))
-
-
-def _fresh_fc_buffers(kit: StepKit, n_labels: int) -> FCBuffers:
-    """Fearnhead-Clifford's buffers in fresh arrays, for a sampling scheme's step that enumerates
-    (every draw missed): such a filter keeps none."""
-    p = kit.n_particles
-    return fc_buffers(np.empty((5, 2 * p), dtype=np.int64), np.empty((3, 2 * p)), p, kit.width, n_labels)

@@ -20,8 +20,12 @@ import weakref
 from collections.abc import Callable
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
+from .. import arguments
+from ..arrays import read_only
+from ..errors import InvalidOptionError
 from ..kernels import rbpf_parallel
 from ..kernels.rbpf import Pool, World
 from ..kernels.rbpf_commit import (Slots, Staged, rbpf_commit_cells, rbpf_commit_children, rbpf_commit_children_cells,
@@ -224,11 +228,28 @@ class StepKit(NamedTuple):
     fc: FCBuffers | None
     staged: Staged | None
 
+    def fc_buffers(self, n_labels: int) -> FCBuffers:
+        """Fearnhead-Clifford's buffers: the filter's or, for a sampling scheme's step that
+        enumerates (every draw missed), fresh arrays (such a filter keeps none)."""
+        if self.fc is not None:
+            return self.fc
+        p = self.n_particles
+        return fc_buffers(np.empty((5, 2 * p), dtype=np.int64), np.empty((3, 2 * p)), p, self.width, n_labels)
+
     def kernels(self) -> KernelSet:
         """The kernel set a step runs: the threaded one with threads and more particles than one
         chunk (the current :data:`~onlinemap.kernels.rbpf_parallel.CHUNK`: fewer would run on one
         thread anyway, the same results at the threads' overhead), else the serial one."""
         return self.threaded if self.threads > 1 and self.n_particles > rbpf_parallel.CHUNK else self.serial
+
+
+def scratch_buffers(n_particles: int, width: int, n_labels: int, fc: bool, threads: int) -> tuple[np.ndarray, ...]:
+    """A filter's four scratch buffers, zeroed: ``ints`` (5, 2P) and ``floats`` (3, 2P) of
+    :func:`fc_buffers` (0 rows without Fearnhead-Clifford, ``fc``), and the staging's ``ints``
+    (P (3 W + 1),) and ``cells`` (P, W, K) of :func:`staged_buffers` (empty on one thread)."""
+    staged = n_particles if threads > 1 else 0
+    return (np.zeros((5 if fc else 0, 2 * n_particles), dtype=np.int64), np.zeros((3 if fc else 0, 2 * n_particles)),
+            np.zeros(staged * (3 * width + 1), dtype=np.int64), np.zeros((staged, width, n_labels)))
 
 
 def step_kit(model: GridModel, n_particles: int, width: int, threads: int, scratch: tuple[np.ndarray, ...]) -> StepKit:
@@ -247,3 +268,21 @@ def _no_cells(width: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Empty (log motion, ids (0, W), cells (0, W, K)) of :class:`~onlinemap.kernels.rbpf_enumerate.Children`
     that store no child's cells (never written: 0 rows), made once per shape."""
     return np.empty(0), np.empty((0, width), dtype=np.int64), np.empty((0, width, k))
+
+
+def thread_count(threads) -> int:
+    """The ``threads`` option as a count, 1 to ``NUMBA_NUM_THREADS`` (None: all of them)."""
+    most = numba.config.NUMBA_NUM_THREADS
+    if threads is None:
+        return most
+    if type(threads) is int and 1 <= threads <= most:  # a valid count, as checked below
+        return threads
+    return arguments.integer(f"threads (at most NUMBA_NUM_THREADS={most}: the cores numba counts, or that "
+                             "environment variable set before numba starts)", threads, minimum=1, maximum=most,
+                             error=InvalidOptionError)
+
+
+def no_moves(n: int) -> np.ndarray:
+    """Read-only ``arange(n)``, the neighbours at step 0 (every cell stays): the same numba type as
+    a row of ``model.moves``, so each kernel is compiled once for both."""
+    return read_only(np.arange(n))

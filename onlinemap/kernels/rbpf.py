@@ -207,7 +207,7 @@ def copy_row(pool, t, source, row):
             if t - stamps[row, slot] > pool.max_age:
                 for label in range(rows.shape[2]):
                     rows[row, slot, label] = carried(rows, pool.powers, t - stamps[source, slot], source, slot,
-                                                      label)
+                                                     label)
                 stamps[row, slot] = t
 
 
@@ -283,8 +283,8 @@ def rbpf_map_mixture(t, weights, out, *fields):
     pool = Pool(*fields)
     n_blocks = pool.table.shape[1]
     row_weight = np.zeros(pool.rows.shape[0])
-    row_weights(pool.table, pool.refcount, weights, ordered_sum(weights), row_weight, np.int64(0), n_blocks,  # one compile
-                 np.empty(n_blocks, dtype=np.int64), np.empty(n_blocks, dtype=np.int64), np.empty(n_blocks))
+    row_weights(pool.table, pool.refcount, weights, ordered_sum(weights), row_weight, np.int64(0),  # one compile
+                n_blocks, np.empty(n_blocks, dtype=np.int64), np.empty(n_blocks, dtype=np.int64), np.empty(n_blocks))
     out[:] = 0.0
     _mixture(pool, t, row_weight, out)
 

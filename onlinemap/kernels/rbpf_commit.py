@@ -141,7 +141,7 @@ def rbpf_keep_children(child_parent, child_location, weights, n_cells, uniform, 
     children_by_location(child_location[:m], np.zeros(n_cells + 1, dtype=np.int64), order[:m])
     n_kept, c = optimal_keep_into(weights, n_particles, uniform, order[:m], kept, kept_weights)
     place_children(child_parent, kept[:n_kept], kept_weights[:n_kept], ancestors, slot_child, new_log_weights,
-                    np.zeros(n_particles, dtype=np.bool_), np.zeros(n_particles, dtype=np.bool_))
+                   np.zeros(n_particles, dtype=np.bool_), np.zeros(n_particles, dtype=np.bool_))
     return c
 
 
@@ -357,7 +357,7 @@ def stage_children(pool, t, slots, child_location, likelihood, staged, start, st
 
 @thread_kernel
 def stage_children_cells(locations, pool, world, t, slots, child_location, neighbors, readings, staged, start, stop,
-                          scratch):
+                         scratch):
     """The writes :func:`_write_children_cells` makes, staged for slots ``start..stop - 1`` before
     the commit (as :func:`stage_children`): ``staged.locations`` (P,), ``staged.ids`` (P, W),
     ``staged.cells`` (P, W, K); ``scratch`` a :class:`FootprintScratch` (its ``before``,

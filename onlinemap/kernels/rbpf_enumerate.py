@@ -126,8 +126,8 @@ def rbpf_enumerate(locations: np.ndarray, log_weights: np.ndarray, pool, world, 
     posterior of cell j given z) is not stored: ``rbpf_commit_children`` computes it for the
     children kept. O(P K^2). (A Python function: its kernel, :func:`enumerate_run` on every parent, is
     the one the threads run on runs of parents, compiled once for both.)"""
-    return enumerate_run(locations, log_weights, world.p_move, t, neighbors, likelihood, 0, len(locations), 0, np.empty(1),
-                      *children[:3], *pool)
+    return enumerate_run(locations, log_weights, world.p_move, t, neighbors, likelihood, 0, len(locations), 0,
+                         np.empty(1), *children[:3], *pool)
 
 
 @thread_kernel
@@ -153,7 +153,7 @@ def enumerate_run(locations, log_weights, p_move, t, neighbors, likelihood, star
                 continue
             r = table[q, cell_block[j]]
             lam = evidence(rows, powers, age(pool.stamps, pool.stamped, t, r, cell_slot[j]), r, cell_slot[j],
-                            likelihood)
+                           likelihood)
             if lam <= 0.0:
                 continue
             lams[0] = lam
@@ -289,8 +289,8 @@ def rbpf_enumerate_cells(locations: np.ndarray, log_weights: np.ndarray, pool, w
     and log weights. Cost O(P F K^2). (A Python function: its kernel, :func:`enumerate_cells_run` on
     every parent, is the one the threads run on runs of parents, compiled once for both.)"""
     scratch = footprint_scratch(world.sensor.shape[0], world.footprint_cells.shape[1], children.ids.shape[1])
-    return enumerate_cells_run(locations, log_weights, t, neighbors, readings, 0, len(locations), 0, *children, *scratch,
-                            *world, *pool)
+    return enumerate_cells_run(locations, log_weights, t, neighbors, readings, 0, len(locations), 0, *children,
+                               *scratch, *world, *pool)
 
 
 @njit(cache=True, inline="always")
@@ -331,7 +331,7 @@ def enumerate_cells_run(locations, log_weights, t, neighbors, readings, start, s
             if probability <= 0.0:
                 continue
             n_reads, likelihood = footprint_child(pool, pool.table[q], world, t, j, n, gated, readings, scratch,
-                                                   scratch.ids, scratch.cells, store)
+                                                  scratch.ids, scratch.cells, store)
             if n_reads < 0:
                 continue
             if store:
@@ -359,7 +359,7 @@ def rbpf_propose(locations, p_move, t, ancestors, neighbors, likelihood, optimal
     """
     proposed, pool = Proposed(fields[0], fields[1], fields[2]), Pool(*fields[3:])
     propose_run(locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed, np.int64(0),
-             ancestors.shape[0])  # np.int64(0), not 0: one compile shared with the threads' calls
+                ancestors.shape[0])  # np.int64(0), not 0: one compile shared with the threads' calls
 
 
 @njit(cache=True, inline="always")
@@ -367,7 +367,7 @@ def _lam(pool, q, t, cell, likelihood):
     """``P(z | cell, map_q)``: :func:`evidence` of particle q's marginal of ``cell``."""
     r = pool.table[q, pool.cell_block[cell]]
     return evidence(pool.rows, pool.powers, age(pool.stamps, pool.stamped, t, r, pool.cell_slot[cell]), r,
-                     pool.cell_slot[cell], likelihood)
+                    pool.cell_slot[cell], likelihood)
 
 
 @thread_kernel
@@ -395,5 +395,5 @@ def propose_run(locations, pool, p_move, t, ancestors, neighbors, likelihood, op
         proposed.locations[p] = target
         r = pool.table[q, pool.cell_block[target]]
         observed_cell(pool.rows, pool.powers, age(pool.stamps, pool.stamped, t, r, pool.cell_slot[target]), r,
-                       pool.cell_slot[target], likelihood, lam, proposed.cells[p])
+                      pool.cell_slot[target], likelihood, lam, proposed.cells[p])
         proposed.log_increments[p] = math.log(weight) if lam > 0.0 else -np.inf

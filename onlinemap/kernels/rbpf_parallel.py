@@ -134,8 +134,8 @@ def rbpf_enumerate_parallel(locations: np.ndarray, log_weights: np.ndarray, pool
     """:func:`~onlinemap.kernels.rbpf_enumerate.rbpf_enumerate` (the same children, in the same
     order)."""
     runs = _runs(len(locations), chunk, threads)
-    counts = _in_threads([functools.partial(enumerate_run, locations, log_weights, world.p_move, t, neighbors, likelihood,
-                                            start, stop, 2 * start, np.empty(1), *children[:3], *pool)
+    counts = _in_threads([functools.partial(enumerate_run, locations, log_weights, world.p_move, t, neighbors,
+                                            likelihood, start, stop, 2 * start, np.empty(1), *children[:3], *pool)
                           for start, stop in runs])
     return _gathered(counts, runs, children)
 
