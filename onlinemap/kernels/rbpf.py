@@ -26,10 +26,11 @@ The jobs live in their own modules: ``rbpf_enumerate`` (children and proposals),
 Bundles and dispatch: numba types a bundle argument in Python on every call from Python, some 5
 us for a :class:`Pool` against 0.1 us per array typed in C (measured), which a small filter's
 step would pay several times. So the entry points a step calls from Python
-(:func:`rbpf_refresh`, :func:`rbpf_map_mixture`, :func:`particle_maps`, ``rbpf_commit_children``,
-``rbpf_commit_cells``, the enumerations' range kernels) take the pool as its fields, last
-(``*fields``: ``kernel(..., *blocks.arrays())``), and rebuild the bundle (``Pool(*fields)``);
-the order is the NamedTuple's own.
+(:func:`rbpf_refresh`, :func:`rbpf_map_mixture`, :func:`particle_maps`, the commits, the
+proposal, the sampling schemes' pick and the enumerations' range kernels) take their bundles as
+their fields, last (``*fields``: ``kernel(..., *children, *blocks.arrays())``), and rebuild them
+(``Pool(*fields[i:])``); each bundle's fields in its NamedTuple's order, the bundles in the order
+the kernel's docstring names, split at module constants (``len(Children._fields)``...).
 
 Bundles and reference counting: a plain ``njit`` kernel (numba counts references) that passed a
 bundle into inlined helpers in a loop ran 250-800x slower (every field access counted each array
