@@ -169,7 +169,7 @@ def test_no_kernel_compiles_with_numba_parallel():
                    if isinstance(value, numba.core.registry.CPUDispatcher)]
     assert len(dispatchers) > 50
     assert not [d.py_func.__qualname__ for d in dispatchers if d.targetoptions.get("parallel")]
-    threaded = {rbpf_parallel._enumerate, rbpf_parallel._enumerate_cells, rbpf_parallel._propose,
-                rbpf_parallel._stage_children, rbpf_parallel._stage_children_cells, rbpf_parallel._copy_planned,
-                rbpf_parallel._write_planned, rbpf_parallel._row_weights, rbpf_parallel._mixture_blocks}
+    threaded = {rbpf_parallel.enumerate_run, rbpf_parallel.enumerate_cells_run, rbpf_parallel.propose_run,
+                rbpf_parallel.stage_children, rbpf_parallel.stage_children_cells, rbpf_parallel.copy_planned,
+                rbpf_parallel.write_planned, rbpf_parallel.row_weights, rbpf_parallel.mixture_blocks}
     assert all(kernel.targetoptions.get("nogil") for kernel in threaded)

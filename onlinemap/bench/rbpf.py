@@ -92,7 +92,6 @@ resampling every step <= 1 pass (copying at most every row once), and the static
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import time
@@ -403,17 +402,6 @@ def per_particle_worlds(quick: bool) -> dict:
             "door 64x64 dynamic": (*tiled_door_world(64, 64, 0.01), (1_000,) if quick else (1_000, 10_000, 100_000))}
 
 
-def filter_bytes(est) -> tuple[int, int]:
-    """(allocated, in use) bytes of an rbpf's arrays: every array it holds (the block pool's
-    included); in use leaves out the pool's free rows."""
-    pool = est._blocks
-    arrays = [v for v in vars(est).values() if isinstance(v, np.ndarray)]
-    arrays += [getattr(pool, f.name) for f in dataclasses.fields(pool) if isinstance(getattr(pool, f.name), np.ndarray)]
-    allocated = sum(a.nbytes for a in arrays)
-    row = pool.rows.strides[0] + pool.stamps.strides[0] + 3 * 8  # a row's floats, stamps, row_block/refcount/free
-    return allocated, allocated - int(pool.free_top[0]) * row
-
-
 def _per_particle_times(model, true_map, n_particles, threads, n_steps):
     """Median wall and CPU seconds of an update and of building the belief over ``n_steps`` steps
     after the filter has filled its P slots; the filter at the end."""
@@ -448,9 +436,9 @@ def per_particle_rows(quick: bool, worlds: dict | None = None, thread_counts=Non
             for threads in thread_counts:
                 n_steps = int(np.clip(2e6 / n_particles, 5, 10 if quick else 40))
                 update, belief, est = _per_particle_times(model, true_map, n_particles, threads, n_steps)
-                allocated, in_use = filter_bytes(est)
+                allocated, in_use = est.array_bytes()
                 reference = copy_pass_ms(in_use // 8)
-                live = int(np.count_nonzero(est._weights))
+                live = int(np.count_nonzero(est.weights))
                 common = {"reference": f"copy of the filter's {in_use / 1e6:.3g} MB in use", "reference_ms": reference,
                           "threads": threads, "n_particles": n_particles, "live": live,
                           "bytes_per_particle": in_use / n_particles,

@@ -163,6 +163,13 @@ class BlockPool:
     #: the fields fixed by the model and options (checked bit for bit against a fresh filter's)
     CONSTANT = ("cell_block", "cell_slot", "block_members", "powers", "stamped")
 
+    def __post_init__(self) -> None:
+        # the kernels' bundle, made once: a pool's arrays are never rebound (a grown pool is a new
+        # BlockPool); not a field, so checkpoints do not store it
+        self._arrays = Pool(self.rows, self.stamps, self.row_block, self.refcount, self.free, self.free_top,
+                            self.table, self.cell_block, self.cell_slot, self.block_members, self.powers,
+                            self.stamped, REFRESH_STEPS)
+
     @classmethod
     def new(cls, model: GridModel, layout: BlockLayout, n_particles: int, stamped: bool) -> BlockPool:
         """Every particle shares one row per block holding the label prior; P free rows to spare
@@ -212,9 +219,19 @@ class BlockPool:
 
     def arrays(self) -> Pool:
         """The pool's arrays as the kernels take them (:class:`~onlinemap.kernels.rbpf.Pool`, with
-        ``max_age`` = :data:`REFRESH_STEPS`): views, not copies. O(1)."""
-        return Pool(self.rows, self.stamps, self.row_block, self.refcount, self.free, self.free_top, self.table,
-                    self.cell_block, self.cell_slot, self.block_members, self.powers, self.stamped, REFRESH_STEPS)
+        ``max_age`` = :data:`REFRESH_STEPS`): the arrays themselves, not copies, bundled once. O(1)."""
+        return self._arrays
+
+    @property
+    def nbytes(self) -> int:
+        """The bytes of the pool's arrays."""
+        return sum(getattr(self, f.name).nbytes for f in dataclasses.fields(self)
+                   if isinstance(getattr(self, f.name), np.ndarray))
+
+    @property
+    def free_bytes(self) -> int:
+        """The bytes of the free rows: their marginals, stamps, ``row_block``, ``refcount`` and ``free`` entries."""
+        return int(self.free_top[0]) * (self.rows.strides[0] + self.stamps.strides[0] + 3 * 8)
 
     def refresh(self, t: int) -> None:
         """Bring the next ``ceil(R / REFRESH_STEPS)`` rows up to date (the same values, stamped

@@ -37,13 +37,11 @@ same results). A recovery from depletion weighs N P children
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
+import weakref
 from types import MappingProxyType
-from typing import NamedTuple
 
-import numba
 import numpy as np
 
 from .. import arguments
@@ -51,25 +49,26 @@ from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, ModelError
 from ..label_prior import LEARN
-from ..kernels import rbpf_parallel
 from ..kernels.rbpf import in_place_ancestors
-from ..kernels.rbpf_commit import Slots, Staged, rbpf_keep_children
-from ..kernels.rbpf_enumerate import Children
+from ..kernels.rbpf_commit import Staged, rbpf_keep_children
 from ..model import GridModel
 from ..resampling import RESAMPLERS, effective_sample_size
 from ..rng import SeedLike, as_generator
 from ..validation import check_step
-from .base import BooleanFlag, register
+from .base import BooleanFlag, ParticleSnapshot, draw_labels, register
 from .block_pool import BlockPool, block_layout
-from .rbpf_kernels import KernelSet, kernel_set, observed, world_tables
-from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start
-from .rbpf_move import (MoveCounts, PathHistory, map_rows_per_move, move_options, move_scratch_bytes,
-                        path_rows_per_move)
+from .rbpf_kernels import StepKit, no_moves, observed, scratch_buffers, step_kit, thread_count
+from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start, history_growth
+from .rbpf_move import MoveCounts, PathHistory, move_options
 from .rbpf_prior import learn, prior_options, resolved_prior, retilt
-from .rbpf_recovery import RELOCATION_SCALE, describe, impossible, logsumexp, no_particle_explains, relocate
+from .rbpf_recovery import describe, impossible, logsumexp, no_particle_explains, recovery_note, relocate
 from .rbpf_state import check_state, upgrade_attributes
 
 logger = logging.getLogger(__name__)
+
+#: each filter's :class:`~onlinemap.estimators.rbpf_kernels.StepKit`, built on its first step and
+#: kept while it lives: beside the filter, not in it (not state: a checkpoint stores ``vars(est)``)
+_KITS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 PROPOSALS = ("optimal", "transition")
 FEARNHEAD_CLIFFORD = "fearnhead_clifford"
@@ -113,21 +112,17 @@ class RaoBlackwellisedPF:
     raise ``est.max_bytes`` to continue.
 
     **Recovery from depletion.** When no particle explains an observation the model allows, the
-    step does not raise. A sampling step whose draws all miss first enumerates the particles'
-    successors as Fearnhead-Clifford does; when those all have weight zero too (with
-    Fearnhead-Clifford, when its enumeration is empty) the filter *recovers*: it takes the exact
-    limit of a model in which the robot may be lifted and put down near its last cell, and a cell
-    it then reads redrawn from its model marginal (:mod:`onlinemap.estimators.rbpf_recovery`, the
-    math and the cost; ``RELOCATION_SCALE`` = 3 cells). The step's belief has ``recovered=True``,
-    :attr:`recoveries` counts such steps (checkpointed), and a warning on the logger
-    ``onlinemap.estimators.rbpf`` names the step and what was done. Only an observation nothing
-    explains even so (step 0, where there is no motion; or no cell of the grid, with labels the
-    model allows at step t, sees it) raises :class:`ImpossibleObservationError`, the state
-    unchanged. Steps that do not deplete take the same numbers and random draws as a filter
-    without recovery. Setting the attribute ``recover_from_depletion = False`` (checkpointed with
-    the state) makes a depleted step raise :class:`ImpossibleObservationError` instead, the state
-    unchanged: for hypothetical steps (a planner enumerating observations gives those the
-    particles rule out probability zero) or to stop a run rather than relocate.
+    step does not raise. A sampling step whose draws all miss first enumerates the successors as
+    Fearnhead-Clifford does; when those all have weight zero too the filter *recovers*: the exact
+    limit of a model in which the robot may be lifted and put down near its last cell, a cell it
+    then reads redrawn from its model marginal (:mod:`onlinemap.estimators.rbpf_recovery`, the
+    math and the cost). The belief has ``recovered=True``, :attr:`recoveries` counts such steps
+    (checkpointed), and the logger ``onlinemap.estimators.rbpf`` warns. Only an observation
+    nothing explains even so (step 0, or no cell of the grid sees it) raises
+    :class:`ImpossibleObservationError`, the state unchanged. Steps that do not deplete are those
+    of a filter without recovery. ``recover_from_depletion = False`` (checkpointed) makes a
+    depleted step raise instead, the state unchanged: for hypothetical steps (a planner
+    enumerating observations) or to stop a run rather than relocate.
 
     **Resample-move** (``move_window``, ``move_every``, ``move_lag``; off by default, Gilks and
     Berzuini 2001; the math in :mod:`onlinemap.estimators.rbpf_move`). With ``move_window`` = W
@@ -170,11 +165,11 @@ class RaoBlackwellisedPF:
                       "_blocks.stamped", "_blocks.cell_block", "_blocks.cell_slot", "_blocks.block_members",
                       "_blocks.powers")
 
-    #: per-step buffers (:meth:`_fc_buffers`, :meth:`_staged_buffers`), overwritten by every step
-    #: before being read: not state (a checkpoint records their dtype and shape only)
     #: False: a depleted step raises instead of recovering (see above); a bool, checked when set
     recover_from_depletion = BooleanFlag()
 
+    #: per-step buffers (:func:`~onlinemap.estimators.rbpf_kernels.step_kit` makes their views),
+    #: overwritten by every step before being read: not state (a checkpoint records their dtype and shape only)
     scratch_attributes = ("_scratch_ints", "_scratch_floats", "_scratch_staged_ints", "_scratch_staged_cells")
 
     #: label_prior="learn"'s current label frequencies (K,): an attribute of such a filter only (and
@@ -202,7 +197,7 @@ class RaoBlackwellisedPF:
         if block_cells is not None:
             block_cells = arguments.integer("block_cells", block_cells, minimum=1, maximum=model.n_cells, error=error)
         max_bytes = arguments.byte_limit("max_bytes", max_bytes, error)
-        threads = _thread_count(threads)
+        threads = thread_count(threads)
         move_window, move_every, move_lag = move_options(model, move_window, move_every, move_lag)
         prior = prior_options(model, label_prior, prior_strength, learn_every, move_window)
         check_start(Sizing(model, n_particles, lazy_dynamics, threads, max_bytes), block_cells, move_window)
@@ -229,12 +224,8 @@ class RaoBlackwellisedPF:
         fc = resampling == FEARNHEAD_CLIFFORD
         # the resample-move step's paths (rbpf_move.py); None without it
         self._history = None if move_window is None else PathHistory.new(model, n_particles, exact=fc)
-        self._scratch_ints = np.zeros((5 if fc else 0, 2 * n_particles), dtype=np.int64)
-        self._scratch_floats = np.zeros((3 if fc else 0, 2 * n_particles))
-        staged = n_particles if threads > 1 else 0  # the parallel commit's staging
-        width = cells_written(model)
-        self._scratch_staged_ints = np.zeros(staged * (3 * width + 1), dtype=np.int64)
-        self._scratch_staged_cells = np.zeros((staged, width, model.n_labels))
+        (self._scratch_ints, self._scratch_floats, self._scratch_staged_ints,
+         self._scratch_staged_cells) = scratch_buffers(n_particles, cells_written(model), model.n_labels, fc, threads)
         self._log_evidence = 0.0
         self._ess = float(n_particles)
         self._resampled = False
@@ -253,14 +244,26 @@ class RaoBlackwellisedPF:
     def threads(self) -> int:
         """The number of threads the update and the belief use (the ``threads`` option; with None,
         ``NUMBA_NUM_THREADS``)."""
-        return _thread_count(self.options["threads"])
+        return thread_count(self.options["threads"])
 
     @property
     def _parallel(self) -> bool:
-        """Whether a step runs the parallel kernels: with threads, and more particles than one
-        chunk (:data:`~onlinemap.kernels.rbpf_parallel.CHUNK`; fewer would run on one thread
-        anyway, the same results at the threads' overhead)."""
-        return self.threads > 1 and self.n_particles > rbpf_parallel.CHUNK
+        """Whether a step runs the parallel kernels (:meth:`StepKit.kernels
+        <onlinemap.estimators.rbpf_kernels.StepKit.kernels>`)."""
+        return self._kit.kernels().threads > 1
+
+    @property
+    def _kit(self) -> StepKit:
+        """The filter's :class:`~onlinemap.estimators.rbpf_kernels.StepKit`: its kernels, the
+        model's tables and views of its scratch buffers, built on first use and kept beside the
+        filter (``_KITS``). A checkpoint's load keeps the filter's own scratch buffers, so the kit
+        stays valid."""
+        kit = _KITS.get(self)
+        if kit is None:
+            kit = _KITS[self] = step_kit(self.model, self.n_particles, cells_written(self.model), self.threads,
+                                         (self._scratch_ints, self._scratch_floats, self._scratch_staged_ints,
+                                          self._scratch_staged_cells))
+        return kit
 
     @property
     def max_bytes(self) -> int | float:
@@ -338,7 +341,7 @@ class RaoBlackwellisedPF:
             weights = self._weights / self._weights.sum()
             location = np.bincount(self._locations, weights=weights, minlength=self.model.n_cells)
             location /= location.sum()  # rounding: keep every probability <= 1
-            maps = self._blocks.mixture(self._t, weights, self.threads if self._parallel else 1)
+            maps = self._blocks.mixture(self._t, weights, self._kit.kernels().threads)
             maps /= maps.sum(axis=1, keepdims=True)
             live = self._locations[self._weights > 0]
             distinct = int(np.count_nonzero(np.bincount(live, minlength=self.model.n_cells)))
@@ -358,27 +361,30 @@ class RaoBlackwellisedPF:
             which = indices.astype(np.int64)
         return self._blocks.particle_maps(max(self._t, 0), which)
 
+    def array_bytes(self) -> tuple[int, int]:
+        """(allocated, in use): the bytes of every array the filter holds, its block pool's
+        included, and the same without the pool's free rows (:attr:`BlockPool.free_bytes`). O(1)."""
+        allocated = sum(value.nbytes for value in vars(self).values() if isinstance(value, np.ndarray))
+        allocated += self._blocks.nbytes
+        return allocated, allocated - self._blocks.free_bytes
+
     def step(self, action, observation) -> Belief:
         """``update`` then ``belief``."""
         self.update(action, observation)
         return self.belief
 
     def update(self, action, observation) -> None:
-        """Advance the particles by one action (None at step 0) and observation: resample first if
-        due, then propose, weight and update each particle's observed cells; on depletion, recover
-        (:meth:`_recover`). An observation nothing explains (:class:`ImpossibleObservationError`)
-        or a step beyond ``max_bytes`` (:class:`~onlinemap.errors.MemoryLimitError`) leaves
-        everything (particles, weights, random generator) as it was. With ``move_window``, the step
-        is then recorded in the path history and, when due, followed by the resample-move step."""
+        """Advance the particles by one action (None at step 0) and observation: resample if due,
+        propose, weight, update each particle's observed cells; on depletion, recover
+        (:meth:`_recover`); with ``move_window``, record the step and move when due. An observation
+        nothing explains (:class:`ImpossibleObservationError`) or a step beyond ``max_bytes``
+        (:class:`~onlinemap.errors.MemoryLimitError`) leaves everything as it was."""
         self.update_with_ancestors(action, observation)
 
     def update_with_ancestors(self, action, observation) -> np.ndarray:
-        """:meth:`update`, returning the step's genealogy: (P,) int64, ``ancestors[p]`` the index
-        (into :attr:`particles` before the step) of the particle slot p descends from (its parent,
-        or the particle relocated into it by a recovery from depletion). Following them back from
-        the last step gives each particle's path (:func:`onlinemap.hindsight.smoothed_rbpf_map`);
-        with ``move_window`` a move may then redraw the paths' past, which the genealogy does not
-        show. O(P) on top of the update."""
+        """:meth:`update`, returning the genealogy (P,): ``ancestors[p]``, the slot (before the
+        step) particle p descends from (parent, or relocated by a recovery); traced back, the paths
+        (:func:`onlinemap.hindsight.smoothed_rbpf_map`; a ``move_window`` move redraws them unseen)."""
         a, z = check_step(self.model, self._t + 1, action, observation)
         t = self._t + 1
         if self.resampling == FEARNHEAD_CLIFFORD:
@@ -395,26 +401,25 @@ class RaoBlackwellisedPF:
         if frequencies is not None and t % (self.options["learn_every"] or 1) == 0:
             alpha = resolved_prior(self.model, self.options).alpha
             self._label_frequencies = learn(self._blocks, self.model, t, self._weights / self._weights.sum(),
-                                            frequencies, alpha, self.threads if self._parallel else 1)
+                                            frequencies, alpha, self._kit.kernels().threads)
         return ancestors
 
     def _update_sampling(self, a: int | None, z, t: int) -> np.ndarray:
         """:meth:`update` with a sampling scheme (``a``, ``z`` checked): resample if due, propose,
         weight, commit; when every draw missed, :meth:`_update_fearnhead_clifford` instead."""
-        model = self.model
-        blocks = self._step_pool(t, a)
+        model, kit, threshold = self.model, self._kit, self.resample_threshold
+        blocks = self._step_pool(t, a, kit)
         rng_state = self._rng.bit_generator.state
-        n_particles = self.n_particles
+        n_particles = kit.n_particles
         log_weights = self._log_weights
         ancestors = np.arange(n_particles)
-        resample = a is not None and (self.resample_threshold >= 1.0 or
-                                      self._ess < self.resample_threshold * n_particles)
+        resample = a is not None and (threshold >= 1.0 or self._ess < threshold * n_particles)
         if resample:
             chosen = RESAMPLERS[self.resampling](self._weights, self._rng)
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
             log_weights = np.full(n_particles, -math.log(n_particles))
-        staged, log_increments = self._kernels.propose(self._locations, blocks.arrays(), world_tables(model), t,
-                                                       ancestors, self._neighbors(a), observed(model, z),
+        staged, log_increments = kit.kernels().propose(self._locations, blocks.arrays(), kit.world, t, ancestors,
+                                                       self._neighbors(a), observed(model, z),
                                                        self.proposal == "optimal", self._rng.random(n_particles))
         log_weights = log_weights + log_increments
         increment = logsumexp(log_weights)
@@ -424,59 +429,33 @@ class RaoBlackwellisedPF:
                         "step enumerates the particles' successors instead (as Fearnhead-Clifford does)", t,
                         describe(model, z))
             return self._update_fearnhead_clifford(a, z, t)
-        return self._commit(t, blocks, ancestors, staged, log_weights - increment, increment, resample)
+        return self._commit(kit, t, blocks, ancestors, staged, log_weights - increment, increment, resample)
 
-    @property
-    def _kernels(self) -> KernelSet:
-        """The filter's kernel set (:func:`~onlinemap.estimators.rbpf_kernels.kernel_set`): fixed by
-        the model and the options (looked up, not stored: a checkpoint holds state, not code)."""
-        return kernel_set(self.model.is_paper_model, self.threads if self._parallel else 1)
-
-    def _step_pool(self, t: int, a: int | None) -> BlockPool:
+    def _step_pool(self, t: int, a: int | None, kit: StepKit) -> BlockPool:
         """The pool step t writes into: :meth:`_reserved`, advanced by C in a dynamic world with
         eager dynamics (every cell of every block row, a fresh array)."""
-        blocks = self._reserved(t)
+        blocks = self._reserved(t, kit.width * kit.n_particles)
         if a is not None and not self.model.is_static and not self.lazy_dynamics:
             blocks = blocks.with_rows(blocks.rows @ self.model.change)
         return blocks
 
     def _neighbors(self, a: int | None) -> np.ndarray:
         """(N,) the cell action ``a`` points at from each cell (every cell itself at step 0)."""
-        return _no_moves(self.model.n_cells) if a is None else self.model.moves[a]
+        return no_moves(self.model.n_cells) if a is None else self.model.moves[a]
 
-    def _reserved(self, t: int) -> BlockPool:
-        """The pool with the free rows a step writes (:meth:`BlockPool.reserved`: this filter's, or a
-        grown copy), after checking that growing it keeps the filter within ``max_bytes``
-        (:class:`~onlinemap.errors.MemoryLimitError` otherwise, nothing changed). With a path
-        history (``move_window``) the check counts its growth for the step and, on a step that may
-        move (:meth:`PathHistory.move_due`, whether the filter is still exact aside), the move's
-        worst case: P times :func:`map_rows_per_move` more map rows and
-        :func:`path_rows_per_move` more history rows (the pools grow by doubling as the move
-        needs, never beyond that). O(1)."""
-        pool, model, p = self._blocks, self.model, self.n_particles
-        need = cells_written(model) * p
-        extra, history_bytes, history_grows = 0, None, False
-        if self._history is not None:
-            window = self.move_window
-            moving = self._history.move_due(t, window, self.move_every, self.move_lag, exact=False)
-            extra = p * map_rows_per_move(model, window, pool.table.shape[1]) if moving else 0
-            history_bytes, history_grows = self._history.bytes_to_hold(
-                t, p * (1 + (path_rows_per_move(window) if moving else 0)))
-            if moving:  # the move allocates its scratch after the step is taken: counted, and checked, before
-                history_bytes, history_grows = history_bytes + move_scratch_bytes(model, window), True
-        check_growth(self._sizing, pool, t, pool.rows_to_hold(need + extra), history_bytes, history_grows)
+    def _reserved(self, t: int, need: int) -> BlockPool:
+        """The pool with ``need`` free rows, those a step writes (:meth:`BlockPool.reserved`: this
+        filter's, or a grown copy), after checking that growing it, and the path history's growth
+        with ``move_window`` (:func:`~onlinemap.estimators.rbpf_memory.history_growth`), keep the
+        filter within ``max_bytes`` (:class:`~onlinemap.errors.MemoryLimitError` otherwise,
+        nothing changed). O(1)."""
+        pool, history = self._blocks, self._history
+        extra, history_bytes, history_grows = (0, None, False) if history is None else history_growth(
+            self.model, history, pool, t, self.n_particles, self.move_window, self.move_every, self.move_lag)
+        rows = pool.rows_to_hold(need + extra)
+        if rows > len(pool.rows) or history_grows:
+            check_growth(self._sizing, pool, t, rows, history_bytes, history_grows)
         return pool.reserved(need)
-
-    def _fc_buffers(self) -> _FCBuffers:
-        """Views of the filter's scratch buffers for one Fearnhead-Clifford step (2P children, P
-        slots); every step writes them before reading them. A sampling scheme owns none: it
-        enumerates only when every draw missed (:meth:`update`), into fresh arrays."""
-        ints, floats, p = self._scratch_ints, self._scratch_floats, self.n_particles
-        if not len(ints):
-            ints, floats = np.empty((5, 2 * p), dtype=np.int64), np.empty((3, 2 * p))
-        children = Children(ints[0], ints[1], floats[0], *_no_cells(cells_written(self.model), self.model.n_labels))
-        return _FCBuffers(children, floats[1], ints[2], ints[3, :p], floats[2, :p],
-                          Slots(ints[3, p:], ints[4, :p], floats[2, p:]))
 
     def _update_fearnhead_clifford(self, a: int | None, z, t: int) -> np.ndarray:
         """Enumerate every live particle's successors with their exact weights (the kernel set's
@@ -486,12 +465,14 @@ class RaoBlackwellisedPF:
         1.6-2x closer to exact than index order) and write them into the slots, each kept child's
         changed cells computed from its parent's map as the enumeration defines them (the kernel
         set's ``commit_children``). O(P K^2 + N) (O(P F K^2) with a footprint of F cells); the
-        resampling is O(P). Works in the filter's scratch buffers: no per-step allocation of size P."""
-        model, kernels = self.model, self._kernels
-        blocks = self._step_pool(t, a)
-        pool, world = blocks.arrays(), world_tables(model)
+        resampling is O(P). Works in the filter's scratch buffers (a sampling scheme, which
+        enumerates only when every draw missed, in fresh ones): no per-step allocation of size P."""
+        model, kit = self.model, self._kit
+        kernels = kit.kernels()
+        blocks = self._step_pool(t, a, kit)
+        pool, world = blocks.arrays(), kit.world
         neighbors, observation = self._neighbors(a), observed(model, z)
-        buffers = self._fc_buffers()
+        buffers = kit.fc_buffers(model.n_labels)
         children, slots = buffers.children, buffers.slots
         m = kernels.enumerate(self._locations, self._log_weights, pool, world, t, neighbors, observation, children)
         if m == 0:  # depletion
@@ -503,7 +484,7 @@ class RaoBlackwellisedPF:
                                        buffers.order, buffers.kept, buffers.kept_weights, slots.ancestors,
                                        slots.slot_child, slots.log_weights)
         kernels.commit_children(self._locations, pool, world, t, slots, children.location, neighbors, observation,
-                                self._staged_buffers())
+                                kit.staged)
         blocks.refresh(t)
         return self._advance(t, blocks, slots.ancestors, slots.log_weights, logsumexp(slots.log_weights,
                                                                                 buffers.kept_weights),
@@ -532,14 +513,10 @@ class RaoBlackwellisedPF:
         if relocation is None:
             raise ImpossibleObservationError(impossible(model, z, t, n_particles))
         parents = int(np.count_nonzero(self._weights))
-        ancestors = self._commit(t, blocks, relocation.ancestors, relocation.staged, relocation.log_weights,
+        ancestors = self._commit(self._kit, t, blocks, relocation.ancestors, relocation.staged, relocation.log_weights,
                                  relocation.increment, relocation.resampled, recovered=True)
         self._recoveries += 1
-        logger.warning("rbpf step %d: no particle explains observation %s (particle depletion); recovered by "
-                       "relocating the %d live particles near their last cells (kernel exp(-d / %g), d in moves)%s; "
-                       "%d children kept (recovery %d of this filter)", t, describe(model, z), parents,
-                       RELOCATION_SCALE, f" and resetting {relocation.resets} read cell(s) to their prior"
-                       if relocation.resets else "", relocation.kept, self._recoveries)
+        logger.warning(recovery_note(model, z, t, parents, relocation, self._recoveries))
         return ancestors
 
     @property
@@ -547,27 +524,16 @@ class RaoBlackwellisedPF:
         """What the memory guard needs of this filter (:mod:`~onlinemap.estimators.rbpf_memory`)."""
         return Sizing(self.model, self.n_particles, self.lazy_dynamics, self.threads, self.max_bytes)
 
-    def _staged_buffers(self) -> Staged | None:
-        """The threads' staging of a step's writes (:class:`~onlinemap.kernels.rbpf_commit.Staged`:
-        views of the filter's scratch buffers, P slots of W cells), None without threads."""
-        p, width = self.n_particles, cells_written(self.model)
-        ints = self._scratch_staged_ints
-        if not len(ints):
-            return None
-        new_ids, target, source = (ints[i * p * width:(i + 1) * p * width].reshape(p, width) for i in range(3))
-        return Staged(ints[3 * p * width:], new_ids, self._scratch_staged_cells, target, source)
-
-    def _commit(self, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, increment, resampled,
+    def _commit(self, kit: StepKit, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, increment, resampled,
                 recovered: bool = False) -> np.ndarray:
         """Write a validated step whose changed cells are given (the sampling schemes; a recovery's
         children, :func:`~onlinemap.estimators.rbpf_recovery.relocate`): the particles' slots and
         maps into ``blocks`` (the kernel set's ``commit``; with threads, planned in the staging
         buffers' ``target`` and ``source``), then :meth:`_advance`; ``recovered``: the step
-        recovered from depletion."""
-        plan = self._staged_buffers()
-        if plan is not None:
-            staged = staged._replace(target=plan.target, source=plan.source)
-        self._kernels.commit(self._locations, blocks.arrays(), t, ancestors, staged)
+        recovered from depletion; ``kit``: the filter's."""
+        if kit.staged is not None:
+            staged = staged._replace(target=kit.staged.target, source=kit.staged.source)
+        kit.kernels().commit(self._locations, blocks.arrays(), t, ancestors, staged)
         blocks.refresh(t)
         return self._advance(t, blocks, ancestors, log_weights, 0.0, increment, resampled, recovered)
 
@@ -580,13 +546,14 @@ class RaoBlackwellisedPF:
         location (:meth:`PathHistory.record_paths`; :meth:`_reserved` checked the memory). Returns a
         copy of ``ancestors``."""
         self._blocks = blocks
+        n_particles = len(ancestors)
         if self._history is not None:
-            self._history = self._history.reserved(t, self.n_particles)
+            self._history = self._history.reserved(t, n_particles)
             self._history.record_paths(t, ancestors, self._locations, resampled, recovered)
         np.subtract(log_weights, normaliser, out=self._log_weights)
         self._log_evidence += increment
         np.exp(self._log_weights, out=self._weights)
-        self._ess = min(float(self.n_particles), effective_sample_size(self._weights))  # rounding: <= P
+        self._ess = min(float(n_particles), effective_sample_size(self._weights))  # rounding: <= P
         self._resampled = resampled
         self._recovered = recovered
         self._t = t
@@ -597,8 +564,6 @@ class RaoBlackwellisedPF:
         """``size`` states drawn from the belief: a particle by weight (one ``rng.choice``), then each
         cell's label from that particle's map marginals (:func:`~onlinemap.estimators.base.draw_labels`).
         Locations (S,) and label maps (S, N), int64. O(P + S N K^2)."""
-        from .base import draw_labels
-
         weights = np.exp(self._log_weights)
         chosen = rng.choice(len(weights), size=size, p=weights / weights.sum())
         return self._locations[chosen], draw_labels(self.particle_maps(chosen), rng)
@@ -608,8 +573,6 @@ class RaoBlackwellisedPF:
         of them, weights kept, if ``size`` is None or not below P; else ``size`` of them drawn by
         weight (systematic sampling: one uniform of ``rng``) and equally weighted. Reads
         :meth:`particle_maps` of the kept particles only: O(P + M N K^2) for M kept."""
-        from .base import ParticleSnapshot
-
         log_weights = self._log_weights
         if size is None or size >= len(log_weights):
             return ParticleSnapshot(self._locations.copy(), self.particle_maps(), log_weights.copy())
@@ -618,19 +581,6 @@ class RaoBlackwellisedPF:
         positions = (rng.random() + np.arange(size)) / size
         chosen = np.minimum(np.searchsorted(cdf, positions, side="right"), len(weights) - 1)
         return ParticleSnapshot(self._locations[chosen], self.particle_maps(chosen), np.full(size, -math.log(size)))
-
-
-class _FCBuffers(NamedTuple):
-    """One Fearnhead-Clifford step's working arrays (views of the filter's scratch buffers): the
-    children (2P), their weights (2P,), the order their strata walk, the kept children and their
-    weights (P,), and the slots (P,)."""
-
-    children: Children
-    child_weight: np.ndarray
-    order: np.ndarray
-    kept: np.ndarray
-    kept_weights: np.ndarray
-    slots: Slots
 
 
 def _scheme(proposal, resampling) -> tuple[str, str]:
@@ -647,28 +597,3 @@ def _scheme(proposal, resampling) -> tuple[str, str]:
                     f"'{FEARNHEAD_CLIFFORD}' enumerates them all (the optimal proposal's weights): pass "
                     f"resampling='residual' (or another sampling scheme) to use it")
     return proposal, resampling
-
-
-def _thread_count(threads) -> int:
-    """The ``threads`` option as a count, 1 to ``NUMBA_NUM_THREADS`` (None: all of them)."""
-    most = numba.config.NUMBA_NUM_THREADS
-    if threads is None:
-        return most
-    if type(threads) is int and 1 <= threads <= most:  # a valid count, as checked below (read 3 times a step)
-        return threads
-    return arguments.integer(f"threads (at most NUMBA_NUM_THREADS={most}: the cores numba counts, or that "
-                             "environment variable set before numba starts)", threads, minimum=1, maximum=most,
-                             error=InvalidOptionError)
-
-
-@functools.cache
-def _no_cells(width: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Empty (log motion, ids (0, W), cells (0, W, K)) of :class:`~onlinemap.kernels.rbpf_enumerate.Children`
-    that store no child's cells (never written: 0 rows), made once per shape."""
-    return np.empty(0), np.empty((0, width), dtype=np.int64), np.empty((0, width, k))
-
-
-def _no_moves(n: int) -> np.ndarray:
-    """Read-only ``arange(n)`` (every cell stays): the same numba type as a row of ``model.moves``,
-    so rbpf_propose is compiled once."""
-    return read_only(np.arange(n))

@@ -18,12 +18,17 @@ import dataclasses
 import functools
 import weakref
 from collections.abc import Callable
+from typing import NamedTuple
 
+import numba
 import numpy as np
 
+from .. import arguments
+from ..arrays import read_only
+from ..errors import InvalidOptionError
 from ..kernels import rbpf_parallel
-from ..kernels.rbpf import World
-from ..kernels.rbpf_commit import (Staged, rbpf_commit_cells, rbpf_commit_children, rbpf_commit_children_cells,
+from ..kernels.rbpf import Pool, World
+from ..kernels.rbpf_commit import (Slots, Staged, rbpf_commit_cells, rbpf_commit_children, rbpf_commit_children_cells,
                                    rbpf_pick_children)
 from ..kernels.rbpf_enumerate import Children, Proposed, rbpf_enumerate, rbpf_enumerate_cells, rbpf_propose
 from ..model import GridModel
@@ -84,8 +89,7 @@ def kernel_set(paper: bool, threads: int) -> KernelSet:
     enumerate_ = functools.partial(_in_chunks, rbpf_parallel.rbpf_enumerate_parallel if paper else
                                    rbpf_parallel.rbpf_enumerate_cells_parallel, threads)
     stage = _stage_one_cell if paper else rbpf_parallel.rbpf_stage_children_cells_parallel
-    propose = functools.partial(_propose_one_cell, functools.partial(
-        _in_chunks, rbpf_parallel.rbpf_propose_parallel, threads)) if paper else \
+    propose = functools.partial(_propose_one_cell, functools.partial(_propose_in_threads, threads)) if paper else \
         functools.partial(_propose_by_enumeration, enumerate_)
     return KernelSet(enumerate_, functools.partial(_commit_children_in_threads, stage, threads),
                      functools.partial(_commit_in_threads, threads), propose, threads)
@@ -93,14 +97,25 @@ def kernel_set(paper: bool, threads: int) -> KernelSet:
 
 def _propose_one_cell(run: Callable, locations, pool, world, t, ancestors, neighbors, likelihood, optimal,
                       uniforms) -> tuple[Staged, np.ndarray]:
-    """The paper's model's proposal (``run``: ``rbpf_propose`` or its threaded driver) into fresh
-    arrays, its writes as :class:`~onlinemap.kernels.rbpf_commit.Staged` (one cell each). O(P K^2)."""
+    """The paper's model's proposal (``run``: ``rbpf_propose`` or :func:`_propose_in_threads`, in
+    the signature of the first) into fresh arrays, its writes as
+    :class:`~onlinemap.kernels.rbpf_commit.Staged` (one cell each). O(P K^2)."""
     n_particles, k = len(ancestors), pool.rows.shape[2]
     proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, k)), np.empty(n_particles))
-    run(locations, pool, world.p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed)
+    run(locations, world.p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, *proposed, *pool)
     staged = Staged(proposed.locations, proposed.locations.reshape(n_particles, 1),
                     proposed.cells.reshape(n_particles, 1, k), None, None)
     return staged, proposed.log_increments
+
+
+def _propose_in_threads(threads: int, locations, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms,
+                        *fields) -> None:
+    """:func:`~onlinemap.kernels.rbpf_parallel.rbpf_propose_parallel` in the signature of
+    ``rbpf_propose`` (``*fields``: the :class:`Proposed` arrays, then the pool's fields), in chunks
+    of the current :data:`~onlinemap.kernels.rbpf_parallel.CHUNK`."""
+    proposed, pool = Proposed(*fields[:3]), Pool(*fields[3:])
+    rbpf_parallel.rbpf_propose_parallel(locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms,
+                                        proposed, rbpf_parallel.CHUNK, threads)
 
 
 def _propose_by_enumeration(enumerate_: Callable, locations, pool, world, t, ancestors, neighbors, readings, optimal,
@@ -116,7 +131,7 @@ def _propose_by_enumeration(enumerate_: Callable, locations, pool, world, t, anc
     proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, width, k)),
                         np.empty(n_particles))
     new_ids = np.empty((n_particles, width), dtype=np.int64)
-    rbpf_pick_children(ancestors, children, m, optimal, uniforms, proposed, new_ids)
+    rbpf_pick_children(ancestors, m, optimal, uniforms, new_ids, *children, *proposed)
     return Staged(proposed.locations, new_ids, proposed.cells, None, None), proposed.log_increments
 
 
@@ -127,7 +142,7 @@ def _commit_children_one_cell(locations, pool, world, t, slots, child_location, 
 
 def _commit_children_cells(locations, pool, world, t, slots, child_location, neighbors, readings, staged) -> None:
     """``rbpf_commit_children_cells`` in the :class:`KernelSet` signature."""
-    rbpf_commit_children_cells(locations, pool, world, t, slots, child_location, neighbors, readings)
+    rbpf_commit_children_cells(locations, t, child_location, neighbors, readings, *slots, *world, *pool)
 
 
 def _commit(locations, pool, t, ancestors, staged: Staged) -> None:
@@ -160,3 +175,114 @@ def _commit_children_in_threads(stage: Callable, threads: int, locations, pool, 
     chunk = rbpf_parallel.CHUNK
     stage(locations, pool, world, t, slots, child_location, neighbors, observation, staged, chunk, threads)
     rbpf_parallel.rbpf_commit_staged_parallel(locations, pool, t, slots.ancestors, staged, chunk, threads)
+
+
+class FCBuffers(NamedTuple):
+    """One Fearnhead-Clifford step's working arrays (views of the filter's scratch buffers): the
+    children (2P), their weights (2P,), the order their strata walk, the kept children and their
+    weights (P,), and the slots (P,)."""
+
+    children: Children
+    child_weight: np.ndarray
+    order: np.ndarray
+    kept: np.ndarray
+    kept_weights: np.ndarray
+    slots: Slots
+
+
+def fc_buffers(ints: np.ndarray, floats: np.ndarray, n_particles: int, width: int, n_labels: int) -> FCBuffers:
+    """Views of scratch buffers ``ints`` (5, 2P) int64 and ``floats`` (3, 2P) as
+    :class:`FCBuffers`; the children store no cells (W = ``width`` cells of K = ``n_labels``). O(1)."""
+    p = n_particles
+    children = Children(ints[0], ints[1], floats[0], *_no_cells(width, n_labels))
+    return FCBuffers(children, floats[1], ints[2], ints[3, :p], floats[2, :p],
+                     Slots(ints[3, p:], ints[4, :p], floats[2, p:]))
+
+
+def staged_buffers(ints: np.ndarray, cells: np.ndarray, n_particles: int, width: int) -> Staged | None:
+    """The threads' staging of a step's writes (P slots of W = ``width`` cells): views of scratch
+    buffers ``ints`` (P (3 W + 1),) int64 and ``cells`` (P, W, K); None when they are empty (no
+    threads). O(1)."""
+    p = n_particles
+    if not len(ints):
+        return None
+    new_ids, target, source = (ints[i * p * width:(i + 1) * p * width].reshape(p, width) for i in range(3))
+    return Staged(ints[3 * p * width:], new_ids, cells, target, source)
+
+
+class StepKit(NamedTuple):
+    """What every step of one filter reads and no step changes, built once per filter
+    (:func:`step_kit`): P, W (the cells a particle's step writes), the threads, the model's
+    :class:`~onlinemap.kernels.rbpf.World`, the serial and the threaded :class:`KernelSet`, the
+    Fearnhead-Clifford buffers (None for the sampling schemes) and the threads' staging (None on
+    one thread). A step then reads its arrays and kernels here: no per-step lookups of options
+    or rebuilt bundles (each some microseconds, which a step of a few hundred particles pays
+    in full)."""
+
+    n_particles: int
+    width: int
+    threads: int
+    world: World
+    serial: KernelSet
+    threaded: KernelSet
+    fc: FCBuffers | None
+    staged: Staged | None
+
+    def fc_buffers(self, n_labels: int) -> FCBuffers:
+        """Fearnhead-Clifford's buffers: the filter's or, for a sampling scheme's step that
+        enumerates (every draw missed), fresh arrays (such a filter keeps none)."""
+        if self.fc is not None:
+            return self.fc
+        p = self.n_particles
+        return fc_buffers(np.empty((5, 2 * p), dtype=np.int64), np.empty((3, 2 * p)), p, self.width, n_labels)
+
+    def kernels(self) -> KernelSet:
+        """The kernel set a step runs: the threaded one with threads and more particles than one
+        chunk (the current :data:`~onlinemap.kernels.rbpf_parallel.CHUNK`: fewer would run on one
+        thread anyway, the same results at the threads' overhead), else the serial one."""
+        return self.threaded if self.threads > 1 and self.n_particles > rbpf_parallel.CHUNK else self.serial
+
+
+def scratch_buffers(n_particles: int, width: int, n_labels: int, fc: bool, threads: int) -> tuple[np.ndarray, ...]:
+    """A filter's four scratch buffers, zeroed: ``ints`` (5, 2P) and ``floats`` (3, 2P) of
+    :func:`fc_buffers` (0 rows without Fearnhead-Clifford, ``fc``), and the staging's ``ints``
+    (P (3 W + 1),) and ``cells`` (P, W, K) of :func:`staged_buffers` (empty on one thread)."""
+    staged = n_particles if threads > 1 else 0
+    return (np.zeros((5 if fc else 0, 2 * n_particles), dtype=np.int64), np.zeros((3 if fc else 0, 2 * n_particles)),
+            np.zeros(staged * (3 * width + 1), dtype=np.int64), np.zeros((staged, width, n_labels)))
+
+
+def step_kit(model: GridModel, n_particles: int, width: int, threads: int, scratch: tuple[np.ndarray, ...]) -> StepKit:
+    """A filter's :class:`StepKit` from its model, P, W, threads and its four scratch buffers
+    (``ints``, ``floats`` of :func:`fc_buffers`, empty for a sampling scheme; the staging's ``ints``
+    and ``cells`` of :func:`staged_buffers`). O(1)."""
+    ints, floats, staged_ints, staged_cells = scratch
+    paper = model.is_paper_model
+    fc = fc_buffers(ints, floats, n_particles, width, model.n_labels) if len(ints) else None
+    return StepKit(n_particles, width, threads, world_tables(model), kernel_set(paper, 1), kernel_set(paper, threads),
+                   fc, staged_buffers(staged_ints, staged_cells, n_particles, width))
+
+
+@functools.cache
+def _no_cells(width: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Empty (log motion, ids (0, W), cells (0, W, K)) of :class:`~onlinemap.kernels.rbpf_enumerate.Children`
+    that store no child's cells (never written: 0 rows), made once per shape."""
+    return np.empty(0), np.empty((0, width), dtype=np.int64), np.empty((0, width, k))
+
+
+def thread_count(threads) -> int:
+    """The ``threads`` option as a count, 1 to ``NUMBA_NUM_THREADS`` (None: all of them)."""
+    most = numba.config.NUMBA_NUM_THREADS
+    if threads is None:
+        return most
+    if type(threads) is int and 1 <= threads <= most:  # a valid count, as checked below
+        return threads
+    return arguments.integer(f"threads (at most NUMBA_NUM_THREADS={most}: the cores numba counts, or that "
+                             "environment variable set before numba starts)", threads, minimum=1, maximum=most,
+                             error=InvalidOptionError)
+
+
+def no_moves(n: int) -> np.ndarray:
+    """Read-only ``arange(n)``, the neighbours at step 0 (every cell stays): the same numba type as
+    a row of ``model.moves``, so each kernel is compiled once for both."""
+    return read_only(np.arange(n))

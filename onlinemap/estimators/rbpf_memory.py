@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import MemoryLimitError
 from ..model import GridModel
 from .block_pool import BlockPool, block_shape, pool_bytes
-from .rbpf_move import move_scratch_bytes, new_history_bytes
+from .rbpf_move import PathHistory, map_rows_per_move, move_scratch_bytes, new_history_bytes, path_rows_per_move
 
 
 class Sizing(NamedTuple):
@@ -113,6 +113,25 @@ def check_growth(sizing: Sizing, pool: BlockPool, t: int, rows: int, history_byt
             f"step needs the pool grown from {have} to {rows} rows{paths}, {total / 1e9:.3g} GB in all, "
             f"over max_bytes = {limit / 1e9:.3g} GB. The filter is unchanged: raise est.max_bytes "
             f"to continue, or use fewer particles")
+
+
+def history_growth(model: GridModel, history: PathHistory, pool: BlockPool, t: int, n_particles: int, window: int,
+                   every: int, lag: int) -> tuple[int, int, bool]:
+    """(extra map rows, history bytes, whether the history grows) for step t of a filter with a
+    path history (``move_window`` = ``window``, ``move_every``, ``move_lag``): its growth for the
+    step and, on a step that may move (:meth:`PathHistory.move_due
+    <onlinemap.estimators.rbpf_move.PathHistory.move_due>`, whether the filter is still exact
+    aside), the move's worst case: P times
+    :func:`~onlinemap.estimators.rbpf_move.map_rows_per_move` more map rows,
+    :func:`~onlinemap.estimators.rbpf_move.path_rows_per_move` more history rows (the pools grow
+    by doubling as the move needs, never beyond that) and its scratch, which the move allocates
+    after the step is taken: counted, and checked, before."""
+    moving = history.move_due(t, window, every, lag, exact=False)
+    extra = n_particles * map_rows_per_move(model, window, pool.table.shape[1]) if moving else 0
+    history_bytes, grows = history.bytes_to_hold(t, n_particles * (1 + (path_rows_per_move(window) if moving else 0)))
+    if moving:
+        return extra, history_bytes + move_scratch_bytes(model, window), True
+    return extra, history_bytes, grows
 
 
 def check_recovery(sizing: Sizing, t: int, blocks: BlockPool, own_rows: int, history_bytes: int) -> None:

@@ -70,6 +70,16 @@ def logsumexp(x: np.ndarray, scratch: np.ndarray | None = None) -> float:
     return top + math.log(float(np.exp(terms, out=terms).sum()))
 
 
+def recovery_note(model: GridModel, z, t: int, parents: int, relocation: Relocation, count: int) -> str:
+    """The warning a filter logs for step t, which recovered from depletion (observation ``z``,
+    ``parents`` live particles relocated, ``relocation``: :func:`relocate`'s; recovery ``count`` of
+    the filter)."""
+    resets = f" and resetting {relocation.resets} read cell(s) to their prior" if relocation.resets else ""
+    return (f"rbpf step {t}: no particle explains observation {describe(model, z)} (particle depletion); recovered "
+            f"by relocating the {parents} live particles near their last cells (kernel exp(-d / {RELOCATION_SCALE:g}),"
+            f" d in moves){resets}; {relocation.kept} children kept (recovery {count} of this filter)")
+
+
 def relocate(model: GridModel, pool, locations: np.ndarray, log_weights: np.ndarray, t: int, z,
              rng: np.random.Generator) -> Relocation | None:
     """The recovery of step t from the particles (``locations``, ``log_weights`` (P,), maps

@@ -15,7 +15,7 @@ Particle maps are stored as shared, copy-on-write blocks of B cells, handed to t
   grid, so a robot stays in one block for several steps.
 
 With lazy dynamics the marginal of a cell at step t is ``row @ powers[t - stamp]`` (``powers[d] =
-C^d``, :func:`_carried`). Resampling copies table rows (n_blocks ints per particle that replaces a
+C^d``, :func:`carried`). Resampling copies table rows (n_blocks ints per particle that replaces a
 dropped one) instead of maps; a particle writing into a shared block first copies that one block
 (B K floats). The model's motion and sensor tables travel as one :class:`World`.
 
@@ -26,10 +26,11 @@ The jobs live in their own modules: ``rbpf_enumerate`` (children and proposals),
 Bundles and dispatch: numba types a bundle argument in Python on every call from Python, some 5
 us for a :class:`Pool` against 0.1 us per array typed in C (measured), which a small filter's
 step would pay several times. So the entry points a step calls from Python
-(:func:`rbpf_refresh`, :func:`rbpf_map_mixture`, :func:`particle_maps`, ``rbpf_commit_children``,
-``rbpf_commit_cells``, the enumerations' range kernels) take the pool as its fields, last
-(``*fields``: ``kernel(..., *blocks.arrays())``), and rebuild the bundle (``Pool(*fields)``);
-the order is the NamedTuple's own.
+(:func:`rbpf_refresh`, :func:`rbpf_map_mixture`, :func:`particle_maps`, the commits, the
+proposal, the sampling schemes' pick and the enumerations' range kernels) take their bundles as
+their fields, last (``*fields``: ``kernel(..., *children, *blocks.arrays())``), and rebuild them
+(``Pool(*fields[i:])``); each bundle's fields in its NamedTuple's order, the bundles in the order
+the kernel's docstring names, split at module constants (``len(Children._fields)``...).
 
 Bundles and reference counting: a plain ``njit`` kernel (numba counts references) that passed a
 bundle into inlined helpers in a loop ran 250-800x slower (every field access counted each array
@@ -87,7 +88,7 @@ class World(NamedTuple):
 
 
 @njit(cache=True, inline="always")
-def _age(stamps, dynamic, t, r, j):
+def age(stamps, dynamic, t, r, j):
     """Steps since slot j of block row r was last brought up to date (0 in a static world)."""
     d = 0
     if dynamic:
@@ -96,7 +97,7 @@ def _age(stamps, dynamic, t, r, j):
 
 
 @njit(cache=True, inline="always")
-def _carried(rows, powers, d, r, j, b):
+def carried(rows, powers, d, r, j, b):
     """P(label b) of slot j of block row r carried forward by ``C^d`` (``d`` steps after its
     stamp): ``(row @ C^d)[b]``, the row itself where d = 0.
 
@@ -112,28 +113,28 @@ def _carried(rows, powers, d, r, j, b):
 
 
 @njit(cache=True, inline="always")
-def _evidence(rows, powers, d, r, j, likelihood):
+def evidence(rows, powers, d, r, j, likelihood):
     """``P(z | cell) = sum_b current(b) likelihood[b]`` for slot j of block row r, ``d`` steps
-    after its stamp (:func:`_age`; the callers compute it: an age read inside a looping helper
+    after its stamp (:func:`age`; the callers compute it: an age read inside a looping helper
     defeats the pruning of reference counts)."""
     acc = 0.0
     for b in range(likelihood.shape[0]):
-        acc += _carried(rows, powers, d, r, j, b) * likelihood[b]
+        acc += carried(rows, powers, d, r, j, b) * likelihood[b]
     return acc
 
 
 @njit(cache=True, inline="always")
-def _observed_cell(rows, powers, d, r, j, likelihood, lam, out):
+def observed_cell(rows, powers, d, r, j, likelihood, lam, out):
     """out (K,) <- the posterior of slot j of row r (``d`` steps after its stamp) after seeing a
-    label of likelihood ``likelihood`` (``lam`` = its evidence, from :func:`_evidence`); the prior
+    label of likelihood ``likelihood`` (``lam`` = its evidence, from :func:`evidence`); the prior
     unchanged where ``lam`` is 0."""
     for b in range(likelihood.shape[0]):  # divide (1 / lam overflows for a subnormal lam)
-        current = _carried(rows, powers, d, r, j, b)
+        current = carried(rows, powers, d, r, j, b)
         out[b] = current * likelihood[b] / lam if lam > 0.0 else current
 
 
 @njit(cache=True, inline="always")
-def _prefetch_cell(pool, q, cell):
+def prefetch_cell(pool, q, cell):
     """Ask for particle q's marginal of ``cell`` (and its stamp) ahead of its use (:func:`prefetch`)."""
     r = pool.table[q, pool.cell_block[cell]]
     prefetch(pool.rows, (r, pool.cell_slot[cell], 0))
@@ -142,7 +143,7 @@ def _prefetch_cell(pool, q, cell):
 
 
 @loop_kernel
-def _take_over_slots(shared, ancestors):
+def take_over_slots(shared, ancestors):
     """Slots taken over by a copy (``ancestors[p] != p``; such ancestors keep their own slot, so
     sources are never overwritten) release their rows and share the ancestor's: O(n_blocks) per
     copied particle, reference counts touched only where the two rows differ (a row both share
@@ -174,11 +175,11 @@ def _take_over_slots(shared, ancestors):
 
 
 @njit(cache=True, inline="always")
-def _row_for_write(shared, p, b):
+def row_for_write(shared, p, b):
     """(row, source): the row particle p writes block b into, and the row to copy into it first
     (-1: none). A row p shares (count > 1) is replaced by a free one, which takes over p's
     reference: the bookkeeping of copy-on-write, without touching the rows. ``shared`` as
-    :func:`_take_over_slots`'s, with ``row_block``."""
+    :func:`take_over_slots`'s, with ``row_block``."""
     r = shared.table[p, b]
     source = -1
     if shared.refcount[r] > 1:
@@ -194,7 +195,7 @@ def _row_for_write(shared, p, b):
 
 
 @njit(cache=True, inline="always")
-def _copy_row(pool, t, source, row):
+def copy_row(pool, t, source, row):
     """Block row ``row`` <- a copy of ``source`` (O(B K)); slots older than ``max_age`` steps are
     brought up to date (stamped t), so a copy never extends a row's age."""
     rows, stamps = pool.rows, pool.stamps
@@ -206,13 +207,13 @@ def _copy_row(pool, t, source, row):
             stamps[row, slot] = stamps[source, slot]
             if t - stamps[row, slot] > pool.max_age:
                 for label in range(rows.shape[2]):
-                    rows[row, slot, label] = _carried(rows, pool.powers, t - stamps[source, slot], source, slot,
-                                                      label)
+                    rows[row, slot, label] = carried(rows, pool.powers, t - stamps[source, slot], source, slot,
+                                                     label)
                 stamps[row, slot] = t
 
 
 @njit(cache=True, inline="always")
-def _set_slot(pool, t, row, slot, values):
+def set_slot(pool, t, row, slot, values):
     """Slot ``slot`` of block row ``row`` <- ``values`` (K,), stamped t."""
     for label in range(pool.rows.shape[2]):
         pool.rows[row, slot, label] = values[label]
@@ -221,13 +222,13 @@ def _set_slot(pool, t, row, slot, values):
 
 
 @njit(cache=True, inline="always")
-def _write_cell(pool, t, p, cell, values):
+def write_cell(pool, t, p, cell, values):
     """Particle p's marginal of ``cell`` <- ``values`` (K,), stamped t; the block is first copied if
-    shared (:func:`_row_for_write`, :func:`_copy_row`: O(B K)). Takes a free row when it copies."""
-    r, source = _row_for_write(pool, p, pool.cell_block[cell])
+    shared (:func:`row_for_write`, :func:`copy_row`: O(B K)). Takes a free row when it copies."""
+    r, source = row_for_write(pool, p, pool.cell_block[cell])
     if source >= 0:
-        _copy_row(pool, t, source, r)
-    _set_slot(pool, t, r, pool.cell_slot[cell], values)
+        copy_row(pool, t, source, r)
+    set_slot(pool, t, r, pool.cell_slot[cell], values)
 
 
 @njit(cache=True)
@@ -235,7 +236,7 @@ def rbpf_refresh(t, start, count, *fields):
     """Bring rows ``start, start + 1, ...`` (``count`` of them, cyclically) up to date at step t:
     ``row <- row @ C^(t - stamp)``, stamp ``t``. Same values, bounded ages: called every step
     with ``count = ceil(R / h)``, every row is refreshed at least every h steps; with copies
-    refreshed beyond age h (:func:`_copy_row`), no stamp is older than 2 h + 1 steps, so a table
+    refreshed beyond age h (:func:`copy_row`), no stamp is older than 2 h + 1 steps, so a table
     of powers up to a few h suffices however long the run. O(count B K^2)."""
     pool = Pool(*fields)
     rows, stamps, refcount, powers = pool.rows, pool.stamps, pool.refcount, pool.powers  # locals: module docstring
@@ -250,7 +251,7 @@ def rbpf_refresh(t, start, count, *fields):
             if d == 0:
                 continue
             for b in range(k):
-                tmp[b] = _carried(rows, powers, d, r, j, b)
+                tmp[b] = carried(rows, powers, d, r, j, b)
             for b in range(k):
                 rows[r, j, b] = tmp[b]
             stamps[r, j] = t
@@ -276,21 +277,21 @@ def in_place_ancestors(counts):
 def rbpf_map_mixture(t, weights, out, *fields):
     """out (N, K) <- ``sum_p weights[p] * current marginals of particle p``.
 
-    First the weight of every row (:func:`_row_weights`), O(P n_blocks) at most; then one pass over
+    First the weight of every row (:func:`row_weights`), O(P n_blocks) at most; then one pass over
     the rows in use, in row order, O(R_used B K), with K^2 flops per out-of-date cell in a dynamic
     world (:func:`_mixture`). R_used <= P n_blocks, and much less when particles share blocks.
     """
     pool = Pool(*fields)
     n_blocks = pool.table.shape[1]
     row_weight = np.zeros(pool.rows.shape[0])
-    _row_weights(pool.table, pool.refcount, weights, _sum(weights), row_weight, np.int64(0), n_blocks,  # one compile
-                 np.empty(n_blocks, dtype=np.int64), np.empty(n_blocks, dtype=np.int64), np.empty(n_blocks))
+    row_weights(pool.table, pool.refcount, weights, ordered_sum(weights), row_weight, np.int64(0),  # one compile
+                n_blocks, np.empty(n_blocks, dtype=np.int64), np.empty(n_blocks, dtype=np.int64), np.empty(n_blocks))
     out[:] = 0.0
     _mixture(pool, t, row_weight, out)
 
 
 @loop_kernel
-def _sum(values):
+def ordered_sum(values):
     """``sum(values)``, added in order from 0.0."""
     total = 0.0
     for i in range(values.shape[0]):
@@ -299,11 +300,11 @@ def _sum(values):
 
 
 @thread_kernel
-def _row_weights(table, refcount, weights, total, out, first, last, split, current, acc):
+def row_weights(table, refcount, weights, total, out, first, last, split, current, acc):
     """out[r] <- the weight of every row r holding one of the blocks ``first..last - 1``: the sum
     of ``weights`` (P,) over the particles whose table names it, in increasing particle order
     (``out`` zero on entry; rows nobody names stay 0). A block every particle shares (its row's
-    count is P) gets ``total``, the plain sum (:func:`_sum`); elsewhere a run of particles naming
+    count is P) gets ``total``, the plain sum (:func:`ordered_sum`); elsewhere a run of particles naming
     the same row adds up in a register. The same additions in the same order as
     ``out[table[p, b]] += weights[p]`` over p, then b. ``split``, ``current``, ``acc`` (at least
     ``last - first``,) scratch. O(P n_split + last - first), n_split the blocks the particles do
@@ -342,9 +343,9 @@ def _add_row(pool, t, r, w, out):
     for j in range(members.shape[0]):
         i = members[j]
         if i >= 0:
-            d = _age(pool.stamps, pool.stamped, t, r, j)
+            d = age(pool.stamps, pool.stamped, t, r, j)
             for b in range(out.shape[1]):
-                out[i, b] += w * _carried(pool.rows, pool.powers, d, r, j, b)
+                out[i, b] += w * carried(pool.rows, pool.powers, d, r, j, b)
 
 
 @loop_kernel
@@ -356,7 +357,7 @@ def _mixture(pool, t, row_weight, out):
 
 
 @thread_kernel
-def _mixture_blocks(pool, t, row_weight, first, last, out):
+def mixture_blocks(pool, t, row_weight, first, last, out):
     """:func:`_mixture` of the rows holding blocks ``first..last - 1`` (into those blocks' cells):
     O(R) to scan the rows, plus O(B K) per row of nonzero weight among them."""
     for r in range(pool.rows.shape[0]):
@@ -378,5 +379,5 @@ def particle_maps(t, which, out, *fields):
         for i in range(n_cells):
             r = table[p, cell_block[i]]
             for b in range(k):
-                d = _age(stamps, dynamic, t, r, cell_slot[i])
-                out[m, i, b] = _carried(rows, powers, d, r, cell_slot[i], b)
+                d = age(stamps, dynamic, t, r, cell_slot[i])
+                out[m, i, b] = carried(rows, powers, d, r, cell_slot[i], b)

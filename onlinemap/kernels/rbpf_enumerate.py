@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from . import PREFETCH_AHEAD, loop_kernel, thread_kernel
-from .rbpf import Pool, _age, _carried, _evidence, _observed_cell, _prefetch_cell
+from .rbpf import Pool, World, age, carried, evidence, observed_cell, prefetch_cell
 
 
 class Children(NamedTuple):
@@ -31,7 +31,7 @@ class Children(NamedTuple):
 
 
 class FootprintScratch(NamedTuple):
-    """Scratch of the footprint kernels (:func:`_footprint_child`): ``before``, ``given`` (K,),
+    """Scratch of the footprint kernels (:func:`footprint_child`): ``before``, ``given`` (K,),
     ``lams`` (F,), ``ids`` (W,), ``cells`` (W, K)."""
 
     before: np.ndarray
@@ -39,6 +39,12 @@ class FootprintScratch(NamedTuple):
     lams: np.ndarray
     ids: np.ndarray
     cells: np.ndarray
+
+
+#: where each bundle's fields end in the ``*fields`` of :func:`enumerate_cells_run` (children, scratch, world, pool)
+_CHILDREN_END = len(Children._fields)
+_SCRATCH_END = _CHILDREN_END + len(FootprintScratch._fields)
+_WORLD_END = _SCRATCH_END + len(World._fields)
 
 
 def footprint_scratch(k: int, f: int, width: int) -> FootprintScratch:
@@ -57,7 +63,7 @@ class Proposed(NamedTuple):
 
 
 @njit(cache=True, inline="always")
-def _successor(l, n, p_move, s):
+def successor(l, n, p_move, s):
     """(cell, probability) of successor s in {0, 1} of a robot at ``l`` whose action points at ``n``:
     0 = stay (``1 - p_move``, or 1 where there is no move), 1 = the move (``p_move``; none where
     ``n == l``). The one place the FC enumeration learns the motion model's successors."""
@@ -74,19 +80,19 @@ def _parent(locations, log_weights, neighbors, q):
 
 
 @njit(cache=True, inline="always")
-def _prefetch_footprint(pool, footprint_cells, q, cell):
+def prefetch_footprint(pool, footprint_cells, q, cell):
     """Ask for particle q's marginals of the cells a robot at ``cell`` reads."""
     for f in range(footprint_cells.shape[1]):
         if footprint_cells[cell, f] >= 0:
-            _prefetch_cell(pool, q, footprint_cells[cell, f])
+            prefetch_cell(pool, q, footprint_cells[cell, f])
 
 
 @njit(cache=True, inline="always")
 def _prefetch_parent(locations, pool, neighbors, q):
     """Ask for the two cells particle q reads in a step (its own and the one its action points at)."""
     l = locations[q]
-    _prefetch_cell(pool, q, l)
-    _prefetch_cell(pool, q, neighbors[l])
+    prefetch_cell(pool, q, l)
+    prefetch_cell(pool, q, neighbors[l])
 
 
 @njit(cache=True)
@@ -113,24 +119,26 @@ def rbpf_enumerate(locations: np.ndarray, log_weights: np.ndarray, pool, world, 
     """Every successor of every live particle with its exact log weight; returns their number M.
 
     For parent q at l (``log_weights[q] > -inf``) and each successor j of l with motion probability
-    ``T(l, j) > 0`` (:func:`_successor`; ``neighbors = arange(N)`` at step 0: stay only):
+    ``T(l, j) > 0`` (:func:`successor`; ``neighbors = arange(N)`` at step 0: stay only):
     ``log w_q + log T(l, j) + log P(z | j, map_q)``, ``likelihood (K,)`` the reading's. Children
     with probability zero are left out. Writes the first M entries of ``children``'s parent,
     location and log weight, grouped by parent in increasing order. A child's observed cell (the
     posterior of cell j given z) is not stored: ``rbpf_commit_children`` computes it for the
-    children kept. O(P K^2). (A Python function: its kernel, :func:`_enumerate` on every parent, is
+    children kept. O(P K^2). (A Python function: its kernel, :func:`enumerate_run` on every parent, is
     the one the threads run on runs of parents, compiled once for both.)"""
-    return _enumerate(locations, log_weights, world.p_move, t, neighbors, likelihood, children, 0, len(locations), 0,
-                      np.empty(1), *pool)
+    return enumerate_run(locations, log_weights, world.p_move, t, neighbors, likelihood, 0, len(locations), 0,
+                         np.empty(1), *children[:3], *pool)
 
 
 @thread_kernel
-def _enumerate(locations, log_weights, p_move, t, neighbors, likelihood, children, start, stop, out, lams, *fields):
+def enumerate_run(locations, log_weights, p_move, t, neighbors, likelihood, start, stop, out, lams, *fields):
     """:func:`rbpf_enumerate` of parents ``start..stop - 1``, their children written from index
-    ``out`` on; returns their number. ``lams`` (1,) scratch; ``*fields`` the pool's fields and
-    ``p_move``, not the model's :class:`~onlinemap.kernels.rbpf.World` (``kernels/rbpf.py``: bundles
-    and dispatch)."""
-    pool = Pool(*fields)
+    ``out`` on; returns their number. ``lams`` (1,) scratch; ``*fields``: the children's
+    ``parent``, ``location`` and ``log_weight`` (the first three fields of :class:`Children`),
+    then the pool's fields; ``p_move``, not the model's :class:`~onlinemap.kernels.rbpf.World`
+    (``kernels/rbpf.py``: bundles and dispatch)."""
+    child_parent, child_location, child_log_weight = fields[0], fields[1], fields[2]
+    pool = Pool(*fields[3:])
     rows, powers, table, cell_block, cell_slot = pool.rows, pool.powers, pool.table, pool.cell_block, pool.cell_slot
     m = max(out, 0)  # max(., 0): indices known nonnegative, no code for negative ones (5% faster, measured)
     for q in range(max(start, 0), stop):
@@ -140,24 +148,24 @@ def _enumerate(locations, log_weights, p_move, t, neighbors, likelihood, childre
         if not live:
             continue
         for s in range(2):
-            j, probability = _successor(l, n, p_move, s)
+            j, probability = successor(l, n, p_move, s)
             if probability <= 0.0:
                 continue
             r = table[q, cell_block[j]]
-            lam = _evidence(rows, powers, _age(pool.stamps, pool.stamped, t, r, cell_slot[j]), r, cell_slot[j],
-                            likelihood)
+            lam = evidence(rows, powers, age(pool.stamps, pool.stamped, t, r, cell_slot[j]), r, cell_slot[j],
+                           likelihood)
             if lam <= 0.0:
                 continue
             lams[0] = lam
-            children.log_weight[m] = _log_weight(log_weights[q], probability, lam, lams, 1)
-            children.parent[m] = q
-            children.location[m] = j
+            child_log_weight[m] = _log_weight(log_weights[q], probability, lam, lams, 1)
+            child_parent[m] = q
+            child_location[m] = j
             m += 1
     return m - out
 
 
 @njit(cache=True, inline="always")
-def _passable_before(pool, table_row, world, t, n, before):
+def passable_before(pool, table_row, world, t, n, before):
     """P(cell n passable) for the map whose block rows are ``table_row`` (n_blocks,), judged at
     step t - 1 (before this step's map change); ``before`` (K,) <- n's marginal at t - 1."""
     r = table_row[pool.cell_block[n]]
@@ -166,7 +174,7 @@ def _passable_before(pool, table_row, world, t, n, before):
         d = t - 1 - pool.stamps[r, pool.cell_slot[n]]
     passable = 0.0
     for b in range(before.shape[0]):
-        before[b] = _carried(pool.rows, pool.powers, d, r, pool.cell_slot[n], b)
+        before[b] = carried(pool.rows, pool.powers, d, r, pool.cell_slot[n], b)
         if not world.blocking[b]:
             passable += before[b]
     return passable
@@ -174,9 +182,9 @@ def _passable_before(pool, table_row, world, t, n, before):
 
 @njit(cache=True, inline="always")
 def _motion(l, n, p_move, s, gated, passable):
-    """(cell, probability) of successor s (:func:`_successor`), a gated move's success scaled by
+    """(cell, probability) of successor s (:func:`successor`), a gated move's success scaled by
     P(n passable)."""
-    j, probability = _successor(l, n, p_move, s)
+    j, probability = successor(l, n, p_move, s)
     if gated:
         probability = probability * passable if s == 1 else 1.0 - p_move * passable
     return j, probability
@@ -185,7 +193,7 @@ def _motion(l, n, p_move, s, gated, passable):
 @njit(cache=True, inline="always")
 def _gated_cell(world, dynamic, moved, scratch, cells):
     """``cells[0]`` <- the intended cell's marginal given the move's outcome (``moved``), judged
-    at t - 1 (``scratch.before``, :func:`_passable_before`) and carried to step t by C."""
+    at t - 1 (``scratch.before``, :func:`passable_before`) and carried to step t by C."""
     k = cells.shape[1]
     given, before, blocking = scratch.given, scratch.before, world.blocking
     total = 0.0
@@ -208,12 +216,12 @@ def _gated_cell(world, dynamic, moved, scratch, cells):
 
 
 @njit(cache=True, inline="always")
-def _footprint_child(pool, table_row, world, t, j, n, gated, readings, scratch, ids, cells, posteriors):
+def footprint_child(pool, table_row, world, t, j, n, gated, readings, scratch, ids, cells, posteriors):
     """The map changes of a child at cell j of a parent whose action points at n (a move when
     ``j == n``) and whose map has block rows ``table_row``, as :func:`rbpf_enumerate_cells` defines
     them: ``ids`` (W,) the changed cells (-1 pads), ``cells`` (W, K) their marginals at step t,
     ``scratch.lams`` (F,) the likelihood of each on-grid reading in turn. ``scratch.before``: n's
-    marginal at t - 1 (:func:`_passable_before`, when ``gated``). Without ``posteriors`` the read
+    marginal at t - 1 (:func:`passable_before`, when ``gated``). Without ``posteriors`` the read
     cells keep their prior in ``cells`` (the likelihood is the same: a footprint reads each cell
     once, after the move's evidence, and its divisions are most of the cost). Returns (n_reads,
     likelihood), ``n_reads = -1`` where the readings are impossible for this child. O(F (W + K))."""
@@ -241,9 +249,9 @@ def _footprint_child(pool, table_row, world, t, j, n, gated, readings, scratch, 
                 w = v
         if w == used:
             r = table_row[pool.cell_block[c]]
-            d = _age(pool.stamps, pool.stamped, t, r, pool.cell_slot[c])
+            d = age(pool.stamps, pool.stamped, t, r, pool.cell_slot[c])
             for b in range(k):
-                cells[w, b] = _carried(pool.rows, pool.powers, d, r, pool.cell_slot[c], b)
+                cells[w, b] = carried(pool.rows, pool.powers, d, r, pool.cell_slot[c], b)
             ids[w] = c
             used += 1
         lam = 0.0
@@ -275,14 +283,14 @@ def rbpf_enumerate_cells(locations: np.ndarray, log_weights: np.ndarray, pool, w
     product over the offsets of ``sum_k current(c_f)[k] sensor[k, z_f]`` (1 where both cell and
     reading are off the grid, 0 where only one is), and each read cell gets its posterior. Given
     the trajectory the cells stay independent, so a child's map differs from its parent's in at
-    most W = F + 1 cells (:func:`_footprint_child`). With ``children.cells`` of 2P rows (the
+    most W = F + 1 cells (:func:`footprint_child`). With ``children.cells`` of 2P rows (the
     sampling schemes) it stores them (:class:`Children`); with 0 rows (Fearnhead-Clifford, which
     recomputes the kept children's in ``rbpf_commit_children_cells``) only the parents, locations
-    and log weights. Cost O(P F K^2). (A Python function: its kernel, :func:`_enumerate_cells` on
+    and log weights. Cost O(P F K^2). (A Python function: its kernel, :func:`enumerate_cells_run` on
     every parent, is the one the threads run on runs of parents, compiled once for both.)"""
     scratch = footprint_scratch(world.sensor.shape[0], world.footprint_cells.shape[1], children.ids.shape[1])
-    return _enumerate_cells(locations, log_weights, world, t, neighbors, readings, children, 0, len(locations), 0,
-                            scratch, *pool)
+    return enumerate_cells_run(locations, log_weights, t, neighbors, readings, 0, len(locations), 0, *children,
+                               *scratch, *world, *pool)
 
 
 @njit(cache=True, inline="always")
@@ -296,33 +304,34 @@ def _store_child(children, m, ids, cells, probability):
 
 
 @thread_kernel
-def _enumerate_cells(locations, log_weights, world, t, neighbors, readings, children, start, stop, out, scratch,
-                     *fields):
+def enumerate_cells_run(locations, log_weights, t, neighbors, readings, start, stop, out, *fields):
     """:func:`rbpf_enumerate_cells` of parents ``start..stop - 1``, their children written from
-    index ``out`` on; returns their number. ``scratch``: a :class:`FootprintScratch`; ``*fields`` the
-    pool's fields (``kernels/rbpf.py``: bundles and dispatch)."""
-    pool = Pool(*fields)
+    index ``out`` on; returns their number. ``*fields``: the fields of the :class:`Children`, a
+    :class:`FootprintScratch`, the :class:`~onlinemap.kernels.rbpf.World` and the pool, in that
+    order (``kernels/rbpf.py``: bundles and dispatch)."""
+    children, scratch = Children(*fields[:_CHILDREN_END]), FootprintScratch(*fields[_CHILDREN_END:_SCRATCH_END])
+    world, pool = World(*fields[_SCRATCH_END:_WORLD_END]), Pool(*fields[_WORLD_END:])
     store = children.cells.shape[0] > 0
-    m = max(out, 0)  # as in _enumerate
+    m = max(out, 0)  # as in enumerate_run
     for q in range(max(start, 0), stop):
         ahead = q + PREFETCH_AHEAD
         if ahead < stop and log_weights[ahead] != -np.inf:
             _prefetch_parent(locations, pool, neighbors, ahead)
-            _prefetch_footprint(pool, world.footprint_cells, ahead, locations[ahead])
-            _prefetch_footprint(pool, world.footprint_cells, ahead, neighbors[locations[ahead]])
+            prefetch_footprint(pool, world.footprint_cells, ahead, locations[ahead])
+            prefetch_footprint(pool, world.footprint_cells, ahead, neighbors[locations[ahead]])
         live, l, n = _parent(locations, log_weights, neighbors, q)
         if not live:
             continue
         gated = world.has_blocking and n != l  # the move's success tells about cell n
         passable = 1.0
         if gated:
-            passable = _passable_before(pool, pool.table[q], world, t, n, scratch.before)
+            passable = passable_before(pool, pool.table[q], world, t, n, scratch.before)
         for s in range(2):
             j, probability = _motion(l, n, world.p_move, s, gated, passable)
             if probability <= 0.0:
                 continue
-            n_reads, likelihood = _footprint_child(pool, pool.table[q], world, t, j, n, gated, readings, scratch,
-                                                   scratch.ids, scratch.cells, store)
+            n_reads, likelihood = footprint_child(pool, pool.table[q], world, t, j, n, gated, readings, scratch,
+                                                  scratch.ids, scratch.cells, store)
             if n_reads < 0:
                 continue
             if store:
@@ -335,7 +344,7 @@ def _enumerate_cells(locations, log_weights, world, t, neighbors, readings, chil
 
 
 @loop_kernel
-def rbpf_propose(locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed):
+def rbpf_propose(locations, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, *fields):
     """Propose every particle's step-t location and weight it; writes nothing to the state.
 
     Particle ``p`` descends from ``ancestors[p]``. ``neighbors`` (N,) is ``moves[a]`` (``arange(N)``
@@ -345,21 +354,24 @@ def rbpf_propose(locations, pool, p_move, t, ancestors, neighbors, likelihood, o
     ``P(l_t | l, a, z, map_p)``, increment = ``sum_l' T[a, l, l'] P(z | l', map_p)``. Outputs
     (:class:`Proposed`): the new locations (P,), the observed cell's updated marginal (P, K), the
     log increments (P,) (-inf where z is impossible). One uniform per particle. O(P K^2).
+    ``*fields``: the :class:`Proposed` arrays, then the pool's fields (``kernels/rbpf.py``: bundles
+    and dispatch).
     """
-    _propose(locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed, np.int64(0),
-             ancestors.shape[0])  # np.int64(0), not 0: one compile shared with the threads' calls
+    proposed, pool = Proposed(fields[0], fields[1], fields[2]), Pool(*fields[3:])
+    propose_run(locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed, np.int64(0),
+                ancestors.shape[0])  # np.int64(0), not 0: one compile shared with the threads' calls
 
 
 @njit(cache=True, inline="always")
 def _lam(pool, q, t, cell, likelihood):
-    """``P(z | cell, map_q)``: :func:`_evidence` of particle q's marginal of ``cell``."""
+    """``P(z | cell, map_q)``: :func:`evidence` of particle q's marginal of ``cell``."""
     r = pool.table[q, pool.cell_block[cell]]
-    return _evidence(pool.rows, pool.powers, _age(pool.stamps, pool.stamped, t, r, pool.cell_slot[cell]), r,
-                     pool.cell_slot[cell], likelihood)
+    return evidence(pool.rows, pool.powers, age(pool.stamps, pool.stamped, t, r, pool.cell_slot[cell]), r,
+                    pool.cell_slot[cell], likelihood)
 
 
 @thread_kernel
-def _propose(locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed, start, stop):
+def propose_run(locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, proposed, start, stop):
     """:func:`rbpf_propose` of particles ``start..stop - 1``."""
     for p in range(start, stop):
         if p + PREFETCH_AHEAD < stop:
@@ -382,6 +394,6 @@ def _propose(locations, pool, p_move, t, ancestors, neighbors, likelihood, optim
                 target, lam, weight = n, lam_there, lam_there
         proposed.locations[p] = target
         r = pool.table[q, pool.cell_block[target]]
-        _observed_cell(pool.rows, pool.powers, _age(pool.stamps, pool.stamped, t, r, pool.cell_slot[target]), r,
-                       pool.cell_slot[target], likelihood, lam, proposed.cells[p])
+        observed_cell(pool.rows, pool.powers, age(pool.stamps, pool.stamped, t, r, pool.cell_slot[target]), r,
+                      pool.cell_slot[target], likelihood, lam, proposed.cells[p])
         proposed.log_increments[p] = math.log(weight) if lam > 0.0 else -np.inf

@@ -12,9 +12,9 @@ Path history (:class:`Paths`, ``PathHistory.arrays()``; the map pool's layout,
   reached yet (the same for every particle);
 - ``actions (T,)`` the action before each step, ``readings (T, F)`` each step's readings.
 
-A step takes over the table rows of the slots resampling gave to a copy (``_take_over_slots``, as
+A step takes over the table rows of the slots resampling gave to a copy (``take_over_slots``, as
 the maps' table) and writes every slot's location; a write into a row other particles share copies
-it first (``_row_for_write``). Particles descend from few ancestors, so their old blocks are shared.
+it first (``row_for_write``). Particles descend from few ancestors, so their old blocks are shared.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ import numpy as np
 from numba import njit
 
 from . import loop_kernel
-from .rbpf import _row_for_write, _take_over_slots, _write_cell
-from .rbpf_enumerate import _successor
+from .rbpf import row_for_write, take_over_slots, write_cell
+from .rbpf_enumerate import successor
 
 
 class Paths(NamedTuple):
@@ -76,7 +76,7 @@ def paths_record(paths, ancestors, locations, t):
     ``locations (P,)`` goes to step t of its path, a fresh row where block ``t // B`` begins (or
     where the row is shared: copy-on-write of the first ``t % B`` entries). Needs
     ``path_free_top[0] >= P``. O(P_copied C + P B) at most (C the table's width)."""
-    _take_over_slots(paths, ancestors)
+    take_over_slots(paths, ancestors)
     block = paths.rows.shape[1]
     b = t // block
     j = t % block
@@ -89,7 +89,7 @@ def paths_record(paths, ancestors, locations, t):
             paths.refcount[r] = 1
             paths.table[p, b] = r
         else:
-            r, source = _row_for_write(paths, p, b)
+            r, source = row_for_write(paths, p, b)
             if source >= 0:
                 for i in range(j):
                     paths.rows[r, i] = paths.rows[source, i]
@@ -279,7 +279,7 @@ def _spread(world, paths, s, tau, bridge, scratch, mark):
         weight = alpha[tau - 1, e]
         n = world.moves[a, i]
         for sc in range(2):
-            j, pr = _successor(i, n, world.p_move, sc)
+            j, pr = successor(i, n, world.p_move, sc)
             f = -1
             if pr > 0.0 and weight > 0.0 and (not bridge or (reached[j] == mark and reach[j] >= tau)):
                 f = position[j]
@@ -357,7 +357,7 @@ def _backward(world, paths, s, window, bridge, right, uniforms, scratch):
             i = support[window, e]
             n = world.moves[a, i]
             for sc in range(2):
-                j, pr = _successor(i, n, world.p_move, sc)
+                j, pr = successor(i, n, world.p_move, sc)
                 if j == right and pr > 0.0:
                     probs[count] = weight * pr
                     cells[count] = e
@@ -409,11 +409,11 @@ def _write_move(pool, world, paths, t, p, s, window, n_touched, scratch, mark):
         source = scratch.cur if i < n_new else scratch.base
         for b in range(values.shape[0]):
             values[b] = source[c, b]
-        _write_cell(pool, t, p, c, values)
+        write_cell(pool, t, p, c, values)
     block = paths.rows.shape[1]
     for tau in range(1, window + 1):
         step = s + tau
-        r, source_row = _row_for_write(paths, p, step // block)
+        r, source_row = row_for_write(paths, p, step // block)
         if source_row >= 0:
             for i in range(block):
                 paths.rows[r, i] = paths.rows[source_row, i]

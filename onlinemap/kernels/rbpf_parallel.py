@@ -4,7 +4,7 @@ Each driver splits the work into fixed chunks (``chunk`` particles, :data:`CHUNK
 or :data:`BLOCK_GROUP` map blocks), gives each of ``threads`` threads one contiguous run of chunks
 and calls on each run, at once, the range kernel the serial kernel calls on everything (a
 :data:`~onlinemap.kernels.thread_kernel`, which releases the GIL: ``rbpf_enumerate`` is
-``_enumerate`` over every parent); the serial steps between them run on the calling thread. No
+``enumerate_run`` over every parent); the serial steps between them run on the calling thread. No
 run reads what another writes, and every sum is taken in the order the serial kernel takes it,
 so the results are the serial kernels' bit for bit, whatever the number of threads or chunks:
 
@@ -48,9 +48,9 @@ import numba
 import numpy as np
 
 from . import loop_kernel
-from .rbpf import _mixture_blocks, _row_weights, _sum, _take_over_slots
-from .rbpf_commit import _copy_planned, _plan_writes, _stage_children, _stage_children_cells, _write_planned
-from .rbpf_enumerate import _enumerate, _enumerate_cells, _propose, footprint_scratch
+from .rbpf import mixture_blocks, row_weights, ordered_sum, take_over_slots
+from .rbpf_commit import copy_planned, plan_writes, stage_children, stage_children_cells, write_planned
+from .rbpf_enumerate import enumerate_run, enumerate_cells_run, propose_run, footprint_scratch
 
 CHUNK = 1024  # particles per chunk (the drivers' ``chunk``), fixed: the chunks do not depend on the threads
 BLOCK_GROUP = 8  # map blocks per chunk of the row weights: one cache line of a particle's table row
@@ -122,13 +122,9 @@ def _gather_children(counts, firsts, children):
     return m
 
 
-def _enumerate_in_threads(kernel: Callable[..., int], args: tuple, scratch: Callable[[], object], children, pool,
-                          chunk: int, threads: int) -> int:
-    """``kernel(*args, children, start, stop, 2 start, scratch(), *pool)`` on runs of parents
-    (``args[0]`` their locations), then the children moved together; returns M."""
-    runs = _runs(len(args[0]), chunk, threads)
-    counts = _in_threads([functools.partial(kernel, *args, children, start, stop, 2 * start, scratch(), *pool)
-                          for start, stop in runs])
+def _gathered(counts: list[int], runs: list[tuple[int, int]], children) -> int:
+    """M, once the ``counts`` children each run of parents wrote from index ``2 * start`` on are
+    moved together (:func:`_gather_children`)."""
     firsts = np.array([2 * start for start, _ in runs], dtype=np.int64)
     return _gather_children(np.array(counts, dtype=np.int64), firsts, children)
 
@@ -137,8 +133,11 @@ def rbpf_enumerate_parallel(locations: np.ndarray, log_weights: np.ndarray, pool
                             likelihood: np.ndarray, children, chunk: int, threads: int) -> int:
     """:func:`~onlinemap.kernels.rbpf_enumerate.rbpf_enumerate` (the same children, in the same
     order)."""
-    return _enumerate_in_threads(_enumerate, (locations, log_weights, world.p_move, t, neighbors, likelihood),
-                                 lambda: np.empty(1), children, pool, chunk, threads)
+    runs = _runs(len(locations), chunk, threads)
+    counts = _in_threads([functools.partial(enumerate_run, locations, log_weights, world.p_move, t, neighbors,
+                                            likelihood, start, stop, 2 * start, np.empty(1), *children[:3], *pool)
+                          for start, stop in runs])
+    return _gathered(counts, runs, children)
 
 
 def rbpf_enumerate_cells_parallel(locations: np.ndarray, log_weights: np.ndarray, pool, world, t: int,
@@ -147,15 +146,18 @@ def rbpf_enumerate_cells_parallel(locations: np.ndarray, log_weights: np.ndarray
     """:func:`~onlinemap.kernels.rbpf_enumerate.rbpf_enumerate_cells` (the same children, in the
     same order)."""
     sizes = (world.sensor.shape[0], world.footprint_cells.shape[1], children.ids.shape[1])
-    return _enumerate_in_threads(_enumerate_cells, (locations, log_weights, world, t, neighbors, readings),
-                                 lambda: footprint_scratch(*sizes), children, pool, chunk, threads)
+    runs = _runs(len(locations), chunk, threads)
+    counts = _in_threads([functools.partial(enumerate_cells_run, locations, log_weights, t, neighbors, readings, start,
+                                            stop, 2 * start, *children, *footprint_scratch(*sizes), *world, *pool)
+                          for start, stop in runs])
+    return _gathered(counts, runs, children)
 
 
 def rbpf_propose_parallel(locations: np.ndarray, pool, p_move: float, t: int, ancestors: np.ndarray,
                           neighbors: np.ndarray, likelihood: np.ndarray, optimal: bool, uniforms: np.ndarray, proposed,
                           chunk: int, threads: int) -> None:
     """:func:`~onlinemap.kernels.rbpf_enumerate.rbpf_propose`."""
-    _in_threads([functools.partial(_propose, locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal,
+    _in_threads([functools.partial(propose_run, locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal,
                                    uniforms, proposed, start, stop)
                  for start, stop in _runs(len(ancestors), chunk, threads)])
 
@@ -163,9 +165,9 @@ def rbpf_propose_parallel(locations: np.ndarray, pool, p_move: float, t: int, an
 def rbpf_stage_children_parallel(pool, t: int, slots, child_location: np.ndarray, likelihood: np.ndarray, staged,
                                  chunk: int, threads: int) -> None:
     """Fearnhead-Clifford's kept children's writes
-    (:func:`~onlinemap.kernels.rbpf_commit._stage_children`), staged from the parents' rows for
+    (:func:`~onlinemap.kernels.rbpf_commit.stage_children`), staged from the parents' rows for
     :func:`rbpf_commit_staged_parallel`; writes only ``staged``."""
-    _in_threads([functools.partial(_stage_children, pool, t, slots, child_location, likelihood, staged, start, stop)
+    _in_threads([functools.partial(stage_children, pool, t, slots, child_location, likelihood, staged, start, stop)
                  for start, stop in _runs(len(slots.slot_child), chunk, threads)])
 
 
@@ -173,9 +175,9 @@ def rbpf_stage_children_cells_parallel(locations: np.ndarray, pool, world, t: in
                                        neighbors: np.ndarray, readings: np.ndarray, staged, chunk: int,
                                        threads: int) -> None:
     """:func:`rbpf_stage_children_parallel` for blocking labels and sensor footprints
-    (:func:`~onlinemap.kernels.rbpf_commit._stage_children_cells`); writes only ``staged``."""
+    (:func:`~onlinemap.kernels.rbpf_commit.stage_children_cells`); writes only ``staged``."""
     sizes = (world.sensor.shape[0], world.footprint_cells.shape[1], staged.ids.shape[1])
-    _in_threads([functools.partial(_stage_children_cells, locations, pool, world, t, slots, child_location, neighbors,
+    _in_threads([functools.partial(stage_children_cells, locations, pool, world, t, slots, child_location, neighbors,
                                    readings, staged, start, stop, footprint_scratch(*sizes))
                  for start, stop in _runs(len(slots.slot_child), chunk, threads)])
 
@@ -183,27 +185,27 @@ def rbpf_stage_children_cells_parallel(locations: np.ndarray, pool, world, t: in
 def rbpf_commit_staged_parallel(locations: np.ndarray, pool, t: int, ancestors: np.ndarray, staged, chunk: int,
                                 threads: int) -> None:
     """:func:`~onlinemap.kernels.rbpf_commit.rbpf_commit_cells`, bit for bit: the take-over and the
-    copy-on-write bookkeeping (:func:`~onlinemap.kernels.rbpf_commit._plan_writes`, into
+    copy-on-write bookkeeping (:func:`~onlinemap.kernels.rbpf_commit.plan_writes`, into
     ``staged.target`` and ``staged.source``) serially, then every block copy, then every write and
     the locations. Needs ``free_top[0] >= W P``."""
-    _take_over_slots(pool, ancestors)
-    _plan_writes(pool, staged)
+    take_over_slots(pool, ancestors)
+    plan_writes(pool, staged)
     runs = _runs(len(staged.locations), chunk, threads)
-    _in_threads([functools.partial(_copy_planned, pool, t, staged, start, stop) for start, stop in runs])
-    _in_threads([functools.partial(_write_planned, pool, t, staged, locations, start, stop) for start, stop in runs])
+    _in_threads([functools.partial(copy_planned, pool, t, staged, start, stop) for start, stop in runs])
+    _in_threads([functools.partial(write_planned, pool, t, staged, locations, start, stop) for start, stop in runs])
 
 
 def rbpf_map_mixture_parallel(pool, t: int, weights: np.ndarray, out: np.ndarray, threads: int) -> None:
     """:func:`~onlinemap.kernels.rbpf.rbpf_map_mixture`, the same sums, on runs of chunks of
     ``BLOCK_GROUP`` blocks: first the row weights (a row holds one block, and each row's weight
     adds its particles in order), then each run's rows, in row order, into its own cells
-    (:func:`~onlinemap.kernels.rbpf._mixture_blocks`: every run scans the rows, O(R) each)."""
+    (:func:`~onlinemap.kernels.rbpf.mixture_blocks`: every run scans the rows, O(R) each)."""
     n_blocks = pool.table.shape[1]
     runs = _runs(n_blocks, BLOCK_GROUP, threads)
     row_weight = np.zeros(len(pool.rows))
-    total = _sum(weights)
-    _in_threads([functools.partial(_row_weights, pool.table, pool.refcount, weights, total, row_weight, first, last,
+    total = ordered_sum(weights)
+    _in_threads([functools.partial(row_weights, pool.table, pool.refcount, weights, total, row_weight, first, last,
                                    np.empty(last - first, dtype=np.int64), np.empty(last - first, dtype=np.int64),
                                    np.empty(last - first)) for first, last in runs])
     out[:] = 0.0
-    _in_threads([functools.partial(_mixture_blocks, pool, t, row_weight, first, last, out) for first, last in runs])
+    _in_threads([functools.partial(mixture_blocks, pool, t, row_weight, first, last, out) for first, last in runs])

@@ -10,8 +10,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .rbpf import _age, _carried
-from .rbpf_commit import _children_by_location, _copy_child, _place_children
+from .rbpf import age, carried
+from .rbpf_commit import children_by_location, copy_child, place_children
 
 
 @njit(cache=True)
@@ -56,10 +56,10 @@ def _landing_cell(rows, stamps, powers, dynamic, t, r, j, prior_cell, factor, q)
     marginal gives what the child sees of the cell (``factor`` (K,)) probability 0. Returns
     ``(q @ factor, reset)``. O(K^2)."""
     k = factor.shape[0]
-    d = _age(stamps, dynamic, t, r, j)
+    d = age(stamps, dynamic, t, r, j)
     lam = 0.0
     for b in range(k):
-        q[b] = _carried(rows, powers, d, r, j, b)
+        q[b] = carried(rows, powers, d, r, j, b)
         lam += q[b] * factor[b]
     if lam > 0.0:
         return lam, False
@@ -107,34 +107,24 @@ def rbpf_relocation_weights(locations, log_weights, pool, world, t, scale, readi
                                                           pool.cell_slot, pool.powers)  # locals: kernels/rbpf.py
     dynamic, moves = pool.stamped, world.moves
     n_cells, n_particles = child_log_weight.shape
-    k = world.sensor.shape[0]
-    width = world.footprint_cells.shape[1] + 1
-    ids = np.empty((n_cells, width), dtype=np.int64)
-    factors = np.empty((n_cells, width, k))
-    used = np.empty(n_cells, dtype=np.int64)
-    for l in range(n_cells):
-        used[l] = _landing(l, world, readings, ids[l], factors[l])
+    ids, factors, used = _landings(world, readings)
     resets = np.zeros((n_cells, n_particles), dtype=np.int8)
     child_log_weight[:] = -np.inf
     dist = np.empty(n_cells, dtype=np.int64)
     queue = np.empty(n_cells, dtype=np.int64)
-    q = np.empty(k)
+    q = np.empty(world.sensor.shape[0])
     fewest = -1
     source = -1
     log_z = 0.0
     order = np.empty(n_particles, dtype=np.int64)  # by location (a counting sort; the result needs no other order)
-    _children_by_location(locations, np.zeros(n_cells + 1, dtype=np.int64), order)
+    children_by_location(locations, np.zeros(n_cells + 1, dtype=np.int64), order)
     for p in order:
         if log_weights[p] == -np.inf:
             continue
         if locations[p] != source:
             source = locations[p]
             _grid_distances(moves, source, dist, queue)
-            z_sum = 0.0
-            for l in range(n_cells):
-                if dist[l] >= 0:
-                    z_sum += math.exp(-dist[l] / scale)
-            log_z = math.log(z_sum)
+            log_z = _log_normaliser(dist, scale)
         for l in range(n_cells):
             if dist[l] < 0 or used[l] < 0:
                 continue
@@ -156,11 +146,40 @@ def rbpf_relocation_weights(locations, log_weights, pool, world, t, scale, readi
             resets[l, p] = count
             if fewest < 0 or count < fewest:
                 fewest = count
+    _drop_more_resets(child_log_weight, resets, fewest)
+    return fewest
+
+
+@njit(cache=True)
+def _landings(world, readings):
+    """(ids (N, W), factors (N, W, K), used (N,)): :func:`_landing` of every cell."""
+    n_cells, width = world.footprint_cells.shape[0], world.footprint_cells.shape[1] + 1
+    ids = np.empty((n_cells, width), dtype=np.int64)
+    factors = np.empty((n_cells, width, world.sensor.shape[0]))
+    used = np.empty(n_cells, dtype=np.int64)
     for l in range(n_cells):
-        for p in range(n_particles):
+        used[l] = _landing(l, world, readings, ids[l], factors[l])
+    return ids, factors, used
+
+
+@njit(cache=True)
+def _log_normaliser(dist, scale):
+    """``log Z``, Z the sum of the relocation kernel's ``exp(-d / scale)`` over the cells a search
+    reached (``dist`` (N,) >= 0), in cell order."""
+    z_sum = 0.0
+    for l in range(dist.shape[0]):
+        if dist[l] >= 0:
+            z_sum += math.exp(-dist[l] / scale)
+    return math.log(z_sum)
+
+
+@njit(cache=True)
+def _drop_more_resets(child_log_weight, resets, fewest):
+    """``child_log_weight[l, p] <- -inf`` where child (l, p) took more than ``fewest`` resets."""
+    for l in range(resets.shape[0]):
+        for p in range(resets.shape[1]):
             if resets[l, p] > fewest:
                 child_log_weight[l, p] = -np.inf
-    return fewest
 
 
 @njit(cache=True)
@@ -198,14 +217,14 @@ def rbpf_place_children(child_parent, child_location, child_ids, child_cells, ke
     """Put kept children that carry their own changed cells (the recovery's relocated ones,
     :func:`rbpf_relocated_children`: their cells do not follow from the parent's map at the
     child's location, so :func:`rbpf_commit_children` cannot recompute them) into the P slots as
-    :func:`_place_children` places Fearnhead-Clifford's, for :func:`rbpf_commit_cells`. A child's
+    :func:`place_children` places Fearnhead-Clifford's, for :func:`rbpf_commit_cells`. A child's
     ``child_ids`` (M, W) and ``child_cells`` (M, W, K) go with it. Slots left without a child
     (fewer children than P) get ``new_locations = -1`` (no write) and weight 0. Outputs (P,)
     ancestors, (P,), (P, W), (P, W, K), (P,). O(P W K)."""
     n_particles = ancestors.shape[0]
     slot_child = np.empty(n_particles, dtype=np.int64)
-    _place_children(child_parent, kept, kept_weights, ancestors, slot_child, new_log_weights,
-                    np.zeros(n_particles, dtype=np.bool_), np.zeros(n_particles, dtype=np.bool_))
+    place_children(child_parent, kept, kept_weights, ancestors, slot_child, new_log_weights,
+                   np.zeros(n_particles, dtype=np.bool_), np.zeros(n_particles, dtype=np.bool_))
     new_ids[:] = -1
     new_cells[:] = 0.0
     for p in range(n_particles):
@@ -213,4 +232,4 @@ def rbpf_place_children(child_parent, child_location, child_ids, child_cells, ke
         new_locations[p] = -1
         if c >= 0:
             new_locations[p] = child_location[c]
-            _copy_child(child_ids, child_cells, c, new_ids, new_cells, p)
+            copy_child(child_ids, child_cells, c, new_ids, new_cells, p)
