@@ -184,3 +184,17 @@ def learned_frequencies(marginals: np.ndarray, prior: np.ndarray, frequencies: n
     ``frequencies`` (K,) by more than :data:`READ_TOLERANCE`). O(N K)."""
     read = np.abs(marginals - unread_marginals(prior, frequencies)).max(axis=1) > READ_TOLERANCE
     return posterior_frequencies(alpha, marginals[read].sum(axis=0))
+
+
+def shown_options(options: dict, kind: str) -> dict:
+    """An estimator's ``options`` (a fresh dict) as its filter runs them, for ``repr`` and the
+    run logs: without the label-prior options when it uses the model's table (``kind`` of the
+    resolved :class:`LabelPrior` ``"model"``: every repr as without the options), with
+    ``label_prior="learn"`` when it learns because the model says so. O(len(options))."""
+    options = dict(options)
+    if kind == "model":
+        for name in ("label_prior", "prior_strength", "learn_every"):
+            options.pop(name, None)
+    elif options.get("label_prior") is None:
+        options["label_prior"] = LEARN
+    return options

@@ -46,7 +46,7 @@ from .. import state_checks as checks
 from ..arrays import read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError
-from ..label_prior import DEFAULT_LEARN_EVERY, LEARN, learned_frequencies, plug_in_prior, tilt
+from ..label_prior import DEFAULT_LEARN_EVERY, LEARN, learned_frequencies, plug_in_prior, shown_options, tilt
 from ..model import GridModel, apply_motion, passable_probability
 from ..validation import check_step
 from .base import register
@@ -132,6 +132,13 @@ class BoyenKoller:
             self._label_frequencies = prior.alpha / prior.alpha.sum()
         self._log_evidence = 0.0
         self._belief: Belief | None = None
+
+    @property
+    def effective_options(self) -> dict:
+        """The options as the filter runs them (:func:`~onlinemap.label_prior.shown_options`): what
+        ``repr`` shows; ``options`` keeps what was given."""
+        return shown_options(self.options, plug_in_prior(self.model, self.options["label_prior"],
+                                                         self.options["prior_strength"]).kind)
 
     @property
     def label_frequencies(self) -> np.ndarray | None:

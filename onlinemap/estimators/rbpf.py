@@ -50,7 +50,7 @@ from .. import arguments
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, ModelError
-from ..label_prior import DEFAULT_LEARN_EVERY, LEARN
+from ..label_prior import DEFAULT_LEARN_EVERY, LEARN, shown_options
 from ..kernels import rbpf_parallel
 from ..kernels.rbpf import in_place_ancestors
 from ..kernels.rbpf_commit import Slots, Staged, rbpf_keep_children
@@ -295,12 +295,7 @@ class RaoBlackwellisedPF:
         if self.move_window is None:
             for name in ("move_window", "move_every", "move_lag"):
                 options.pop(name, None)
-        if resolved_prior(self.model, self.options).kind == "model":
-            for name in ("label_prior", "prior_strength", "learn_every"):
-                options.pop(name, None)
-        elif options.get("label_prior") is None:  # learning because the model says so: shown as it runs
-            options["label_prior"] = LEARN
-        return options
+        return shown_options(options, resolved_prior(self.model, self.options).kind)
 
     @property
     def particles(self) -> np.ndarray:
