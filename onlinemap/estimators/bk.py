@@ -46,7 +46,8 @@ from .. import state_checks as checks
 from ..arrays import read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError
-from ..label_prior import DEFAULT_LEARN_EVERY, LEARN, learned_frequencies, plug_in_prior, shown_options, tilt
+from ..label_prior import (DEFAULT_LEARN_EVERY, LEARN, LabelPrior, learned_frequencies, plug_in_prior, shown_options,
+                           tilt)
 from ..model import GridModel, apply_motion, passable_probability
 from ..validation import check_step
 from .base import register
@@ -134,11 +135,15 @@ class BoyenKoller:
         self._belief: Belief | None = None
 
     @property
+    def _prior(self) -> LabelPrior:
+        """The label prior the options (checked when the filter was built) give. O(N K)."""
+        return plug_in_prior(self.model, self.options["label_prior"], self.options["prior_strength"])
+
+    @property
     def effective_options(self) -> dict:
         """The options as the filter runs them (:func:`~onlinemap.label_prior.shown_options`): what
         ``repr`` shows; ``options`` keeps what was given."""
-        return shown_options(self.options, plug_in_prior(self.model, self.options["label_prior"],
-                                                         self.options["prior_strength"]).kind)
+        return shown_options(self.options, self._prior.kind)
 
     @property
     def label_frequencies(self) -> np.ndarray | None:
@@ -146,7 +151,7 @@ class BoyenKoller:
         estimate when learning, the given vector, or None (the model's own prior)."""
         if self._label_frequencies is not None:
             return read_only(self._label_frequencies.copy())
-        fixed = plug_in_prior(self.model, self.options["label_prior"], self.options["prior_strength"]).frequencies
+        fixed = self._prior.frequencies
         return None if fixed is None else read_only(fixed.copy())
 
     @staticmethod
@@ -194,8 +199,7 @@ class BoyenKoller:
                 f"float64's range even after rescaling)")
         frequencies = self._label_frequencies
         if frequencies is not None and (self._t + 1) % (self.options["learn_every"] or DEFAULT_LEARN_EVERY) == 0:
-            alpha = plug_in_prior(self.model, self.options["label_prior"], self.options["prior_strength"]).alpha
-            learned = learned_frequencies(maps, self.model.label_prior, frequencies, alpha)
+            learned = learned_frequencies(maps, self.model.label_prior, frequencies, self._prior.alpha)
             maps = tilt(maps, learned / frequencies)
             self._label_frequencies = learned
         self._location, self._maps = location, maps
