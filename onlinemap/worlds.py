@@ -115,9 +115,14 @@ def with_floor_plan(model: GridModel, true_map, confidence: float = 0.8) -> Grid
                                unknown_label_frequencies=False)
 
 
+def uniform_prior(model: GridModel, true_map=None) -> np.ndarray:
+    """(K,) the uniform label prior ``1 / K`` (``true_map`` unused: the signature of
+    :func:`frequency_prior`). O(K)."""
+    return np.full(model.n_labels, 1.0 / model.n_labels)
+
+
 #: the label_prior key's values: the (K,) table each states (the frequencies known, not learned)
-_STATED_PRIORS = {"floor": frequency_prior,
-                  "uniform": lambda model, true_map: np.full(model.n_labels, 1.0 / model.n_labels)}
+_STATED_PRIORS = {"floor": frequency_prior, "uniform": uniform_prior}
 
 
 class WorldSpec(NamedTuple):
