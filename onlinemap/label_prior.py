@@ -30,6 +30,10 @@ option ``label_prior``:
   posterior exactly (the Dirichlet-multinomial joint); approximate filters plug in the posterior
   mean of theta given the expected label counts of the cells they have read (empirical Bayes),
   every ``learn_every`` steps (default :data:`DEFAULT_LEARN_EVERY`).
+
+The hindsight fits of a recorded run (:func:`onlinemap.hindsight.told_location`,
+:func:`onlinemap.layered_em.fit_layered_map`) take the same option but read None as the model's
+table on every model: their learning is asked for explicitly.
 """
 
 from __future__ import annotations
