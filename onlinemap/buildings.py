@@ -223,7 +223,9 @@ def building(rows: int, cols: int, *, seed, room_size: Sequence[int] = ROOM_SIZE
     ``closed_share``: the probability that such an extra door is closed. ``start``: a free cell or
     open door (default: a corridor cell drawn after the floor). The model options go to
     :func:`~onlinemap.model.door_world`: walls and closed doors block and the sensor reads a cross
-    by default. true_map (N,) read-only.
+    by default. Without ``label_prior`` the building's label frequencies are unknown
+    (``model.unknown_label_frequencies``: estimators learn them, :mod:`onlinemap.label_prior`);
+    a ``label_prior`` table states them. true_map (N,) read-only.
 
     Cost: the floor O(N) array work and O(R) Python steps for R rooms (R <= N / (room_min + 1)^2),
     about 1 ms at 10 x 10, 2-4 ms at 32 x 32 and 10 ms at 64 x 64; then the model, O(N F) for F
@@ -238,7 +240,7 @@ def building(rows: int, cols: int, *, seed, room_size: Sequence[int] = ROOM_SIZE
     else:
         start = passable_start(labels, start)
     return door_world(labels, p_obs=p_obs, p_move=p_move, p_door=p_door, start=start, label_prior=label_prior,
-                      blocking=blocking, footprint=footprint)
+                      blocking=blocking, footprint=footprint, unknown_label_frequencies=label_prior is None)
 
 
 __all__ = ["building", "building_layout", "MIN_SIDE", "MAX_SIDE", "ROOM_SIZE"]

@@ -315,7 +315,8 @@ def read_layout(path, *, cell_size=None, doorways: bool = True, cell_rule: str =
                 label_prior=None, blocking: bool = True, footprint="cross") -> tuple[GridModel, np.ndarray]:
     """A floor read from a file (:func:`layout_labels`) as a door world: ``(model, true_map)``, as
     :func:`onlinemap.building` gives one (walls and closed doors block, the sensor reads a cross,
-    by default; the model options go to :func:`~onlinemap.model.door_world`). ``start``: a free
+    by default; the model options go to :func:`~onlinemap.model.door_world`; without ``label_prior``
+    the floor's label frequencies are unknown and estimators learn them). ``start``: a free
     cell or open door, by default :func:`largest_region_start`; a start whose region holds less
     than half the free cells and open doors warns (:class:`~onlinemap.errors.SmallRegionWarning`).
     true_map (N,) read-only; the labels are ``true_map.reshape(model.shape)``. Cost O(pixels) to
@@ -333,7 +334,7 @@ def read_layout(path, *, cell_size=None, doorways: bool = True, cell_rule: str =
                       f"({reached / total:.0%}; {int((sizes > 0).sum())} separate regions, {read}): the robot "
                       "cannot visit the rest", SmallRegionWarning, stacklevel=2)
     return door_world(labels, p_obs=p_obs, p_move=p_move, p_door=p_door, start=start, label_prior=label_prior,
-                      blocking=blocking, footprint=footprint)
+                      blocking=blocking, footprint=footprint, unknown_label_frequencies=label_prior is None)
 
 
 __all__ = ["read_layout", "layout_labels", "floor_frame", "FloorFrame", "read_movingai", "read_ros_map", "read_pgm",

@@ -13,6 +13,11 @@ Tables (all float64, read-only):
 - map dynamics ``C[k, k'] = P(m_{i,t} = k' | m_{i,t-1} = k)``, the same for every cell.
 - sensor ``O[k, z] = P(Z_t = z | m_{L_t} = k)``.
 - label prior ``label_prior[i, k] = P(m_{i,0} = k)``, cells independent; start cell ``start``.
+  With ``unknown_label_frequencies`` (off by default; on for generated buildings and floors read
+  from files) the world says its label frequencies theta are unknown: the cells are i.i.d. given
+  theta ~ Dirichlet (:mod:`onlinemap.label_prior`), the table being the fixed prior a robot falls
+  back to. Estimators' ``label_prior=None`` follows it (they learn theta where they can);
+  ``label_prior="model"`` asks for the table instead.
 
 Two options (DESIGN.md section 7), both off by default (the paper's model, bit for bit):
 
@@ -168,6 +173,7 @@ class GridModel:
     label_names: tuple[str, ...]
     blocking: np.ndarray | None = None  # (K,) bool: labels a robot cannot enter; None = none
     footprint: tuple[tuple[int, int], ...] | str | None = FOOTPRINTS["cell"]  # offsets read each step
+    unknown_label_frequencies: bool = False  # theta ~ Dirichlet: estimators learn the label frequencies
     footprint_cells: np.ndarray = field(init=False, repr=False)  # (N, F) cell read by offset f, -1 off grid
     self_prob: np.ndarray = field(init=False, repr=False)  # (A, N) T[a, j, j]
     predecessor: np.ndarray = field(init=False, repr=False)  # (A, N) cell moving into j, or -1
@@ -200,6 +206,7 @@ class GridModel:
             raise ModelError(f"blocking must be a ({k},) bool array (one flag per label), got "
                              f"{blocking.dtype} {blocking.shape}; grid_model(blocking=...) takes labels")
         set_(self, "blocking", read_only(blocking))
+        set_(self, "unknown_label_frequencies", _flag("unknown_label_frequencies", self.unknown_label_frequencies))
         footprint = footprint_offsets(self.footprint)
         if n * len(footprint) > arguments.MAX_CELLS:  # before the (N, F) tables are built
             raise ModelError(f"a footprint of {len(footprint)} offsets on {n} cells reads {n * len(footprint)} "
@@ -293,6 +300,8 @@ class GridModel:
         if self.n_readings > 1:
             preset = next((name for name, fp in FOOTPRINTS.items() if fp == self.footprint), self.footprint)
             extra += f", footprint={preset}"
+        if self.unknown_label_frequencies:
+            extra += ", label frequencies unknown"
         return (f"GridModel({self.rows}x{self.cols}, K={self.n_labels} {self.label_names}, "
                 f"actions={self.action_names}, p_move={self.p_move}, {kind}, start={self.start}{extra})")
 
@@ -321,8 +330,11 @@ class GridModel:
 
 DEFINING_FIELDS = ("rows", "cols", "neighbors", "p_move", "change", "sensor", "label_prior", "start",
                    "action_names", "label_names", "blocking",
-                   "footprint")  # what makes two models the same; the rest is derived
-OPTIONAL_FIELDS = ("blocking", "footprint")  # defining fields with a default (older checkpoints lack them)
+                   "footprint", "unknown_label_frequencies")  # what makes two models the same; the rest is derived
+# defining fields with a default (older checkpoints lack them)
+OPTIONAL_FIELDS = ("blocking", "footprint", "unknown_label_frequencies")
+#: optional fields a checkpoint leaves out at these values: its bytes stay those of an older onlinemap
+OMITTED_AT_DEFAULT = {"unknown_label_frequencies": False}
 
 
 def model_difference(a: GridModel, b: GridModel) -> str | None:
@@ -390,14 +402,16 @@ def passable_probability(model: GridModel, maps: np.ndarray) -> np.ndarray:
 # --- constructors ----------------------------------------------------------------------
 def grid_model(rows: int, cols: int, n_labels: int = 2, *, p_obs: float = 0.9, p_move: float = 0.8,
                change=None, sensor=None, label_prior=None, start: int = 0,
-               label_names: Sequence[str] | None = None, blocking=None, footprint=None) -> GridModel:
+               label_names: Sequence[str] | None = None, blocking=None, footprint=None,
+               unknown_label_frequencies: bool = False) -> GridModel:
     """A general grid model.
 
     ``change`` (K, K) defaults to the identity (static world); ``sensor`` (K, K) defaults to the
     symmetric channel with ``p_obs``; ``label_prior`` is (K,) or (N, K), uniform by default.
     ``blocking``: labels (indices or names) a robot cannot enter (None: none, the paper's motion);
     ``footprint``: ``"cell"`` (default, the paper's sensor), ``"cross"``, ``"square"`` or a
-    sequence of (drow, dcol) offsets.
+    sequence of (drow, dcol) offsets. ``unknown_label_frequencies``: the label frequencies are
+    unknown (theta ~ Dirichlet, :mod:`onlinemap.label_prior`): estimators learn them by default.
     """
     n_labels = arguments.integer("n_labels", n_labels, minimum=2, maximum=arguments.MAX_LABELS)
     rows, cols = _grid_size(rows, cols)
@@ -417,7 +431,8 @@ def grid_model(rows: int, cols: int, n_labels: int = 2, *, p_obs: float = 0.9, p
     return GridModel(rows=rows, cols=cols, neighbors=neighbors, p_move=p_move, change=change,
                      sensor=sensor, label_prior=label_prior, start=start,
                      action_names=action_names, label_names=label_names,
-                     blocking=blocking_mask(blocking, label_names), footprint=footprint_offsets(footprint))
+                     blocking=blocking_mask(blocking, label_names), footprint=footprint_offsets(footprint),
+                     unknown_label_frequencies=unknown_label_frequencies)
 
 
 def corridor(n_cells: int, n_labels: int = 2, p_obs: float = 0.9, p_move: float = 0.8,
@@ -444,13 +459,13 @@ def _flag(name: str, value) -> bool:
 def door_world(layout: str | np.ndarray | None = None, p_obs: float = 0.9, p_move: float = 0.8,
                p_door: float = 0.0, start: int | None = None,
                label_prior=None, *, blocking: bool = False,
-               footprint=None) -> tuple[GridModel, np.ndarray]:
+               footprint=None, unknown_label_frequencies: bool = False) -> tuple[GridModel, np.ndarray]:
     """A 2D door world from a layout: a text layout (default :data:`DOOR_WORLD_10X10`) or a
     (rows, cols) int array of door labels (:func:`layout_grid`).
 
     Returns ``(model, true_map)``, the map (N,) read from the layout. ``start`` defaults to the
     first free cell in row-major order. ``blocking=True``: walls and closed doors block motion;
-    ``footprint`` as in :func:`grid_model`.
+    ``footprint`` and ``unknown_label_frequencies`` as in :func:`grid_model`.
     """
     grid = layout_grid(DOOR_WORLD_10X10 if layout is None else layout)
     true_map = grid.ravel()
@@ -460,7 +475,8 @@ def door_world(layout: str | np.ndarray | None = None, p_obs: float = 0.9, p_mov
     model = grid_model(grid.shape[0], grid.shape[1], 4, p_obs=p_obs, p_move=p_move,
                        change=door_change(p_door), label_prior=label_prior, start=start,
                        label_names=DOOR_LABELS, footprint=footprint,
-                       blocking=("wall", "closed_door") if _flag("blocking", blocking) else None)
+                       blocking=("wall", "closed_door") if _flag("blocking", blocking) else None,
+                       unknown_label_frequencies=unknown_label_frequencies)
     if model.rows == 1:
         raise ModelError("a door world needs at least two rows (use corridor() for 1D worlds)")
     return model, read_only(true_map)

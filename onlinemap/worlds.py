@@ -14,7 +14,11 @@ with a fixed map (door, building, layout) take ``floor_plan=C``: the robot's lab
 floor plan (:func:`floor_plan_prior`: each cell's true label with confidence C, door cells a door
 of unknown state), e.g. ``door,floor_plan=0.95``; or ``label_prior=floor``: the robot's label
 prior is the map's own label frequencies, the same for every cell (:func:`frequency_prior`: what
-a robot told its building's mix of free cells, walls and doors would assume). A building
+a robot told its building's mix of free cells, walls and doors would assume); or
+``label_prior=uniform``: the fixed uniform prior, frequencies known (a building or a layout
+otherwise leaves its label frequencies unknown, and estimators learn them: the baseline without
+learning). Either key and ``floor_plan`` state the robot's prior: the model's
+``unknown_label_frequencies`` is then off. A building
 (:func:`onlinemap.buildings.building`; default 32x32, seed 0) blocks and reads a cross unless
 told otherwise (``blocking=0``, ``footprint=cell``) and takes ``seed``, ``corridor_width``,
 ``rooms_deep``, ``extra_doors`` and ``closed_share``. A layout
@@ -76,7 +80,8 @@ def world_help() -> str:
     return (f"world spec KIND[,KEY=VALUE...]: {kinds}; every kind also takes {', '.join(_EVERY_KIND)} "
             "(blocking=0/1 for door worlds, labels joined by + otherwise; footprint=cell|cross|square); "
             "floor_plan=C gives the robot the floor plan as its prior (confidence C, door states unknown); "
-            "label_prior=floor gives it the map's label frequencies")
+            "label_prior=floor gives it the map's label frequencies, label_prior=uniform the fixed uniform prior "
+            "(buildings and layouts otherwise learn their label frequencies)")
 
 
 def floor_plan_prior(model: GridModel, true_map, confidence: float = 0.8) -> np.ndarray:
@@ -104,8 +109,20 @@ def frequency_prior(model: GridModel, true_map) -> np.ndarray:
 
 
 def with_floor_plan(model: GridModel, true_map, confidence: float = 0.8) -> GridModel:
-    """``model`` with the :func:`floor_plan_prior` of ``true_map`` as its label prior."""
-    return dataclasses.replace(model, label_prior=floor_plan_prior(model, true_map, confidence))
+    """``model`` with the :func:`floor_plan_prior` of ``true_map`` as its label prior (a stated
+    prior: the label frequencies are not learned, ``unknown_label_frequencies`` off)."""
+    return dataclasses.replace(model, label_prior=floor_plan_prior(model, true_map, confidence),
+                               unknown_label_frequencies=False)
+
+
+def uniform_prior(model: GridModel, true_map=None) -> np.ndarray:
+    """(K,) the uniform label prior ``1 / K`` (``true_map`` unused: the signature of
+    :func:`frequency_prior`). O(K)."""
+    return np.full(model.n_labels, 1.0 / model.n_labels)
+
+
+#: the label_prior key's values: the (K,) table each states (the frequencies known, not learned)
+_STATED_PRIORS = {"floor": frequency_prior, "uniform": uniform_prior}
 
 
 class WorldSpec(NamedTuple):
@@ -113,7 +130,7 @@ class WorldSpec(NamedTuple):
     model: GridModel
     true_map: np.ndarray | None  # fixed map (door worlds, buildings, layouts); None = draw one from the prior
     floor_plan: float | None = None  # the floor_plan key: the model's label prior is the map's floor plan
-    label_prior: str | None = None  # the label_prior key ("floor": the map's label frequencies), if given
+    label_prior: str | None = None  # the label_prior key ("floor": the map's label frequencies; "uniform"), if given
 
     def initial_map(self, seed: SeedLike = None) -> np.ndarray:
         """The fixed map, or one drawn from the label prior with ``seed``."""
@@ -233,16 +250,17 @@ def parse_world(spec: str) -> WorldSpec:
         options["blocking"] = _blocking(spec, kind, str(options["blocking"]))
     floor_plan = options.pop("floor_plan", None)
     label_prior = options.pop("label_prior", None)
-    if label_prior is not None and label_prior != "floor":
-        raise ModelError(f"world spec {spec!r}: label_prior takes 'floor' (the map's own label frequencies), "
-                         f"got {label_prior!r}")
+    if label_prior is not None and label_prior not in _STATED_PRIORS:
+        raise ModelError(f"world spec {spec!r}: label_prior takes 'floor' (the map's own label frequencies) or "
+                         f"'uniform' (the fixed uniform prior), got {label_prior!r}")
     if label_prior is not None and floor_plan is not None:
         raise ModelError(f"world spec {spec!r}: floor_plan and label_prior both set the label prior; give one")
     try:
         world = _build(spec, kind, size, options)
         if label_prior is not None:
-            world = world._replace(model=dataclasses.replace(world.model, label_prior=frequency_prior(
-                world.model, world.true_map)), label_prior=label_prior)
+            table = _STATED_PRIORS[label_prior](world.model, world.true_map)
+            world = world._replace(model=dataclasses.replace(world.model, label_prior=table,
+                                                             unknown_label_frequencies=False), label_prior=label_prior)
         if floor_plan is not None:
             try:
                 world = world._replace(model=with_floor_plan(world.model, world.true_map, floor_plan),

@@ -43,7 +43,7 @@ import numpy as np
 
 from ..belief import Belief
 from ..errors import CheckpointError, OnlineMapError
-from ..model import DEFINING_FIELDS, OPTIONAL_FIELDS, GridModel
+from ..model import DEFINING_FIELDS, OMITTED_AT_DEFAULT, OPTIONAL_FIELDS, GridModel
 
 TAG = "$"  # the key of a tagged node (a tuple, a Generator, an array reference...) in a tree
 ARRAY_KINDS = "biufcUSmM"  # numpy dtype kinds that npy stores without pickling (the file checks them again)
@@ -153,9 +153,13 @@ def callable_name(value) -> str | None:
 
 
 def encode_model(model: GridModel) -> dict:
-    """Tree of a model's defining tables (the derived ones are rebuilt by the constructor)."""
+    """Tree of a model's defining tables (the derived ones are rebuilt by the constructor; the
+    fields of :data:`~onlinemap.model.OMITTED_AT_DEFAULT` at their default are left out, as older
+    checkpoints have them)."""
     encoder = Encoder()
-    return {TAG: "model", "fields": {name: encoder.encode(getattr(model, name), name) for name in DEFINING_FIELDS}}
+    return {TAG: "model", "fields": {name: encoder.encode(getattr(model, name), name) for name in DEFINING_FIELDS
+                                     if name not in OMITTED_AT_DEFAULT
+                                     or getattr(model, name) != OMITTED_AT_DEFAULT[name]}}
 
 
 # --- decoding: tree -> fresh Python objects (arrays copied) ------------------------------------------

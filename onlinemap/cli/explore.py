@@ -139,6 +139,9 @@ def _print_setting(args: argparse.Namespace, world, planners: list[str]) -> None
     uniform = floor_plan is None and np.allclose(world.model.label_prior, 1.0 / world.model.n_labels)
     prior = (f"the floor plan, confidence {floor_plan}" if floor_plan is not None else
              "uniform" if uniform else "the world's own")
+    if floor_plan is None and world.model.unknown_label_frequencies:
+        prior += (", label frequencies unknown: the rbpf and bk learn them (world key label_prior=uniform or "
+                  "--option label_prior=model: the fixed prior)")
     print(f"world {args.world}: {world.model}; label prior: {prior}")
     if uniform:
         # the user's own world with the floor plan: a world key where the map is fixed, else the option

@@ -73,7 +73,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--building-seeds", default="0", help="floors: building seeds, comma-separated (default 0)")
     p.add_argument("--world-keys", default="",
                    help="floors: world keys added to every world, e.g. label_prior=floor (the robot is told the "
-                        "floor's label frequencies) or p_move=0.95")
+                        "floor's label frequencies), label_prior=uniform (the fixed uniform prior; by default the "
+                        "robot learns the frequencies) or p_move=0.95")
     p.add_argument("-o", "--option", action="append", default=[], metavar="KEY=VALUE",
                    help=f"floors: RBPF option, repeatable (default n_particles=1000); {OPTION_HELP}")
     p.set_defaults(func=reproduce)

@@ -25,6 +25,12 @@ from ..errors import (CheckpointError, InvalidActionError, InvalidObservationErr
 from ..model import GridModel
 
 _REGISTRY: dict[str, type] = {}
+#: the label-prior options (:mod:`onlinemap.label_prior`); an estimator they mean nothing to says why in
+#: its ``label_prior_refusal``, and ``make_estimator`` raises InvalidOptionError with it
+LABEL_PRIOR_OPTIONS = frozenset({"label_prior", "prior_strength", "learn_every"})
+#: the EM estimators' ``label_prior_refusal``
+MAP_IS_A_PARAMETER = ("its map is a parameter (the observation matrix B, fitted by EM), not a random variable "
+                      "under a prior: there are no unread cells whose prior could be learned")
 
 
 @runtime_checkable
@@ -170,7 +176,8 @@ def register(name: str) -> Callable[[type], type]:
 def _estimator_repr(self) -> str:
     """``rbpf(t=3, model=GridModel(...), n_particles=100, ...)``: registry name, last step, model,
     options (as the estimator runs them, ``effective_options``, where it resolves some)."""
-    shown = getattr(self, "effective_options", None) or getattr(self, "options", {})
+    shown = getattr(self, "effective_options", None)
+    shown = getattr(self, "options", {}) if shown is None else shown
     options = ", ".join(f"{key}={value!r}" for key, value in shown.items())
     return f"{self.name}(t={self.t}, model={self.model!r}{', ' + options if options else ''})"
 
@@ -244,6 +251,10 @@ def make_estimator(name: str, model: GridModel, **options) -> Estimator:
         raise ModelError(f"model must be a GridModel, got {type(model).__name__}")
     known = _keyword_options(cls)
     unknown = sorted(set(options) - set(known))
+    refusal = getattr(cls, "label_prior_refusal", None)
+    if refusal is not None and set(unknown) & LABEL_PRIOR_OPTIONS:
+        raise InvalidOptionError(f"estimator {name!r} takes no {', '.join(sorted(set(unknown) & LABEL_PRIOR_OPTIONS))}: "
+                                 f"{refusal}")
     if unknown:
         raise UnknownEstimatorError(
             f"estimator {name!r} has no option {', '.join(map(repr, unknown))}; "

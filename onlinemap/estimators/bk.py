@@ -22,6 +22,18 @@ correlates L with the cells it tried to enter) and after the update; a bump ther
 the map nothing here (exact Bayes and the RBPF do learn from it). A footprint: ``lam_l = [off-grid readings fit l] prod_f mu_{c_f} . O[:, z_f]``
 and each read cell's marginal takes the leave-one-out product of the other readings
 (:func:`bk_footprint_update`). Cost O(N (K + F^2 + F K)) per step, O(N K^2) more when dynamic.
+
+Label prior (``label_prior``, ``prior_strength``, ``learn_every``, as the RBPF's;
+:mod:`onlinemap.label_prior`). In a static world every cell's marginal is
+``mu_i(k) = normalise_k(prior_i(k) w(k) prod_s f_s(k))``: each update multiplies it by a factor
+``q(i) O[k, z] + Z - q(i) lam_i`` (the footprint's likewise), so a frequency weight ``w`` (K,)
+shared by all cells moves to ``w'`` by ``mu <- normalise(mu * w' / w)``
+(:func:`~onlinemap.label_prior.tilt`), the factors kept. A fixed vector ``v``: ``w = v`` from
+the start. ``"learn"`` (and None on a model whose label frequencies are unknown, in a static
+world): every ``learn_every`` steps, after the update, ``w`` becomes the posterior mean of theta
+given the expected label counts of the cells read (:func:`~onlinemap.label_prior.learned_frequencies`),
+the plug-in (empirical Bayes) approximation the RBPF makes; the factors, computed under the
+earlier ``w``, are not recomputed, nor is ``log_evidence``. Cost of a learning step O(N K).
 """
 
 from __future__ import annotations
@@ -31,8 +43,11 @@ import math
 import numpy as np
 
 from .. import state_checks as checks
+from ..arrays import read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError
+from ..label_prior import (DEFAULT_LEARN_EVERY, LEARN, LabelPrior, learned_frequencies, plug_in_prior, shown_options,
+                           tilt)
 from ..model import GridModel, apply_motion, passable_probability
 from ..validation import check_step
 from .base import register
@@ -88,19 +103,56 @@ def bk_footprint_update(model: GridModel, location: np.ndarray, maps: np.ndarray
 
 @register("bk")
 class BoyenKoller:
-    """Boyen-Koller filter over ``P(L) prod_i P(m_i)``. No options. O(N K^2) per step
-    (O(N (K^2 + F^2 + F K)) with a footprint of F offsets)."""
+    """Boyen-Koller filter over ``P(L) prod_i P(m_i)``. O(N K^2) per step
+    (O(N (K^2 + F^2 + F K)) with a footprint of F offsets).
+
+    Options ``label_prior``, ``prior_strength``, ``learn_every`` (the module docstring;
+    :mod:`onlinemap.label_prior`): None (the default) is what the model says: on a model whose
+    label frequencies are unknown (generated buildings, floors read from files) in a static world
+    the filter learns them every ``learn_every`` steps (default 10); otherwise, and in a dynamic
+    world, the model's prior table, every run as without the options. ``"model"``: the table
+    always; a (K,) vector: every cell's prior tilted by it; ``"learn"``: learn (static worlds
+    only). :attr:`label_frequencies` gives the frequencies in use (checkpointed when learned)."""
 
     #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
     CONSTANT_STATE = ()
 
-    def __init__(self, model: GridModel):
+    #: the learned label frequencies (K,): an attribute of a learning filter only (and of its
+    #: checkpoints); None, this class default, for the others, whose state is as without the options
+    _label_frequencies: np.ndarray | None = None
+
+    def __init__(self, model: GridModel, *, label_prior=None, prior_strength=None, learn_every: int | None = None):
+        prior = plug_in_prior(model, label_prior, prior_strength, learn_every)
         self.model = model
         self._t = -1
         self._location = model.location_prior()
         self._maps = np.array(model.label_prior)
+        if prior.kind == "fixed":
+            self._maps = tilt(self._maps, prior.frequencies)
+        elif prior.kind == LEARN:  # pi_0 = alpha / A, uniform: the model's rows as they are
+            self._label_frequencies = prior.alpha / prior.alpha.sum()
         self._log_evidence = 0.0
         self._belief: Belief | None = None
+
+    @property
+    def _prior(self) -> LabelPrior:
+        """The label prior the options (checked when the filter was built) give. O(N K)."""
+        return plug_in_prior(self.model, self.options["label_prior"], self.options["prior_strength"])
+
+    @property
+    def effective_options(self) -> dict:
+        """The options as the filter runs them (:func:`~onlinemap.label_prior.shown_options`): what
+        ``repr`` shows; ``options`` keeps what was given."""
+        return shown_options(self.options, self._prior.kind)
+
+    @property
+    def label_frequencies(self) -> np.ndarray | None:
+        """(K,) the label frequencies every cell's prior is tilted by, a read-only copy: the current
+        estimate when learning, the given vector, or None (the model's own prior)."""
+        if self._label_frequencies is not None:
+            return read_only(self._label_frequencies.copy())
+        fixed = self._prior.frequencies
+        return None if fixed is None else read_only(fixed.copy())
 
     @staticmethod
     def check_state(state) -> None:
@@ -112,6 +164,12 @@ class BoyenKoller:
         checks.probabilities("_maps", checks.array(state, "_maps", (model.n_cells, model.n_labels), np.float64))
         checks.log_evidence(state)
         checks.belief(state, required=True)
+        frequencies = getattr(state, "_label_frequencies", None)  # a learning filter only
+        if frequencies is not None:  # divided by at the next learning step: no zero
+            frequencies = checks.array(state, "_label_frequencies", (model.n_labels,), np.float64)
+            checks.probabilities("_label_frequencies", frequencies)
+            if np.any(frequencies <= 0):
+                checks.fail("_label_frequencies", "must be label frequencies in (0, 1]")
 
     def step(self, action, observation) -> Belief:
         a, z = check_step(self.model, self._t + 1, action, observation)
@@ -139,6 +197,11 @@ class BoyenKoller:
                 f"observation {self.model.label_names[z] if self.model.reads_own_cell else np.asarray(z).tolist()!r} "
                 f"has probability zero under the factored (Boyen-Koller) belief at step {self._t + 1} (or below "
                 f"float64's range even after rescaling)")
+        frequencies = self._label_frequencies
+        if frequencies is not None and (self._t + 1) % (self.options["learn_every"] or DEFAULT_LEARN_EVERY) == 0:
+            learned = learned_frequencies(maps, self.model.label_prior, frequencies, self._prior.alpha)
+            maps = tilt(maps, learned / frequencies)
+            self._label_frequencies = learned
         self._location, self._maps = location, maps
         self._log_evidence += math.log(total) + log_scale
         self._t += 1

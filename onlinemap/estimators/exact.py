@@ -127,8 +127,9 @@ def map_marginals(joint_map: np.ndarray, n_cells: int, n_labels: int) -> np.ndar
 @register("exact")
 class ExactFilter:
     """Exact filtering of ``P(L_t, M_t | z_0:t, a_1:t)``. Options: ``max_bytes`` (memory guard);
-    ``label_prior`` and ``prior_strength`` (:mod:`onlinemap.label_prior`): None keeps the model's
-    prior; a (K,) vector gives every cell those frequencies; ``"learn"`` puts the frequencies
+    ``label_prior`` and ``prior_strength`` (:mod:`onlinemap.label_prior`): None is what the model
+    says (``"learn"`` when its label frequencies are unknown, in any world: the hierarchical prior
+    is exact before the map dynamics act; its prior table otherwise); ``"model"`` the table; a (K,) vector gives every cell those frequencies; ``"learn"`` puts the frequencies
     under a Dirichlet (total pseudo-count ``prior_strength``, default K) and filters the exact
     posterior of that hierarchical model (its map prior the Dirichlet-multinomial): the reference
     for the approximate filters that learn the label prior."""
@@ -140,7 +141,8 @@ class ExactFilter:
     def __init__(self, model: GridModel, *, max_bytes: int = DEFAULT_MAX_BYTES, label_prior=None,
                  prior_strength=None):
         max_bytes = arguments.requested_bytes("max_bytes", max_bytes, InvalidOptionError)
-        prior = resolve_label_prior(model.n_labels, label_prior, prior_strength)
+        prior = resolve_label_prior(model.n_labels, label_prior, prior_strength,
+                                    model_learns=model.unknown_label_frequencies)
         check_memory(model, filter_bytes(model), max_bytes, "the exact filter")
         self.model = model
         self.max_bytes = max_bytes

@@ -36,7 +36,7 @@ from ..hmm import (append_observation, emission_from_counts, expected_cell_count
                    temper)
 from ..model import GridModel
 from ..validation import check_sequence, check_step
-from .base import register
+from .base import MAP_IS_A_PARAMETER, register
 from .online_em import check_pseudo_count
 
 
@@ -148,6 +148,9 @@ class OfflineEM:
     step), ``map`` = B_t through the inverted sensor channel, ``observation_matrix`` = B_t,
     ``log_evidence`` = log P(z_0..t | a; B_t), the likelihood of the fitted B.
     """
+
+    #: why the label-prior options mean nothing here (:func:`~onlinemap.estimators.base.make_estimator` says it)
+    label_prior_refusal = MAP_IS_A_PARAMETER
 
     #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
     CONSTANT_STATE = ("n_iter", "tol", "pseudo_count", "anneal", "_prior_emission", "_location_prior",

@@ -38,7 +38,7 @@ from ..hmm import (append_observation, emission_from_counts, expected_cell_count
                    map_from_emission, map_passability, prior_emission, sensor_inverse)
 from ..model import GridModel, apply_motion
 from ..validation import check_step
-from .base import register
+from .base import MAP_IS_A_PARAMETER, register
 
 
 def check_pseudo_count(pseudo_count: float) -> float:
@@ -60,6 +60,9 @@ class OnlineEM:
     """Fixed-lag online EM. Options: ``window`` (int >= 1, default 16, so a step costs the same
     forever; ``"max"`` for the whole history, O(t) per step), ``decay`` (lambda in (0, 1]: weight of the previous statistics), ``pseudo_count`` (c >= 0
     added to every count of the M-step)."""
+
+    #: why the label-prior options mean nothing here (:func:`~onlinemap.estimators.base.make_estimator` says it)
+    label_prior_refusal = MAP_IS_A_PARAMETER
 
     #: attributes fixed by the model and options, checked equal on load (:mod:`onlinemap.state_checks`)
     CONSTANT_STATE = ("window", "_window", "decay", "pseudo_count", "_prior_emission", "_sensor_inverse")

@@ -48,7 +48,7 @@ from .. import arguments
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, ModelError
-from ..label_prior import LEARN
+from ..label_prior import DEFAULT_LEARN_EVERY, LEARN, shown_options
 from ..kernels.rbpf import in_place_ancestors
 from ..kernels.rbpf_commit import Staged, rbpf_keep_children
 from ..model import GridModel
@@ -141,11 +141,14 @@ class RaoBlackwellisedPF:
     falls from 0.26 to about 0.20 for 3.2x the time per step (the user guide's Estimators page, RBPF section).
 
     **Label prior** (``label_prior``, ``prior_strength``, ``learn_every``; :mod:`onlinemap.label_prior`,
-    the math in :mod:`onlinemap.estimators.rbpf_prior`). None (the default): the model's prior,
-    every run as without the option. A (K,) frequency vector: every cell's prior is the model's
+    the math in :mod:`onlinemap.estimators.rbpf_prior`). None (the default): what the model says,
+    ``"learn"`` on a model whose label frequencies are unknown (generated buildings, floors read
+    from files) in a static world without ``move_window``, the model's prior table otherwise
+    (the paper's worlds: every run as without the option). ``"model"``: the model's table
+    always. A (K,) frequency vector: every cell's prior is the model's
     tilted by it, ``normalise(prior_i * v)`` (``v`` itself under the default uniform prior).
     ``"learn"`` (static worlds only): the frequencies, under a Dirichlet of total pseudo-count
-    ``prior_strength`` (default K), are re-estimated every ``learn_every`` steps (default 1) from
+    ``prior_strength`` (default K), are re-estimated every ``learn_every`` steps (default 10) from
     the expected labels of the cells read so far, and every cell's prior is moved to them (one
     pass over the block rows in use): the plug-in (empirical Bayes) approximation of the
     hierarchical model the exact filter computes exactly; particle weights are not changed.
@@ -295,10 +298,7 @@ class RaoBlackwellisedPF:
         if self.move_window is None:
             for name in ("move_window", "move_every", "move_lag"):
                 options.pop(name, None)
-        if options.get("label_prior") is None:
-            for name in ("label_prior", "prior_strength", "learn_every"):
-                options.pop(name, None)
-        return options
+        return shown_options(options, resolved_prior(self.model, self.options).kind)
 
     @property
     def particles(self) -> np.ndarray:
@@ -398,7 +398,7 @@ class RaoBlackwellisedPF:
                 self._history, self._blocks = history.move(self._blocks, self._locations, self._log_weights,
                                                            self.model, t, self.move_window, self.move_lag, self._rng)
         frequencies = self._label_frequencies
-        if frequencies is not None and t % (self.options["learn_every"] or 1) == 0:
+        if frequencies is not None and t % (self.options["learn_every"] or DEFAULT_LEARN_EVERY) == 0:
             alpha = resolved_prior(self.model, self.options).alpha
             self._label_frequencies = learn(self._blocks, self.model, t, self._weights / self._weights.sum(),
                                             frequencies, alpha, self._kit.kernels().threads)

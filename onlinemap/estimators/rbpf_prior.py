@@ -16,11 +16,12 @@ The kernels are not touched.
   a cell is then ``normalise(prior_i * v)``: ``v`` itself when the model's prior is uniform (the
   default), a tilt of the model's per-cell prior otherwise. Sound in a dynamic world too (the
   rows are tilted at the start, before C acts).
-- ``"learn"``: ``w = pi_t``, the current estimate of the label frequencies, from
+- ``"learn"`` (also ``None`` on a model whose label frequencies are unknown, a building, where
+  the filter can learn: static world, no ``move_window``): ``w = pi_t``, the current estimate of the label frequencies, from
   ``pi_0 = alpha / A`` (uniform: the rows of a new filter as they are). Every ``learn_every``
-  steps, after the update, :func:`learn` takes the weighted mixture m (N, K) of the particles'
+  steps (default :data:`~onlinemap.label_prior.DEFAULT_LEARN_EVERY`), after the update, :func:`learn` takes the weighted mixture m (N, K) of the particles'
   maps, the cells *read* (those whose mixture differs from the marginal of an unread cell,
-  ``normalise(prior_i * pi_t)``, by more than :data:`READ_TOLERANCE`), the expected counts
+  ``normalise(prior_i * pi_t)``, by more than :data:`~onlinemap.label_prior.READ_TOLERANCE`), the expected counts
   ``c = sum of m over the read cells`` and the Dirichlet posterior mean
   ``pi' = (alpha + c) / (A + n_read)`` (:func:`~onlinemap.label_prior.posterior_frequencies`),
   and retilts the pool by ``pi' / pi_t``. This is the plug-in (empirical Bayes) approximation of
@@ -33,7 +34,8 @@ The kernels are not touched.
 
 Limits: a recovery from depletion resets the cells it redraws to the model's prior (not the
 tilted one) until the next retilt moves them with the rest; the resample-move step rebuilds
-cells from the model's prior, so ``move_window`` is refused with a label prior.
+cells from the model's prior, so ``move_window`` is refused with a label prior (and a model's
+default learning does not apply with it: None is then the model's table).
 
 Cost: a retilt is O(R_used B K) (numpy, memory speed); a learning step adds the mixture,
 O(P N / B) plus one pass over the rows in use, and O(N K): about the cost of building
@@ -44,35 +46,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import arguments
 from ..errors import InvalidOptionError
-from ..label_prior import LEARN, LabelPrior, posterior_frequencies, resolve_label_prior
+from ..label_prior import LabelPrior, learned_frequencies, plug_in_prior, tilt
 from ..model import GridModel
 from .block_pool import BlockPool
 
-#: a cell whose mixture differs from an unread cell's marginal by more than this (max over labels)
-#: counts as read: far above the rounding of repeated retilts (~1e-15 a step), far below any reading's effect
-READ_TOLERANCE = 1e-9
-
 
 def prior_options(model: GridModel, label_prior, prior_strength, learn_every, move_window) -> LabelPrior:
-    """Check and resolve the RBPF's label-prior options (:func:`~onlinemap.label_prior.resolve_label_prior`
-    and ``learn_every``, a positive integer, given only with ``"learn"``). Raises
-    :class:`~onlinemap.errors.InvalidOptionError` naming the problem: ``"learn"`` in a dynamic
-    world (C != I), a label prior with ``move_window``, a bad ``learn_every``. O(K)."""
-    prior = resolve_label_prior(model.n_labels, label_prior, prior_strength)
-    if prior.kind == "fixed" and np.any((model.label_prior * prior.frequencies).sum(axis=1) == 0):
-        raise InvalidOptionError(f"label_prior {prior.frequencies.tolist()} gives probability zero to every label "
-                                 "some cell's model prior allows")
-    if learn_every is not None:
-        if prior.kind != LEARN:
-            raise InvalidOptionError(f"learn_every is how often label_prior='learn' updates its frequencies; it "
-                                     f"means nothing with label_prior={label_prior!r}")
-        arguments.integer("learn_every", learn_every, minimum=1, error=InvalidOptionError)
-    if prior.kind == LEARN and not model.is_static:
-        raise InvalidOptionError("label_prior='learn' needs a static world (the change matrix C = I): in a dynamic "
-                                 "world the particles' cells hold marginals of different ages, which one rescaling "
-                                 "of the prior does not move consistently")
+    """Check and resolve the RBPF's label-prior options (:func:`~onlinemap.label_prior.plug_in_prior`:
+    the model's default learning applies without ``move_window``). Raises
+    :class:`~onlinemap.errors.InvalidOptionError` naming the problem, and for a label prior
+    other than the model's with ``move_window``. O(N K)."""
+    prior = plug_in_prior(model, label_prior, prior_strength, learn_every, can_learn=move_window is None)
     if prior.kind != "model" and move_window is not None:
         raise InvalidOptionError("move_window (resample-move) rebuilds cells from the model's own label prior: it "
                                  "cannot be combined with label_prior")
@@ -80,8 +65,9 @@ def prior_options(model: GridModel, label_prior, prior_strength, learn_every, mo
 
 
 def resolved_prior(model: GridModel, options: dict) -> LabelPrior:
-    """The label prior a filter's ``options`` (checked when it was built) give. O(K)."""
-    return resolve_label_prior(model.n_labels, options.get("label_prior"), options.get("prior_strength"))
+    """The label prior a filter's ``options`` (checked when it was built) give. O(N K)."""
+    return prior_options(model, options.get("label_prior"), options.get("prior_strength"),
+                         options.get("learn_every"), options.get("move_window"))
 
 
 def retilt(pool: BlockPool, ratio: np.ndarray) -> None:
@@ -89,15 +75,7 @@ def retilt(pool: BlockPool, ratio: np.ndarray) -> None:
     place: the pool's maps with every cell's prior frequencies changed by that ratio (the module
     docstring). Free rows are left alone (they may hold zeros; nothing reads them). O(R_used B K)."""
     used = np.flatnonzero(pool.refcount > 0)
-    rows = pool.rows[used] * ratio
-    rows /= rows.sum(axis=2, keepdims=True)
-    pool.rows[used] = rows
-
-
-def unread_marginals(model: GridModel, frequencies: np.ndarray) -> np.ndarray:
-    """(N, K) the marginal of a cell no reading touched: ``normalise(prior_i * frequencies)``. O(N K)."""
-    tilted = model.label_prior * frequencies
-    return tilted / tilted.sum(axis=1, keepdims=True)
+    pool.rows[used] = tilt(pool.rows[used], ratio)
 
 
 def learn(pool: BlockPool, model: GridModel, t: int, weights: np.ndarray, frequencies: np.ndarray,
@@ -108,7 +86,6 @@ def learn(pool: BlockPool, model: GridModel, t: int, weights: np.ndarray, freque
     O(P N / B + R_used B K + N K)."""
     mixture = pool.mixture(t, weights, threads)
     mixture /= mixture.sum(axis=1, keepdims=True)
-    read = np.abs(mixture - unread_marginals(model, frequencies)).max(axis=1) > READ_TOLERANCE
-    updated = posterior_frequencies(alpha, mixture[read].sum(axis=0))
+    updated = learned_frequencies(mixture, model.label_prior, frequencies, alpha)
     retilt(pool, updated / frequencies)
     return updated

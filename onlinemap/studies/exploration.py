@@ -204,14 +204,18 @@ def blocking_world_study(planners: Sequence[str] = ("info_gain", "frontier", "ra
 
 def building_study(planners: Sequence[str] = ("info_gain", "frontier", "random", "sweep"), *, rows: int = 32,
                    cols: int = 32, seeds: Sequence[int] = range(20), steps: int = 2000, n_particles: int = 1000,
-                   planner_options: dict | None = None, workers: int | None = 0, progress: bool = True,
+                   estimator_options: dict | None = None, planner_options: dict | None = None,
+                   workers: int | None = 0, progress: bool = True,
                    keep: Sequence[tuple[str, str, int]] = ()) -> Study:
     """Generated buildings (:func:`onlinemap.buildings.building`, blocking walls and closed doors,
-    a cross footprint, a uniform label prior): one building per seed (``building:RxC,seed=S``),
-    every planner in each, with run seed 0 (``keep``: ``("building:RxC,seed=S", planner, 0)``,
-    see :func:`planners_study`)."""
+    a cross footprint, label frequencies unknown: the RBPF learns them, :mod:`onlinemap.label_prior`):
+    one building per seed (``building:RxC,seed=S``), every planner in each, with run seed 0
+    (``keep``: ``("building:RxC,seed=S", planner, 0)``, see :func:`planners_study`).
+    ``estimator_options``: more RBPF options, e.g. ``{"label_prior": "model"}`` for the fixed
+    uniform prior (the baseline without learning)."""
     worlds = [f"building:{rows}x{cols},seed={int(seed)}" for seed in seeds]
-    return planners_study(worlds, planners, seeds=[0], steps=steps, estimator_options={"n_particles": n_particles},
+    return planners_study(worlds, planners, seeds=[0], steps=steps,
+                          estimator_options={"n_particles": n_particles, **(estimator_options or {})},
                           planner_options=planner_options, workers=workers, progress=progress, keep=keep)
 
 

@@ -7,6 +7,9 @@ row per run with the honest metrics and the told-location anchor.
   folder (:func:`real_floor_specs` makes them absolute);
 - :func:`floor_worlds`: the world specs of a study (real floors by name or any world spec, plus
   generated buildings), with extra world keys (``label_prior=floor``, ``p_move=0.95``);
+  floors and buildings leave their label frequencies unknown, so the RBPF learns them unless a
+  world key states the prior (``label_prior=uniform``: the fixed uniform baseline) or the
+  estimator options ask for the model's table (``{"label_prior": "model"}``);
 - :func:`floor_study`: every planner on every world and seed, RBPF with any estimator options
   (``n_particles``, and whatever else the estimator takes: a list is a grid), one row per run
   (:data:`COLUMNS`), the summary per (floor, planner, estimator options) with intervals over seeds;
@@ -84,7 +87,7 @@ def floor_worlds(floors: Sequence[str] = tuple(REAL_FLOORS), *, buildings: Seque
     """{floor name: world spec} of a study: each of ``floors`` (a name of :data:`REAL_FLOORS`, or
     any world spec, named by itself), then a generated building per size in ``buildings``
     (``"32x32"``) and seed in ``building_seeds`` (named ``building:32x32,seed=S``); ``world_keys``
-    (``"label_prior=floor"``, ``"p_move=0.95"``) appended to every spec. Each spec is parsed once
+    (``"label_prior=floor"``, ``"label_prior=uniform"``, ``"p_move=0.95"``) appended to every spec. Each spec is parsed once
     here, so a bad one fails before any run (ModelError naming it). Cost: reading each floor."""
     known = real_floor_specs(directory, [f for f in floors if f in REAL_FLOORS])
     worlds = {floor: known.get(floor, floor) for floor in floors}
