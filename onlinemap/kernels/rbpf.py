@@ -111,6 +111,11 @@ def _carried(rows, powers, d, r, j, b):
     return value
 
 
+#: :func:`_carried` under its public name, for the planners' rollouts (``policies.kernels``): one
+#: rule for carrying a marginal forward by ``C^d`` in the filter and in its rollouts
+carried = _carried
+
+
 @njit(cache=True, inline="always")
 def _evidence(rows, powers, d, r, j, likelihood):
     """``P(z | cell) = sum_b current(b) likelihood[b]`` for slot j of block row r, ``d`` steps
