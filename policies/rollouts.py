@@ -24,7 +24,7 @@ from onlinemap.estimators.rbpf_kernels import world_tables
 from onlinemap.model import GridModel, change_powers
 
 from .information import entropy
-from .kernels.footprint import plan_rollouts
+from .kernels.footprint import Agreement, Candidates, plan_rollouts
 from .kernels.planning import Hypotheses, RolloutTables, Scoring, rollout_uncertainty
 
 
@@ -35,7 +35,7 @@ def rollout_tables(model: GridModel, horizon: int) -> RolloutTables:
                          not model.is_static)
 
 
-def hypotheses(model: GridModel, worlds: tuple[np.ndarray, np.ndarray], horizon: int, r_count: int,
+def draw_hypotheses(model: GridModel, worlds: tuple[np.ndarray, np.ndarray], horizon: int, r_count: int,
                rng: np.random.Generator, per_world: bool) -> Hypotheses:
     """The worlds ``(locations (S,), labels (S, N))`` with the random numbers of their steps:
     ``world_u`` (S, H, 1 + F), ``change_u`` (S, H, N) (N = 0 in a static world), ``proposal_u``
@@ -66,7 +66,7 @@ def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot,
     tables = rollout_tables(model, horizon) if tables is None else tables
     total = np.zeros((n_seq, horizon + 1))
     rollout_uncertainty(particles, world_tables(model), tables, sequences,
-                        hypotheses(model, worlds, horizon, len(particles.locations), rng, per_world=True),
+                        draw_hypotheses(model, worlds, horizon, len(particles.locations), rng, per_world=True),
                         Scoring(float(location_weight), np.asarray(checkpoints, dtype=np.bool_)), total)
     return total / len(worlds[0])
 
@@ -99,22 +99,16 @@ def footprint_expected_uncertainty(model: GridModel, particles: ParticleSnapshot
     sequences = np.ascontiguousarray(sequences, dtype=np.int64)
     n_seq, horizon = sequences.shape
     tables = rollout_tables(model, horizon) if tables is None else tables
-    n_worlds, r_count = len(worlds[0]), len(particles.locations)
-    world_u = rng.random((n_worlds, horizon, 1 + model.n_readings))
-    change_u = rng.random((n_worlds, horizon, 0 if model.is_static else model.n_cells))
-    proposal_u = rng.random((n_worlds, horizon, r_count))
-    disputed, agree_entropy = agreement(model, particles, horizon, tables)
+    drawn = draw_hypotheses(model, worlds, horizon, len(particles.locations), rng, per_world=False)
     if distances is None:
         distances = np.zeros((n_seq, model.n_cells))
         go = np.zeros((model.n_cells, model.n_actions))
     total = np.zeros((n_seq, horizon + 1))
-    plan_rollouts(particles.locations, np.ascontiguousarray(particles.maps), particles.log_weights, model.moves,
-                  model.p_move, model.blocking, model.footprint_cells, model.sensor, tables.sensor_cdf, model.change,
-                  tables.change_cdf, tables.powers, not model.is_static, sequences, np.ascontiguousarray(distances),
-                  np.ascontiguousarray(go, dtype=np.float64), worlds[0].astype(np.int64),
-                  np.ascontiguousarray(worlds[1], dtype=np.int64), world_u, change_u, proposal_u,
-                  float(location_weight), np.asarray(checkpoints, dtype=np.bool_), disputed, agree_entropy, total)
-    return total / n_worlds
+    plan_rollouts(particles._replace(maps=np.ascontiguousarray(particles.maps)), world_tables(model), tables,
+                  Candidates(sequences, np.ascontiguousarray(distances), np.ascontiguousarray(go, dtype=np.float64)),
+                  drawn, Scoring(float(location_weight), np.asarray(checkpoints, dtype=np.bool_)),
+                  Agreement(*agreement(model, particles, horizon, tables)), total)
+    return total / len(drawn.locations)
 
 
 def rollout_operations(model: GridModel, hypotheses: int, candidates: int, horizon: int, lengths: int,
