@@ -453,7 +453,7 @@ def _roll_world(particles, world, tables, candidates, hypotheses, s, scoring, ag
         groups.group[c] = 0
         if scoring.checkpoints[0]:
             out[c, 0] += now
-    n_groups = 1
+    n_groups = np.int64(1)  # not the literal 1: _press compiles once
     groups.pending[0, 0], groups.pending[0, 1], groups.pending[0, 2] = 0, 0, 1
     n_pending = 1
     while n_pending > 0:

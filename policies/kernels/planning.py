@@ -112,7 +112,7 @@ def world_step(world, tables, where, labels, a, world_u, change_u, readings):
     return where
 
 
-@njit(cache=True, inline="always")
+@loop_kernel
 def _current(maps, rollout, tables, p, c, h, out):
     """out (K,) <- particle p's marginal of cell c after h rollout steps."""
     for j in range(rollout.n[p]):
@@ -281,19 +281,6 @@ def _rollout(particles, world, tables, actions, hypotheses, s, scoring, rollout,
             out[h] = _uncertainty(rollout.loc, particles.maps, rollout, tables, h, scoring.location_weight, scratch)
 
 
-@loop_kernel
-def _roll_all(particles, world, tables, sequences, hypotheses, scoring, now, rollout, scratch, out, total):
-    """``total[c] += out`` of every candidate c in every world (:func:`_rollout`), ``out[0] = now``."""
-    for s in range(hypotheses.locations.shape[0]):
-        for c in range(sequences.shape[0]):
-            for h in range(out.shape[0]):
-                out[h] = 0.0
-            out[0] = now
-            _rollout(particles, world, tables, sequences[c], hypotheses, s, scoring, rollout, scratch, out)
-            for h in range(out.shape[0]):
-                total[c, h] += out[h]
-
-
 @njit(cache=True)
 def rollout_uncertainty(particles, world, tables, sequences, hypotheses, scoring, total):
     """Roll every action sequence ``sequences`` (C, H) out in every world of ``hypotheses`` (the
@@ -319,5 +306,12 @@ def rollout_uncertainty(particles, world, tables, sequences, hypotheses, scoring
     if scoring.checkpoints[0]:
         now = _uncertainty(particles.locations, particles.maps, rollout, tables, np.int64(0),  # int64: one compile
                            scoring.location_weight, scratch)
-    _roll_all(particles, world, tables, sequences, hypotheses, scoring, now, rollout, scratch,
-              np.zeros(sequences.shape[1] + 1), total)
+    out = np.empty(sequences.shape[1] + 1)
+    for s in range(hypotheses.locations.shape[0]):
+        for c in range(sequences.shape[0]):
+            for h in range(out.shape[0]):
+                out[h] = 0.0
+            out[0] = now
+            _rollout(particles, world, tables, sequences[c], hypotheses, s, scoring, rollout, scratch, out)
+            for h in range(out.shape[0]):
+                total[c, h] += out[h]
