@@ -112,7 +112,7 @@ def world_step(world, tables, where, labels, a, world_u, change_u, readings):
     return where
 
 
-@loop_kernel
+@njit(cache=True, inline="always")
 def _current(maps, rollout, tables, p, c, h, out):
     """out (K,) <- particle p's marginal of cell c after h rollout steps."""
     for j in range(rollout.n[p]):
