@@ -14,8 +14,8 @@ cell ``i`` (the belief's map marginal).
 
 Bundles: the model's motion and sensor tables are the RBPF's ``World``
 (``onlinemap.estimators.rbpf_kernels.world_tables``); :class:`RolloutTables` adds what only the
-rollouts read. Every loop runs in a :data:`~onlinemap.kernels.loop_kernel` (bundles cost nothing
-there); the entry point only allocates.
+rollouts read. The loops over particles and cells run in :data:`~onlinemap.kernels.loop_kernel`\ s
+(bundles cost nothing there); the entry point allocates and loops over worlds and candidates.
 """
 
 from __future__ import annotations
