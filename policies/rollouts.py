@@ -17,30 +17,40 @@ footprint, 10 x 10: 33 ms per plan, 10.6 ms per decision.
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 
 from onlinemap.estimators.base import ParticleSnapshot
+from onlinemap.estimators.rbpf_kernels import world_tables
 from onlinemap.model import GridModel, change_powers
 
 from .information import entropy
-from .kernels.footprint import plan_rollouts
-from .kernels.planning import rollout_uncertainty
-
-
-class RolloutTables(NamedTuple):
-    """The model's tables as the kernel takes them, for horizons up to H."""
-
-    sensor_cdf: np.ndarray  # (K, K)
-    change_cdf: np.ndarray  # (K, K)
-    powers: np.ndarray  # (H + 1, K, K) C^d
+from .kernels.footprint import Agreement, Candidates, plan_rollouts
+from .kernels.planning import Hypotheses, RolloutTables, Scoring, rollout_uncertainty
 
 
 def rollout_tables(model: GridModel, horizon: int) -> RolloutTables:
     """Cumulative sensor and change rows and the powers of C up to ``horizon``. O(H K^3)."""
     return RolloutTables(np.cumsum(model.sensor, axis=1), np.cumsum(model.change, axis=1),
-                         change_powers(model.change, horizon + 1).copy())  # writable: the kernels' one signature
+                         change_powers(model.change, horizon + 1).copy(),  # writable: the kernels' one signature
+                         not model.is_static)
+
+
+def draw_hypotheses(model: GridModel, worlds: tuple[np.ndarray, np.ndarray], horizon: int, r_count: int,
+               rng: np.random.Generator, per_world: bool) -> Hypotheses:
+    """The worlds ``(locations (S,), labels (S, N))`` with the random numbers of their steps:
+    ``world_u`` (S, H, 1 + F), ``change_u`` (S, H, N) (N = 0 in a static world), ``proposal_u``
+    (S, H, R), drawn from ``rng`` world by world (``per_world``: the three of world s, then those
+    of world s + 1) or each for all worlds at once. O(S H (F + N + R))."""
+    n_worlds, n_change = len(worlds[0]), 0 if model.is_static else model.n_cells
+    shapes = ((horizon, 1 + model.n_readings), (horizon, n_change), (horizon, r_count))
+    if per_world:
+        drawn = [[rng.random(shape) for shape in shapes] for _ in range(n_worlds)]
+        world_u, change_u, proposal_u = (np.array([d[i] for d in drawn]).reshape((n_worlds,) + shapes[i])
+                                         for i in range(3))
+    else:
+        world_u, change_u, proposal_u = (rng.random((n_worlds,) + shape) for shape in shapes)
+    return Hypotheses(np.asarray(worlds[0], dtype=np.int64), np.ascontiguousarray(worlds[1], dtype=np.int64),
+                      world_u, change_u, proposal_u)
 
 
 def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot, sequences: np.ndarray,
@@ -51,32 +61,13 @@ def particle_expected_uncertainty(model: GridModel, particles: ParticleSnapshot,
     prefix length h with ``checkpoints[h]`` (other entries 0), averaged over the worlds
     ``(locations (S,), labels (S, N))``; every sequence sees the same worlds and random numbers.
     Cost O(S C (H R (H + K^2) + n_checkpoints R N K)), the uncertainty now (O(R N K)) once."""
+    sequences = np.ascontiguousarray(sequences, dtype=np.int64)
     n_seq, horizon = sequences.shape
     tables = rollout_tables(model, horizon) if tables is None else tables
-    dynamic = not model.is_static
-    checkpoints = np.asarray(checkpoints, dtype=np.bool_)
     total = np.zeros((n_seq, horizon + 1))
-    out = np.zeros(horizon + 1)
-    r_count = len(particles.locations)
-    arrays = (particles.locations, particles.maps, particles.log_weights, model.moves, model.p_move, model.likelihood,
-              tables.sensor_cdf, tables.change_cdf, tables.powers, dynamic)
-    now = 0.0  # the uncertainty now, the same in every world: one rollout of no step
-    if checkpoints[0]:
-        rollout_uncertainty(*arrays, sequences[0, :0], int(worlds[0][0]), worlds[1][0], np.empty((0, 2)),
-                            np.empty((0, model.n_cells if dynamic else 0)), np.empty((0, r_count)),
-                            float(location_weight), checkpoints[:1], out)
-        now = out[0]
-    later = np.concatenate([[False], checkpoints[1:]])  # the rollouts score the steps after now
-    for location, labels in zip(*worlds):
-        world_u = rng.random((horizon, 2))
-        change_u = rng.random((horizon, model.n_cells if dynamic else 0))
-        proposal_u = rng.random((horizon, r_count))
-        for c in range(n_seq):
-            out[:] = 0.0
-            out[0] = now
-            rollout_uncertainty(*arrays, sequences[c], int(location), labels, world_u, change_u, proposal_u,
-                                float(location_weight), later, out)
-            total[c] += out
+    rollout_uncertainty(particles, world_tables(model), tables, sequences,
+                        draw_hypotheses(model, worlds, horizon, len(particles.locations), rng, per_world=True),
+                        Scoring(float(location_weight), np.asarray(checkpoints, dtype=np.bool_)), total)
     return total / len(worlds[0])
 
 
@@ -108,22 +99,16 @@ def footprint_expected_uncertainty(model: GridModel, particles: ParticleSnapshot
     sequences = np.ascontiguousarray(sequences, dtype=np.int64)
     n_seq, horizon = sequences.shape
     tables = rollout_tables(model, horizon) if tables is None else tables
-    n_worlds, r_count = len(worlds[0]), len(particles.locations)
-    world_u = rng.random((n_worlds, horizon, 1 + model.n_readings))
-    change_u = rng.random((n_worlds, horizon, 0 if model.is_static else model.n_cells))
-    proposal_u = rng.random((n_worlds, horizon, r_count))
-    disputed, agree_entropy = agreement(model, particles, horizon, tables)
+    drawn = draw_hypotheses(model, worlds, horizon, len(particles.locations), rng, per_world=False)
     if distances is None:
         distances = np.zeros((n_seq, model.n_cells))
         go = np.zeros((model.n_cells, model.n_actions))
     total = np.zeros((n_seq, horizon + 1))
-    plan_rollouts(particles.locations, np.ascontiguousarray(particles.maps), particles.log_weights, model.moves,
-                  model.p_move, model.blocking, model.footprint_cells, model.sensor, tables.sensor_cdf, model.change,
-                  tables.change_cdf, tables.powers, not model.is_static, sequences, np.ascontiguousarray(distances),
-                  np.ascontiguousarray(go, dtype=np.float64), worlds[0].astype(np.int64),
-                  np.ascontiguousarray(worlds[1], dtype=np.int64), world_u, change_u, proposal_u,
-                  float(location_weight), np.asarray(checkpoints, dtype=np.bool_), disputed, agree_entropy, total)
-    return total / n_worlds
+    plan_rollouts(particles._replace(maps=np.ascontiguousarray(particles.maps)), world_tables(model), tables,
+                  Candidates(sequences, np.ascontiguousarray(distances), np.ascontiguousarray(go, dtype=np.float64)),
+                  drawn, Scoring(float(location_weight), np.asarray(checkpoints, dtype=np.bool_)),
+                  Agreement(*agreement(model, particles, horizon, tables)), total)
+    return total / len(drawn.locations)
 
 
 def rollout_operations(model: GridModel, hypotheses: int, candidates: int, horizon: int, lengths: int,

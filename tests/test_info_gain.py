@@ -17,6 +17,7 @@ from onlinemap.estimators import fork, make_estimator
 from oracles import BruteForce
 from policies import InfoGainExplorer, expected_uncertainty, explore, exploration_world, make_planner
 from onlinemap.estimators.base import ParticleSnapshot
+from onlinemap.estimators.rbpf_kernels import world_tables
 from policies.information import uncertainty
 from policies.rollouts import footprint_expected_uncertainty, particle_expected_uncertainty
 
@@ -569,7 +570,8 @@ def test_a_rollout_step_is_bayes_in_expectation(world):
     action and the simulated reading, computed here by brute force over (l, m) states. Mean over
     4000 draws; an entry whose draws vary must lie within 4.5 standard errors (a false failure of
     about 7e-6 per entry, under 1e-3 over the at most 60 entries), the others to rounding."""
-    from policies.kernels.footprint import rollout_beliefs
+    from policies.kernels.footprint import Beliefs, rollout_beliefs
+    from policies.kernels.planning import Hypotheses
     from policies.rollouts import rollout_tables
 
     model = STEP_WORLDS[world]()
@@ -589,10 +591,9 @@ def test_a_rollout_step_is_bayes_in_expectation(world):
     for _ in range(4000):
         out_location, out_maps = np.zeros((2, n)), np.zeros((2, n, k))
         where, readings = np.zeros(2, dtype=np.int64), np.zeros((1, f), dtype=np.int64)
-        rollout_beliefs(locations, maps, log_weights, model.moves, model.p_move, model.blocking, model.footprint_cells,
-                        model.sensor, tables.sensor_cdf, model.change, tables.change_cdf, tables.powers,
-                        not model.is_static, np.array([action]), state[0], np.array(state[1]), world_u, change_u,
-                        rng.random((1, r_count)), out_location, out_maps, where, readings)
+        rollout_beliefs(ParticleSnapshot(locations, maps, log_weights), world_tables(model), tables, np.array([action]),
+                        Hypotheses(np.array([state[0]]), np.array([state[1]]), world_u[None], change_u[None],
+                                   rng.random((1, 1, r_count))), Beliefs(out_location, out_maps, where, readings))
         location_draws.append(out_location[1])
         map_draws.append(out_maps[1])
     z = readings[0] if f > 1 else int(readings[0, 0])
@@ -608,7 +609,8 @@ def test_rollout_uncertainty_equals_the_whole_beliefs(p_door):
     """plan_rollouts sums the entropy of the cells every particle agrees on once and recomputes
     only the disputed and touched cells: its U after every step equals U of the whole weighted
     particle belief that rollout_beliefs returns for the same world and random numbers."""
-    from policies.kernels.footprint import plan_rollouts, rollout_beliefs
+    from policies.kernels.footprint import Agreement, Beliefs, Candidates, plan_rollouts, rollout_beliefs
+    from policies.kernels.planning import Hypotheses, Scoring
     from policies.rollouts import agreement, rollout_tables
 
     model, _ = om.door_world(blocking=True, footprint="cross", p_door=p_door)
@@ -624,13 +626,12 @@ def test_rollout_uncertainty_equals_the_whole_beliefs(p_door):
     disputed, agree = agreement(model, particles, horizon, tables)
     assert disputed.tolist() == list(range(30))
     out = np.zeros((1, horizon + 1))
-    arrays = (model.moves, model.p_move, model.blocking, model.footprint_cells, model.sensor, tables.sensor_cdf,
-              model.change, tables.change_cdf, tables.powers, not model.is_static)
-    plan_rollouts(*particles, *arrays, actions[None], np.zeros((1, n)), np.zeros((n, 4)), np.array([55]),
-                  labels[None], world_u, change_u, proposal_u, 2.0, np.ones(horizon + 1, bool), disputed, agree, out)
+    world, hyp = world_tables(model), Hypotheses(np.array([55]), labels[None], world_u, change_u, proposal_u)
+    plan_rollouts(particles, world, tables, Candidates(actions[None], np.zeros((1, n)), np.zeros((n, 4))), hyp,
+                  Scoring(2.0, np.ones(horizon + 1, bool)), Agreement(disputed, agree), out)
     location, mixture = np.zeros((horizon + 1, n)), np.zeros((horizon + 1, n, 4))
-    rollout_beliefs(*particles, *arrays, actions, 55, labels, world_u[0], change_u[0], proposal_u[0], location, mixture,
-                    np.zeros(horizon + 1, dtype=np.int64), np.zeros((horizon, 5), dtype=np.int64))
+    where, readings = np.zeros(horizon + 1, dtype=np.int64), np.zeros((horizon, 5), dtype=np.int64)
+    rollout_beliefs(particles, world, tables, actions, hyp, Beliefs(location, mixture, where, readings))
     whole = [2.0 * entropy(location[h]) + sum(entropy(row) for row in mixture[h]) for h in range(horizon + 1)]
     np.testing.assert_allclose(out[0], whole, rtol=1e-12, atol=1e-10)
 
@@ -642,7 +643,8 @@ def test_candidates_pressing_alike_share_a_rollout_and_score_as_if_alone(p_door)
     with that candidate alone. Fixed sequences that share prefixes of 0 to 7 presses, and
     candidates choosing in closed loop (towards random distance fields), part at every step; half
     the cells agreed (their entropy is summed once and a touched one recomputed)."""
-    from policies.kernels.footprint import plan_rollouts
+    from policies.kernels.footprint import Agreement, Candidates, plan_rollouts
+    from policies.kernels.planning import Hypotheses, Scoring
     from policies.rollouts import agreement, rollout_tables
 
     model, _ = om.door_world(blocking=True, footprint="cross", p_door=p_door)
@@ -666,13 +668,12 @@ def test_candidates_pressing_alike_share_a_rollout_and_score_as_if_alone(p_door)
     disputed, agree = agreement(model, particles, horizon, tables)
     checkpoints = np.zeros(horizon + 1, dtype=bool)
     checkpoints[[0, 1, 2, 4, 8, 9]] = True
-    arrays = (model.moves, model.p_move, model.blocking, model.footprint_cells, model.sensor, tables.sensor_cdf,
-              model.change, tables.change_cdf, tables.powers, not model.is_static)
+    world, hyp = world_tables(model), Hypotheses(*hyp, world_u, change_u, proposal_u)
 
     def scores(rows):
         out = np.zeros((len(rows), horizon + 1))
-        plan_rollouts(*particles, *arrays, sequences[rows], distances[rows], go, *hyp, world_u, change_u, proposal_u,
-                      2.0, checkpoints, disputed, agree, out)
+        plan_rollouts(particles, world, tables, Candidates(sequences[rows], distances[rows], go), hyp,
+                      Scoring(2.0, checkpoints), Agreement(disputed, agree), out)
         return out
 
     together = scores(np.arange(len(sequences)))

@@ -19,69 +19,150 @@ change. Every rollout resets the slots it used.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from onlinemap.kernels import loop_kernel
+from onlinemap.kernels.rbpf import carried
 
-from .planning import draw, entropy, normalise
+from .mixture import Mixture, mixture_scratch, mixture_uncertainty
+from .planning import normalise, world_step
 
 
 NEGLIGIBLE = math.log(1e-9)  # a rollout drops a particle whose weight falls below 1e-9 of the largest
 
 
+class Candidates(NamedTuple):
+    """``sequences`` (C, H) actions, -1 at a step where the action is chosen in closed loop on the
+    rollout's own belief towards the candidate's target (:func:`_closed_loop_action` with
+    ``distances[c]`` (N,) and ``go`` (N, A), the chance each press moves)."""
+
+    sequences: np.ndarray
+    distances: np.ndarray
+    go: np.ndarray
+
+
+class Agreement(NamedTuple):
+    """``disputed`` (D,) sorted: the cells whose base marginals differ between particles;
+    ``entropy`` (H + 1,): the summed entropy of the other cells' base marginals at step h."""
+
+    disputed: np.ndarray
+    entropy: np.ndarray
+
+
+class Overlays(NamedTuple):
+    """The overlays of R particles' maps (module docstring), with a leading (S',) axis for S'
+    rollout states or of one state (:func:`_state`): ``index`` (R, N) a cell's slot or -1,
+    ``cell``/``stamp`` (R, W), ``val`` (R, W, K), ``n`` (R,) slots used, ``touched`` (N,) and
+    ``touched_list`` (R W,) the cells some particle wrote."""
+
+    index: np.ndarray
+    cell: np.ndarray
+    val: np.ndarray
+    stamp: np.ndarray
+    n: np.ndarray
+    touched: np.ndarray
+    touched_list: np.ndarray
+
+
+class Beliefs(NamedTuple):
+    """:func:`rollout_beliefs`' output: ``location`` (H + 1, N) and ``maps`` (H + 1, N, K) the
+    weighted particle locations and map mixture after each step, ``where`` (H + 1,) the world's
+    location and ``readings`` (H, F) its readings."""
+
+    location: np.ndarray
+    maps: np.ndarray
+    where: np.ndarray
+    readings: np.ndarray
+
+
+class _States(NamedTuple):
+    """S' rollout states: particles ``loc``/``lw`` (S', R), the world's ``labels`` (S', N) and
+    ``where`` (S',), the touched cells' counts ``n_touched`` (S',), the :class:`Overlays`."""
+
+    loc: np.ndarray
+    lw: np.ndarray
+    labels: np.ndarray
+    where: np.ndarray
+    n_touched: np.ndarray
+    overlays: Overlays
+
+
+class _Step(NamedTuple):
+    """Scratch of a filter step, row s for successor s (0 stay, 1 move): ``ids`` (2, F + 1) the
+    cells it changes, ``cells`` (2, F + 1, K) their marginals, ``before`` (2, K) the cell pressed
+    towards, ``lams``/``slots`` (2, F) each read's likelihood and row; ``readings`` (F,)."""
+
+    ids: np.ndarray
+    cells: np.ndarray
+    before: np.ndarray
+    lams: np.ndarray
+    slots: np.ndarray
+    readings: np.ndarray
+
+
+class _Groups(NamedTuple):
+    """Candidate c's ``group`` (the candidates that pressed alike so far) and ``action`` (C,);
+    ``parted`` (A,) the group a press parts into at one step; ``pending`` (C, 3) groups to roll
+    out (group, state, first step); ``free`` (C,) states not in use, the last freed on top."""
+
+    group: np.ndarray
+    action: np.ndarray
+    parted: np.ndarray
+    pending: np.ndarray
+    free: np.ndarray
+
+
+class _Work(NamedTuple):
+    """Everything :func:`plan_rollouts` allocates once for all worlds."""
+
+    states: _States
+    step: _Step
+    mixture: Mixture
+    groups: _Groups
+
+
 @njit(cache=True, inline="always")
-def _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, out, column):
+def _state(overlays, x):
+    """Rollout state x's :class:`Overlays` (views)."""
+    return Overlays(overlays.index[x], overlays.cell[x], overlays.val[x], overlays.stamp[x], overlays.n[x],
+                    overlays.touched[x], overlays.touched_list[x])
+
+
+@njit(cache=True, inline="always")
+def _marginal(maps, ov, tables, p, c, h, out, column):
     """out (K,) <- particle p's marginal of cell c at rollout step h (an overlay slot if it has one);
     returns ``sum_b out[b] column[b]`` (added in order of b as each entry is made: a reading's
     likelihood with ``column = O[:, z]``). A caller that wants only ``out`` passes ``out`` itself
     and drops the sum (inlined, the compiler removes it)."""
-    k = out.shape[0]
-    slot = ov_index[p, c]
-    d = h if slot < 0 else h - ov_stamp[p, slot]
+    slot = ov.index[p, c]
+    d = h if slot < 0 else h - ov.stamp[p, slot]
+    if not tables.dynamic:
+        d = 0
     total = 0.0
-    for b in range(k):
-        if dynamic and d > 0:
-            acc = 0.0
-            for a in range(k):
-                acc += (maps[p, c, a] if slot < 0 else ov_val[p, slot, a]) * powers[d, a, b]
-            out[b] = acc
-        else:
-            out[b] = maps[p, c, b] if slot < 0 else ov_val[p, slot, b]
+    for b in range(out.shape[0]):
+        out[b] = carried(maps, tables.powers, d, p, c, b) if slot < 0 else carried(ov.val, tables.powers, d, p,
+                                                                                   slot, b)
         total += out[b] * column[b]
     return total
 
 
 @njit(cache=True, inline="always")
-def _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, n, s, h, p_move, blocking,
-               has_blocking, footprint_cells, sensor, readings, ids, cells, before, lams, slots):
-    """Successor s (0 stay, 1 move) of particle p at l pressing towards n, at step h: returns
-    ``(cell, motion probability x likelihood, used)``, writing the changed cells' ids (used,)
-    and their marginals at step h, before the readings, ``cells (used, K)``; read f's likelihood
-    ``lams[f]`` and its row of ``cells``, ``slots[f]`` (-1: no reading). Those are complete only
-    when the returned weight is positive, as it is for the successor drawn, the one whose rows
-    :func:`_read` turns into posteriors. ``before`` (K,): n's marginal at step h - 1 (read by the
-    caller when the move is gated by blocking)."""
-    k = sensor.shape[0]
-    gated = has_blocking and n != l
-    if s == 1:
-        if n == l:
-            return l, 0.0, 0
-        j = n
-        probability = p_move
-    else:
-        j = l
-        probability = 1.0 if n == l else 1.0 - p_move
-    used = 0
-    if gated:
-        passable = 0.0
-        for b in range(k):
-            if not blocking[b]:
-                passable += before[b]
-        probability = p_move * passable if s == 1 else 1.0 - p_move * passable
-        if probability <= 0.0:
-            return j, 0.0, 0
+def _gate(world, tables, s, before, cells):
+    """Successor s's motion probability when the move is gated by blocking: ``p_move P(m_n
+    passable)`` to move, the rest to stay, judged on n's marginal ``before`` (K,) at step h - 1.
+    Where positive, ``cells[0]`` <- n's marginal given the outcome (passable if it moved; ``(1 -
+    p_move) + p_move [blocks]`` if it stayed), carried by C (``before`` is then scratch)."""
+    k = before.shape[0]
+    p_move, blocking = world.p_move, world.blocking
+    passable = 0.0
+    for b in range(k):
+        if not blocking[b]:
+            passable += before[b]
+    probability = p_move * passable if s == 1 else 1.0 - p_move * passable
+    if probability > 0.0:
         total = 0.0
         for b in range(k):
             factor = (0.0 if blocking[b] else 1.0) if s == 1 else (1.0 - p_move) + (p_move if blocking[b] else 0.0)
@@ -89,21 +170,48 @@ def _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, 
             total += cells[0, b]
         for b in range(k):
             cells[0, b] /= total
-        if dynamic:
+        if tables.dynamic:
             for b in range(k):
                 acc = 0.0
                 for a in range(k):
-                    acc += cells[0, a] * change[a, b]
+                    acc += cells[0, a] * world.change[a, b]
                 before[b] = acc  # scratch: n's marginal at step h, given the outcome
             for b in range(k):
                 cells[0, b] = before[b]
+    return probability
+
+
+@njit(cache=True, inline="always")
+def _successor(maps, ov, world, tables, p, l, n, s, h, step):
+    """Successor s (0 stay, 1 move) of particle p at l pressing towards n, at step h: returns
+    ``(cell, motion probability x likelihood, used)``, writing into row s of ``step`` the changed
+    cells' ids (used,) and their marginals at step h, before the readings, ``cells (used, K)``;
+    read f's likelihood ``lams[f]`` and its row of ``cells``, ``slots[f]`` (-1: no reading). Those
+    are complete only when the returned weight is positive, as it is for the successor drawn, the
+    one whose rows :func:`_read` turns into posteriors. ``before[s]`` (K,): n's marginal at step
+    h - 1 (read by the caller when the move is gated by blocking, :func:`_gate`)."""
+    ids, cells, lams, slots, readings = step.ids[s], step.cells[s], step.lams[s], step.slots[s], step.readings
+    gated = world.has_blocking and n != l
+    if s == 1:
+        if n == l:
+            return l, 0.0, 0
+        j = n
+        probability = world.p_move
+    else:
+        j = l
+        probability = 1.0 if n == l else 1.0 - world.p_move
+    used = 0
+    if gated:
+        probability = _gate(world, tables, s, step.before[s], cells)
+        if probability <= 0.0:
+            return j, 0.0, 0
         ids[0] = n
         used = 1
     elif probability <= 0.0:
         return j, 0.0, 0
     likelihood = probability
-    for f in range(footprint_cells.shape[1]):
-        c = footprint_cells[j, f]
+    for f in range(world.footprint_cells.shape[1]):
+        c = world.footprint_cells[j, f]
         z = readings[f]
         slots[f] = -1
         if c < 0 or z < 0:
@@ -114,10 +222,10 @@ def _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, 
         lam = 0.0
         if gated and ids[0] == c:  # the cell the move tried to enter, given the move's outcome
             w = 0
-            for b in range(k):
-                lam += cells[w, b] * sensor[b, z]
+            for b in range(world.sensor.shape[0]):
+                lam += cells[w, b] * world.sensor[b, z]
         else:
-            lam = _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, cells[w], sensor[:, z])
+            lam = _marginal(maps, ov, tables, p, c, h, cells[w], world.sensor[:, z])
             ids[w] = c
             used += 1
         if lam <= 0.0:
@@ -129,10 +237,11 @@ def _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, 
 
 
 @njit(cache=True, inline="always")
-def _read(sensor, readings, cells, lams, slots):
-    """The rows ``cells`` (W, K) of a successor (:func:`_successor`) given their readings:
+def _read(sensor, step, s):
+    """The rows ``cells`` (W, K) of successor s (:func:`_successor`) given their readings:
     ``cells[w] <- cells[w] O[:, z] / lam`` for read f's row w = ``slots[f]``. Each footprint cell
     is read once, so no likelihood depends on another read's posterior."""
+    cells, lams, slots, readings = step.cells[s], step.lams[s], step.slots[s], step.readings
     k = sensor.shape[0]
     for f in range(slots.shape[0]):
         w = slots[f]
@@ -144,52 +253,51 @@ def _read(sensor, readings, cells, lams, slots):
             cells[w, b] = cells[w, b] * sensor[b, z] / lam
 
 
-@loop_kernel
-def _world_step(where, labels, a, moves, p_move, blocking, dynamic, change_cdf, sensor_cdf, footprint_cells,
-                world_u, change_u, readings):
-    """One step of the hypothetical world (``onlinemap.simulate.world_step``'s order and rules):
-    the move with ``world_u[0] < p_move`` unless the intended cell's label blocks, the labels by
-    ``change_cdf`` with ``change_u`` (N,), the readings with ``world_u[1 + f]`` (-1 off the grid).
-    Returns the new location; ``labels`` and ``readings`` (F,) are written in place."""
-    if world_u[0] < p_move:
-        target = moves[a, where]
-        if not blocking[labels[target]]:
-            where = target
-    if dynamic:
-        for i in range(labels.shape[0]):
-            labels[i] = draw(change_cdf[labels[i]], change_u[i])
-    for f in range(footprint_cells.shape[1]):
-        c = footprint_cells[where, f]
-        readings[f] = -1 if c < 0 else draw(sensor_cdf[labels[c]], world_u[1 + f])
-    return where
+@njit(cache=True, inline="always")
+def _keep(ov, p, h, ids, cells, used, n_touched):
+    """Particle p's overlay slots of the cells ``ids`` (used,) <- ``cells`` (used, K), stamped h
+    (a slot taken for a cell without one); each cell flagged in ``touched`` and listed once.
+    Returns the new count of touched cells."""
+    for v in range(used):
+        c = ids[v]
+        slot = ov.index[p, c]
+        if slot < 0:
+            slot = ov.n[p]
+            ov.n[p] += 1
+            ov.index[p, c] = slot
+            ov.cell[p, slot] = c
+        for b in range(cells.shape[1]):
+            ov.val[p, slot, b] = cells[v, b]
+        ov.stamp[p, slot] = h
+        if not ov.touched[c]:
+            ov.touched[c] = True
+            ov.touched_list[n_touched] = c
+            n_touched += 1
+    return n_touched
 
 
 @loop_kernel
-def _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, powers, change, dynamic, a, h, moves,
-                 p_move, blocking, has_blocking, footprint_cells, sensor, readings, proposal_u, ids, cells, before,
-                 lams, slots, touched, touched_list, n_touched):
-    """Every particle takes step h (action a, the readings); weights renormalised (all particles
-    kept, equally weighted, if none explains the readings). Cells any particle changes are
-    flagged in ``touched`` (N,) and listed in ``touched_list``; returns the new count. Both
-    successors' likelihoods are computed, the posterior cells only for the one drawn."""
-    r_count = loc.shape[0]
-    k = sensor.shape[0]
+def _filter_step(loc, lw, maps, ov, world, tables, a, h, proposal_u, step, n_touched):
+    """Every particle (``loc``, ``lw`` (R,)) takes step h (action a, ``step.readings``); weights
+    renormalised (all particles kept, equally weighted, if none explains the readings). Cells any
+    particle changes are flagged and listed in ``ov`` (:func:`_keep`); returns their new count
+    (``n_touched`` before). Both successors' likelihoods are computed, the posterior cells only for
+    the one drawn. O(R (F + 1) K) (K^2 with map dynamics)."""
+    before = step.before
     top = -np.inf
-    for p in range(r_count):
+    for p in range(loc.shape[0]):
         if lw[p] == -np.inf:
             continue
         l = loc[p]
-        n = moves[a, l]
-        if has_blocking and n != l:
-            _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, n, h - 1, before[0], before[0])
-            for b in range(k):
+        n = world.moves[a, l]
+        if world.has_blocking and n != l:
+            _marginal(maps, ov, tables, p, n, h - 1, before[0], before[0])
+            for b in range(before.shape[1]):
                 before[1, b] = before[0, b]
         j0, w0, u0 = l, 0.0, 0
         j1, w1, u1 = l, 0.0, 0
         for s in range(2):  # one copy of the successor's code for both: half the code to compile
-            j, w, u = _successor(maps, ov_index, ov_val, ov_stamp, powers, change, dynamic, p, l, n, s, h, p_move,
-                                 blocking, has_blocking, footprint_cells, sensor, readings, ids[s], cells[s],
-                                 before[s], lams[s], slots[s])
+            j, w, u = _successor(maps, ov, world, tables, p, l, n, s, h, step)
             if s == 0:
                 j0, w0, u0 = j, w, u
             else:
@@ -201,23 +309,8 @@ def _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, power
         s = 1 if proposal_u[p] * total < w1 else 0
         lw[p] += math.log(total)
         loc[p] = j1 if s == 1 else j0
-        used = u1 if s == 1 else u0
-        _read(sensor, readings, cells[s], lams[s], slots[s])
-        for v in range(used):
-            c = ids[s, v]
-            slot = ov_index[p, c]
-            if slot < 0:
-                slot = ov_n[p]
-                ov_n[p] += 1
-                ov_index[p, c] = slot
-                ov_cell[p, slot] = c
-            for b in range(k):
-                ov_val[p, slot, b] = cells[s, v, b]
-            ov_stamp[p, slot] = h
-            if not touched[c]:
-                touched[c] = True
-                touched_list[n_touched] = c
-                n_touched += 1
+        _read(world.sensor, step, s)
+        n_touched = _keep(ov, p, h, step.ids[s], step.cells[s], u1 if s == 1 else u0, n_touched)
         if lw[p] > top:
             top = lw[p]
     normalise(lw, top, NEGLIGIBLE)  # a particle this far behind is dropped from the rollout
@@ -247,318 +340,230 @@ def _closed_loop_action(loc, lw, moves, distance, go, weights):
     return best
 
 
-@njit(cache=True, inline="always")
-def _carried(row, powers, dynamic, d, out):
-    """out (K,) <- ``row @ C^d`` (``row`` itself where d = 0 or the world is static)."""
-    k = out.shape[0]
-    for b in range(k):
-        if dynamic and d > 0:
-            acc = 0.0
-            for a in range(k):
-                acc += row[a] * powers[d, a, b]
-            out[b] = acc
-        else:
-            out[b] = row[b]
-
-
 @loop_kernel
-def _mixture_uncertainty(loc, lw, maps, disputed, disputed_maps, disputed_mix, disputed_mask, ov_cell, ov_val,
-                         ov_stamp, ov_n, powers, dynamic, h, location_weight, touched_list, n_touched, agree_entropy,
-                         location, mix, scratch, scratch2, weights):
-    """``location_weight * H(L) + sum_i H(M_i)`` of the weighted particles at step h. The mixture
-    ``M_i = sum_p w_p m_p(i)`` is recomputed on the disputed cells (``disputed`` (D,), their base
-    marginals ``disputed_maps`` (R, D K), ``disputed_mask`` (N,)) and the touched ones: the base
-    part by a weighted sum (into ``disputed_mix`` (D K,), particle by particle: one long contiguous
-    loop per particle instead of a K-long one per cell and particle, the same sums in the same
-    order), then each particle's overlay slots add ``w_p (overlay - base)``. Every
-    other cell's term is the same for any weights: ``agree_entropy`` holds their sum at step h
-    (a touched agreed cell's term is taken out and recomputed). ``mix`` (N, K) is zero on entry
-    and on exit. O(R D K + R H F K + (D + T) K) (K^2 instead of K with map dynamics)."""
-    r_count = loc.shape[0]
-    k = scratch.shape[0]
-    for p in range(r_count):
-        location[loc[p]] = 0.0
-        weights[p] = math.exp(lw[p])
-    for p in range(r_count):
-        location[loc[p]] += weights[p]
-    h_location = 0.0
-    for p in range(r_count):
-        x = location[loc[p]]
-        if x > 0.0:
-            h_location -= x * math.log(x)
-            location[loc[p]] = 0.0  # each cell once
-    total = location_weight * h_location + agree_entropy
-    for j in range(disputed_mix.shape[0]):
-        disputed_mix[j] = 0.0
-    for p in range(r_count):
-        w = weights[p]
-        if w > 0.0:
-            for j in range(disputed_mix.shape[0]):
-                disputed_mix[j] += w * disputed_maps[p, j]
-    for d in range(disputed.shape[0]):
-        _carried(disputed_mix[d * k:(d + 1) * k], powers, dynamic, h, mix[disputed[d]])
-    for index in range(n_touched):
-        c = touched_list[index]
-        if not disputed_mask[c]:  # an agreed cell a particle changed: its base term leaves the sum
-            _carried(maps[0, c], powers, dynamic, h, mix[c])
-            total -= entropy(mix[c])
-    for p in range(r_count):
-        w = weights[p]
-        if w == 0.0:
-            continue
-        for j in range(ov_n[p]):
-            c = ov_cell[p, j]
-            _carried(ov_val[p, j], powers, dynamic, h - ov_stamp[p, j], scratch)
-            _carried(maps[p, c], powers, dynamic, h, scratch2)
-            for b in range(k):
-                mix[c, b] += w * (scratch[b] - scratch2[b])
-    for pass_ in range(2):
-        count = disputed.shape[0] if pass_ == 0 else n_touched
-        for index in range(count):
-            c = disputed[index] if pass_ == 0 else touched_list[index]
-            if pass_ == 1 and disputed_mask[c]:
-                continue
-            for b in range(k):
-                if mix[c, b] < 0.0:  # rounding: keep every term a probability
-                    mix[c, b] = 0.0
-            total += entropy(mix[c])
-            mix[c] = 0.0
-    return total
-
-
-@njit(cache=True)
-def _reset(ov_index, ov_cell, ov_n, touched, touched_list, n_touched):
+def _reset(ov, n_touched):
     """Empty every particle's overlay and the touched set after a rollout. O(slots used)."""
-    for p in range(ov_n.shape[0]):
-        for j in range(ov_n[p]):
-            ov_index[p, ov_cell[p, j]] = -1
-        ov_n[p] = 0
+    for p in range(ov.n.shape[0]):
+        for j in range(ov.n[p]):
+            ov.index[p, ov.cell[p, j]] = -1
+        ov.n[p] = 0
     for j in range(n_touched):
-        touched[touched_list[j]] = False
+        ov.touched[ov.touched_list[j]] = False
 
 
 @njit(cache=True)
 def _overlays(n_states, r_count, n_cells, k, horizon, n_reads):
-    """The rollouts' copy-on-write overlays of R particles' maps, for ``n_states`` rollout states
-    at once (each particle writes at most H (F + 1) cells): ``ov_index`` (S', R, N) a cell's slot
-    or -1, ``ov_cell``/``ov_stamp`` (S', R, W), ``ov_val`` (S', R, W, K), ``ov_n`` (S', R) slots
-    used, ``touched`` (S', N) and ``touched_list`` (S', R W) the cells some particle wrote;
-    W = max(H, 1) (F + 1). O(S' R (N + W K))."""
+    """Empty :class:`Overlays` of R particles' maps for ``n_states`` rollout states (each particle
+    writes at most H (F + 1) cells: W = max(H, 1) (F + 1)). O(S' R (N + W K))."""
     width = max(horizon, 1) * (n_reads + 1)
-    return (np.full((n_states, r_count, n_cells), -1, dtype=np.int32),
-            np.empty((n_states, r_count, width), dtype=np.int64), np.empty((n_states, r_count, width, k)),
-            np.zeros((n_states, r_count, width), dtype=np.int64), np.zeros((n_states, r_count), dtype=np.int64),
-            np.zeros((n_states, n_cells), dtype=np.bool_), np.empty((n_states, r_count * width), dtype=np.int64))
-
-
-@loop_kernel
-def _fork(x, y, loc, lw, labels, where, ov_index, ov_cell, ov_val, ov_stamp, ov_n, touched, touched_list, n_touched):
-    """Rollout state y (empty) <- a copy of state x: the particles, the hypothetical world and the
-    overlays, slot for slot in the same order (so every later sum runs in the same order).
-    O(R (1 + W K) + N + T) for the W slots used and T cells touched."""
-    k = ov_val.shape[3]
-    for p in range(loc.shape[1]):
-        loc[y, p] = loc[x, p]
-        lw[y, p] = lw[x, p]
-        for j in range(ov_n[x, p]):
-            c = ov_cell[x, p, j]
-            ov_cell[y, p, j] = c
-            ov_stamp[y, p, j] = ov_stamp[x, p, j]
-            ov_index[y, p, c] = j
-            for b in range(k):
-                ov_val[y, p, j, b] = ov_val[x, p, j, b]
-        ov_n[y, p] = ov_n[x, p]
-    for i in range(labels.shape[1]):
-        labels[y, i] = labels[x, i]
-    where[y] = where[x]
-    for j in range(n_touched[x]):
-        c = touched_list[x, j]
-        touched_list[y, j] = c
-        touched[y, c] = True
-    n_touched[y] = n_touched[x]
+    return Overlays(np.full((n_states, r_count, n_cells), -1, dtype=np.int32),
+                    np.empty((n_states, r_count, width), dtype=np.int64), np.empty((n_states, r_count, width, k)),
+                    np.zeros((n_states, r_count, width), dtype=np.int64),
+                    np.zeros((n_states, r_count), dtype=np.int64), np.zeros((n_states, n_cells), dtype=np.bool_),
+                    np.empty((n_states, r_count * width), dtype=np.int64))
 
 
 @njit(cache=True)
-def plan_rollouts(locations, maps, log_weights, moves, p_move, blocking, footprint_cells, sensor, sensor_cdf, change,
-                  change_cdf, powers, dynamic, sequences, distances, go, hyp_locations, hyp_labels, world_u, change_u,
-                  proposal_u, location_weight, checkpoints, disputed, agree_entropy, out):
+def _step(n_reads, k):
+    """A filter step's scratch (:class:`_Step`) for F = ``n_reads`` readings."""
+    return _Step(np.empty((2, n_reads + 1), dtype=np.int64), np.empty((2, n_reads + 1, k)), np.empty((2, k)),
+                 np.empty((2, n_reads)), np.empty((2, n_reads), dtype=np.int64), np.empty(n_reads, dtype=np.int64))
+
+
+@loop_kernel
+def _fork(states, x, y):
+    """Rollout state y (empty) <- a copy of state x: the particles, the hypothetical world and the
+    overlays, slot for slot in the same order (so every later sum runs in the same order).
+    O(R (1 + W K) + N + T) for the W slots used and T cells touched."""
+    ov = states.overlays
+    k = ov.val.shape[3]
+    for p in range(states.loc.shape[1]):
+        states.loc[y, p] = states.loc[x, p]
+        states.lw[y, p] = states.lw[x, p]
+        for j in range(ov.n[x, p]):
+            c = ov.cell[x, p, j]
+            ov.cell[y, p, j] = c
+            ov.stamp[y, p, j] = ov.stamp[x, p, j]
+            ov.index[y, p, c] = j
+            for b in range(k):
+                ov.val[y, p, j, b] = ov.val[x, p, j, b]
+        ov.n[y, p] = ov.n[x, p]
+    for i in range(states.labels.shape[1]):
+        states.labels[y, i] = states.labels[x, i]
+    states.where[y] = states.where[x]
+    for j in range(states.n_touched[x]):
+        c = ov.touched_list[x, j]
+        ov.touched_list[y, j] = c
+        ov.touched[y, c] = True
+    states.n_touched[y] = states.n_touched[x]
+
+
+@loop_kernel
+def _press(moves, candidates, work, g, x, h, n_free, n_pending, n_groups):
+    """Every candidate of group g (in rollout state x) chooses its press at step h: its
+    sequence's, or in closed loop on the state's belief (:func:`_closed_loop_action`). A candidate
+    pressing otherwise than the group's first joins the group of its press, made the first time
+    from a copy of the state (:func:`_fork`) and put on the stack. Returns (the group's first
+    candidate, n_free, n_pending, n_groups)."""
+    states, groups = work.states, work.groups
+    lead = -1
+    for a in range(groups.parted.shape[0]):
+        groups.parted[a] = -1
+    for c in range(candidates.sequences.shape[0]):
+        if groups.group[c] != g:
+            continue
+        a = candidates.sequences[c, h - 1]
+        if a < 0:
+            a = _closed_loop_action(states.loc[x], states.lw[x], moves, candidates.distances[c], candidates.go,
+                                    work.mixture.weights)
+        groups.action[c] = a
+        if lead < 0:
+            lead = c
+        elif a != groups.action[lead]:  # c presses otherwise: its own group, from a copy of the state
+            if groups.parted[a] < 0:
+                n_free -= 1
+                y = groups.free[n_free]
+                _fork(states, x, y)
+                groups.parted[a] = n_groups
+                groups.pending[n_pending, 0], groups.pending[n_pending, 1], groups.pending[n_pending, 2] = \
+                    n_groups, y, h
+                n_pending += 1
+                n_groups += 1
+            groups.group[c] = groups.parted[a]
+    return lead, n_free, n_pending, n_groups
+
+
+@loop_kernel
+def _roll_world(particles, world, tables, candidates, hypotheses, s, scoring, agreement, now, work, out):
+    """:func:`plan_rollouts` in world s: every candidate from the particles, candidates that press
+    alike sharing one rollout state, a state stepped to the horizon before the next is taken from
+    the stack (depth first, so its memory stays in cache)."""
+    states, groups, maps = work.states, work.groups, particles.maps
+    n_seq, horizon = candidates.sequences.shape
+    for x in range(n_seq):
+        groups.free[x] = n_seq - 1 - x
+    n_free = n_seq - 1  # state 0 starts the world
+    for p in range(particles.locations.shape[0]):
+        states.loc[0, p] = particles.locations[p]
+        states.lw[0, p] = particles.log_weights[p]
+    for i in range(states.labels.shape[1]):
+        states.labels[0, i] = hypotheses.labels[s, i]
+    states.where[0] = hypotheses.locations[s]
+    for c in range(n_seq):
+        groups.group[c] = 0
+        if scoring.checkpoints[0]:
+            out[c, 0] += now
+    n_groups = np.int64(1)  # not the literal 1: _press compiles once
+    groups.pending[0, 0], groups.pending[0, 1], groups.pending[0, 2] = 0, 0, 1
+    n_pending = 1
+    while n_pending > 0:
+        n_pending -= 1
+        g, x, first_step = groups.pending[n_pending, 0], groups.pending[n_pending, 1], groups.pending[n_pending, 2]
+        ov = _state(states.overlays, x)
+        for h in range(first_step, horizon + 1):
+            lead, n_free, n_pending, n_groups = _press(world.moves, candidates, work, g, x, h, n_free, n_pending,
+                                                       n_groups)
+            a = groups.action[lead]
+            states.where[x] = world_step(world, tables, states.where[x], states.labels[x], a,
+                                         hypotheses.world_u[s, h - 1], hypotheses.change_u[s, h - 1],
+                                         work.step.readings)
+            states.n_touched[x] = _filter_step(states.loc[x], states.lw[x], maps, ov, world, tables, a, h,
+                                               hypotheses.proposal_u[s, h - 1], work.step, states.n_touched[x])
+            if scoring.checkpoints[h]:
+                value = mixture_uncertainty(states.loc[x], states.lw[x], maps, ov, tables, h, scoring.location_weight,
+                                            states.n_touched[x], agreement.entropy[h], agreement.disputed,
+                                            work.mixture)
+                for c in range(n_seq):
+                    if groups.group[c] == g:
+                        out[c, h] += value
+        _reset(ov, states.n_touched[x])
+        states.n_touched[x] = 0
+        groups.free[n_free] = x
+        n_free += 1
+
+
+@njit(cache=True)
+def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agreement, out):
     """Roll every candidate out in every hypothetical world through the thinned particle belief
     and add up its uncertainty: ``out[c, h] += U`` after h steps of candidate c in world s, for
-    every h with ``checkpoints[h]`` (``out`` (C, H + 1); the caller divides by S).
+    every h with ``scoring.checkpoints[h]`` (``out`` (C, H + 1); the caller divides by S).
 
-    Particles: ``locations`` (R,), base marginals ``maps`` (R, N, K), ``log_weights`` (R,). Model:
-    ``moves`` (A, N), ``blocking`` (K,) bool, ``footprint_cells`` (N, F), ``sensor`` (K, K),
-    cumulative rows ``sensor_cdf`` and ``change_cdf`` (K, K), ``change`` (K, K), ``powers`` (H + 1, K,
-    K) C^d. Candidates: ``sequences`` (C, H) actions, -1 at a step where the action is chosen in
-    closed loop on the rollout's own belief towards the candidate's target
-    (:func:`_closed_loop_action` with ``distances[c]`` (N,) and ``go`` (N, A)). Worlds:
-    ``hyp_locations`` (S,), ``hyp_labels`` (S, N) and their random numbers ``world_u`` (S, H, 1 + F),
-    ``change_u`` (S, H, N) (or (S, H, 0) in a static world), ``proposal_u`` (S, H, R), the same for
-    every candidate (common random numbers). ``disputed`` (D,) sorted: the cells whose base
-    marginals differ between particles; ``agree_entropy`` (H + 1,): the summed entropy of the
-    other cells' base marginals at step h.
+    ``particles``: a ``ParticleSnapshot`` (``maps`` C-contiguous); ``world``: the RBPF's ``World``
+    bundle; ``tables``: :class:`~policies.kernels.planning.RolloutTables`; ``candidates``:
+    :class:`Candidates`; ``hypotheses``: :class:`~policies.kernels.planning.Hypotheses` (the same
+    random numbers for every candidate); ``scoring``: :class:`~policies.kernels.planning.Scoring`;
+    ``agreement``: :class:`Agreement`.
 
     With common random numbers, candidates that have pressed alike so far in a world are in the
     same state: such a group shares one rollout state (one of C), stepped and scored once. When
     its candidates press differently, the state is copied (:func:`_fork`, before the step) for
-    each other press, and that group waits on a stack; one state steps to the horizon before the
-    next is taken (depth first, so its memory stays in cache). The scores are those of rolling
-    every candidate out alone, bit for bit; in the door world and 16 x 16 buildings 5-30% of the
-    steps are shared (plans 18% faster, measured on recorded plans).
+    each other press, and that group waits on a stack (:func:`_roll_world`). The scores are those
+    of rolling every candidate out alone, bit for bit; in the door world and 16 x 16 buildings
+    5-30% of the steps are shared (plans 18% faster, measured on recorded plans).
     Cost O(S C H R (F + 1) K) for the steps (K^2 with map dynamics) plus O(S C R (D + H F) K)
     per checkpoint, less the shared steps; memory O(C R (N + H F K)) for the states.
     """
-    r_count, n_cells, k = maps.shape
-    n_seq, horizon = sequences.shape
+    r_count, n_cells, k = particles.maps.shape
+    n_seq, horizon = candidates.sequences.shape
     if n_seq == 0:  # no candidate: nothing to score (and no rollout state to start from)
         return
-    n_reads = footprint_cells.shape[1]
-    has_blocking = np.any(blocking)
-    ov_index, ov_cell, ov_val, ov_stamp, ov_n, touched, touched_list = _overlays(n_seq, r_count, n_cells, k, horizon,
-                                                                                n_reads)
-    location = np.zeros(n_cells)
-    mix = np.zeros((n_cells, k))
-    scratch = np.empty(k)
-    scratch2 = np.empty(k)
-    weights = np.empty(r_count)
-    disputed_maps = np.empty((r_count, disputed.shape[0] * k))  # a particle's row contiguous for the sums
-    disputed_mix = np.empty(disputed.shape[0] * k)
-    disputed_mask = np.zeros(n_cells, dtype=np.bool_)
-    for d in range(disputed.shape[0]):
-        disputed_mask[disputed[d]] = True
-        for p in range(r_count):
-            for b in range(k):
-                disputed_maps[p, d * k + b] = maps[p, disputed[d], b]
-    ids = np.empty((2, n_reads + 1), dtype=np.int64)
-    cells = np.empty((2, n_reads + 1, k))
-    before = np.empty((2, k))
-    lams = np.empty((2, n_reads))
-    slots = np.empty((2, n_reads), dtype=np.int64)
-    readings = np.empty(n_reads, dtype=np.int64)
-    loc = np.empty((n_seq, r_count), dtype=np.int64)  # rollout state x: loc[x], lw[x], labels[x], where[x], ...
-    lw = np.empty((n_seq, r_count))
-    labels = np.empty((n_seq, n_cells), dtype=hyp_labels.dtype)
-    where = np.empty(n_seq, dtype=np.int64)
-    n_touched = np.zeros(n_seq, dtype=np.int64)
-    group = np.empty(n_seq, dtype=np.int64)  # candidate c's group: the candidates that pressed alike so far
-    action = np.empty(n_seq, dtype=np.int64)
-    parted = np.empty(moves.shape[0], dtype=np.int64)  # at one step, the group a press parts into
-    pending = np.empty((n_seq, 3), dtype=np.int64)  # groups to roll out: (group, state, first step)
-    free = np.empty(n_seq, dtype=np.int64)  # states not in use, the last freed on top
-    zero = np.int64(0)  # not the literal 0: _mixture_uncertainty compiles once, for int64 h and counts
-    now = _mixture_uncertainty(locations, log_weights, maps, disputed, disputed_maps, disputed_mix, disputed_mask,
-                               ov_cell[0], ov_val[0], ov_stamp[0], ov_n[0], powers, dynamic, zero, location_weight,
-                               touched_list[0], zero, agree_entropy[0], location, mix, scratch, scratch2, weights)
-    for s in range(hyp_locations.shape[0]):
-        for x in range(n_seq):
-            free[x] = n_seq - 1 - x
-        n_free = n_seq - 1  # state 0 starts the world
-        for p in range(r_count):  # element by element: no shape-mismatch message to compile
-            loc[0, p] = locations[p]
-            lw[0, p] = log_weights[p]
-        for i in range(n_cells):
-            labels[0, i] = hyp_labels[s, i]
-        where[0] = hyp_locations[s]
-        for c in range(n_seq):
-            group[c] = 0
-            if checkpoints[0]:
-                out[c, 0] += now
-        n_groups = 1
-        pending[0, 0], pending[0, 1], pending[0, 2] = 0, 0, 1
-        n_pending = 1
-        while n_pending > 0:  # depth first: one state steps to the horizon while its memory is warm
-            n_pending -= 1
-            g, x, first_step = pending[n_pending, 0], pending[n_pending, 1], pending[n_pending, 2]
-            for h in range(first_step, horizon + 1):
-                lead = -1
-                for a in range(parted.shape[0]):
-                    parted[a] = -1
-                for c in range(n_seq):
-                    if group[c] != g:
-                        continue
-                    a = sequences[c, h - 1]
-                    if a < 0:
-                        a = _closed_loop_action(loc[x], lw[x], moves, distances[c], go, weights)
-                    action[c] = a
-                    if lead < 0:
-                        lead = c
-                    elif a != action[lead]:  # c presses otherwise: its own group, from a copy of the state
-                        if parted[a] < 0:
-                            n_free -= 1
-                            y = free[n_free]
-                            _fork(x, y, loc, lw, labels, where, ov_index, ov_cell, ov_val, ov_stamp, ov_n, touched,
-                                  touched_list, n_touched)
-                            parted[a] = n_groups
-                            pending[n_pending, 0], pending[n_pending, 1], pending[n_pending, 2] = n_groups, y, h
-                            n_pending += 1
-                            n_groups += 1
-                        group[c] = parted[a]
-                where[x] = _world_step(where[x], labels[x], action[lead], moves, p_move, blocking, dynamic, change_cdf,
-                                       sensor_cdf, footprint_cells, world_u[s, h - 1], change_u[s, h - 1], readings)
-                n_touched[x] = _filter_step(loc[x], lw[x], maps, ov_index[x], ov_cell[x], ov_val[x], ov_stamp[x],
-                                            ov_n[x], powers, change, dynamic, action[lead], h, moves, p_move, blocking,
-                                            has_blocking, footprint_cells, sensor, readings, proposal_u[s, h - 1], ids,
-                                            cells, before, lams, slots, touched[x], touched_list[x],
-                                            n_touched[x])
-                if checkpoints[h]:
-                    value = _mixture_uncertainty(loc[x], lw[x], maps, disputed, disputed_maps, disputed_mix,
-                                                 disputed_mask, ov_cell[x], ov_val[x], ov_stamp[x], ov_n[x], powers,
-                                                 dynamic, h, location_weight, touched_list[x], n_touched[x],
-                                                 agree_entropy[h], location, mix, scratch, scratch2, weights)
-                    for c in range(n_seq):
-                        if group[c] == g:
-                            out[c, h] += value
-            _reset(ov_index[x], ov_cell[x], ov_n[x], touched[x], touched_list[x], n_touched[x])
-            n_touched[x] = 0
-            free[n_free] = x
-            n_free += 1
+    states = _States(np.empty((n_seq, r_count), dtype=np.int64), np.empty((n_seq, r_count)),
+                     np.empty((n_seq, n_cells), dtype=hypotheses.labels.dtype), np.empty(n_seq, dtype=np.int64),
+                     np.zeros(n_seq, dtype=np.int64),
+                     _overlays(n_seq, r_count, n_cells, k, horizon, world.footprint_cells.shape[1]))
+    groups = _Groups(np.empty(n_seq, dtype=np.int64), np.empty(n_seq, dtype=np.int64),
+                     np.empty(world.moves.shape[0], dtype=np.int64), np.empty((n_seq, 3), dtype=np.int64),
+                     np.empty(n_seq, dtype=np.int64))
+    work = _Work(states, _step(world.footprint_cells.shape[1], k), mixture_scratch(particles.maps, agreement.disputed),
+                 groups)
+    zero = np.int64(0)  # not the literal 0: mixture_uncertainty compiles once, for int64 h and counts
+    now = mixture_uncertainty(particles.locations, particles.log_weights, particles.maps, _state(states.overlays, 0),
+                              tables, zero, scoring.location_weight, zero, agreement.entropy[0], agreement.disputed,
+                              work.mixture)
+    for s in range(hypotheses.locations.shape[0]):
+        _roll_world(particles, world, tables, candidates, hypotheses, s, scoring, agreement, now, work, out)
+
+
+@loop_kernel
+def _whole_belief(loc, lw, maps, ov, tables, h, scratch, beliefs):
+    """``beliefs.location[h]`` and ``beliefs.maps[h]`` <- the weighted particle locations and map
+    mixture at step h (``scratch`` (K,)). O(R N K) (K^2 with map dynamics)."""
+    beliefs.location[h] = 0.0
+    beliefs.maps[h] = 0.0
+    for p in range(loc.shape[0]):
+        if lw[p] == -np.inf:
+            continue
+        w = math.exp(lw[p])
+        beliefs.location[h, loc[p]] += w
+        for c in range(maps.shape[1]):
+            _marginal(maps, ov, tables, p, c, h, scratch, scratch)
+            for b in range(scratch.shape[0]):
+                beliefs.maps[h, c, b] += w * scratch[b]
 
 
 @njit(cache=True)
-def rollout_beliefs(locations, maps, log_weights, moves, p_move, blocking, footprint_cells, sensor, sensor_cdf,
-                    change, change_cdf, powers, dynamic, actions, hyp_location, hyp_labels, world_u, change_u,
-                    proposal_u, out_location, out_maps, out_where, out_readings):
-    """One rollout of :func:`plan_rollouts` (one world, the fixed ``actions`` (H,)), keeping the
-    whole belief: ``out_location`` (H + 1, N) and ``out_maps`` (H + 1, N, K) the weighted particle
-    locations and map mixture after each step, ``out_where`` (H + 1,) the world's location and
-    ``out_readings`` (H, F) its readings. For tests. O(H R (N K + (F + 1) K^2))."""
-    r_count, n_cells, k = maps.shape
+def rollout_beliefs(particles, world, tables, actions, hypotheses, beliefs):
+    """One rollout of :func:`plan_rollouts` (world 0 of ``hypotheses``, the fixed ``actions``
+    (H,)), keeping the whole belief in ``beliefs`` (:class:`Beliefs`). For tests.
+    O(H R (N K + (F + 1) K^2))."""
+    r_count, n_cells, k = particles.maps.shape
     horizon = actions.shape[0]
-    n_reads = footprint_cells.shape[1]
-    has_blocking = np.any(blocking)
-    ov_indices, ov_cells, ov_vals, ov_stamps, ov_ns, touched_sets, touched_lists = _overlays(1, r_count, n_cells, k,
-                                                                                          horizon, n_reads)
-    ov_index, ov_cell, ov_val, ov_stamp, ov_n = ov_indices[0], ov_cells[0], ov_vals[0], ov_stamps[0], ov_ns[0]
-    touched, touched_list = touched_sets[0], touched_lists[0]
+    n_reads = world.footprint_cells.shape[1]
+    ov = _state(_overlays(1, r_count, n_cells, k, horizon, n_reads), 0)
+    step = _step(n_reads, k)
     scratch = np.empty(k)
-    ids = np.empty((2, n_reads + 1), dtype=np.int64)
-    cells = np.empty((2, n_reads + 1, k))
-    before = np.empty((2, k))
-    lams = np.empty((2, n_reads))
-    slots = np.empty((2, n_reads), dtype=np.int64)
-    loc = locations.copy()
-    lw = log_weights.copy()
-    labels = hyp_labels.copy()
-    where = hyp_location
+    loc = particles.locations.copy()
+    lw = particles.log_weights.copy()
+    labels = hypotheses.labels[0].copy()
+    where = hypotheses.locations[0]
     n_touched = np.int64(0)
     for h in range(horizon + 1):
         if h > 0:
             a = actions[h - 1]
-            where = _world_step(where, labels, a, moves, p_move, blocking, dynamic, change_cdf, sensor_cdf,
-                                footprint_cells, world_u[h - 1], change_u[h - 1], out_readings[h - 1])
-            n_touched = _filter_step(loc, lw, maps, ov_index, ov_cell, ov_val, ov_stamp, ov_n, powers, change,
-                                     dynamic, a, h, moves, p_move, blocking, has_blocking, footprint_cells, sensor,
-                                     out_readings[h - 1], proposal_u[h - 1], ids, cells, before, lams,
-                                     slots, touched, touched_list, n_touched)
-        out_where[h] = where
-        out_location[h] = 0.0
-        out_maps[h] = 0.0
-        for p in range(r_count):
-            if lw[p] == -np.inf:
-                continue
-            w = math.exp(lw[p])
-            out_location[h, loc[p]] += w
-            for c in range(n_cells):
-                _marginal(maps, ov_index, ov_val, ov_stamp, powers, dynamic, p, c, h, scratch, scratch)
-                for b in range(k):
-                    out_maps[h, c, b] += w * scratch[b]
+            where = world_step(world, tables, where, labels, a, hypotheses.world_u[0, h - 1],
+                               hypotheses.change_u[0, h - 1], step.readings)
+            beliefs.readings[h - 1] = step.readings
+            n_touched = _filter_step(loc, lw, particles.maps, ov, world, tables, a, h, hypotheses.proposal_u[0, h - 1],
+                                     step, n_touched)
+        beliefs.where[h] = where
+        _whole_belief(loc, lw, particles.maps, ov, tables, h, scratch, beliefs)

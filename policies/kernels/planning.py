@@ -1,25 +1,86 @@
-"""numba kernel of the information-gain planner (``policies/rollouts.py``): roll an action
-sequence out against one hypothetical world through a thinned copy of a particle belief and
-measure the belief's uncertainty along the way.
+"""numba kernel of the information-gain planner (``policies/rollouts.py``): roll action sequences
+out against hypothetical worlds through a thinned copy of a particle belief and measure the
+belief's uncertainty along the way; the bundles and the world step both rollout kernels share.
 
-The thinned belief is R particles, each a location and dense map marginals ``maps (R, N, K)``
-with log weights (R,). A rollout never writes to them: each particle's updated cells go to a
-small overlay of at most H entries (H = the sequence's length), read before the particle's own
-map. With map dynamics, marginals are brought forward by ``powers[d] = C^d``.
+The thinned belief is R particles (a ``ParticleSnapshot``: locations (R,), dense map marginals
+``maps (R, N, K)``, log weights (R,)). A rollout never writes to them: each particle's updated
+cells go to a small overlay of at most H entries (H = the sequence's length), read before the
+particle's own map. With map dynamics, marginals are brought forward by ``powers[d] = C^d``
+(``onlinemap.kernels.rbpf.carried``, the filter's own rule).
 
 Uncertainty (nats): ``U = location_weight * H(L) + sum_i H(M_i)``, ``H(L)`` the entropy of the
 weighted particle locations and ``M_i`` the weighted mixture of the particles' marginals of
 cell ``i`` (the belief's map marginal).
+
+Bundles: the model's motion and sensor tables are the RBPF's ``World``
+(``onlinemap.estimators.rbpf_kernels.world_tables``); :class:`RolloutTables` adds what only the
+rollouts read. The loops over particles and cells run in :data:`~onlinemap.kernels.loop_kernel`\ s
+(bundles cost nothing there); the entry point allocates and loops over worlds and candidates.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from onlinemap.kernels import loop_kernel
+from onlinemap.kernels.rbpf import carried
+
+
+class RolloutTables(NamedTuple):
+    """The model's tables as the rollouts take them, for horizons up to H."""
+
+    sensor_cdf: np.ndarray  # (K, Z) cumulative rows of O
+    change_cdf: np.ndarray  # (K, K) cumulative rows of C
+    powers: np.ndarray  # (H + 1, K, K) C^d
+    dynamic: bool  # map dynamics (C is not the identity)
+
+
+class Hypotheses(NamedTuple):
+    """S hypothetical worlds and the random numbers of their steps (common to every candidate)."""
+
+    locations: np.ndarray  # (S,) int64
+    labels: np.ndarray  # (S, N) int64
+    world_u: np.ndarray  # (S, H, 1 + F): the move, then each reading
+    change_u: np.ndarray  # (S, H, N), (S, H, 0) in a static world
+    proposal_u: np.ndarray  # (S, H, R): each particle's proposal
+
+
+class Scoring(NamedTuple):
+    """Which step counts are scored (``checkpoints`` (H + 1,) bool) and the weight of H(L)."""
+
+    location_weight: float
+    checkpoints: np.ndarray
+
+
+class _Rollout(NamedTuple):
+    """One rollout's particles (``loc``, ``lw``, ``weights`` (R,)), world labels (N,) and overlays:
+    particle p's j-th updated cell ``cell[p, j]``, its marginal ``val[p, j]`` (K,) stamped
+    ``stamp[p, j]``, ``n[p]`` entries."""
+
+    loc: np.ndarray
+    lw: np.ndarray
+    weights: np.ndarray
+    labels: np.ndarray
+    cell: np.ndarray
+    val: np.ndarray
+    stamp: np.ndarray
+    n: np.ndarray
+
+
+class _Scratch(NamedTuple):
+    """Scratch of a rollout: ``location`` (N,), ``mixture`` (N, K), ``here``/``there``/``tmp`` (K,),
+    ``readings`` (F,)."""
+
+    location: np.ndarray
+    mixture: np.ndarray
+    here: np.ndarray
+    there: np.ndarray
+    tmp: np.ndarray
+    readings: np.ndarray
 
 
 @njit(cache=True)
@@ -33,29 +94,36 @@ def draw(cdf_row, u):
 
 
 @loop_kernel
-def _current(maps, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, p, c, h, out):
+def world_step(world, tables, where, labels, a, world_u, change_u, readings):
+    """One step of the hypothetical world (``onlinemap.simulate.world_step``'s order and rules):
+    the move with ``world_u[0] < p_move`` unless the intended cell's label blocks, the labels by
+    ``change_cdf`` with ``change_u`` (N,), the readings with ``world_u[1 + f]`` (-1 off the grid).
+    Returns the new location; ``labels`` and ``readings`` (F,) are written in place. O(N + F)."""
+    if world_u[0] < world.p_move:
+        target = world.moves[a, where]
+        if not world.blocking[labels[target]]:
+            where = target
+    if tables.dynamic:
+        for i in range(labels.shape[0]):
+            labels[i] = draw(tables.change_cdf[labels[i]], change_u[i])
+    for f in range(world.footprint_cells.shape[1]):
+        c = world.footprint_cells[where, f]
+        readings[f] = -1 if c < 0 else draw(tables.sensor_cdf[labels[c]], world_u[1 + f])
+    return where
+
+
+@njit(cache=True, inline="always")
+def _current(maps, rollout, tables, p, c, h, out):
     """out (K,) <- particle p's marginal of cell c after h rollout steps."""
-    k = out.shape[0]
-    for j in range(ov_n[p]):
-        if ov_cell[p, j] == c:
-            d = h - ov_stamp[p, j]
-            for b in range(k):
-                if dynamic and d > 0:
-                    acc = 0.0
-                    for a in range(k):
-                        acc += ov_val[p, j, a] * powers[d, a, b]
-                    out[b] = acc
-                else:
-                    out[b] = ov_val[p, j, b]
+    for j in range(rollout.n[p]):
+        if rollout.cell[p, j] == c:
+            d = h - rollout.stamp[p, j] if tables.dynamic else 0
+            for b in range(out.shape[0]):
+                out[b] = carried(rollout.val, tables.powers, d, p, j, b)
             return
-    for b in range(k):
-        if dynamic and h > 0:
-            acc = 0.0
-            for a in range(k):
-                acc += maps[p, c, a] * powers[h, a, b]
-            out[b] = acc
-        else:
-            out[b] = maps[p, c, b]
+    d = h if tables.dynamic else 0
+    for b in range(out.shape[0]):
+        out[b] = carried(maps, tables.powers, d, p, c, b)
 
 
 @njit(cache=True)
@@ -69,48 +137,39 @@ def entropy(row):
 
 
 @loop_kernel
-def _uncertainty(locations, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, h,
-                 location_weight, location, mixture, scratch, scratch2):
-    """``location_weight * H(L) + sum_i H(M_i)`` of the weighted particles after h steps
-    (``location`` (N,) and ``mixture`` (N, K): scratch). O(R N K + N K^2 + R H K^2)."""
+def _uncertainty(locations, maps, rollout, tables, h, location_weight, scratch):
+    """``location_weight * H(L) + sum_i H(M_i)`` of the particles ``locations`` (R,) weighted by
+    ``rollout.weights`` after h steps. O(R N K + N K^2 + R H K^2)."""
     r_count, n_cells, k = maps.shape
+    location, mixture, tmp = scratch.location, scratch.mixture, scratch.tmp
     location[:] = 0.0
     mixture[:] = 0.0
     flat = mixture.reshape(n_cells * k)  # one contiguous loop per particle: the same sums, faster
     for p in range(r_count):
-        w = weights[p]
+        w = rollout.weights[p]
         if w == 0.0:
             continue
         location[locations[p]] += w
         row = maps[p].reshape(n_cells * k)
         for j in range(n_cells * k):
             flat[j] += w * row[j]
-    if dynamic and h > 0:
+    if tables.dynamic and h > 0:
+        whole = mixture.reshape(1, n_cells, k)
         for i in range(n_cells):
             for b in range(k):
-                acc = 0.0
-                for a in range(k):
-                    acc += mixture[i, a] * powers[h, a, b]
-                scratch[b] = acc
+                tmp[b] = carried(whole, tables.powers, h, 0, i, b)
             for b in range(k):
-                mixture[i, b] = scratch[b]
+                mixture[i, b] = tmp[b]
+    base = h if tables.dynamic else 0
     for p in range(r_count):
-        w = weights[p]
+        w = rollout.weights[p]
         if w == 0.0:
             continue
-        for j in range(ov_n[p]):
-            c = ov_cell[p, j]
-            _current(maps, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, p, c, h, scratch)
-            for b in range(k):  # the particle's base marginal of c, brought to step h
-                if dynamic and h > 0:
-                    acc = 0.0
-                    for a in range(k):
-                        acc += maps[p, c, a] * powers[h, a, b]
-                    scratch2[b] = acc
-                else:
-                    scratch2[b] = maps[p, c, b]
-            for b in range(k):
-                mixture[c, b] += w * (scratch[b] - scratch2[b])
+        for j in range(rollout.n[p]):
+            c = rollout.cell[p, j]
+            _current(maps, rollout, tables, p, c, h, tmp)
+            for b in range(k):  # less the particle's base marginal of c, brought to step h
+                mixture[c, b] += w * (tmp[b] - carried(maps, tables.powers, base, p, c, b))
     total = location_weight * entropy(location)
     for i in range(n_cells):
         for b in range(k):  # rounding: keep every term a probability
@@ -138,98 +197,121 @@ def normalise(lw, top, drop_below):
         lw[p] -= norm
 
 
-@njit(cache=True)
-def rollout_uncertainty(locations, maps, log_weights, moves, p_move, likelihood, sensor_cdf, change_cdf,
-                        powers, dynamic, actions, hyp_location, hyp_labels, world_uniforms, change_uniforms,
-                        proposal_uniforms, location_weight, checkpoints, out):
-    """Simulate ``actions`` (H,) in the world ``(hyp_location, hyp_labels (N,))`` and filter the
-    simulated observations through the particles; ``out[h]`` <- the uncertainty after h steps
-    for every h with ``checkpoints[h]`` (``out[0]``: now; other entries untouched).
+@njit(cache=True, inline="always")
+def _write(rollout, p, target, h, cell, lik, lam):
+    """Particle p's overlay entry of ``target`` <- ``cell * lik / lam`` (``cell`` where lam is 0),
+    stamped h: its own entry if it has one, else a new one."""
+    slot = -1
+    for j in range(rollout.n[p]):
+        if rollout.cell[p, j] == target:
+            slot = j
+    if slot < 0:
+        slot = rollout.n[p]
+        rollout.n[p] += 1
+        rollout.cell[p, slot] = target
+    for b in range(cell.shape[0]):
+        rollout.val[p, slot, b] = cell[b] * lik[b] / lam if lam > 0.0 else cell[b]
+    rollout.stamp[p, slot] = h
 
-    World step h (DESIGN.md section 1 order): move with probability ``p_move`` when
-    ``world_uniforms[h - 1, 0] < p_move``, labels change by ``change_cdf`` (K, K) cumulative
-    rows with ``change_uniforms[h - 1]`` (N,) when ``dynamic``, observe by ``sensor_cdf`` with
-    ``world_uniforms[h - 1, 1]``. Filter step: the optimal proposal of the RBPF (particle p
-    moves with probability ``p_move * P(z | there) / (p_move P(z | there) + (1 - p_move)
-    P(z | here))``, drawn with ``proposal_uniforms[h - 1, p]``, weight times the denominator),
-    the visited cell's marginal times ``likelihood[z]`` renormalised; no resampling.
-    Inputs: ``locations`` (R,), ``maps`` (R, N, K), ``log_weights`` (R,), ``moves`` (A, N),
-    ``likelihood`` (K, K) rows ``O[:, z]``, ``powers`` (H + 1, K, K) ``C^d``.
-    Cost O(H R (H + K^2)) for the steps plus O(R N K) per checkpoint.
-    """
-    r_count, n_cells, k = maps.shape
-    horizon = actions.shape[0]
-    ov_cell = np.full((r_count, max(horizon, 1)), -1, dtype=np.int64)
-    ov_val = np.empty((r_count, max(horizon, 1), k))
-    ov_stamp = np.zeros((r_count, max(horizon, 1)), dtype=np.int64)
-    ov_n = np.zeros(r_count, dtype=np.int64)
-    loc = locations.copy()
-    lw = log_weights.copy()
-    weights = np.exp(lw)
-    labels = hyp_labels.copy()
-    where = hyp_location
-    location = np.empty(n_cells)
-    mixture = np.empty((n_cells, k))
-    here_m = np.empty(k)
-    there_m = np.empty(k)
-    scratch = np.empty(k)
-    scratch2 = np.empty(k)
-    if checkpoints[0]:
-        out[0] = _uncertainty(loc, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, np.int64(0),
-                              location_weight, location, mixture, scratch, scratch2)  # int64: one compile
-    for h in range(1, horizon + 1):
+
+@loop_kernel
+def _filter_step(maps, world, tables, rollout, a, h, lik, proposal_u, scratch):
+    """Every particle takes step h (action a, a reading of likelihood ``lik`` (K,)) by the optimal
+    proposal of the RBPF (p moves with probability ``p_move P(z | there) / (p_move P(z | there)
+    + (1 - p_move) P(z | here))``, drawn with ``proposal_u[p]``, weight times the denominator),
+    the visited cell's marginal times ``lik`` renormalised; no resampling. O(R (H + K^2))."""
+    loc, lw, here_m, there_m = rollout.loc, rollout.lw, scratch.here, scratch.there
+    p_move = world.p_move
+    top = -np.inf
+    for p in range(loc.shape[0]):
+        here = loc[p]
+        there = world.moves[a, here]
+        _current(maps, rollout, tables, p, here, h, here_m)
+        lam_here = 0.0
+        for b in range(here_m.shape[0]):
+            lam_here += here_m[b] * lik[b]
+        target = here
+        lam = lam_here
+        weight = lam_here
+        if there != here:
+            _current(maps, rollout, tables, p, there, h, there_m)
+            lam_there = 0.0
+            for b in range(there_m.shape[0]):
+                lam_there += there_m[b] * lik[b]
+            move = p_move * lam_there
+            weight = move + (1.0 - p_move) * lam_here
+            if proposal_u[p] * weight < move:
+                target = there
+                lam = lam_there
+                for b in range(here_m.shape[0]):
+                    here_m[b] = there_m[b]
+        if weight > 0.0 and lw[p] > -np.inf:
+            lw[p] += math.log(weight)
+        else:
+            lw[p] = -np.inf
+        loc[p] = target
+        _write(rollout, p, target, h, here_m, lik, lam)
+        if lw[p] > top:
+            top = lw[p]
+    normalise(lw, top, -np.inf)
+    for p in range(loc.shape[0]):
+        rollout.weights[p] = math.exp(lw[p])
+
+
+@loop_kernel
+def _rollout(particles, world, tables, actions, hypotheses, s, scoring, rollout, scratch, out):
+    """Simulate ``actions`` (H,) in world s of ``hypotheses`` and filter its readings through the
+    particles (:func:`world_step`, :func:`_filter_step`); ``out[h]`` <- the uncertainty after h
+    steps for every h >= 1 with ``scoring.checkpoints[h]`` (other entries untouched). O(H R (H +
+    K^2)) for the steps plus O(R N K) per checkpoint."""
+    for p in range(rollout.loc.shape[0]):
+        rollout.loc[p] = particles.locations[p]
+        rollout.lw[p] = particles.log_weights[p]
+        rollout.n[p] = 0
+    for i in range(rollout.labels.shape[0]):
+        rollout.labels[i] = hypotheses.labels[s, i]
+    where = hypotheses.locations[s]
+    for h in range(1, actions.shape[0] + 1):
         a = actions[h - 1]
-        if world_uniforms[h - 1, 0] < p_move:
-            where = moves[a, where]
-        if dynamic:
-            for i in range(n_cells):
-                labels[i] = draw(change_cdf[labels[i]], change_uniforms[h - 1, i])
-        z = draw(sensor_cdf[labels[where]], world_uniforms[h - 1, 1])
-        lik = likelihood[z]
-        top = -np.inf
-        for p in range(r_count):
-            here = loc[p]
-            there = moves[a, here]
-            _current(maps, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, p, here, h, here_m)
-            lam_here = 0.0
-            for b in range(k):
-                lam_here += here_m[b] * lik[b]
-            target = here
-            lam = lam_here
-            weight = lam_here
-            if there != here:
-                _current(maps, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, p, there, h, there_m)
-                lam_there = 0.0
-                for b in range(k):
-                    lam_there += there_m[b] * lik[b]
-                move = p_move * lam_there
-                weight = move + (1.0 - p_move) * lam_here
-                if proposal_uniforms[h - 1, p] * weight < move:
-                    target = there
-                    lam = lam_there
-                    for b in range(k):
-                        here_m[b] = there_m[b]
-            if weight > 0.0 and lw[p] > -np.inf:
-                lw[p] += math.log(weight)
-            else:
-                lw[p] = -np.inf
-            loc[p] = target
-            slot = -1
-            for j in range(ov_n[p]):
-                if ov_cell[p, j] == target:
-                    slot = j
-            if slot < 0:
-                slot = ov_n[p]
-                ov_n[p] += 1
-                ov_cell[p, slot] = target
-            for b in range(k):
-                ov_val[p, slot, b] = here_m[b] * lik[b] / lam if lam > 0.0 else here_m[b]
-            ov_stamp[p, slot] = h
-            if lw[p] > top:
-                top = lw[p]
-        normalise(lw, top, -np.inf)
-        for p in range(r_count):
-            weights[p] = math.exp(lw[p])
-        if checkpoints[h]:
-            out[h] = _uncertainty(loc, maps, weights, ov_cell, ov_val, ov_stamp, ov_n, powers, dynamic, h,
-                                  location_weight, location, mixture, scratch, scratch2)
+        where = world_step(world, tables, where, rollout.labels, a, hypotheses.world_u[s, h - 1],
+                           hypotheses.change_u[s, h - 1], scratch.readings)
+        _filter_step(particles.maps, world, tables, rollout, a, h, world.likelihood[scratch.readings[0]],
+                     hypotheses.proposal_u[s, h - 1], scratch)
+        if scoring.checkpoints[h]:
+            out[h] = _uncertainty(rollout.loc, particles.maps, rollout, tables, h, scoring.location_weight, scratch)
+
+
+@njit(cache=True)
+def rollout_uncertainty(particles, world, tables, sequences, hypotheses, scoring, total):
+    """Roll every action sequence ``sequences`` (C, H) out in every world of ``hypotheses`` (the
+    paper's sensor and motion: F = 1) through the particles and add up its uncertainty:
+    ``total[c, h] += U`` after h steps of candidate c in world s, for every h with
+    ``scoring.checkpoints[h]`` (``total`` (C, H + 1); the caller divides by S). U at step 0 is the
+    same in every world: computed once.
+
+    World step h (DESIGN.md section 1 order, :func:`world_step`); filter step: the RBPF's optimal
+    proposal (:func:`_filter_step`). ``particles``: a ``ParticleSnapshot``; ``world``: the RBPF's
+    ``World`` bundle; ``tables``: :class:`RolloutTables`. Cost O(S C (H R (H + K^2) +
+    n_checkpoints R N K)) plus O(R N K) for step 0.
+    """
+    r_count, n_cells, k = particles.maps.shape
+    width = max(sequences.shape[1], 1)
+    rollout = _Rollout(np.empty(r_count, dtype=np.int64), np.empty(r_count), np.exp(particles.log_weights),
+                       np.empty(n_cells, dtype=hypotheses.labels.dtype), np.full((r_count, width), -1, dtype=np.int64),
+                       np.empty((r_count, width, k)), np.zeros((r_count, width), dtype=np.int64),
+                       np.zeros(r_count, dtype=np.int64))
+    scratch = _Scratch(np.empty(n_cells), np.empty((n_cells, k)), np.empty(k), np.empty(k), np.empty(k),
+                       np.empty(world.footprint_cells.shape[1], dtype=np.int64))
+    now = 0.0
+    if scoring.checkpoints[0]:
+        now = _uncertainty(particles.locations, particles.maps, rollout, tables, np.int64(0),  # int64: one compile
+                           scoring.location_weight, scratch)
+    out = np.empty(sequences.shape[1] + 1)
+    for s in range(hypotheses.locations.shape[0]):
+        for c in range(sequences.shape[0]):
+            for h in range(out.shape[0]):
+                out[h] = 0.0
+            out[0] = now
+            _rollout(particles, world, tables, sequences[c], hypotheses, s, scoring, rollout, scratch, out)
+            for h in range(out.shape[0]):
+                total[c, h] += out[h]
