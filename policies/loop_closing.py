@@ -50,8 +50,8 @@ from onlinemap.model import GridModel
 
 from .passability import (PressMemory, distances_from, expected_passability, location_hypotheses, press_costs)
 
-CLOSE_ABOVE = 2.0  # close_above "auto": cells of spread
-CLOSE_BELOW = 1.0  # close_below "auto"
+CLOSE_ABOVE = 1.0  # close_above None: cells of spread (tuned on frontier, building 1, 600 steps)
+CLOSE_BELOW = 0.5  # close_below None
 DISTANCE_COST = 0.2  # footprint cells of certainty one expected step is worth (the frontier's default)
 HYPOTHESES = 16  # location hypotheses the expected distance to a place averages over (the frontier's default)
 

@@ -130,5 +130,5 @@ def test_loop_closing_is_off_by_default(name):
     model, _ = corridor_world()
     planner = make_planner(name, model, seed=0)
     assert planner.closer is None and "loop_closing" not in repr(planner)
-    assert "loop_closing=True, close_above=2.0, close_below=1.0, close_steps=10" in repr(
+    assert "loop_closing=True, close_above=1.0, close_below=0.5, close_steps=10" in repr(
         make_planner(name, model, seed=0, loop_closing=True))
