@@ -83,8 +83,9 @@ class ClosingStep(NamedTuple):
 class LoopCloser:
     """The explore / close switch of the module docstring, for one run (it remembers the
     localised places). ``close_above`` > ``close_below`` > 0 in cells of spread, ``close_steps``
-    >= 1 decisions; ``min_passable`` and ``penalty`` as the planner's passability model uses them
-    (:mod:`policies.passability`). Build it with :func:`loop_closer`."""
+    >= 1 decisions; ``min_passable`` as the planner's passability model uses it
+    (:mod:`policies.passability`; a path that cannot be taken counts more steps than any path).
+    Build it with :func:`loop_closer`."""
 
     def __init__(self, model: GridModel, close_above: float, close_below: float, close_steps: int,
                  min_passable: float = 0.05):
