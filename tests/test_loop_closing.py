@@ -132,3 +132,29 @@ def test_loop_closing_is_off_by_default(name):
     assert planner.closer is None and "loop_closing" not in repr(planner)
     assert "loop_closing=True, close_above=1.0, close_below=0.5, close_steps=10" in repr(
         make_planner(name, model, seed=0, loop_closing=True))
+
+
+def test_closing_loops_keeps_the_frontier_robot_nearer_its_true_cell():
+    """Closed loop, paired over 12 seeds: a 10 x 10 generated building (blocking walls, a cross
+    footprint, p_move 0.8), RBPF with 100 particles, 150 steps of the frontier planner with and
+    without loop closing. The expected grid distance between the location belief and the true
+    cell, averaged over the second half of each run, is lower with loop closing: the paired mean
+    difference plus two standard errors of it (from the 12 pairs) is below 0. Measured when the
+    test was written: -1.10 +- 0.22 cells (2.59 -> 1.48)."""
+    from onlinemap.worlds import parse_world
+    from policies.explore import exploration
+
+    world = parse_world("building:10x10,seed=1")
+    rows, cols = np.divmod(np.arange(world.model.n_cells), world.model.cols)
+
+    def late_distance(seed: int, options: dict) -> float:
+        run = exploration(world.model, world.true_map, "frontier", "rbpf", 150, seed=seed,
+                          estimator_options={"n_particles": 100}, planner_options=options, progress=False)
+        true = run.run.locations
+        apart = np.abs(rows[None] - rows[true][:, None]) + np.abs(cols[None] - cols[true][:, None])
+        distance = (run.trajectory.location * apart).sum(axis=1)
+        return float(distance[len(distance) // 2:].mean())
+
+    difference = np.array([late_distance(seed, {"loop_closing": True}) - late_distance(seed, {})
+                           for seed in range(12)])
+    assert difference.mean() + 2 * difference.std(ddof=1) / np.sqrt(len(difference)) < 0
