@@ -68,9 +68,10 @@ from onlinemap.errors import InvalidOptionError, ModelError
 from onlinemap.metrics import normalized_entropy
 from onlinemap.model import GridModel
 
-from .passability import PressMemory, distances_from, distances_to, expected_passability, steps_after_press
+from .loop_closing import loop_closer
+from .passability import (PressMemory, distances_from, distances_to, expected_passability, location_hypotheses,
+                          steps_after_press)
 
-_LEFT_OUT = 1e-9  # location mass the hypotheses may leave out
 _PROGRESS = 0.5  # expected steps the distance to the target must fall by to count as progress
 
 
@@ -87,16 +88,6 @@ class FrontierPlan(NamedTuple):
     score: np.ndarray  # (N,) g(c) - distance_cost E(c) over the candidate cells, -inf elsewhere
 
 
-def location_hypotheses(location: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
-    """The most probable cells of ``location`` (N,) holding all but 1e-9 of the mass, at most
-    ``size`` of them, and their renormalised probabilities: (M,) cells, (M,) weights. O(N log N)."""
-    order = np.argsort(-location, kind="stable")
-    mass = np.cumsum(location[order])
-    count = min(int(np.searchsorted(mass, mass[-1] * (1.0 - _LEFT_OUT))) + 1, size, len(order))
-    cells = order[:count]
-    return cells, location[cells] / location[cells].sum()
-
-
 class FrontierExplorer:
     """Nearest-frontier exploration on the belief (see the module docstring for the rules).
 
@@ -105,13 +96,17 @@ class FrontierExplorer:
     (0, 1], the expected passability below which a cell cannot be entered; ``hypotheses`` >= 1, the
     most location hypotheses the expected distance averages over; ``lost_entropy`` in (0, 1] or
     None, the normalised location entropy above which the robot re-localises (None: never);
-    ``patience`` >= 1 or None, the decisions without progress after which a target is blacklisted.
+    ``patience`` >= 1 or None, the decisions without progress after which a target is blacklisted;
+    ``loop_closing`` (default False) returns to places mapped while the robot was localised when the
+    location belief spreads, with ``close_above``, ``close_below`` and ``close_steps``
+    (:mod:`policies.loop_closing`, :func:`~policies.loop_closing.loop_closer`).
     Re-plans at every call; never touches an estimator. Needs ``p_move > 0``.
     """
 
     def __init__(self, model: GridModel, *, threshold: float = 0.5, distance_cost: float = 0.2,
                  min_passable: float = 0.05, hypotheses: int = 16, lost_entropy: float | None = None,
-                 patience: int | None = 3):
+                 patience: int | None = 3, loop_closing: bool = False, close_above: float | None = None,
+                 close_below: float | None = None, close_steps: int | None = None):
         self.threshold = arguments.real("threshold", threshold, low=0.0, high=1.0, low_open=True, high_open=True,
                                         error=InvalidOptionError)
         self.distance_cost = arguments.real("distance_cost", distance_cost, low=0.0, high=math.inf, high_open=True,
@@ -133,8 +128,13 @@ class FrontierExplorer:
         self._last_distance = math.inf
         self._stalled = 0
         self.presses = PressMemory(model)  # blocked and futile presses
+        self.closer = loop_closer(model, loop_closing, close_above, close_below, close_steps, self.min_passable)
 
     def choose(self, belief: Belief) -> int:
+        if self.closer is not None and self.closer.update(belief).closing:
+            action = self.closer.press(belief, self.closer.last.target, self.presses)
+            self.presses.pressed(belief, action)
+            return action
         plan = self.plan(belief)
         self._track(int(plan.targets[0]), float(plan.expected_distance[plan.targets[0]]))
         action = int(np.argmin(np.where(self.presses.allowed(belief), plan.action_cost, np.inf)))
@@ -197,4 +197,5 @@ class FrontierExplorer:
     def __repr__(self) -> str:
         return (f"FrontierExplorer(threshold={self.threshold}, distance_cost={self.distance_cost}, "
                 f"min_passable={self.min_passable}, hypotheses={self.hypotheses}, "
-                f"lost_entropy={self.lost_entropy}, patience={self.patience})")
+                f"lost_entropy={self.lost_entropy}, patience={self.patience}"
+                + ("" if self.closer is None else f", loop_closing=True, {self.closer!r}") + ")")

@@ -70,8 +70,9 @@ from onlinemap.rng import SeedLike, as_generator
 
 from .frontier import FrontierExplorer, FrontierPlan
 from .information import expected_uncertainty, information_reward, observation_count, sample_states
+from .loop_closing import loop_closer
 from .mdp import PolicyIterationResult, policy_iteration
-from .passability import (PressMemory, distances_to, expected_passability, move_chances, steps_after_press,
+from .passability import (PressMemory, distances_to, expected_passability, move_chances, press_costs,
                           unblocked_actions)
 from .rollouts import (footprint_expected_uncertainty, particle_expected_uncertainty, rollout_operations,
                        rollout_tables)
@@ -220,7 +221,10 @@ class InfoGainExplorer:
     macro-action executed before re-planning; ``anchor_every`` the steps from the start of one press into
     the nearest corner to the start of the next (None: never; ``"auto"``: twice the anchor's
     presses plus 8, 60 in the 10 x 10 world; see the module docstring); ``gamma`` the discount of the
-    policy-iteration plan; ``seed`` (int, None or Generator) the planner's own random stream.
+    policy-iteration plan; ``seed`` (int, None or Generator) the planner's own random stream;
+    ``loop_closing`` (default False) returns to places mapped while the robot was localised when the
+    location belief spreads, with ``close_above``, ``close_below`` and ``close_steps``
+    (:mod:`policies.loop_closing`, :func:`~policies.loop_closing.loop_closer`).
 
     The planner rolls hypotheses out on copies of the live estimator, so it must see it:
     :func:`policies.explore` calls :meth:`bind` before the first decision. Planning never
@@ -230,7 +234,8 @@ class InfoGainExplorer:
     def __init__(self, model: GridModel, seed: SeedLike = None, *, hypotheses: int | None = 12,
                  rollout_particles: int | None = 64, press_lengths=None, step_cost: float | str = "auto",
                  location_weight: float = 4.0, commit: int = 8, anchor_every: int | str | None = "auto",
-                 gamma: float = 0.95, targets: int | str = "auto"):
+                 gamma: float = 0.95, targets: int | str = "auto", loop_closing: bool = False,
+                 close_above: float | None = None, close_below: float | None = None, close_steps: int | None = None):
         self.model = model
         self.hypotheses = None if hypotheses is None else arguments.integer("hypotheses", hypotheses, minimum=1,
                                                                             error=InvalidOptionError)
@@ -275,6 +280,8 @@ class InfoGainExplorer:
         self._tables = rollout_tables(model, int(self.press_lengths[-1]))
         self.frontier = FrontierExplorer(model) if self.targets else None  # where the unknown is
         self.presses = PressMemory(model)  # blocked and futile presses, for the moves towards a target
+        self.closer = loop_closer(model, loop_closing, close_above, close_below, close_steps,
+                                  0.05 if self.frontier is None else self.frontier.min_passable)
         self._target, self._target_steps = -1, 0
         uniform = np.full((1, model.n_labels), 1.0 / model.n_labels)
         nats = float(information_reward(Belief(0, np.ones(1), uniform), model.sensor)[0])  # I0
@@ -328,6 +335,12 @@ class InfoGainExplorer:
         if self.estimator is None:
             raise ModelError("info_gain plans on the live estimator: call planner.bind(estimator) first "
                              "(policies.explore does)")
+        if self.closer is not None and self.closer.update(belief).closing:
+            self._queue, self._target_steps = [], 0  # exploring resumes with a new plan
+            self._since_anchor += 1
+            action = self.closer.press(belief, self.closer.last.target, self.presses)
+            self.presses.pressed(belief, action)
+            return action
         if self._queue and self.model.has_blocking and not unblocked_actions(self.model, belief)[self._queue[0]]:
             self._queue = []  # the belief now says the next press blocks: re-plan
         if self._target_steps and self._target >= 0 and belief.location[self._target] > 0.5:
@@ -361,9 +374,8 @@ class InfoGainExplorer:
         on the belief's passability), among the presses :class:`~policies.passability.PressMemory`
         allows. O(N A log(N A)) (one Dijkstra)."""
         frontier = self.frontier  # a target comes from it: set whenever targets > 0
-        passable = expected_passability(self.model, belief)
-        distance = _finite(distances_to(self.model, passable, [target], frontier.min_passable), frontier.penalty)
-        cost = belief.location @ steps_after_press(self.model, passable, distance, frontier.min_passable)
+        cost = press_costs(self.model, belief, expected_passability(self.model, belief), [target],
+                           frontier.min_passable, frontier.penalty)
         return int(np.argmin(np.where(self.presses.allowed(belief), cost, np.inf)))
 
     def candidates(self, belief: Belief) -> Candidates:
@@ -450,4 +462,5 @@ class InfoGainExplorer:
         return (f"InfoGainExplorer(hypotheses={self.hypotheses}, rollout_particles={self.rollout_particles}, "
                 f"press_lengths={self.press_lengths.tolist()}, step_cost={self.step_cost}, "
                 f"location_weight={self.location_weight}, commit={self.commit}, anchor_every={self.anchor_every}, "
-                f"targets={self.targets})")
+                f"targets={self.targets}" + ("" if self.closer is None else f", loop_closing=True, {self.closer!r}")
+                + ")")

@@ -32,6 +32,7 @@ from onlinemap.model import GridModel, passable_probability
 
 #: a move the belief says blocks with more than this probability is not pressed when another exists
 BLOCKED_ABOVE = 0.99
+_LEFT_OUT = 1e-9  # location mass the hypotheses of location_hypotheses may leave out
 
 
 def expected_passability(model: GridModel, belief: Belief) -> np.ndarray:
@@ -81,6 +82,16 @@ def distances_from(model: GridModel, passable: np.ndarray, sources, min_passable
     return out
 
 
+def location_hypotheses(location: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """The most probable cells of ``location`` (N,) holding all but 1e-9 of the mass, at most
+    ``size`` of them, and their renormalised probabilities: (M,) cells, (M,) weights. O(N log N)."""
+    order = np.argsort(-location, kind="stable")
+    mass = np.cumsum(location[order])
+    count = min(int(np.searchsorted(mass, mass[-1] * (1.0 - _LEFT_OUT))) + 1, size, len(order))
+    cells = order[:count]
+    return cells, location[cells] / location[cells].sum()
+
+
 def move_chances(model: GridModel, passable: np.ndarray, min_passable: float = 0.05) -> np.ndarray:
     """(N, A) ``q = p_move passable[j]``, the chance that pressing a in cell l moves the robot to
     ``j = neighbors[l, a]`` by the expected-cost model; 0 off the grid edge and where
@@ -98,6 +109,17 @@ def steps_after_press(model: GridModel, passable: np.ndarray, to_target: np.ndar
     cells at a penalty) and ``q`` :func:`move_chances`. O(N A)."""
     q = move_chances(model, passable, min_passable)
     return 1.0 + q * to_target[model.neighbors] + (1.0 - q) * to_target[:, None]
+
+
+def press_costs(model: GridModel, belief: Belief, passable: np.ndarray, targets, min_passable: float,
+                penalty: float) -> np.ndarray:
+    """(A,) the expected steps to the nearest of ``targets`` after pressing each action, averaged
+    over the location belief: ``sum_l P(l) [1 + q D(j) + (1 - q) D(l)]`` (:func:`steps_after_press`)
+    with ``D`` = :func:`distances_to` the targets, unreachable cells at ``penalty`` (above any
+    path's cost). O(N A log(N A)) (one Dijkstra)."""
+    distance = distances_to(model, passable, targets, min_passable)
+    distance = np.where(np.isfinite(distance), distance, penalty)
+    return belief.location @ steps_after_press(model, passable, distance, min_passable)
 
 
 def blocked_probability(model: GridModel, belief: Belief) -> np.ndarray:
@@ -171,4 +193,4 @@ def _cells(name: str, model: GridModel, cells) -> np.ndarray:
 
 
 __all__ = ["BLOCKED_ABOVE", "expected_passability", "enter_costs", "distances_to", "paths_to", "distances_from",
-           "move_chances", "steps_after_press", "blocked_probability", "unblocked_actions", "PressMemory"]
+           "move_chances", "steps_after_press", "location_hypotheses", "press_costs", "blocked_probability", "unblocked_actions", "PressMemory"]
