@@ -35,7 +35,7 @@ from .errors import InvalidOptionError, ModelError
 from .estimators.offline_em import baum_welch
 from .estimators.rbpf import RaoBlackwellisedPF
 from .evaluate import told_location_map
-from .label_prior import posterior_frequencies, resolve_label_prior
+from .label_prior import fixed_point_frequencies, resolve_label_prior
 from .layered_em import fit_layered_map
 from .model import GridModel
 from .rng import SeedLike
@@ -45,7 +45,6 @@ METHODS = ("flat_em", "layered_em", "layered_em_learned_alignment", "rbpf_smooth
 SMOOTHER_PARTICLES = 1000  # rbpf_smoothed's default particle count
 IMPOSSIBLE = -1e300  # the log-likelihood of a reading a label cannot give (sums of T of them stay finite)
 CONFIDENTLY_WRONG_BELOW = 0.1  # a cell whose true label has less probability is confidently wrong
-MAX_PRIOR_ITERATIONS = 1000  # the told-location map's learned frequencies: a contraction, settled long before
 
 
 class HindsightMap(NamedTuple):
@@ -69,12 +68,20 @@ class SmoothedMap(NamedTuple):
     recoveries: int  # the filter's steps that recovered from depletion
 
 
+def _resolved(model: GridModel, label_prior, prior_strength):
+    """The label prior a map of ``model`` is made under (:func:`~onlinemap.label_prior.resolve_label_prior`):
+    ``label_prior=None`` follows the model, as the filters do: learned where the model says its
+    label frequencies are unknown (generated buildings, read floors) and the world is static."""
+    return resolve_label_prior(model.n_labels, label_prior, prior_strength,
+                               model_learns=model.unknown_label_frequencies and model.is_static)
+
+
 def told_location(model: GridModel, run: Run, label_prior=None, prior_strength=None) -> np.ndarray:
     """(N, K) the told-location map of ``run``: :func:`~onlinemap.evaluate.told_location_map`,
     and with blocking labels or a learned prior (static worlds) :func:`path_map` of the true
-    path. Raises ModelError for blocking labels or a learned prior in a dynamic world.
-    O(T F K + iterations N K)."""
-    prior = resolve_label_prior(model.n_labels, label_prior, prior_strength)
+    path; ``label_prior=None`` follows the model (learned on buildings and read floors). Raises
+    ModelError for blocking labels or a learned prior in a dynamic world. O(T F K + iterations N K)."""
+    prior = _resolved(model, label_prior, prior_strength)
     if prior.kind == "model" and not model.has_blocking:
         return told_location_map(model, run)
     return path_map(model, run.locations, run.actions, run.observations, label_prior, prior_strength)
@@ -93,7 +100,7 @@ def path_map(model: GridModel, locations, actions, observations, label_prior=Non
     point of theta = the Dirichlet posterior mean given the expected labels of the cells read
     (iterated until it moves less than 1e-12), as layered EM learns them. Raises ModelError in a
     dynamic world. O(T F K + iterations N K)."""
-    prior = resolve_label_prior(model.n_labels, label_prior, prior_strength)
+    prior = _resolved(model, label_prior, prior_strength)
     if not model.is_static:
         raise ModelError("the map given a path (the told-location map with blocking labels or a learned prior, the "
                          "smoothed RBPF map) is computed for static worlds only")
@@ -121,14 +128,7 @@ def path_map(model: GridModel, locations, actions, observations, label_prior=Non
         log_evidence += np.where(bumped[:, None] > 0, bumped[:, None] * np.log(1.0 - model.p_move * passable), 0.0)
     if prior.kind != "learn":
         return _normalised_rows(log_evidence)
-    seen = np.minimum(counts.sum(axis=1), 1.0)
-    theta = prior.alpha / prior.alpha.sum()
-    for _ in range(MAX_PRIOR_ITERATIONS):
-        belief = _normalised_rows(np.log(theta) + log_evidence)
-        updated = posterior_frequencies(prior.alpha, seen @ belief)
-        if np.abs(updated - theta).max() < 1e-12:
-            break
-        theta = updated
+    theta = fixed_point_frequencies(prior.alpha, log_evidence, np.minimum(counts.sum(axis=1), 1.0))
     return _normalised_rows(np.log(theta) + log_evidence)
 
 

@@ -47,6 +47,7 @@ from scipy.special import gammaln
 from .errors import InvalidOptionError
 
 LEARN = "learn"
+MAX_PRIOR_ITERATIONS = 1000  # fixed_point_frequencies: a contraction, settled long before
 MODEL = "model"
 #: how often (steps) the approximate filters re-estimate the frequencies by default: the RBPF at 32 x 32
 #: with 1000 particles takes 17.9 ms a step without learning, 54.9 learning every step and 20.6 every 10
@@ -133,6 +134,26 @@ def posterior_frequencies(alpha: np.ndarray, counts: np.ndarray) -> np.ndarray:
     given the (expected) label counts (K,) of the cells read. O(K)."""
     post = np.asarray(alpha, dtype=np.float64) + np.asarray(counts, dtype=np.float64)
     return post / post.sum()
+
+
+def fixed_point_frequencies(alpha: np.ndarray, log_evidence: np.ndarray, seen: np.ndarray,
+                            start: np.ndarray | None = None) -> np.ndarray:
+    """(K,) the label frequencies of a robot that knows where every reading was taken (the
+    told-location map, a path's map): the fixed point of ``theta = posterior_frequencies(alpha,
+    sum_i seen_i normalise(log theta + log_evidence_i))``, with ``log_evidence`` (N, K) each cell's
+    summed log-likelihoods and ``seen`` (N,) 1 for the cells read; iterated from ``start``
+    (default the Dirichlet mean) until it moves less than 1e-12 (a contraction: a warm start from
+    the last step's settles in a few iterations). O(iterations N K)."""
+    theta = alpha / alpha.sum() if start is None else start
+    for _ in range(MAX_PRIOR_ITERATIONS):
+        log_belief = np.log(theta) + log_evidence
+        belief = np.exp(log_belief - log_belief.max(axis=1, keepdims=True))
+        belief /= belief.sum(axis=1, keepdims=True)
+        updated = posterior_frequencies(alpha, seen @ belief)
+        if np.abs(updated - theta).max() < 1e-12:
+            return updated
+        theta = updated
+    return theta
 
 
 def plug_in_prior(model, label_prior, prior_strength=None, learn_every=None, *, can_learn: bool = True) -> LabelPrior:

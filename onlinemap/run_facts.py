@@ -14,6 +14,7 @@ import numpy as np
 
 from . import metrics
 from .arrays import read_only
+from .label_prior import fixed_point_frequencies, resolve_label_prior
 from .metric_names import CONFIDENT
 from .model import GridModel
 from .simulate import Run
@@ -71,8 +72,13 @@ def told_location(model: GridModel, run: Run) -> ToldLocation:
     ``P(stay | m_j) = 1`` if ``m_j`` blocks, ``1 - p_move`` otherwise; without blocking labels
     motion ignores the map and says nothing. Then the change C (dynamic worlds), then each cell
     the sensor read, weighed by its column of O. In a static world the evidence of a cell
-    multiplies in any order (kept as log sums). Cost: O(T (F + 1) K + T N) in a static world,
-    O(T N K^2) in a dynamic one; memory O(N K)."""
+    multiplies in any order (kept as log sums). On a model whose label frequencies are unknown
+    (``model.unknown_label_frequencies``: generated buildings, read floors, where the filters
+    learn them by default) the robot told its path learns them too: the prior of every cell is
+    the frequencies theta of :func:`~onlinemap.label_prior.fixed_point_frequencies` given the
+    cells read so far, at every step (as :func:`onlinemap.hindsight.path_map` at the end), so
+    the anchor has the robot's own prior. Cost: O(T (F + 1) K + T N) in a static world,
+    O(T iterations N K) learning, O(T N K^2) in a dynamic one; memory O(N K)."""
     cells = model.footprint_cells[run.locations]  # (T, F)
     readings = np.asarray(run.observations).reshape(cells.shape)
     read = (cells >= 0) & (readings >= 0)
@@ -80,6 +86,8 @@ def told_location(model: GridModel, run: Run) -> ToldLocation:
     n, every = model.n_cells, np.arange(model.n_cells)
     errors = np.empty(run.n_steps)
     belief = np.array(np.broadcast_to(model.label_prior, (n, model.n_labels)))
+    if model.is_static and model.unknown_label_frequencies:
+        return _learning_told_location(model, run, cells, readings, read, presses)
     if model.is_static:  # every reading of a cell multiplies its belief by a column of O, in any order
         truth = run.maps[0]
         with np.errstate(divide="ignore"):
@@ -107,6 +115,31 @@ def told_location(model: GridModel, run: Run) -> ToldLocation:
             belief[cell] *= model.sensor[:, z]
             belief[cell] /= belief[cell].sum()
         errors[t] = 1.0 - belief[every, run.maps[t]].mean()
+    return ToldLocation(belief, errors)
+
+
+def _learning_told_location(model: GridModel, run: Run, cells, readings, read, presses) -> ToldLocation:
+    """:func:`told_location` in a static world whose label frequencies are learned: each cell's
+    summed log-likelihoods (readings, presses) as without learning, then at every step the
+    frequencies of the cells read (:func:`~onlinemap.label_prior.fixed_point_frequencies`, warm
+    started from the step before) as the prior of every cell. O(T iterations N K)."""
+    n, k = model.n_cells, model.n_labels
+    alpha = resolve_label_prior(k, None, model_learns=True).alpha
+    log_evidence, seen = np.zeros((n, k)), np.zeros(n)
+    with np.errstate(divide="ignore"):
+        log_reading = np.log(model.sensor.T)  # row z: log O[:, z]
+        log_press = np.log(presses.likelihood)
+    truth, every, errors = run.maps[0], np.arange(n), np.empty(run.n_steps)
+    theta = None
+    for t in range(run.n_steps):
+        touched = cells[t][read[t]]
+        if presses.cell[t] >= 0:
+            log_evidence[presses.cell[t]] += log_press[presses.kind[t]]
+        log_evidence[touched] += log_reading[readings[t][read[t]]]
+        seen[touched] = 1.0
+        theta = fixed_point_frequencies(alpha, log_evidence, seen, theta)
+        belief = _normalised(np.log(theta) + log_evidence)
+        errors[t] = 1.0 - belief[every, truth].mean()
     return ToldLocation(belief, errors)
 
 

@@ -52,7 +52,7 @@ def test_table_counts_on_a_hand_made_belief():
 def test_compare_hindsight_rows_and_the_known_pose_case():
     """With a perfect sensor and p_move = 1 every method knows the path: layered EM and the
     told-location map agree on every cell's most probable label."""
-    model, true_map = om.building(12, 12, seed=4, p_obs=1.0, p_move=1.0)
+    model, true_map = om.building(12, 12, seed=4, p_obs=1.0, p_move=1.0, label_prior=np.full(4, 0.25))
     run = om.simulate(model, true_map, om.random_walk(model, 120, seed=5), seed=5)
     table = compare_hindsight(run, filter_map=np.full((model.n_cells, 4), 0.25),
                               options={"flat_em": {"n_iter": 5}, "layered_em": {"stretch": 10}})
@@ -86,5 +86,5 @@ def test_told_location_with_a_learned_prior_is_the_fixed_point():
     theta = learned[unread[0]]
     np.testing.assert_allclose(learned[unread], np.broadcast_to(theta, (len(unread), model.n_labels)), atol=1e-15)
     np.testing.assert_allclose(theta, (1.0 + learned[read].sum(axis=0)) / (model.n_labels + len(read)), atol=1e-9)
-    uniform = told_location(model, run)[read] * theta  # the uniform prior's map times theta: the same evidence
+    uniform = told_location(model, run, label_prior="model")[read] * theta  # the uniform prior's map times theta: the same evidence
     np.testing.assert_allclose(learned[read], uniform / uniform.sum(axis=1, keepdims=True), atol=1e-9)

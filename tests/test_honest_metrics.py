@@ -274,3 +274,34 @@ def test_explore_prints_the_honest_metrics_with_a_legend(capsys):
     for name in HONEST_METRICS:
         assert name in header.split()
         assert any(line.startswith(f"{name}: ") and len(line.split()) > 8 for line in printed), name
+
+
+def test_where_the_model_learns_its_label_frequencies_the_told_location_robot_learns_them_too():
+    """A generated building says its label frequencies are unknown (the filters learn them by
+    default), so the anchor's robot learns them too. With a perfect sensor every read cell is
+    known, the frequencies are the Dirichlet(1, ..., 1) posterior mean of the read cells' true
+    labels, and every unread cell has them as its belief: the error at every step in closed form.
+    With a noisy sensor: the map given the true path from the whole run's counts
+    (``hindsight.path_map``, another code path), at the end and on a prefix."""
+    from onlinemap.hindsight import path_map
+
+    model, true_map = om.building(12, 12, seed=2, p_move=0.8, p_obs=1.0)
+    assert model.unknown_label_frequencies
+    run = om.simulate(model, true_map, om.random_walk(model, 80, seed=3), seed=3)
+    cells = model.footprint_cells[run.locations]
+    k, every = model.n_labels, np.arange(model.n_cells)
+    expected = []
+    for t in range(run.n_steps):
+        read = np.unique(cells[: t + 1][cells[: t + 1] >= 0])
+        theta = (1.0 + np.bincount(true_map[read], minlength=k)) / (k + len(read))
+        p_true = theta[true_map]
+        p_true[read] = 1.0
+        expected.append(1.0 - p_true.mean())
+    np.testing.assert_allclose(told_location(model, run).map_error, expected, atol=1e-9)
+
+    model, true_map = om.building(12, 12, seed=2, p_move=0.8)
+    run = om.simulate(model, true_map, om.random_walk(model, 120, seed=4), seed=4)
+    told = told_location(model, run)
+    np.testing.assert_allclose(told.map, path_map(model, run.locations, run.actions, run.observations), atol=1e-9)
+    prefix = path_map(model, run.locations[:61], run.actions[:60], run.observations[:61])
+    assert abs((1.0 - prefix[every, true_map].mean()) - told.map_error[60]) < 1e-9

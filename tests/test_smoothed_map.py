@@ -84,11 +84,13 @@ def test_one_particle_on_the_true_path_gives_the_told_location_map():
 
 
 def test_in_a_static_world_the_genealogy_mixture_is_the_filters_map():
-    """Each particle's filtered map is the exact map given its path: without recoveries the
-    smoother's mixture and the filter's final map agree (blocking walls, cross footprint)."""
+    """Each particle's filtered map is the exact map given its path: without recoveries (and
+    with the model's fixed label prior) the smoother's mixture and the filter's final map agree
+    (blocking walls, cross footprint)."""
     model, true_map = om.building(12, 12, seed=1, p_move=0.9)
     run = om.simulate(model, true_map, om.random_walk(model, 150, seed=2), seed=2)
-    smoothed = smoothed_rbpf_map(model, run.actions, run.observations, n_particles=300, seed=0)
+    smoothed = smoothed_rbpf_map(model, run.actions, run.observations, n_particles=300, seed=0,
+                                 label_prior="model")  # the model's table: a learned prior is a plug-in
     assert smoothed.recoveries == 0
     np.testing.assert_allclose(smoothed.map, smoothed.filtered, atol=1e-9)
     assert 1 <= smoothed.distinct_paths <= smoothed.live_particles <= 300

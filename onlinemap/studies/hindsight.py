@@ -85,7 +85,7 @@ def remap_rows(run, filter_map: np.ndarray | None, fit_options: Mapping[str, dic
     ``fit_options``: extra options per method. Cost: the fits."""
     fit_options = fit_options or {}
     options = {"flat_em": ("flat_em", {}), "layered_em": ("layered_em", {}),
-               "told_location": ("told_location", {}), "told_location_learned": ("told_location", {"label_prior": "learn"})}
+               "told_location": ("told_location", {"label_prior": "model"}), "told_location_learned": ("told_location", {"label_prior": "learn"})}
     rows = []
     for method in methods:
         started = time.process_time()
