@@ -69,7 +69,7 @@ for p_move, seed in RUNS:
             "layered_em": om.fit_layered_map(model, run.actions, run.observations).map,
             "layered_em_learned_alignment": learned.map_with_prior(model.label_prior),
             "layered_em_learned": learned.map,
-            "told_location": told_location(model, run),
+            "told_location": told_location(model, run, label_prior="model"),
             "told_location_learned": told_location(model, run, label_prior="learn")}
     kept[p_move, seed] = (model, true_map, run, maps)
     for method, belief in maps.items():
