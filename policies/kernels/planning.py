@@ -14,7 +14,7 @@ cell ``i`` (the belief's map marginal).
 
 Bundles: the model's motion and sensor tables are the RBPF's ``World``
 (``onlinemap.estimators.rbpf_kernels.world_tables``); :class:`RolloutTables` adds what only the
-rollouts read. The loops over particles and cells run in :data:`~onlinemap.kernels.loop_kernel`\ s
+rollouts read. The loops over particles and cells run in :data:`~onlinemap.kernels.loop_kernel` kernels
 (bundles cost nothing there); the entry point allocates and loops over worlds and candidates.
 """
 
