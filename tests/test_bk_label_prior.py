@@ -131,25 +131,6 @@ def test_learning_is_refused_in_a_dynamic_world():
         om.make_estimator("bk", model, label_prior="learn")
 
 
-def test_a_learning_filter_resumes_from_its_checkpoint_bit_for_bit(tmp_path):
-    model, _, run = drawn_world(8, 8, [0.6, 0.3, 0.1], [2], seed=2, steps=60)
-    settings = dict(label_prior="learn", prior_strength=1.5, learn_every=3)
-    straight = om.make_estimator("bk", model, **settings)
-    expected = list(beliefs(straight, run))
-    est = om.make_estimator("bk", model, **settings)
-    for _ in beliefs(est, run, stop=31):
-        pass
-    om.save(est, tmp_path / "learning.npz")
-    resumed = om.load(tmp_path / "learning.npz")
-    np.testing.assert_array_equal(resumed.label_frequencies, est.label_frequencies)
-    for got, want in zip(beliefs(resumed, run, start=31), expected[31:]):
-        np.testing.assert_array_equal(got.map, want.map)
-        np.testing.assert_array_equal(got.location, want.location)
-        assert got.log_evidence == want.log_evidence
-    np.testing.assert_array_equal(resumed.label_frequencies, straight.label_frequencies)
-    assert not np.allclose(straight.label_frequencies, 1 / 3)  # it learned something
-
-
 @pytest.mark.parametrize("bad", [np.array([0.5, 0.5, 0.5]), np.array([1.0, 0.0, 0.0]), np.array([0.5, 0.5])])
 def test_a_checkpoint_with_broken_frequencies_is_refused(bad):
     model, _, run = drawn_world(8, 8, [0.6, 0.3, 0.1], [2], seed=2, steps=10)
