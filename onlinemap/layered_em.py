@@ -202,9 +202,9 @@ def _tables(model: GridModel, run: _Run, stretch: kernels.Stretch, labels: np.nd
     docstring's, by :func:`onlinemap.kernels.layered.stretch_tables`. O(S N F K^2)."""
     length, n = len(stretch.readings), model.n_cells
     tables = kernels.Emissions(np.empty(n), np.ones((length, n)), np.ones((length, n)), np.zeros((length, n)))
-    kernels.stretch_tables(run.grid, stretch, np.ascontiguousarray(labels),
+    kernels.stretch_tables(np.ascontiguousarray(labels),
                            np.ones((model.n_labels, model.n_labels)) if ratio is None else ratio, ratio is not None,
-                           tables)
+                           *run.grid, *stretch, *tables)
     return tables
 
 
@@ -221,7 +221,7 @@ def _forward(run: _Run, stretch: kernels.Stretch, tables: kernels.Emissions) -> 
     length, n = len(stretch.readings), len(tables.first)
     f = np.empty((length, n, len(stretch.cell_shift)))
     log_f = np.empty((length, n))
-    kernels.stretch_forward(run.grid, stretch, tables, f, log_f)
+    kernels.stretch_forward(f, log_f, *run.grid, *stretch, *tables)
     return _Forward(f, log_f, log_f[-1] + np.log(f[-1].sum(axis=1)))
 
 
@@ -252,7 +252,7 @@ def _backward(run: _Run, stretch: kernels.Stretch, tables: kernels.Emissions, fo
     to one constant. O(S N D)."""
     b = np.empty_like(forward.f)
     log_b = np.empty_like(forward.log_f)
-    kernels.stretch_backward(run.grid, stretch, tables, forward.f, end, b, log_b)
+    kernels.stretch_backward(forward.f, end, b, log_b, *run.grid, *stretch, *tables)
     with np.errstate(divide="ignore"):
         return b, np.log(tables.first * b[0, :, stretch.origin]) + log_b[0]
 
@@ -263,7 +263,7 @@ def _evidence(model: GridModel, run: _Run, stretch: kernels.Stretch, tables: ker
     pose posterior) and the expected number of readings of each cell (N,). O(S F n D)."""
     n, k = model.n_cells, model.n_labels
     counts = kernels.Counts(np.zeros((n, k)), np.zeros(n), np.zeros(n))
-    kernels.stretch_counts(run.grid, stretch, tables, forward.f, b, weight, PRUNE_BELOW, counts)
+    kernels.stretch_counts(forward.f, b, weight, PRUNE_BELOW, *run.grid, *stretch, *tables, *counts)
     evidence = counts.counts @ run.log_sensor.T  # counts[c, z] log O[k, z] summed over z
     if model.has_blocking:
         evidence += counts.entered[:, None] * run.log_move + counts.bumped[:, None] * run.log_stay

@@ -11,10 +11,17 @@ kept in ``log_f[tau, x]`` / ``log_b[tau, x]``.
 
 Bundles: :class:`Grid` (the model's tables, built once per fit), :class:`Stretch` (one
 stretch's data and offsets, built once per stretch), :class:`Emissions` (a stretch's tables
-under one map) and :class:`Counts` (the M-step's statistics). The kernels that allocate nothing
-are loop kernels (:data:`~onlinemap.kernels.loop_kernel`, no reference counting), so their
-bundles reach the inlined helpers at no cost; :func:`stretch_tables` allocates its two (K,)
-scratch rows and passes bundles only to helpers it calls a few times a step.
+under one map) and :class:`Counts` (the M-step's statistics). numba types a bundle argument in
+Python on every call from Python (measured: a forward pass of a stretch on a 2 x 3 grid took
+6.2 us with bundles, 2.5 us with their fields), and a fit makes thousands of such calls; so the kernels take
+their bundles as their fields, last (``*fields``: ``kernel(..., *grid, *stretch, *emissions)``,
+each bundle's fields in its NamedTuple's order, the bundles in the order the kernel's docstring
+names), and rebuild them inside (:func:`_bundles`), as the RBPF's do
+(:mod:`onlinemap.kernels.rbpf`). The kernels that allocate nothing are loop kernels
+(:data:`~onlinemap.kernels.loop_kernel`, no reference counting), so their bundles reach the
+inlined helpers at no cost; :func:`stretch_tables` allocates its two (K,) scratch rows and
+passes them with its bundles to its loop kernel (a plain kernel counts the references of a
+bundle it rebuilt at every use in its loop: 1.2-1.6x slower on a 32 x 32 building, measured).
 """
 
 from __future__ import annotations
@@ -70,6 +77,19 @@ class Counts(NamedTuple):
     bumped: np.ndarray  # (N,) ... that failed
 
 
+#: where each bundle's fields end in a kernel's ``*fields`` (grid, stretch, emissions, counts)
+_GRID_END = len(Grid._fields)
+_STRETCH_END = _GRID_END + len(Stretch._fields)
+_EMISSIONS_END = _STRETCH_END + len(Emissions._fields)
+
+
+@njit(cache=True, inline="always")
+def _bundles(fields):
+    """``(grid, stretch, emissions)`` rebuilt from a kernel's ``*fields`` (module docstring)."""
+    return (Grid(*fields[:_GRID_END]), Stretch(*fields[_GRID_END:_STRETCH_END]),
+            Emissions(*fields[_STRETCH_END:_EMISSIONS_END]))
+
+
 @njit(cache=True, inline="always")
 def _rescale(row, top):
     """Divide ``row`` by its maximum ``top`` in place (a row of zeros, an impossible start, stays)."""
@@ -79,9 +99,10 @@ def _rescale(row, top):
 
 
 @njit(cache=True)
-def stretch_tables(grid, stretch, labels, ratio, continuation, out):
+def stretch_tables(labels, ratio, continuation, *fields):
     """The stretch's emissions and move probabilities under the map marginals ``labels`` (N, K),
-    written into ``out`` (:class:`Emissions`).
+    written into the :class:`Emissions` of ``*fields`` (the fields of the :class:`Grid`, the
+    :class:`Stretch` and the :class:`Emissions`).
 
     first (N,) ``P(z_0 | x)``; stay and move (S, N) the predictive of step tau's readings at a
     cell reached by staying / by the step's action, under ``labels`` updated by step tau - 1's
@@ -92,10 +113,16 @@ def stretch_tables(grid, stretch, labels, ratio, continuation, out):
     continue); enter (S, N) ``p_move P(target passable | labels, its latest reading)``, 0 where
     the press cannot move. Every factor is floored at ``grid.floor``. O(S N F K^2).
     """
-    readings, actions = stretch.readings, stretch.actions
+    grid, stretch, out = _bundles(fields)
     k = labels.shape[1]
-    r = np.empty(k)
-    psi = np.ones(k)
+    _tables_rows(grid, stretch, labels, ratio, continuation, out, np.empty(k), np.ones(k))
+
+
+@loop_kernel
+def _tables_rows(grid, stretch, labels, ratio, continuation, out, r, psi):
+    """:func:`stretch_tables`'s loop over the steps, r and psi (K,) scratch: a loop kernel, so
+    that the bundles it rebuilt reach the inlined helpers uncounted (module docstring)."""
+    readings, actions = stretch.readings, stretch.actions
     _first_emissions(grid, labels, readings[0], out.first)
     for tau in range(1, readings.shape[0]):
         a = actions[tau - 1]
@@ -212,9 +239,11 @@ def _enter_row(grid, labels, before, a, enter):
 
 
 @loop_kernel
-def stretch_forward(grid, stretch, emissions, f, log_f):
+def stretch_forward(f, log_f, *fields):
     """The forward pass: ``f[tau, x, d] exp(log_f[tau, x]) = P(z_0..tau, d_tau = d | x_m = x)``.
-    f (S, N, D) and log_f (S, N) are written (f zeroed here). O(S N D)."""
+    f (S, N, D) and log_f (S, N) are written (f zeroed here). ``*fields``: the fields of the
+    :class:`Grid`, the :class:`Stretch` and the :class:`Emissions`. O(S N D)."""
+    grid, stretch, emissions = _bundles(fields)
     neighbors, actions, cell_shift, delta = grid.neighbors, stretch.actions, stretch.cell_shift, stretch.delta
     first, stay, move, enter = emissions
     n_steps, n, n_off = f.shape
@@ -243,10 +272,12 @@ def stretch_forward(grid, stretch, emissions, f, log_f):
 
 
 @loop_kernel
-def stretch_backward(grid, stretch, emissions, f, end, b, log_b):
+def stretch_backward(f, end, b, log_b, *fields):
     """The backward pass from ``end`` (N,), the message of the cell the stretch ends in (the rest of
     the run given that cell): ``b[tau, x, d] exp(log_b[tau, x]) = P(z_tau+1.., rest | d_tau = d,
-    x)``, computed where ``f[tau, x, d] > 0`` (0 elsewhere). O(S N D)."""
+    x)``, computed where ``f[tau, x, d] > 0`` (0 elsewhere). ``*fields``: as
+    :func:`stretch_forward`'s. O(S N D)."""
+    grid, stretch, emissions = _bundles(fields)
     neighbors, actions, cell_shift, delta = grid.neighbors, stretch.actions, stretch.cell_shift, stretch.delta
     _, stay, move, enter = emissions
     n_steps, n, n_off = f.shape
@@ -293,12 +324,15 @@ def collapse(f_last, cell_shift, weight, out):
 
 
 @loop_kernel
-def stretch_counts(grid, stretch, emissions, f, b, weight, prune, out):
+def stretch_counts(f, b, weight, prune, *fields):
     """The M-step's statistics of the stretch, each start x with ``weight[x] > prune`` (its
     tempered pose posterior) and its offsets by their posterior given x: adds to out.counts (N,
     K) ``sum_{x, tau, d} weight[x] P(d_tau = d | x, data) [reading z of cell c at tau]``, and to
     out.entered / out.bumped (N,) the expected presses into each cell that moved / failed.
-    O(S F n D) for n such starts."""
+    O(S F n D) for n such starts. ``*fields``: the fields of the :class:`Grid`, the
+    :class:`Stretch`, the :class:`Emissions` and the :class:`Counts` ``out``."""
+    grid, stretch, emissions = _bundles(fields)
+    out = Counts(*fields[_EMISSIONS_END:])
     for x in range(f.shape[1]):
         w = weight[x]
         if w <= prune:
