@@ -83,25 +83,19 @@ def told_location(model: GridModel, run: Run) -> ToldLocation:
     readings = np.asarray(run.observations).reshape(cells.shape)
     read = (cells >= 0) & (readings >= 0)
     presses = _presses(model, run)
+    if model.is_static and model.unknown_label_frequencies:
+        return _learning_told_location(model, run, cells, readings, read, presses)
     n, every = model.n_cells, np.arange(model.n_cells)
     errors = np.empty(run.n_steps)
     belief = np.array(np.broadcast_to(model.label_prior, (n, model.n_labels)))
-    if model.is_static and model.unknown_label_frequencies:
-        return _learning_told_location(model, run, cells, readings, read, presses)
     if model.is_static:  # every reading of a cell multiplies its belief by a column of O, in any order
         truth = run.maps[0]
         with np.errstate(divide="ignore"):
             log_belief = np.log(belief)
-            log_reading = np.log(model.sensor.T)  # row z: log O[:, z]
-            log_press = np.log(presses.likelihood)
         p_true = belief[every, truth]
-        for t in range(run.n_steps):
-            touched = cells[t][read[t]]  # distinct: one footprint offset per cell
-            if presses.cell[t] >= 0:
-                log_belief[presses.cell[t]] += log_press[presses.kind[t]]
-            log_belief[touched] += log_reading[readings[t][read[t]]]
-            if presses.cell[t] >= 0:
-                touched = np.append(touched, presses.cell[t])
+        for t, touched, pressed in _static_evidence(model, presses, cells, readings, read, log_belief):
+            if pressed >= 0:
+                touched = np.append(touched, pressed)
             p_true[touched] = _normalised(log_belief[touched])[np.arange(len(touched)), truth[touched]]
             errors[t] = 1.0 - p_true.mean()
         return ToldLocation(_normalised(log_belief), errors)
@@ -118,6 +112,21 @@ def told_location(model: GridModel, run: Run) -> ToldLocation:
     return ToldLocation(belief, errors)
 
 
+def _static_evidence(model: GridModel, presses, cells, readings, read, log_belief: np.ndarray):
+    """In a static world, step by step: add step t's press outcome and readings to ``log_belief``
+    (N, K), the cells' summed log-likelihoods, in place, and yield ``t``, the cells read at t and
+    the cell pressed into (-1: none). O(F K) a step."""
+    with np.errstate(divide="ignore"):
+        log_reading = np.log(model.sensor.T)  # row z: log O[:, z]
+        log_press = np.log(presses.likelihood)
+    for t in range(len(cells)):
+        touched = cells[t][read[t]]  # distinct: one footprint offset per cell
+        if presses.cell[t] >= 0:
+            log_belief[presses.cell[t]] += log_press[presses.kind[t]]
+        log_belief[touched] += log_reading[readings[t][read[t]]]
+        yield t, touched, presses.cell[t]
+
+
 def _learning_told_location(model: GridModel, run: Run, cells, readings, read, presses) -> ToldLocation:
     """:func:`told_location` in a static world whose label frequencies are learned: each cell's
     summed log-likelihoods (readings, presses) as without learning, then at every step the
@@ -126,16 +135,9 @@ def _learning_told_location(model: GridModel, run: Run, cells, readings, read, p
     n, k = model.n_cells, model.n_labels
     alpha = resolve_label_prior(k, None, model_learns=True).alpha
     log_evidence, seen = np.zeros((n, k)), np.zeros(n)
-    with np.errstate(divide="ignore"):
-        log_reading = np.log(model.sensor.T)  # row z: log O[:, z]
-        log_press = np.log(presses.likelihood)
     truth, every, errors = run.maps[0], np.arange(n), np.empty(run.n_steps)
     theta = None
-    for t in range(run.n_steps):
-        touched = cells[t][read[t]]
-        if presses.cell[t] >= 0:
-            log_evidence[presses.cell[t]] += log_press[presses.kind[t]]
-        log_evidence[touched] += log_reading[readings[t][read[t]]]
+    for t, touched, _ in _static_evidence(model, presses, cells, readings, read, log_evidence):
         seen[touched] = 1.0
         theta = fixed_point_frequencies(alpha, log_evidence, seen, theta)
         belief = _normalised(np.log(theta) + log_evidence)
