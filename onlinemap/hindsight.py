@@ -73,7 +73,7 @@ def _resolved(model: GridModel, label_prior, prior_strength):
     ``label_prior=None`` follows the model, as the filters do: learned where the model says its
     label frequencies are unknown (generated buildings, read floors) and the world is static."""
     return resolve_label_prior(model.n_labels, label_prior, prior_strength,
-                               model_learns=model.unknown_label_frequencies and model.is_static)
+                               model_learns=model.learns_label_frequencies)
 
 
 def told_location(model: GridModel, run: Run, label_prior=None, prior_strength=None) -> np.ndarray:

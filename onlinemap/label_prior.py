@@ -168,7 +168,7 @@ def plug_in_prior(model, label_prior, prior_strength=None, learn_every=None, *, 
     does not move consistently), a fixed vector giving probability zero to every label a cell's
     model prior allows, a bad ``learn_every``. O(N K)."""
     prior = resolve_label_prior(model.n_labels, label_prior, prior_strength,
-                                model_learns=model.unknown_label_frequencies and model.is_static and can_learn)
+                                model_learns=model.learns_label_frequencies and can_learn)
     if prior.kind == "fixed" and np.any((model.label_prior * prior.frequencies).sum(axis=1) == 0):
         raise InvalidOptionError(f"label_prior {prior.frequencies.tolist()} gives probability zero to every label "
                                  "some cell's model prior allows")

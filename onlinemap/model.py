@@ -268,6 +268,13 @@ class GridModel:
         take their fast paths on it. Computed once."""
         return self.reads_own_cell and not self.has_blocking
 
+    @property
+    def learns_label_frequencies(self) -> bool:
+        """True where the approximate filters, and the maps made given a path, learn the label
+        frequencies by default (:mod:`onlinemap.label_prior`): the model says they are unknown
+        and the world is static (a dynamic world's marginals mix readings of different ages)."""
+        return self.unknown_label_frequencies and self.is_static
+
     @cached_property
     def off_grid_patterns(self) -> np.ndarray:
         """(U, F) bool: the distinct off-grid masks ``footprint_cells[l] < 0`` over locations l."""

@@ -83,7 +83,7 @@ def told_location(model: GridModel, run: Run) -> ToldLocation:
     readings = np.asarray(run.observations).reshape(cells.shape)
     read = (cells >= 0) & (readings >= 0)
     presses = _presses(model, run)
-    if model.is_static and model.unknown_label_frequencies:
+    if model.learns_label_frequencies:
         return _learning_told_location(model, run, cells, readings, read, presses)
     n, every = model.n_cells, np.arange(model.n_cells)
     errors = np.empty(run.n_steps)
