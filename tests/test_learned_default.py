@@ -104,13 +104,11 @@ def test_in_a_building_whose_doors_change_the_default_is_the_fixed_prior(name):
         om.make_estimator(name, model, prior_strength=2.0)
 
 
-def test_the_rbpf_with_resample_move_keeps_the_fixed_prior_by_default():
+def test_the_rbpf_with_resample_move_learns_by_default():
     model, run = building_run(blocking=False, footprint="cell")
     moving = dict(n_particles=60, seed=2, move_window=4, move_every=5, move_lag=0)
     same_run(om.make_estimator("rbpf", model, **moving),
-             om.make_estimator("rbpf", model, label_prior="model", **moving), run)
-    with pytest.raises(InvalidOptionError, match="move_window"):
-        om.make_estimator("rbpf", model, label_prior="learn", **moving)
+             om.make_estimator("rbpf", model, label_prior="learn", **moving), run)
 
 
 def test_the_rbpf_learns_every_ten_steps_by_default():

@@ -282,9 +282,9 @@ def test_the_resample_move_scratch_is_counted_before_the_step_is_taken():
     window = 30
     n, k, width, f = 50, 2, window + 1, 1
     by_hand = 8 * (2 * n * k + 5 * n + 2 * n + width * n + width + width * n + 2 * width * n + 2 * width * n
-                   + 2 * width + 2 * 2 * n + window * f + k)
+                   + 2 * width + 2 * 2 * n + 2 * width * (f + 1) + k)
     assert move_scratch_bytes(model, window) == by_hand
-    assert len(MoveScratch._fields) == 16  # the arrays counted above: a new one must be counted too
+    assert len(MoveScratch._fields) == 17  # the arrays counted above: a new one must be counted too
     from onlinemap.estimators.block_pool import block_shape
     from onlinemap.estimators.rbpf_memory import state_bytes
     from onlinemap.estimators.rbpf_move import new_history_bytes

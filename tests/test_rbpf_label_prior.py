@@ -131,7 +131,6 @@ BAD = [
     ({"label_prior": "learn", "prior_strength": 0}, "prior_strength"),
     ({"learn_every": 5}, "learn_every"),
     ({"label_prior": "learn", "learn_every": 0}, "learn_every"),
-    ({"label_prior": "learn", "move_window": 5}, "move_window"),
     ({"label_prior": [0, 0, 1.0]}, "probability zero"),
 ]
 

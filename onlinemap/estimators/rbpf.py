@@ -59,7 +59,7 @@ from .base import BooleanFlag, ParticleSnapshot, draw_labels, register
 from .block_pool import BlockPool, block_layout
 from .rbpf_kernels import StepKit, no_moves, observed, scratch_buffers, step_kit, thread_count
 from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start, history_growth
-from .rbpf_move import MoveCounts, PathHistory, move_options
+from .rbpf_move import MoveCounts, PathHistory, move_options, rebuilds
 from .rbpf_prior import learn, prior_options, resolved_prior, retilt
 from .rbpf_recovery import describe, impossible, logsumexp, no_particle_explains, recovery_note, relocate
 from .rbpf_state import check_state, upgrade_attributes
@@ -132,9 +132,10 @@ class RaoBlackwellisedPF:
     the posterior over paths. Weights, the evidence and the streaming contract are unchanged
     (``step`` returns the belief at t). Moves wait until the filter is not exact
     (Fearnhead-Clifford has dropped a child), so with room for every child (P >= 2^T) the filter
-    is bit for bit the filter without moves. It needs a static world, no blocking labels and a
-    sensor without zero entries: ``move_window`` is refused otherwise
-    (:class:`~onlinemap.errors.InvalidOptionError` naming the reason). The filter keeps every
+    is bit for bit the filter without moves. It needs a static world: ``move_window`` is refused
+    otherwise (:class:`~onlinemap.errors.InvalidOptionError` naming the reason). With blocking
+    labels or a sensor with zero entries each move rebuilds its particle's map without the window
+    from the path history (O(t F) a particle), and moves stop after a recovery from depletion. The filter keeps every
     particle's path and every step's action and readings: up to 2 P t bytes more, counted by
     ``max_bytes``. :attr:`moves` counts the windows proposed and accepted (checkpointed). What it
     buys: on the paper's world replay at 1,000 particles (W = 20, every 5) the final map error
@@ -143,7 +144,7 @@ class RaoBlackwellisedPF:
     **Label prior** (``label_prior``, ``prior_strength``, ``learn_every``; :mod:`onlinemap.label_prior`,
     the math in :mod:`onlinemap.estimators.rbpf_prior`). None (the default): what the model says,
     ``"learn"`` on a model whose label frequencies are unknown (generated buildings, floors read
-    from files) in a static world without ``move_window``, the model's prior table otherwise
+    from files) in a static world, the model's prior table otherwise
     (the paper's worlds: every run as without the option). ``"model"``: the model's table
     always. A (K,) frequency vector: every cell's prior is the model's
     tilted by it, ``normalise(prior_i * v)`` (``v`` itself under the default uniform prior).
@@ -152,8 +153,7 @@ class RaoBlackwellisedPF:
     the expected labels of the cells read so far, and every cell's prior is moved to them (one
     pass over the block rows in use): the plug-in (empirical Bayes) approximation of the
     hierarchical model the exact filter computes exactly; particle weights are not changed.
-    :attr:`label_frequencies` gives the current frequencies (checkpointed). Refused with
-    ``move_window``.
+    :attr:`label_frequencies` gives the current frequencies (checkpointed).
 
     ``threads``: how many threads the update and the belief use, at most ``NUMBA_NUM_THREADS``
     (None: all; Python threads on numba kernels that release the GIL,
@@ -202,7 +202,7 @@ class RaoBlackwellisedPF:
         max_bytes = arguments.byte_limit("max_bytes", max_bytes, error)
         threads = thread_count(threads)
         move_window, move_every, move_lag = move_options(model, move_window, move_every, move_lag)
-        prior = prior_options(model, label_prior, prior_strength, learn_every, move_window)
+        prior = prior_options(model, label_prior, prior_strength, learn_every)
         check_start(Sizing(model, n_particles, lazy_dynamics, threads, max_bytes), block_cells, move_window)
         layout = block_layout(model, block_cells)
         self.model = model
@@ -394,9 +394,10 @@ class RaoBlackwellisedPF:
         history = self._history
         if history is not None:  # the step is taken: its record, then the resample-move step if due
             history.record_step(t, a, z)
-            if history.move_due(t, self.move_window, self.move_every, self.move_lag):
+            if history.move_due(t, self.move_window, self.move_every, self.move_lag, rebuilds(self.model)):
                 self._history, self._blocks = history.move(self._blocks, self._locations, self._log_weights,
-                                                           self.model, t, self.move_window, self.move_lag, self._rng)
+                                                           self.model, t, self.move_window, self.move_lag, self._rng,
+                                                           self.label_frequencies)
         frequencies = self._label_frequencies
         if frequencies is not None and t % (self.options["learn_every"] or DEFAULT_LEARN_EVERY) == 0:
             alpha = resolved_prior(self.model, self.options).alpha

@@ -16,7 +16,8 @@ import numpy as np
 from ..errors import MemoryLimitError
 from ..model import GridModel
 from .block_pool import BlockPool, block_shape, pool_bytes
-from .rbpf_move import PathHistory, map_rows_per_move, move_scratch_bytes, new_history_bytes, path_rows_per_move
+from .rbpf_move import (PathHistory, map_rows_per_move, move_scratch_bytes, new_history_bytes, path_rows_per_move,
+                        rebuilds)
 
 
 class Sizing(NamedTuple):
@@ -126,7 +127,7 @@ def history_growth(model: GridModel, history: PathHistory, pool: BlockPool, t: i
     :func:`~onlinemap.estimators.rbpf_move.path_rows_per_move` more history rows (the pools grow
     by doubling as the move needs, never beyond that) and its scratch, which the move allocates
     after the step is taken: counted, and checked, before."""
-    moving = history.move_due(t, window, every, lag, exact=False)
+    moving = history.move_due(t, window, every, lag, rebuilds(model), exact=False)
     extra = n_particles * map_rows_per_move(model, window, pool.table.shape[1]) if moving else 0
     history_bytes, grows = history.bytes_to_hold(t, n_particles * (1 + (path_rows_per_move(window) if moving else 0)))
     if moving:

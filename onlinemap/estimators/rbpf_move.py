@@ -75,7 +75,7 @@ from .. import arguments
 from .. import state_checks as checks
 from ..checkpoint import state_class
 from ..errors import InvalidOptionError
-from ..kernels.rbpf_move import Paths, paths_record, rbpf_move
+from ..kernels.rbpf_move import MapEvidence, Paths, paths_record, rbpf_move
 from ..model import GridModel
 from .block_pool import BlockPool, Named, check_shared_rows, grown, grown_free_stack, rows_to_hold
 from .rbpf_kernels import world_tables
@@ -98,14 +98,24 @@ def move_refusal(model: GridModel) -> str | None:
     """Why the resample-move step cannot run on ``model`` (None if it can)."""
     if not model.is_static:
         return ("needs a static world (change matrix C = identity): with map dynamics a cell's marginal is a "
-                "filtered chain, and a window's readings cannot be divided out of it")
-    if model.has_blocking:
-        return ("does not support blocking labels: a move's success multiplies the entered cell's marginal by "
-                "[passable], a factor with zeros, which cannot be divided out")
-    if np.any(model.sensor == 0):
-        return ("needs a sensor without zero entries: a reading that rules a label out multiplies the cell's "
-                "marginal by 0, which cannot be divided out")
+                "filtered chain, and the map without a window cannot be built from the path's readings")
     return None
+
+
+def rebuilds(model: GridModel) -> bool:
+    """Whether the move rebuilds the map without the window from the path history (blocking
+    labels, or a sensor with zero entries: factors with zeros, which cannot be divided out)
+    rather than dividing the window's readings out of the stored marginals."""
+    return model.has_blocking or bool(np.any(model.sensor == 0))
+
+
+def map_evidence(model: GridModel, frequencies: np.ndarray | None) -> MapEvidence:
+    """The :class:`~onlinemap.kernels.rbpf_move.MapEvidence` of ``model`` with every cell's prior
+    tilted by ``frequencies`` (K,) (None: the model's own prior). O(N K)."""
+    prior = model.label_prior if frequencies is None else model.label_prior * frequencies
+    blocks = model.blocking.astype(np.float64)
+    gate = np.stack([(1.0 - model.p_move) + model.p_move * blocks, 1.0 - blocks])
+    return MapEvidence(np.ascontiguousarray(prior, dtype=np.float64), gate, rebuilds(model))
 
 
 def move_options(model: GridModel, window, every, lag) -> tuple[int | None, int, int]:
@@ -131,8 +141,10 @@ def path_dtype(n_cells: int) -> np.dtype:
 
 def map_rows_per_move(model: GridModel, window: int, n_blocks: int) -> int:
     """The most map block rows one particle's move takes: a copy of every block holding a cell its
-    old or new window reads, ``min(2 W F, n_blocks)``."""
-    return min(2 * window * model.n_readings, n_blocks)
+    old or new window touches, ``min(2 (W + b) (F + b), n_blocks)`` (b = 1 with blocking labels,
+    whose presses touch the cell pressed into, else 0)."""
+    gated = int(model.has_blocking)
+    return min(2 * (window + gated) * (model.n_readings + gated), n_blocks)
 
 
 def path_rows_per_move(window: int) -> int:
@@ -150,10 +162,10 @@ def history_bytes(n_particles: int, itemsize: int, n_readings: int, rows: int, c
 def move_scratch_bytes(model: GridModel, window: int) -> int:
     """Bytes of one resample-move step's scratch (:class:`~onlinemap.kernels.rbpf_move.MoveScratch`
     for N cells, K labels, a window of W steps and F readings: ``8 (2 N K + 11 N + 6 (W + 1) N +
-    3 (W + 1) + W F + K)``, about 48 (W + 1) N), allocated afresh by every move: the memory guard
-    counts it on the steps that may move (allocates nothing). O(1)."""
+    3 (W + 1) + 2 (W + 1) (F + 1) + K)``, about 48 (W + 1) N), allocated afresh by every move: the
+    memory guard counts it on the steps that may move (allocates nothing). O(1)."""
     n, k, width = model.n_cells, model.n_labels, window + 1
-    return 8 * (2 * n * k + 11 * n + 6 * width * n + 3 * width + window * model.n_readings + k)
+    return 8 * (2 * n * k + 11 * n + 6 * width * n + 3 * width + 2 * width * (model.n_readings + 1) + k)
 
 
 def new_history_bytes(model: GridModel, n_particles: int) -> int:
@@ -285,22 +297,28 @@ class PathHistory:
         steps = np.arange(t + 1)
         return self.rows[self.table[:, steps // PATH_BLOCK], steps % PATH_BLOCK].astype(np.int64)
 
-    def move_due(self, t: int, window: int, every: int, lag: int, exact: bool | None = None) -> bool:
+    def move_due(self, t: int, window: int, every: int, lag: int, rebuild: bool, exact: bool | None = None) -> bool:
         """Whether step t moves: every ``every`` steps once the filter is not exact (``exact``
         stands in for :attr:`exact` where given), when a window ending ``lag`` steps back fits
-        after :attr:`first_start`."""
+        after :attr:`first_start`; never after a recovery where the move rebuilds maps from the
+        history (``rebuild``, :func:`rebuilds`: a recovery resets cells the history does not
+        record)."""
         exact = self.exact if exact is None else exact
+        if rebuild and self.first_start > 0:
+            return False
         return not exact and t % every == 0 and t - lag - window >= self.first_start
 
     def move(self, blocks: BlockPool, locations: np.ndarray, log_weights: np.ndarray, model: GridModel, t: int,
-             window: int, lag: int, rng: np.random.Generator) -> tuple[PathHistory, BlockPool]:
+             window: int, lag: int, rng: np.random.Generator,
+             frequencies: np.ndarray | None = None) -> tuple[PathHistory, BlockPool]:
         """One resample-move step at step t (the module docstring;
         :func:`~onlinemap.kernels.rbpf_move.rbpf_move`): every slot draws its window's left end s
         uniformly in ``first_start .. t - lag - W`` (``rng.integers``, P of them), then P (W + 2)
         uniforms (``rng.random``), in that order, dead slots too; the live ones are moved in slot
         order, in place, growing the map pool and the history when they run out of free rows
         (the memory guard allowed for P times :func:`map_rows_per_move` and
-        :func:`path_rows_per_move` rows before the step). Returns the history and the pool (each
+        :func:`path_rows_per_move` rows before the step). ``frequencies`` (K,): the label-prior
+        tilt w every stored marginal carries (None: none). Returns the history and the pool (each
         this one or a grown copy). Cost: see the module docstring."""
         n_particles = len(locations)
         starts = rng.integers(self.first_start, t - lag - window + 1, size=n_particles)
@@ -308,9 +326,10 @@ class PathHistory:
         counts = np.zeros(2, dtype=np.int64)
         need_map = map_rows_per_move(model, window, blocks.table.shape[1])
         history, first = self, 0
+        evidence = map_evidence(model, frequencies)
         while True:
-            first = rbpf_move(locations, log_weights, blocks.arrays(), history.arrays(), world_tables(model), t, first,
-                              starts, window, uniforms, counts)
+            first = rbpf_move(locations, log_weights, blocks.arrays(), history.arrays(), world_tables(model), evidence,
+                              t, first, starts, window, uniforms, counts)
             if first == n_particles:
                 break
             blocks = blocks.reserved(need_map)

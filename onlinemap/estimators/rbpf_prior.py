@@ -17,7 +17,7 @@ The kernels are not touched.
   default), a tilt of the model's per-cell prior otherwise. Sound in a dynamic world too (the
   rows are tilted at the start, before C acts).
 - ``"learn"`` (also ``None`` on a model whose label frequencies are unknown, a building, where
-  the filter can learn: static world, no ``move_window``): ``w = pi_t``, the current estimate of the label frequencies, from
+  the filter can learn: a static world): ``w = pi_t``, the current estimate of the label frequencies, from
   ``pi_0 = alpha / A`` (uniform: the rows of a new filter as they are). Every ``learn_every``
   steps (default :data:`~onlinemap.label_prior.DEFAULT_LEARN_EVERY`), after the update, :func:`learn` takes the weighted mixture m (N, K) of the particles'
   maps, the cells *read* (those whose mixture differs from the marginal of an unread cell,
@@ -33,9 +33,10 @@ The kernels are not touched.
   hold marginals of different ages, which one rescaling does not move consistently).
 
 Limits: a recovery from depletion resets the cells it redraws to the model's prior (not the
-tilted one) until the next retilt moves them with the rest; the resample-move step rebuilds
-cells from the model's prior, so ``move_window`` is refused with a label prior (and a model's
-default learning does not apply with it: None is then the model's table).
+tilted one) until the next retilt moves them with the rest. The resample-move step
+(``move_window``) keeps the tilt: its map without the window is the stored marginal with the
+window's readings divided out (w stays in it), or rebuilt as ``prior_i w prod f`` with the
+current w.
 
 Cost: a retilt is O(R_used B K) (numpy, memory speed); a learning step adds the mixture,
 O(P N / B) plus one pass over the rows in use, and O(N K): about the cost of building
@@ -52,22 +53,17 @@ from ..model import GridModel
 from .block_pool import BlockPool
 
 
-def prior_options(model: GridModel, label_prior, prior_strength, learn_every, move_window) -> LabelPrior:
-    """Check and resolve the RBPF's label-prior options (:func:`~onlinemap.label_prior.plug_in_prior`:
-    the model's default learning applies without ``move_window``). Raises
-    :class:`~onlinemap.errors.InvalidOptionError` naming the problem, and for a label prior
-    other than the model's with ``move_window``. O(N K)."""
-    prior = plug_in_prior(model, label_prior, prior_strength, learn_every, can_learn=move_window is None)
-    if prior.kind != "model" and move_window is not None:
-        raise InvalidOptionError("move_window (resample-move) rebuilds cells from the model's own label prior: it "
-                                 "cannot be combined with label_prior")
-    return prior
+def prior_options(model: GridModel, label_prior, prior_strength, learn_every) -> LabelPrior:
+    """Check and resolve the RBPF's label-prior options (:func:`~onlinemap.label_prior.plug_in_prior`;
+    ``move_window`` goes with every one of them: the move keeps the tilt w). Raises
+    :class:`~onlinemap.errors.InvalidOptionError` naming the problem. O(N K)."""
+    return plug_in_prior(model, label_prior, prior_strength, learn_every)
 
 
 def resolved_prior(model: GridModel, options: dict) -> LabelPrior:
     """The label prior a filter's ``options`` (checked when it was built) give. O(N K)."""
     return prior_options(model, options.get("label_prior"), options.get("prior_strength"),
-                         options.get("learn_every"), options.get("move_window"))
+                         options.get("learn_every"))
 
 
 def retilt(pool: BlockPool, ratio: np.ndarray) -> None:

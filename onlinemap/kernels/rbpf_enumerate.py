@@ -181,7 +181,7 @@ def passable_before(pool, table_row, world, t, n, before):
 
 
 @njit(cache=True, inline="always")
-def _motion(l, n, p_move, s, gated, passable):
+def gated_successor(l, n, p_move, s, gated, passable):
     """(cell, probability) of successor s (:func:`successor`), a gated move's success scaled by
     P(n passable)."""
     j, probability = successor(l, n, p_move, s)
@@ -327,7 +327,7 @@ def enumerate_cells_run(locations, log_weights, t, neighbors, readings, start, s
         if gated:
             passable = passable_before(pool, pool.table[q], world, t, n, scratch.before)
         for s in range(2):
-            j, probability = _motion(l, n, world.p_move, s, gated, passable)
+            j, probability = gated_successor(l, n, world.p_move, s, gated, passable)
             if probability <= 0.0:
                 continue
             n_reads, likelihood = footprint_child(pool, pool.table[q], world, t, j, n, gated, readings, scratch,

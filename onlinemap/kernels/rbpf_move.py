@@ -26,7 +26,7 @@ from numba import njit
 
 from . import loop_kernel
 from .rbpf import row_for_write, take_over_slots, write_cell
-from .rbpf_enumerate import successor
+from .rbpf_enumerate import gated_successor
 
 
 class Paths(NamedTuple):
@@ -49,7 +49,8 @@ class MoveScratch(NamedTuple):
     reach the window's right end); ``position`` (N,) -1; ``back`` (N,); ``support`` (W + 1, N),
     ``size`` (W + 1,), ``alpha`` (W + 1, N), ``succ`` (W + 1, N, 2), ``succ_pr`` (W + 1, N, 2): the
     forward filter; ``old``, ``new`` (W + 1,) the paths; ``probs`` (2N,), ``cells`` (2N,) a draw's;
-    ``touched`` (W F,) the cells the old path read; ``values`` (K,)."""
+    ``touched`` ((W + 1) (F + 1),) the cells the old window touched (read, or pressed into with
+    blocking labels); ``fresh`` (the same) those the new one touched, in order; ``values`` (K,)."""
 
     base: np.ndarray
     cur: np.ndarray
@@ -66,6 +67,7 @@ class MoveScratch(NamedTuple):
     probs: np.ndarray
     cells: np.ndarray
     touched: np.ndarray
+    fresh: np.ndarray
     values: np.ndarray
 
 
@@ -96,54 +98,74 @@ def paths_record(paths, ancestors, locations, t):
         paths.rows[r, j] = locations[p]
 
 
+class MapEvidence(NamedTuple):
+    """What the move rebuilds a map from where the window's factors cannot be divided out
+    (``rebuild``: blocking labels, or a sensor with zero entries): ``prior (N, K)`` each cell's
+    prior times the label-prior tilt w (``prior_i(k) w(k)``, unnormalised), ``gate (2, K)`` the
+    factor a press puts on its target cell's label k: row 0 it stayed, ``(1 - p_move) + p_move
+    [k blocks]``, row 1 it moved in, ``[k passable]`` (``p_move`` left out: it does not depend on
+    the map)."""
+
+    prior: np.ndarray
+    gate: np.ndarray
+    rebuild: bool
+
+
 @njit(cache=True)
-def rbpf_move(locations, log_weights, pool, paths, world, t, first, starts, window, uniforms, counts):
-    """One Metropolis-Hastings move of a window of every live particle's past (static world, no
-    blocking labels, a sensor without zeros), in place; particles ``first..P - 1``. Returns the
-    particle it stopped before for want of free rows (P when done): the caller grows the pools and
-    calls again from there.
+def rbpf_move(locations, log_weights, pool, paths, world, evidence, t, first, starts, window, uniforms, counts):
+    """One Metropolis-Hastings move of a window of every live particle's past (a static world), in
+    place; particles ``first..P - 1``. Returns the particle it stopped before for want of free rows
+    (P when done): the caller grows the pools and calls again from there.
 
     Particle p's window is ``x_{s+1..s+W}``, ``s = starts[p]`` (``s + W <= t``, W = ``window``),
     redrawn given ``x_s``, ``x_{s+W+1}`` (when ``s + W < t``) and every observation, the rest of
-    the path kept. The target is the filter's, ``p(x_{0:t} | z_{0:t})``: in a static world the
-    data outside the window depend on the path outside it only, so the window's conditional law is
-    ``prod T(x_{tau-1}, x_tau) p(z_window | x_window, m_-)`` with ``m_-`` the particle's map without
-    the window's readings: a cell's marginal is ``prior x prod O(., z)`` over its readings, so they
-    are divided out exactly (a sensor without zeros). Proposal: forward filtering, backward
-    sampling on the location chain over the cells the window's actions can reach from ``x_s`` (and
-    from which ``x_{s+W+1}`` can still be reached), emissions ``e_tau(l) = prod_f sum_k m_-(c_f)[k]
-    O(k, z_f)`` over the cells ``c_f`` a robot at l reads (1 for an offset off the grid reading -1,
-    0 where only one of them is). The target differs from the proposal only where a path reads a
-    cell it has read before in the window (the map then knows the earlier reading): the acceptance
-    ratio is ``R(new) / R(old)``, ``R(x) = prod over readings of P(z | cell, m_- updated along x) /
-    P(z | cell, m_-)`` (1 at a cell's first reading; the motion terms cancel). An accepted path's
-    cells get their marginals given it (the old path's readings divided out, the new one's
-    multiplied in), its steps are written into the history, and if the window ends at t the
-    location moves. Weights are unchanged: the move leaves the target invariant (Gilks and
-    Berzuini 2001). A proposal equal to the old window changes nothing.
+    the path kept. The target is the filter's, ``p(x_{0:t} | z_{0:t})``: in a static world, given
+    the path, each cell's label has the law ``prior_i w prod f_e`` over its *events* e: the readings
+    of it (``O(., z)``) and, with blocking labels, the presses into it (``evidence.gate``: the
+    motion's dependence on the map). The data outside the window depend on the window only through
+    the map, so the window's conditional law is ``prod_tau T0 prod_c E_{m_-}[prod_{window events
+    at c} f_e]``, ``T0`` the motion's constant part, ``m_-`` the particle's map without the
+    window's events (those of steps ``s+1..s+W``; presses also at ``s+W+1``, the bridge). ``m_-``
+    is the stored marginal with the window's readings divided out (a sensor without zeros, no
+    blocking labels), or else (``evidence.rebuild``) rebuilt at the cells the old window touched
+    from the particle's whole history outside it (:func:`_map_rebuilt`, O(t F) for t steps).
+    Proposal: forward filtering, backward sampling on the location chain over the cells the window's
+    actions can reach from ``x_s`` (and from which ``x_{s+W+1}`` can still be reached), each event
+    replaced by its mean under ``m_-``: emissions ``e_tau(l) = prod_f E_{m_-}[O(., z_f)]`` over
+    the cells ``c_f`` a robot at l reads (1 for an offset off the grid reading -1, 0 where only one
+    of them is), and a press into n moves with ``p_move P_{m_-}(n passable)``. So ``pi / q propto
+    R(x)``, ``R(x) = prod over the window's events in order of E[f_e | m_- and x's earlier events
+    at that cell] / E_{m_-}[f_e]`` (1 at a cell's first event). The acceptance ratio is ``R(new) /
+    R(old)``. An accepted path's cells get their marginals given it (m_- updated by its events),
+    its steps are written into the history, and if the window ends at t the location moves.
+    Weights are unchanged: the move leaves the target invariant (Gilks and Berzuini 2001). A
+    proposal equal to the old window changes nothing.
 
     Random numbers: ``uniforms (P, W + 2)``: column tau draws ``x_{s+tau}`` backwards (0 is never
     used: ``x_s`` is fixed), column W + 1 the acceptance. ``counts (2,)`` += (windows proposed,
     accepted). ``pool`` the maps (:class:`~onlinemap.kernels.rbpf.Pool`), ``paths`` the
     history (:class:`Paths`), ``world`` the model's tables (:class:`~onlinemap.kernels.rbpf.World`:
-    moves, predecessor, footprint_cells, likelihood). Needs, before a particle,
-    ``min(2 W F, n_blocks)`` free map rows and ``W // B + 2`` free path rows.
+    moves, predecessor, footprint_cells, likelihood, blocking), ``evidence``
+    (:class:`MapEvidence`). Needs, before a particle, ``min(2 (W + b) (F + b), n_blocks)`` free map
+    rows (b = 1 with blocking labels, else 0) and ``W // B + 2`` free path rows.
 
     Cost per particle: O(W S (F K + 1) + W^2) for S the mean number of cells the window can take at
-    a step (the reachable support: a few to tens), plus the writes of an accepted move (copy-on-write
-    of at most 2 W F map blocks and 2 path blocks). Memory: O(W N) scratch."""
+    a step (the reachable support: a few to tens), plus O(t (F + 1) + W F K) for a rebuild, plus the
+    writes of an accepted move (copy-on-write of at most 2 (W + 1) (F + 1) map blocks and 2 path
+    blocks). Memory: O(W N) scratch."""
     n_cells = pool.cell_block.shape[0]
     k = pool.rows.shape[2]
     width = window + 1
+    events = width * (world.footprint_cells.shape[1] + 1)
     scratch = MoveScratch(np.empty((n_cells, k)), np.empty((n_cells, k)), np.zeros((5, n_cells), dtype=np.int64),
                           np.full(n_cells, -1, dtype=np.int64), np.empty(n_cells, dtype=np.int64),
                           np.empty((width, n_cells), dtype=np.int64), np.empty(width, dtype=np.int64),
                           np.empty((width, n_cells)), np.empty((width, n_cells, 2), dtype=np.int64),
                           np.empty((width, n_cells, 2)), np.empty(width, dtype=np.int64),
                           np.empty(width, dtype=np.int64), np.empty(2 * n_cells), np.empty(2 * n_cells, dtype=np.int64),
-                          np.empty(window * world.footprint_cells.shape[1], dtype=np.int64), np.empty(k))
-    return _move_particles(locations, log_weights, pool, paths, world, t, first, starts, window, uniforms, counts,
-                           scratch)
+                          np.empty(events, dtype=np.int64), np.empty(events, dtype=np.int64), np.empty(k))
+    return _move_particles(locations, log_weights, pool, paths, world, evidence, t, first, starts, window, uniforms,
+                           counts, scratch)
 
 
 @njit(cache=True, inline="always")
@@ -165,11 +187,21 @@ def _load(pool, p, c, base, loaded, mark):
 
 
 @njit(cache=True, inline="always")
-def _dot(base, c, likelihood, z):
-    """``sum_k base[c, k] likelihood[z, k]``: P(reading z | cell c's marginal)."""
+def _dot(base, c, factor):
+    """``sum_k base[c, k] factor[k]``: the mean of an event's factor (K,) under cell c's marginal."""
     acc = 0.0
     for b in range(base.shape[1]):
-        acc += base[c, b] * likelihood[z, b]
+        acc += base[c, b] * factor[b]
+    return acc
+
+
+@njit(cache=True, inline="always")
+def _passable(base, c, blocking):
+    """P(cell c passable) under ``base[c]``."""
+    acc = 0.0
+    for b in range(base.shape[1]):
+        if not blocking[b]:
+            acc += base[c, b]
     return acc
 
 
@@ -187,31 +219,65 @@ def _draw(probs, count, total, uniform):
 
 
 @njit(cache=True, inline="always")
-def _revisit_ratio(path, s, window, world, paths, scratch, mark):
-    """``R(path)`` of :func:`rbpf_move`: the product, over the window's readings in order, of
-    ``P(z | cell, m_- updated by the path's earlier readings of it) / P(z | cell, m_-)``.
-    Leaves in ``scratch.cur[c]`` (``current[c] == mark``) each read cell's marginal given the
-    path's readings."""
-    footprint_cells, readings, likelihood = world.footprint_cells, paths.readings, world.likelihood
+def _pressed(world, action, here, there):
+    """(target, moved): the cell a press of ``action`` from ``here`` is gated by (-1 where none:
+    no blocking labels, or no neighbour that way) and whether the robot, now ``there``, went in."""
+    n = world.moves[action, here]
+    if not world.has_blocking or n == here:
+        return -1, False
+    return n, there == n
+
+
+@njit(cache=True, inline="always")
+def _event(scratch, c, factor, mark, n_fresh):
+    """One event of a path at cell c with ``factor`` (K,), in :func:`_revisit_ratio`'s order:
+    returns (``E_cur[factor] / E_{m_-}[factor]``, 1 at the cell's first event, and the count of
+    ``scratch.fresh``, where a first event lists c); ``cur[c]`` <- its marginal given the event."""
     base, cur, current = scratch.base, scratch.cur, scratch.marks[1]
     ratio = 1.0
-    for tau in range(1, window + 1):
+    if current[c] == mark:
+        lam = _dot(cur, c, factor)
+        ratio = lam / _dot(base, c, factor)
+        for b in range(cur.shape[1]):
+            cur[c, b] = cur[c, b] * factor[b] / lam
+    else:
+        current[c] = mark
+        scratch.fresh[n_fresh] = c
+        n_fresh += 1
+        lam = _dot(base, c, factor)
+        for b in range(cur.shape[1]):
+            cur[c, b] = base[c, b] * factor[b] / lam
+    return ratio, n_fresh
+
+
+@njit(cache=True, inline="always")
+def _revisit_ratio(pool, p, path, s, window, bridge, right, world, evidence, paths, scratch, mark):
+    """``(R(path), n_fresh)`` of :func:`rbpf_move`: the product, over the window's events in time
+    order (a step's press, then its readings; the bridge's press last), of ``E[f_e | m_- updated
+    by the path's earlier events at the cell] / E_{m_-}[f_e]``. Leaves in ``scratch.cur[c]``
+    (``current[c] == mark``) each touched cell's marginal given the path's events, and lists the
+    cells in ``scratch.fresh[:n_fresh]`` in first-touch order."""
+    footprint_cells, readings, likelihood = world.footprint_cells, paths.readings, world.likelihood
+    ratio = 1.0
+    n_fresh = 0
+    last = window + 1 if bridge else window
+    for tau in range(1, last + 1):
+        there = right if tau > window else path[tau]
+        n, moved = _pressed(world, paths.actions[s + tau], path[tau - 1], there)
+        if n >= 0:
+            _load(pool, p, n, scratch.base, scratch.marks[0], p + 1)
+            r, n_fresh = _event(scratch, n, evidence.gate[1 if moved else 0], mark, n_fresh)
+            ratio *= r
+        if tau > window:
+            continue
         for f in range(footprint_cells.shape[1]):
             c = footprint_cells[path[tau], f]
             z = readings[s + tau, f]
             if c < 0 or z < 0:
                 continue
-            if current[c] == mark:
-                lam = _dot(cur, c, likelihood, z)
-                ratio *= lam / _dot(base, c, likelihood, z)
-                for b in range(cur.shape[1]):
-                    cur[c, b] = cur[c, b] * likelihood[z, b] / lam
-            else:
-                current[c] = mark
-                lam = _dot(base, c, likelihood, z)
-                for b in range(cur.shape[1]):
-                    cur[c, b] = base[c, b] * likelihood[z, b] / lam
-    return ratio
+            r, n_fresh = _event(scratch, c, likelihood[z], mark, n_fresh)
+            ratio *= r
+    return ratio, n_fresh
 
 
 @njit(cache=True, inline="always")
@@ -234,13 +300,86 @@ def _map_without_window(pool, world, paths, p, s, window, scratch, mark):
                 n_touched += 1
             for b in range(base.shape[1]):
                 base[c, b] /= likelihood[z, b]
-    for i in range(n_touched):
-        c = touched[i]
+    _normalise(base, touched, n_touched)
+    return n_touched
+
+
+@njit(cache=True, inline="always")
+def _normalise(base, cells, count):
+    """``base[c]`` normalised for the cells ``cells[:count]``."""
+    for i in range(count):
+        c = cells[i]
         total = 0.0
         for b in range(base.shape[1]):
             total += base[c, b]
         for b in range(base.shape[1]):
             base[c, b] /= total
+
+
+@njit(cache=True, inline="always")
+def _mark_touched(c, scratch, mark, n_touched, prior):
+    """List c (once) in ``scratch.touched`` with ``base[c]`` <- ``prior[c]``; returns the count."""
+    loaded = scratch.marks[0]
+    if loaded[c] != mark:
+        loaded[c] = mark
+        scratch.touched[n_touched] = c
+        n_touched += 1
+        for b in range(prior.shape[1]):
+            scratch.base[c, b] = prior[c, b]
+    return n_touched
+
+
+@njit(cache=True, inline="always")
+def _times(base, c, factor):
+    """``base[c]`` <- ``normalise(base[c] * factor)`` (normalised at every event: a long history
+    would otherwise underflow; a sum of 0, a history the particle cannot have, is left as is)."""
+    total = 0.0
+    for b in range(base.shape[1]):
+        base[c, b] *= factor[b]
+        total += base[c, b]
+    if total > 0.0:
+        for b in range(base.shape[1]):
+            base[c, b] /= total
+
+
+@njit(cache=True, inline="always")
+def _map_rebuilt(world, evidence, paths, p, s, window, t, bridge, right, scratch, mark):
+    """``scratch.base`` <- m_- rebuilt (where the window's factors cannot be divided out): the cells
+    the old window (``scratch.old``) touches, its readings' cells and its presses' targets (steps
+    ``s+1..s+W``, and ``s+W+1`` with a bridge), listed in ``scratch.touched``, each set to
+    ``evidence.prior`` times every factor the particle's path puts on it outside the window: the
+    readings of steps ``0..s`` and ``s+W+1..t``, the presses of steps ``1..s`` and ``s+W+2..t``.
+    Needs a history from step 0 (no recovery, which resets cells). Returns the count. O(t (F + 1)
+    + W F K)."""
+    footprint_cells, readings, likelihood = world.footprint_cells, paths.readings, world.likelihood
+    old, base, loaded = scratch.old, scratch.base, scratch.marks[0]
+    n_touched = 0
+    last = window + 1 if bridge else window
+    for tau in range(1, last + 1):
+        there = right if tau > window else old[tau]
+        n, moved = _pressed(world, paths.actions[s + tau], old[tau - 1], there)
+        if n >= 0:
+            n_touched = _mark_touched(n, scratch, mark, n_touched, evidence.prior)
+        if tau <= window:
+            for f in range(footprint_cells.shape[1]):
+                c = footprint_cells[old[tau], f]
+                if c >= 0 and readings[s + tau, f] >= 0:
+                    n_touched = _mark_touched(c, scratch, mark, n_touched, evidence.prior)
+    _normalise(base, scratch.touched, n_touched)
+    previous = _path_at(paths, p, 0)
+    for u in range(t + 1):
+        here = _path_at(paths, p, u)
+        if u >= 1 and (u <= s or u > s + last):
+            n, moved = _pressed(world, paths.actions[u], previous, here)
+            if n >= 0 and loaded[n] == mark:
+                _times(base, n, evidence.gate[1 if moved else 0])
+        if u <= s or u > s + window:
+            for f in range(footprint_cells.shape[1]):
+                c = footprint_cells[here, f]
+                z = readings[u, f]
+                if c >= 0 and z >= 0 and loaded[c] == mark:
+                    _times(base, c, likelihood[z])
+        previous = here
     return n_touched
 
 
@@ -265,11 +404,23 @@ def _mark_bridge(world, paths, s, window, right, scratch, mark):
 
 
 @njit(cache=True, inline="always")
-def _spread(world, paths, s, tau, bridge, scratch, mark):
+def _step_motion(pool, world, p, i, n, sc, scratch, mark):
+    """(cell, probability) of successor sc of a robot at i whose action points at n, under m_-:
+    a press into n (blocking labels) moves with ``p_move P_{m_-}(n passable)``."""
+    gated = world.has_blocking and n != i
+    passable = 1.0
+    if gated:
+        _load(pool, p, n, scratch.base, scratch.marks[0], mark)
+        passable = _passable(scratch.base, n, world.blocking)
+    return gated_successor(i, n, world.p_move, sc, gated, passable)
+
+
+@njit(cache=True, inline="always")
+def _spread(pool, world, paths, p, s, tau, bridge, scratch, mark):
     """The forward filter's step tau before its emissions: the successors of step tau - 1's support
-    (``scratch.support``, ``alpha``) under the window's action, those that can still reach the
-    right end with a bridge, with their summed weights; ``succ``, ``succ_pr`` each predecessor's
-    successors. Returns their number."""
+    (``scratch.support``, ``alpha``) under the window's action (:func:`_step_motion`), those that
+    can still reach the right end with a bridge, with their summed weights; ``succ``, ``succ_pr``
+    each predecessor's successors. Returns their number."""
     support, alpha, position = scratch.support, scratch.alpha, scratch.position
     reached, reach = scratch.marks[3], scratch.marks[4]
     a = paths.actions[s + tau]
@@ -279,7 +430,7 @@ def _spread(world, paths, s, tau, bridge, scratch, mark):
         weight = alpha[tau - 1, e]
         n = world.moves[a, i]
         for sc in range(2):
-            j, pr = successor(i, n, world.p_move, sc)
+            j, pr = _step_motion(pool, world, p, i, n, sc, scratch, mark)
             f = -1
             if pr > 0.0 and weight > 0.0 and (not bridge or (reached[j] == mark and reach[j] >= tau)):
                 f = position[j]
@@ -314,7 +465,7 @@ def _emitted(pool, world, paths, p, s, tau, count, scratch, mark):
                     emission = 0.0
             else:
                 _load(pool, p, c, base, loaded, mark)
-                emission *= _dot(base, c, likelihood, z)
+                emission *= _dot(base, c, likelihood[z])
         alpha[tau, f] *= emission
         total += alpha[tau, f]
     return total
@@ -329,7 +480,7 @@ def _forward(pool, world, paths, p, s, window, bridge, scratch, mark):
     scratch.alpha[0, 0] = 1.0
     possible = True
     for tau in range(1, window + 1):
-        count = _spread(world, paths, s, tau, bridge, scratch, mark)
+        count = _spread(pool, world, paths, p, s, tau, bridge, scratch, mark)
         scratch.size[tau] = count
         total = _emitted(pool, world, paths, p, s, tau, count, scratch, mark)
         if total <= 0.0:
@@ -341,7 +492,7 @@ def _forward(pool, world, paths, p, s, window, bridge, scratch, mark):
 
 
 @njit(cache=True, inline="always")
-def _backward(world, paths, s, window, bridge, right, uniforms, scratch):
+def _backward(pool, world, paths, p, s, window, bridge, right, uniforms, scratch, mark):
     """Backward sampling into ``scratch.new``: the window's last step given the right end, then each
     predecessor, with ``uniforms`` (W + 2,) (column tau draws step tau). False where no last step
     reaches the right end."""
@@ -357,7 +508,7 @@ def _backward(world, paths, s, window, bridge, right, uniforms, scratch):
             i = support[window, e]
             n = world.moves[a, i]
             for sc in range(2):
-                j, pr = successor(i, n, world.p_move, sc)
+                j, pr = _step_motion(pool, world, p, i, n, sc, scratch, mark)
                 if j == right and pr > 0.0:
                     probs[count] = weight * pr
                     cells[count] = e
@@ -388,25 +539,17 @@ def _backward(world, paths, s, window, bridge, right, uniforms, scratch):
 
 
 @njit(cache=True, inline="always")
-def _write_move(pool, world, paths, t, p, s, window, n_touched, scratch, mark):
-    """An accepted move's writes: the new path's cells (m_- updated by its readings), then the old
-    path's other cells (m_-), through one inlined copy of the write; then the window's steps into
-    the path history."""
-    footprint_cells, new = world.footprint_cells, scratch.new
-    current, done, values = scratch.marks[1], scratch.marks[2], scratch.values
-    n_reads = footprint_cells.shape[1]
-    n_new = window * n_reads
-    for i in range(n_new + n_touched):
-        if i < n_new:
-            c = footprint_cells[new[1 + i // n_reads], i % n_reads]
-            if c < 0 or current[c] != 2 * mark + 1 or done[c] == mark:
-                continue
-        else:
-            c = scratch.touched[i - n_new]
-            if done[c] == mark:
-                continue
+def _write_move(pool, paths, t, p, s, window, n_fresh, n_touched, scratch, mark):
+    """An accepted move's writes: the cells the new path touched (``scratch.fresh``: m_- updated by
+    its events), then the old path's other cells (m_-), through one inlined copy of the write; then
+    the window's steps into the path history."""
+    done, values = scratch.marks[2], scratch.values
+    for i in range(n_fresh + n_touched):
+        c = scratch.fresh[i] if i < n_fresh else scratch.touched[i - n_fresh]
+        if done[c] == mark:
+            continue
         done[c] = mark
-        source = scratch.cur if i < n_new else scratch.base
+        source = scratch.cur if i < n_fresh else scratch.base
         for b in range(values.shape[0]):
             values[b] = source[c, b]
         write_cell(pool, t, p, c, values)
@@ -417,14 +560,16 @@ def _write_move(pool, world, paths, t, p, s, window, n_touched, scratch, mark):
         if source_row >= 0:
             for i in range(block):
                 paths.rows[r, i] = paths.rows[source_row, i]
-        paths.rows[r, step % block] = new[tau]
+        paths.rows[r, step % block] = scratch.new[tau]
 
 
 @loop_kernel
-def _move_particles(locations, log_weights, pool, paths, world, t, first, starts, window, uniforms, counts, scratch):
+def _move_particles(locations, log_weights, pool, paths, world, evidence, t, first, starts, window, uniforms, counts,
+                    scratch):
     """:func:`rbpf_move`'s loop over the particles, in its ``scratch`` (:class:`MoveScratch`)."""
     n_particles = locations.shape[0]
-    need_map = min(2 * window * world.footprint_cells.shape[1], pool.table.shape[1])
+    gated = int(world.has_blocking)
+    need_map = min(2 * (window + gated) * (world.footprint_cells.shape[1] + gated), pool.table.shape[1])
     need_path = window // paths.rows.shape[1] + 2
     old, new = scratch.old, scratch.new
     for p in range(first, n_particles):
@@ -438,12 +583,15 @@ def _move_particles(locations, log_weights, pool, paths, world, t, first, starts
             old[tau] = _path_at(paths, p, s + tau)
         bridge = s + window < t
         right = _path_at(paths, p, s + window + 1) if bridge else -1
-        n_touched = _map_without_window(pool, world, paths, p, s, window, scratch, mark)
+        if evidence.rebuild:
+            n_touched = _map_rebuilt(world, evidence, paths, p, s, window, t, bridge, right, scratch, mark)
+        else:
+            n_touched = _map_without_window(pool, world, paths, p, s, window, scratch, mark)
         if bridge:
             _mark_bridge(world, paths, s, window, right, scratch, mark)
         if not _forward(pool, world, paths, p, s, window, bridge, scratch, mark):
             continue
-        if not _backward(world, paths, s, window, bridge, right, uniforms[p], scratch):
+        if not _backward(pool, world, paths, p, s, window, bridge, right, uniforms[p], scratch, mark):
             continue
         counts[0] += 1
         same = True
@@ -454,13 +602,15 @@ def _move_particles(locations, log_weights, pool, paths, world, t, first, starts
             continue
         # Metropolis-Hastings: R(new) / R(old); cur keeps the new path's cells after the second
         ratio = 1.0
+        n_fresh = 0
         for which in range(2):  # R(old), then R(new) / R(old): one inlined copy of the code to compile
-            revisit = _revisit_ratio(old if which == 0 else new, s, window, world, paths, scratch, 2 * mark + which)
+            revisit, n_fresh = _revisit_ratio(pool, p, old if which == 0 else new, s, window, bridge, right, world,
+                                              evidence, paths, scratch, 2 * mark + which)
             ratio = revisit if which == 0 else revisit / ratio
         if not (ratio >= 1.0 or uniforms[p, window + 1] < ratio):
             continue
         counts[1] += 1
-        _write_move(pool, world, paths, t, p, s, window, n_touched, scratch, mark)
+        _write_move(pool, paths, t, p, s, window, n_fresh, n_touched, scratch, mark)
         if not bridge:
             locations[p] = new[window]
     return n_particles
