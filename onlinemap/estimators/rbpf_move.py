@@ -10,55 +10,70 @@ evidence can mend a mistake every particle carries. A move anywhere in the past 
 stretch given everything seen since; moving only the last steps does not touch it (measured:
 windows in the last 300 steps keep little of the gain).
 
-The target. Static world (C = I), no blocking labels: the motion ignores the map, and given a
-path ``x_{0:t}`` the cells are independent, cell c's posterior ``prior_c(k) prod O(k, z)`` over
-the readings z of c along the path. The map summed out,
+The target. Static world (C = I): given a path ``x_{0:t}`` the cells are independent, cell c's
+label with the law ``prior_c(k) w(k) prod_e f_e(k)`` over its *events* e: the readings of c
+(``f = O(., z)``) and, with blocking labels, the presses into c (moved in: ``[k passable]``;
+stayed: ``(1 - p_move) + p_move [k blocks]``; the motion's constant part ``p_move`` or the
+successor's probability left out). ``w`` is the label-prior tilt (:mod:`onlinemap.estimators.rbpf_prior`;
+1 without one). The map summed out,
 
-    p(x_{0:t} | z_{0:t})  propto  prod_tau T(x_{tau-1}, x_tau; a_tau)  prod_c sum_k prior_c(k) prod_{z at c} O(k, z)
+    p(x_{0:t} | z_{0:t})  propto  prod_tau T0(x_{tau-1}, x_tau; a_tau)  prod_c sum_k prior_c(k) w(k) prod_{e at c} f_e(k)
 
 Particle p's window ``x_{s+1..s+W}`` (``s`` uniform in ``first_start .. t - move_lag - W``) has,
-given the rest of its path, the law ``prod_{tau=s+1}^{s+W+1} T  p(z_window | x_window, m_-)``
-(the last factor T only when ``s + W < t``, the bridge to ``x_{s+W+1}``), where ``m_-`` is the
-particle's map with the window's readings divided out: exactly ``prior x prod O`` over the
-readings outside the window, since a sensor without zero entries can be divided by. The data
-outside the window depend on the window only through the map, which ``m_-`` carries.
+given the rest of its path, the law ``prod T0  prod_c E_{m_-(c)}[prod_{window events at c} f_e]``,
+the window's events being the readings of steps ``s+1..s+W`` and the presses of steps
+``s+1..s+W+1`` (the last only when ``s + W < t``, the bridge to ``x_{s+W+1}``), and ``m_-`` the
+particle's map without them. The data outside the window depend on the window only through the
+map, which ``m_-`` carries. ``m_-`` is built one of two ways:
+
+- divided (no blocking labels, a sensor without zeros: the paper's worlds, bit for bit as
+  before): the stored marginal with the window's readings divided out, exact since no factor
+  has a zero (the tilt w stays in it);
+- rebuilt (blocking labels or a sensor with zeros: a move into a cell multiplies it by
+  [passable], a reading can rule a label out, and zeros cannot be divided out): at the cells the
+  old window touches (its readings' cells and its presses' targets), ``normalise(prior_c w prod
+  f_e)`` over the events of the particle's history outside the window (its path and every
+  step's action and readings are stored), with the current w. O(t (F + 1)) per particle per move
+  for t steps of history. A recovery from depletion resets cells the history does not record,
+  so in such worlds moves stop after the first recovery (:meth:`PathHistory.move_due`).
 
 The proposal q: forward filtering, backward sampling on the location chain of the window over
 the cells its actions can reach from ``x_s`` (and, with a bridge, from which ``x_{s+W+1}`` can
-still be reached), emissions ``e_tau(l) = prod_f sum_k m_-(c_f)(k) O(k, z_f)`` over the cells
-``c_f`` a robot at l reads (1 for an offset off the grid reading -1, 0 where only one of the
-two is off). It draws exactly from ``q(x) propto prod T prod e``. The target differs from it only
-where the window reads a cell twice (its second reading sees the first): ``pi / q propto R(x)``,
-``R(x) = prod over the window's readings of P(z | c, m_- updated by x's earlier readings of c) /
-P(z | c, m_-)`` (1 at a cell's first reading; the motion factors cancel). An independence
+still be reached), every event replaced by its mean under ``m_-``: emissions ``e_tau(l) = prod_f
+sum_k m_-(c_f)(k) O(k, z_f)`` over the cells ``c_f`` a robot at l reads (1 for an offset off the
+grid reading -1, 0 where only one of the two is off), and a press into n moves with ``p_move
+P_{m_-}(n passable)``. It draws exactly from ``q(x) propto prod T0 prod E_{m_-}[f_e]``. The target
+differs from it only where the window touches a cell twice (its later event sees the earlier):
+``pi / q propto R(x)``, ``R(x) = prod over the window's events in order of E[f_e | m_- updated by
+x's earlier events at the cell] / E_{m_-}[f_e]`` (1 at a cell's first event). An independence
 Metropolis-Hastings step accepts the proposed window with probability ``min(1, R(new) /
 R(old))``, which leaves pi invariant; the accepted path's cells take their marginals given it
-(the old path's readings divided out, the new one's multiplied in), so every particle's map
-stays the exact map given its path. A weighted set properly weighted for pi stays so with its
-weights unchanged (``E[w f(x')] = E[w (K f)(x)]`` and ``pi K = pi``): the evidence estimate
-and the streaming contract are untouched (the move runs after the step's update; ``step``
-returns the belief at t).
+(m_- updated by the new window's events), so every particle's map stays the exact map given its
+path. Where a window enters twice a cell m_- deems a likely wall, q gives it little mass and the
+chain reaches it slowly (correct, only slower). A weighted set properly weighted for pi stays so
+with its weights unchanged (``E[w f(x')] = E[w (K f)(x)]`` and ``pi K = pi``): the evidence
+estimate and the streaming contract are untouched (the move runs after the step's update;
+``step`` returns the belief at t).
 
 When it runs. Fearnhead-Clifford with room for every child is exact Bayes, and a move could
 only add Monte-Carlo noise to it: moves wait until the filter has dropped a child (:attr:`
 PathHistory.exact`; the sampling schemes are never exact). So a filter with P >= 2^T is
-bit for bit the filter without moves. After a recovery from depletion (a relocation the motion
-model cannot explain, and read cells reset to their prior) windows start at or after the step
-that recovered (``first_start``): from there on the map is again ``prior x prod O`` over the
-path's readings, which is what the move divides by.
+bit for bit the filter without moves. After a recovery from depletion (a relocation the motion model cannot explain, and read cells
+reset to their prior) windows start at or after the step that recovered (``first_start``): from
+there on the map is again the prior times the path's factors, which is what the move divides by
+(a rebuilt move needs the history from step 0, and stops).
 
 Limits (refused with :class:`~onlinemap.errors.InvalidOptionError` naming ``move_window``,
-:func:`move_refusal`): a dynamic world (a cell's marginal is then a filtered chain, a window's
-readings cannot be divided out of it without per-step snapshots of the maps), blocking labels
-(a move's success multiplies the entered cell by [passable], a factor with zeros) and a sensor
-with zero entries. Sensor footprints are fine.
+:func:`move_refusal`): a dynamic world (a cell's marginal is then a filtered chain, which neither
+a division nor the path's factors give without per-step snapshots of the maps).
 
 State (:class:`PathHistory`, checkpointed, format 4): every particle's path as shared
 copy-on-write blocks of :data:`PATH_BLOCK` steps (resampling copies a table row of C = t / B
 indices, as the maps' table does), and every step's action and readings.
 
 Cost: a move of every particle is O(P W S (F K + 1)) (S the cells a window's step can take, a
-few to tens), every ``move_every`` steps; the history O(P_copied C + P B) per step (B =
+few to tens), plus O(P t (F + 1)) where it rebuilds m_- (t steps of history), every
+``move_every`` steps; the history O(P_copied C + P B) per step (B =
 :data:`PATH_BLOCK`) and, once moves have made the particles' pasts differ, up to 2 P t bytes (4
 beyond 32,767 cells). Measured on the paper's world replay at 1,000 particles (W = 20, every 5):
 3.2x the time per step of the filter without moves (the user guide's Estimators page, RBPF section).
