@@ -60,7 +60,10 @@ class World:
             weight *= go if path[u] == j else (1 - go if path[u] == path[u - 1] else 0.0)
         for l, z in zip(path, readings):
             for cell, reading in zip(self.reads[l], z):
-                weight *= float(reading == -1) if cell is None else (0.0 if reading < 0 else self.sensor[m[cell], reading])
+                if cell is None:
+                    weight *= float(reading == -1)
+                else:
+                    weight *= 0.0 if reading < 0 else self.sensor[m[cell], reading]
         return weight
 
     def joint(self, path, actions, readings) -> float:
@@ -186,7 +189,7 @@ def test_one_move_keeps_each_windows_conditional_law(name, make, seed):
         observed += [group.get(w, 0) for w in big] + [total - sum(group.get(w, 0) for w in big)]
         expected += [total * law[w] for w in big] + [total * (1 - sum(law[w] for w in big))]
     keep = [i for i, e in enumerate(expected) if e > 1e-9]
-    assert sum(1 for i in keep) - len(drawn) >= 5
+    assert len(keep) - len(drawn) >= 5
     statistic, p_value = stats.chisquare(np.array(observed)[keep], np.array(expected)[keep], ddof=len(drawn) - 1)
     assert p_value > 1e-3, (statistic, len(keep), len(drawn))
 
@@ -222,7 +225,8 @@ def test_a_chain_of_moves_from_one_state_reaches_the_windows_conditional_law():
             history, blocks = history.move(blocks, locations, log_weights, model, t, window, t - window - s,
                                            np.random.default_rng([chain, step]))
         path = history.paths(t)[one].tolist()
-        assert path[:s + 1] + path[s + window + 1:] == paths[one][:s + 1].tolist() + paths[one][s + window + 1:].tolist()
+        rest = paths[one].tolist()
+        assert path[:s + 1] + path[s + window + 1:] == rest[:s + 1] + rest[s + window + 1:]
         key = tuple(path[s + 1:s + window + 1])
         counts[key] = counts.get(key, 0) + 1
         if chain < 3:

@@ -17,7 +17,8 @@ stayed: ``(1 - p_move) + p_move [k blocks]``; the motion's constant part ``p_mov
 successor's probability left out). ``w`` is the label-prior tilt (:mod:`onlinemap.estimators.rbpf_prior`;
 1 without one). The map summed out,
 
-    p(x_{0:t} | z_{0:t})  propto  prod_tau T0(x_{tau-1}, x_tau; a_tau)  prod_c sum_k prior_c(k) w(k) prod_{e at c} f_e(k)
+    p(x_{0:t} | z_{0:t})  propto  prod_tau T0(x_{tau-1}, x_tau; a_tau)
+                                  prod_c sum_k prior_c(k) w(k) prod_{e at c} f_e(k)
 
 Particle p's window ``x_{s+1..s+W}`` (``s`` uniform in ``first_start .. t - move_lag - W``) has,
 given the rest of its path, the law ``prod T0  prod_c E_{m_-(c)}[prod_{window events at c} f_e]``,
@@ -58,10 +59,11 @@ estimate and the streaming contract are untouched (the move runs after the step'
 When it runs. Fearnhead-Clifford with room for every child is exact Bayes, and a move could
 only add Monte-Carlo noise to it: moves wait until the filter has dropped a child (:attr:`
 PathHistory.exact`; the sampling schemes are never exact). So a filter with P >= 2^T is
-bit for bit the filter without moves. After a recovery from depletion (a relocation the motion model cannot explain, and read cells
-reset to their prior) windows start at or after the step that recovered (``first_start``): from
-there on the map is again the prior times the path's factors, which is what the move divides by
-(a rebuilt move needs the history from step 0, and stops).
+bit for bit the filter without moves. After a recovery from depletion (a relocation the motion
+model cannot explain, and read cells reset to their prior) windows start at or after the step
+that recovered (``first_start``): from there on the map is again the prior times the path's
+factors, which is what the move divides by. A rebuilt m_- needs the history from step 0, so
+where the move rebuilds, moves stop after a recovery.
 
 Limits (refused with :class:`~onlinemap.errors.InvalidOptionError` naming ``move_window``,
 :func:`move_refusal`): a dynamic world (a cell's marginal is then a filtered chain, which neither
