@@ -20,7 +20,7 @@ option ``label_prior``:
   (``model.unknown_label_frequencies``: generated buildings and floors read from files) means
   ``"learn"``; any other model (the paper's worlds) its own prior table, every result as
   without the option. The approximate filters (RBPF, BK) learn by default only where they can
-  learn at all: in a static world (C = I) and, for the RBPF, without ``move_window``; elsewhere
+  learn at all: in a static world (C = I); elsewhere
   ``None`` is the model's table (:func:`plug_in_prior`; an explicit ``"learn"`` is refused there);
 - ``"model"``: the model's own prior table, whatever the model says of its frequencies (the
   uniform baseline on a building);
@@ -156,19 +156,18 @@ def fixed_point_frequencies(alpha: np.ndarray, log_evidence: np.ndarray, seen: n
     return theta
 
 
-def plug_in_prior(model, label_prior, prior_strength=None, learn_every=None, *, can_learn: bool = True) -> LabelPrior:
+def plug_in_prior(model, label_prior, prior_strength=None, learn_every=None) -> LabelPrior:
     """Check and resolve the label-prior options of an approximate (plug-in) filter for
     ``model`` (a :class:`~onlinemap.model.GridModel`): :func:`resolve_label_prior`, and
     ``learn_every`` (a positive integer, given only where the filter learns). The model's
     default learning (``label_prior=None`` with ``model.unknown_label_frequencies``) applies
-    where the filter can learn: a static world (C = I) and ``can_learn`` (the filter's own
-    condition); elsewhere None is the model's table. Raises
+    where the filter can learn: a static world (C = I); elsewhere None is the model's table. Raises
     :class:`~onlinemap.errors.InvalidOptionError`: an explicit ``"learn"`` in a dynamic world
     (a cell's marginal then mixes readings of different ages, which one rescaling of the prior
     does not move consistently), a fixed vector giving probability zero to every label a cell's
     model prior allows, a bad ``learn_every``. O(N K)."""
     prior = resolve_label_prior(model.n_labels, label_prior, prior_strength,
-                                model_learns=model.learns_label_frequencies and can_learn)
+                                model_learns=model.learns_label_frequencies)
     if prior.kind == "fixed" and np.any((model.label_prior * prior.frequencies).sum(axis=1) == 0):
         raise InvalidOptionError(f"label_prior {prior.frequencies.tolist()} gives probability zero to every label "
                                  "some cell's model prior allows")
