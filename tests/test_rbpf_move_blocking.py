@@ -279,3 +279,17 @@ def test_moves_run_on_a_blocking_building_with_a_footprint_and_the_learned_prior
 def test_a_dynamic_world_is_still_refused_naming_the_reason():
     with pytest.raises(om.InvalidOptionError, match="move_window=5: .*static world"):
         om.make_estimator("rbpf", om.door_world(p_door=0.05)[0], move_window=5)
+
+
+def test_rebuilding_moves_stop_after_a_recovery():
+    """A recovery resets cells the path history does not record, so where the move rebuilds maps
+    from the history (blocking labels, a sensor with zeros) no move is due after one; where it
+    divides (the paper's worlds) windows start at the step that recovered, as before."""
+    from onlinemap.estimators.rbpf_move import PathHistory, rebuilds
+    assert rebuilds(World(SMOOTH, PAIR).model()) and rebuilds(om.grid_model(2, 3, 2, sensor=ZEROS))
+    assert not rebuilds(om.grid_model(2, 3, 2, sensor=SMOOTH, footprint=PAIR))
+    history = PathHistory.new(World(SMOOTH, PAIR).model(), 4, exact=False)
+    assert history.move_due(200, 5, 1, 0, rebuild=True)
+    history.first_start = 5
+    assert not history.move_due(200, 5, 1, 0, rebuild=True)
+    assert history.move_due(200, 5, 1, 0, rebuild=False)
