@@ -98,13 +98,17 @@ def paths_record(paths, ancestors, locations, t):
         paths.rows[r, j] = locations[p]
 
 
+class Draws(NamedTuple):
+    """A move's random draws: ``starts (P,)`` each window's left end s, ``uniforms (P, W + 2)``."""
+
+    starts: np.ndarray
+    uniforms: np.ndarray
+
+
 class MapEvidence(NamedTuple):
-    """What the move rebuilds a map from where the window's factors cannot be divided out
-    (``rebuild``: blocking labels, or a sensor with zero entries): ``prior (N, K)`` each cell's
-    prior times the label-prior tilt w (``prior_i(k) w(k)``, unnormalised), ``gate (2, K)`` the
-    factor a press puts on its target cell's label k: row 0 it stayed, ``(1 - p_move) + p_move
-    [k blocks]``, row 1 it moved in, ``[k passable]`` (``p_move`` left out: it does not depend on
-    the map)."""
+    """The map's evidence beyond the readings: ``rebuild`` (m_- rebuilt, not divided), ``prior (N, K)``
+    ``prior_i(k) w(k)`` (w the label-prior tilt), ``gate (2, K)`` a press's factor on its target's
+    label k: row 0 stayed, ``(1 - p_move) + p_move [k blocks]``, row 1 moved in, ``[k passable]``."""
 
     prior: np.ndarray
     gate: np.ndarray
@@ -119,26 +123,15 @@ def rbpf_move(locations, log_weights, pool, paths, world, evidence, t, first, st
 
     Particle p's window is ``x_{s+1..s+W}``, ``s = starts[p]`` (``s + W <= t``, W = ``window``),
     redrawn given ``x_s``, ``x_{s+W+1}`` (when ``s + W < t``) and every observation, the rest of
-    the path kept. The target is the filter's, ``p(x_{0:t} | z_{0:t})``: in a static world, given
-    the path, each cell's label has the law ``prior_i w prod f_e`` over its *events* e: the readings
-    of it (``O(., z)``) and, with blocking labels, the presses into it (``evidence.gate``: the
-    motion's dependence on the map). The data outside the window depend on the window only through
-    the map, so the window's conditional law is ``prod_tau T0 prod_c E_{m_-}[prod_{window events
-    at c} f_e]``, ``T0`` the motion's constant part, ``m_-`` the particle's map without the
-    window's events (those of steps ``s+1..s+W``; presses also at ``s+W+1``, the bridge). ``m_-``
-    is the stored marginal with the window's readings divided out (a sensor without zeros, no
-    blocking labels), or else (``evidence.rebuild``) rebuilt at the cells the old window touched
-    from the particle's whole history outside it (:func:`_map_rebuilt`, O(t F) for t steps).
-    Proposal: forward filtering, backward sampling on the location chain over the cells the window's
-    actions can reach from ``x_s`` (and from which ``x_{s+W+1}`` can still be reached), each event
-    replaced by its mean under ``m_-``: emissions ``e_tau(l) = prod_f E_{m_-}[O(., z_f)]`` over
-    the cells ``c_f`` a robot at l reads (1 for an offset off the grid reading -1, 0 where only one
-    of them is), and a press into n moves with ``p_move P_{m_-}(n passable)``. So ``pi / q propto
-    R(x)``, ``R(x) = prod over the window's events in order of E[f_e | m_- and x's earlier events
-    at that cell] / E_{m_-}[f_e]`` (1 at a cell's first event). The acceptance ratio is ``R(new) /
-    R(old)``. An accepted path's cells get their marginals given it (m_- updated by its events),
-    its steps are written into the history, and if the window ends at t the location moves.
-    Weights are unchanged: the move leaves the target invariant (Gilks and Berzuini 2001). A
+    the path kept; the math is in ``estimators/rbpf_move.py``. In short: the target is the
+    window's law given the rest, ``prod T0 prod_c E_{m_-}[prod_{window events at c} f_e]`` (events:
+    readings, and with blocking labels presses, ``evidence.gate``); ``m_-``, the particle's map
+    without the window's events, is the stored marginal with the readings divided out, or
+    (``evidence.rebuild``) rebuilt from the path history (:func:`_map_rebuilt`); the proposal is
+    forward filtering, backward sampling with every event at its mean under ``m_-``; the
+    acceptance ratio ``R(new) / R(old)`` (:func:`_revisit_ratio`) corrects for cells the window
+    touches twice. An accepted path's cells get their marginals given it, its steps are written
+    into the history, and if the window ends at t the location moves. Weights are unchanged. A
     proposal equal to the old window changes nothing.
 
     Random numbers: ``uniforms (P, W + 2)``: column tau draws ``x_{s+tau}`` backwards (0 is never
@@ -164,8 +157,8 @@ def rbpf_move(locations, log_weights, pool, paths, world, evidence, t, first, st
                           np.empty((width, n_cells, 2)), np.empty(width, dtype=np.int64),
                           np.empty(width, dtype=np.int64), np.empty(2 * n_cells), np.empty(2 * n_cells, dtype=np.int64),
                           np.empty(events, dtype=np.int64), np.empty(events, dtype=np.int64), np.empty(k))
-    return _move_particles(locations, log_weights, pool, paths, world, evidence, t, first, starts, window, uniforms,
-                           counts, scratch)
+    return _move_particles(locations, log_weights, pool, paths, world, evidence, t, first, Draws(starts, uniforms),
+                           window, counts, scratch)
 
 
 @njit(cache=True, inline="always")
@@ -196,16 +189,6 @@ def _dot(base, c, factor):
 
 
 @njit(cache=True, inline="always")
-def _passable(base, c, blocking):
-    """P(cell c passable) under ``base[c]``."""
-    acc = 0.0
-    for b in range(base.shape[1]):
-        if not blocking[b]:
-            acc += base[c, b]
-    return acc
-
-
-@njit(cache=True, inline="always")
 def _draw(probs, count, total, uniform):
     """The index i < count drawn in proportion to ``probs[i]`` with ``uniform``."""
     target = uniform * total
@@ -220,8 +203,8 @@ def _draw(probs, count, total, uniform):
 
 @njit(cache=True, inline="always")
 def _pressed(world, action, here, there):
-    """(target, moved): the cell a press of ``action`` from ``here`` is gated by (-1 where none:
-    no blocking labels, or no neighbour that way) and whether the robot, now ``there``, went in."""
+    """(target, moved): the cell a press of ``action`` from ``here`` is gated by (-1: no blocking
+    labels or no neighbour) and whether the robot, now ``there``, went in."""
     n = world.moves[action, here]
     if not world.has_blocking or n == here:
         return -1, False
@@ -230,9 +213,8 @@ def _pressed(world, action, here, there):
 
 @njit(cache=True, inline="always")
 def _event(scratch, c, factor, mark, n_fresh):
-    """One event of a path at cell c with ``factor`` (K,), in :func:`_revisit_ratio`'s order:
-    returns (``E_cur[factor] / E_{m_-}[factor]``, 1 at the cell's first event, and the count of
-    ``scratch.fresh``, where a first event lists c); ``cur[c]`` <- its marginal given the event."""
+    """One event of a path at cell c with ``factor`` (K,): returns (``E_cur[factor] / E_{m_-}[factor]``,
+    1 at the cell's first event, which lists c in ``scratch.fresh``, and that list's count)."""
     base, cur, current = scratch.base, scratch.cur, scratch.marks[1]
     ratio = 1.0
     if current[c] == mark:
@@ -251,7 +233,7 @@ def _event(scratch, c, factor, mark, n_fresh):
 
 
 @njit(cache=True, inline="always")
-def _revisit_ratio(pool, p, path, s, window, bridge, right, world, evidence, paths, scratch, mark):
+def _revisit_ratio(path, s, window, bridge, right, world, evidence, paths, scratch, mark):
     """``(R(path), n_fresh)`` of :func:`rbpf_move`: the product, over the window's events in time
     order (a step's press, then its readings; the bridge's press last), of ``E[f_e | m_- updated
     by the path's earlier events at the cell] / E_{m_-}[f_e]``. Leaves in ``scratch.cur[c]``
@@ -264,8 +246,7 @@ def _revisit_ratio(pool, p, path, s, window, bridge, right, world, evidence, pat
     for tau in range(1, last + 1):
         there = right if tau > window else path[tau]
         n, moved = _pressed(world, paths.actions[s + tau], path[tau - 1], there)
-        if n >= 0:
-            _load(pool, p, n, scratch.base, scratch.marks[0], p + 1)
+        if n >= 0:  # its m_- was loaded by the forward filter or the rebuild
             r, n_fresh = _event(scratch, n, evidence.gate[1 if moved else 0], mark, n_fresh)
             ratio *= r
         if tau > window:
@@ -331,8 +312,8 @@ def _mark_touched(c, scratch, mark, n_touched, prior):
 
 @njit(cache=True, inline="always")
 def _times(base, c, factor):
-    """``base[c]`` <- ``normalise(base[c] * factor)`` (normalised at every event: a long history
-    would otherwise underflow; a sum of 0, a history the particle cannot have, is left as is)."""
+    """``base[c]`` <- ``normalise(base[c] * factor)`` (at every event: a long history would underflow;
+    a sum of 0, a history the particle cannot have, is left as is)."""
     total = 0.0
     for b in range(base.shape[1]):
         base[c, b] *= factor[b]
@@ -344,13 +325,11 @@ def _times(base, c, factor):
 
 @njit(cache=True, inline="always")
 def _map_rebuilt(world, evidence, paths, p, s, window, t, bridge, right, scratch, mark):
-    """``scratch.base`` <- m_- rebuilt (where the window's factors cannot be divided out): the cells
-    the old window (``scratch.old``) touches, its readings' cells and its presses' targets (steps
-    ``s+1..s+W``, and ``s+W+1`` with a bridge), listed in ``scratch.touched``, each set to
-    ``evidence.prior`` times every factor the particle's path puts on it outside the window: the
-    readings of steps ``0..s`` and ``s+W+1..t``, the presses of steps ``1..s`` and ``s+W+2..t``.
-    Needs a history from step 0 (no recovery, which resets cells). Returns the count. O(t (F + 1)
-    + W F K)."""
+    """``scratch.base`` <- m_- rebuilt at the cells the old window (``scratch.old``) touches (read, or
+    pressed into at steps ``s+1..s+W`` and the bridge's ``s+W+1``; listed in ``scratch.touched``):
+    ``evidence.prior`` times every factor of the path outside the window (readings of steps ``0..s``,
+    ``s+W+1..t``; presses of ``1..s``, ``s+W+2..t``). Needs the history from step 0 (no recovery).
+    Returns the count. O(t (F + 1) + W F K)."""
     footprint_cells, readings, likelihood = world.footprint_cells, paths.readings, world.likelihood
     old, base, loaded = scratch.old, scratch.base, scratch.marks[0]
     n_touched = 0
@@ -408,10 +387,12 @@ def _step_motion(pool, world, p, i, n, sc, scratch, mark):
     """(cell, probability) of successor sc of a robot at i whose action points at n, under m_-:
     a press into n (blocking labels) moves with ``p_move P_{m_-}(n passable)``."""
     gated = world.has_blocking and n != i
-    passable = 1.0
+    passable = 0.0 if gated else 1.0
     if gated:
         _load(pool, p, n, scratch.base, scratch.marks[0], mark)
-        passable = _passable(scratch.base, n, world.blocking)
+        for b in range(scratch.base.shape[1]):
+            if not world.blocking[b]:
+                passable += scratch.base[n, b]
     return gated_successor(i, n, world.p_move, sc, gated, passable)
 
 
@@ -564,8 +545,7 @@ def _write_move(pool, paths, t, p, s, window, n_fresh, n_touched, scratch, mark)
 
 
 @loop_kernel
-def _move_particles(locations, log_weights, pool, paths, world, evidence, t, first, starts, window, uniforms, counts,
-                    scratch):
+def _move_particles(locations, log_weights, pool, paths, world, evidence, t, first, draws, window, counts, scratch):
     """:func:`rbpf_move`'s loop over the particles, in its ``scratch`` (:class:`MoveScratch`)."""
     n_particles = locations.shape[0]
     gated = int(world.has_blocking)
@@ -578,7 +558,7 @@ def _move_particles(locations, log_weights, pool, paths, world, evidence, t, fir
         if pool.free_top[0] < need_map or paths.free_top[0] < need_path:
             return p
         mark = p + 1
-        s = starts[p]
+        s = draws.starts[p]
         for tau in range(window + 1):
             old[tau] = _path_at(paths, p, s + tau)
         bridge = s + window < t
@@ -591,7 +571,7 @@ def _move_particles(locations, log_weights, pool, paths, world, evidence, t, fir
             _mark_bridge(world, paths, s, window, right, scratch, mark)
         if not _forward(pool, world, paths, p, s, window, bridge, scratch, mark):
             continue
-        if not _backward(pool, world, paths, p, s, window, bridge, right, uniforms[p], scratch, mark):
+        if not _backward(pool, world, paths, p, s, window, bridge, right, draws.uniforms[p], scratch, mark):
             continue
         counts[0] += 1
         same = True
@@ -604,10 +584,10 @@ def _move_particles(locations, log_weights, pool, paths, world, evidence, t, fir
         ratio = 1.0
         n_fresh = 0
         for which in range(2):  # R(old), then R(new) / R(old): one inlined copy of the code to compile
-            revisit, n_fresh = _revisit_ratio(pool, p, old if which == 0 else new, s, window, bridge, right, world,
-                                              evidence, paths, scratch, 2 * mark + which)
+            revisit, n_fresh = _revisit_ratio(old if which == 0 else new, s, window, bridge, right, world, evidence,
+                                              paths, scratch, 2 * mark + which)
             ratio = revisit if which == 0 else revisit / ratio
-        if not (ratio >= 1.0 or uniforms[p, window + 1] < ratio):
+        if not (ratio >= 1.0 or draws.uniforms[p, window + 1] < ratio):
             continue
         counts[1] += 1
         _write_move(pool, paths, t, p, s, window, n_fresh, n_touched, scratch, mark)
