@@ -259,29 +259,38 @@ def _filter_step(maps, world, tables, rollout, a, h, lik, proposal_u, scratch):
 
 
 @loop_kernel
-def _rollout(particles, world, tables, actions, hypotheses, s, scoring, rollout, scratch, out):
-    """Simulate ``actions`` (H,) in world s of ``hypotheses`` and filter its readings through the
-    particles (:func:`world_step`, :func:`_filter_step`); ``out[h]`` <- the uncertainty after h
-    steps for every h >= 1 with ``scoring.checkpoints[h]`` (other entries untouched). O(H R (H +
-    K^2)) for the steps plus O(R N K) per checkpoint."""
-    for p in range(rollout.loc.shape[0]):
-        rollout.loc[p] = particles.locations[p]
-        rollout.lw[p] = particles.log_weights[p]
-        rollout.n[p] = 0
-    for i in range(rollout.labels.shape[0]):
-        rollout.labels[i] = hypotheses.labels[s, i]
-    where = hypotheses.locations[s]
-    for h in range(1, actions.shape[0] + 1):
-        a = actions[h - 1]
-        where = world_step(world, tables, where, rollout.labels, a, hypotheses.world_u[s, h - 1],
-                           hypotheses.change_u[s, h - 1], scratch.readings)
-        _filter_step(particles.maps, world, tables, rollout, a, h, world.likelihood[scratch.readings[0]],
-                     hypotheses.proposal_u[s, h - 1], scratch)
-        if scoring.checkpoints[h]:
-            out[h] = _uncertainty(rollout.loc, particles.maps, rollout, tables, h, scoring.location_weight, scratch)
+def _roll_all(particles, world, tables, sequences, hypotheses, scoring, rollout, scratch, total):
+    """:func:`rollout_uncertainty` in the buffers ``rollout`` and ``scratch``: every sequence in
+    every world, each step the world's (:func:`world_step`), then the particles'
+    (:func:`_filter_step`), scored at the checkpoints (:func:`_uncertainty`). One compiled
+    function for the loops (each compiled caller compiles its callees' code again)."""
+    for p in range(rollout.weights.shape[0]):
+        rollout.weights[p] = math.exp(particles.log_weights[p])
+    now = 0.0
+    if scoring.checkpoints[0]:
+        now = _uncertainty(particles.locations, particles.maps, rollout, tables, np.int64(0),  # int64: one compile
+                           scoring.location_weight, scratch)
+    for s in range(hypotheses.locations.shape[0]):
+        for c in range(sequences.shape[0]):
+            for p in range(rollout.loc.shape[0]):
+                rollout.loc[p] = particles.locations[p]
+                rollout.lw[p] = particles.log_weights[p]
+                rollout.n[p] = 0
+            for i in range(rollout.labels.shape[0]):
+                rollout.labels[i] = hypotheses.labels[s, i]
+            where = hypotheses.locations[s]
+            total[c, 0] += now
+            for h in range(1, sequences.shape[1] + 1):
+                a = sequences[c, h - 1]
+                where = world_step(world, tables, where, rollout.labels, a, hypotheses.world_u[s, h - 1],
+                                   hypotheses.change_u[s, h - 1], scratch.readings)
+                _filter_step(particles.maps, world, tables, rollout, a, h, world.likelihood[scratch.readings[0]],
+                             hypotheses.proposal_u[s, h - 1], scratch)
+                if scoring.checkpoints[h]:
+                    total[c, h] += _uncertainty(rollout.loc, particles.maps, rollout, tables, h,
+                                                scoring.location_weight, scratch)
 
 
-@njit(cache=True)
 def rollout_uncertainty(particles, world, tables, sequences, hypotheses, scoring, total):
     """Roll every action sequence ``sequences`` (C, H) out in every world of ``hypotheses`` (the
     paper's sensor and motion: F = 1) through the particles and add up its uncertainty:
@@ -291,27 +300,16 @@ def rollout_uncertainty(particles, world, tables, sequences, hypotheses, scoring
 
     World step h (DESIGN.md section 1 order, :func:`world_step`); filter step: the RBPF's optimal
     proposal (:func:`_filter_step`). ``particles``: a ``ParticleSnapshot``; ``world``: the RBPF's
-    ``World`` bundle; ``tables``: :class:`RolloutTables`. Cost O(S C (H R (H + K^2) +
-    n_checkpoints R N K)) plus O(R N K) for step 0.
+    ``World`` bundle; ``tables``: :class:`RolloutTables`. Allocates the rollout's buffers here and
+    runs the loop kernel :func:`_roll_all` (a compiled entry point would compile every kernel's
+    code once more). Cost O(S C (H R (H + K^2) + n_checkpoints R N K)) plus O(R N K) for step 0.
     """
     r_count, n_cells, k = particles.maps.shape
     width = max(sequences.shape[1], 1)
-    rollout = _Rollout(np.empty(r_count, dtype=np.int64), np.empty(r_count), np.exp(particles.log_weights),
+    rollout = _Rollout(np.empty(r_count, dtype=np.int64), np.empty(r_count), np.empty(r_count),
                        np.empty(n_cells, dtype=hypotheses.labels.dtype), np.full((r_count, width), -1, dtype=np.int64),
                        np.empty((r_count, width, k)), np.zeros((r_count, width), dtype=np.int64),
                        np.zeros(r_count, dtype=np.int64))
     scratch = _Scratch(np.empty(n_cells), np.empty((n_cells, k)), np.empty(k), np.empty(k), np.empty(k),
                        np.empty(world.footprint_cells.shape[1], dtype=np.int64))
-    now = 0.0
-    if scoring.checkpoints[0]:
-        now = _uncertainty(particles.locations, particles.maps, rollout, tables, np.int64(0),  # int64: one compile
-                           scoring.location_weight, scratch)
-    out = np.empty(sequences.shape[1] + 1)
-    for s in range(hypotheses.locations.shape[0]):
-        for c in range(sequences.shape[0]):
-            for h in range(out.shape[0]):
-                out[h] = 0.0
-            out[0] = now
-            _rollout(particles, world, tables, sequences[c], hypotheses, s, scoring, rollout, scratch, out)
-            for h in range(out.shape[0]):
-                total[c, h] += out[h]
+    _roll_all(particles, world, tables, sequences, hypotheses, scoring, rollout, scratch, total)
