@@ -351,7 +351,6 @@ def _reset(ov, n_touched):
         ov.touched[ov.touched_list[j]] = False
 
 
-@njit(cache=True)
 def _overlays(n_states, r_count, n_cells, k, horizon, n_reads):
     """Empty :class:`Overlays` of R particles' maps for ``n_states`` rollout states (each particle
     writes at most H (F + 1) cells: W = max(H, 1) (F + 1)). O(S' R (N + W K))."""
@@ -363,7 +362,6 @@ def _overlays(n_states, r_count, n_cells, k, horizon, n_reads):
                     np.empty((n_states, r_count * width), dtype=np.int64))
 
 
-@njit(cache=True)
 def _step(n_reads, k):
     """A filter step's scratch (:class:`_Step`) for F = ``n_reads`` readings."""
     return _Step(np.empty((2, n_reads + 1), dtype=np.int64), np.empty((2, n_reads + 1, k)), np.empty((2, k)),
@@ -434,15 +432,14 @@ def _press(moves, candidates, work, g, x, h, n_free, n_pending, n_groups):
 
 
 @loop_kernel
-def _roll_world(particles, world, tables, candidates, hypotheses, s, scoring, agreement, now, work, out):
-    """:func:`plan_rollouts` in world s: every candidate from the particles, candidates that press
-    alike sharing one rollout state, a state stepped to the horizon before the next is taken from
-    the stack (depth first, so its memory stays in cache)."""
-    states, groups, maps = work.states, work.groups, particles.maps
-    n_seq, horizon = candidates.sequences.shape
+def _start_world(particles, hypotheses, s, scoring, now, work, out):
+    """World s starts: rollout state 0 <- the particles and the world's labels and location, every
+    candidate in group 0, the other states free (the last freed on top), ``out[c, 0] += now``
+    where step 0 is scored. Returns the count of free states."""
+    states, groups = work.states, work.groups
+    n_seq = groups.group.shape[0]
     for x in range(n_seq):
         groups.free[x] = n_seq - 1 - x
-    n_free = n_seq - 1  # state 0 starts the world
     for p in range(particles.locations.shape[0]):
         states.loc[0, p] = particles.locations[p]
         states.lw[0, p] = particles.log_weights[p]
@@ -453,36 +450,51 @@ def _roll_world(particles, world, tables, candidates, hypotheses, s, scoring, ag
         groups.group[c] = 0
         if scoring.checkpoints[0]:
             out[c, 0] += now
-    n_groups = np.int64(1)  # not the literal 1: _press compiles once
     groups.pending[0, 0], groups.pending[0, 1], groups.pending[0, 2] = 0, 0, 1
-    n_pending = 1
-    while n_pending > 0:
-        n_pending -= 1
-        g, x, first_step = groups.pending[n_pending, 0], groups.pending[n_pending, 1], groups.pending[n_pending, 2]
-        ov = _state(states.overlays, x)
-        for h in range(first_step, horizon + 1):
-            lead, n_free, n_pending, n_groups = _press(world.moves, candidates, work, g, x, h, n_free, n_pending,
-                                                       n_groups)
-            a = groups.action[lead]
-            states.where[x] = world_step(world, tables, states.where[x], states.labels[x], a,
-                                         hypotheses.world_u[s, h - 1], hypotheses.change_u[s, h - 1],
-                                         work.step.readings)
-            states.n_touched[x] = _filter_step(states.loc[x], states.lw[x], maps, ov, world, tables, a, h,
-                                               hypotheses.proposal_u[s, h - 1], work.step, states.n_touched[x])
-            if scoring.checkpoints[h]:
-                value = mixture_uncertainty(states.loc[x], states.lw[x], maps, ov, tables, h, scoring.location_weight,
-                                            states.n_touched[x], agreement.entropy[h], agreement.disputed,
-                                            work.mixture)
-                for c in range(n_seq):
-                    if groups.group[c] == g:
-                        out[c, h] += value
-        _reset(ov, states.n_touched[x])
-        states.n_touched[x] = 0
-        groups.free[n_free] = x
-        n_free += 1
+    return n_seq - 1  # state 0 starts the world
 
 
-@njit(cache=True)
+@loop_kernel
+def _roll_all(particles, world, tables, candidates, hypotheses, scoring, agreement, work, out):
+    """:func:`plan_rollouts` in the buffers ``work``: world by world, every candidate from the
+    particles, candidates that press alike sharing one rollout state, a state stepped to the
+    horizon before the next is taken from the stack (depth first, so its memory stays in cache).
+    One compiled function for the loops (each compiled caller compiles its callees' code again)."""
+    states, groups, maps = work.states, work.groups, particles.maps
+    n_seq, horizon = candidates.sequences.shape
+    zero = np.int64(0)  # not the literal 0: mixture_uncertainty compiles once, for int64 h and counts
+    now = mixture_uncertainty(particles.locations, particles.log_weights, maps, _state(states.overlays, 0), tables,
+                              zero, scoring.location_weight, zero, agreement.entropy[0], agreement.disputed,
+                              work.mixture)
+    for s in range(hypotheses.locations.shape[0]):
+        n_free = _start_world(particles, hypotheses, s, scoring, now, work, out)
+        n_groups, n_pending = np.int64(1), 1  # not the literal 1: _press compiles once
+        while n_pending > 0:
+            n_pending -= 1
+            g, x, first = groups.pending[n_pending, 0], groups.pending[n_pending, 1], groups.pending[n_pending, 2]
+            ov = _state(states.overlays, x)
+            for h in range(first, horizon + 1):
+                lead, n_free, n_pending, n_groups = _press(world.moves, candidates, work, g, x, h, n_free, n_pending,
+                                                           n_groups)
+                a = groups.action[lead]
+                states.where[x] = world_step(world, tables, states.where[x], states.labels[x], a,
+                                             hypotheses.world_u[s, h - 1], hypotheses.change_u[s, h - 1],
+                                             work.step.readings)
+                states.n_touched[x] = _filter_step(states.loc[x], states.lw[x], maps, ov, world, tables, a, h,
+                                                   hypotheses.proposal_u[s, h - 1], work.step, states.n_touched[x])
+                if scoring.checkpoints[h]:
+                    value = mixture_uncertainty(states.loc[x], states.lw[x], maps, ov, tables, h,
+                                                scoring.location_weight, states.n_touched[x], agreement.entropy[h],
+                                                agreement.disputed, work.mixture)
+                    for c in range(n_seq):
+                        if groups.group[c] == g:
+                            out[c, h] += value
+            _reset(ov, states.n_touched[x])
+            states.n_touched[x] = 0
+            groups.free[n_free] = x
+            n_free += 1
+
+
 def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agreement, out):
     """Roll every candidate out in every hypothetical world through the thinned particle belief
     and add up its uncertainty: ``out[c, h] += U`` after h steps of candidate c in world s, for
@@ -497,9 +509,11 @@ def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agr
     With common random numbers, candidates that have pressed alike so far in a world are in the
     same state: such a group shares one rollout state (one of C), stepped and scored once. When
     its candidates press differently, the state is copied (:func:`_fork`, before the step) for
-    each other press, and that group waits on a stack (:func:`_roll_world`). The scores are those
+    each other press, and that group waits on a stack (:func:`_roll_all`). The scores are those
     of rolling every candidate out alone, bit for bit; in the door world and 16 x 16 buildings
-    5-30% of the steps are shared (plans 18% faster, measured on recorded plans).
+    5-30% of the steps are shared (plans 18% faster, measured on recorded plans). The buffers
+    are allocated here, the loops run in the loop kernel :func:`_roll_all` (a compiled entry
+    point would compile every kernel's code once more).
     Cost O(S C H R (F + 1) K) for the steps (K^2 with map dynamics) plus O(S C R (D + H F) K)
     per checkpoint, less the shared steps; memory O(C R (N + H F K)) for the states.
     """
@@ -507,21 +521,15 @@ def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agr
     n_seq, horizon = candidates.sequences.shape
     if n_seq == 0:  # no candidate: nothing to score (and no rollout state to start from)
         return
+    n_reads = world.footprint_cells.shape[1]
     states = _States(np.empty((n_seq, r_count), dtype=np.int64), np.empty((n_seq, r_count)),
                      np.empty((n_seq, n_cells), dtype=hypotheses.labels.dtype), np.empty(n_seq, dtype=np.int64),
-                     np.zeros(n_seq, dtype=np.int64),
-                     _overlays(n_seq, r_count, n_cells, k, horizon, world.footprint_cells.shape[1]))
+                     np.zeros(n_seq, dtype=np.int64), _overlays(n_seq, r_count, n_cells, k, horizon, n_reads))
     groups = _Groups(np.empty(n_seq, dtype=np.int64), np.empty(n_seq, dtype=np.int64),
                      np.empty(world.moves.shape[0], dtype=np.int64), np.empty((n_seq, 3), dtype=np.int64),
                      np.empty(n_seq, dtype=np.int64))
-    work = _Work(states, _step(world.footprint_cells.shape[1], k), mixture_scratch(particles.maps, agreement.disputed),
-                 groups)
-    zero = np.int64(0)  # not the literal 0: mixture_uncertainty compiles once, for int64 h and counts
-    now = mixture_uncertainty(particles.locations, particles.log_weights, particles.maps, _state(states.overlays, 0),
-                              tables, zero, scoring.location_weight, zero, agreement.entropy[0], agreement.disputed,
-                              work.mixture)
-    for s in range(hypotheses.locations.shape[0]):
-        _roll_world(particles, world, tables, candidates, hypotheses, s, scoring, agreement, now, work, out)
+    work = _Work(states, _step(n_reads, k), mixture_scratch(particles.maps, agreement.disputed), groups)
+    _roll_all(particles, world, tables, candidates, hypotheses, scoring, agreement, work, out)
 
 
 @loop_kernel
@@ -541,29 +549,34 @@ def _whole_belief(loc, lw, maps, ov, tables, h, scratch, beliefs):
                 beliefs.maps[h, c, b] += w * scratch[b]
 
 
-@njit(cache=True)
+@loop_kernel
+def _roll_beliefs(particles, world, tables, actions, hypotheses, states, step, scratch, beliefs):
+    """:func:`rollout_beliefs` in the buffers ``states`` (one rollout state, from the particles
+    and world 0), ``step`` and ``scratch`` (K,)."""
+    ov = _state(states.overlays, 0)
+    loc, lw, labels = states.loc[0], states.lw[0], states.labels[0]
+    where = states.where[0]
+    n_touched = np.int64(0)
+    for h in range(actions.shape[0] + 1):
+        if h > 0:
+            a = actions[h - 1]
+            where = world_step(world, tables, where, labels, a, hypotheses.world_u[0, h - 1],
+                               hypotheses.change_u[0, h - 1], step.readings)
+            for f in range(step.readings.shape[0]):
+                beliefs.readings[h - 1, f] = step.readings[f]
+            n_touched = _filter_step(loc, lw, particles.maps, ov, world, tables, a, h, hypotheses.proposal_u[0, h - 1],
+                                     step, n_touched)
+        beliefs.where[h] = where
+        _whole_belief(loc, lw, particles.maps, ov, tables, h, scratch, beliefs)
+
+
 def rollout_beliefs(particles, world, tables, actions, hypotheses, beliefs):
     """One rollout of :func:`plan_rollouts` (world 0 of ``hypotheses``, the fixed ``actions``
     (H,)), keeping the whole belief in ``beliefs`` (:class:`Beliefs`). For tests.
     O(H R (N K + (F + 1) K^2))."""
     r_count, n_cells, k = particles.maps.shape
-    horizon = actions.shape[0]
     n_reads = world.footprint_cells.shape[1]
-    ov = _state(_overlays(1, r_count, n_cells, k, horizon, n_reads), 0)
-    step = _step(n_reads, k)
-    scratch = np.empty(k)
-    loc = particles.locations.copy()
-    lw = particles.log_weights.copy()
-    labels = hypotheses.labels[0].copy()
-    where = hypotheses.locations[0]
-    n_touched = np.int64(0)
-    for h in range(horizon + 1):
-        if h > 0:
-            a = actions[h - 1]
-            where = world_step(world, tables, where, labels, a, hypotheses.world_u[0, h - 1],
-                               hypotheses.change_u[0, h - 1], step.readings)
-            beliefs.readings[h - 1] = step.readings
-            n_touched = _filter_step(loc, lw, particles.maps, ov, world, tables, a, h, hypotheses.proposal_u[0, h - 1],
-                                     step, n_touched)
-        beliefs.where[h] = where
-        _whole_belief(loc, lw, particles.maps, ov, tables, h, scratch, beliefs)
+    states = _States(particles.locations.copy()[None], particles.log_weights.copy()[None],
+                     hypotheses.labels[:1].copy(), hypotheses.locations[:1].copy(), np.zeros(1, dtype=np.int64),
+                     _overlays(1, r_count, n_cells, k, actions.shape[0], n_reads))
+    _roll_beliefs(particles, world, tables, actions, hypotheses, states, _step(n_reads, k), np.empty(k), beliefs)

@@ -32,19 +32,14 @@ class Mixture(NamedTuple):
     weights: np.ndarray
 
 
-@njit(cache=True)
 def mixture_scratch(maps, disputed):
     """:func:`mixture_uncertainty`'s scratch (:class:`Mixture`) for the particles' ``maps`` (R, N,
     K) and the ``disputed`` cells (D,). O(R D K + N K)."""
     r_count, n_cells, k = maps.shape
-    disputed_maps = np.empty((r_count, disputed.shape[0] * k))
     mask = np.zeros(n_cells, dtype=np.bool_)
-    for d in range(disputed.shape[0]):
-        mask[disputed[d]] = True
-        for p in range(r_count):
-            for b in range(k):
-                disputed_maps[p, d * k + b] = maps[p, disputed[d], b]
-    return Mixture(disputed_maps, np.empty((1, disputed.shape[0], k)), mask, np.zeros(n_cells), np.zeros((n_cells, k)),
+    mask[disputed] = True
+    return Mixture(np.ascontiguousarray(maps[:, disputed, :]).reshape(r_count, disputed.shape[0] * k),
+                   np.empty((1, disputed.shape[0], k)), mask, np.zeros(n_cells), np.zeros((n_cells, k)),
                    np.empty(r_count))
 
 
