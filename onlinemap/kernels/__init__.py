@@ -39,6 +39,12 @@ loop_kernel = njit(cache=True, _nrt=False)
 thread_kernel = njit(cache=True, _nrt=False, nogil=True)
 
 
+#: A :data:`loop_kernel` only other kernels call: compiled without the two wrappers that let Python
+#: (and numba's first-class function values) call it, which unbox every array of every bundle
+#: argument and are compiled anew with each signature (a third of a second for three bundles of
+#: eight arrays, measured). Calling it from Python fails.
+inner_kernel = njit(cache=True, _nrt=False, no_cpython_wrapper=True, no_cfunc_wrapper=True)
+
 #: how many iterations ahead the RBPF's loops ask for the rows they will read (:func:`prefetch`)
 PREFETCH_AHEAD = 8
 

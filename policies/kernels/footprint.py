@@ -24,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from onlinemap.kernels import loop_kernel
+from onlinemap.kernels import inner_kernel, loop_kernel
 from onlinemap.kernels.rbpf import carried
 
 from .mixture import Mixture, mixture_scratch, mixture_uncertainty
@@ -276,7 +276,7 @@ def _keep(ov, p, h, ids, cells, used, n_touched):
     return n_touched
 
 
-@loop_kernel
+@inner_kernel
 def _filter_step(loc, lw, maps, ov, world, tables, a, h, proposal_u, step, n_touched):
     """Every particle (``loc``, ``lw`` (R,)) takes step h (action a, ``step.readings``); weights
     renormalised (all particles kept, equally weighted, if none explains the readings). Cells any
@@ -317,7 +317,7 @@ def _filter_step(loc, lw, maps, ov, world, tables, a, h, proposal_u, step, n_tou
     return n_touched
 
 
-@loop_kernel
+@inner_kernel
 def _closed_loop_action(loc, lw, moves, distance, go, weights):
     """``argmin_a sum_p w_p [go(l_p, a) D(n) + (1 - go(l_p, a)) D(l_p)]``, ``n = moves[a, l_p]``:
     the expected distance ``D`` (N,) to the candidate's target after the press, ``go`` (N, A) the
@@ -340,7 +340,7 @@ def _closed_loop_action(loc, lw, moves, distance, go, weights):
     return best
 
 
-@loop_kernel
+@inner_kernel
 def _reset(ov, n_touched):
     """Empty every particle's overlay and the touched set after a rollout. O(slots used)."""
     for p in range(ov.n.shape[0]):
@@ -368,7 +368,7 @@ def _step(n_reads, k):
                  np.empty((2, n_reads)), np.empty((2, n_reads), dtype=np.int64), np.empty(n_reads, dtype=np.int64))
 
 
-@loop_kernel
+@inner_kernel
 def _fork(states, x, y):
     """Rollout state y (empty) <- a copy of state x: the particles, the hypothetical world and the
     overlays, slot for slot in the same order (so every later sum runs in the same order).
@@ -396,7 +396,7 @@ def _fork(states, x, y):
     states.n_touched[y] = states.n_touched[x]
 
 
-@loop_kernel
+@inner_kernel
 def _press(moves, candidates, work, g, x, h, n_free, n_pending, n_groups):
     """Every candidate of group g (in rollout state x) chooses its press at step h: its
     sequence's, or in closed loop on the state's belief (:func:`_closed_loop_action`). A candidate
@@ -431,7 +431,7 @@ def _press(moves, candidates, work, g, x, h, n_free, n_pending, n_groups):
     return lead, n_free, n_pending, n_groups
 
 
-@loop_kernel
+@inner_kernel
 def _start_world(particles, hypotheses, s, scoring, now, work, out):
     """World s starts: rollout state 0 <- the particles and the world's labels and location, every
     candidate in group 0, the other states free (the last freed on top), ``out[c, 0] += now``
@@ -532,7 +532,7 @@ def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agr
     _roll_all(particles, world, tables, candidates, hypotheses, scoring, agreement, work, out)
 
 
-@loop_kernel
+@inner_kernel
 def _whole_belief(loc, lw, maps, ov, tables, h, scratch, beliefs):
     """``beliefs.location[h]`` and ``beliefs.maps[h]`` <- the weighted particle locations and map
     mixture at step h (``scratch`` (K,)). O(R N K) (K^2 with map dynamics)."""

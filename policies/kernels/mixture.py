@@ -13,7 +13,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from onlinemap.kernels import loop_kernel
+from onlinemap.kernels import inner_kernel
 from onlinemap.kernels.rbpf import carried
 
 from .planning import entropy
@@ -80,7 +80,7 @@ def _add_entropies(total, disputed, mask, touched_list, n_touched, cells):
     return total
 
 
-@loop_kernel
+@inner_kernel
 def mixture_uncertainty(loc, lw, maps, ov, tables, h, location_weight, n_touched, agreed, disputed, mixture):
     """``location_weight * H(L) + sum_i H(M_i)`` of the weighted particles at step h. The mixture
     ``M_i = sum_p w_p m_p(i)`` is recomputed on the ``disputed`` cells (D,) and the touched ones:

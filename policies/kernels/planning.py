@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from onlinemap.kernels import loop_kernel
+from onlinemap.kernels import inner_kernel, loop_kernel
 from onlinemap.kernels.rbpf import carried
 
 
@@ -83,7 +83,7 @@ class _Scratch(NamedTuple):
     readings: np.ndarray
 
 
-@njit(cache=True)
+@inner_kernel
 def draw(cdf_row, u):
     """Index of the first entry of the cumulative row ``cdf_row`` above ``u``."""
     k = cdf_row.shape[0]
@@ -93,7 +93,7 @@ def draw(cdf_row, u):
     return k - 1
 
 
-@loop_kernel
+@inner_kernel
 def world_step(world, tables, where, labels, a, world_u, change_u, readings):
     """One step of the hypothetical world (``onlinemap.simulate.world_step``'s order and rules):
     the move with ``world_u[0] < p_move`` unless the intended cell's label blocks, the labels by
@@ -126,7 +126,7 @@ def _current(maps, rollout, tables, p, c, h, out):
         out[b] = carried(maps, tables.powers, d, p, c, b)
 
 
-@njit(cache=True)
+@inner_kernel
 def entropy(row):
     """Entropy in nats of the probabilities ``row`` (K,). O(K)."""
     acc = 0.0
@@ -136,7 +136,7 @@ def entropy(row):
     return acc
 
 
-@loop_kernel
+@inner_kernel
 def _uncertainty(locations, maps, rollout, tables, h, location_weight, scratch):
     """``location_weight * H(L) + sum_i H(M_i)`` of the particles ``locations`` (R,) weighted by
     ``rollout.weights`` after h steps. O(R N K + N K^2 + R H K^2)."""
@@ -179,7 +179,7 @@ def _uncertainty(locations, maps, rollout, tables, h, location_weight, scratch):
     return total
 
 
-@njit(cache=True)
+@inner_kernel
 def normalise(lw, top, drop_below):
     """Log weights ``lw`` (R,) in place so that ``sum exp(lw) = 1``, given ``top = max(lw)``; a
     particle with ``lw - top < drop_below`` is dropped (-inf); when every particle is at -inf
@@ -214,7 +214,7 @@ def _write(rollout, p, target, h, cell, lik, lam):
     rollout.stamp[p, slot] = h
 
 
-@loop_kernel
+@inner_kernel
 def _filter_step(maps, world, tables, rollout, a, h, lik, proposal_u, scratch):
     """Every particle takes step h (action a, a reading of likelihood ``lik`` (K,)) by the optimal
     proposal of the RBPF (p moves with probability ``p_move P(z | there) / (p_move P(z | there)
