@@ -12,8 +12,8 @@ returns its bundle, e.g. the RBPF's ``Pool``; the model's tables are passed as a
 caller), writes its results into arrays it is given, and never allocates per step what the
 caller can keep. Every
 kernel is ``@njit(cache=True)``: compiled once, cached on disk; an inner loop that allocates
-nothing may be a :data:`loop_kernel`, and one that Python threads run at once on disjoint ranges
-a :data:`thread_kernel` (an entry point that only fills in such a kernel's range and scratch
+nothing may be a :data:`loop_kernel` (an :data:`inner_kernel` if only kernels call it), and one
+that Python threads run at once on disjoint ranges a :data:`thread_kernel` (an entry point that only fills in such a kernel's range and scratch
 arrays may then be a plain Python function, sharing the threads' compiled kernel). This package
 imports numpy and numba only (and llvmlite, numba's code generator, for :func:`prefetch`),
 besides the standard library.

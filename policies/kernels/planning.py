@@ -14,8 +14,10 @@ cell ``i`` (the belief's map marginal).
 
 Bundles: the model's motion and sensor tables are the RBPF's ``World``
 (``onlinemap.estimators.rbpf_kernels.world_tables``); :class:`RolloutTables` adds what only the
-rollouts read. The loops over particles and cells run in :data:`~onlinemap.kernels.loop_kernel` kernels
-(bundles cost nothing there); the entry point allocates and loops over worlds and candidates.
+rollouts read. The loops over particles and cells run in :data:`~onlinemap.kernels.inner_kernel` kernels
+(bundles cost nothing there), those over worlds and candidates in one loop kernel called from
+Python; the entry point allocates in Python (a compiled entry point would compile every kernel's
+code once more: each compiled function links and compiles its callees' code anew).
 """
 
 from __future__ import annotations
