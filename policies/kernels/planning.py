@@ -228,18 +228,21 @@ def _filter_step(maps, world, tables, rollout, a, h, lik, proposal_u, scratch):
     for p in range(loc.shape[0]):
         here = loc[p]
         there = world.moves[a, here]
-        _current(maps, rollout, tables, p, here, h, here_m)
-        lam_here = 0.0
-        for b in range(here_m.shape[0]):
-            lam_here += here_m[b] * lik[b]
+        lam_here, lam_there = 0.0, 0.0
+        for s in range(1 if there == here else 2):  # one copy of _current for both cells: less code to compile
+            out = here_m if s == 0 else there_m
+            _current(maps, rollout, tables, p, here if s == 0 else there, h, out)
+            lam = 0.0
+            for b in range(out.shape[0]):
+                lam += out[b] * lik[b]
+            if s == 0:
+                lam_here = lam
+            else:
+                lam_there = lam
         target = here
         lam = lam_here
         weight = lam_here
         if there != here:
-            _current(maps, rollout, tables, p, there, h, there_m)
-            lam_there = 0.0
-            for b in range(there_m.shape[0]):
-                lam_there += there_m[b] * lik[b]
             move = p_move * lam_there
             weight = move + (1.0 - p_move) * lam_here
             if proposal_u[p] * weight < move:
