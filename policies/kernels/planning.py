@@ -167,11 +167,12 @@ def _uncertainty(locations, maps, rollout, tables, h, location_weight, scratch):
         w = rollout.weights[p]
         if w == 0.0:
             continue
-        for j in range(rollout.n[p]):
+        for j in range(rollout.n[p]):  # entry j is the particle's only one of its cell (:func:`_write`)
             c = rollout.cell[p, j]
-            _current(maps, rollout, tables, p, c, h, tmp)
+            d = h - rollout.stamp[p, j] if tables.dynamic else 0
             for b in range(k):  # less the particle's base marginal of c, brought to step h
-                mixture[c, b] += w * (tmp[b] - carried(maps, tables.powers, base, p, c, b))
+                mixture[c, b] += w * (carried(rollout.val, tables.powers, d, p, j, b)
+                                      - carried(maps, tables.powers, base, p, c, b))
     total = location_weight * entropy(location)
     for i in range(n_cells):
         for b in range(k):  # rounding: keep every term a probability
