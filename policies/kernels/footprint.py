@@ -24,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from onlinemap.kernels import inner_kernel, loop_kernel
+from onlinemap.kernels import aligned, inner_kernel, loop_kernel
 from onlinemap.kernels.rbpf import carried
 
 from .mixture import Mixture, mixture_scratch, mixture_uncertainty
@@ -355,17 +355,17 @@ def _overlays(n_states, r_count, n_cells, k, horizon, n_reads):
     """Empty :class:`Overlays` of R particles' maps for ``n_states`` rollout states (each particle
     writes at most H (F + 1) cells: W = max(H, 1) (F + 1)). O(S' R (N + W K))."""
     width = max(horizon, 1) * (n_reads + 1)
-    return Overlays(np.full((n_states, r_count, n_cells), -1, dtype=np.int32),
-                    np.empty((n_states, r_count, width), dtype=np.int64), np.empty((n_states, r_count, width, k)),
-                    np.zeros((n_states, r_count, width), dtype=np.int64),
-                    np.zeros((n_states, r_count), dtype=np.int64), np.zeros((n_states, n_cells), dtype=np.bool_),
-                    np.empty((n_states, r_count * width), dtype=np.int64))
+    return Overlays(aligned((n_states, r_count, n_cells), np.int32, -1),
+                    aligned((n_states, r_count, width), np.int64), aligned((n_states, r_count, width, k)),
+                    aligned((n_states, r_count, width), np.int64, 0),
+                    aligned((n_states, r_count), np.int64, 0), aligned((n_states, n_cells), np.bool_, 0),
+                    aligned((n_states, r_count * width), np.int64))
 
 
 def _step(n_reads, k):
     """A filter step's scratch (:class:`_Step`) for F = ``n_reads`` readings."""
-    return _Step(np.empty((2, n_reads + 1), dtype=np.int64), np.empty((2, n_reads + 1, k)), np.empty((2, k)),
-                 np.empty((2, n_reads)), np.empty((2, n_reads), dtype=np.int64), np.empty(n_reads, dtype=np.int64))
+    return _Step(aligned((2, n_reads + 1), np.int64), aligned((2, n_reads + 1, k)), aligned((2, k)),
+                 aligned((2, n_reads)), aligned((2, n_reads), np.int64), aligned(n_reads, np.int64))
 
 
 @inner_kernel
@@ -522,12 +522,12 @@ def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agr
     if n_seq == 0:  # no candidate: nothing to score (and no rollout state to start from)
         return
     n_reads = world.footprint_cells.shape[1]
-    states = _States(np.empty((n_seq, r_count), dtype=np.int64), np.empty((n_seq, r_count)),
-                     np.empty((n_seq, n_cells), dtype=hypotheses.labels.dtype), np.empty(n_seq, dtype=np.int64),
-                     np.zeros(n_seq, dtype=np.int64), _overlays(n_seq, r_count, n_cells, k, horizon, n_reads))
-    groups = _Groups(np.empty(n_seq, dtype=np.int64), np.empty(n_seq, dtype=np.int64),
-                     np.empty(world.moves.shape[0], dtype=np.int64), np.empty((n_seq, 3), dtype=np.int64),
-                     np.empty(n_seq, dtype=np.int64))
+    states = _States(aligned((n_seq, r_count), np.int64), aligned((n_seq, r_count)),
+                     aligned((n_seq, n_cells), hypotheses.labels.dtype), aligned(n_seq, np.int64),
+                     aligned(n_seq, np.int64, 0), _overlays(n_seq, r_count, n_cells, k, horizon, n_reads))
+    groups = _Groups(aligned(n_seq, np.int64), aligned(n_seq, np.int64),
+                     aligned(world.moves.shape[0], np.int64), aligned((n_seq, 3), np.int64),
+                     aligned(n_seq, np.int64))
     work = _Work(states, _step(n_reads, k), mixture_scratch(particles.maps, agreement.disputed), groups)
     _roll_all(particles, world, tables, candidates, hypotheses, scoring, agreement, work, out)
 
@@ -577,6 +577,6 @@ def rollout_beliefs(particles, world, tables, actions, hypotheses, beliefs):
     r_count, n_cells, k = particles.maps.shape
     n_reads = world.footprint_cells.shape[1]
     states = _States(particles.locations.copy()[None], particles.log_weights.copy()[None],
-                     hypotheses.labels[:1].copy(), hypotheses.locations[:1].copy(), np.zeros(1, dtype=np.int64),
+                     hypotheses.labels[:1].copy(), hypotheses.locations[:1].copy(), aligned(1, np.int64, 0),
                      _overlays(1, r_count, n_cells, k, actions.shape[0], n_reads))
-    _roll_beliefs(particles, world, tables, actions, hypotheses, states, _step(n_reads, k), np.empty(k), beliefs)
+    _roll_beliefs(particles, world, tables, actions, hypotheses, states, _step(n_reads, k), aligned(k), beliefs)

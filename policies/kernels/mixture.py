@@ -13,7 +13,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from onlinemap.kernels import inner_kernel
+from onlinemap.kernels import aligned, inner_kernel
 from onlinemap.kernels.rbpf import carried
 
 from .planning import entropy
@@ -36,11 +36,12 @@ def mixture_scratch(maps, disputed):
     """:func:`mixture_uncertainty`'s scratch (:class:`Mixture`) for the particles' ``maps`` (R, N,
     K) and the ``disputed`` cells (D,). O(R D K + N K)."""
     r_count, n_cells, k = maps.shape
-    mask = np.zeros(n_cells, dtype=np.bool_)
+    mask = aligned(n_cells, np.bool_, 0)
     mask[disputed] = True
-    return Mixture(np.ascontiguousarray(maps[:, disputed, :]).reshape(r_count, disputed.shape[0] * k),
-                   np.empty((1, disputed.shape[0], k)), mask, np.zeros(n_cells), np.zeros((n_cells, k)),
-                   np.empty(r_count))
+    disputed_maps = aligned((r_count, disputed.shape[0] * k))
+    disputed_maps.reshape(r_count, disputed.shape[0], k)[:] = maps[:, disputed, :]
+    return Mixture(disputed_maps, aligned((1, disputed.shape[0], k)), mask, aligned(n_cells, fill=0.0),
+                   aligned((n_cells, k), fill=0.0), aligned(r_count))
 
 
 @njit(cache=True, inline="always")

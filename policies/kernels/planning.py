@@ -28,7 +28,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from onlinemap.kernels import inner_kernel, loop_kernel
+from onlinemap.kernels import aligned, inner_kernel, loop_kernel
 from onlinemap.kernels.rbpf import carried
 
 
@@ -312,10 +312,10 @@ def rollout_uncertainty(particles, world, tables, sequences, hypotheses, scoring
     """
     r_count, n_cells, k = particles.maps.shape
     width = max(sequences.shape[1], 1)
-    rollout = _Rollout(np.empty(r_count, dtype=np.int64), np.empty(r_count), np.empty(r_count),
-                       np.empty(n_cells, dtype=hypotheses.labels.dtype), np.full((r_count, width), -1, dtype=np.int64),
-                       np.empty((r_count, width, k)), np.zeros((r_count, width), dtype=np.int64),
-                       np.zeros(r_count, dtype=np.int64))
-    scratch = _Scratch(np.empty(n_cells), np.empty((n_cells, k)), np.empty(k), np.empty(k), np.empty(k),
-                       np.empty(world.footprint_cells.shape[1], dtype=np.int64))
+    rollout = _Rollout(aligned(r_count, np.int64), aligned(r_count), aligned(r_count),
+                       aligned(n_cells, hypotheses.labels.dtype), aligned((r_count, width), np.int64, -1),
+                       aligned((r_count, width, k)), aligned((r_count, width), np.int64, 0),
+                       aligned(r_count, np.int64, 0))
+    scratch = _Scratch(aligned(n_cells), aligned((n_cells, k)), aligned(k), aligned(k), aligned(k),
+                       aligned(world.footprint_cells.shape[1], np.int64))
     _roll_all(particles, world, tables, sequences, hypotheses, scoring, rollout, scratch, total)
