@@ -51,10 +51,11 @@ ALIGNMENT = 32
 
 
 def aligned(shape, dtype=np.float64, fill=None):
-    """A C-contiguous array of ``shape`` (uninitialised, or every entry ``fill``) whose data starts on an :data:`ALIGNMENT`-byte
-    boundary, as numba's own arrays do: for the buffers an entry point allocates in Python for its
-    kernels, so that their vector loops see the data aligned as when a compiled entry point
-    allocated it (numpy's arrays start wherever malloc puts them, on 16 bytes). O(size)."""
+    """A C-contiguous array of ``shape`` (uninitialised, or every entry ``fill``) whose data starts
+    on an :data:`ALIGNMENT`-byte boundary, as numba's own arrays do: for the buffers an entry point
+    allocates in Python for its kernels, so that their vector loops see the data aligned as when a
+    compiled entry point allocated it (numpy's arrays start wherever malloc puts them, on 16
+    bytes). O(size)."""
     dtype = np.dtype(dtype)
     size = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
     raw = np.empty(size + ALIGNMENT, dtype=np.uint8)
