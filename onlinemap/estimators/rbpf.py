@@ -251,10 +251,10 @@ class RaoBlackwellisedPF:
 
     @property
     def _kit(self) -> StepKit:
-        """The filter's :class:`~onlinemap.estimators.rbpf_kernels.StepKit`: its kernels, the
-        model's tables and views of its scratch buffers, built on first use and kept beside the
-        filter (``_KITS``). A checkpoint's load keeps the filter's own scratch buffers, so the kit
-        stays valid."""
+        """The filter's :class:`~onlinemap.estimators.rbpf_kernels.StepKit`: its kernels, options,
+        the model's tables and views of its scratch buffers, built on first use and kept beside the
+        filter (``_KITS``). A checkpoint's load keeps the filter's own scratch buffers and checks its
+        options equal (``CONSTANT_STATE``), so the kit stays valid. O(1) once built."""
         kit = _KITS.get(id(self))
         if kit is None:
             kit = _KITS[id(self)] = step_kit(self.model, self.n_particles, cells_written(self.model), self.threads,
