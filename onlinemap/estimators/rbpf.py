@@ -422,15 +422,15 @@ class RaoBlackwellisedPF:
         staged, log_increments = kit.kernels().propose(self._locations, blocks.arrays(), kit.world, t, ancestors,
                                                        self._neighbors(a), observed(model, z), kit.optimal,
                                                        self._rng.random(n_particles), kit.proposal)
-        log_weights = log_weights + log_increments
-        increment = logsumexp(log_weights)
+        log_weights = np.add(log_weights, log_increments, out=log_increments)  # the kit's buffers: no allocation
+        increment = logsumexp(log_weights, kit.proposal.terms)
         if increment == -math.inf:  # every draw missed: enumerate the particles' successors instead
             self._rng.bit_generator.state = rng_state
             logger.info("rbpf step %d: every particle's proposal has probability zero for observation %s; the "
                         "step enumerates the particles' successors instead (as Fearnhead-Clifford does)", t,
                         describe(model, z))
             return self._update_fearnhead_clifford(a, z, t)
-        return self._commit(kit, t, blocks, ancestors, staged, log_weights - increment, increment, resample)
+        return self._commit(kit, t, blocks, ancestors, staged, log_weights, increment, increment, resample)
 
     def _step_pool(self, t: int, a: int | None, kit: StepKit) -> BlockPool:
         """The pool step t writes into: :meth:`_reserved`, advanced by C in a dynamic world with
@@ -514,7 +514,7 @@ class RaoBlackwellisedPF:
             raise ImpossibleObservationError(impossible(model, z, t, n_particles))
         parents = int(np.count_nonzero(self._weights))
         ancestors = self._commit(self._kit, t, blocks, relocation.ancestors, relocation.staged, relocation.log_weights,
-                                 relocation.increment, relocation.resampled, recovered=True)
+                                 0.0, relocation.increment, relocation.resampled, recovered=True)
         self._recoveries += 1
         logger.warning(recovery_note(model, z, t, parents, relocation, self._recoveries))
         return ancestors
@@ -524,18 +524,18 @@ class RaoBlackwellisedPF:
         """What the memory guard needs of this filter (:mod:`~onlinemap.estimators.rbpf_memory`)."""
         return Sizing(self.model, self.n_particles, self.lazy_dynamics, self.threads, self.max_bytes)
 
-    def _commit(self, kit: StepKit, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, increment, resampled,
-                recovered: bool = False) -> np.ndarray:
+    def _commit(self, kit: StepKit, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, normaliser,
+                increment, resampled, recovered: bool = False) -> np.ndarray:
         """Write a validated step whose changed cells are given (the sampling schemes; a recovery's
         children, :func:`~onlinemap.estimators.rbpf_recovery.relocate`): the particles' slots and
         maps into ``blocks`` (the kernel set's ``commit``; with threads, planned in the staging
-        buffers' ``target`` and ``source``), then :meth:`_advance`; ``recovered``: the step
-        recovered from depletion; ``kit``: the filter's."""
+        buffers' ``target`` and ``source``), then :meth:`_advance` (the log weights ``log_weights -
+        normaliser``); ``recovered``: the step recovered from depletion; ``kit``: the filter's."""
         if kit.staged is not None:
             staged = staged._replace(target=kit.staged.target, source=kit.staged.source)
         kit.kernels().commit(self._locations, blocks.arrays(), t, ancestors, staged)
         blocks.refresh(t)
-        return self._advance(t, blocks, ancestors, log_weights, 0.0, increment, resampled, recovered)
+        return self._advance(t, blocks, ancestors, log_weights, normaliser, increment, resampled, recovered)
 
     def _advance(self, t, blocks: BlockPool, ancestors, log_weights, normaliser, increment, resampled,
                  recovered: bool = False) -> np.ndarray:

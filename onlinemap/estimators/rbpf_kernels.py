@@ -100,33 +100,35 @@ class ProposalBuffers(NamedTuple):
     """A sampling scheme's proposal outputs, overwritten by every step (:func:`proposal_buffers`):
     :class:`~onlinemap.kernels.rbpf_enumerate.Proposed` (locations (P,), cells (P, K) in the
     paper's model, (P, W, K) otherwise, log increments (P,)); the same writes as
-    :class:`~onlinemap.kernels.rbpf_commit.Staged` (ids (P, W), cells (P, W, K): views); with
-    blocking labels or a footprint, the enumerated children (2P, their cells stored) and their
-    parents' log weights, zeros (P,) (None in the paper's model)."""
+    :class:`~onlinemap.kernels.rbpf_commit.Staged` (ids (P, W), cells (P, W, K): views); the terms
+    (P,) of the log weights' ``logsumexp``; with blocking labels or a footprint, the enumerated
+    children (2P, their cells stored) and their parents' log weights, zeros (P,) (None in the
+    paper's model)."""
 
     proposed: Proposed
     staged: Staged
+    terms: np.ndarray
     children: Children | None
     zeros: np.ndarray | None
 
 
 def proposal_buffers(n_particles: int, width: int, n_labels: int, paper: bool) -> ProposalBuffers:
     """Fresh :class:`ProposalBuffers` for P = ``n_particles`` slots of W = ``width`` cells of K =
-    ``n_labels`` (``paper``: one cell, the slot's location). ``8 P (K + 2)`` bytes in the paper's
-    model, ``8 P (3 W K + 3 W + 11)`` otherwise (about what
+    ``n_labels`` (``paper``: one cell, the slot's location). ``8 P (K + 3)`` bytes in the paper's
+    model, ``8 P (3 W K + 3 W + 12)`` otherwise (about what
     :func:`~onlinemap.estimators.rbpf_memory.state_bytes` counts as a step's buffers)."""
     p, k = n_particles, n_labels
     locations = np.empty(p, dtype=np.int64)
     if paper:
         proposed = Proposed(locations, np.empty((p, k)), np.empty(p))
         staged = Staged(locations, locations.reshape(p, 1), proposed.cells.reshape(p, 1, k), None, None)
-        return ProposalBuffers(proposed, staged, None, None)
+        return ProposalBuffers(proposed, staged, np.empty(p), None, None)
     size = 2 * p
     children = Children(np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size),
                         np.empty(size), np.empty((size, width), dtype=np.int64), np.empty((size, width, k)))
     proposed = Proposed(locations, np.empty((p, width, k)), np.empty(p))
     staged = Staged(locations, np.empty((p, width), dtype=np.int64), proposed.cells, None, None)
-    return ProposalBuffers(proposed, staged, children, np.zeros(p))
+    return ProposalBuffers(proposed, staged, np.empty(p), children, np.zeros(p))
 
 
 def _propose_one_cell(run: Callable, locations, pool, world, t, ancestors, neighbors, likelihood, optimal,
