@@ -85,8 +85,8 @@ def kernel_set(paper: bool, threads: int) -> KernelSet:
         enumerate_ = rbpf_enumerate if paper else rbpf_enumerate_cells
         propose = functools.partial(_propose_one_cell, rbpf_propose) if paper else \
             functools.partial(_propose_by_enumeration, enumerate_)
-        return KernelSet(enumerate_, _commit_children_one_cell if paper else _commit_children_cells, _commit,
-                         propose, 1)
+        return KernelSet(enumerate_, _commit_children_one_cell if paper else _commit_children_cells,
+                         _commit_one_cell if paper else _commit, propose, 1)
     enumerate_ = functools.partial(_in_chunks, rbpf_parallel.rbpf_enumerate_parallel if paper else
                                    rbpf_parallel.rbpf_enumerate_cells_parallel, threads)
     stage = _stage_one_cell if paper else rbpf_parallel.rbpf_stage_children_cells_parallel
@@ -173,6 +173,12 @@ def _commit_children_cells(locations, pool, world, t, slots, child_location, nei
 def _commit(locations, pool, t, ancestors, staged: Staged) -> None:
     """``rbpf_commit_cells`` of the staged writes (their ``target``, ``source`` unused)."""
     rbpf_commit_cells(locations, t, ancestors, staged.locations, staged.ids, staged.cells, *pool)
+
+
+def _commit_one_cell(locations, pool, t, ancestors, staged: Staged) -> None:
+    """:func:`_commit` in the paper's model, where a slot writes one cell, the one it moves to
+    (its proposal's, or a recovery's: the cell it reads), without ``staged.ids``."""
+    rbpf_commit_cells(locations, t, ancestors, staged.locations, None, staged.cells, *pool)
 
 
 def _in_chunks(run: Callable, threads: int, *args):
