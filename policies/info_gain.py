@@ -77,7 +77,7 @@ from onlinemap.model import GridModel
 from onlinemap.rng import SeedLike, as_generator
 
 from .frontier import FrontierExplorer, FrontierPlan
-from .information import (expected_uncertainty, information_reward, observation_count, sample_states,
+from .information import (entropy, expected_uncertainty, information_reward, observation_count, sample_states,
                           unit_information)
 from .loop_closing import loop_closer
 from .mdp import PolicyIterationResult, policy_iteration
@@ -354,6 +354,16 @@ class InfoGainExplorer:
         nats = unit_information(self.model.sensor, frequencies)
         return nats if nats > 0.0 else self._uniform_nats  # a prior sure of every unread cell: keep the uniform scale
 
+    def unread_entropy(self) -> float | None:
+        """The label entropy (nats) of a cell not yet read, at the bound estimator's
+        ``label_frequencies``, with ``information_unit="prior"``: the frontier's unit of
+        uncertainty (:meth:`policies.frontier.FrontierExplorer.plan` ``scale``) for the targets
+        and the fallback presses. None (the frontier's ``log K``) without frequencies, with a
+        prior sure of every unread cell, or with ``information_unit="uniform"``. O(K)."""
+        frequencies = None if self.information_unit == "uniform" else getattr(self.estimator, "label_frequencies", None)
+        nats = None if frequencies is None else float(entropy(np.asarray(frequencies)))
+        return nats if nats else None
+
     @property
     def pending(self) -> int:
         """The presses of the chosen macro-action (or anchor, or moves towards a target) still to
@@ -391,7 +401,7 @@ class InfoGainExplorer:
         self._since_anchor += 1
         if self._target_steps:
             self._target_steps -= 1
-            action = self.toward(belief, self._target) if self._target >= 0 else self.frontier.choose(belief)
+            action = self.toward(belief, self._target) if self._target >= 0 else self.frontier.choose(belief, self.unread_entropy())
         else:
             action = int(self._queue.pop(0))
         self.presses.pressed(belief, action)
@@ -431,7 +441,7 @@ class InfoGainExplorer:
             return Candidates(tuple(names), np.stack(sequences), np.asarray(targets), None, None)
         passable = expected_passability(model, belief) if passable is None else passable
         frontier = self.frontier
-        chosen = frontier_targets(model, frontier.plan(belief), self.targets, skip=belief.location > 0.5)
+        chosen = frontier_targets(model, frontier.plan(belief, self.unread_entropy()), self.targets, skip=belief.location > 0.5)
         distances = [np.zeros(model.n_cells)] * len(names)
         for cell in chosen:
             names.append(f"to {divmod(int(cell), model.cols)}")
