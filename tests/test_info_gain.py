@@ -784,8 +784,9 @@ def test_plan_scores_in_the_unit_of_an_unread_cell_equal_brute_force(information
 
 def test_the_unit_follows_the_learned_frequencies_and_is_the_uniform_one_with_a_fixed_prior():
     """With a learned prior (a generated building's default) the plan's unit is the mutual
-    information at the RBPF's current label frequencies; with the model's own uniform table (the
-    paper's world) or information_unit="uniform", that of a uniformly unknown cell."""
+    information at the RBPF's current label frequencies and the frontier's scale their entropy;
+    with the model's own uniform table (the paper's world) or information_unit="uniform", the unit
+    of a uniformly unknown cell and the frontier's own log K."""
     model, true_map = om.building(10, 10, seed=1)
     run = om.simulate(model, true_map, np.random.default_rng(0).integers(model.n_actions, size=40), seed=0)
     for unit in ("prior", "uniform"):
@@ -800,11 +801,16 @@ def test_the_unit_follows_the_learned_frequencies_and_is_the_uniform_one_with_a_
         assert plan.unit == pytest.approx(brute_mutual_information(frequencies, np.asarray(model.sensor)), rel=1e-12)
         np.testing.assert_allclose(plan.utility, plan.gain - planner.step_cost * plan.unit * plan.lengths[None],
                                    rtol=1e-12)
+        if unit == "prior":  # the frontier's unit of uncertainty: an unread cell's entropy
+            assert planner.unread_entropy() == pytest.approx(entropy(est.label_frequencies), rel=1e-12)
+        else:
+            assert planner.unread_entropy() is None
     paper, _ = om.door_world(p_move=0.8)
     planner = InfoGainExplorer(paper, seed=0)
     planner.bind(make_estimator("rbpf", paper, n_particles=20, seed=0))
     assert planner.unit() == pytest.approx(brute_mutual_information(np.full(4, 0.25), np.asarray(paper.sensor)),
                                            rel=1e-12)
+    assert planner.unread_entropy() is None
 
 
 def test_a_bad_information_unit_is_refused():
