@@ -19,8 +19,12 @@ under a building's learned frequencies (about 56% free, 39% wall) an unread cell
 nats of label entropy against 1.39 under the uniform prior, and one observation teaches 0.59
 nats of it against 0.95 (0.48 at the paper's world's own frequencies); measured in the uniform
 unit, mapping a new cell looked worth half as much against the same location term and step
-cost, and runs read less of the world (:file:`CHANGELOG.md`, issue 40). With the model's fixed
-prior (the paper's worlds) the unit is the uniform one, as before.
+cost, and runs read less of the world. Measured in the paper's world with the learned prior (RBPF
+1000 particles, 1000 steps, 6 seeds, ``planners_study``): map error 0.201 -> 0.111, the
+told-location map of the readings 0.206 -> 0.073, mean location error 0.357 -> 0.406. The
+frontier targets count an unread cell as one cell of uncertainty the same way
+(:meth:`InfoGainExplorer.unread_entropy`). With the model's fixed prior (the paper's worlds) the
+unit is the uniform one, as before.
 The expectation is over the observations the robot would make: a hypothetical world (a location
 and a map) is drawn from the current belief, the macro-action is rolled out in it (slips, map
 changes, sensor noise), the simulated observations go through a copy of the filter, and the
