@@ -725,3 +725,96 @@ def test_info_gain_leaves_a_room_by_its_only_door():
             planner.bind(est)
             after = model.neighbors[cell, planner.choose(belief)]
             assert abs(rows_of[after] - 3) + abs(cols_of[after] - 7) < abs(rows_of[cell] - 3) + abs(cols_of[cell] - 7)
+
+
+def brute_mutual_information(frequencies, sensor):
+    """I(m; z) = sum over (k, z) of P(k) O[k, z] log(O[k, z] / P(z)), the KL form, summed with
+    itertools.product over labels and observations."""
+    frequencies, sensor = np.asarray(frequencies, dtype=float), np.asarray(sensor, dtype=float)
+    k_count, z_count = sensor.shape
+    p_z = [sum(frequencies[k] * sensor[k, z] for k in range(k_count)) for z in range(z_count)]
+    return sum(frequencies[k] * sensor[k, z] * math.log(sensor[k, z] / p_z[z])
+               for k, z in itertools.product(range(k_count), range(z_count)) if frequencies[k] * sensor[k, z] > 0)
+
+
+def test_unit_information_is_the_mutual_information_of_a_cell_and_its_reading():
+    from policies.information import unit_information
+    rng = np.random.default_rng(4)
+    for k in (2, 3, 4):
+        sensor = rng.dirichlet(np.ones(k), size=k)
+        frequencies = rng.dirichlet(np.ones(k))
+        assert unit_information(sensor, frequencies) == pytest.approx(brute_mutual_information(frequencies, sensor),
+                                                                      rel=1e-12)
+        assert unit_information(sensor) == pytest.approx(brute_mutual_information(np.full(k, 1 / k), sensor), rel=1e-12)
+
+
+FREQUENCIES = (0.6, 0.3, 0.1)
+
+
+@pytest.mark.parametrize("information_unit", ["prior", "uniform"])
+def test_plan_scores_in_the_unit_of_an_unread_cell_equal_brute_force(information_unit):
+    """A localised robot (p_move 1, known start: the factored BK belief is the exact joint) with
+    a given label prior: every candidate's gain equals the brute-force enumeration of the joint
+    whose cells are drawn from that prior, with H(L) weighted by location_weight * I0 and steps
+    costing step_cost * I0, I0 the mutual information of a cell at those frequencies (or at the
+    uniform prior with information_unit="uniform"). Pressing into the next cell, never read,
+    teaches exactly one unit with the prior's unit, and I0(prior) / I0(uniform) (0.79) units with
+    the uniform unit."""
+    model = om.corridor(3, 3, p_obs=0.8, p_move=1.0)
+    oracle = BruteForce.of(om.corridor(3, 3, p_obs=0.8, p_move=1.0, label_prior=FREQUENCIES))
+    est = make_estimator("bk", model, label_prior=list(FREQUENCIES))
+    est.step(None, 0)
+    planner = InfoGainExplorer(model, seed=0, hypotheses=None, press_lengths=(1, 2), location_weight=1.5,
+                               step_cost=0.3, targets=0, information_unit=information_unit)
+    planner.bind(est)
+    plan = planner.plan(est.belief)
+    i0 = brute_mutual_information(FREQUENCIES if information_unit == "prior" else np.full(3, 1 / 3),
+                                  np.asarray(model.sensor))
+    assert plan.unit == pytest.approx(i0, rel=1e-12)
+    joint = brute_joint(oracle, [], [0])
+    for c, sequence in enumerate(plan.sequences):
+        want = brute_expected_uncertainty(oracle, joint, list(sequence[:2]), 1.5 * i0)
+        np.testing.assert_allclose(plan.gain[c], want[0] - want[[1, 2]], rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(plan.utility[c], plan.gain[c] - 0.3 * i0 * np.array([1, 2]), rtol=1e-12)
+    right = plan.names.index("press right")
+    read_one = plan.gain[right, 0] / i0  # cell 1, never read, at the prior
+    prior_i0 = brute_mutual_information(FREQUENCIES, np.asarray(model.sensor))
+    assert read_one == pytest.approx(1.0 if information_unit == "prior" else prior_i0 / i0, rel=1e-10)
+
+
+def test_the_unit_follows_the_learned_frequencies_and_is_the_uniform_one_with_a_fixed_prior():
+    """With a learned prior (a generated building's default) the plan's unit is the mutual
+    information at the RBPF's current label frequencies and the frontier's scale their entropy;
+    with the model's own uniform table (the paper's world) or information_unit="uniform", the unit
+    of a uniformly unknown cell and the frontier's own log K."""
+    model, true_map = om.building(10, 10, seed=1)
+    run = om.simulate(model, true_map, np.random.default_rng(0).integers(model.n_actions, size=40), seed=0)
+    for unit in ("prior", "uniform"):
+        est = make_estimator("rbpf", model, n_particles=50, seed=0)
+        for t, z in enumerate(run.observations):
+            est.step(None if t == 0 else int(run.actions[t - 1]), z)
+        assert not np.allclose(est.label_frequencies, 1 / model.n_labels)
+        planner = InfoGainExplorer(model, seed=0, hypotheses=2, information_unit=unit)
+        planner.bind(est)
+        plan = planner.plan(est.belief)
+        frequencies = est.label_frequencies if unit == "prior" else np.full(model.n_labels, 1 / model.n_labels)
+        assert plan.unit == pytest.approx(brute_mutual_information(frequencies, np.asarray(model.sensor)), rel=1e-12)
+        np.testing.assert_allclose(plan.utility, plan.gain - planner.step_cost * plan.unit * plan.lengths[None],
+                                   rtol=1e-12)
+        if unit == "prior":  # the frontier's unit of uncertainty: an unread cell's entropy
+            assert planner.unread_entropy() == pytest.approx(entropy(est.label_frequencies), rel=1e-12)
+        else:
+            assert planner.unread_entropy() is None
+    paper, _ = om.door_world(p_move=0.8)
+    planner = InfoGainExplorer(paper, seed=0)
+    planner.bind(make_estimator("rbpf", paper, n_particles=20, seed=0))
+    assert planner.unit() == pytest.approx(brute_mutual_information(np.full(4, 0.25), np.asarray(paper.sensor)),
+                                           rel=1e-12)
+    assert planner.unread_entropy() is None
+
+
+def test_a_bad_information_unit_is_refused():
+    model, _ = om.door_world(p_move=0.8)
+    for bad in ("learned", None, 1):
+        with pytest.raises(InvalidOptionError, match="information_unit"):
+            InfoGainExplorer(model, information_unit=bad)
