@@ -364,12 +364,14 @@ def test_info_gain_maps_the_papers_world_better_than_the_entropy_planner():
     assert stats.ttest_rel(mean_error["info_gain"], mean_error["entropy"], alternative="less").pvalue < 0.05
 
 
-def test_bench_planning_reports_ms_per_decision():
+def test_bench_planning_reports_ms_per_decision_and_the_whole_loop():
     from onlinemap.bench import run_benchmarks
 
     table = run_benchmarks(["planning"], quick=True)
-    assert list(table["case"].str.contains("per decision")) == [True, False, True, False]
-    assert (table["ms"] > 0).all() and (table["reference_ms"] > 0).all()
+    assert list(table["case"].str.contains("per decision")) == [True, False, True, False, False]
+    assert list(table["case"].str.contains("whole loop")) == [False, False, False, False, True]
+    assert table["case"].iloc[-1].startswith("32x32 building")
+    assert (table["ms"] > 0).all() and (table["reference_ms"] > 0).all() and table["cpu_ms"].iloc[-1] > 0
 
 
 def corner_of(model, cell):
