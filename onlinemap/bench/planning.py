@@ -134,6 +134,32 @@ class _Clock:
         return self.planner.choose(belief)
 
 
+def _timed_loop(model, true_map, seed: int, quick: bool, threads: int) -> tuple[float, float, float]:
+    """One closed-loop run of :func:`_closed_loop_rows`: (wall ms, CPU ms per step after the warm
+    steps, the median ms of its RBPF steps)."""
+    from policies import make_planner
+    from policies.explore import exploration
+
+    from ..estimators import make_estimator
+
+    clock = _Clock(make_planner("info_gain", model, seed=seed, threads=threads))
+    estimator = make_estimator("rbpf", model, n_particles=1000, seed=seed)
+    filter_step, filter_times = estimator.step, []
+
+    def timed_step(action, observation):
+        t0 = time.perf_counter()
+        belief = filter_step(action, observation)
+        filter_times.append(time.perf_counter() - t0)
+        return belief
+
+    estimator.step = timed_step  # the loop calls the filter through it
+    exploration(model, true_map, clock, estimator, LOOP_STEPS // 5 if quick else LOOP_STEPS, seed, progress=False,
+                score=False)
+    steps = len(clock.wall) - 1 - WARM_STEPS
+    return (1e3 * (clock.wall[-1] - clock.wall[WARM_STEPS]) / steps,
+            1e3 * (clock.cpu[-1] - clock.cpu[WARM_STEPS]) / steps, 1e3 * float(np.median(filter_times)))
+
+
 def _closed_loop_rows(quick: bool) -> list[dict]:
     """Issue 40: the whole exploration loop (:func:`policies.explore.exploration`: ``info_gain``
     with its defaults, an RBPF of 1000 particles learning the label frequencies, the world and
@@ -143,38 +169,23 @@ def _closed_loop_rows(quick: bool) -> list[dict]:
     a mean, as a median of steps would be a press), the median over seeds; ``cpu_ms`` the same
     in CPU time of this process (near ``ms`` on an idle machine, well under it on a loaded one,
     ``load`` the 1-minute load average at the end). Reference: one RBPF step of the same runs
-    (median). Target: 30 ms a step at 32 x 32 (``target = 30 / reference_ms``)."""
-    from policies import make_planner
-    from policies.explore import exploration
+    (median). Target: 30 ms a step at 32 x 32 (``target = 30 / reference_ms``), with the planner
+    on one thread and, where numba counts more than one, on all (``threads``: the same run; not
+    with ``quick``)."""
+    import numba
 
     from ..buildings import building
-    from ..estimators import make_estimator
 
     rows = []
-    for side, seeds, limit in ((32, 1 if quick else 3, LOOP_MS), (64, 0 if quick else 1, float("nan"))):
+    threads = numba.config.NUMBA_NUM_THREADS
+    cases = [(32, 1 if quick else 3, LOOP_MS, 1)] + ([] if quick else [(64, 1, float("nan"), 1)])
+    cases += [(32, 3, LOOP_MS, threads)] if threads > 1 and not quick else []
+    for side, seeds, limit, planner_threads in cases:
         model, true_map = building(side, side, seed=3, p_move=0.8)
-        runs = []
-        for seed in range(seeds):
-            clock = _Clock(make_planner("info_gain", model, seed=seed))
-            estimator = make_estimator("rbpf", model, n_particles=1000, seed=seed)
-            filter_step, filter_times = estimator.step, []
-
-            def timed_step(action, observation, filter_step=filter_step, filter_times=filter_times):
-                t0 = time.perf_counter()
-                belief = filter_step(action, observation)
-                filter_times.append(time.perf_counter() - t0)
-                return belief
-
-            estimator.step = timed_step
-            exploration(model, true_map, clock, estimator, LOOP_STEPS // 5 if quick else LOOP_STEPS, seed,
-                        progress=False, score=False)
-            steps = len(clock.wall) - 1 - WARM_STEPS
-            runs.append((1e3 * (clock.wall[-1] - clock.wall[WARM_STEPS]) / steps,
-                         1e3 * (clock.cpu[-1] - clock.cpu[WARM_STEPS]) / steps, 1e3 * float(np.median(filter_times))))
-        if runs:
-            wall, cpu, reference = np.median(np.asarray(runs), axis=0)
-            rows.append({"case": f"{side}x{side} building (seed 3), blocking + cross, P=1000: whole loop, ms per "
-                                 f"step (info_gain, {len(runs)} run(s))", "ms": wall, "reference": "one RBPF step",
-                         "reference_ms": reference, "target": limit / reference, "cpu_ms": cpu,
-                         "load": os.getloadavg()[0]})
+        runs = [_timed_loop(model, true_map, seed, quick, planner_threads) for seed in range(seeds)]
+        wall, cpu, reference = np.median(np.asarray(runs), axis=0)
+        rows.append({"case": f"{side}x{side} building (seed 3), blocking + cross, P=1000: whole loop, ms per step "
+                             f"(info_gain, threads={planner_threads}, {seeds} run(s))", "ms": wall,
+                     "reference": "one RBPF step", "reference_ms": reference, "target": limit / reference,
+                     "cpu_ms": cpu, "load": os.getloadavg()[0]})
     return rows
