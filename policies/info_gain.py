@@ -77,6 +77,7 @@ from onlinemap.belief import Belief
 from onlinemap.errors import InvalidOptionError, ModelError
 from onlinemap.estimators import Estimator
 from onlinemap.estimators.base import HoldsParticles
+from onlinemap.estimators.rbpf_kernels import thread_count
 from onlinemap.model import GridModel
 from onlinemap.rng import SeedLike, as_generator
 
@@ -244,7 +245,10 @@ class InfoGainExplorer:
     location belief spreads, with ``close_above``, ``close_below`` and ``close_steps``
     (:mod:`policies.loop_closing`, :func:`~policies.loop_closing.loop_closer`);
     ``information_unit`` (:data:`INFORMATION_UNITS`, default "prior") the cell whose ``I0`` is the
-    unit of ``step_cost`` and ``location_weight`` (:meth:`unit`).
+    unit of ``step_cost`` and ``location_weight`` (:meth:`unit`); ``threads`` (default 1;
+    None: ``NUMBA_NUM_THREADS``) the threads a plan's rollouts use with an rbpf (footprint and
+    blocking worlds: the hypothetical worlds split between them, the scores the same bit for bit
+    whatever the count; :func:`policies.kernels.footprint.plan_rollouts`).
 
     The planner rolls hypotheses out on copies of the live estimator, so it must see it:
     :func:`policies.explore` calls :meth:`bind` before the first decision. Planning never
@@ -256,8 +260,9 @@ class InfoGainExplorer:
                  location_weight: float = 4.0, commit: int = 8, anchor_every: int | str | None = "auto",
                  gamma: float = 0.95, targets: int | str = "auto", loop_closing: bool = False,
                  close_above: float | None = None, close_below: float | None = None, close_steps: int | None = None,
-                 information_unit: str = "prior"):
+                 information_unit: str = "prior", threads: int | None = 1):
         self.model = model
+        self.threads = thread_count(threads)
         self.hypotheses = None if hypotheses is None else arguments.integer("hypotheses", hypotheses, minimum=1,
                                                                             error=InvalidOptionError)
         self.rollout_particles = None if rollout_particles is None else arguments.integer(
@@ -481,7 +486,8 @@ class InfoGainExplorer:
                                                          self.rng, location_nats, self._tables)
             else:
                 expected = footprint_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
-                                                          self.rng, location_nats, self._tables, distances, go)
+                                                          self.rng, location_nats, self._tables, distances, go,
+                                                          self.threads)
         else:  # forks take fixed actions: a move towards a target is its walk from the most probable cell
             start = int(np.argmax(belief.location))
             fixed = [s if t < 0 else descent(self.model, go, distances[c], start, horizon)
