@@ -18,14 +18,16 @@ change. Every rollout resets the slots it used.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from onlinemap.kernels import aligned, inner_kernel, loop_kernel
+from onlinemap.kernels import aligned, inner_kernel, loop_kernel, thread_kernel
 from onlinemap.kernels.rbpf import carried
+from onlinemap.kernels.rbpf_parallel import in_threads, thread_runs
 
 from .mixture import Mixture, mixture_scratch, mixture_uncertainty
 from .planning import normalise, world_step
@@ -454,20 +456,22 @@ def _start_world(particles, hypotheses, s, scoring, now, work, out):
     return n_seq - 1  # state 0 starts the world
 
 
-@loop_kernel
-def _roll_all(particles, world, tables, candidates, hypotheses, scoring, agreement, work, out):
-    """:func:`plan_rollouts` in the buffers ``work``: world by world, every candidate from the
-    particles, candidates that press alike sharing one rollout state, a state stepped to the
-    horizon before the next is taken from the stack (depth first, so its memory stays in cache).
-    One compiled function for the loops (each compiled caller compiles its callees' code again)."""
+@thread_kernel
+def roll_worlds(particles, world, tables, candidates, hypotheses, scoring, agreement, work, start, stop, values):
+    """:func:`plan_rollouts` for worlds ``start`` to ``stop - 1`` in the buffers ``work``, world
+    s's scores into ``values[s]`` (C, H + 1), zero on entry: every candidate from the particles,
+    candidates that press alike sharing one rollout state, a state stepped to the horizon before
+    the next is taken from the stack (depth first, so its memory stays in cache). One compiled
+    function for the loops (each compiled caller compiles its callees' code again); it releases
+    the GIL, so Python threads run it on disjoint ranges of worlds."""
     states, groups, maps = work.states, work.groups, particles.maps
     n_seq, horizon = candidates.sequences.shape
     zero = np.int64(0)  # not the literal 0: mixture_uncertainty compiles once, for int64 h and counts
     now = mixture_uncertainty(particles.locations, particles.log_weights, maps, _state(states.overlays, 0), tables,
                               zero, scoring.location_weight, zero, agreement.entropy[0], agreement.disputed,
                               work.mixture)
-    for s in range(hypotheses.locations.shape[0]):
-        n_free = _start_world(particles, hypotheses, s, scoring, now, work, out)
+    for s in range(start, stop):
+        n_free = _start_world(particles, hypotheses, s, scoring, now, work, values[s])
         n_groups, n_pending = np.int64(1), 1  # not the literal 1: _press compiles once
         while n_pending > 0:
             n_pending -= 1
@@ -488,14 +492,29 @@ def _roll_all(particles, world, tables, candidates, hypotheses, scoring, agreeme
                                                 agreement.disputed, work.mixture)
                     for c in range(n_seq):
                         if groups.group[c] == g:
-                            out[c, h] += value
+                            values[s, c, h] += value
             _reset(ov, states.n_touched[x])
             states.n_touched[x] = 0
             groups.free[n_free] = x
             n_free += 1
 
 
-def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agreement, out):
+def _rollout_work(particles, world, candidates, agreement, labels_dtype):
+    """The buffers one thread of :func:`plan_rollouts` rolls its worlds out in (:class:`_Work`):
+    C rollout states, a filter step's scratch, the mixture's and the groups'. O(C R (N + H F K) + R D K)."""
+    r_count, n_cells, k = particles.maps.shape
+    n_seq, horizon = candidates.sequences.shape
+    n_reads = world.footprint_cells.shape[1]
+    states = _States(aligned((n_seq, r_count), np.int64), aligned((n_seq, r_count)),
+                     aligned((n_seq, n_cells), labels_dtype), aligned(n_seq, np.int64),
+                     aligned(n_seq, np.int64, 0), _overlays(n_seq, r_count, n_cells, k, horizon, n_reads))
+    groups = _Groups(aligned(n_seq, np.int64), aligned(n_seq, np.int64),
+                     aligned(world.moves.shape[0], np.int64), aligned((n_seq, 3), np.int64),
+                     aligned(n_seq, np.int64))
+    return _Work(states, _step(n_reads, k), mixture_scratch(particles.maps, agreement.disputed), groups)
+
+
+def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agreement, out, threads=1):
     """Roll every candidate out in every hypothetical world through the thinned particle belief
     and add up its uncertainty: ``out[c, h] += U`` after h steps of candidate c in world s, for
     every h with ``scoring.checkpoints[h]`` (``out`` (C, H + 1); the caller divides by S).
@@ -509,27 +528,27 @@ def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agr
     With common random numbers, candidates that have pressed alike so far in a world are in the
     same state: such a group shares one rollout state (one of C), stepped and scored once. When
     its candidates press differently, the state is copied (:func:`_fork`, before the step) for
-    each other press, and that group waits on a stack (:func:`_roll_all`). The scores are those
+    each other press, and that group waits on a stack (:func:`roll_worlds`). The scores are those
     of rolling every candidate out alone, bit for bit; in the door world and 16 x 16 buildings
     5-30% of the steps are shared (plans 18% faster, measured on recorded plans). The buffers
-    are allocated here, the loops run in the loop kernel :func:`_roll_all` (a compiled entry
-    point would compile every kernel's code once more).
+    are allocated here, the loops run in the kernel :func:`roll_worlds` (a compiled entry point
+    would compile every kernel's code once more).
+
+    ``threads``: the worlds go in that many contiguous runs (at most S) to Python threads
+    (:func:`roll_worlds` releases the GIL; a run has its own buffers); each world's scores are
+    added into ``out`` in world order, as one thread does: the same bits for any ``threads``.
     Cost O(S C H R (F + 1) K) for the steps (K^2 with map dynamics) plus O(S C R (D + H F) K)
-    per checkpoint, less the shared steps; memory O(C R (N + H F K)) for the states.
-    """
-    r_count, n_cells, k = particles.maps.shape
-    n_seq, horizon = candidates.sequences.shape
-    if n_seq == 0:  # no candidate: nothing to score (and no rollout state to start from)
+    per checkpoint, less the shared steps, over the threads; memory O(threads C R (N + H F K) + S C H)."""
+    n_worlds = hypotheses.locations.shape[0]
+    if candidates.sequences.shape[0] == 0 or n_worlds == 0:  # nothing to score (no rollout state to start from)
         return
-    n_reads = world.footprint_cells.shape[1]
-    states = _States(aligned((n_seq, r_count), np.int64), aligned((n_seq, r_count)),
-                     aligned((n_seq, n_cells), hypotheses.labels.dtype), aligned(n_seq, np.int64),
-                     aligned(n_seq, np.int64, 0), _overlays(n_seq, r_count, n_cells, k, horizon, n_reads))
-    groups = _Groups(aligned(n_seq, np.int64), aligned(n_seq, np.int64),
-                     aligned(world.moves.shape[0], np.int64), aligned((n_seq, 3), np.int64),
-                     aligned(n_seq, np.int64))
-    work = _Work(states, _step(n_reads, k), mixture_scratch(particles.maps, agreement.disputed), groups)
-    _roll_all(particles, world, tables, candidates, hypotheses, scoring, agreement, work, out)
+    runs = thread_runs(n_worlds, 1, threads)
+    works = [_rollout_work(particles, world, candidates, agreement, hypotheses.labels.dtype) for _ in runs]
+    values = np.zeros((n_worlds,) + out.shape)
+    in_threads([functools.partial(roll_worlds, particles, world, tables, candidates, hypotheses, scoring, agreement,
+                                  work, start, stop, values) for work, (start, stop) in zip(works, runs)])
+    for s in range(n_worlds):  # in world order, as one thread adds them
+        out += values[s]
 
 
 @inner_kernel

@@ -32,6 +32,22 @@ class Mixture(NamedTuple):
     weights: np.ndarray
 
 
+@njit(cache=True)
+def disputed_cells(maps):
+    """(D,) sorted: the cells c whose rows ``maps[p, c]`` (``maps`` (R, N, K)) are not all equal to
+    particle 0's (``!=`` entry by entry, particle 0's own row included: a NaN is disputed). One pass
+    over the maps, particle by particle (each row read in order). O(R N K) time, O(N) memory."""
+    r_count, n_cells, k = maps.shape
+    flags = np.zeros(n_cells, dtype=np.bool_)
+    for p in range(r_count):
+        for c in range(n_cells):
+            if not flags[c]:
+                for b in range(k):
+                    if maps[p, c, b] != maps[0, c, b]:
+                        flags[c] = True
+    return np.flatnonzero(flags)
+
+
 def mixture_scratch(maps, disputed):
     """:func:`mixture_uncertainty`'s scratch (:class:`Mixture`) for the particles' ``maps`` (R, N,
     K) and the ``disputed`` cells (D,). O(R D K + N K)."""
