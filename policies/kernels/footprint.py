@@ -461,9 +461,8 @@ def roll_worlds(particles, world, tables, candidates, hypotheses, scoring, agree
     """:func:`plan_rollouts` for worlds ``start`` to ``stop - 1`` in the buffers ``work``, world
     s's scores into ``values[s]`` (C, H + 1), zero on entry: every candidate from the particles,
     candidates that press alike sharing one rollout state, a state stepped to the horizon before
-    the next is taken from the stack (depth first, so its memory stays in cache). One compiled
-    function for the loops (each compiled caller compiles its callees' code again); it releases
-    the GIL, so Python threads run it on disjoint ranges of worlds."""
+    the next is taken from the stack (depth first: its memory stays in cache). One compiled function
+    for the loops (a compiled caller compiles its callees again); GIL released for Python threads."""
     states, groups, maps = work.states, work.groups, particles.maps
     n_seq, horizon = candidates.sequences.shape
     zero = np.int64(0)  # not the literal 0: mixture_uncertainty compiles once, for int64 h and counts
