@@ -239,24 +239,29 @@ What the runs show:
 * **The learned prior finds what buildings look like.** Within a few dozen steps its label
   frequencies are close to the floor's own (section 2), and every cell not read yet is then
   assumed mostly free instead of half blocking. In the building the map error falls faster from
-  the first steps on and ends lower (0.517 -> 0.344); much of the gain is in the cells read little
+  the first steps on and ends lower (0.517 -> 0.297); much of the gain is in the cells read little
   or not at all, which start from the floor's frequencies instead of a quarter each (the pale
   unread cells of the learned maps in section 5 against the blue-grey ones of the uniform maps).
-* **A learned prior also changes where the robot goes.** On the real floor's crop the learned run
-  ends *higher* (0.093 -> 0.121), and the anchors say why: it is as good as its readings allow
-  (excess +0.001), but it read less of the floor (its readings would give a robot told its path
-  0.172 under the uniform prior, the uniform run's 0.094). Unread cells under the learned
-  frequencies carry less entropy than under a quarter each, so `info_gain` is drawn into them less.
+* **A learned prior also changes where the robot goes.** Unread cells under the learned
+  frequencies carry less entropy than under a quarter each. Measured in the uniform prior's units,
+  `info_gain` was drawn into them less: on the real floor's crop the learned run read less of the
+  floor (its readings gave a robot told its path 0.172 under the uniform prior, the uniform run's
+  0.094). So `info_gain` measures information in units of one observation of an unread cell *at
+  the learned frequencies* (`information_unit="prior"`, the default), and its frontier counts an
+  unread cell as one cell of uncertainty. Here the learned run's readings give 0.131 under the
+  uniform prior, and it ends at 0.102 against the uniform run's 0.093 (excess +0.013): closer,
+  not yet level.
 * **The anchor says how much is left to the filter.** On the crop both runs sit on their
   told-location maps: the floor is small, its rooms distinct, the robot stays localised. In the
-  building the gap to the anchor stays with either prior (+0.124 -> +0.078): part of the way the
+  building the gap to the anchor stays with either prior (+0.124 -> +0.067): part of the way the
   robot does not know where it is, which no prior fixes.
 * **Calibration.** With the uniform prior the filter claims more than it knows about where it is
   (a negative location calibration gap on both floors); the learned prior brings the gap towards
-  zero (-0.250 -> -0.070 in the building, -0.086 -> -0.032 on the crop). It does not keep the robot
-  better localised in these runs: the building's late location error is about the same with
-  either prior, the crop's higher with the learned one. These are single runs of 300 steps in
-  16 x 16 cells with 200 particles; the study below measures the same at full size.
+  zero (-0.250 -> -0.148 in the building, -0.086 -> +0.031 on the crop). It does not keep the robot
+  better localised in these runs: the building's late location error is higher with the learned
+  prior (0.521 -> 0.623; the robot explores more), the crop's about the same. These are single
+  runs of 300 steps in 16 x 16 cells with 200 particles; the study below measures the same at
+  full size.
 
 **The full-size study** (`onlinemap.studies.floors`; 32 x 32 generated buildings and the shipped
 real floors, 1000 particles, 2000 steps, two seeds; the first command starts from nothing with the

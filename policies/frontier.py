@@ -3,7 +3,11 @@
 Every step, from the belief's marginals (N cells, K labels, A actions, F footprint offsets):
 
 1. *Uncertain cells*: ``u_i`` = the normalised label entropy of cell i (in [0, 1]); cell i is
-   uncertain when ``u_i > threshold``.
+   uncertain when ``u_i > threshold``. Normalised by ``log K`` (a uniformly unknown cell is 1), or,
+   given ``scale`` (the entropy of a cell not yet read under a learned or given label prior, as
+   :class:`~policies.info_gain.InfoGainExplorer` passes it), ``min(H(m_i) / scale, 1)``: an unread
+   cell is one cell of uncertainty whatever the prior (under a floor's learned frequencies its
+   entropy over ``log K`` can fall below ``threshold``, and no unread cell would be a frontier).
 2. *Gain* of standing in cell c: ``g(c) = sum_f u_{c_f} [u_{c_f} > threshold]`` over the on-grid
    cells ``c_f = footprint_cells[c, f]`` the sensor would read there (in cells' worth of
    uncertainty). The *frontier* is the cells with ``g(c) > 0``.
@@ -68,6 +72,7 @@ from onlinemap.errors import InvalidOptionError, ModelError
 from onlinemap.metrics import normalized_entropy
 from onlinemap.model import GridModel
 
+from .information import entropy
 from .loop_closing import loop_closer
 from .passability import (PressMemory, distances_from, distances_to, expected_passability, location_hypotheses,
                           steps_after_press)
@@ -130,26 +135,31 @@ class FrontierExplorer:
         self.presses = PressMemory(model)  # blocked and futile presses
         self.closer = loop_closer(model, loop_closing, close_above, close_below, close_steps, self.min_passable)
 
-    def choose(self, belief: Belief) -> int:
+    def choose(self, belief: Belief, scale: float | None = None) -> int:
+        """The next press (module docstring); ``scale`` as in :meth:`plan`."""
         if self.closer is not None and self.closer.update(belief).closing:
             action = self.closer.press(belief, self.closer.last.target, self.presses)
             self.presses.pressed(belief, action)
             return action
-        plan = self.plan(belief)
+        plan = self.plan(belief, scale)
         self._track(int(plan.targets[0]), float(plan.expected_distance[plan.targets[0]]))
         action = int(np.argmin(np.where(self.presses.allowed(belief), plan.action_cost, np.inf)))
         self.presses.pressed(belief, action)
         return action
 
-    def plan(self, belief: Belief) -> FrontierPlan:
-        """Targets, distances and the expected cost of every action (module docstring, steps 1-5)."""
+    def plan(self, belief: Belief, scale: float | None = None) -> FrontierPlan:
+        """Targets, distances and the expected cost of every action (module docstring, steps 1-5).
+        ``scale`` > 0: the entropy (nats) that counts as one cell of uncertainty (step 1); None: ``log K``."""
+        if scale is not None:
+            scale = arguments.real("scale", scale, low=0.0, high=math.inf, low_open=True, high_open=True,
+                                   error=InvalidOptionError)
         model = self.model
         passable = expected_passability(model, belief)
         cells, weights = location_hypotheses(belief.location, self.hypotheses)
         paths = distances_from(model, passable, cells, self.min_passable)  # (M, N)
         expected = weights @ np.where(np.isfinite(paths), paths, self.penalty)
         reachable = np.isfinite(paths).any(axis=0)
-        gain, mode = self._gain(belief, reachable)
+        gain, mode = self._gain(belief, reachable, scale)
         candidates = reachable & (gain > 0)
         if (candidates & self.blacklist).any():
             if (candidates & ~self.blacklist).any():
@@ -179,10 +189,10 @@ class FrontierExplorer:
                 self._stalled = 0
         self._target = target
 
-    def _gain(self, belief: Belief, reachable: np.ndarray) -> tuple[np.ndarray, str]:
+    def _gain(self, belief: Belief, reachable: np.ndarray, scale: float | None) -> tuple[np.ndarray, str]:
         """(N,) the gain of standing in each cell, and the mode it was computed in."""
         model = self.model
-        unknown = normalized_entropy(belief.map)
+        unknown = normalized_entropy(belief.map) if scale is None else np.minimum(entropy(belief.map) / scale, 1.0)
         on_grid = model.footprint_cells >= 0
         seen = model.footprint_cells.clip(0)
         if self.lost_entropy is not None and model.n_cells > 1 \

@@ -54,6 +54,15 @@ def information_reward(belief: Belief, sensor: np.ndarray) -> np.ndarray:
     return np.maximum(entropy(belief.map) - after, 0.0)
 
 
+def unit_information(sensor: np.ndarray, frequencies: np.ndarray | None = None) -> float:
+    """``I0``: what one observation teaches, in nats, about a cell whose label marginal is
+    ``frequencies`` (K,) (None: uniform over the K labels), :func:`information_reward` of that
+    one cell: ``I(m; z) = H(frequencies) - sum_z P(z) H(m | z)``. O(K^2)."""
+    k = sensor.shape[0]
+    row = np.full(k, 1.0 / k) if frequencies is None else np.asarray(frequencies, dtype=np.float64)
+    return float(information_reward(Belief(0, np.ones(1), row[None]), sensor)[0])
+
+
 def _checked_actions(model: GridModel, actions) -> np.ndarray:
     actions = np.asarray(actions, dtype=np.int64).ravel()
     if np.any(actions < 0) or np.any(actions >= model.n_actions):

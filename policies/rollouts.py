@@ -25,6 +25,7 @@ from onlinemap.model import GridModel, change_powers
 
 from .information import entropy
 from .kernels.footprint import Agreement, Candidates, plan_rollouts
+from .kernels.mixture import disputed_cells
 from .kernels.planning import Hypotheses, RolloutTables, Scoring, rollout_uncertainty
 
 
@@ -75,9 +76,11 @@ def agreement(model: GridModel, particles: ParticleSnapshot, horizon: int,
               tables: RolloutTables) -> tuple[np.ndarray, np.ndarray]:
     """The cells whose marginals differ between the particles (D,) sorted, and (H + 1,) the summed
     entropy at step h of the other cells' common marginal (brought forward by ``C^h``): the part
-    of ``sum_i H(M_i)`` no reweighting changes. O(R N K + H N K^2) (O(R N K) in a static world)."""
+    of ``sum_i H(M_i)`` no reweighting changes (the cells by :func:`~policies.kernels.mixture.disputed_cells`:
+    1 ms at 64 x 64, R = 64, 5.8 ms by numpy's compare-and-reduce). O(R N K + H N K^2) (O(R N K) in a
+    static world)."""
     maps = particles.maps
-    disputed = np.flatnonzero(np.any(maps != maps[:1], axis=(0, 2)))
+    disputed = disputed_cells(np.ascontiguousarray(maps))
     agree = np.ones(model.n_cells, dtype=bool)
     agree[disputed] = False
     common = maps[0, agree]
@@ -90,12 +93,13 @@ def footprint_expected_uncertainty(model: GridModel, particles: ParticleSnapshot
                                    checkpoints: np.ndarray, worlds: tuple[np.ndarray, np.ndarray],
                                    rng: np.random.Generator, location_weight: float = 1.0,
                                    tables: RolloutTables | None = None, distances: np.ndarray | None = None,
-                                   go: np.ndarray | None = None) -> np.ndarray:
+                                   go: np.ndarray | None = None, threads: int = 1) -> np.ndarray:
     """(C, H + 1) :func:`particle_expected_uncertainty` for any sensor footprint and blocking
     labels (:func:`policies.kernels.footprint.plan_rollouts`): ``sequences`` (C, H) actions, -1
     where the action is chosen in closed loop towards candidate c's target by ``distances`` (C, N)
     and ``go`` (N, A) (the chance each press moves). Every sequence sees the same worlds and random
-    numbers. Cost O(S C (H R (F + 1) K^2 + n_checkpoints R (D + H F) K)), D the disputed cells."""
+    numbers. Cost O(S C (H R (F + 1) K^2 + n_checkpoints R (D + H F) K)), D the disputed cells,
+    the worlds split over ``threads`` threads (the same result for any count)."""
     sequences = np.ascontiguousarray(sequences, dtype=np.int64)
     n_seq, horizon = sequences.shape
     tables = rollout_tables(model, horizon) if tables is None else tables
@@ -107,7 +111,7 @@ def footprint_expected_uncertainty(model: GridModel, particles: ParticleSnapshot
     plan_rollouts(particles._replace(maps=np.ascontiguousarray(particles.maps)), world_tables(model), tables,
                   Candidates(sequences, np.ascontiguousarray(distances), np.ascontiguousarray(go, dtype=np.float64)),
                   drawn, Scoring(float(location_weight), np.asarray(checkpoints, dtype=np.bool_)),
-                  Agreement(*agreement(model, particles, horizon, tables)), total)
+                  Agreement(*agreement(model, particles, horizon, tables)), total, threads)
     return total / len(drawn.locations)
 
 

@@ -252,3 +252,33 @@ def test_frontier_relocalises_when_lost():
     planner = FrontierExplorer(model, lost_entropy=0.8)
     assert model.action_names[planner.choose(lost)] == "left" and planner.last_plan.mode == "relocalise"
     assert model.action_names[FrontierExplorer(model).choose(lost)] == "right"
+
+
+def test_with_the_unread_cells_entropy_as_scale_a_sharp_prior_still_leaves_a_frontier():
+    """Unread cells at learned frequencies (0.95, 0.05) hold 0.199 nats, 0.29 of log 2: below the
+    threshold 0.5, so on log K no cell is a frontier and the robot revisits; with that entropy as
+    the scale an unread cell is one cell of uncertainty, the gain equals its definition summed
+    here cell by cell, and the robot heads for the unread end. A bad scale is refused and leaves
+    the planner's last plan as it was."""
+    model = om.corridor(8, footprint=((0, 0), (0, 1)))
+    frequencies = np.array([0.95, 0.05])
+    unread_nats = float(-(frequencies * np.log(frequencies)).sum())
+    maps = known_map(model, np.zeros(8, dtype=int), [])
+    maps[5:] = frequencies
+    maps[4] = [0.9, 0.1]  # read once, against it: more uncertain than an unread cell, counts as one cell
+    belief = Belief(0, np.eye(8)[1], maps)
+    plain = FrontierExplorer(model)
+    plain.plan(belief)
+    assert plain.last_plan.mode == "revisit"
+    planner = FrontierExplorer(model)
+    action = planner.choose(belief, unread_nats)
+    plan = planner.last_plan
+    assert plan.mode == "frontier" and model.action_names[action] == "right"
+    u = [min(-sum(p * np.log(p) for p in row if p > 0) / unread_nats, 1.0) for row in maps]
+    for c in range(8):
+        read = [c + d for d in (0, 1) if c + d < 8]
+        assert plan.gain[c] == pytest.approx(sum(u[j] for j in read if u[j] > planner.threshold), rel=1e-12)
+    for bad in (0.0, -1.0, float("nan"), "x"):
+        with pytest.raises(InvalidOptionError, match="scale"):
+            planner.plan(belief, bad)
+        assert planner.last_plan is plan

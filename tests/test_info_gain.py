@@ -19,6 +19,7 @@ from policies import InfoGainExplorer, expected_uncertainty, explore, exploratio
 from onlinemap.estimators.base import ParticleSnapshot
 from onlinemap.estimators.rbpf_kernels import world_tables
 from policies.information import uncertainty
+from policies.explore import exploration
 from policies.rollouts import footprint_expected_uncertainty, particle_expected_uncertainty
 
 
@@ -314,7 +315,7 @@ def test_fork_is_independent_and_continues_like_the_original():
 def test_bad_options_raise_invalid_option_errors_and_unbound_use_model_errors():
     model, _ = exploration_world(p_door=0.0, p_move=0.8, floor_plan=None)
     for options in ({"hypotheses": 0}, {"rollout_particles": 0}, {"commit": 0}, {"gamma": 1.0},
-                    {"step_cost": -1.0}, {"press_lengths": [0, 2]}):
+                    {"step_cost": -1.0}, {"press_lengths": [0, 2]}, {"threads": 0}, {"threads": 10**6}):
         with pytest.raises(InvalidOptionError):
             make_planner("info_gain", model, **options)
     planner = make_planner("info_gain", model, seed=0)
@@ -328,6 +329,16 @@ def test_bad_options_raise_invalid_option_errors_and_unbound_use_model_errors():
         planner.bind(make_estimator("rbpf", om.door_world(p_move=0.8)[0], n_particles=10))
     with pytest.raises(ModelError):
         expected_uncertainty(make_estimator("exact", om.corridor(3)), [0])
+
+
+def test_a_plan_on_two_threads_chooses_as_on_one():
+    """The building's rollouts split between threads: the same run, action for action and belief
+    for belief (the scores are the same bits, tests above)."""
+    model, true_map = om.building(12, 12, seed=1, p_move=0.8)
+    runs = [exploration(model, true_map, "info_gain", "rbpf", 25, 4, estimator_options={"n_particles": 100},
+                        planner_options={"threads": threads}, progress=False, score=False) for threads in (1, 2)]
+    assert runs[0].run.actions.tolist() == runs[1].run.actions.tolist()
+    assert np.array_equal(runs[0].trajectory.map, runs[1].trajectory.map)
 
 
 def test_explore_runs_info_gain_by_name_reproducibly():
@@ -364,12 +375,14 @@ def test_info_gain_maps_the_papers_world_better_than_the_entropy_planner():
     assert stats.ttest_rel(mean_error["info_gain"], mean_error["entropy"], alternative="less").pvalue < 0.05
 
 
-def test_bench_planning_reports_ms_per_decision():
+def test_bench_planning_reports_ms_per_decision_and_the_whole_loop():
     from onlinemap.bench import run_benchmarks
 
     table = run_benchmarks(["planning"], quick=True)
-    assert list(table["case"].str.contains("per decision")) == [True, False, True, False]
-    assert (table["ms"] > 0).all() and (table["reference_ms"] > 0).all()
+    assert list(table["case"].str.contains("per decision")) == [True, False, True, False, False]
+    assert list(table["case"].str.contains("whole loop")) == [False, False, False, False, True]
+    assert table["case"].iloc[-1].startswith("32x32 building")
+    assert (table["ms"] > 0).all() and (table["reference_ms"] > 0).all() and table["cpu_ms"].iloc[-1] > 0
 
 
 def corner_of(model, cell):
@@ -636,11 +649,30 @@ def test_rollout_uncertainty_equals_the_whole_beliefs(p_door):
     np.testing.assert_allclose(out[0], whole, rtol=1e-12, atol=1e-10)
 
 
+@pytest.mark.parametrize("shape", [(1, 5, 3), (2, 7, 2), (24, 100, 4)])
+def test_disputed_cells_are_those_some_particle_sees_otherwise(shape):
+    """disputed_cells against numpy's compare-and-reduce: rows changed in one particle, in one
+    entry only, in particle 0 only, and a NaN (never equal to itself)."""
+    from policies.kernels.mixture import disputed_cells
+
+    rng = np.random.default_rng(5)
+    r_count, n, k = shape
+    maps = np.repeat(rng.dirichlet(np.ones(k), size=n)[None], r_count, axis=0)
+    for c in rng.choice(n, max(1, n // 4), replace=False):
+        maps[rng.integers(r_count), c, rng.integers(k)] += 1e-12
+    maps[0, n - 1] = np.nan
+    expected = np.flatnonzero(np.any(maps != maps[:1], axis=(0, 2)))
+    got = disputed_cells(maps)
+    assert np.array_equal(got, expected) and got.dtype == expected.dtype
+    assert len(expected) >= (2 if r_count > 1 else 1)  # rows were changed: the check has teeth
+
+
 @pytest.mark.parametrize("p_door", [0.0, 0.05])
 def test_candidates_pressing_alike_share_a_rollout_and_score_as_if_alone(p_door):
     """plan_rollouts steps the candidates that have pressed the same so far in a world once and
     copies the state when they part: every candidate's scores equal, bit for bit, those of a call
-    with that candidate alone. Fixed sequences that share prefixes of 0 to 7 presses, and
+    with that candidate alone; and those of the worlds rolled out one at a time and added in order,
+    whatever the threads the worlds are split between. Fixed sequences that share prefixes of 0 to 7 presses, and
     candidates choosing in closed loop (towards random distance fields), part at every step; half
     the cells agreed (their entropy is summed once and a touched one recomputed)."""
     from policies.kernels.footprint import Agreement, Candidates, plan_rollouts
@@ -670,15 +702,22 @@ def test_candidates_pressing_alike_share_a_rollout_and_score_as_if_alone(p_door)
     checkpoints[[0, 1, 2, 4, 8, 9]] = True
     world, hyp = world_tables(model), Hypotheses(*hyp, world_u, change_u, proposal_u)
 
-    def scores(rows):
+    def scores(rows, threads=1, worlds=slice(None)):
         out = np.zeros((len(rows), horizon + 1))
-        plan_rollouts(particles, world, tables, Candidates(sequences[rows], distances[rows], go), hyp,
-                      Scoring(2.0, checkpoints), Agreement(disputed, agree), out)
+        plan_rollouts(particles, world, tables, Candidates(sequences[rows], distances[rows], go),
+                      Hypotheses(*(x[worlds] for x in hyp)), Scoring(2.0, checkpoints), Agreement(disputed, agree), out,
+                      threads)
         return out
 
     together = scores(np.arange(len(sequences)))
     alone = np.concatenate([scores(np.array([c])) for c in range(len(sequences))])
     assert np.array_equal(together, alone)
+    in_order = np.zeros_like(together)  # the worlds one at a time, their scores added in world order
+    for s in range(worlds):
+        in_order += scores(np.arange(len(sequences)), worlds=slice(s, s + 1))
+    assert np.array_equal(together, in_order)
+    for threads in (2, 3, worlds + 1):  # the worlds split between threads: the same bits
+        assert np.array_equal(scores(np.arange(len(sequences)), threads), together)
     assert np.array_equal(together[-3], together[-2])
     assert scores(np.arange(0)).shape == (0, horizon + 1)  # no candidate: nothing to roll out
     assert len({row.tobytes() for row in together}) >= 8  # the candidates differ: the check has teeth
@@ -725,3 +764,96 @@ def test_info_gain_leaves_a_room_by_its_only_door():
             planner.bind(est)
             after = model.neighbors[cell, planner.choose(belief)]
             assert abs(rows_of[after] - 3) + abs(cols_of[after] - 7) < abs(rows_of[cell] - 3) + abs(cols_of[cell] - 7)
+
+
+def brute_mutual_information(frequencies, sensor):
+    """I(m; z) = sum over (k, z) of P(k) O[k, z] log(O[k, z] / P(z)), the KL form, summed with
+    itertools.product over labels and observations."""
+    frequencies, sensor = np.asarray(frequencies, dtype=float), np.asarray(sensor, dtype=float)
+    k_count, z_count = sensor.shape
+    p_z = [sum(frequencies[k] * sensor[k, z] for k in range(k_count)) for z in range(z_count)]
+    return sum(frequencies[k] * sensor[k, z] * math.log(sensor[k, z] / p_z[z])
+               for k, z in itertools.product(range(k_count), range(z_count)) if frequencies[k] * sensor[k, z] > 0)
+
+
+def test_unit_information_is_the_mutual_information_of_a_cell_and_its_reading():
+    from policies.information import unit_information
+    rng = np.random.default_rng(4)
+    for k in (2, 3, 4):
+        sensor = rng.dirichlet(np.ones(k), size=k)
+        frequencies = rng.dirichlet(np.ones(k))
+        assert unit_information(sensor, frequencies) == pytest.approx(brute_mutual_information(frequencies, sensor),
+                                                                      rel=1e-12)
+        assert unit_information(sensor) == pytest.approx(brute_mutual_information(np.full(k, 1 / k), sensor), rel=1e-12)
+
+
+FREQUENCIES = (0.6, 0.3, 0.1)
+
+
+@pytest.mark.parametrize("information_unit", ["prior", "uniform"])
+def test_plan_scores_in_the_unit_of_an_unread_cell_equal_brute_force(information_unit):
+    """A localised robot (p_move 1, known start: the factored BK belief is the exact joint) with
+    a given label prior: every candidate's gain equals the brute-force enumeration of the joint
+    whose cells are drawn from that prior, with H(L) weighted by location_weight * I0 and steps
+    costing step_cost * I0, I0 the mutual information of a cell at those frequencies (or at the
+    uniform prior with information_unit="uniform"). Pressing into the next cell, never read,
+    teaches exactly one unit with the prior's unit, and I0(prior) / I0(uniform) (0.79) units with
+    the uniform unit."""
+    model = om.corridor(3, 3, p_obs=0.8, p_move=1.0)
+    oracle = BruteForce.of(om.corridor(3, 3, p_obs=0.8, p_move=1.0, label_prior=FREQUENCIES))
+    est = make_estimator("bk", model, label_prior=list(FREQUENCIES))
+    est.step(None, 0)
+    planner = InfoGainExplorer(model, seed=0, hypotheses=None, press_lengths=(1, 2), location_weight=1.5,
+                               step_cost=0.3, targets=0, information_unit=information_unit)
+    planner.bind(est)
+    plan = planner.plan(est.belief)
+    i0 = brute_mutual_information(FREQUENCIES if information_unit == "prior" else np.full(3, 1 / 3),
+                                  np.asarray(model.sensor))
+    assert plan.unit == pytest.approx(i0, rel=1e-12)
+    joint = brute_joint(oracle, [], [0])
+    for c, sequence in enumerate(plan.sequences):
+        want = brute_expected_uncertainty(oracle, joint, list(sequence[:2]), 1.5 * i0)
+        np.testing.assert_allclose(plan.gain[c], want[0] - want[[1, 2]], rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(plan.utility[c], plan.gain[c] - 0.3 * i0 * np.array([1, 2]), rtol=1e-12)
+    right = plan.names.index("press right")
+    read_one = plan.gain[right, 0] / i0  # cell 1, never read, at the prior
+    prior_i0 = brute_mutual_information(FREQUENCIES, np.asarray(model.sensor))
+    assert read_one == pytest.approx(1.0 if information_unit == "prior" else prior_i0 / i0, rel=1e-10)
+
+
+def test_the_unit_follows_the_learned_frequencies_and_is_the_uniform_one_with_a_fixed_prior():
+    """With a learned prior (a generated building's default) the plan's unit is the mutual
+    information at the RBPF's current label frequencies and the frontier's scale their entropy;
+    with the model's own uniform table (the paper's world) or information_unit="uniform", the unit
+    of a uniformly unknown cell and the frontier's own log K."""
+    model, true_map = om.building(10, 10, seed=1)
+    run = om.simulate(model, true_map, np.random.default_rng(0).integers(model.n_actions, size=40), seed=0)
+    for unit in ("prior", "uniform"):
+        est = make_estimator("rbpf", model, n_particles=50, seed=0)
+        for t, z in enumerate(run.observations):
+            est.step(None if t == 0 else int(run.actions[t - 1]), z)
+        assert not np.allclose(est.label_frequencies, 1 / model.n_labels)
+        planner = InfoGainExplorer(model, seed=0, hypotheses=2, information_unit=unit)
+        planner.bind(est)
+        plan = planner.plan(est.belief)
+        frequencies = est.label_frequencies if unit == "prior" else np.full(model.n_labels, 1 / model.n_labels)
+        assert plan.unit == pytest.approx(brute_mutual_information(frequencies, np.asarray(model.sensor)), rel=1e-12)
+        np.testing.assert_allclose(plan.utility, plan.gain - planner.step_cost * plan.unit * plan.lengths[None],
+                                   rtol=1e-12)
+        if unit == "prior":  # the frontier's unit of uncertainty: an unread cell's entropy
+            assert planner.unread_entropy() == pytest.approx(entropy(est.label_frequencies), rel=1e-12)
+        else:
+            assert planner.unread_entropy() is None
+    paper, _ = om.door_world(p_move=0.8)
+    planner = InfoGainExplorer(paper, seed=0)
+    planner.bind(make_estimator("rbpf", paper, n_particles=20, seed=0))
+    assert planner.unit() == pytest.approx(brute_mutual_information(np.full(4, 0.25), np.asarray(paper.sensor)),
+                                           rel=1e-12)
+    assert planner.unread_entropy() is None
+
+
+def test_a_bad_information_unit_is_refused():
+    model, _ = om.door_world(p_move=0.8)
+    for bad in ("learned", None, 1):
+        with pytest.raises(InvalidOptionError, match="information_unit"):
+            InfoGainExplorer(model, information_unit=bad)

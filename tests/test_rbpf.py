@@ -192,6 +192,41 @@ def test_same_seed_same_result_and_generator_seed():
     assert not np.array_equal(a[-1].map, c[-1].map)
 
 
+@pytest.mark.parametrize("resampling", ["fearnhead_clifford", "residual"])
+def test_the_genealogy_handed_out_is_the_callers(resampling):
+    """update_with_ancestors returns a fresh array each step (a step works in buffers it reuses):
+    later steps leave it as it was, and a caller writing into it changes nothing in the filter."""
+    model, true_map = om.door_world()
+    run = om.simulate(model, true_map, om.random_walk(model, 30, np.random.default_rng(4)), np.random.default_rng(4))
+    est, scribbled = (om.make_estimator("rbpf", model, n_particles=16, seed=0, resampling=resampling) for _ in "ab")
+    handed, kept = [], []
+    for t, z in enumerate(run.observations):
+        action = None if t == 0 else run.actions[t - 1]
+        handed.append(est.update_with_ancestors(action, z))
+        kept.append(handed[-1].copy())
+        scribbled.update_with_ancestors(action, z)[:] = -1
+    for ancestors, copy in zip(handed, kept):
+        np.testing.assert_array_equal(ancestors, copy)
+    assert any(np.array_equal(a, np.arange(16)) for a in kept[1:])  # steps that kept every slot's own
+    assert any(not np.array_equal(a, np.arange(16)) for a in kept)  # and steps that did not
+    np.testing.assert_array_equal(scribbled.particles, est.particles)
+    np.testing.assert_array_equal(scribbled.weights, est.weights)
+
+
+def test_a_filters_step_kit_goes_with_the_filter():
+    """The step kit is kept beside the filter by ``id`` and dropped when the filter dies, so a later
+    filter that reuses the id never finds another filter's kit (its buffers)."""
+    import gc
+    from onlinemap.estimators import rbpf
+    est = om.make_estimator("rbpf", om.door_world()[0], n_particles=8, seed=0, resampling="residual")
+    est.update(None, 0)
+    key, kit = id(est), rbpf._KITS[id(est)]
+    assert kit.n_particles == 8 and kit.proposal is not None
+    del est
+    gc.collect()
+    assert key not in rbpf._KITS
+
+
 def test_update_then_belief_equals_step_and_belief_is_cached():
     run = random_run(om.corridor(8, p_change=0.02), 10, seed=8)
     stepped = list(rbpf_steps(run, n_particles=40, seed=3))

@@ -149,11 +149,11 @@ def test_an_exception_in_a_thread_reaches_the_caller_once_every_run_has_finished
         raise ZeroDivisionError("in a run")
 
     with pytest.raises(ZeroDivisionError, match="in a run"):
-        rbpf_parallel._in_threads([lambda: None, fails])
+        rbpf_parallel.in_threads([lambda: None, fails])
     with pytest.raises(ZeroDivisionError, match="in a run"):
-        rbpf_parallel._in_threads([fails, slow])
+        rbpf_parallel.in_threads([fails, slow])
     assert finished == [True]
-    assert rbpf_parallel._in_threads([lambda: 1, lambda: 2, lambda: 3]) == [1, 2, 3]
+    assert rbpf_parallel.in_threads([lambda: 1, lambda: 2, lambda: 3]) == [1, 2, 3]
 
 
 def test_no_kernel_compiles_with_numba_parallel():

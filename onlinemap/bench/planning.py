@@ -12,6 +12,9 @@ the matrix assembly cost less than half a solve each).
 
 from __future__ import annotations
 
+import os
+import time
+
 import numpy as np
 
 from ..model import grid_model
@@ -49,6 +52,9 @@ def bench_policy_iteration(quick: bool) -> list[dict]:
 
 
 DECISION_MS = 20.0  # issues 11 and 22: at most 20 ms per decision at 10 x 10 with 1000 particles
+LOOP_MS = 30.0  # issue 40: the whole loop at most 30 ms a step at 32 x 32 with 1000 particles
+LOOP_STEPS = 300  # steps of a closed-loop run (the first observation included)
+WARM_STEPS = 20  # steps of a run not timed: the first plans compile nothing, but fill the caches
 BUILDING_DECISION_MS = 100.0  # issue 22: at most 100 ms per decision in a 32 x 32 building
 
 
@@ -63,9 +69,8 @@ def bench_info_gain(quick: bool) -> list[dict]:
     decision is one ``choose`` call (a plan every ``commit`` calls or fewer, a press towards a
     frontier target otherwise); a second row gives ms per plan. Reference: one RBPF step
     (``update`` and ``belief``) of the same filter. Targets: 20 ms per decision at 10 x 10,
-    100 ms in the 32 x 32 building (``target = limit / reference_ms``)."""
-    import time
-
+    100 ms in the 32 x 32 building (``target = limit / reference_ms``). Then the whole
+    exploration loop per step at 32 x 32 and 64 x 64 (:func:`_closed_loop_rows`, issue 40)."""
     from policies import make_planner
 
     from ..estimators import make_estimator
@@ -109,4 +114,78 @@ def bench_info_gain(quick: bool) -> list[dict]:
                      "reference": "one RBPF step", "reference_ms": reference, "target": target})
         rows.append({"case": f"{name}, P=1000: ms per plan ({len(plans)} plans)", "ms": 1e3 * float(np.mean(plans)),
                      "reference": "one RBPF step", "reference_ms": reference, "target": float("nan")})
+    return rows + _closed_loop_rows(quick)
+
+
+class _Clock:
+    """A planner seen through a clock: each ``choose`` stamps the wall and CPU clocks first, so
+    between two stamps lies one whole step of the loop (the choice, the world's move, the filter's
+    step and the loop's record of it)."""
+
+    def __init__(self, planner):
+        self.planner, self.wall, self.cpu = planner, [], []
+
+    def bind(self, estimator) -> None:
+        self.planner.bind(estimator)
+
+    def choose(self, belief) -> int:
+        self.wall.append(time.perf_counter())
+        self.cpu.append(time.process_time())
+        return self.planner.choose(belief)
+
+
+def _timed_loop(model, true_map, seed: int, quick: bool, threads: int) -> tuple[float, float, float]:
+    """One closed-loop run of :func:`_closed_loop_rows`: (wall ms, CPU ms per step after the warm
+    steps, the median ms of its RBPF steps)."""
+    from policies import make_planner
+    from policies.explore import exploration
+
+    from ..estimators import make_estimator
+
+    clock = _Clock(make_planner("info_gain", model, seed=seed, threads=threads))
+    estimator = make_estimator("rbpf", model, n_particles=1000, seed=seed)
+    filter_step, filter_times = estimator.step, []
+
+    def timed_step(action, observation):
+        t0 = time.perf_counter()
+        belief = filter_step(action, observation)
+        filter_times.append(time.perf_counter() - t0)
+        return belief
+
+    estimator.step = timed_step  # the loop calls the filter through it
+    exploration(model, true_map, clock, estimator, LOOP_STEPS // 5 if quick else LOOP_STEPS, seed, progress=False,
+                score=False)
+    steps = len(clock.wall) - 1 - WARM_STEPS
+    return (1e3 * (clock.wall[-1] - clock.wall[WARM_STEPS]) / steps,
+            1e3 * (clock.cpu[-1] - clock.cpu[WARM_STEPS]) / steps, 1e3 * float(np.median(filter_times)))
+
+
+def _closed_loop_rows(quick: bool) -> list[dict]:
+    """Issue 40: the whole exploration loop (:func:`policies.explore.exploration`: ``info_gain``
+    with its defaults, an RBPF of 1000 particles learning the label frequencies, the world and
+    the record) in a generated building with blocking walls and a cross footprint (``p_move``
+    0.8), 32 x 32 and 64 x 64: ms per step, the mean over the steps after the first
+    :data:`WARM_STEPS` of a run of :data:`LOOP_STEPS` (a plan every few steps, presses between:
+    a mean, as a median of steps would be a press), the median over seeds; ``cpu_ms`` the same
+    in CPU time of this process (near ``ms`` on an idle machine, well under it on a loaded one,
+    ``load`` the 1-minute load average at the end). Reference: one RBPF step of the same runs
+    (median). Target: 30 ms a step at 32 x 32 (``target = 30 / reference_ms``), with the planner
+    on one thread and, where numba counts more than one, on all (``threads``: the same run; not
+    with ``quick``)."""
+    import numba
+
+    from ..buildings import building
+
+    rows = []
+    threads = numba.config.NUMBA_NUM_THREADS
+    cases = [(32, 1 if quick else 3, LOOP_MS, 1)] + ([] if quick else [(64, 1, float("nan"), 1)])
+    cases += [(32, 3, LOOP_MS, threads)] if threads > 1 and not quick else []
+    for side, seeds, limit, planner_threads in cases:
+        model, true_map = building(side, side, seed=3, p_move=0.8)
+        runs = [_timed_loop(model, true_map, seed, quick, planner_threads) for seed in range(seeds)]
+        wall, cpu, reference = np.median(np.asarray(runs), axis=0)
+        rows.append({"case": f"{side}x{side} building (seed 3), blocking + cross, P=1000: whole loop, ms per step "
+                             f"(info_gain, threads={planner_threads}, {seeds} run(s))", "ms": wall,
+                     "reference": "one RBPF step", "reference_ms": reference, "target": limit / reference,
+                     "cpu_ms": cpu, "load": os.getloadavg()[0]})
     return rows

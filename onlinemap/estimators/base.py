@@ -22,6 +22,7 @@ from .. import checkpoint
 from ..belief import Belief, beliefs_frame
 from ..errors import (CheckpointError, InvalidActionError, InvalidObservationError, InvalidOptionError, ModelError,
                       OnlineMapError, StepIndexError, UnknownEstimatorError)
+from ..kernels.resampling import draw_by_inversion
 from ..model import GridModel
 
 _REGISTRY: dict[str, type] = {}
@@ -92,11 +93,11 @@ class HoldsParticles(Protocol):
 
 def draw_labels(marginals: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """(S, N, K) per-cell label marginals -> (S, N) int64 labels, drawn independently per cell by
-    inversion (one uniform each, scaled by the row's total, so rows need not sum to 1 exactly).
-    O(S N K)."""
-    cdf = np.cumsum(marginals, axis=-1)
-    u = rng.random(marginals.shape[:-1])[..., None] * cdf[..., -1:]
-    return np.minimum((u >= cdf).sum(axis=-1), marginals.shape[-1] - 1).astype(np.int64)
+    inversion (one uniform each, scaled by the row's total, so rows need not sum to 1 exactly;
+    :func:`onlinemap.kernels.resampling.draw_by_inversion`). O(S N K)."""
+    labels = np.empty(marginals.shape[:-1], dtype=np.int64)
+    draw_by_inversion(marginals, rng.random(marginals.shape[:-1]), labels)
+    return labels
 
 
 class _InstanceOption:

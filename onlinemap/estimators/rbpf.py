@@ -66,9 +66,9 @@ from .rbpf_state import check_state, upgrade_attributes
 
 logger = logging.getLogger(__name__)
 
-#: each filter's :class:`~onlinemap.estimators.rbpf_kernels.StepKit`, built on its first step and
-#: kept while it lives: beside the filter, not in it (not state: a checkpoint stores ``vars(est)``)
-_KITS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+#: each filter's :class:`~onlinemap.estimators.rbpf_kernels.StepKit` by ``id``, dropped when the filter dies:
+#: beside the filter, not in it (a checkpoint stores ``vars(est)``); a ``WeakKeyDictionary`` costs 0.2-0.3 us more
+_KITS: dict[int, StepKit] = {}
 
 PROPOSALS = ("optimal", "transition")
 FEARNHEAD_CLIFFORD = "fearnhead_clifford"
@@ -250,22 +250,18 @@ class RaoBlackwellisedPF:
         return thread_count(self.options["threads"])
 
     @property
-    def _parallel(self) -> bool:
-        """Whether a step runs the parallel kernels (:meth:`StepKit.kernels
-        <onlinemap.estimators.rbpf_kernels.StepKit.kernels>`)."""
-        return self._kit.kernels().threads > 1
-
-    @property
     def _kit(self) -> StepKit:
-        """The filter's :class:`~onlinemap.estimators.rbpf_kernels.StepKit`: its kernels, the
-        model's tables and views of its scratch buffers, built on first use and kept beside the
-        filter (``_KITS``). A checkpoint's load keeps the filter's own scratch buffers, so the kit
-        stays valid."""
-        kit = _KITS.get(self)
+        """The filter's :class:`~onlinemap.estimators.rbpf_kernels.StepKit`: its kernels, options,
+        the model's tables and views of its scratch buffers, built on first use and kept beside the
+        filter (``_KITS``). A checkpoint's load keeps the filter's own scratch buffers and checks its
+        options equal (``CONSTANT_STATE``), so the kit stays valid. O(1) once built."""
+        kit = _KITS.get(id(self))
         if kit is None:
-            kit = _KITS[self] = step_kit(self.model, self.n_particles, cells_written(self.model), self.threads,
-                                         (self._scratch_ints, self._scratch_floats, self._scratch_staged_ints,
-                                          self._scratch_staged_cells))
+            kit = _KITS[id(self)] = step_kit(self.model, self.n_particles, cells_written(self.model), self.threads,
+                                             self.proposal == "optimal", self.resample_threshold, self.lazy_dynamics,
+                                             (self._scratch_ints, self._scratch_floats, self._scratch_staged_ints,
+                                              self._scratch_staged_cells))
+            weakref.finalize(self, _KITS.pop, id(self), None)
         return kit
 
     @property
@@ -379,12 +375,18 @@ class RaoBlackwellisedPF:
         (:meth:`_recover`); with ``move_window``, record the step and move when due. An observation
         nothing explains (:class:`ImpossibleObservationError`) or a step beyond ``max_bytes``
         (:class:`~onlinemap.errors.MemoryLimitError`) leaves everything as it was."""
-        self.update_with_ancestors(action, observation)
+        self._step(action, observation)
 
     def update_with_ancestors(self, action, observation) -> np.ndarray:
-        """:meth:`update`, returning the genealogy (P,): ``ancestors[p]``, the slot (before the
-        step) particle p descends from (parent, or relocated by a recovery); traced back, the paths
-        (:func:`onlinemap.hindsight.smoothed_rbpf_map`; a ``move_window`` move redraws them unseen)."""
+        """:meth:`update`, returning the genealogy (P,), a fresh array: ``ancestors[p]``, the slot
+        (before the step) particle p descends from (parent, or relocated by a recovery); traced
+        back, the paths (:func:`onlinemap.hindsight.smoothed_rbpf_map`; a ``move_window`` move
+        redraws them unseen)."""
+        return np.array(self._step(action, observation), dtype=np.int64)  # a copy: the step's may be the kit's
+
+    def _step(self, action, observation) -> np.ndarray:
+        """:meth:`update`, returning the step's ancestors (P,): the kit's buffers or a fresh array,
+        valid until the next step."""
         a, z = check_step(self.model, self._t + 1, action, observation)
         t = self._t + 1
         if self.resampling == FEARNHEAD_CLIFFORD:
@@ -408,35 +410,34 @@ class RaoBlackwellisedPF:
     def _update_sampling(self, a: int | None, z, t: int) -> np.ndarray:
         """:meth:`update` with a sampling scheme (``a``, ``z`` checked): resample if due, propose,
         weight, commit; when every draw missed, :meth:`_update_fearnhead_clifford` instead."""
-        model, kit, threshold = self.model, self._kit, self.resample_threshold
+        model, kit = self.model, self._kit
         blocks = self._step_pool(t, a, kit)
         rng_state = self._rng.bit_generator.state
-        n_particles = kit.n_particles
-        log_weights = self._log_weights
-        ancestors = np.arange(n_particles)
+        n_particles, threshold = kit.n_particles, kit.threshold
+        log_weights, ancestors = self._log_weights, kit.identity
         resample = a is not None and (threshold >= 1.0 or self._ess < threshold * n_particles)
         if resample:
             chosen = RESAMPLERS[self.resampling](self._weights, self._rng)
             ancestors = in_place_ancestors(np.bincount(chosen, minlength=n_particles))
             log_weights = np.full(n_particles, -math.log(n_particles))
         staged, log_increments = kit.kernels().propose(self._locations, blocks.arrays(), kit.world, t, ancestors,
-                                                       self._neighbors(a), observed(model, z),
-                                                       self.proposal == "optimal", self._rng.random(n_particles))
-        log_weights = log_weights + log_increments
-        increment = logsumexp(log_weights)
+                                                       self._neighbors(a), observed(model, z), kit.optimal,
+                                                       self._rng.random(n_particles), kit.proposal)
+        log_weights = np.add(log_weights, log_increments, out=log_increments)  # the kit's buffers: no allocation
+        increment = logsumexp(log_weights, kit.proposal.terms)
         if increment == -math.inf:  # every draw missed: enumerate the particles' successors instead
             self._rng.bit_generator.state = rng_state
             logger.info("rbpf step %d: every particle's proposal has probability zero for observation %s; the "
                         "step enumerates the particles' successors instead (as Fearnhead-Clifford does)", t,
                         describe(model, z))
             return self._update_fearnhead_clifford(a, z, t)
-        return self._commit(kit, t, blocks, ancestors, staged, log_weights - increment, increment, resample)
+        return self._commit(kit, t, blocks, ancestors, staged, log_weights, increment, increment, resample)
 
     def _step_pool(self, t: int, a: int | None, kit: StepKit) -> BlockPool:
         """The pool step t writes into: :meth:`_reserved`, advanced by C in a dynamic world with
         eager dynamics (every cell of every block row, a fresh array)."""
         blocks = self._reserved(t, kit.width * kit.n_particles)
-        if a is not None and not self.model.is_static and not self.lazy_dynamics:
+        if a is not None and kit.eager:
             blocks = blocks.with_rows(blocks.rows @ self.model.change)
         return blocks
 
@@ -487,9 +488,8 @@ class RaoBlackwellisedPF:
         kernels.commit_children(self._locations, pool, world, t, slots, children.location, neighbors, observation,
                                 kit.staged)
         blocks.refresh(t)
-        return self._advance(t, blocks, slots.ancestors, slots.log_weights, logsumexp(slots.log_weights,
-                                                                                buffers.kept_weights),
-                      increment, threshold > 0)
+        normaliser = logsumexp(slots.log_weights, buffers.kept_weights)
+        return self._advance(t, blocks, slots.ancestors, slots.log_weights, normaliser, increment, threshold > 0)
 
     def _recover(self, a: int | None, z, t: int, blocks: BlockPool) -> np.ndarray:
         """The step when no particle explains ``z`` (depletion): the exact limit of the augmented
@@ -515,7 +515,7 @@ class RaoBlackwellisedPF:
             raise ImpossibleObservationError(impossible(model, z, t, n_particles))
         parents = int(np.count_nonzero(self._weights))
         ancestors = self._commit(self._kit, t, blocks, relocation.ancestors, relocation.staged, relocation.log_weights,
-                                 relocation.increment, relocation.resampled, recovered=True)
+                                 0.0, relocation.increment, relocation.resampled, recovered=True)
         self._recoveries += 1
         logger.warning(recovery_note(model, z, t, parents, relocation, self._recoveries))
         return ancestors
@@ -525,18 +525,18 @@ class RaoBlackwellisedPF:
         """What the memory guard needs of this filter (:mod:`~onlinemap.estimators.rbpf_memory`)."""
         return Sizing(self.model, self.n_particles, self.lazy_dynamics, self.threads, self.max_bytes)
 
-    def _commit(self, kit: StepKit, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, increment, resampled,
-                recovered: bool = False) -> np.ndarray:
+    def _commit(self, kit: StepKit, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, normaliser,
+                increment, resampled, recovered: bool = False) -> np.ndarray:
         """Write a validated step whose changed cells are given (the sampling schemes; a recovery's
         children, :func:`~onlinemap.estimators.rbpf_recovery.relocate`): the particles' slots and
         maps into ``blocks`` (the kernel set's ``commit``; with threads, planned in the staging
-        buffers' ``target`` and ``source``), then :meth:`_advance`; ``recovered``: the step
-        recovered from depletion; ``kit``: the filter's."""
+        buffers' ``target`` and ``source``), then :meth:`_advance` (the log weights ``log_weights -
+        normaliser``); ``recovered``: the step recovered from depletion; ``kit``: the filter's."""
         if kit.staged is not None:
             staged = staged._replace(target=kit.staged.target, source=kit.staged.source)
         kit.kernels().commit(self._locations, blocks.arrays(), t, ancestors, staged)
         blocks.refresh(t)
-        return self._advance(t, blocks, ancestors, log_weights, 0.0, increment, resampled, recovered)
+        return self._advance(t, blocks, ancestors, log_weights, normaliser, increment, resampled, recovered)
 
     def _advance(self, t, blocks: BlockPool, ancestors, log_weights, normaliser, increment, resampled,
                  recovered: bool = False) -> np.ndarray:
@@ -544,8 +544,8 @@ class RaoBlackwellisedPF:
         weights ``log_weights - normaliser`` (normalised; written into the filter's own arrays), the
         evidence ``increment`` and whether the step ``recovered`` from depletion; with a path
         history, each slot's path: its ancestor's (``ancestors`` (P,), the commit's), then its
-        location (:meth:`PathHistory.record_paths`; :meth:`_reserved` checked the memory). Returns a
-        copy of ``ancestors``."""
+        location (:meth:`PathHistory.record_paths`; :meth:`_reserved` checked the memory). Returns
+        ``ancestors``."""
         self._blocks = blocks
         n_particles = len(ancestors)
         if self._history is not None:
@@ -559,7 +559,7 @@ class RaoBlackwellisedPF:
         self._recovered = recovered
         self._t = t
         self._belief = None
-        return np.array(ancestors, dtype=np.int64)  # a copy: Fearnhead-Clifford's are in the scratch buffers
+        return ancestors
 
     def sample_states(self, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """``size`` states drawn from the belief: a particle by weight (one ``rng.choice``), then each

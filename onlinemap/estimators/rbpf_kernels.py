@@ -63,16 +63,17 @@ class KernelSet:
       staged)``: Fearnhead-Clifford's kept children written (``staged``: the threads' staging);
     - ``commit(locations, pool, t, ancestors, staged)``: slots taken over, then the given cells
       ``staged.ids`` / ``staged.cells`` written (the sampling schemes, a recovery's children);
-    - ``propose(locations, pool, world, t, ancestors, neighbors, observed, optimal, uniforms) ->
-      (staged, log_increments)``: the sampling schemes' proposal, one successor per slot
+    - ``propose(locations, pool, world, t, ancestors, neighbors, observed, optimal, uniforms, out)
+      -> (staged, log_increments)``: the sampling schemes' proposal, one successor per slot
       (``rbpf_propose``; with blocking labels or a footprint, one of the enumerated children,
-      ``rbpf_pick_children``), its writes and log increments (P,);
+      ``rbpf_pick_children``), into ``out`` (:class:`ProposalBuffers`): its writes
+      (``out.staged``) and log increments (P,);
     - ``threads``: the threads they run on (1: serial)."""
 
     enumerate: Callable[..., int]
     commit_children: Callable[..., None]
     commit: Callable[..., None]
-    propose: Callable[..., None]
+    propose: Callable[..., tuple[Staged, np.ndarray]]
     threads: int
 
 
@@ -84,8 +85,8 @@ def kernel_set(paper: bool, threads: int) -> KernelSet:
         enumerate_ = rbpf_enumerate if paper else rbpf_enumerate_cells
         propose = functools.partial(_propose_one_cell, rbpf_propose) if paper else \
             functools.partial(_propose_by_enumeration, enumerate_)
-        return KernelSet(enumerate_, _commit_children_one_cell if paper else _commit_children_cells, _commit,
-                         propose, 1)
+        return KernelSet(enumerate_, _commit_children_one_cell if paper else _commit_children_cells,
+                         _commit_one_cell if paper else _commit, propose, 1)
     enumerate_ = functools.partial(_in_chunks, rbpf_parallel.rbpf_enumerate_parallel if paper else
                                    rbpf_parallel.rbpf_enumerate_cells_parallel, threads)
     stage = _stage_one_cell if paper else rbpf_parallel.rbpf_stage_children_cells_parallel
@@ -95,17 +96,47 @@ def kernel_set(paper: bool, threads: int) -> KernelSet:
                      functools.partial(_commit_in_threads, threads), propose, threads)
 
 
+class ProposalBuffers(NamedTuple):
+    """A sampling scheme's proposal outputs, overwritten by every step (:func:`proposal_buffers`):
+    :class:`~onlinemap.kernels.rbpf_enumerate.Proposed` (locations (P,), cells (P, K) in the
+    paper's model, (P, W, K) otherwise, log increments (P,)); the same writes as
+    :class:`~onlinemap.kernels.rbpf_commit.Staged` (ids (P, W), cells (P, W, K): views); the terms
+    (P,) of the log weights' ``logsumexp``; with blocking labels or a footprint, the enumerated
+    children (2P, their cells stored) and their parents' log weights, zeros (P,) (None in the
+    paper's model)."""
+
+    proposed: Proposed
+    staged: Staged
+    terms: np.ndarray
+    children: Children | None
+    zeros: np.ndarray | None
+
+
+def proposal_buffers(n_particles: int, width: int, n_labels: int, paper: bool) -> ProposalBuffers:
+    """Fresh :class:`ProposalBuffers` for P = ``n_particles`` slots of W = ``width`` cells of K =
+    ``n_labels`` (``paper``: one cell, the slot's location). ``8 P (K + 3)`` bytes in the paper's
+    model, ``8 P (3 W K + 3 W + 12)`` otherwise (about what
+    :func:`~onlinemap.estimators.rbpf_memory.state_bytes` counts as a step's buffers)."""
+    p, k = n_particles, n_labels
+    locations = np.empty(p, dtype=np.int64)
+    if paper:
+        proposed = Proposed(locations, np.empty((p, k)), np.empty(p))
+        staged = Staged(locations, locations.reshape(p, 1), proposed.cells.reshape(p, 1, k), None, None)
+        return ProposalBuffers(proposed, staged, np.empty(p), None, None)
+    size = 2 * p
+    children = Children(np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size),
+                        np.empty(size), np.empty((size, width), dtype=np.int64), np.empty((size, width, k)))
+    proposed = Proposed(locations, np.empty((p, width, k)), np.empty(p))
+    staged = Staged(locations, np.empty((p, width), dtype=np.int64), proposed.cells, None, None)
+    return ProposalBuffers(proposed, staged, np.empty(p), children, np.zeros(p))
+
+
 def _propose_one_cell(run: Callable, locations, pool, world, t, ancestors, neighbors, likelihood, optimal,
-                      uniforms) -> tuple[Staged, np.ndarray]:
+                      uniforms, out: ProposalBuffers) -> tuple[Staged, np.ndarray]:
     """The paper's model's proposal (``run``: ``rbpf_propose`` or :func:`_propose_in_threads`, in
-    the signature of the first) into fresh arrays, its writes as
-    :class:`~onlinemap.kernels.rbpf_commit.Staged` (one cell each). O(P K^2)."""
-    n_particles, k = len(ancestors), pool.rows.shape[2]
-    proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, k)), np.empty(n_particles))
-    run(locations, world.p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, *proposed, *pool)
-    staged = Staged(proposed.locations, proposed.locations.reshape(n_particles, 1),
-                    proposed.cells.reshape(n_particles, 1, k), None, None)
-    return staged, proposed.log_increments
+    the signature of the first) into ``out``, its writes one cell each. O(P K^2)."""
+    run(locations, world.p_move, t, ancestors, neighbors, likelihood, optimal, uniforms, *out.proposed, *pool)
+    return out.staged, out.proposed.log_increments
 
 
 def _propose_in_threads(threads: int, locations, p_move, t, ancestors, neighbors, likelihood, optimal, uniforms,
@@ -119,20 +150,14 @@ def _propose_in_threads(threads: int, locations, p_move, t, ancestors, neighbors
 
 
 def _propose_by_enumeration(enumerate_: Callable, locations, pool, world, t, ancestors, neighbors, readings, optimal,
-                            uniforms) -> tuple[Staged, np.ndarray]:
-    """The proposal with blocking labels or a footprint: the children ``enumerate_`` gives (every
-    parent's log weight 0, their cells stored), one drawn per slot (``rbpf_pick_children``).
-    O(P F K^2)."""
-    n_particles, k = len(ancestors), pool.rows.shape[2]
-    size, width = 2 * n_particles, world.footprint_cells.shape[1] + int(world.has_blocking)
-    children = Children(np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size),
-                        np.empty(size), np.empty((size, width), dtype=np.int64), np.empty((size, width, k)))
-    m = enumerate_(locations, np.zeros(n_particles), pool, world, t, neighbors, readings, children)
-    proposed = Proposed(np.empty(n_particles, dtype=np.int64), np.empty((n_particles, width, k)),
-                        np.empty(n_particles))
-    new_ids = np.empty((n_particles, width), dtype=np.int64)
-    rbpf_pick_children(ancestors, m, optimal, uniforms, new_ids, *children, *proposed)
-    return Staged(proposed.locations, new_ids, proposed.cells, None, None), proposed.log_increments
+                            uniforms, out: ProposalBuffers) -> tuple[Staged, np.ndarray]:
+    """The proposal with blocking labels or a footprint, into ``out``: the children ``enumerate_``
+    gives (every parent's log weight 0, their cells stored), one drawn per slot
+    (``rbpf_pick_children``). O(P F K^2)."""
+    children, staged = out.children, out.staged
+    m = enumerate_(locations, out.zeros, pool, world, t, neighbors, readings, children)
+    rbpf_pick_children(ancestors, m, optimal, uniforms, staged.ids, *children, *out.proposed)
+    return staged, out.proposed.log_increments
 
 
 def _commit_children_one_cell(locations, pool, world, t, slots, child_location, neighbors, likelihood, staged) -> None:
@@ -148,6 +173,12 @@ def _commit_children_cells(locations, pool, world, t, slots, child_location, nei
 def _commit(locations, pool, t, ancestors, staged: Staged) -> None:
     """``rbpf_commit_cells`` of the staged writes (their ``target``, ``source`` unused)."""
     rbpf_commit_cells(locations, t, ancestors, staged.locations, staged.ids, staged.cells, *pool)
+
+
+def _commit_one_cell(locations, pool, t, ancestors, staged: Staged) -> None:
+    """:func:`_commit` in the paper's model, where a slot writes one cell, the one it moves to
+    (its proposal's, or a recovery's: the cell it reads), without ``staged.ids``."""
+    rbpf_commit_cells(locations, t, ancestors, staged.locations, None, staged.cells, *pool)
 
 
 def _in_chunks(run: Callable, threads: int, *args):
@@ -212,20 +243,29 @@ def staged_buffers(ints: np.ndarray, cells: np.ndarray, n_particles: int, width:
 
 class StepKit(NamedTuple):
     """What every step of one filter reads and no step changes, built once per filter
-    (:func:`step_kit`): P, W (the cells a particle's step writes), the threads, the model's
-    :class:`~onlinemap.kernels.rbpf.World`, the serial and the threaded :class:`KernelSet`, the
-    Fearnhead-Clifford buffers (None for the sampling schemes) and the threads' staging (None on
-    one thread). A step then reads its arrays and kernels here: no per-step lookups of options
-    or rebuilt bundles (each some microseconds, which a step of a few hundred particles pays
-    in full)."""
+    (:func:`step_kit`): P, W (the cells a particle's step writes), the threads, the options a step
+    reads (``optimal``: the optimal proposal; ``threshold``: ``resample_threshold``; ``eager``: C
+    applied to every block row every step, a dynamic world with ``lazy_dynamics`` False), the
+    model's :class:`~onlinemap.kernels.rbpf.World`, the serial and the threaded
+    :class:`KernelSet`, ``identity`` (``arange(P)``, the ancestors of a step that does not
+    resample: never written), the Fearnhead-Clifford buffers (None for the sampling schemes), the
+    sampling schemes' :class:`ProposalBuffers` (None for Fearnhead-Clifford) and the threads'
+    staging (None on one thread). A step then reads its arrays, options and kernels here: no
+    per-step lookups of options or rebuilt bundles and arrays (each some tenths of a microsecond
+    to microseconds, which a step of a few hundred particles pays in full)."""
 
     n_particles: int
     width: int
     threads: int
+    optimal: bool
+    threshold: float
+    eager: bool
     world: World
     serial: KernelSet
     threaded: KernelSet
+    identity: np.ndarray
     fc: FCBuffers | None
+    proposal: ProposalBuffers | None
     staged: Staged | None
 
     def fc_buffers(self, n_labels: int) -> FCBuffers:
@@ -252,15 +292,21 @@ def scratch_buffers(n_particles: int, width: int, n_labels: int, fc: bool, threa
             np.zeros(staged * (3 * width + 1), dtype=np.int64), np.zeros((staged, width, n_labels)))
 
 
-def step_kit(model: GridModel, n_particles: int, width: int, threads: int, scratch: tuple[np.ndarray, ...]) -> StepKit:
-    """A filter's :class:`StepKit` from its model, P, W, threads and its four scratch buffers
-    (``ints``, ``floats`` of :func:`fc_buffers`, empty for a sampling scheme; the staging's ``ints``
-    and ``cells`` of :func:`staged_buffers`). O(1)."""
+def step_kit(model: GridModel, n_particles: int, width: int, threads: int, optimal: bool, threshold: float,
+             lazy_dynamics: bool, scratch: tuple[np.ndarray, ...]) -> StepKit:
+    """A filter's :class:`StepKit` from its model, P, W, threads, options (``optimal``: the optimal
+    proposal; ``threshold``: ``resample_threshold``; ``lazy_dynamics``) and its four scratch
+    buffers (``ints``, ``floats`` of :func:`fc_buffers`, empty for a sampling scheme, which gets
+    :func:`proposal_buffers` instead; the staging's ``ints`` and ``cells`` of
+    :func:`staged_buffers`). O(P), or O(P W K) for a sampling scheme's proposal buffers."""
     ints, floats, staged_ints, staged_cells = scratch
     paper = model.is_paper_model
     fc = fc_buffers(ints, floats, n_particles, width, model.n_labels) if len(ints) else None
-    return StepKit(n_particles, width, threads, world_tables(model), kernel_set(paper, 1), kernel_set(paper, threads),
-                   fc, staged_buffers(staged_ints, staged_cells, n_particles, width))
+    proposal = None if fc is not None else proposal_buffers(n_particles, width, model.n_labels, paper)
+    eager = not model.is_static and not lazy_dynamics
+    return StepKit(n_particles, width, threads, optimal, threshold, eager, world_tables(model), kernel_set(paper, 1),
+                   kernel_set(paper, threads), np.arange(n_particles), fc, proposal,
+                   staged_buffers(staged_ints, staged_cells, n_particles, width))
 
 
 @functools.cache

@@ -12,13 +12,14 @@ returns its bundle, e.g. the RBPF's ``Pool``; the model's tables are passed as a
 caller), writes its results into arrays it is given, and never allocates per step what the
 caller can keep. Every
 kernel is ``@njit(cache=True)``: compiled once, cached on disk; an inner loop that allocates
-nothing may be a :data:`loop_kernel`, and one that Python threads run at once on disjoint ranges
-a :data:`thread_kernel` (an entry point that only fills in such a kernel's range and scratch
+nothing may be a :data:`loop_kernel` (an :data:`inner_kernel` if only kernels call it), and one
+that Python threads run at once on disjoint ranges a :data:`thread_kernel` (an entry point that only fills in such a kernel's range and scratch
 arrays may then be a plain Python function, sharing the threads' compiled kernel). This package
 imports numpy and numba only (and llvmlite, numba's code generator, for :func:`prefetch`),
 besides the standard library.
 """
 
+import numpy as np
 from llvmlite import ir
 from numba import njit, types
 from numba.core import cgutils
@@ -38,6 +39,31 @@ loop_kernel = njit(cache=True, _nrt=False)
 #: shares the threads' copy instead (``rbpf_enumerate_cells``: 8 CPU seconds less to compile).
 thread_kernel = njit(cache=True, _nrt=False, nogil=True)
 
+
+#: A :data:`loop_kernel` only other kernels call: compiled without the two wrappers that let Python
+#: (and numba's first-class function values) call it, which unbox every array of every bundle
+#: argument and are compiled anew with each signature (a third of a second for three bundles of
+#: eight arrays, measured). Calling it from Python fails.
+inner_kernel = njit(cache=True, _nrt=False, no_cpython_wrapper=True, no_cfunc_wrapper=True)
+
+#: bytes: where numba starts the data of the arrays it allocates (its AVX preference)
+ALIGNMENT = 32
+
+
+def aligned(shape, dtype=np.float64, fill=None):
+    """A C-contiguous array of ``shape`` (uninitialised, or every entry ``fill``) whose data starts
+    on an :data:`ALIGNMENT`-byte boundary, as numba's own arrays do: for the buffers an entry point
+    allocates in Python for its kernels, so that their vector loops see the data aligned as when a
+    compiled entry point allocated it (numpy's arrays start wherever malloc puts them, on 16
+    bytes). O(size)."""
+    dtype = np.dtype(dtype)
+    size = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    raw = np.empty(size + ALIGNMENT, dtype=np.uint8)
+    start = -raw.ctypes.data % ALIGNMENT
+    out = raw[start:start + size].view(dtype).reshape(shape)
+    if fill is not None:
+        out.fill(fill)
+    return out
 
 #: how many iterations ahead the RBPF's loops ask for the rows they will read (:func:`prefetch`)
 PREFETCH_AHEAD = 8

@@ -24,7 +24,7 @@ so the results are the serial kernels' bit for bit, whatever the number of threa
   cells.
 
 Threads: the calling thread runs the first run and a pool of Python threads the others
-(:func:`_in_threads`; the pool is made on first use, with ``NUMBA_NUM_THREADS - 1`` threads, and
+(:func:`in_threads`; the pool is made on first use, with ``NUMBA_NUM_THREADS - 1`` threads, and
 anew in a forked child); a phase ends when every run has, then the first exception of any run
 is raised. Cost: as the serial kernels, plus one pass to move the children together, a scan of
 the rows' weights and blocks per run in the mixture, and some 40-75 us per phase to hand the
@@ -77,7 +77,7 @@ if hasattr(os, "register_at_fork"):  # POSIX
     os.register_at_fork(after_in_child=_forget_pool)
 
 
-def _in_threads(calls: list[Callable[[], object]]) -> list:
+def in_threads(calls: list[Callable[[], object]]) -> list:
     """The results of ``calls``, the first run on this thread and the others at once on the pool;
     returns (or raises the first exception, in call order) once every call has finished."""
     futures = [_pool().submit(call) for call in calls[1:]]
@@ -88,7 +88,7 @@ def _in_threads(calls: list[Callable[[], object]]) -> list:
     return [first] + [future.result() for future in futures]
 
 
-def _runs(n: int, chunk: int, threads: int) -> list[tuple[int, int]]:
+def thread_runs(n: int, chunk: int, threads: int) -> list[tuple[int, int]]:
     """``[start, stop)`` of each of up to ``threads`` contiguous runs of the chunks of ``chunk``
     items covering ``n`` (``n >= 1``), as even in chunks as can be."""
     n_chunks = -(-n // chunk)
@@ -133,8 +133,8 @@ def rbpf_enumerate_parallel(locations: np.ndarray, log_weights: np.ndarray, pool
                             likelihood: np.ndarray, children, chunk: int, threads: int) -> int:
     """:func:`~onlinemap.kernels.rbpf_enumerate.rbpf_enumerate` (the same children, in the same
     order)."""
-    runs = _runs(len(locations), chunk, threads)
-    counts = _in_threads([functools.partial(enumerate_run, locations, log_weights, world.p_move, t, neighbors,
+    runs = thread_runs(len(locations), chunk, threads)
+    counts = in_threads([functools.partial(enumerate_run, locations, log_weights, world.p_move, t, neighbors,
                                             likelihood, start, stop, 2 * start, np.empty(1), *children[:3], *pool)
                           for start, stop in runs])
     return _gathered(counts, runs, children)
@@ -146,8 +146,8 @@ def rbpf_enumerate_cells_parallel(locations: np.ndarray, log_weights: np.ndarray
     """:func:`~onlinemap.kernels.rbpf_enumerate.rbpf_enumerate_cells` (the same children, in the
     same order)."""
     sizes = (world.sensor.shape[0], world.footprint_cells.shape[1], children.ids.shape[1])
-    runs = _runs(len(locations), chunk, threads)
-    counts = _in_threads([functools.partial(enumerate_cells_run, locations, log_weights, t, neighbors, readings, start,
+    runs = thread_runs(len(locations), chunk, threads)
+    counts = in_threads([functools.partial(enumerate_cells_run, locations, log_weights, t, neighbors, readings, start,
                                             stop, 2 * start, *children, *footprint_scratch(*sizes), *world, *pool)
                           for start, stop in runs])
     return _gathered(counts, runs, children)
@@ -157,9 +157,9 @@ def rbpf_propose_parallel(locations: np.ndarray, pool, p_move: float, t: int, an
                           neighbors: np.ndarray, likelihood: np.ndarray, optimal: bool, uniforms: np.ndarray, proposed,
                           chunk: int, threads: int) -> None:
     """:func:`~onlinemap.kernels.rbpf_enumerate.rbpf_propose`."""
-    _in_threads([functools.partial(propose_run, locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal,
+    in_threads([functools.partial(propose_run, locations, pool, p_move, t, ancestors, neighbors, likelihood, optimal,
                                    uniforms, proposed, start, stop)
-                 for start, stop in _runs(len(ancestors), chunk, threads)])
+                 for start, stop in thread_runs(len(ancestors), chunk, threads)])
 
 
 def rbpf_stage_children_parallel(pool, t: int, slots, child_location: np.ndarray, likelihood: np.ndarray, staged,
@@ -167,8 +167,8 @@ def rbpf_stage_children_parallel(pool, t: int, slots, child_location: np.ndarray
     """Fearnhead-Clifford's kept children's writes
     (:func:`~onlinemap.kernels.rbpf_commit.stage_children`), staged from the parents' rows for
     :func:`rbpf_commit_staged_parallel`; writes only ``staged``."""
-    _in_threads([functools.partial(stage_children, pool, t, slots, child_location, likelihood, staged, start, stop)
-                 for start, stop in _runs(len(slots.slot_child), chunk, threads)])
+    in_threads([functools.partial(stage_children, pool, t, slots, child_location, likelihood, staged, start, stop)
+                 for start, stop in thread_runs(len(slots.slot_child), chunk, threads)])
 
 
 def rbpf_stage_children_cells_parallel(locations: np.ndarray, pool, world, t: int, slots, child_location: np.ndarray,
@@ -177,9 +177,9 @@ def rbpf_stage_children_cells_parallel(locations: np.ndarray, pool, world, t: in
     """:func:`rbpf_stage_children_parallel` for blocking labels and sensor footprints
     (:func:`~onlinemap.kernels.rbpf_commit.stage_children_cells`); writes only ``staged``."""
     sizes = (world.sensor.shape[0], world.footprint_cells.shape[1], staged.ids.shape[1])
-    _in_threads([functools.partial(stage_children_cells, locations, pool, world, t, slots, child_location, neighbors,
+    in_threads([functools.partial(stage_children_cells, locations, pool, world, t, slots, child_location, neighbors,
                                    readings, staged, start, stop, footprint_scratch(*sizes))
-                 for start, stop in _runs(len(slots.slot_child), chunk, threads)])
+                 for start, stop in thread_runs(len(slots.slot_child), chunk, threads)])
 
 
 def rbpf_commit_staged_parallel(locations: np.ndarray, pool, t: int, ancestors: np.ndarray, staged, chunk: int,
@@ -190,9 +190,9 @@ def rbpf_commit_staged_parallel(locations: np.ndarray, pool, t: int, ancestors: 
     the locations. Needs ``free_top[0] >= W P``."""
     take_over_slots(pool, ancestors)
     plan_writes(pool, staged)
-    runs = _runs(len(staged.locations), chunk, threads)
-    _in_threads([functools.partial(copy_planned, pool, t, staged, start, stop) for start, stop in runs])
-    _in_threads([functools.partial(write_planned, pool, t, staged, locations, start, stop) for start, stop in runs])
+    runs = thread_runs(len(staged.locations), chunk, threads)
+    in_threads([functools.partial(copy_planned, pool, t, staged, start, stop) for start, stop in runs])
+    in_threads([functools.partial(write_planned, pool, t, staged, locations, start, stop) for start, stop in runs])
 
 
 def rbpf_map_mixture_parallel(pool, t: int, weights: np.ndarray, out: np.ndarray, threads: int) -> None:
@@ -201,11 +201,11 @@ def rbpf_map_mixture_parallel(pool, t: int, weights: np.ndarray, out: np.ndarray
     adds its particles in order), then each run's rows, in row order, into its own cells
     (:func:`~onlinemap.kernels.rbpf.mixture_blocks`: every run scans the rows, O(R) each)."""
     n_blocks = pool.table.shape[1]
-    runs = _runs(n_blocks, BLOCK_GROUP, threads)
+    runs = thread_runs(n_blocks, BLOCK_GROUP, threads)
     row_weight = np.zeros(len(pool.rows))
     total = ordered_sum(weights)
-    _in_threads([functools.partial(row_weights, pool.table, pool.refcount, weights, total, row_weight, first, last,
+    in_threads([functools.partial(row_weights, pool.table, pool.refcount, weights, total, row_weight, first, last,
                                    np.empty(last - first, dtype=np.int64), np.empty(last - first, dtype=np.int64),
                                    np.empty(last - first)) for first, last in runs])
     out[:] = 0.0
-    _in_threads([functools.partial(mixture_blocks, pool, t, row_weight, first, last, out) for first, last in runs])
+    in_threads([functools.partial(mixture_blocks, pool, t, row_weight, first, last, out) for first, last in runs])

@@ -1,5 +1,6 @@
 """numba kernels of resampling (``onlinemap/resampling.py``): Fearnhead and Clifford's optimal
-resampling, its threshold c and its stratified walk, into arrays the caller owns."""
+resampling, its threshold c and its stratified walk, into arrays the caller owns; and the draw of
+labels from marginals by inversion (``onlinemap.estimators.base.draw_labels``)."""
 
 from __future__ import annotations
 
@@ -134,3 +135,26 @@ def optimal_keep_into(w, n, uniform, order, indices, weights):
             drawn += 1
             position += step
     return kept, c
+
+
+@loop_kernel
+def draw_by_inversion(marginals, uniforms, labels):
+    """``labels[s, i]`` <- the count of b with ``uniforms[s, i] * T >= F_b``, at most K - 1, for
+    ``F`` the running sums of ``marginals[s, i]`` (S, N, K) and ``T`` their total: label b drawn
+    with probability ``marginals[s, i, b] / T`` by one uniform (``uniforms`` (S, N) in [0, 1)). The
+    sums are numpy's ``cumsum`` (left to right), so the labels are those of the numpy expression.
+    O(S N K)."""
+    k = marginals.shape[2]
+    for s in range(marginals.shape[0]):
+        for i in range(marginals.shape[1]):
+            total = 0.0
+            for b in range(k):
+                total += marginals[s, i, b]
+            u = uniforms[s, i] * total
+            running = 0.0
+            count = 0
+            for b in range(k):
+                running += marginals[s, i, b]
+                if u >= running:
+                    count += 1
+            labels[s, i] = min(count, k - 1)

@@ -18,14 +18,16 @@ change. Every rollout resets the slots it used.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from onlinemap.kernels import loop_kernel
+from onlinemap.kernels import aligned, inner_kernel, loop_kernel, thread_kernel
 from onlinemap.kernels.rbpf import carried
+from onlinemap.kernels.rbpf_parallel import in_threads, thread_runs
 
 from .mixture import Mixture, mixture_scratch, mixture_uncertainty
 from .planning import normalise, world_step
@@ -276,7 +278,7 @@ def _keep(ov, p, h, ids, cells, used, n_touched):
     return n_touched
 
 
-@loop_kernel
+@inner_kernel
 def _filter_step(loc, lw, maps, ov, world, tables, a, h, proposal_u, step, n_touched):
     """Every particle (``loc``, ``lw`` (R,)) takes step h (action a, ``step.readings``); weights
     renormalised (all particles kept, equally weighted, if none explains the readings). Cells any
@@ -317,7 +319,7 @@ def _filter_step(loc, lw, maps, ov, world, tables, a, h, proposal_u, step, n_tou
     return n_touched
 
 
-@loop_kernel
+@inner_kernel
 def _closed_loop_action(loc, lw, moves, distance, go, weights):
     """``argmin_a sum_p w_p [go(l_p, a) D(n) + (1 - go(l_p, a)) D(l_p)]``, ``n = moves[a, l_p]``:
     the expected distance ``D`` (N,) to the candidate's target after the press, ``go`` (N, A) the
@@ -340,7 +342,7 @@ def _closed_loop_action(loc, lw, moves, distance, go, weights):
     return best
 
 
-@loop_kernel
+@inner_kernel
 def _reset(ov, n_touched):
     """Empty every particle's overlay and the touched set after a rollout. O(slots used)."""
     for p in range(ov.n.shape[0]):
@@ -351,26 +353,24 @@ def _reset(ov, n_touched):
         ov.touched[ov.touched_list[j]] = False
 
 
-@njit(cache=True)
 def _overlays(n_states, r_count, n_cells, k, horizon, n_reads):
     """Empty :class:`Overlays` of R particles' maps for ``n_states`` rollout states (each particle
     writes at most H (F + 1) cells: W = max(H, 1) (F + 1)). O(S' R (N + W K))."""
     width = max(horizon, 1) * (n_reads + 1)
-    return Overlays(np.full((n_states, r_count, n_cells), -1, dtype=np.int32),
-                    np.empty((n_states, r_count, width), dtype=np.int64), np.empty((n_states, r_count, width, k)),
-                    np.zeros((n_states, r_count, width), dtype=np.int64),
-                    np.zeros((n_states, r_count), dtype=np.int64), np.zeros((n_states, n_cells), dtype=np.bool_),
-                    np.empty((n_states, r_count * width), dtype=np.int64))
+    return Overlays(aligned((n_states, r_count, n_cells), np.int32, -1),
+                    aligned((n_states, r_count, width), np.int64), aligned((n_states, r_count, width, k)),
+                    aligned((n_states, r_count, width), np.int64, 0),
+                    aligned((n_states, r_count), np.int64, 0), aligned((n_states, n_cells), np.bool_, 0),
+                    aligned((n_states, r_count * width), np.int64))
 
 
-@njit(cache=True)
 def _step(n_reads, k):
     """A filter step's scratch (:class:`_Step`) for F = ``n_reads`` readings."""
-    return _Step(np.empty((2, n_reads + 1), dtype=np.int64), np.empty((2, n_reads + 1, k)), np.empty((2, k)),
-                 np.empty((2, n_reads)), np.empty((2, n_reads), dtype=np.int64), np.empty(n_reads, dtype=np.int64))
+    return _Step(aligned((2, n_reads + 1), np.int64), aligned((2, n_reads + 1, k)), aligned((2, k)),
+                 aligned((2, n_reads)), aligned((2, n_reads), np.int64), aligned(n_reads, np.int64))
 
 
-@loop_kernel
+@inner_kernel
 def _fork(states, x, y):
     """Rollout state y (empty) <- a copy of state x: the particles, the hypothetical world and the
     overlays, slot for slot in the same order (so every later sum runs in the same order).
@@ -398,7 +398,7 @@ def _fork(states, x, y):
     states.n_touched[y] = states.n_touched[x]
 
 
-@loop_kernel
+@inner_kernel
 def _press(moves, candidates, work, g, x, h, n_free, n_pending, n_groups):
     """Every candidate of group g (in rollout state x) chooses its press at step h: its
     sequence's, or in closed loop on the state's belief (:func:`_closed_loop_action`). A candidate
@@ -433,16 +433,15 @@ def _press(moves, candidates, work, g, x, h, n_free, n_pending, n_groups):
     return lead, n_free, n_pending, n_groups
 
 
-@loop_kernel
-def _roll_world(particles, world, tables, candidates, hypotheses, s, scoring, agreement, now, work, out):
-    """:func:`plan_rollouts` in world s: every candidate from the particles, candidates that press
-    alike sharing one rollout state, a state stepped to the horizon before the next is taken from
-    the stack (depth first, so its memory stays in cache)."""
-    states, groups, maps = work.states, work.groups, particles.maps
-    n_seq, horizon = candidates.sequences.shape
+@inner_kernel
+def _start_world(particles, hypotheses, s, scoring, now, work, out):
+    """World s starts: rollout state 0 <- the particles and the world's labels and location, every
+    candidate in group 0, the other states free (the last freed on top), ``out[c, 0] += now``
+    where step 0 is scored. Returns the count of free states."""
+    states, groups = work.states, work.groups
+    n_seq = groups.group.shape[0]
     for x in range(n_seq):
         groups.free[x] = n_seq - 1 - x
-    n_free = n_seq - 1  # state 0 starts the world
     for p in range(particles.locations.shape[0]):
         states.loc[0, p] = particles.locations[p]
         states.lw[0, p] = particles.log_weights[p]
@@ -453,37 +452,68 @@ def _roll_world(particles, world, tables, candidates, hypotheses, s, scoring, ag
         groups.group[c] = 0
         if scoring.checkpoints[0]:
             out[c, 0] += now
-    n_groups = np.int64(1)  # not the literal 1: _press compiles once
     groups.pending[0, 0], groups.pending[0, 1], groups.pending[0, 2] = 0, 0, 1
-    n_pending = 1
-    while n_pending > 0:
-        n_pending -= 1
-        g, x, first_step = groups.pending[n_pending, 0], groups.pending[n_pending, 1], groups.pending[n_pending, 2]
-        ov = _state(states.overlays, x)
-        for h in range(first_step, horizon + 1):
-            lead, n_free, n_pending, n_groups = _press(world.moves, candidates, work, g, x, h, n_free, n_pending,
-                                                       n_groups)
-            a = groups.action[lead]
-            states.where[x] = world_step(world, tables, states.where[x], states.labels[x], a,
-                                         hypotheses.world_u[s, h - 1], hypotheses.change_u[s, h - 1],
-                                         work.step.readings)
-            states.n_touched[x] = _filter_step(states.loc[x], states.lw[x], maps, ov, world, tables, a, h,
-                                               hypotheses.proposal_u[s, h - 1], work.step, states.n_touched[x])
-            if scoring.checkpoints[h]:
-                value = mixture_uncertainty(states.loc[x], states.lw[x], maps, ov, tables, h, scoring.location_weight,
-                                            states.n_touched[x], agreement.entropy[h], agreement.disputed,
-                                            work.mixture)
-                for c in range(n_seq):
-                    if groups.group[c] == g:
-                        out[c, h] += value
-        _reset(ov, states.n_touched[x])
-        states.n_touched[x] = 0
-        groups.free[n_free] = x
-        n_free += 1
+    return n_seq - 1  # state 0 starts the world
 
 
-@njit(cache=True)
-def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agreement, out):
+@thread_kernel
+def roll_worlds(particles, world, tables, candidates, hypotheses, scoring, agreement, work, start, stop, values):
+    """:func:`plan_rollouts` for worlds ``start`` to ``stop - 1`` in the buffers ``work``, world
+    s's scores into ``values[s]`` (C, H + 1), zero on entry: every candidate from the particles,
+    candidates that press alike sharing one rollout state, a state stepped to the horizon before
+    the next is taken from the stack (depth first: its memory stays in cache). One compiled function
+    for the loops (a compiled caller compiles its callees again); GIL released for Python threads."""
+    states, groups, maps = work.states, work.groups, particles.maps
+    n_seq, horizon = candidates.sequences.shape
+    zero = np.int64(0)  # not the literal 0: mixture_uncertainty compiles once, for int64 h and counts
+    now = mixture_uncertainty(particles.locations, particles.log_weights, maps, _state(states.overlays, 0), tables,
+                              zero, scoring.location_weight, zero, agreement.entropy[0], agreement.disputed,
+                              work.mixture)
+    for s in range(start, stop):
+        n_free = _start_world(particles, hypotheses, s, scoring, now, work, values[s])
+        n_groups, n_pending = np.int64(1), 1  # not the literal 1: _press compiles once
+        while n_pending > 0:
+            n_pending -= 1
+            g, x, first = groups.pending[n_pending, 0], groups.pending[n_pending, 1], groups.pending[n_pending, 2]
+            ov = _state(states.overlays, x)
+            for h in range(first, horizon + 1):
+                lead, n_free, n_pending, n_groups = _press(world.moves, candidates, work, g, x, h, n_free, n_pending,
+                                                           n_groups)
+                a = groups.action[lead]
+                states.where[x] = world_step(world, tables, states.where[x], states.labels[x], a,
+                                             hypotheses.world_u[s, h - 1], hypotheses.change_u[s, h - 1],
+                                             work.step.readings)
+                states.n_touched[x] = _filter_step(states.loc[x], states.lw[x], maps, ov, world, tables, a, h,
+                                                   hypotheses.proposal_u[s, h - 1], work.step, states.n_touched[x])
+                if scoring.checkpoints[h]:
+                    value = mixture_uncertainty(states.loc[x], states.lw[x], maps, ov, tables, h,
+                                                scoring.location_weight, states.n_touched[x], agreement.entropy[h],
+                                                agreement.disputed, work.mixture)
+                    for c in range(n_seq):
+                        if groups.group[c] == g:
+                            values[s, c, h] += value
+            _reset(ov, states.n_touched[x])
+            states.n_touched[x] = 0
+            groups.free[n_free] = x
+            n_free += 1
+
+
+def _rollout_work(particles, world, candidates, agreement, labels_dtype):
+    """The buffers one thread of :func:`plan_rollouts` rolls its worlds out in (:class:`_Work`):
+    C rollout states, a filter step's scratch, the mixture's and the groups'. O(C R (N + H F K) + R D K)."""
+    r_count, n_cells, k = particles.maps.shape
+    n_seq, horizon = candidates.sequences.shape
+    n_reads = world.footprint_cells.shape[1]
+    states = _States(aligned((n_seq, r_count), np.int64), aligned((n_seq, r_count)),
+                     aligned((n_seq, n_cells), labels_dtype), aligned(n_seq, np.int64),
+                     aligned(n_seq, np.int64, 0), _overlays(n_seq, r_count, n_cells, k, horizon, n_reads))
+    groups = _Groups(aligned(n_seq, np.int64), aligned(n_seq, np.int64),
+                     aligned(world.moves.shape[0], np.int64), aligned((n_seq, 3), np.int64),
+                     aligned(n_seq, np.int64))
+    return _Work(states, _step(n_reads, k), mixture_scratch(particles.maps, agreement.disputed), groups)
+
+
+def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agreement, out, threads=1):
     """Roll every candidate out in every hypothetical world through the thinned particle belief
     and add up its uncertainty: ``out[c, h] += U`` after h steps of candidate c in world s, for
     every h with ``scoring.checkpoints[h]`` (``out`` (C, H + 1); the caller divides by S).
@@ -497,34 +527,30 @@ def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agr
     With common random numbers, candidates that have pressed alike so far in a world are in the
     same state: such a group shares one rollout state (one of C), stepped and scored once. When
     its candidates press differently, the state is copied (:func:`_fork`, before the step) for
-    each other press, and that group waits on a stack (:func:`_roll_world`). The scores are those
+    each other press, and that group waits on a stack (:func:`roll_worlds`). The scores are those
     of rolling every candidate out alone, bit for bit; in the door world and 16 x 16 buildings
-    5-30% of the steps are shared (plans 18% faster, measured on recorded plans).
+    5-30% of the steps are shared (plans 18% faster, measured on recorded plans). The buffers
+    are allocated here, the loops run in the kernel :func:`roll_worlds` (a compiled entry point
+    would compile every kernel's code once more).
+
+    ``threads``: the worlds go in that many contiguous runs (at most S) to Python threads
+    (:func:`roll_worlds` releases the GIL; a run has its own buffers); each world's scores are
+    added into ``out`` in world order, as one thread does: the same bits for any ``threads``.
     Cost O(S C H R (F + 1) K) for the steps (K^2 with map dynamics) plus O(S C R (D + H F) K)
-    per checkpoint, less the shared steps; memory O(C R (N + H F K)) for the states.
-    """
-    r_count, n_cells, k = particles.maps.shape
-    n_seq, horizon = candidates.sequences.shape
-    if n_seq == 0:  # no candidate: nothing to score (and no rollout state to start from)
+    per checkpoint, less the shared steps, over the threads; memory O(threads C R (N + H F K) + S C H)."""
+    n_worlds = hypotheses.locations.shape[0]
+    if candidates.sequences.shape[0] == 0 or n_worlds == 0:  # nothing to score (no rollout state to start from)
         return
-    states = _States(np.empty((n_seq, r_count), dtype=np.int64), np.empty((n_seq, r_count)),
-                     np.empty((n_seq, n_cells), dtype=hypotheses.labels.dtype), np.empty(n_seq, dtype=np.int64),
-                     np.zeros(n_seq, dtype=np.int64),
-                     _overlays(n_seq, r_count, n_cells, k, horizon, world.footprint_cells.shape[1]))
-    groups = _Groups(np.empty(n_seq, dtype=np.int64), np.empty(n_seq, dtype=np.int64),
-                     np.empty(world.moves.shape[0], dtype=np.int64), np.empty((n_seq, 3), dtype=np.int64),
-                     np.empty(n_seq, dtype=np.int64))
-    work = _Work(states, _step(world.footprint_cells.shape[1], k), mixture_scratch(particles.maps, agreement.disputed),
-                 groups)
-    zero = np.int64(0)  # not the literal 0: mixture_uncertainty compiles once, for int64 h and counts
-    now = mixture_uncertainty(particles.locations, particles.log_weights, particles.maps, _state(states.overlays, 0),
-                              tables, zero, scoring.location_weight, zero, agreement.entropy[0], agreement.disputed,
-                              work.mixture)
-    for s in range(hypotheses.locations.shape[0]):
-        _roll_world(particles, world, tables, candidates, hypotheses, s, scoring, agreement, now, work, out)
+    runs = thread_runs(n_worlds, 1, threads)
+    works = [_rollout_work(particles, world, candidates, agreement, hypotheses.labels.dtype) for _ in runs]
+    values = np.zeros((n_worlds,) + out.shape)
+    in_threads([functools.partial(roll_worlds, particles, world, tables, candidates, hypotheses, scoring, agreement,
+                                  work, start, stop, values) for work, (start, stop) in zip(works, runs)])
+    for s in range(n_worlds):  # in world order, as one thread adds them
+        out += values[s]
 
 
-@loop_kernel
+@inner_kernel
 def _whole_belief(loc, lw, maps, ov, tables, h, scratch, beliefs):
     """``beliefs.location[h]`` and ``beliefs.maps[h]`` <- the weighted particle locations and map
     mixture at step h (``scratch`` (K,)). O(R N K) (K^2 with map dynamics)."""
@@ -541,29 +567,34 @@ def _whole_belief(loc, lw, maps, ov, tables, h, scratch, beliefs):
                 beliefs.maps[h, c, b] += w * scratch[b]
 
 
-@njit(cache=True)
+@loop_kernel
+def _roll_beliefs(particles, world, tables, actions, hypotheses, states, step, scratch, beliefs):
+    """:func:`rollout_beliefs` in the buffers ``states`` (one rollout state, from the particles
+    and world 0), ``step`` and ``scratch`` (K,)."""
+    ov = _state(states.overlays, 0)
+    loc, lw, labels = states.loc[0], states.lw[0], states.labels[0]
+    where = states.where[0]
+    n_touched = np.int64(0)
+    for h in range(actions.shape[0] + 1):
+        if h > 0:
+            a = actions[h - 1]
+            where = world_step(world, tables, where, labels, a, hypotheses.world_u[0, h - 1],
+                               hypotheses.change_u[0, h - 1], step.readings)
+            for f in range(step.readings.shape[0]):
+                beliefs.readings[h - 1, f] = step.readings[f]
+            n_touched = _filter_step(loc, lw, particles.maps, ov, world, tables, a, h, hypotheses.proposal_u[0, h - 1],
+                                     step, n_touched)
+        beliefs.where[h] = where
+        _whole_belief(loc, lw, particles.maps, ov, tables, h, scratch, beliefs)
+
+
 def rollout_beliefs(particles, world, tables, actions, hypotheses, beliefs):
     """One rollout of :func:`plan_rollouts` (world 0 of ``hypotheses``, the fixed ``actions``
     (H,)), keeping the whole belief in ``beliefs`` (:class:`Beliefs`). For tests.
     O(H R (N K + (F + 1) K^2))."""
     r_count, n_cells, k = particles.maps.shape
-    horizon = actions.shape[0]
     n_reads = world.footprint_cells.shape[1]
-    ov = _state(_overlays(1, r_count, n_cells, k, horizon, n_reads), 0)
-    step = _step(n_reads, k)
-    scratch = np.empty(k)
-    loc = particles.locations.copy()
-    lw = particles.log_weights.copy()
-    labels = hypotheses.labels[0].copy()
-    where = hypotheses.locations[0]
-    n_touched = np.int64(0)
-    for h in range(horizon + 1):
-        if h > 0:
-            a = actions[h - 1]
-            where = world_step(world, tables, where, labels, a, hypotheses.world_u[0, h - 1],
-                               hypotheses.change_u[0, h - 1], step.readings)
-            beliefs.readings[h - 1] = step.readings
-            n_touched = _filter_step(loc, lw, particles.maps, ov, world, tables, a, h, hypotheses.proposal_u[0, h - 1],
-                                     step, n_touched)
-        beliefs.where[h] = where
-        _whole_belief(loc, lw, particles.maps, ov, tables, h, scratch, beliefs)
+    states = _States(particles.locations.copy()[None], particles.log_weights.copy()[None],
+                     hypotheses.labels[:1].copy(), hypotheses.locations[:1].copy(), aligned(1, np.int64, 0),
+                     _overlays(1, r_count, n_cells, k, actions.shape[0], n_reads))
+    _roll_beliefs(particles, world, tables, actions, hypotheses, states, _step(n_reads, k), aligned(k), beliefs)

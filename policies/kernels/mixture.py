@@ -13,7 +13,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from onlinemap.kernels import loop_kernel
+from onlinemap.kernels import aligned, inner_kernel
 from onlinemap.kernels.rbpf import carried
 
 from .planning import entropy
@@ -33,19 +33,31 @@ class Mixture(NamedTuple):
 
 
 @njit(cache=True)
+def disputed_cells(maps):
+    """(D,) sorted: the cells c whose rows ``maps[p, c]`` (``maps`` (R, N, K)) are not all equal to
+    particle 0's (``!=`` entry by entry, particle 0's own row included: a NaN is disputed). One pass
+    over the maps, particle by particle (each row read in order). O(R N K) time, O(N) memory."""
+    r_count, n_cells, k = maps.shape
+    flags = np.zeros(n_cells, dtype=np.bool_)
+    for p in range(r_count):
+        for c in range(n_cells):
+            if not flags[c]:
+                for b in range(k):
+                    if maps[p, c, b] != maps[0, c, b]:
+                        flags[c] = True
+    return np.flatnonzero(flags)
+
+
 def mixture_scratch(maps, disputed):
     """:func:`mixture_uncertainty`'s scratch (:class:`Mixture`) for the particles' ``maps`` (R, N,
     K) and the ``disputed`` cells (D,). O(R D K + N K)."""
     r_count, n_cells, k = maps.shape
-    disputed_maps = np.empty((r_count, disputed.shape[0] * k))
-    mask = np.zeros(n_cells, dtype=np.bool_)
-    for d in range(disputed.shape[0]):
-        mask[disputed[d]] = True
-        for p in range(r_count):
-            for b in range(k):
-                disputed_maps[p, d * k + b] = maps[p, disputed[d], b]
-    return Mixture(disputed_maps, np.empty((1, disputed.shape[0], k)), mask, np.zeros(n_cells), np.zeros((n_cells, k)),
-                   np.empty(r_count))
+    mask = aligned(n_cells, np.bool_, 0)
+    mask[disputed] = True
+    disputed_maps = aligned((r_count, disputed.shape[0] * k))
+    disputed_maps.reshape(r_count, disputed.shape[0], k)[:] = maps[:, disputed, :]
+    return Mixture(disputed_maps, aligned((1, disputed.shape[0], k)), mask, aligned(n_cells, fill=0.0),
+                   aligned((n_cells, k), fill=0.0), aligned(r_count))
 
 
 @njit(cache=True, inline="always")
@@ -85,7 +97,7 @@ def _add_entropies(total, disputed, mask, touched_list, n_touched, cells):
     return total
 
 
-@loop_kernel
+@inner_kernel
 def mixture_uncertainty(loc, lw, maps, ov, tables, h, location_weight, n_touched, agreed, disputed, mixture):
     """``location_weight * H(L) + sum_i H(M_i)`` of the weighted particles at step h. The mixture
     ``M_i = sum_p w_p m_p(i)`` is recomputed on the ``disputed`` cells (D,) and the touched ones:

@@ -14,8 +14,10 @@ cell ``i`` (the belief's map marginal).
 
 Bundles: the model's motion and sensor tables are the RBPF's ``World``
 (``onlinemap.estimators.rbpf_kernels.world_tables``); :class:`RolloutTables` adds what only the
-rollouts read. The loops over particles and cells run in :data:`~onlinemap.kernels.loop_kernel` kernels
-(bundles cost nothing there); the entry point allocates and loops over worlds and candidates.
+rollouts read. The loops over particles and cells run in :data:`~onlinemap.kernels.inner_kernel` kernels
+(bundles cost nothing there), those over worlds and candidates in one loop kernel called from
+Python; the entry point allocates in Python (a compiled entry point would compile every kernel's
+code once more: each compiled function links and compiles its callees' code anew).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from onlinemap.kernels import loop_kernel
+from onlinemap.kernels import aligned, inner_kernel, loop_kernel
 from onlinemap.kernels.rbpf import carried
 
 
@@ -83,7 +85,7 @@ class _Scratch(NamedTuple):
     readings: np.ndarray
 
 
-@njit(cache=True)
+@inner_kernel
 def draw(cdf_row, u):
     """Index of the first entry of the cumulative row ``cdf_row`` above ``u``."""
     k = cdf_row.shape[0]
@@ -93,7 +95,7 @@ def draw(cdf_row, u):
     return k - 1
 
 
-@loop_kernel
+@inner_kernel
 def world_step(world, tables, where, labels, a, world_u, change_u, readings):
     """One step of the hypothetical world (``onlinemap.simulate.world_step``'s order and rules):
     the move with ``world_u[0] < p_move`` unless the intended cell's label blocks, the labels by
@@ -126,7 +128,7 @@ def _current(maps, rollout, tables, p, c, h, out):
         out[b] = carried(maps, tables.powers, d, p, c, b)
 
 
-@njit(cache=True)
+@inner_kernel
 def entropy(row):
     """Entropy in nats of the probabilities ``row`` (K,). O(K)."""
     acc = 0.0
@@ -136,7 +138,7 @@ def entropy(row):
     return acc
 
 
-@loop_kernel
+@inner_kernel
 def _uncertainty(locations, maps, rollout, tables, h, location_weight, scratch):
     """``location_weight * H(L) + sum_i H(M_i)`` of the particles ``locations`` (R,) weighted by
     ``rollout.weights`` after h steps. O(R N K + N K^2 + R H K^2)."""
@@ -165,11 +167,12 @@ def _uncertainty(locations, maps, rollout, tables, h, location_weight, scratch):
         w = rollout.weights[p]
         if w == 0.0:
             continue
-        for j in range(rollout.n[p]):
+        for j in range(rollout.n[p]):  # entry j is the particle's only one of its cell (:func:`_write`)
             c = rollout.cell[p, j]
-            _current(maps, rollout, tables, p, c, h, tmp)
+            d = h - rollout.stamp[p, j] if tables.dynamic else 0
             for b in range(k):  # less the particle's base marginal of c, brought to step h
-                mixture[c, b] += w * (tmp[b] - carried(maps, tables.powers, base, p, c, b))
+                mixture[c, b] += w * (carried(rollout.val, tables.powers, d, p, j, b)
+                                      - carried(maps, tables.powers, base, p, c, b))
     total = location_weight * entropy(location)
     for i in range(n_cells):
         for b in range(k):  # rounding: keep every term a probability
@@ -179,7 +182,7 @@ def _uncertainty(locations, maps, rollout, tables, h, location_weight, scratch):
     return total
 
 
-@njit(cache=True)
+@inner_kernel
 def normalise(lw, top, drop_below):
     """Log weights ``lw`` (R,) in place so that ``sum exp(lw) = 1``, given ``top = max(lw)``; a
     particle with ``lw - top < drop_below`` is dropped (-inf); when every particle is at -inf
@@ -214,7 +217,7 @@ def _write(rollout, p, target, h, cell, lik, lam):
     rollout.stamp[p, slot] = h
 
 
-@loop_kernel
+@inner_kernel
 def _filter_step(maps, world, tables, rollout, a, h, lik, proposal_u, scratch):
     """Every particle takes step h (action a, a reading of likelihood ``lik`` (K,)) by the optimal
     proposal of the RBPF (p moves with probability ``p_move P(z | there) / (p_move P(z | there)
@@ -226,18 +229,21 @@ def _filter_step(maps, world, tables, rollout, a, h, lik, proposal_u, scratch):
     for p in range(loc.shape[0]):
         here = loc[p]
         there = world.moves[a, here]
-        _current(maps, rollout, tables, p, here, h, here_m)
-        lam_here = 0.0
-        for b in range(here_m.shape[0]):
-            lam_here += here_m[b] * lik[b]
+        lam_here, lam_there = 0.0, 0.0
+        for s in range(1 if there == here else 2):  # one copy of _current for both cells: less code to compile
+            out = here_m if s == 0 else there_m
+            _current(maps, rollout, tables, p, here if s == 0 else there, h, out)
+            lam = 0.0
+            for b in range(out.shape[0]):
+                lam += out[b] * lik[b]
+            if s == 0:
+                lam_here = lam
+            else:
+                lam_there = lam
         target = here
         lam = lam_here
         weight = lam_here
         if there != here:
-            _current(maps, rollout, tables, p, there, h, there_m)
-            lam_there = 0.0
-            for b in range(there_m.shape[0]):
-                lam_there += there_m[b] * lik[b]
             move = p_move * lam_there
             weight = move + (1.0 - p_move) * lam_here
             if proposal_u[p] * weight < move:
@@ -259,29 +265,38 @@ def _filter_step(maps, world, tables, rollout, a, h, lik, proposal_u, scratch):
 
 
 @loop_kernel
-def _rollout(particles, world, tables, actions, hypotheses, s, scoring, rollout, scratch, out):
-    """Simulate ``actions`` (H,) in world s of ``hypotheses`` and filter its readings through the
-    particles (:func:`world_step`, :func:`_filter_step`); ``out[h]`` <- the uncertainty after h
-    steps for every h >= 1 with ``scoring.checkpoints[h]`` (other entries untouched). O(H R (H +
-    K^2)) for the steps plus O(R N K) per checkpoint."""
-    for p in range(rollout.loc.shape[0]):
-        rollout.loc[p] = particles.locations[p]
-        rollout.lw[p] = particles.log_weights[p]
-        rollout.n[p] = 0
-    for i in range(rollout.labels.shape[0]):
-        rollout.labels[i] = hypotheses.labels[s, i]
-    where = hypotheses.locations[s]
-    for h in range(1, actions.shape[0] + 1):
-        a = actions[h - 1]
-        where = world_step(world, tables, where, rollout.labels, a, hypotheses.world_u[s, h - 1],
-                           hypotheses.change_u[s, h - 1], scratch.readings)
-        _filter_step(particles.maps, world, tables, rollout, a, h, world.likelihood[scratch.readings[0]],
-                     hypotheses.proposal_u[s, h - 1], scratch)
-        if scoring.checkpoints[h]:
-            out[h] = _uncertainty(rollout.loc, particles.maps, rollout, tables, h, scoring.location_weight, scratch)
+def _roll_all(particles, world, tables, sequences, hypotheses, scoring, rollout, scratch, total):
+    """:func:`rollout_uncertainty` in the buffers ``rollout`` and ``scratch``: every sequence in
+    every world, each step the world's (:func:`world_step`), then the particles'
+    (:func:`_filter_step`), scored at the checkpoints (:func:`_uncertainty`). One compiled
+    function for the loops (each compiled caller compiles its callees' code again)."""
+    for p in range(rollout.weights.shape[0]):
+        rollout.weights[p] = math.exp(particles.log_weights[p])
+    now = 0.0
+    if scoring.checkpoints[0]:
+        now = _uncertainty(particles.locations, particles.maps, rollout, tables, np.int64(0),  # int64: one compile
+                           scoring.location_weight, scratch)
+    for s in range(hypotheses.locations.shape[0]):
+        for c in range(sequences.shape[0]):
+            for p in range(rollout.loc.shape[0]):
+                rollout.loc[p] = particles.locations[p]
+                rollout.lw[p] = particles.log_weights[p]
+                rollout.n[p] = 0
+            for i in range(rollout.labels.shape[0]):
+                rollout.labels[i] = hypotheses.labels[s, i]
+            where = hypotheses.locations[s]
+            total[c, 0] += now
+            for h in range(1, sequences.shape[1] + 1):
+                a = sequences[c, h - 1]
+                where = world_step(world, tables, where, rollout.labels, a, hypotheses.world_u[s, h - 1],
+                                   hypotheses.change_u[s, h - 1], scratch.readings)
+                _filter_step(particles.maps, world, tables, rollout, a, h, world.likelihood[scratch.readings[0]],
+                             hypotheses.proposal_u[s, h - 1], scratch)
+                if scoring.checkpoints[h]:
+                    total[c, h] += _uncertainty(rollout.loc, particles.maps, rollout, tables, h,
+                                                scoring.location_weight, scratch)
 
 
-@njit(cache=True)
 def rollout_uncertainty(particles, world, tables, sequences, hypotheses, scoring, total):
     """Roll every action sequence ``sequences`` (C, H) out in every world of ``hypotheses`` (the
     paper's sensor and motion: F = 1) through the particles and add up its uncertainty:
@@ -291,27 +306,16 @@ def rollout_uncertainty(particles, world, tables, sequences, hypotheses, scoring
 
     World step h (DESIGN.md section 1 order, :func:`world_step`); filter step: the RBPF's optimal
     proposal (:func:`_filter_step`). ``particles``: a ``ParticleSnapshot``; ``world``: the RBPF's
-    ``World`` bundle; ``tables``: :class:`RolloutTables`. Cost O(S C (H R (H + K^2) +
-    n_checkpoints R N K)) plus O(R N K) for step 0.
+    ``World`` bundle; ``tables``: :class:`RolloutTables`. Allocates the rollout's buffers here and
+    runs the loop kernel :func:`_roll_all` (a compiled entry point would compile every kernel's
+    code once more). Cost O(S C (H R (H + K^2) + n_checkpoints R N K)) plus O(R N K) for step 0.
     """
     r_count, n_cells, k = particles.maps.shape
     width = max(sequences.shape[1], 1)
-    rollout = _Rollout(np.empty(r_count, dtype=np.int64), np.empty(r_count), np.exp(particles.log_weights),
-                       np.empty(n_cells, dtype=hypotheses.labels.dtype), np.full((r_count, width), -1, dtype=np.int64),
-                       np.empty((r_count, width, k)), np.zeros((r_count, width), dtype=np.int64),
-                       np.zeros(r_count, dtype=np.int64))
-    scratch = _Scratch(np.empty(n_cells), np.empty((n_cells, k)), np.empty(k), np.empty(k), np.empty(k),
-                       np.empty(world.footprint_cells.shape[1], dtype=np.int64))
-    now = 0.0
-    if scoring.checkpoints[0]:
-        now = _uncertainty(particles.locations, particles.maps, rollout, tables, np.int64(0),  # int64: one compile
-                           scoring.location_weight, scratch)
-    out = np.empty(sequences.shape[1] + 1)
-    for s in range(hypotheses.locations.shape[0]):
-        for c in range(sequences.shape[0]):
-            for h in range(out.shape[0]):
-                out[h] = 0.0
-            out[0] = now
-            _rollout(particles, world, tables, sequences[c], hypotheses, s, scoring, rollout, scratch, out)
-            for h in range(out.shape[0]):
-                total[c, h] += out[h]
+    rollout = _Rollout(aligned(r_count, np.int64), aligned(r_count), aligned(r_count),
+                       aligned(n_cells, hypotheses.labels.dtype), aligned((r_count, width), np.int64, -1),
+                       aligned((r_count, width, k)), aligned((r_count, width), np.int64, 0),
+                       aligned(r_count, np.int64, 0))
+    scratch = _Scratch(aligned(n_cells), aligned((n_cells, k)), aligned(k), aligned(k), aligned(k),
+                       aligned(world.footprint_cells.shape[1], np.int64))
+    _roll_all(particles, world, tables, sequences, hypotheses, scoring, rollout, scratch, total)
