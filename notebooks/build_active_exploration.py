@@ -139,7 +139,7 @@ In a 16 x 16 building the difference is the location. A building does not say it
 cells, walls and doors, so the filter learns it as it maps (`model.unknown_label_frequencies`;
 `estimator_options={"label_prior": "model"}` keeps the uniform prior): cells not yet read get the
 learned frequencies, not a uniform guess. After 600 steps `info_gain` has mapped most of the floor
-(map error 0.15, error 0.1 reached on 2 of the 3 buildings, location error 0.45), `frontier` and
+(map error 0.18, error 0.1 reached on 1 of the 3 buildings, location error 0.46), `frontier` and
 the random walk are at 0.36 and 0.39 (with the uniform prior: 0.32, 0.51 and 0.56); `frontier` is
 lost almost all the time (location error 0.88): it heads for
 the nearest unknown along corridors whose cells read alike, where a move and a slip look the
