@@ -13,7 +13,7 @@ import pytest
 import onlinemap as om
 from onlinemap.errors import CheckpointError, InvalidOptionError
 from estimator_cases import beliefs, random_run
-from test_rbpf_label_prior import drawn_world
+from test_rbpf_label_prior import assert_learned_near_theta, drawn_world
 
 WORLDS = [
     ("corridor", lambda: om.corridor(8, 3, p_obs=0.8)),
@@ -82,16 +82,7 @@ def test_learned_frequencies_converge_to_those_the_world_was_drawn_from(seed):
     est = om.make_estimator("bk", model, label_prior="learn")
     for belief in beliefs(est, run):
         pass
-    learned = est.label_frequencies
-    unread = model.label_prior * learned  # the cells read: the learner's criterion, written here
-    unread /= unread.sum(axis=1, keepdims=True)
-    read = np.abs(belief.map - unread).max(axis=1) > 1e-9
-    n = int(read.sum())
-    assert n > 100  # the walk read most of the floor
-    off_truth = float((1 - belief.map[np.flatnonzero(read), labels[read]]).mean())
-    tolerance = 4 * np.sqrt(theta * (1 - theta) / n) + off_truth + 3 / (3 + n)
-    assert np.all(np.abs(learned - theta) <= tolerance), (learned, theta, tolerance)
-    assert abs(1 / 3 - theta[0]) > tolerance[0]  # the test can fail
+    assert_learned_near_theta(model, labels, theta, est.label_frequencies, belief.map)
 
 
 def test_learning_improves_the_map_of_a_world_drawn_from_a_skewed_prior():
