@@ -357,7 +357,7 @@ class InfoGainExplorer:
         ``location_weight`` keep their meaning (observations of an unread cell) when a sharper
         prior leaves less to learn per cell; that of a uniformly unknown cell when the estimator
         has no frequencies (the model's own table) or with ``information_unit="uniform"``. O(K^2)."""
-        frequencies = None if self.information_unit == "uniform" else getattr(self.estimator, "label_frequencies", None)
+        frequencies = self._unread_frequencies()
         if frequencies is None:
             return self._uniform_nats
         nats = unit_information(self.model.sensor, frequencies)
@@ -369,9 +369,16 @@ class InfoGainExplorer:
         uncertainty (:meth:`policies.frontier.FrontierExplorer.plan` ``scale``) for the targets
         and the fallback presses. None (the frontier's ``log K``) without frequencies, with a
         prior sure of every unread cell, or with ``information_unit="uniform"``. O(K)."""
-        frequencies = None if self.information_unit == "uniform" else getattr(self.estimator, "label_frequencies", None)
+        frequencies = self._unread_frequencies()
         nats = None if frequencies is None else float(entropy(np.asarray(frequencies)))
         return nats if nats else None
+
+    def _unread_frequencies(self) -> np.ndarray | None:
+        """(K,) the label frequencies of cells not yet read that the unit follows: the bound
+        estimator's ``label_frequencies`` with ``information_unit="prior"``, else None."""
+        if self.information_unit == "uniform":
+            return None
+        return getattr(self.estimator, "label_frequencies", None)
 
     @property
     def pending(self) -> int:
@@ -410,7 +417,8 @@ class InfoGainExplorer:
         self._since_anchor += 1
         if self._target_steps:
             self._target_steps -= 1
-            action = self.toward(belief, self._target) if self._target >= 0 else self.frontier.choose(belief, self.unread_entropy())
+            action = (self.toward(belief, self._target) if self._target >= 0
+                      else self.frontier.choose(belief, self.unread_entropy()))
         else:
             action = int(self._queue.pop(0))
         self.presses.pressed(belief, action)
@@ -450,7 +458,8 @@ class InfoGainExplorer:
             return Candidates(tuple(names), np.stack(sequences), np.asarray(targets), None, None)
         passable = expected_passability(model, belief) if passable is None else passable
         frontier = self.frontier
-        chosen = frontier_targets(model, frontier.plan(belief, self.unread_entropy()), self.targets, skip=belief.location > 0.5)
+        chosen = frontier_targets(model, frontier.plan(belief, self.unread_entropy()), self.targets,
+                                  skip=belief.location > 0.5)
         distances = [np.zeros(model.n_cells)] * len(names)
         for cell in chosen:
             names.append(f"to {divmod(int(cell), model.cols)}")
