@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 import policies
-from onlinemap.errors import ModelError
+from onlinemap.errors import InvalidOptionError, ModelError
 from onlinemap.evaluate import told_location_map
 from onlinemap.studies.floors import COLUMNS, REAL_FLOORS, floor_study, floor_worlds, run_extras
 from onlinemap.worlds import parse_world
@@ -80,6 +80,15 @@ def test_an_option_the_estimator_refuses_fails_before_any_run(tmp_path):
     with pytest.raises(Exception, match="no_such_option"):
         floor_study([CROP], buildings=(), planners=("random",), seeds=[0], steps=STEPS, progress=False,
                     estimator_options={"no_such_option": 1}, out=tmp_path)
+    assert not list(Path(tmp_path).rglob("*.npz"))
+
+
+def test_planner_options_given_flat_are_refused_before_any_run(tmp_path):
+    """Regression: ``planner_options={"loop_closing": True}`` (flat, not per planner) was ignored
+    silently, and the runs were those of the default planner."""
+    with pytest.raises(InvalidOptionError, match="per planner name.*'loop_closing'"):
+        floor_study([CROP], buildings=(), planners=("info_gain",), seeds=[0], steps=STEPS, progress=False,
+                    planner_options={"loop_closing": True}, out=tmp_path)
     assert not list(Path(tmp_path).rglob("*.npz"))
 
 

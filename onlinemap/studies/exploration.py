@@ -34,7 +34,7 @@ from policies.tasks import EXPLORE, build_planner
 from .. import metrics as metric_functions
 from ..estimators import make_estimator, run_estimator
 from ..evaluate import COVERAGE_THRESHOLDS, HONEST_METRICS, from_steps
-from ..errors import ModelError
+from ..errors import InvalidOptionError, ModelError
 from ..model import GridModel, door_cells
 from ..rng import ESTIMATOR_STREAM, derived_seed
 from ..sweeps import sweep
@@ -60,7 +60,12 @@ def exploration_spec(world: str | Sequence[str], planners: Sequence[str], steps:
                      rows: str = "task", name: str = "explore") -> dict:
     """The sweep spec of planners exploring ``world`` (a world spec, or several) on the same
     ``seeds``: ``planner_options`` per planner name, ``estimator_options`` for the one estimator
-    (a tuple is one value; a list is a grid)."""
+    (a tuple is one value; a list is a grid). InvalidOptionError if ``planner_options`` names a
+    planner not in ``planners`` (e.g. options given flat instead of per planner)."""
+    stray = sorted(set(planner_options or {}) - set(planners))
+    if stray:
+        raise InvalidOptionError(f"planner_options is per planner name ({{planner: {{option: value}}}}); "
+                                 f"{stray} is not among the planners {list(planners)}")
     spec = {"name": name, "worlds": [world] if isinstance(world, str) else list(world), "seeds": [int(seed) for seed in seeds], "steps": int(steps),
             "rows": rows, "planners": {planner: dict((planner_options or {}).get(planner, {}))
                                        for planner in planners},
