@@ -14,9 +14,11 @@ import numpy as np
 
 from . import metrics
 from .arrays import read_only
+from .errors import ImpossibleObservationError, ModelError
+from .hmm import forward_backward
 from .label_prior import fixed_point_frequencies, resolve_label_prior
 from .metric_names import CONFIDENT
-from .model import GridModel
+from .model import GridModel, apply_motion
 from .simulate import Run
 
 
@@ -174,6 +176,55 @@ def _presses(model: GridModel, run: Run) -> _Presses:
         kind[1:] = run.locations[1:] == before
     likelihood = np.stack([(~model.blocking).astype(np.float64), np.where(model.blocking, 1.0, 1.0 - model.p_move)])
     return _Presses(cell, kind, likelihood)
+
+
+STRETCH = 256  # steps per forward pass of told_map_location: bounds the pass's (W, N) arrays
+
+
+def told_map_location(model: GridModel, run: Run) -> np.ndarray:
+    """(T, N) the location belief of a robot told the true map at every step of ``run``, from the
+    same actions and readings: ``P(L_t | a_1..t, z_0..t, m_0..m_t)``, filtered exactly. The mirror
+    of :func:`told_location`: what the readings allow for the location (wheels slip, a sensor
+    reading one cell leaves places alike), the anchor of the location metrics.
+
+    Forward filter from the one-hot start cell (as every estimator starts): at step t >= 1 the
+    move ``x'_j = sum_i T[a_t, i, j | m_{t-1}] x_i`` (blocking labels: the intended neighbour j is
+    reached with ``p_move [m_{t-1, j} passable]``, the labels before this step's change, as the
+    world moves; otherwise the paper's map-free motion), then the readings at the labels after the
+    change, ``x_l *= prod_f O[m_t(c_f(l)), z_tf]`` (0 where the off-grid readings -1 do not fit l),
+    then normalise. The map's own changes do not depend on the location, so they drop out. Over
+    each stretch of steps whose true map stays the same this is the EM estimators' location HMM
+    (:func:`onlinemap.hmm.forward_backward`'s filtered rows) with ``B = O[m]`` (the true map read
+    through the sensor) and a 0/1 passability; a stretch starts where the map changed, its prior
+    the last belief moved under the map before the change. Raises ModelError when ``run``'s
+    shapes are not ``model``'s and ImpossibleObservationError when the readings have probability
+    zero under ``model`` (a run of another model). Cost O(T (N F + E)) time (plus O(N K) per
+    stretch), O(T N) memory for the result."""
+    if run.maps.shape[1] != model.n_cells or run.observations.shape[1:] != model.observation_shape:
+        raise ModelError(f"told_map_location: the run has {run.maps.shape[1]} cells and readings of shape "
+                         f"{run.observations.shape[1:]}, the model {model.n_cells} and {model.observation_shape}")
+    t_steps = run.n_steps
+    changed = np.flatnonzero((run.maps[1:] != run.maps[:-1]).any(axis=1)) + 1
+    starts = np.union1d(np.arange(0, t_steps, STRETCH), changed)
+    beliefs = np.empty((t_steps, model.n_cells))
+    prior = model.location_prior()
+    for s, e in zip(starts, np.append(starts[1:], t_steps)):
+        if s > 0:
+            prior = apply_motion(model, beliefs[s - 1], int(run.actions[s - 1]), _passable(model, run.maps[s - 1]))
+        labels = run.maps[s]
+        try:
+            fit = forward_backward(model, prior, run.actions[s:e - 1], run.observations[s:e], model.sensor[labels],
+                                   first_step=int(s), passable=_passable(model, labels))
+        except ImpossibleObservationError as error:
+            raise ImpossibleObservationError(f"told_map_location: given the true map, {error} (a run of "
+                                             f"another model?)") from None
+        beliefs[s:e] = fit.filtered
+    return beliefs
+
+
+def _passable(model: GridModel, labels: np.ndarray) -> np.ndarray | None:
+    """(N,) 1.0 where ``labels`` lets the robot in, 0.0 where it blocks; None without blocking labels."""
+    return (~model.blocking[labels]).astype(np.float64) if model.has_blocking else None
 
 
 def observable_cells(model: GridModel, true_map: np.ndarray) -> np.ndarray:
