@@ -1,6 +1,7 @@
 """What the metrics need of a run alone, whatever the beliefs scored on it: the cells visited, read
 and ever readable, the floor distances of the honest metrics, the way back of a there-and-back
-run, and the yardstick of a robot told its true location at every step (:func:`told_location`).
+run, the yardstick of a robot told its true location at every step (:func:`told_location`) and
+its mirror, the location of a robot told the true map (:func:`told_map_location`).
 :func:`run_facts` computes them once per run for the last few runs, as a sweep scores every
 estimator of a run one after the other. :mod:`onlinemap.evaluate` scores beliefs against them.
 """
@@ -266,6 +267,8 @@ class RunFacts(NamedTuple):
     distances: metrics.FloorDistances  # moves on the true floor (floor_distances)
     told_map_error: np.ndarray  # (T,) the told-location map's error at each step (told_location)
     told: tuple[tuple[str, float | int], ...]  # the told_location_* metrics by name
+    told_map_location_error: np.ndarray  # (T,) 1 - P(true cell) of the told-map robot (told_map_location)
+    told_map_location_distance: np.ndarray  # (T,) its expected moves on the true floor to the true cell
 
 
 def floor_distances(run: Run) -> metrics.FloorDistances:
@@ -294,16 +297,22 @@ def run_facts(run: Run) -> RunFacts:
     """The :class:`RunFacts` of ``run``, read-only, computed once per run (a Run is immutable and
     hashed by identity) for the last few runs: a sweep scores every estimator of a run one after
     the other (25 in the corridor study), each then at the cost of its beliefs only. Cost, the
-    first time: that of :func:`told_location` and :func:`observable_cells` (about 0.15 ms
-    on a corridor of 12 cells, 0.3 s for 2000 steps on 32 x 32 or 64 x 64 cells); then O(1)
-    (the floor distances are computed as they are asked for)."""
+    first time: that of :func:`told_location`, :func:`told_map_location` (its (T, N) beliefs
+    read at the true cells and against the floor distances, then let go) and
+    :func:`observable_cells` (about 0.15 ms on a corridor of 12 cells, 0.3 s for 2000 steps on
+    32 x 32 or 64 x 64 cells); then O(1) (the floor distances are computed as they are asked for)."""
     model = run.model
     told_map, told_error = told_location(model, run)
+    distances = floor_distances(run)
+    told_beliefs = told_map_location(model, run)
+    told_p_true = told_beliefs[np.arange(run.n_steps), run.locations]
+    told_distance = metrics.location_distance(told_beliefs, run.locations, distances)
+    del told_beliefs
     counts = cell_counts(told_map, run.final_map)
     told = (("told_location_map_error", float(metrics.map_error(told_map, run.final_map))),
             ("told_location_wrong", counts.wrong), ("told_location_unsure_or_wrong", counts.unsure_or_wrong),
             ("told_location_confidently_wrong", counts.confidently_wrong))
     return RunFacts(read_only(np.unique(run.locations)), read_only(read_cells(run)),
                      read_only(observable_cells(model, run.initial_map)), read_only(first_read(run)),
-                     floor_distances(run), read_only(told_error), told)
+                     distances, read_only(told_error), told, read_only(1.0 - told_p_true), read_only(told_distance))
 
