@@ -300,7 +300,8 @@ def run_facts(run: Run) -> RunFacts:
     first time: that of :func:`told_location`, :func:`told_map_location` (its (T, N) beliefs
     read at the true cells and against the floor distances, then let go) and
     :func:`observable_cells` (about 0.15 ms on a corridor of 12 cells, 0.3 s for 2000 steps on
-    32 x 32 or 64 x 64 cells); then O(1) (the floor distances are computed as they are asked for)."""
+    32 x 32 or 64 x 64 cells; the told-map location adds about 0.1 s / 0.3 s there); then O(1)
+    (the floor distances are computed as they are asked for)."""
     model = run.model
     told_map, told_error = told_location(model, run)
     distances = floor_distances(run)
