@@ -33,7 +33,10 @@ its numbers here, with the same names and thresholds:
   (:func:`honest_metrics`) ``mean_``, ``late_`` (second half) and ``final_location_distance``,
   ``mean_location_p_true``, ``mean_location_claimed`` and ``location_calibration_gap`` (their
   difference: negative when the filter is overconfident), ``mean_read_map_p_true``,
-  ``mean_read_map_claimed`` and ``map_calibration_gap``.
+  ``mean_read_map_claimed`` and ``map_calibration_gap``; and the location anchor of a robot told
+  the true map (:func:`told_map_location`): per step ``told_map_location_error`` (its 1 - P(true
+  cell)) and ``told_map_location_distance``, per run (:func:`told_map_metrics`) their means over
+  the second half and ``excess_location_distance`` (``late_location_distance`` less the anchor's).
 - coverage (how fast an explorer maps): ``known_cells`` per step (cells whose true label has
   probability >= :data:`KNOWN_ABOVE`), ``observable_map_error`` per step (the map error over the
   cells a robot could ever read: :func:`observable_cells`; with blocking walls some walls are
@@ -47,7 +50,8 @@ its numbers here, with the same names and thresholds:
   runs where the oracle reaches the goal, ``oracle_reached``).
 
 Cost: O(T N K) for T steps, N cells, K labels (one pass over the stacked beliefs), plus once per
-run the told-location map (:func:`told_location`) and a shortest-path search per distinct true cell
+run the told-location map (:func:`told_location`), the told-map location (:func:`told_map_location`)
+and a shortest-path search per distinct true cell
 (:func:`floor_distances`).
 """
 
@@ -76,7 +80,8 @@ from .metric_names import (ASTRAY_BELOW, CONFIDENT, COVERAGE_THRESHOLDS, HONEST_
                            STEP_METRICS, SUCCESS_WITHIN, TIMING_NOTE, UNIT_METRICS, metric_bounds, metric_definition,
                            metric_legend)
 from .run_facts import (CellCounts, RunFacts, ToldLocation, cell_counts, first_read, floor_distances,  # noqa: F401
-                        observable_cells, read_cells, run_facts, told_location, told_location_map, way_back)
+                        observable_cells, read_cells, run_facts, told_location, told_location_map,
+                        told_map_location, way_back)
 
 log = logging.getLogger(__name__)
 
@@ -125,6 +130,23 @@ def honest_metrics(column: Mapping[str, ArrayLike]) -> dict[str, float]:
             "map_calibration_gap": skipna_mean(read_true - read_claimed)}
 
 
+def told_map_metrics(column: Mapping[str, ArrayLike]) -> dict[str, float]:
+    """Per run, from its per-step columns (``t``, ``location_distance``,
+    ``told_map_location_error``, ``told_map_location_distance``; none if the table lacks the
+    told-map ones, a table written before they existed): the location anchor of a robot told the
+    true map (:func:`~onlinemap.run_facts.told_map_location`) over the window of
+    ``late_location_distance`` (the second half, :data:`SECOND_HALF`): ``told_map_location_error``
+    and ``told_map_location_distance``, and ``excess_location_distance``, the filter's
+    ``late_location_distance`` less the anchor's. O(T)."""
+    if "told_map_location_error" not in column or "location_distance" not in column:
+        return {}
+    t = np.asarray(column["t"])
+    told_distance = late_mean(t, column["told_map_location_distance"], SECOND_HALF)
+    return {"told_map_location_error": late_mean(t, column["told_map_location_error"], SECOND_HALF),
+            "told_map_location_distance": told_distance,
+            "excess_location_distance": late_mean(t, column["location_distance"], SECOND_HALF) - told_distance}
+
+
 def from_steps(steps: pd.DataFrame, by: list[str]) -> pd.DataFrame:
     """Per-run metrics from a per-step table (one group of rows per run, ``by`` its columns,
     ``t`` ascending): final map error, final wrong cells (if the table has them), mean location
@@ -144,6 +166,7 @@ def from_steps(steps: pd.DataFrame, by: list[str]) -> pd.DataFrame:
         if "told_location_map_error" in run:
             row.update(told_location_map_error=float(run["told_location_map_error"].iloc[-1]),
                        excess_map_error=float(run["excess_map_error"].iloc[-1]))
+        row.update(told_map_metrics(run))
         if "ms_per_step" in run:
             row["ms_per_step"] = float(run["ms_per_step"].iloc[0])
         rows.append(row)
@@ -226,6 +249,8 @@ def step_columns(run: Run, trajectory: Trajectory, reference: Trajectory | None 
         columns["door_error"] = metrics.map_error(trajectory.map[:, doors], run.maps[:, doors])
     columns["told_location_map_error"] = facts.told_map_error
     columns["excess_map_error"] = columns["map_error"] - facts.told_map_error
+    columns["told_map_location_error"] = facts.told_map_location_error
+    columns["told_map_location_distance"] = facts.told_map_location_distance
     if reference is not None:
         columns["location_tv"] = metrics.total_variation(trajectory.location, reference.location)
         columns["map_tv"] = metrics.total_variation(trajectory.map, reference.map).mean(axis=-1)
@@ -265,6 +290,7 @@ def run_metrics(run: Run, trajectory: Trajectory, reference: Trajectory | None =
     row.update(facts.told)
     row["excess_map_error"] = row["final_map_error"] - row["told_location_map_error"]
     row.update(honest_metrics(column))
+    row.update(told_map_metrics(column))
     row.update(final_known_cells=int(final["known_cells"]),
                final_observable_map_error=float(final["observable_map_error"]), **coverage(column["map_error"]))
     row["final_log_evidence"] = float(final["log_evidence"])

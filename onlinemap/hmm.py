@@ -103,15 +103,23 @@ def expected_counts(posterior: np.ndarray, observations: np.ndarray, n_labels: i
 
 def footprint_emission(model: GridModel, emission: np.ndarray, observations: np.ndarray) -> np.ndarray:
     """(W, N) ``P(z_t | L = l; B) = prod_f B[c_f(l), z_tf]``, 0 where the -1 readings of z_t are
-    not exactly l's off-grid offsets. emission (N, K), observations (W, F) or (W,). O(W N F)."""
+    not exactly l's off-grid offsets. emission (N, K), observations (W, F) or (W,). O(W N F).
+
+    Fast on long stretches (a 2000-step told-map anchor on 32 x 32): the off-grid masks of the
+    steps and of the locations are compared as one id each, and each offset gathers whole rows of
+    ``B.T`` with a column of ones for the cells off the grid (times 1: the same bits)."""
     readings = np.asarray(observations, dtype=np.int64).reshape(len(observations), -1)
     cells = model.footprint_cells
-    fits = ((readings < 0)[:, None, :] == (cells < 0)[None]).all(axis=2)  # (W, N)
-    out = fits.astype(np.float64)
+    n = len(cells)
+    _, mask_id = np.unique(np.concatenate([cells < 0, readings < 0]), axis=0, return_inverse=True)
+    mask_id = mask_id.ravel()
+    out = (mask_id[n:, None] == mask_id[None, :n]).astype(np.float64)  # (W, N): the masks fit
+    table = np.ones((emission.shape[1], n + 1))  # (K, N + 1) row z: B[:, z], then 1 for an off-grid offset
+    table[:, :n] = emission.T
     for f in range(cells.shape[1]):
-        on = cells[:, f] >= 0
+        column = np.where(cells[:, f] >= 0, cells[:, f], n)
         z = np.where(readings[:, f] < 0, 0, readings[:, f])
-        out[:, on] *= emission[cells[on, f][None, :], z[:, None]]
+        out *= table[:, column][z]
     return out
 
 

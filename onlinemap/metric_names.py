@@ -21,13 +21,14 @@ COVERAGE_THRESHOLDS = {"steps_to_map_error_20": 0.20, "steps_to_map_error_10": 0
 STEP_METRICS = ("map_error", "location_error", "log_evidence", "location_entropy", "map_entropy",
                 "wrong_cells", "known_cells", "observable_map_error", "door_error", "location_tv", "map_tv",
                 "location_distance", "location_claimed", "read_map_p_true", "read_map_claimed",
-                "told_location_map_error", "excess_map_error")
+                "told_location_map_error", "excess_map_error", "told_map_location_error", "told_map_location_distance")
 RUN_METRICS = ("final_map_error", "mean_map_error", "final_location_error", "mean_location_error",
                "max_location_error", "wrong_cells", "unsure_or_wrong", "confidently_wrong", "wrong_visited",
                "read_map_error", "read_wrong_cells", "ends_lost", "failed", "min_p_true_way_back",
                "astray_way_back", "told_location_map_error", "told_location_wrong", "told_location_unsure_or_wrong",
                "told_location_confidently_wrong", "excess_map_error", "mean_location_distance",
-               "late_location_distance", "final_location_distance", "mean_location_p_true", "mean_location_claimed",
+               "late_location_distance", "told_map_location_error", "told_map_location_distance",
+               "excess_location_distance", "final_location_distance", "mean_location_p_true", "mean_location_claimed",
                "location_calibration_gap", "mean_read_map_p_true", "mean_read_map_claimed", "map_calibration_gap",
                "final_known_cells", "final_observable_map_error",
                "map_error_area", *COVERAGE_THRESHOLDS, "final_log_evidence", "final_location_tv", "mean_location_tv", "final_map_tv",
@@ -41,6 +42,13 @@ PROPORTION_METRICS = ("reached", "oracle_reached", "stalled", "success", "ends_l
 HONEST_METRICS = {
     "late_location_distance": "expected moves on the true floor between the location belief and the true cell, "
                               "mean over the second half of the run (off by one cell scores 1; lost scores far more)",
+    "told_map_location_error": "1 - P(true cell) of a robot told the true map at every step, from the same moves "
+                               "and readings (exact; what these readings allow), mean over the second half of the "
+                               "run (per step: at that step)",
+    "told_map_location_distance": "the same robot's expected moves on the true floor to the true cell, mean over "
+                                  "the second half of the run (per step: at that step)",
+    "excess_location_distance": "late_location_distance minus told_map_location_distance: what not knowing the "
+                                "map costs the location",
     "location_calibration_gap": "mean P(true cell) minus the mean P(true cell) the belief expects (sum_i P(i)^2): "
                                 "0 when honest, negative when it claims to know where it is more than it does",
     "map_calibration_gap": "the same for the labels of the cells read so far (mean P(true label) minus mean "
@@ -124,7 +132,9 @@ def metric_bounds(name: str, n_cells: int | None = None) -> tuple[float, float]:
     (``mean_location_distance``), gaps to a maximum (``objective_gap``) and areas under an error
     curve (``map_error_area``, error x steps), [-1, 1] for differences of two quantities in [0, 1]
     (``excess_map_error``, ``location_calibration_gap``), unbounded otherwise (log evidence,
-    objectives)."""
+    objectives, the difference of two distances ``excess_location_distance``)."""
+    if name == "excess_location_distance":
+        return -math.inf, math.inf
     if name.startswith("excess_") or name.endswith("calibration_gap"):
         return -1.0, 1.0
     if name == "ms_per_step" or name.startswith("map_error_area") or "steps" in name or name.endswith("_gap") \

@@ -1,6 +1,7 @@
 """What the metrics need of a run alone, whatever the beliefs scored on it: the cells visited, read
 and ever readable, the floor distances of the honest metrics, the way back of a there-and-back
-run, and the yardstick of a robot told its true location at every step (:func:`told_location`).
+run, the yardstick of a robot told its true location at every step (:func:`told_location`) and
+its mirror, the location of a robot told the true map (:func:`told_map_location`).
 :func:`run_facts` computes them once per run for the last few runs, as a sweep scores every
 estimator of a run one after the other. :mod:`onlinemap.evaluate` scores beliefs against them.
 """
@@ -14,9 +15,11 @@ import numpy as np
 
 from . import metrics
 from .arrays import read_only
+from .errors import ImpossibleObservationError, ModelError
+from .hmm import forward_backward
 from .label_prior import fixed_point_frequencies, resolve_label_prior
 from .metric_names import CONFIDENT
-from .model import GridModel
+from .model import GridModel, apply_motion
 from .simulate import Run
 
 
@@ -176,6 +179,55 @@ def _presses(model: GridModel, run: Run) -> _Presses:
     return _Presses(cell, kind, likelihood)
 
 
+STRETCH = 256  # steps per forward pass of told_map_location: bounds the pass's (W, N) arrays
+
+
+def told_map_location(model: GridModel, run: Run) -> np.ndarray:
+    """(T, N) the location belief of a robot told the true map at every step of ``run``, from the
+    same actions and readings: ``P(L_t | a_1..t, z_0..t, m_0..m_t)``, filtered exactly. The mirror
+    of :func:`told_location`: what the readings allow for the location (wheels slip, a sensor
+    reading one cell leaves places alike), the anchor of the location metrics.
+
+    Forward filter from the one-hot start cell (as every estimator starts): at step t >= 1 the
+    move ``x'_j = sum_i T[a_t, i, j | m_{t-1}] x_i`` (blocking labels: the intended neighbour j is
+    reached with ``p_move [m_{t-1, j} passable]``, the labels before this step's change, as the
+    world moves; otherwise the paper's map-free motion), then the readings at the labels after the
+    change, ``x_l *= prod_f O[m_t(c_f(l)), z_tf]`` (0 where the off-grid readings -1 do not fit l),
+    then normalise. The map's own changes do not depend on the location, so they drop out. Over
+    each stretch of steps whose true map stays the same this is the EM estimators' location HMM
+    (:func:`onlinemap.hmm.forward_backward`'s filtered rows) with ``B = O[m]`` (the true map read
+    through the sensor) and a 0/1 passability; a stretch starts where the map changed, its prior
+    the last belief moved under the map before the change. Raises ModelError when ``run``'s
+    shapes are not ``model``'s and ImpossibleObservationError when the readings have probability
+    zero under ``model`` (a run of another model). Cost O(T (N F + E)) time (plus O(N K) per
+    stretch), O(T N) memory for the result."""
+    if run.maps.shape[1] != model.n_cells or run.observations.shape[1:] != model.observation_shape:
+        raise ModelError(f"told_map_location: the run has {run.maps.shape[1]} cells and readings of shape "
+                         f"{run.observations.shape[1:]}, the model {model.n_cells} and {model.observation_shape}")
+    t_steps = run.n_steps
+    changed = np.flatnonzero((run.maps[1:] != run.maps[:-1]).any(axis=1)) + 1
+    starts = np.union1d(np.arange(0, t_steps, STRETCH), changed)
+    beliefs = np.empty((t_steps, model.n_cells))
+    prior = model.location_prior()
+    for s, e in zip(starts, np.append(starts[1:], t_steps)):
+        if s > 0:
+            prior = apply_motion(model, beliefs[s - 1], int(run.actions[s - 1]), _passable(model, run.maps[s - 1]))
+        labels = run.maps[s]
+        try:
+            fit = forward_backward(model, prior, run.actions[s:e - 1], run.observations[s:e], model.sensor[labels],
+                                   first_step=int(s), passable=_passable(model, labels))
+        except ImpossibleObservationError as error:
+            raise ImpossibleObservationError(f"told_map_location: given the true map, {error} (a run of "
+                                             f"another model?)") from None
+        beliefs[s:e] = fit.filtered
+    return beliefs
+
+
+def _passable(model: GridModel, labels: np.ndarray) -> np.ndarray | None:
+    """(N,) 1.0 where ``labels`` lets the robot in, 0.0 where it blocks; None without blocking labels."""
+    return (~model.blocking[labels]).astype(np.float64) if model.has_blocking else None
+
+
 def observable_cells(model: GridModel, true_map: np.ndarray) -> np.ndarray:
     """The cells a robot could ever read (sorted): those its footprint covers from some cell
     reachable from the start through cells ``true_map`` does not block (every cell without
@@ -215,6 +267,8 @@ class RunFacts(NamedTuple):
     distances: metrics.FloorDistances  # moves on the true floor (floor_distances)
     told_map_error: np.ndarray  # (T,) the told-location map's error at each step (told_location)
     told: tuple[tuple[str, float | int], ...]  # the told_location_* metrics by name
+    told_map_location_error: np.ndarray  # (T,) 1 - P(true cell) of the told-map robot (told_map_location)
+    told_map_location_distance: np.ndarray  # (T,) its expected moves on the true floor to the true cell
 
 
 def floor_distances(run: Run) -> metrics.FloorDistances:
@@ -243,16 +297,23 @@ def run_facts(run: Run) -> RunFacts:
     """The :class:`RunFacts` of ``run``, read-only, computed once per run (a Run is immutable and
     hashed by identity) for the last few runs: a sweep scores every estimator of a run one after
     the other (25 in the corridor study), each then at the cost of its beliefs only. Cost, the
-    first time: that of :func:`told_location` and :func:`observable_cells` (about 0.15 ms
-    on a corridor of 12 cells, 0.3 s for 2000 steps on 32 x 32 or 64 x 64 cells); then O(1)
+    first time: that of :func:`told_location`, :func:`told_map_location` (its (T, N) beliefs
+    read at the true cells and against the floor distances, then let go) and
+    :func:`observable_cells` (about 0.15 ms on a corridor of 12 cells, 0.3 s for 2000 steps on
+    32 x 32 or 64 x 64 cells; the told-map location adds about 0.1 s / 0.3 s there); then O(1)
     (the floor distances are computed as they are asked for)."""
     model = run.model
     told_map, told_error = told_location(model, run)
+    distances = floor_distances(run)
+    told_beliefs = told_map_location(model, run)
+    told_p_true = told_beliefs[np.arange(run.n_steps), run.locations]
+    told_distance = metrics.location_distance(told_beliefs, run.locations, distances)
+    del told_beliefs
     counts = cell_counts(told_map, run.final_map)
     told = (("told_location_map_error", float(metrics.map_error(told_map, run.final_map))),
             ("told_location_wrong", counts.wrong), ("told_location_unsure_or_wrong", counts.unsure_or_wrong),
             ("told_location_confidently_wrong", counts.confidently_wrong))
     return RunFacts(read_only(np.unique(run.locations)), read_only(read_cells(run)),
                      read_only(observable_cells(model, run.initial_map)), read_only(first_read(run)),
-                     floor_distances(run), read_only(told_error), told)
+                     distances, read_only(told_error), told, read_only(1.0 - told_p_true), read_only(told_distance))
 

@@ -21,7 +21,8 @@ MAPPING_STUDIES = ("loop", "anneal", "blocking")  # onlinemap.studies.mapping.ST
 #: the defaults of --runs and --steps per scenario (a flag left out takes its scenario's)
 DEFAULTS = {"runs": 200, "steps": 150}
 SCENARIO_DEFAULTS = {"floors": {"runs": 3, "steps": 1000}}
-FLOOR_METRICS = ("final_map_error", "late_location_error", "late_location_distance", "location_calibration_gap",
+FLOOR_METRICS = ("final_map_error", "late_location_error", "late_location_distance", "told_map_location_error",
+                 "told_map_location_distance", "excess_location_distance", "location_calibration_gap",
                  "map_calibration_gap", "told_location_map_error", "excess_map_error")
 OVERVIEW_ONLINE_EM = "online_em W=max decay=1.0"  # the one online EM row of the overview figure
 

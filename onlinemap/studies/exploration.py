@@ -44,9 +44,10 @@ from ..worlds import parse_world
 from .base import Study, ordered, summary_of
 
 METRICS = ("final_map_error", "wrong_cells", "unsure_or_wrong", "confidently_wrong", "mean_location_error",
-           "late_door_error", "mean_location_distance", "late_location_distance", "location_calibration_gap",
-           "map_calibration_gap", "excess_map_error", "told_location_map_error", "told_location_wrong", "told_location_unsure_or_wrong",
-           "told_location_confidently_wrong", "final_observable_map_error", "final_known_cells", "map_error_area",
+           "late_door_error", "mean_location_distance", "late_location_distance", "told_map_location_error",
+           "told_map_location_distance", "excess_location_distance", "location_calibration_gap",
+           "map_calibration_gap", "excess_map_error", "told_location_map_error", "told_location_wrong",
+           "told_location_unsure_or_wrong", "told_location_confidently_wrong", "final_observable_map_error", "final_known_cells", "map_error_area",
            "steps_to_map_error_20", "steps_to_map_error_10", "steps_to_map_error_05", "reached_map_error_20",
            "reached_map_error_10", "reached_map_error_05", "ms_per_step")
 PAPER_WORLD = "door,p_move=0.8"  # the built-in 10 x 10 door world, uniform label prior

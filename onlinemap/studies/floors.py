@@ -54,7 +54,8 @@ PLANNERS = ("info_gain", "frontier", "random")
 BUILDINGS = ("32x32", "64x64")
 STALL_STEPS = 50  # a run stalls when the robot's true cell has not changed over its last max(50, T/10) steps
 #: the per-run columns of a floor study's table, in order (after floor, world, planner, options, seed)
-COLUMNS = ("final_map_error", "late_location_error", "late_location_distance", "location_calibration_gap",
+COLUMNS = ("final_map_error", "late_location_error", "late_location_distance", "told_map_location_error",
+           "told_map_location_distance", "excess_location_distance", "location_calibration_gap",
            "map_calibration_gap", "told_location_map_error", "excess_map_error", "mean_location_error",
            "mean_location_distance", "cells_visited", "stalled", "died", "steps_to_map_error_20",
            "steps_to_map_error_10", "steps_to_map_error_05", "ms_per_step")
