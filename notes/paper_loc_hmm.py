@@ -1,8 +1,9 @@
 """How localised can a robot told the true map be on the same data? For runs of info_gain in the paper's
 world (RBPF 1000 particles, label prior learned), the location filtered by a plain HMM forward pass with the
 true map (emission[i, z] = sensor[true label of i, z]; the world is static, so this is the exact filter told
-the map), against the RBPF's own location. Usage: python notes/paper_loc_hmm.py 'PLANNER_JSON' 'ESTIMATOR_JSON' SEEDS"""
+the map), against the RBPF's own location. Usage: [PLANNER=name] python notes/paper_loc_hmm.py 'PLANNER_JSON' 'ESTIMATOR_JSON' SEEDS"""
 import json
+import os
 import sys
 
 import numpy as np
@@ -14,13 +15,14 @@ from onlinemap.worlds import parse_world
 from policies.explore import exploration
 
 planner_options = json.loads(sys.argv[1])
+planner = os.environ.get("PLANNER", "info_gain")
 estimator_options = {"n_particles": 1000, "label_prior": "learn", **json.loads(sys.argv[2])}
 first, last = (int(x) for x in sys.argv[3].split("-"))
 world = parse_world("door,p_move=0.8")
 model = world.model
 rows = []
 for seed in range(first, last + 1):
-    found = exploration(model, world.true_map, "info_gain", "rbpf", 1000, seed, estimator_options=estimator_options,
+    found = exploration(model, world.true_map, planner, "rbpf", 1000, seed, estimator_options=estimator_options,
                         planner_options=planner_options, progress=False)
     run = found.run
     assert np.all(run.maps == run.maps[0]), "a static world"
