@@ -1,7 +1,8 @@
 """How localised can a robot told the true map be on the same data? For runs of info_gain in the paper's
 world (RBPF 1000 particles, label prior learned), the location filtered by a plain HMM forward pass with the
 true map (emission[i, z] = sensor[true label of i, z]; the world is static, so this is the exact filter told
-the map), against the RBPF's own location. Usage: [PLANNER=name] python notes/paper_loc_hmm.py 'PLANNER_JSON' 'ESTIMATOR_JSON' SEEDS"""
+the map), against the RBPF's own location.
+Usage: [PLANNER=name] python notes/paper_loc_hmm.py 'PLANNER_JSON' 'ESTIMATOR_JSON' SEEDS"""
 import json
 import os
 import sys

@@ -16,7 +16,8 @@ from onlinemap.studies.floors import floor_runs
 name, planner_json, estimator_json = sys.argv[1], sys.argv[2], sys.argv[3]
 first, last = (int(x) for x in (sys.argv[4] if len(sys.argv) > 4 else "0-5").split("-"))
 seeds = range(first, last + 1)
-planner_options = {k: tuple(v) if isinstance(v, list) else v for k, v in json.loads(planner_json).items()}  # a list is a grid in a spec
+# a list in a sweep spec is a grid of values: give the planner a tuple
+planner_options = {k: tuple(v) if isinstance(v, list) else v for k, v in json.loads(planner_json).items()}
 estimator_options = {"n_particles": 1000, "label_prior": "learn", **json.loads(estimator_json)}
 world = os.environ.get("WORLD", "door,p_move=0.8")
 steps = int(os.environ.get("STEPS", "1000"))
