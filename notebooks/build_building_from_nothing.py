@@ -113,7 +113,9 @@ from its readings). The gap between a solid line and its dashed one is what not 
 is costs the map. Middle: the location error. Right: the expected distance in moves between the
 location belief and the true cell (1: off by one cell). Both location curves are running means over 10
 steps: step by step they jump between 0 and 1 as the belief splits over look-alike places and a
-reading settles it."""),
+reading settles it. Their dotted anchors are a robot **told the map**, from the same actions and
+readings (`told_map_location_error`, `told_map_location_distance`): what the readings allow for the
+location; the gap above it is what not knowing the map costs."""),
     new_code_cell("""\
 def prefix(run: Run, t: int) -> Run:
     \"\"\"The first t + 1 steps of a run.\"\"\"
@@ -147,7 +149,10 @@ for row, name in zip(axes, FLOORS):
         else:
             row[0].plot(table.t, table.told_location_map_error, "--", color=colour, label="told location, learned prior")
         row[1].plot(table.t, smooth(table.location_error, 10), color=colour, label=f"{prior} prior")
+        row[1].plot(table.t, smooth(table.told_map_location_error, 10), ":", color=colour,
+                    label=f"told the map ({prior} run)")
         row[2].plot(table.t, smooth(table.location_distance, 10), color=colour, label=f"{prior} prior")
+        row[2].plot(table.t, smooth(table.told_map_location_distance, 10), ":", color=colour)
     row[0].set(title=f"{name}: map error", xlabel="step", ylim=(0, 0.8))
     row[1].set(title="location error, 1 - P(true cell)", xlabel="step", ylim=(0, 1.02))
     row[2].set(title="expected location distance (moves)", xlabel="step", ylim=(0, None))
@@ -185,7 +190,8 @@ for (name, prior), (explored, _) in runs.items():
                  "told_uniform": uniform_error, "told_learned": learned_error,
                  "excess": metrics["final_map_error"] - (learned_error if prior == "learned" else uniform_error),
                  "late_location_error": late_mean(table.t, table.location_error, SECOND_HALF),
-                 **{key: metrics[key] for key in ("late_location_distance", "mean_location_p_true",
+                 **{key: metrics[key] for key in ("told_map_location_error", "late_location_distance",
+                                                  "told_map_location_distance", "mean_location_p_true",
                                                   "mean_location_claimed", "location_calibration_gap",
                                                   "map_calibration_gap")}})
 summary = pd.DataFrame(rows)
@@ -194,7 +200,8 @@ print(summary.to_string(index=False))"""),
 `told_uniform` and `told_learned` are the final map errors of the told-location maps under the
 uniform and the learned prior; `excess` is the run's final map error above the told-location map
 with the same prior as the run (like for like). `late_location_error` and `late_location_distance`
-are means over the second half of the run."""),
+are means over the second half of the run; `told_map_location_error` and `told_map_location_distance`
+the same for a robot told the map (the location's anchor)."""),
     new_markdown_cell("""\
 ## 5. The final beliefs
 
@@ -230,7 +237,8 @@ for name in FLOORS:
     u, l = by.loc["uniform"], by.loc["learned"]
     print(f"{name}: map error {u.final_map_error:.3f} -> {l.final_map_error:.3f} (told location: "
           f"{u.told_uniform:.3f} uniform, {l.told_learned:.3f} learned; excess {u.excess:+.3f} -> {l.excess:+.3f}); "
-          f"late location error {u.late_location_error:.3f} -> {l.late_location_error:.3f}, "
+          f"late location error {u.late_location_error:.3f} -> {l.late_location_error:.3f} (told the map: "
+          f"{u.told_map_location_error:.3f}, {l.told_map_location_error:.3f}), "
           f"late distance {u.late_location_distance:.2f} -> {l.late_location_distance:.2f} moves; "
           f"location calibration gap {u.location_calibration_gap:+.3f} -> {l.location_calibration_gap:+.3f}")"""),
     new_markdown_cell("""\
