@@ -110,7 +110,6 @@ def path_map(model: GridModel, locations, actions, observations, label_prior=Non
     readings = np.asarray(observations).reshape(cells.shape)
     read = (cells >= 0) & (readings >= 0)
     counts = np.bincount((cells * k + readings)[read], minlength=n * k).reshape(n, k)
-    passable = (~model.blocking).astype(np.float64)
     here = locations[:-1]
     target = model.neighbors[here, actions]
     presses = target != here
@@ -124,8 +123,12 @@ def path_map(model: GridModel, locations, actions, observations, label_prior=Non
             np.log(model.label_prior if prior.kind == "model" else prior.frequencies)
         log_evidence = start + counts @ np.maximum(np.log(model.sensor), IMPOSSIBLE).T
         # 0 * log 0 is no evidence, not NaN: a count of zero leaves the label alone
-        log_evidence += np.where(entered[:, None] > 0, entered[:, None] * np.log(model.p_move * passable), 0.0)
-        log_evidence += np.where(bumped[:, None] > 0, bumped[:, None] * np.log(1.0 - model.p_move * passable), 0.0)
+        # P(entered | m_j) with the constant p_move the table leaves out: a cell's map normalises it away, and
+        # with it the maps keep their bits (those of the stored notebooks)
+        log_entered = np.log(model.p_move * model.press_likelihood[0])
+        log_stayed = np.log(model.press_likelihood[1])
+        log_evidence += np.where(entered[:, None] > 0, entered[:, None] * log_entered, 0.0)
+        log_evidence += np.where(bumped[:, None] > 0, bumped[:, None] * log_stayed, 0.0)
     if prior.kind != "learn":
         return _normalised_rows(log_evidence)
     theta = fixed_point_frequencies(prior.alpha, log_evidence, np.minimum(counts.sum(axis=1), 1.0))

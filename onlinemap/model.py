@@ -254,6 +254,21 @@ class GridModel:
         return bool(self.blocking.any())
 
     @cached_property
+    def press_likelihood(self) -> np.ndarray:
+        """(2, K) read-only: what a press says about the label k of the cell j it was made towards
+        (a move attempted from cell i towards its neighbour j != i; DESIGN.md section 7)::
+
+            row 0, entered:  [k passable]              (P(entered | m_j = k) = p_move [k passable])
+            row 1, stayed:   1 - p_move [k passable]   (P(stayed  | m_j = k))
+
+        Row 0 leaves out the constant p_move, which is the motion's: the RBPF's move counts it in
+        the path's motion probability, and a cell's posterior given a path normalises it away.
+        Without blocking labels both rows are constant in k (1 and 1 - p_move): a press says nothing
+        about the map. Computed once, O(K)."""
+        passable = (~self.blocking).astype(np.float64)
+        return read_only(np.stack([passable, 1.0 - self.p_move * passable]))
+
+    @cached_property
     def reads_own_cell(self) -> bool:
         """True for the paper's sensor: one reading, of the robot's own cell (an observation is
         then one label, never -1). The one answer to "what does the sensor read?": anything else

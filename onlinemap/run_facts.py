@@ -105,7 +105,7 @@ def told_location(model: GridModel, run: Run) -> ToldLocation:
     for t in range(run.n_steps):
         if t > 0:
             if presses.cell[t] >= 0:
-                belief[presses.cell[t]] *= presses.likelihood[presses.kind[t]]
+                belief[presses.cell[t]] *= model.press_likelihood[presses.kind[t]]
                 belief[presses.cell[t]] /= belief[presses.cell[t]].sum()
             belief = belief @ model.change
         for cell, z in zip(cells[t][read[t]], readings[t][read[t]]):
@@ -121,7 +121,7 @@ def _static_evidence(model: GridModel, presses, cells, readings, read, log_belie
     the cell pressed into (-1: none). O(F K) a step."""
     with np.errstate(divide="ignore"):
         log_reading = np.log(model.sensor.T)  # row z: log O[:, z]
-        log_press = np.log(presses.likelihood)
+        log_press = np.log(model.press_likelihood)
     for t in range(len(cells)):
         touched = cells[t][read[t]]  # distinct: one footprint offset per cell
         if presses.cell[t] >= 0:
@@ -159,8 +159,7 @@ class _Presses(NamedTuple):
     """What the moves of a run say about the cells pressed towards (:func:`_presses`)."""
 
     cell: np.ndarray  # (T,) the in-grid cell pressed towards at step t, or -1 (t = 0, an edge, no blocking labels)
-    kind: np.ndarray  # (T,) 0: the robot entered it, 1: it stayed
-    likelihood: np.ndarray  # (2, K) P(outcome | label of the cell), up to a constant per row
+    kind: np.ndarray  # (T,) 0: the robot entered it, 1: it stayed (the row of ``GridModel.press_likelihood``)
 
 
 def _presses(model: GridModel, run: Run) -> _Presses:
@@ -175,8 +174,7 @@ def _presses(model: GridModel, run: Run) -> _Presses:
         pressed = target != before
         cell[1:] = np.where(pressed, target, -1)
         kind[1:] = run.locations[1:] == before
-    likelihood = np.stack([(~model.blocking).astype(np.float64), np.where(model.blocking, 1.0, 1.0 - model.p_move)])
-    return _Presses(cell, kind, likelihood)
+    return _Presses(cell, kind)
 
 
 STRETCH = 256  # steps per forward pass of told_map_location: bounds the pass's (W, N) arrays

@@ -154,3 +154,25 @@ def test_sensor_inverse_is_numpys_pinv_shared_read_only_per_content():
         assert inverse.tobytes() == np.linalg.pinv(sensor).tobytes() and not inverse.flags.writeable
         assert sensor_inverse(sensor.copy()) is inverse
     assert sensor_inverse(np.eye(2)) is not sensor_inverse(np.eye(2, dtype=np.float32))  # dtype is part of the key
+
+
+@pytest.mark.parametrize("p_move", [0.8, 0.95])
+def test_press_likelihood_is_what_a_press_says_about_the_cell_pressed_into(p_move):
+    model = om.grid_model(2, 3, 5, p_move=p_move, blocking=[1, 3, 4])
+    blocks = {1, 3, 4}
+    # written out: P(entered | k) = p_move [k passable] (row 0 without the constant p_move),
+    # P(stayed | k) = 1 - p_move [k passable]
+    entered = [0.0 if k in blocks else 1.0 for k in range(5)]
+    stayed = [1.0 if k in blocks else 1.0 - p_move for k in range(5)]
+    table = model.press_likelihood
+    np.testing.assert_array_equal(table, [entered, stayed])
+    assert not table.flags.writeable and model.press_likelihood is table  # computed once, read-only
+    door, _ = om.door_world(p_move=p_move, blocking=True)  # walls and closed doors block
+    passable = [name in ("free", "open_door") for name in door.label_names]
+    np.testing.assert_array_equal(door.press_likelihood, [passable, np.where(passable, 1.0 - p_move, 1.0)])
+
+
+def test_without_blocking_labels_a_press_says_nothing_about_the_map():
+    for model in (om.door_world(p_move=0.95)[0], om.grid_model(2, 2, 3), om.corridor(4)):
+        k = model.n_labels
+        np.testing.assert_array_equal(model.press_likelihood, [np.ones(k), np.full(k, 1.0 - model.p_move)])

@@ -13,9 +13,9 @@ windows in the last 300 steps keep little of the gain).
 The target. Static world (C = I): given a path ``x_{0:t}`` the cells are independent, cell c's
 label with the law ``prior_c(k) w(k) prod_e f_e(k)`` over its *events* e: the readings of c
 (``f = O(., z)``) and, with blocking labels, the presses into c (moved in: ``[k passable]``;
-stayed: ``(1 - p_move) + p_move [k blocks]``; the motion's constant part ``p_move`` or the
-successor's probability left out). ``w`` is the label-prior tilt (:mod:`onlinemap.estimators.rbpf_prior`;
-1 without one). The map summed out,
+stayed: ``1 - p_move [k passable]``; the motion's constant part ``p_move`` or the successor's
+probability left out: ``GridModel.press_likelihood``). ``w`` is the label-prior tilt
+(:mod:`onlinemap.estimators.rbpf_prior`; 1 without one). The map summed out,
 
     p(x_{0:t} | z_{0:t})  propto  prod_tau T0(x_{tau-1}, x_tau; a_tau)
                                   prod_c sum_k prior_c(k) w(k) prod_{e at c} f_e(k)
@@ -130,9 +130,7 @@ def map_evidence(model: GridModel, frequencies: np.ndarray | None) -> MapEvidenc
     """The :class:`~onlinemap.kernels.rbpf_move.MapEvidence` of ``model`` with every cell's prior
     tilted by ``frequencies`` (K,) (None: the model's own prior). O(N K)."""
     prior = model.label_prior if frequencies is None else model.label_prior * frequencies
-    blocks = model.blocking.astype(np.float64)
-    gate = np.stack([(1.0 - model.p_move) + model.p_move * blocks, 1.0 - blocks])
-    return MapEvidence(np.ascontiguousarray(prior, dtype=np.float64), gate, rebuilds(model))
+    return MapEvidence(np.ascontiguousarray(prior, dtype=np.float64), model.press_likelihood, rebuilds(model))
 
 
 def move_options(model: GridModel, window, every, lag) -> tuple[int | None, int, int]:

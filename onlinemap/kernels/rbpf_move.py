@@ -108,7 +108,8 @@ class Draws(NamedTuple):
 class MapEvidence(NamedTuple):
     """The map's evidence beyond the readings: ``rebuild`` (m_- rebuilt, not divided), ``prior (N, K)``
     ``prior_i(k) w(k)`` (w the label-prior tilt), ``gate (2, K)`` a press's factor on its target's
-    label k: row 0 stayed, ``(1 - p_move) + p_move [k blocks]``, row 1 moved in, ``[k passable]``."""
+    label k (``GridModel.press_likelihood``): row 0 moved in, ``[k passable]``, row 1 stayed,
+    ``1 - p_move [k passable]``."""
 
     prior: np.ndarray
     gate: np.ndarray
@@ -247,7 +248,7 @@ def _revisit_ratio(path, s, window, bridge, right, world, evidence, paths, scrat
         there = right if tau > window else path[tau]
         n, moved = _pressed(world, paths.actions[s + tau], path[tau - 1], there)
         if n >= 0:  # its m_- was loaded by the forward filter or the rebuild
-            r, n_fresh = _event(scratch, n, evidence.gate[1 if moved else 0], mark, n_fresh)
+            r, n_fresh = _event(scratch, n, evidence.gate[0 if moved else 1], mark, n_fresh)
             ratio *= r
         if tau > window:
             continue
@@ -351,7 +352,7 @@ def _map_rebuilt(world, evidence, paths, p, s, window, t, bridge, right, scratch
         if u >= 1 and (u <= s or u > s + last):
             n, moved = _pressed(world, paths.actions[u], previous, here)
             if n >= 0 and loaded[n] == mark:
-                _times(base, n, evidence.gate[1 if moved else 0])
+                _times(base, n, evidence.gate[0 if moved else 1])
         if u <= s or u > s + window:
             for f in range(footprint_cells.shape[1]):
                 c = footprint_cells[here, f]
