@@ -24,6 +24,7 @@ P(true label) < :data:`CONFIDENTLY_WRONG_BELOW`).
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Mapping, NamedTuple
 
@@ -104,31 +105,10 @@ def path_map(model: GridModel, locations, actions, observations, label_prior=Non
     if not model.is_static:
         raise ModelError("the map given a path (the told-location map with blocking labels or a learned prior, the "
                          "smoothed RBPF map) is computed for static worlds only")
-    n, k = model.n_cells, model.n_labels
-    locations = np.asarray(locations)
-    cells = model.footprint_cells[locations]
-    readings = np.asarray(observations).reshape(cells.shape)
-    read = (cells >= 0) & (readings >= 0)
-    counts = np.bincount((cells * k + readings)[read], minlength=n * k).reshape(n, k)
-    here = locations[:-1]
-    target = model.neighbors[here, actions]
-    presses = target != here
-    entered = np.bincount(target[presses & (locations[1:] == target)], minlength=n) if model.has_blocking \
-        else np.zeros(n)
-    bumped = np.bincount(target[presses & (locations[1:] == here)], minlength=n) if model.has_blocking \
-        else np.zeros(n)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        # a reading a label cannot give: a huge finite penalty (not -inf, which 0 counts would turn into NaN)
+    with np.errstate(divide="ignore"):
         start = 0.0 if prior.kind == "learn" else \
             np.log(model.label_prior if prior.kind == "model" else prior.frequencies)
-        log_evidence = start + counts @ np.maximum(np.log(model.sensor), IMPOSSIBLE).T
-        # 0 * log 0 is no evidence, not NaN: a count of zero leaves the label alone
-        # P(entered | m_j) with the constant p_move the table leaves out: a cell's map normalises it away, and
-        # with it the maps keep their bits (those of the stored notebooks)
-        log_entered = np.log(model.p_move * model.press_likelihood[0])
-        log_stayed = np.log(model.press_likelihood[1])
-        log_evidence += np.where(entered[:, None] > 0, entered[:, None] * log_entered, 0.0)
-        log_evidence += np.where(bumped[:, None] > 0, bumped[:, None] * log_stayed, 0.0)
+    counts, log_evidence = _path_evidence(model, locations, actions, observations, start)
     if prior.kind != "learn":
         return _normalised_rows(log_evidence)
     theta = fixed_point_frequencies(prior.alpha, log_evidence, np.minimum(counts.sum(axis=1), 1.0))
@@ -188,6 +168,81 @@ def smoothed_rbpf_map(model: GridModel, actions, observations, *, n_particles: i
     common = steps if agree.all() else int(np.argmin(agree))
     return SmoothedMap(belief / belief.sum(axis=1, keepdims=True), filter_.belief.map, len(distinct), len(paths),
                        common, lineages, filter_.recoveries)
+
+
+def _path_evidence(model: GridModel, locations, actions, observations, start) -> tuple[np.ndarray, np.ndarray]:
+    """(counts (N, K) of each cell's readings, log evidence (N, K)) of a path: ``start`` (a log prior,
+    (N, K), (K,) or 0.0) plus, per cell and label k, ``sum_z count(z) log O(k, z)`` (a reading a label
+    cannot give: the finite penalty ``IMPOSSIBLE``) and, with blocking labels, every press's outcome,
+    ``log(p_move [k passable])`` entered and ``log(1 - p_move [k passable])`` stayed
+    (``GridModel.press_likelihood``). O(T F K)."""
+    n, k = model.n_cells, model.n_labels
+    locations = np.asarray(locations)
+    cells = model.footprint_cells[locations]
+    readings = np.asarray(observations).reshape(cells.shape)
+    read = (cells >= 0) & (readings >= 0)
+    counts = np.bincount((cells * k + readings)[read], minlength=n * k).reshape(n, k)
+    here = locations[:-1]
+    target = model.neighbors[here, actions]
+    presses = target != here
+    entered = np.bincount(target[presses & (locations[1:] == target)], minlength=n) if model.has_blocking \
+        else np.zeros(n)
+    bumped = np.bincount(target[presses & (locations[1:] == here)], minlength=n) if model.has_blocking \
+        else np.zeros(n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # a reading a label cannot give: a huge finite penalty (not -inf, which 0 counts would turn into NaN)
+        log_evidence = start + counts @ np.maximum(np.log(model.sensor), IMPOSSIBLE).T
+        # 0 * log 0 is no evidence, not NaN: a count of zero leaves the label alone
+        # P(entered | m_j) with the constant p_move the table leaves out: a cell's map normalises it away, and
+        # with it the maps keep their bits (those of the stored notebooks)
+        log_entered = np.log(model.p_move * model.press_likelihood[0])
+        log_stayed = np.log(model.press_likelihood[1])
+        log_evidence += np.where(entered[:, None] > 0, entered[:, None] * log_entered, 0.0)
+        log_evidence += np.where(bumped[:, None] > 0, bumped[:, None] * log_stayed, 0.0)
+    return counts, log_evidence
+
+
+def path_log_likelihood(model: GridModel, locations, actions, observations, frequencies=None) -> float:
+    """``log P(x_{0:T}, z_{0:T} | a_{1:T})`` of a static world, the map summed out: how well the
+    path ``locations`` (T,) explains the ``actions`` (T - 1,) and ``observations`` (T,) or (T, F)
+    under the model with independent labels, each cell's prior ``frequencies`` (K,) (None: the
+    model's ``label_prior``)::
+
+        log P(x_0) + sum_t log T0(x_t | x_{t-1}, a_t) + sum_c log sum_k prior(k) prod_{e at c} f_e(k)
+
+    over the events e of cell c (its readings ``O(k, z)``; with blocking labels, the presses into it,
+    ``p_move [k passable]`` entered and ``1 - p_move [k passable]`` stayed); ``T0`` is the motion
+    where it does not depend on the map (``p_move`` / ``1 - p_move`` for a move that could go, 1 at
+    the grid's edge). -inf for a path the model rules out: a step that is neither the cell pressed
+    into nor a stay, readings off the grid that do not fit the cell. Compares paths: the true path
+    against a filter's (a filter that lost a path the model prefers, or a model that prefers a
+    wrong one). Raises ModelError in a dynamic world. O(T F K + N K)."""
+    if not model.is_static:
+        raise ModelError("path_log_likelihood sums the map out of a static world only")
+    locations = np.asarray(locations)
+    if frequencies is None:
+        theta = np.asarray(model.label_prior, dtype=float)
+    else:
+        theta = np.asarray(frequencies, dtype=float)
+        if theta.shape != (model.n_labels,) or not np.isfinite(theta).all() or (theta < 0).any() or theta.sum() <= 0:
+            raise InvalidOptionError(f"frequencies must be {model.n_labels} finite non-negative numbers with a positive "
+                                     f"sum (one per label), got {frequencies!r}")
+    theta = theta / theta.sum(axis=-1, keepdims=True)
+    here, there = locations[:-1], locations[1:]
+    target = model.neighbors[here, actions]
+    readings = np.asarray(observations).reshape(model.footprint_cells[locations].shape)
+    if np.any((there != here) & (there != target)) or \
+            np.any((model.footprint_cells[locations] < 0) != (readings < 0)):
+        return -math.inf
+    with np.errstate(divide="ignore"):
+        _, log_evidence = _path_evidence(model, locations, actions, observations, np.log(theta))
+        log_start = math.log(model.location_prior()[locations[0]])
+    pressed = target != here
+    motion = 0.0 if model.has_blocking else \
+        int((pressed & (there == target)).sum()) * math.log(model.p_move) + \
+        int((pressed & (there == here)).sum()) * math.log1p(-model.p_move)
+    top = log_evidence.max(axis=1, keepdims=True)  # log sum_k exp, row by row
+    return log_start + motion + float((top[:, 0] + np.log(np.exp(log_evidence - top).sum(axis=1))).sum())
 
 
 def _normalised_rows(log_belief: np.ndarray) -> np.ndarray:
