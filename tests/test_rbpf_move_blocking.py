@@ -293,3 +293,123 @@ def test_rebuilding_moves_stop_after_a_recovery():
     history.first_start = 5
     assert not history.move_due(200, 5, 1, 0, rebuild=True)
     assert history.move_due(200, 5, 1, 0, rebuild=False)
+
+
+# --- one move at the scale the floors run at ---------------------------------------------------------
+def _window_reference(model, path, s, window, actions, readings, frequencies):
+    """The test's own reference of one particle's move (the kernel's math, written from the module
+    docstring of ``estimators/rbpf_move.py``): every window the actions allow (each step stays or
+    moves: itertools.product), its proposal weight ``q~ = prod T0 prod_e E_{m_-}[f_e]`` and its
+    revisit factor ``R = prod_c E_{m_-}[prod_e f_e] / prod_e E_{m_-}[f_e]`` over the window's events
+    e (its readings, and its presses up to the bridge's), with ``m_-`` rebuilt here from the events
+    of the path outside the window. Returns (windows, log q~, log R)."""
+    t = len(path) - 1
+    blocks = np.asarray(model.blocking)
+    press = {True: (~blocks).astype(float), False: (1 - model.p_move) + model.p_move * blocks}
+
+    def events(x, read, pressed):
+        out = []
+        for u in range(t + 1):
+            if u in pressed and u >= 1:
+                target = int(model.neighbors[x[u - 1], actions[u - 1]])
+                if target != x[u - 1]:
+                    out.append((target, press[x[u] == target]))
+            if u in read:
+                out += [(c, model.sensor[:, z]) for c, z in zip(model.footprint_cells[x[u]], readings[u]) if c >= 0]
+        return out
+
+    read_in = set(range(s + 1, s + window + 1))
+    press_in = set(range(s + 1, min(s + window + 1, t) + 1))
+    m_minus = model.label_prior * frequencies
+    m_minus = m_minus / m_minus.sum(axis=1, keepdims=True)
+    for c, f in events(path, set(range(t + 1)) - read_in, set(range(1, t + 1)) - press_in):
+        m_minus[c] = m_minus[c] * f / (m_minus[c] @ f)
+    windows, log_q, log_r = [], [], []
+    for moves in itertools.product((False, True), repeat=window):
+        x = list(path)
+        for tau, go in enumerate(moves, start=s + 1):
+            target = int(model.neighbors[x[tau - 1], actions[tau - 1]])
+            x[tau] = target if go else x[tau - 1]
+        if tuple(x[s + 1:s + window + 1]) in windows or (s + window < t and x[s + window + 1] not in (
+                x[s + window], model.neighbors[x[s + window], actions[s + window]])):
+            continue
+        q, r, seen = 0.0, 0.0, {}
+        for u in sorted(press_in):
+            target = int(model.neighbors[x[u - 1], actions[u - 1]])
+            q += math.log(model.p_move) if target != x[u - 1] and x[u] == target else 0.0
+        for c, f in events(x, read_in, press_in):
+            mean = m_minus[c] @ f
+            now = seen.get(c, m_minus[c])
+            q += math.log(mean) if mean > 0 else -math.inf
+            r += math.log(now @ f) - math.log(mean) if mean > 0 else 0.0
+            seen[c] = now * f / (now @ f) if now @ f > 0 else now
+        if q > -math.inf:
+            windows.append(tuple(x[s + 1:s + window + 1]))
+            log_q.append(q)
+            log_r.append(r)
+    return windows, np.array(log_q), np.array(log_r)
+
+
+def test_one_move_on_a_building_has_the_reference_transition_law():
+    """At the scale the floors run at (a 12 x 12 generated building, cross footprint, learned label
+    prior, 200 steps, so a window crosses the path history's 64-step blocks and the map pool holds
+    rows shared by many particles), one move of one particle from its state at step t has the
+    transition law of the independence Metropolis-Hastings step, ``K(old, new) = q(new) min(1,
+    R(new) / R(old))`` and the rest of the mass on ``old``, with q and R from the test's own
+    reference (:func:`_window_reference`). The reference is itself checked first: ``q~ R`` is, up to
+    a constant, the window's exact conditional law from :func:`onlinemap.hindsight.path_log_likelihood`
+    (tested against a brute force over every map). 3,000 independent moves from copies of the same
+    state: Pearson's chi-square over the windows with expected count >= 5 and one bin for the
+    others (fails below 1e-3)."""
+    model, true_map = om.building(12, 12, seed=2, footprint="cross")
+    assert np.allclose(model.label_prior, 1 / model.n_labels)  # path_log_likelihood's prior: the tilt alone
+    run = om.simulate(model, true_map, om.random_walk(model, 199, seed=4), seed=4)
+    est = om.make_estimator("rbpf", model, n_particles=200, seed=2, move_window=8, move_every=5, move_lag=20)
+    for t in range(run.n_steps):
+        est.update(None if t == 0 else int(run.actions[t - 1]), run.observations[t])
+    assert est.moves.accepted > 0 and est.recoveries == 0
+    t, s, window = est.t, 124, 6  # the window, steps 125..130, crosses the history's block at step 128
+    actions, readings = [int(a) for a in run.actions], run.observations.reshape(run.n_steps, -1)
+    frequencies = est.label_frequencies
+    paths = est._history.paths(t)
+    best = None
+    for p in np.flatnonzero(est.weights > 0)[:40]:  # the particle whose move has the most to do
+        windows, log_q, log_r = _window_reference(model, paths[p].tolist(), s, window, actions, readings, frequencies)
+        old = windows.index(tuple(paths[p][s + 1:s + window + 1].tolist()))
+        q = np.exp(log_q - log_q.max())
+        q /= q.sum()
+        law = q * np.minimum(1.0, np.exp(log_r - log_r[old]))
+        law[old] += 1.0 - law.sum()
+        if best is None or 1 - law[old] > 1 - best[2][best[3]]:
+            best = (p, windows, law, old, log_q + log_r)
+    p, windows, law, old, log_target = best
+    assert 1 - law[old] > 0.05 and np.ptp(log_target - np.log(law.clip(1e-300))) > 0  # a move with something to do
+    exact = []
+    for w in windows:
+        x = paths[p].copy()
+        x[s + 1:s + window + 1] = w
+        exact.append(om.hindsight.path_log_likelihood(model, x, actions, readings, frequencies=frequencies))
+    exact = np.exp(np.array(exact) - max(exact))
+    target = np.exp(log_target - log_target.max())
+    np.testing.assert_allclose(target / target.sum(), exact / exact.sum(), atol=1e-10, rtol=0)
+
+    log_weights = np.full(est.n_particles, -np.inf)
+    log_weights[p] = 0.0
+    n = 3000
+    counts = np.zeros(len(windows))
+    for draw in range(n):
+        blocks, history, locations = copy.deepcopy((est._blocks, est._history, est._locations))
+        history.first_start = s
+        history, blocks = history.move(blocks, locations, log_weights, model, t, window, t - window - s,
+                                       np.random.default_rng([21, draw]), frequencies)
+        moved = history.paths(t)
+        counts[windows.index(tuple(moved[p][s + 1:s + window + 1].tolist()))] += 1
+        assert np.array_equal(np.delete(moved, p, axis=0), np.delete(paths, p, axis=0))
+    big = n * law >= 5
+    observed = np.append(counts[big], counts[~big].sum())
+    expected = np.append(n * law[big], n * law[~big].sum())
+    if expected[-1] < 1e-9:
+        observed, expected = observed[:-1], expected[:-1]
+    assert len(expected) >= 3
+    statistic, p_value = stats.chisquare(observed, expected)
+    assert p_value > 1e-3, (statistic, observed, expected)
