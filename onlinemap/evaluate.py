@@ -130,21 +130,22 @@ def honest_metrics(column: Mapping[str, ArrayLike]) -> dict[str, float]:
             "map_calibration_gap": skipna_mean(read_true - read_claimed)}
 
 
-def told_map_metrics(column: Mapping[str, ArrayLike]) -> dict[str, float]:
-    """Per run, from its per-step columns (``t``, ``location_distance``,
-    ``told_map_location_error``, ``told_map_location_distance``; none if the table lacks the
-    told-map ones, a table written before they existed): the location anchor of a robot told the
-    true map (:func:`~onlinemap.run_facts.told_map_location`) over the window of
-    ``late_location_distance`` (the second half, :data:`SECOND_HALF`): ``told_map_location_error``
-    and ``told_map_location_distance``, and ``excess_location_distance``, the filter's
+def told_map_metrics(column: Mapping[str, ArrayLike], honest: Mapping[str, float]) -> dict[str, float]:
+    """Per run, from its per-step columns (``t``, ``told_map_location_error``,
+    ``told_map_location_distance``; none if the table lacks them, a table written before they
+    existed) and its :func:`honest_metrics` ``honest`` (none if they lack
+    ``late_location_distance``): the location anchor of a robot told the true map
+    (:func:`~onlinemap.run_facts.told_map_location`) over the window of ``late_location_distance``
+    (the second half, :data:`SECOND_HALF`): ``told_map_location_error`` and
+    ``told_map_location_distance``, and ``excess_location_distance``, the filter's
     ``late_location_distance`` less the anchor's. O(T)."""
-    if "told_map_location_error" not in column or "location_distance" not in column:
+    if "told_map_location_error" not in column or "late_location_distance" not in honest:
         return {}
     t = np.asarray(column["t"])
     told_distance = late_mean(t, column["told_map_location_distance"], SECOND_HALF)
     return {"told_map_location_error": late_mean(t, column["told_map_location_error"], SECOND_HALF),
             "told_map_location_distance": told_distance,
-            "excess_location_distance": late_mean(t, column["location_distance"], SECOND_HALF) - told_distance}
+            "excess_location_distance": honest["late_location_distance"] - told_distance}
 
 
 def from_steps(steps: pd.DataFrame, by: list[str]) -> pd.DataFrame:
@@ -162,11 +163,12 @@ def from_steps(steps: pd.DataFrame, by: list[str]) -> pd.DataFrame:
         row.update(coverage(run["map_error"]))
         if "door_error" in run and run["door_error"].notna().any():
             row["late_door_error"] = late_mean(run["t"], run["door_error"])
-        row.update(honest_metrics(run))
+        honest = honest_metrics(run)
+        row.update(honest)
         if "told_location_map_error" in run:
             row.update(told_location_map_error=float(run["told_location_map_error"].iloc[-1]),
                        excess_map_error=float(run["excess_map_error"].iloc[-1]))
-        row.update(told_map_metrics(run))
+        row.update(told_map_metrics(run, honest))
         if "ms_per_step" in run:
             row["ms_per_step"] = float(run["ms_per_step"].iloc[0])
         rows.append(row)
@@ -289,8 +291,9 @@ def run_metrics(run: Run, trajectory: Trajectory, reference: Trajectory | None =
         row.update(min_p_true_way_back=lowest, astray_way_back=bool(lowest < ASTRAY_BELOW))
     row.update(facts.told)
     row["excess_map_error"] = row["final_map_error"] - row["told_location_map_error"]
-    row.update(honest_metrics(column))
-    row.update(told_map_metrics(column))
+    honest = honest_metrics(column)
+    row.update(honest)
+    row.update(told_map_metrics(column, honest))
     row.update(final_known_cells=int(final["known_cells"]),
                final_observable_map_error=float(final["observable_map_error"]), **coverage(column["map_error"]))
     row["final_log_evidence"] = float(final["log_evidence"])

@@ -108,7 +108,7 @@ def path_map(model: GridModel, locations, actions, observations, label_prior=Non
     with np.errstate(divide="ignore"):
         start = 0.0 if prior.kind == "learn" else \
             np.log(model.label_prior if prior.kind == "model" else prior.frequencies)
-    counts, log_evidence = _path_evidence(model, locations, actions, observations, start)
+    counts, log_evidence = _path_evidence(model, _path_steps(model, locations, actions, observations), start)
     if prior.kind != "learn":
         return _normalised_rows(log_evidence)
     theta = fixed_point_frequencies(prior.alpha, log_evidence, np.minimum(counts.sum(axis=1), 1.0))
@@ -170,24 +170,40 @@ def smoothed_rbpf_map(model: GridModel, actions, observations, *, n_particles: i
                        common, lineages, filter_.recoveries)
 
 
-def _path_evidence(model: GridModel, locations, actions, observations, start) -> tuple[np.ndarray, np.ndarray]:
-    """(counts (N, K) of each cell's readings, log evidence (N, K)) of a path: ``start`` (a log prior,
-    (N, K), (K,) or 0.0) plus, per cell and label k, ``sum_z count(z) log O(k, z)`` (a reading a label
-    cannot give: the finite penalty ``IMPOSSIBLE``) and, with blocking labels, every press's outcome,
-    ``log(p_move [k passable])`` entered and ``log(1 - p_move [k passable])`` stayed
-    (``GridModel.press_likelihood``). O(T F K)."""
-    n, k = model.n_cells, model.n_labels
+class _PathSteps(NamedTuple):
+    """A path's steps as :func:`_path_evidence` and :func:`path_log_likelihood` read them."""
+
+    cells: np.ndarray  # (T, F) the cells read at each step (-1 off the grid)
+    readings: np.ndarray  # (T, F) the readings
+    here: np.ndarray  # (T - 1,) the cell each action starts from
+    there: np.ndarray  # (T - 1,) the cell it ends in
+    target: np.ndarray  # (T - 1,) the cell it presses into (``here`` at the grid's edge)
+
+
+def _path_steps(model: GridModel, locations, actions, observations) -> _PathSteps:
+    """The footprint cells, readings and presses of a path: locations (T,), actions (T - 1,),
+    observations (T,) or (T, F). O(T F)."""
     locations = np.asarray(locations)
     cells = model.footprint_cells[locations]
-    readings = np.asarray(observations).reshape(cells.shape)
+    here = locations[:-1]
+    return _PathSteps(cells, np.asarray(observations).reshape(cells.shape), here, locations[1:],
+                      model.neighbors[here, actions])
+
+
+def _path_evidence(model: GridModel, steps: _PathSteps, start) -> tuple[np.ndarray, np.ndarray]:
+    """(counts (N, K) of each cell's readings, log evidence (N, K)) of a path (:func:`_path_steps`):
+    ``start`` (a log prior, (N, K), (K,) or 0.0) plus, per cell and label k, ``sum_z count(z) log O(k, z)``
+    (a reading a label cannot give: the finite penalty ``IMPOSSIBLE``) and, with blocking labels,
+    every press's outcome, ``log(p_move [k passable])`` entered and ``log(1 - p_move [k passable])``
+    stayed (``GridModel.press_likelihood``). O(T F K)."""
+    n, k = model.n_cells, model.n_labels
+    cells, readings, here, there, target = steps
     read = (cells >= 0) & (readings >= 0)
     counts = np.bincount((cells * k + readings)[read], minlength=n * k).reshape(n, k)
-    here = locations[:-1]
-    target = model.neighbors[here, actions]
     presses = target != here
-    entered = np.bincount(target[presses & (locations[1:] == target)], minlength=n) if model.has_blocking \
+    entered = np.bincount(target[presses & (there == target)], minlength=n) if model.has_blocking \
         else np.zeros(n)
-    bumped = np.bincount(target[presses & (locations[1:] == here)], minlength=n) if model.has_blocking \
+    bumped = np.bincount(target[presses & (there == here)], minlength=n) if model.has_blocking \
         else np.zeros(n)
     with np.errstate(divide="ignore", invalid="ignore"):
         # a reading a label cannot give: a huge finite penalty (not -inf, which 0 counts would turn into NaN)
@@ -228,14 +244,12 @@ def path_log_likelihood(model: GridModel, locations, actions, observations, freq
             raise InvalidOptionError(f"frequencies must be {model.n_labels} finite non-negative numbers with a positive "
                                      f"sum (one per label), got {frequencies!r}")
     theta = theta / theta.sum(axis=-1, keepdims=True)
-    here, there = locations[:-1], locations[1:]
-    target = model.neighbors[here, actions]
-    readings = np.asarray(observations).reshape(model.footprint_cells[locations].shape)
-    if np.any((there != here) & (there != target)) or \
-            np.any((model.footprint_cells[locations] < 0) != (readings < 0)):
+    steps = _path_steps(model, locations, actions, observations)
+    cells, readings, here, there, target = steps
+    if np.any((there != here) & (there != target)) or np.any((cells < 0) != (readings < 0)):
         return -math.inf
     with np.errstate(divide="ignore"):
-        _, log_evidence = _path_evidence(model, locations, actions, observations, np.log(theta))
+        _, log_evidence = _path_evidence(model, steps, np.log(theta))
         log_start = math.log(model.location_prior()[locations[0]])
     pressed = target != here
     motion = 0.0 if model.has_blocking else \

@@ -3,7 +3,8 @@
 EM treats the map as a parameter, the observation matrix ``B[i, k] = P(Z = k | L = i)`` (N, K);
 only the location is hidden. Transitions are the model's known, sparse, action-dependent
 motion ``T[a]`` (never a dense N x N matrix). This module holds the pieces both EM estimators
-share: forward-backward over a stretch of steps (numba), expected sufficient statistics, the
+share: forward-backward over a stretch of steps (numba; its forward pass alone for
+:func:`onlinemap.run_facts.told_map_location`), expected sufficient statistics, the
 M-step, the map read off ``B`` through the sensor channel, and posterior tempering
 (deterministic annealing).
 
@@ -15,8 +16,8 @@ per cell (:func:`expected_cell_counts`). Blocking labels: the E-step moves into 
 EM step: the objective is no longer guaranteed to rise, and bumps teach the M-step nothing.
 
 Costs: W steps, N cells, E motion edges (E <= 2 N for every grid here), K labels, F readings.
-``forward_backward`` O(W (N F + E)); ``expected_counts`` O(W N F); ``emission_from_counts`` and
-``map_from_emission`` O(N K^2).
+``forward_backward`` and ``forward_filter`` (its forward pass alone) O(W (N F + E));
+``expected_counts`` O(W N F); ``emission_from_counts`` and ``map_from_emission`` O(N K^2).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import numpy as np
 
 from .arrays import cached_by_content, frozen
 from .errors import ImpossibleObservationError
-from .kernels.forward_backward import accumulate_counts, forward_backward_pass
+from .kernels.forward_backward import accumulate_counts, forward_backward_pass, forward_pass
 from .model import GridModel
 
 
@@ -44,6 +45,81 @@ class HMMPosterior(NamedTuple):
         return float(self.log_normalizers.sum())
 
 
+class HMMFilter(NamedTuple):
+    """The forward pass alone over W steps with one observation matrix (:func:`forward_filter`):
+    :class:`HMMPosterior` without the smoothed rows, the same bits."""
+
+    filtered: np.ndarray  # (W, N) P(L_tau | z_first..tau)
+    log_normalizers: np.ndarray  # (W,) log P(z_tau | z_first..tau-1); their sum is log P(z_first..last)
+
+
+class _PassInputs(NamedTuple):
+    """The kernels' inputs in one form (:func:`~onlinemap.arrays.frozen`, no copy where already
+    C-contiguous), whatever the caller passed (the model's read-only tables, a transposed or
+    learned matrix): numba compiles each pass once."""
+
+    self_prob: np.ndarray  # (A, N) P(stay | a, j)
+    predecessor: np.ndarray  # (A, N)
+    neighbors: np.ndarray  # (N, A)
+    enter: np.ndarray  # (N,) P(a move into j succeeds)
+    prior: np.ndarray  # (N,)
+    actions: np.ndarray  # (W - 1,)
+    observations: np.ndarray  # (W,) the column of ``emission`` each step reads
+    emission: np.ndarray  # (N, K), or (N, W) with a footprint
+
+
+def _pass_inputs(model: GridModel, prior: np.ndarray, actions: np.ndarray, observations: np.ndarray,
+                 emission: np.ndarray, passable: np.ndarray | None) -> _PassInputs:
+    """The motion tables under ``passable`` and the emission in the kernels' form (observations
+    (W,) or (W, F) int64). O(N A), plus O(W N F) with a footprint."""
+    n = model.n_cells
+    if passable is None:
+        self_prob, enter = model.self_prob, np.full(n, model.p_move)
+    else:
+        enter = model.p_move * np.asarray(passable, dtype=np.float64)
+        movers = model.neighbors != np.arange(n)[:, None]  # (N, A)
+        self_prob = np.ascontiguousarray(np.where(movers, 1.0 - enter[model.neighbors], 1.0).T)
+    if not model.reads_own_cell:  # the kernel reads emission[j, observations[t]]: give it (N, W) and 0..W-1
+        kernel_emission = np.ascontiguousarray(footprint_emission(model, emission, observations).T)
+        kernel_observations = np.arange(len(observations), dtype=np.int64)
+    else:
+        kernel_emission = np.asarray(emission, dtype=np.float64)
+        kernel_observations = observations
+    return _PassInputs(*map(frozen, (self_prob, model.predecessor, model.neighbors, enter,
+                                     np.asarray(prior, dtype=np.float64), np.asarray(actions, dtype=np.int64),
+                                     kernel_observations, kernel_emission)))
+
+
+def _log_normalizers(model: GridModel, observations: np.ndarray, first_step: int, bad: int,
+                     normalizers: np.ndarray, log_scales: np.ndarray) -> None:
+    """After a pass: raise :class:`ImpossibleObservationError` if step ``bad`` >= 0 has
+    probability zero, else turn ``normalizers`` into ``log P(z_tau | z_first..tau-1)`` in place. O(W)."""
+    if bad >= 0:
+        label = model.label_names[observations[bad]] if model.reads_own_cell else observations[bad].tolist()
+        raise ImpossibleObservationError(
+            f"observation {label!r} at step {first_step + bad} has probability zero under the observation "
+            f"matrix B in use (B starts as label_prior @ O; a learned B has no zeros when pseudo_count > 0)")
+    np.log(normalizers, out=normalizers)
+    normalizers += log_scales
+
+
+def forward_filter(model: GridModel, prior: np.ndarray, actions: np.ndarray, observations: np.ndarray,
+                   emission: np.ndarray, first_step: int = 0, passable: np.ndarray | None = None) -> HMMFilter:
+    """Filter the location over W steps under observation matrix ``emission``: the forward half
+    of :func:`forward_backward` (the same arguments but ``out``, the same bits in ``filtered`` and
+    ``log_normalizers``), without the backward pass and its (W, N) array. Raises
+    :class:`ImpossibleObservationError` if an observation has probability zero. O(W (N F + E))
+    time, W N floats of memory (2 W N with a footprint)."""
+    observations = np.asarray(observations, dtype=np.int64)
+    w = len(observations)
+    inputs = _pass_inputs(model, prior, actions, observations, emission, passable)
+    filtered, normalizers, log_scales = np.empty((w, model.n_cells)), np.empty(w), np.empty(w)
+    bad = forward_pass(inputs.self_prob, inputs.predecessor, inputs.enter, inputs.prior, inputs.actions,
+                       inputs.observations, inputs.emission, filtered, normalizers, log_scales)
+    _log_normalizers(model, observations, first_step, bad, normalizers, log_scales)
+    return HMMFilter(filtered, normalizers)
+
+
 def forward_backward(model: GridModel, prior: np.ndarray, actions: np.ndarray, observations: np.ndarray,
                      emission: np.ndarray, first_step: int = 0, out: HMMPosterior | None = None,
                      passable: np.ndarray | None = None) -> HMMPosterior:
@@ -56,40 +132,19 @@ def forward_backward(model: GridModel, prior: np.ndarray, actions: np.ndarray, o
     cost a page fault per 4 kB on first touch). Raises :class:`ImpossibleObservationError` if an
     observation has probability zero. With a footprint, observations are (W, F) readings; with
     blocking labels, ``passable`` (N,) is the probability that each cell can be entered (None:
-    every cell). O(W (N F + E)) time, 3 W N floats of memory (4 W N with a footprint).
+    every cell). One kernel runs :func:`forward_filter`'s forward pass, then the backward pass.
+    O(W (N F + E)) time, 3 W N floats of memory (4 W N with a footprint).
     """
-    actions = np.asarray(actions, dtype=np.int64)
     observations = np.asarray(observations, dtype=np.int64)
     w, n = len(observations), model.n_cells
-    if passable is None:
-        self_prob, enter = model.self_prob, np.full(n, model.p_move)
-    else:
-        enter = model.p_move * np.asarray(passable, dtype=np.float64)
-        movers = model.neighbors != np.arange(n)[:, None]  # (N, A)
-        self_prob = np.ascontiguousarray(np.where(movers, 1.0 - enter[model.neighbors], 1.0).T)
-    if not model.reads_own_cell:  # the kernel reads emission[j, observations[t]]: give it (N, W) and 0..W-1
-        kernel_emission = np.ascontiguousarray(footprint_emission(model, emission, observations).T)
-        kernel_observations = np.arange(w, dtype=np.int64)
-    else:
-        kernel_emission = np.asarray(emission, dtype=np.float64)
-        kernel_observations = observations
+    inputs = _pass_inputs(model, prior, actions, observations, emission, passable)
     if out is not None and out.filtered.shape == (w, n):
         filtered, posterior, normalizers = out.filtered, out.posterior, out.log_normalizers
     else:
         filtered, posterior, normalizers = np.empty((w, n)), np.empty((w, n)), np.empty(w)
     log_scales = np.empty(w)  # 0 but where a step was rescaled against underflow
-    # the inputs in one form (arrays.frozen, no copy where already C-contiguous), whatever the caller
-    # passed (the model's read-only tables, a transposed or learned matrix): numba compiles the pass once
-    inputs = map(frozen, (self_prob, model.predecessor, model.neighbors, enter, np.asarray(prior, dtype=np.float64),
-                          actions, kernel_observations, kernel_emission))
     bad = forward_backward_pass(*inputs, filtered, posterior, normalizers, log_scales)
-    if bad >= 0:
-        label = model.label_names[observations[bad]] if model.reads_own_cell else observations[bad].tolist()
-        raise ImpossibleObservationError(
-            f"observation {label!r} at step {first_step + bad} has probability zero under the observation "
-            f"matrix B in use (B starts as label_prior @ O; a learned B has no zeros when pseudo_count > 0)")
-    np.log(normalizers, out=normalizers)
-    normalizers += log_scales
+    _log_normalizers(model, observations, first_step, bad, normalizers, log_scales)
     return HMMPosterior(filtered, posterior, normalizers)
 
 

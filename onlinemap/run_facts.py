@@ -16,7 +16,7 @@ import numpy as np
 from . import metrics
 from .arrays import read_only
 from .errors import ImpossibleObservationError, ModelError
-from .hmm import forward_backward
+from .hmm import forward_filter
 from .label_prior import fixed_point_frequencies, resolve_label_prior
 from .metric_names import CONFIDENT
 from .model import GridModel, apply_motion
@@ -193,7 +193,7 @@ def told_map_location(model: GridModel, run: Run) -> np.ndarray:
     change, ``x_l *= prod_f O[m_t(c_f(l)), z_tf]`` (0 where the off-grid readings -1 do not fit l),
     then normalise. The map's own changes do not depend on the location, so they drop out. Over
     each stretch of steps whose true map stays the same this is the EM estimators' location HMM
-    (:func:`onlinemap.hmm.forward_backward`'s filtered rows) with ``B = O[m]`` (the true map read
+    (:func:`onlinemap.hmm.forward_filter`, forward-backward's filtered rows) with ``B = O[m]`` (the true map read
     through the sensor) and a 0/1 passability; a stretch starts where the map changed, its prior
     the last belief moved under the map before the change. Raises ModelError when ``run``'s
     shapes are not ``model``'s and ImpossibleObservationError when the readings have probability
@@ -212,8 +212,8 @@ def told_map_location(model: GridModel, run: Run) -> np.ndarray:
             prior = apply_motion(model, beliefs[s - 1], int(run.actions[s - 1]), _passable(model, run.maps[s - 1]))
         labels = run.maps[s]
         try:
-            fit = forward_backward(model, prior, run.actions[s:e - 1], run.observations[s:e], model.sensor[labels],
-                                   first_step=int(s), passable=_passable(model, labels))
+            fit = forward_filter(model, prior, run.actions[s:e - 1], run.observations[s:e], model.sensor[labels],
+                                 first_step=int(s), passable=_passable(model, labels))
         except ImpossibleObservationError as error:
             raise ImpossibleObservationError(f"told_map_location: given the true map, {error} (a run of "
                                              f"another model?)") from None

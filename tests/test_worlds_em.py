@@ -9,6 +9,7 @@ import pytest
 import onlinemap as om
 from estimator_cases import beliefs
 from onlinemap.estimators.offline_em import baum_welch
+from onlinemap.hmm import forward_backward, forward_filter
 from oracles import footprint_reads, grid_targets
 
 
@@ -129,3 +130,35 @@ def test_known_location_gives_closed_form_counts_of_every_reading(name):
     options = dict(window=1) if name == "online_em" else dict(n_iter=3)
     belief = list(beliefs(om.make_estimator(name, model, pseudo_count=0.5, **options), run))[-1]
     np.testing.assert_allclose(belief.observation_matrix, counts / counts.sum(axis=1, keepdims=True), atol=1e-12)
+
+
+@pytest.mark.parametrize("variant", [*VARIANTS, "paper"])
+def test_forward_filter_is_the_dense_filter_and_forward_backwards_forward_pass(variant):
+    """``hmm.forward_filter`` against the dense filter (passability drawn per cell, B random, each
+    reading's probability scaled so an observation's is near 1e-260 and every step is rescaled
+    against underflow), and bit for bit the
+    filtered rows and normalisers of ``hmm.forward_backward`` on the same inputs."""
+    model = om.grid_model(3, 4, 3) if variant == "paper" else world(variant)
+    run = om.simulate(model, steps=12, seed=8)
+    rng = np.random.default_rng(9)
+    emission = rng.dirichlet(np.ones(model.n_labels), size=model.n_cells) * 10.0 ** (-260 / model.n_readings)
+    passable = rng.uniform(0.2, 1.0, size=model.n_cells) if model.has_blocking else None
+    prior = rng.dirichlet(np.ones(model.n_cells))
+    fit = forward_filter(model, prior, run.actions, run.observations, emission, passable=passable)
+    motion = dense_motion(model, np.ones(model.n_cells) if passable is None else passable)
+    filtered, _, log_lik = dense_smoother(motion, prior, run.actions,
+                                          dense_emission(model, emission, run.observations))
+    np.testing.assert_allclose(fit.filtered, filtered, rtol=0, atol=1e-12)
+    assert fit.log_normalizers.sum() == pytest.approx(log_lik, rel=1e-12)
+    both = forward_backward(model, prior, run.actions, run.observations, emission, passable=passable)
+    assert fit.filtered.tobytes() == both.filtered.tobytes()
+    assert fit.log_normalizers.tobytes() == both.log_normalizers.tobytes()
+
+
+def test_forward_filter_names_the_impossible_step():
+    model = om.grid_model(3, 4, 3)
+    observations = np.array([0, 1, 0, 1, 2, 0])  # only step 4 reads label 2, which B never gives
+    emission = np.tile([0.5, 0.5, 0.0], (model.n_cells, 1))
+    with pytest.raises(om.ImpossibleObservationError, match="at step 14 has probability zero"):
+        forward_filter(model, np.eye(model.n_cells)[model.start], np.zeros(5, dtype=np.int64), observations,
+                       emission, first_step=10)

@@ -41,8 +41,8 @@ def world_tables(model: GridModel) -> World:
     for ``model`` and kept while it lives (the model's own arrays, read-only: one numba type)."""
     world = _WORLDS.get(model)
     if world is None:
-        world = World(float(model.p_move), model.blocking, model.has_blocking, model.change, model.footprint_cells,
-                      model.sensor, model.likelihood, model.moves, model.predecessor)
+        world = World(float(model.p_move), model.blocking, model.has_blocking, model.press_likelihood, model.change,
+                      model.footprint_cells, model.sensor, model.likelihood, model.moves, model.predecessor)
         _WORLDS[model] = world
     return world
 

@@ -68,6 +68,17 @@ def forward_backward_pass(self_prob, predecessor, neighbors, enter, prior, actio
     return bad
 
 
+@njit(cache=True)
+def forward_pass(self_prob, predecessor, enter, prior, actions, observations, emission, filtered, normalizers,
+                 log_scales):
+    """The forward half of :func:`forward_backward_pass` alone (the same arguments but
+    ``neighbors`` and ``posterior``, the same bits in ``filtered``, ``normalizers`` and
+    ``log_scales``), for callers that need only the filtered rows. Returns the first step whose
+    observation has probability zero, or -1. O(W (N + E))."""
+    return _forward_pass(self_prob, predecessor, enter, prior, actions, observations, emission, filtered,
+                         normalizers, log_scales, np.ones(filtered.shape[0]))
+
+
 @njit(cache=True, inline="always")
 def _forward_pass(self_prob, predecessor, enter, prior, actions, observations, emission, filtered, normalizers,
                   log_scales, scales):

@@ -193,14 +193,14 @@ def gated_successor(l, n, p_move, s, gated, passable):
 @njit(cache=True, inline="always")
 def _gated_cell(world, dynamic, moved, scratch, cells):
     """``cells[0]`` <- the intended cell's marginal given the move's outcome (``moved``), judged
-    at t - 1 (``scratch.before``, :func:`passable_before`) and carried to step t by C."""
+    at t - 1 (``scratch.before``, :func:`passable_before`), times the press's factor
+    (``world.press``, row 0 entered, row 1 stayed), and carried to step t by C."""
     k = cells.shape[1]
-    given, before, blocking = scratch.given, scratch.before, world.blocking
+    given, before, press = scratch.given, scratch.before, world.press
+    row = 0 if moved else 1
     total = 0.0
     for b in range(k):
-        factor = (0.0 if blocking[b] else 1.0) if moved else (1.0 - world.p_move) + (world.p_move if blocking[b]
-                                                                                     else 0.0)
-        given[b] = before[b] * factor
+        given[b] = before[b] * press[row, b]
         total += given[b]
     if total > 0.0:  # else the outcome is impossible (p_move = 1 and the cell surely passable, or the
         for b in range(k):  # cell surely blocks): the child has probability 0, so its cell is never used
@@ -278,7 +278,7 @@ def rbpf_enumerate_cells(locations: np.ndarray, log_weights: np.ndarray, pool, w
     Blocking (``world.blocking`` (K,) bool, any True): from l the intended n != l is entered with
     ``p_move * P(m_n passable)``, judged on n's marginal at step t - 1 (before this step's map
     change); the move child's n is conditioned on passable, the stay child's on
-    ``(1 - p_move) + p_move [m_n blocks]``, then carried to step t by C. Footprint
+    ``1 - p_move [m_n passable]`` (``world.press``), then carried to step t by C. Footprint
     (``world.footprint_cells`` (N, F), ``readings`` (F,), -1 off the grid): the likelihood is the
     product over the offsets of ``sum_k current(c_f)[k] sensor[k, z_f]`` (1 where both cell and
     reading are off the grid, 0 where only one is), and each read cell gets its posterior. Given
