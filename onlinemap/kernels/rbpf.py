@@ -72,10 +72,11 @@ class Pool(NamedTuple):
 class World(NamedTuple):
     """The model's motion and sensor tables the RBPF's kernels read (built once per model by the
     estimators): ``p_move``; ``blocking (K,)`` bool and ``has_blocking`` (any of it); ``press
-    (2, K)``, what a press says about the label of the cell pressed into (``GridModel.press_likelihood``:
-    row 0 entered ``[k passable]``, row 1 stayed ``1 - p_move [k passable]``); ``change (K, K)`` C; ``footprint_cells (N, F)`` (-1 off the grid); ``sensor (K, Z)``; ``likelihood (Z,
-    K)`` (row z: ``sensor[:, z]``); ``moves (A, N)``; ``predecessor (A, N)`` (the cell a move enters
-    j from, -1)."""
+    (2, K)``, what a press says about the label of the cell pressed into
+    (``GridModel.press_likelihood``: row 0 entered ``[k passable]``, row 1 stayed ``1 - p_move [k
+    passable]``); ``change (K, K)`` C; ``footprint_cells (N, F)`` (-1 off the grid); ``sensor (K,
+    Z)``; ``likelihood (Z, K)`` (row z: ``sensor[:, z]``); ``moves (A, N)``; ``predecessor (A, N)``
+    (the cell a move enters j from, -1)."""
 
     p_move: float
     blocking: np.ndarray
