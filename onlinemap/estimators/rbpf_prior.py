@@ -48,16 +48,17 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InvalidOptionError
-from ..label_prior import LabelPrior, learned_frequencies, plug_in_prior, tilt
+from ..label_prior import ContextState, LabelPrior, learned_frequencies, plug_in_prior, tilt
+from ..label_prior import learn_context as context_step
 from ..model import GridModel
 from .block_pool import BlockPool
 
 
 def prior_options(model: GridModel, label_prior, prior_strength, learn_every) -> LabelPrior:
-    """Check and resolve the RBPF's label-prior options (:func:`~onlinemap.label_prior.plug_in_prior`;
-    ``move_window`` goes with every one of them: the move keeps the tilt w). Raises
-    :class:`~onlinemap.errors.InvalidOptionError` naming the problem. O(N K)."""
-    return plug_in_prior(model, label_prior, prior_strength, learn_every)
+    """Check and resolve the RBPF's label-prior options (:func:`~onlinemap.label_prior.plug_in_prior`,
+    ``"context"`` included; ``move_window`` goes with every one of them: the move keeps the tilt
+    w). Raises :class:`~onlinemap.errors.InvalidOptionError` naming the problem. O(N K)."""
+    return plug_in_prior(model, label_prior, prior_strength, learn_every, context=True)
 
 
 def resolved_prior(model: GridModel, options: dict) -> LabelPrior:
@@ -67,10 +68,17 @@ def resolved_prior(model: GridModel, options: dict) -> LabelPrior:
 
 
 def retilt(pool: BlockPool, ratio: np.ndarray) -> None:
-    """Multiply every slot of the block rows in use by ``ratio`` (K,) and renormalise along K, in
+    """Multiply every slot of the block rows in use by ``ratio`` and renormalise along K, in
     place: the pool's maps with every cell's prior frequencies changed by that ratio (the module
-    docstring). Free rows are left alone (they may hold zeros; nothing reads them). O(R_used B K)."""
+    docstring); ``ratio`` (K,) for every cell alike, or (N, K) each cell's own (``"context"``: a
+    row of block b takes the ratios of its cells ``pool.block_members[b]``, padding slots 1).
+    Free rows are left alone (they may hold zeros; nothing reads them). O(R_used B K) (+ O(N K)
+    for a per-cell ratio)."""
     used = np.flatnonzero(pool.refcount > 0)
+    if ratio.ndim == 2:
+        members = pool.block_members  # (blocks, B) cells, -1 padding
+        per_block = np.where(members[..., None] >= 0, ratio[np.maximum(members, 0)], 1.0)  # (blocks, B, K)
+        ratio = per_block[pool.row_block[used]]
     pool.rows[used] = tilt(pool.rows[used], ratio)
 
 
@@ -84,4 +92,18 @@ def learn(pool: BlockPool, model: GridModel, t: int, weights: np.ndarray, freque
     mixture /= mixture.sum(axis=1, keepdims=True)
     updated = learned_frequencies(mixture, model.label_prior, frequencies, alpha)
     retilt(pool, updated / frequencies)
+    return updated
+
+
+def learn_context(pool: BlockPool, model: GridModel, t: int, weights: np.ndarray, state: ContextState,
+                  table: np.ndarray, alpha: np.ndarray, threads: int = 1) -> ContextState:
+    """One learning step of ``label_prior="context"`` (the module docstring): the new state
+    (:func:`~onlinemap.label_prior.learn_context`) from the particles' mixture at step ``t``
+    (``weights`` (P,), normalised), the current ``state``, the neighbours ``table`` (N, 4) and
+    ``alpha`` (K,); retilts ``pool`` cell by cell by ``v' / v`` in place. Returns the new state.
+    O(P N / B + R_used B K + N K)."""
+    mixture = pool.mixture(t, weights, threads)
+    mixture /= mixture.sum(axis=1, keepdims=True)
+    updated = context_step(mixture, model.label_prior, state, table, alpha)
+    retilt(pool, updated.tilts / state.tilts)
     return updated
