@@ -255,6 +255,13 @@ class ContextState(NamedTuple):
     frequencies: np.ndarray
 
 
+def fresh_context(n_cells: int, frequencies: np.ndarray) -> ContextState:
+    """The :class:`ContextState` of a filter that has read nothing: every cell's tilt the
+    ``frequencies`` (K,), no cell read, no context frozen. O(N K)."""
+    return ContextState(np.tile(frequencies, (n_cells, 1)), np.zeros(n_cells, dtype=bool),
+                        np.full(n_cells, -1, dtype=np.int64), frequencies)
+
+
 def neighbour_table(model) -> np.ndarray:
     """(N, 4) int64 each cell's north, south, west and east neighbour (:data:`CONTEXT_DIRECTIONS`)
     in ``model`` (a :class:`~onlinemap.model.GridModel`), -1 off the grid: the grid's moves

@@ -211,7 +211,7 @@ def test_the_filter_learns_every_learn_every_steps_from_its_mixture_with_its_opt
     rule applied to the state before it and the particles' mixture at that step (recorded here),
     the model's prior, the grid's neighbours and alpha = prior_strength / K; the frozen contexts
     and read cells carry over between learning steps."""
-    import onlinemap.estimators.rbpf as rbpf_module
+    import onlinemap.estimators.rbpf_prior as rbpf_module
     calls = []
     original = rbpf_module.learn_context
 

@@ -48,7 +48,7 @@ from .. import arguments
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, ModelError
-from ..label_prior import CONTEXT, DEFAULT_LEARN_EVERY, LEARN, ContextState, neighbour_table, shown_options
+from ..label_prior import DEFAULT_LEARN_EVERY, shown_options
 from ..kernels.rbpf import in_place_ancestors
 from ..kernels.rbpf_commit import Staged, rbpf_keep_children
 from ..model import GridModel
@@ -60,7 +60,7 @@ from .block_pool import BlockPool, block_layout
 from .rbpf_kernels import StepKit, no_moves, observed, scratch_buffers, step_kit, thread_count
 from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start, history_growth
 from .rbpf_move import MoveCounts, PathHistory, move_options, rebuilds
-from .rbpf_prior import learn, learn_context, prior_options, resolved_prior, retilt
+from .rbpf_prior import current_tilt, learn_prior, prior_options, resolved_prior, start_prior
 from .rbpf_recovery import describe, impossible, logsumexp, no_particle_explains, recovery_note, relocate
 from .rbpf_state import check_state, upgrade_attributes
 
@@ -144,23 +144,15 @@ class RaoBlackwellisedPF:
     **Label prior** (``label_prior``, ``prior_strength``, ``learn_every``; :mod:`onlinemap.label_prior`,
     the math in :mod:`onlinemap.estimators.rbpf_prior`). None (the default): what the model says,
     ``"learn"`` on a model whose label frequencies are unknown (generated buildings, floors read
-    from files) in a static world, the model's prior table otherwise
-    (the paper's worlds: every run as without the option). ``"model"``: the model's table
-    always. A (K,) frequency vector: every cell's prior is the model's
-    tilted by it, ``normalise(prior_i * v)`` (``v`` itself under the default uniform prior).
-    ``"learn"`` (static worlds only): the frequencies, under a Dirichlet of total pseudo-count
-    ``prior_strength`` (default K), are re-estimated every ``learn_every`` steps (default 10) from
-    the expected labels of the cells read so far, and every cell's prior is moved to them (one
-    pass over the block rows in use): the plug-in (empirical Bayes) approximation of the
-    hierarchical model the exact filter computes exactly; particle weights are not changed.
-    :attr:`label_frequencies` gives the current frequencies (checkpointed). ``"context"`` (static
-    grid worlds only; this filter's alone): every cell gets its own tilt v_i, the predictive of its
-    label given its 4 grid neighbours' labels as they were read before it (walls come in lines,
-    doors sit in walls), learned every ``learn_every`` steps from the particles' mixture map and
-    backed off to the learned frequencies (one per-cell pass over the block rows in use; the same
-    cost as ``"learn"``); :attr:`context_tilts` gives v (N, K), :attr:`label_frequencies` the
-    frequencies (both checkpointed). On the 32 x 32 replays of closed-loop runs at 1,000
-    particles it lowers the final map error on every floor measured (CONTEXT_PRIOR.md).
+    from files) in a static world, else the model's prior table (the paper's worlds: every run as
+    without the option). ``"model"``: the model's table always. A (K,) vector v: every cell's
+    prior is ``normalise(prior_i * v)``. ``"learn"`` (static worlds): the frequencies, under a
+    Dirichlet of total pseudo-count ``prior_strength`` (default K), re-estimated every
+    ``learn_every`` steps (default 10) from the expected labels of the cells read, every cell's
+    prior moved to them; ``"context"`` (static grid worlds; this filter only): every cell's own
+    tilt v_i, its label's predictive given its 4 neighbours' labels as read before it, backed off
+    to those frequencies (:attr:`context_tilts`). Plug-in (empirical Bayes) priors, one pass over the
+    block rows in use, weights unchanged; :attr:`label_frequencies` gives the frequencies (checkpointed).
 
     ``threads``: how many threads the update and the belief use, at most ``NUMBA_NUM_THREADS``
     (None: all; Python threads on numba kernels that release the GIL,
@@ -182,15 +174,11 @@ class RaoBlackwellisedPF:
     #: overwritten by every step before being read: not state (a checkpoint records their dtype and shape only)
     scratch_attributes = ("_scratch_ints", "_scratch_floats", "_scratch_staged_ints", "_scratch_staged_cells")
 
-    #: label_prior="learn"'s current label frequencies (K,): an attribute of such a filter only (and
-    #: of its checkpoints); None, this class default, for the other filters, whose state is as without the option
+    #: label_prior="learn"'s (and "context"'s) current label frequencies (K,); "context"'s tilts (N, K), cells read
+    #: (N,) and frozen contexts (N,) (label_prior.ContextState): attributes of such filters only (and of their
+    #: checkpoints); None, these class defaults, for the other filters, whose state is as without the options
     _label_frequencies: np.ndarray | None = None
-    #: label_prior="context"'s state beside ``_label_frequencies`` (:class:`~onlinemap.label_prior.ContextState`):
-    #: every cell's tilt (N, K), the cells read (N,) and their frozen contexts (N,); None, these class defaults,
-    #: for the other filters
-    _context_tilts: np.ndarray | None = None
-    _context_read: np.ndarray | None = None
-    _context_frozen: np.ndarray | None = None
+    _context_tilts = _context_read = _context_frozen = None
 
     #: what the placeholder defaults run with the other defaults (estimator_options shows these)
     resolved_defaults = MappingProxyType({"resampling": FEARNHEAD_CLIFFORD})
@@ -233,14 +221,7 @@ class RaoBlackwellisedPF:
             self._log_weights[0] = 0.0
         self._weights = np.exp(self._log_weights)  # exp(_log_weights), kept beside them
         self._blocks = BlockPool.new(model, layout, n_particles, not model.is_static and self.lazy_dynamics)
-        if prior.kind == "fixed":  # every cell's prior tilted by the vector (rbpf_prior.py)
-            retilt(self._blocks, prior.frequencies)
-        elif prior.kind in (LEARN, CONTEXT):  # pi_0 = alpha / A, uniform: the rows as they are
-            self._label_frequencies = prior.alpha / prior.alpha.sum()
-            if prior.kind == CONTEXT:  # v_0 = pi_0 for every cell, nothing read
-                self._context_tilts = np.tile(self._label_frequencies, (model.n_cells, 1))
-                self._context_read = np.zeros(model.n_cells, dtype=bool)
-                self._context_frozen = np.full(model.n_cells, -1, dtype=np.int64)
+        start_prior(self, prior)  # the rows tilted by a vector, or the learning state (rbpf_prior.py)
         fc = resampling == FEARNHEAD_CLIFFORD
         # the resample-move step's paths (rbpf_move.py); None without it
         self._history = None if move_window is None else PathHistory.new(model, n_particles, exact=fc)
@@ -328,8 +309,7 @@ class RaoBlackwellisedPF:
     @property
     def label_frequencies(self) -> np.ndarray | None:
         """(K,) the label frequencies every cell's prior is tilted by, a read-only copy: the current
-        estimate with ``label_prior="learn"`` (with ``"context"``: those the contexts back off to,
-        :attr:`context_tilts`), the given vector, or None (the model's own prior)."""
+        estimate with ``label_prior="learn"`` or ``"context"``, the given vector, or None."""
         if self._label_frequencies is not None:
             return read_only(self._label_frequencies.copy())
         fixed = resolved_prior(self.model, self.options).frequencies
@@ -337,16 +317,8 @@ class RaoBlackwellisedPF:
 
     @property
     def context_tilts(self) -> np.ndarray | None:
-        """(N, K) every cell's prior tilt v_i with ``label_prior="context"`` (rows summing to 1: a
-        cell's unread marginal is ``normalise(model.label_prior[i] * v_i)``), a read-only copy;
-        None for the other filters."""
+        """(N, K) each cell's tilt v_i with ``label_prior="context"`` (rows summing to 1), a read-only copy; else None."""
         return None if self._context_tilts is None else read_only(self._context_tilts.copy())
-
-    @property
-    def _tilt(self) -> np.ndarray | None:
-        """The tilt every stored marginal carries: (N, K) with ``"context"``, (K,) with a vector or
-        ``"learn"``, None without one."""
-        return self._context_tilts if self._context_tilts is not None else self.label_frequencies
 
     @property
     def recoveries(self) -> int:
@@ -430,18 +402,9 @@ class RaoBlackwellisedPF:
             if history.move_due(t, self.move_window, self.move_every, self.move_lag, rebuilds(self.model)):
                 self._history, self._blocks = history.move(self._blocks, self._locations, self._log_weights,
                                                            self.model, t, self.move_window, self.move_lag, self._rng,
-                                                           self._tilt)
-        frequencies = self._label_frequencies
-        if frequencies is not None and t % (self.options["learn_every"] or DEFAULT_LEARN_EVERY) == 0:
-            alpha = resolved_prior(self.model, self.options).alpha
-            weights, threads = self._weights / self._weights.sum(), self._kit.kernels().threads
-            if self._context_tilts is None:
-                self._label_frequencies = learn(self._blocks, self.model, t, weights, frequencies, alpha, threads)
-            else:
-                state = ContextState(self._context_tilts, self._context_read, self._context_frozen, frequencies)
-                state = learn_context(self._blocks, self.model, t, weights, state, neighbour_table(self.model),
-                                      alpha, threads)
-                self._context_tilts, self._context_read, self._context_frozen, self._label_frequencies = state
+                                                           current_tilt(self))
+        if self._label_frequencies is not None and t % (self.options["learn_every"] or DEFAULT_LEARN_EVERY) == 0:
+            learn_prior(self, t, self._kit.kernels().threads)  # label_prior="learn" or "context" (rbpf_prior.py)
         return ancestors
 
     def _update_sampling(self, a: int | None, z, t: int) -> np.ndarray:
