@@ -169,27 +169,37 @@ def test_the_learned_tilt_converges_to_the_true_conditional_of_a_north_copying_l
 
 
 # --- the filter ----------------------------------------------------------------------------------------------------
-def run_building(steps=120, **options):
-    model, true_map = om.building(12, 12, seed=2, footprint="cross")
+def open_grid():
+    """A static 10 x 10 grid, 3 labels drawn with a seeded generator, no blocking label, cross footprint: the
+    resample-move divides the window's readings out of the stored marginals (no rebuilding)."""
+    model = om.grid_model(10, 10, 3, p_obs=0.8, p_move=0.8, footprint="cross")
+    return model, np.random.default_rng(5).choice(3, size=model.n_cells, p=[0.6, 0.3, 0.1])
+
+
+def run_building(steps=120, world=None, **options):
+    model, true_map = om.building(12, 12, seed=2, footprint="cross") if world is None else world
     run = om.simulate(model, true_map, om.random_walk(model, steps - 1, seed=3), seed=3)
     est = om.make_estimator("rbpf", model, n_particles=40, seed=1, resampling="residual", label_prior="context",
                             **options)
     return model, run, est
 
 
-def test_every_particle_map_is_the_prior_tilted_by_v_times_its_paths_factors_through_moves():
-    """12 x 12 generated building (blocking walls, cross footprint), 120 steps, 40 particles,
+@pytest.mark.parametrize("world", [None, "open"], ids=["building rebuilds", "open grid divides"])
+def test_every_particle_map_is_the_prior_tilted_by_v_times_its_paths_factors_through_moves(world):
+    """12 x 12 generated building (blocking walls, cross footprint; the move rebuilds maps from the
+    history), and an open grid (the move divides readings out), 120 steps, 40 particles,
     resample-move every 5 steps: each live particle's map equals ``normalise(prior_i v_i prod f)``
     over its path's readings and presses, rebuilt here from the path history (the model's tables
     only), v the filter's current per-cell tilt."""
-    model, run, est = run_building(move_window=6, move_every=5, move_lag=10)
+    model, run, est = run_building(world=None if world is None else open_grid(), move_window=6, move_every=5,
+                                   move_lag=10)
     for t in range(run.n_steps):
         est.update(None if t == 0 else int(run.actions[t - 1]), run.observations[t])
     assert est.recoveries == 0 and est.moves.proposed > 100 and est.moves.accepted > 0
     v = est.context_tilts
     assert np.ptp(v, axis=0).max() > 0.1  # the cells' tilts differ: the check is per cell
     paths, maps = est._history.paths(est.t), est.particle_maps()
-    blocks = np.asarray(model.blocking)
+    blocks = np.zeros(model.n_labels, bool) if model.blocking is None else np.asarray(model.blocking)
     readings = run.observations.reshape(run.n_steps, -1)
     for p in np.flatnonzero(est.weights > 0)[:8]:
         expected = model.label_prior * v
