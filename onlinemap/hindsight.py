@@ -136,7 +136,8 @@ def smoothed_rbpf_map(model: GridModel, actions, observations, *, n_particles: i
     dynamic world and InvalidOptionError for ``move_window`` (a move redraws past locations the
     genealogy does not record) or ``label_prior="context"`` (the filter's alone: a path's map has
     no population to learn contexts from), before the replay. Cost: the replay O(T P F K^2), the
-    genealogy O(T P log P) time and 16 T P bytes, the distinct paths O(T P log P), the maps O(D (T F K + iterations N K)) for D distinct paths."""
+    genealogy O(T P log P) time and 16 T P bytes, the distinct paths O(T P log P), the maps
+    O(D (T F K + iterations N K)) for D distinct paths."""
     if not model.is_static:
         raise ModelError("rbpf_smoothed needs a static world: in a dynamic one the final map is the filter's own "
                          "(the cells' chains end at the last step)")

@@ -102,7 +102,8 @@ def resolve_label_prior(n_labels: int, label_prior, prior_strength=None, *, mode
     if isinstance(label_prior, str) and label_prior == CONTEXT and not context:
         raise InvalidOptionError("label_prior='context' is the RBPF's only (its per-cell neighbour-context tilt of "
                                  "the block pool); this estimator or fit takes None, 'model', 'learn' or a vector")
-    learns = (isinstance(label_prior, str) and label_prior in (LEARN, CONTEXT)) or (label_prior is None and model_learns)
+    learns = (isinstance(label_prior, str) and label_prior in (LEARN, CONTEXT)) or \
+        (label_prior is None and model_learns)
     if prior_strength is not None and not learns:
         raise InvalidOptionError("prior_strength is the Dirichlet's total pseudo-count of label_prior='learn'; "
                                  f"it means nothing with label_prior={label_prior!r}"

@@ -317,7 +317,7 @@ class RaoBlackwellisedPF:
 
     @property
     def context_tilts(self) -> np.ndarray | None:
-        """(N, K) each cell's tilt v_i with ``label_prior="context"`` (rows summing to 1), a read-only copy; else None."""
+        """(N, K) each cell's tilt v_i with ``label_prior="context"``, a read-only copy; else None."""
         return None if self._context_tilts is None else read_only(self._context_tilts.copy())
 
     @property
