@@ -134,14 +134,17 @@ def smoothed_rbpf_map(model: GridModel, actions, observations, *, n_particles: i
     frequencies learned along the run, here each path's own fixed point). ``distinct_paths``,
     ``common_steps`` and ``lineages`` measure the genealogy's degeneracy. Raises ModelError in a
     dynamic world and InvalidOptionError for ``move_window`` (a move redraws past locations the
-    genealogy does not record). Cost: the replay O(T P F K^2), the genealogy O(T P log P) time and 16 T P bytes, the
-    distinct paths O(T P log P), the maps O(D (T F K + iterations N K)) for D distinct paths."""
+    genealogy does not record) or ``label_prior="context"`` (the filter's alone: a path's map has
+    no population to learn contexts from), before the replay. Cost: the replay O(T P F K^2), the
+    genealogy O(T P log P) time and 16 T P bytes, the distinct paths O(T P log P), the maps
+    O(D (T F K + iterations N K)) for D distinct paths."""
     if not model.is_static:
         raise ModelError("rbpf_smoothed needs a static world: in a dynamic one the final map is the filter's own "
                          "(the cells' chains end at the last step)")
     if rbpf_options.get("move_window") is not None:
         raise InvalidOptionError("rbpf_smoothed does not take move_window: the resample-move step redraws past "
                                  "locations, which the genealogy (each step's ancestors) does not record")
+    _resolved(model, label_prior, prior_strength)  # the paths' maps take the filter's prior: refuse before the replay
     observations = np.asarray(observations)
     steps = len(observations)
     filter_ = RaoBlackwellisedPF(model, n_particles=n_particles, seed=seed, label_prior=label_prior,

@@ -30,6 +30,22 @@ option ``label_prior``:
   posterior exactly (the Dirichlet-multinomial joint); approximate filters plug in the posterior
   mean of theta given the expected label counts of the cells they have read (empirical Bayes),
   every ``learn_every`` steps (default :data:`DEFAULT_LEARN_EVERY`).
+- ``"context"`` (the RBPF only, static grid worlds): every cell gets its own tilt, the
+  predictive of its label given the labels of its 4 grid neighbours as they were read before it
+  (walls come in lines, doors sit in walls), learned online from the cells read and backed off to
+  the learned frequencies above (the same ``alpha``, ``prior_strength``, ``learn_every``). The
+  neighbour *states* are 0 (off the grid), 1 (not read) or ``2 + argmax m_j`` (a read neighbour
+  j, m the filter's mixture map); a cell's *context* is the base-(K + 2) number of its north,
+  south, west and east states, :func:`context_codes`, frozen at the cell's first read. With
+  ``n[c, k]`` the summed marginals of the read cells of context c and ``pi`` the learned
+  frequencies, a cell of context c has the prior tilt
+
+      v_i = (n[c_i, :] + S pi) / (sum_k n[c_i, k] + S),    S = K,
+
+  (:func:`learn_context`): a Dirichlet-multinomial predictive per context with mean pi and
+  total pseudo-count K, so a context seen n times weighs its counts n / (n + K). A population
+  plug-in (empirical Bayes): the contexts come from the particles' mixture, not each particle's
+  own map.
 
 The hindsight fits of a recorded run (:func:`onlinemap.hindsight.told_location`,
 :func:`onlinemap.layered_em.fit_layered_map`) take the same option but read None as the model's
@@ -46,6 +62,7 @@ from scipy.special import gammaln
 
 from .errors import InvalidOptionError
 
+CONTEXT = "context"
 LEARN = "learn"
 MAX_PRIOR_ITERATIONS = 1000  # fixed_point_frequencies: a contraction, settled long before
 MODEL = "model"
@@ -56,26 +73,37 @@ DEFAULT_LEARN_EVERY = 10
 #: a cell whose marginal differs from an unread cell's by more than this (max over labels) counts as
 #: read: far above the rounding of repeated retilts (~1e-15 a step), far below any reading's effect
 READ_TOLERANCE = 1e-9
+#: the grid neighbours a ``"context"`` prior conditions on, in the order of its code's digits
+CONTEXT_DIRECTIONS = ("north", "south", "west", "east")
+#: the neighbour state of an off-grid neighbour, and of one not read yet (a read one: 2 + its label)
+OFF_GRID, NOT_READ = 0, 1
 
 
 class LabelPrior(NamedTuple):
     """A resolved ``label_prior`` option: ``kind`` is ``"model"`` (the model's own prior),
-    ``"fixed"`` (``frequencies`` (K,) for every cell) or ``"learn"`` (a Dirichlet with
-    concentrations ``alpha`` (K,) over the label frequencies)."""
+    ``"fixed"`` (``frequencies`` (K,) for every cell), ``"learn"`` (a Dirichlet with
+    concentrations ``alpha`` (K,) over the label frequencies) or ``"context"`` (the same
+    ``alpha`` for the frequencies the neighbour contexts back off to)."""
 
     kind: str
     frequencies: np.ndarray | None
     alpha: np.ndarray | None
 
 
-def resolve_label_prior(n_labels: int, label_prior, prior_strength=None, *, model_learns: bool = False) -> LabelPrior:
+def resolve_label_prior(n_labels: int, label_prior, prior_strength=None, *, model_learns: bool = False,
+                        context: bool = False) -> LabelPrior:
     """Check and resolve the ``label_prior`` / ``prior_strength`` options of an estimator for K =
     ``n_labels`` labels; ``model_learns``: None means ``"learn"`` (the model's label frequencies
-    are unknown and the estimator can learn them). Raises
-    :class:`~onlinemap.errors.InvalidOptionError` naming the problem: an unknown string, a vector
-    of the wrong length or not a probability vector (entries in [0, 1] summing to 1), a
-    ``prior_strength`` that is not a positive finite number or given where nothing is learned. O(K)."""
-    learns = (isinstance(label_prior, str) and label_prior == LEARN) or (label_prior is None and model_learns)
+    are unknown and the estimator can learn them); ``context``: the estimator takes
+    ``"context"`` (the RBPF). Raises :class:`~onlinemap.errors.InvalidOptionError` naming the
+    problem: an unknown string, ``"context"`` where it is not taken, a vector of the wrong length
+    or not a probability vector (entries in [0, 1] summing to 1), a ``prior_strength`` that is not
+    a positive finite number or given where nothing is learned. O(K)."""
+    if isinstance(label_prior, str) and label_prior == CONTEXT and not context:
+        raise InvalidOptionError("label_prior='context' is the RBPF's only (its per-cell neighbour-context tilt of "
+                                 "the block pool); this estimator or fit takes None, 'model', 'learn' or a vector")
+    learns = (isinstance(label_prior, str) and label_prior in (LEARN, CONTEXT)) or \
+        (label_prior is None and model_learns)
     if prior_strength is not None and not learns:
         raise InvalidOptionError("prior_strength is the Dirichlet's total pseudo-count of label_prior='learn'; "
                                  f"it means nothing with label_prior={label_prior!r}"
@@ -87,10 +115,12 @@ def resolve_label_prior(n_labels: int, label_prior, prior_strength=None, *, mode
         if isinstance(strength, bool) or not isinstance(strength, (int, float, np.integer, np.floating)) \
                 or not 0 < float(strength) < math.inf:
             raise InvalidOptionError(f"prior_strength must be a positive finite number, got {prior_strength!r}")
-        return LabelPrior(LEARN, None, np.full(n_labels, float(strength) / n_labels))
+        return LabelPrior(CONTEXT if label_prior == CONTEXT else LEARN, None,
+                          np.full(n_labels, float(strength) / n_labels))
     if isinstance(label_prior, str):
+        learned = "'learn', 'context'" if context else "'learn'"
         raise InvalidOptionError(f"label_prior must be None (what the model says), 'model' (the model's prior "
-                                 f"table), 'learn' or a vector of {n_labels} label frequencies, got {label_prior!r}")
+                                 f"table), {learned} or a vector of {n_labels} label frequencies, got {label_prior!r}")
     try:
         freq = np.array(label_prior, dtype=np.float64)
     except (TypeError, ValueError):
@@ -156,38 +186,42 @@ def fixed_point_frequencies(alpha: np.ndarray, log_evidence: np.ndarray, seen: n
     return theta
 
 
-def plug_in_prior(model, label_prior, prior_strength=None, learn_every=None) -> LabelPrior:
+def plug_in_prior(model, label_prior, prior_strength=None, learn_every=None, *, context: bool = False) -> LabelPrior:
     """Check and resolve the label-prior options of an approximate (plug-in) filter for
-    ``model`` (a :class:`~onlinemap.model.GridModel`): :func:`resolve_label_prior`, and
+    ``model`` (a :class:`~onlinemap.model.GridModel`): :func:`resolve_label_prior` (``context``:
+    the filter takes ``"context"``, which also needs a grid, :func:`neighbour_table`), and
     ``learn_every`` (a positive integer, given only where the filter learns). The model's
     default learning (``label_prior=None`` with ``model.unknown_label_frequencies``) applies
     where the filter can learn: a static world (C = I); elsewhere None is the model's table. Raises
     :class:`~onlinemap.errors.InvalidOptionError`: an explicit ``"learn"`` in a dynamic world
     (a cell's marginal then mixes readings of different ages, which one rescaling of the prior
-    does not move consistently), a fixed vector giving probability zero to every label a cell's
-    model prior allows, a bad ``learn_every``. O(N K)."""
+    does not move consistently; ``"context"`` likewise), a fixed vector giving probability zero to
+    every label a cell's model prior allows, a bad ``learn_every``. O(N K)."""
     prior = resolve_label_prior(model.n_labels, label_prior, prior_strength,
-                                model_learns=model.learns_label_frequencies)
+                                model_learns=model.learns_label_frequencies, context=context)
     if prior.kind == "fixed" and np.any((model.label_prior * prior.frequencies).sum(axis=1) == 0):
         raise InvalidOptionError(f"label_prior {prior.frequencies.tolist()} gives probability zero to every label "
                                  "some cell's model prior allows")
     if learn_every is not None:
-        if prior.kind != LEARN:
+        if prior.kind not in (LEARN, CONTEXT):
             raise InvalidOptionError(f"learn_every is how often label_prior='learn' updates its frequencies; it "
                                      f"means nothing with label_prior={label_prior!r}")
         if isinstance(learn_every, (bool, np.bool_)) or not isinstance(learn_every, (int, np.integer)) \
                 or learn_every < 1:
             raise InvalidOptionError(f"learn_every must be a whole number of steps >= 1, got {learn_every!r}")
-    if prior.kind == LEARN and not model.is_static:
-        raise InvalidOptionError("label_prior='learn' needs a static world (the change matrix C = I): in a dynamic "
-                                 "world a cell's marginal mixes readings of different ages, which one rescaling "
-                                 "of the prior does not move consistently")
+    if prior.kind in (LEARN, CONTEXT) and not model.is_static:
+        raise InvalidOptionError(f"label_prior={prior.kind!r} needs a static world (the change matrix C = I): in a "
+                                 "dynamic world a cell's marginal mixes readings of different ages, which one "
+                                 "rescaling of the prior does not move consistently")
+    if prior.kind == CONTEXT:
+        neighbour_table(model)  # refuses a model that is not a grid
     return prior
 
 
 def unread_marginals(prior: np.ndarray, frequencies: np.ndarray) -> np.ndarray:
     """(N, K) the marginal of a cell no reading touched, ``normalise(prior_i * frequencies)``,
-    from the model's prior table (N, K) and the frequencies (K,) it is tilted by. O(N K)."""
+    from the model's prior table (N, K) and the frequencies (K,) it is tilted by (or every cell's
+    own tilt (N, K): ``"context"``). O(N K)."""
     tilted = prior * frequencies
     return tilted / tilted.sum(axis=1, keepdims=True)
 
@@ -208,6 +242,98 @@ def learned_frequencies(marginals: np.ndarray, prior: np.ndarray, frequencies: n
     ``frequencies`` (K,) by more than :data:`READ_TOLERANCE`). O(N K)."""
     read = np.abs(marginals - unread_marginals(prior, frequencies)).max(axis=1) > READ_TOLERANCE
     return posterior_frequencies(alpha, marginals[read].sum(axis=0))
+
+
+class ContextState(NamedTuple):
+    """``label_prior="context"``'s state (:func:`learn_context`): ``tilts`` (N, K) every cell's
+    prior tilt v_i (rows summing to 1), ``read`` (N,) bool the cells read so far, ``frozen`` (N,)
+    int64 each read cell's context code at its first read (-1 for the unread), ``frequencies`` (K,)
+    the learned frequencies pi the contexts back off to."""
+
+    tilts: np.ndarray
+    read: np.ndarray
+    frozen: np.ndarray
+    frequencies: np.ndarray
+
+
+def fresh_context(n_cells: int, frequencies: np.ndarray) -> ContextState:
+    """The :class:`ContextState` of a filter that has read nothing: every cell's tilt the
+    ``frequencies`` (K,), no cell read, no context frozen. O(N K)."""
+    return ContextState(np.tile(frequencies, (n_cells, 1)), np.zeros(n_cells, dtype=bool),
+                        np.full(n_cells, -1, dtype=np.int64), frequencies)
+
+
+def neighbour_table(model) -> np.ndarray:
+    """(N, 4) int64 each cell's north, south, west and east neighbour (:data:`CONTEXT_DIRECTIONS`)
+    in ``model`` (a :class:`~onlinemap.model.GridModel`), -1 off the grid: the grid's moves
+    ``model.neighbors[:, a]``, a move that stays (``== i``) meaning no neighbour. Raises
+    :class:`~onlinemap.errors.InvalidOptionError` for a model whose actions are not the four grid
+    directions (a corridor). O(N)."""
+    names = tuple(model.action_names)
+    if not set(CONTEXT_DIRECTIONS) <= set(names):
+        raise InvalidOptionError(f"label_prior='context' conditions on a cell's 4 grid neighbours; this model's "
+                                 f"actions are {names}, not the grid's {CONTEXT_DIRECTIONS}")
+    table = model.neighbors[:, [names.index(name) for name in CONTEXT_DIRECTIONS]].astype(np.int64)
+    return np.where(table == np.arange(model.n_cells)[:, None], -1, table)
+
+
+def n_context_codes(n_labels: int) -> int:
+    """The number of context codes, (K + 2)^4: every combination of 4 neighbour states. O(1)."""
+    return (n_labels + 2) ** len(CONTEXT_DIRECTIONS)
+
+
+def neighbour_states(mixture: np.ndarray, read: np.ndarray) -> np.ndarray:
+    """(N,) int64 each cell's state as a neighbour: :data:`NOT_READ` if not ``read`` (N,), else 2
+    + its most probable label under ``mixture`` (N, K) (the first of ties). O(N K)."""
+    return np.where(read, 2 + np.argmax(mixture, axis=1), NOT_READ)
+
+
+def context_codes(states: np.ndarray, table: np.ndarray, n_labels: int) -> np.ndarray:
+    """(N,) int64 every cell's context: the base-(K + 2) number whose digits are the ``states``
+    (N,) of its neighbours in ``table`` (N, 4) (:func:`neighbour_table`; :data:`OFF_GRID` where
+    -1), the north neighbour's the most significant. O(N)."""
+    base = n_labels + 2
+    digits = np.where(table < 0, OFF_GRID, states[np.maximum(table, 0)])
+    codes = np.zeros(len(table), dtype=np.int64)
+    for column in digits.T:
+        codes = codes * base + column
+    return codes
+
+
+def context_tilts(mixture: np.ndarray, read: np.ndarray, codes: np.ndarray, frequencies: np.ndarray) -> np.ndarray:
+    """(N, K) every cell's tilt ``v_i = (n[c_i] + S pi) / (sum_k n[c_i, k] + S)``, S = K, with
+    ``n[c, k]`` the summed ``mixture`` (N, K) over the ``read`` (N,) cells of context ``c``,
+    ``codes`` (N,) each cell's context and ``frequencies`` pi (K,). Rows sum to 1. O(N K)."""
+    n_labels = mixture.shape[1]
+    contexts, which = np.unique(codes, return_inverse=True)  # only the contexts in use: (K + 2)^4 may be large
+    counts = np.zeros((len(contexts), n_labels))
+    for k in range(n_labels):
+        counts[:, k] = np.bincount(which[read], weights=mixture[read, k], minlength=len(contexts))
+    strength = float(n_labels)
+    return (counts[which] + strength * frequencies) / (counts.sum(axis=1)[which, None] + strength)
+
+
+def learn_context(mixture: np.ndarray, prior: np.ndarray, state: ContextState, table: np.ndarray,
+                  alpha: np.ndarray) -> ContextState:
+    """One learning step of ``label_prior="context"`` (the module docstring) from the mixture map
+    (N, K) (rows summing to 1), the model's prior table (N, K), the current ``state``, the
+    neighbours ``table`` (N, 4) and the Dirichlet ``alpha`` (K,). The cells read now are those
+    whose mixture differs from their unread marginal ``normalise(prior_i * v_i)`` by more than
+    :data:`READ_TOLERANCE`; those read for the first time freeze their context from the states
+    before this step (:func:`neighbour_states` of the cells read before: cells read at the same
+    step do not see each other); the unread take theirs from the states after it. Then pi =
+    ``(alpha + sum of the mixture over the read cells) / (A + n_read)`` and the tilts
+    (:func:`context_tilts`). A fresh state; ``state`` is not changed. O(N K)."""
+    n_labels = mixture.shape[1]
+    now = np.abs(mixture - unread_marginals(prior, state.tilts)).max(axis=1) > READ_TOLERANCE
+    first = now & ~state.read
+    before = context_codes(neighbour_states(mixture, state.read), table, n_labels)
+    frozen = np.where(first, before, state.frozen)
+    read = state.read | now
+    after = context_codes(neighbour_states(mixture, read), table, n_labels)
+    frequencies = posterior_frequencies(alpha, mixture[read].sum(axis=0))
+    tilts = context_tilts(mixture, read, np.where(read, frozen, after), frequencies)
+    return ContextState(tilts, read, frozen, frequencies)
 
 
 def shown_options(options: dict, kind: str) -> dict:

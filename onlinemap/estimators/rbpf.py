@@ -48,7 +48,7 @@ from .. import arguments
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, ModelError
-from ..label_prior import DEFAULT_LEARN_EVERY, LEARN, shown_options
+from ..label_prior import DEFAULT_LEARN_EVERY, shown_options
 from ..kernels.rbpf import in_place_ancestors
 from ..kernels.rbpf_commit import Staged, rbpf_keep_children
 from ..model import GridModel
@@ -60,7 +60,7 @@ from .block_pool import BlockPool, block_layout
 from .rbpf_kernels import StepKit, no_moves, observed, scratch_buffers, step_kit, thread_count
 from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start, history_growth
 from .rbpf_move import MoveCounts, PathHistory, move_options, rebuilds
-from .rbpf_prior import learn, prior_options, resolved_prior, retilt
+from .rbpf_prior import current_tilt, learn_prior, prior_options, resolved_prior, start_prior
 from .rbpf_recovery import describe, impossible, logsumexp, no_particle_explains, recovery_note, relocate
 from .rbpf_state import check_state, upgrade_attributes
 
@@ -144,16 +144,15 @@ class RaoBlackwellisedPF:
     **Label prior** (``label_prior``, ``prior_strength``, ``learn_every``; :mod:`onlinemap.label_prior`,
     the math in :mod:`onlinemap.estimators.rbpf_prior`). None (the default): what the model says,
     ``"learn"`` on a model whose label frequencies are unknown (generated buildings, floors read
-    from files) in a static world, the model's prior table otherwise
-    (the paper's worlds: every run as without the option). ``"model"``: the model's table
-    always. A (K,) frequency vector: every cell's prior is the model's
-    tilted by it, ``normalise(prior_i * v)`` (``v`` itself under the default uniform prior).
-    ``"learn"`` (static worlds only): the frequencies, under a Dirichlet of total pseudo-count
-    ``prior_strength`` (default K), are re-estimated every ``learn_every`` steps (default 10) from
-    the expected labels of the cells read so far, and every cell's prior is moved to them (one
-    pass over the block rows in use): the plug-in (empirical Bayes) approximation of the
-    hierarchical model the exact filter computes exactly; particle weights are not changed.
-    :attr:`label_frequencies` gives the current frequencies (checkpointed).
+    from files) in a static world, else the model's prior table (the paper's worlds: every run as
+    without the option). ``"model"``: the model's table always. A (K,) vector v: every cell's
+    prior is ``normalise(prior_i * v)``. ``"learn"`` (static worlds): the frequencies, under a
+    Dirichlet of total pseudo-count ``prior_strength`` (default K), re-estimated every
+    ``learn_every`` steps (default 10) from the expected labels of the cells read, every cell's
+    prior moved to them; ``"context"`` (static grid worlds; this filter only): every cell's own
+    tilt v_i, its label's predictive given its 4 neighbours' labels as read before it, backed off
+    to those frequencies (:attr:`context_tilts`). Plug-in (empirical Bayes) priors, one pass over the
+    block rows in use, weights unchanged; :attr:`label_frequencies` gives the frequencies (checkpointed).
 
     ``threads``: how many threads the update and the belief use, at most ``NUMBA_NUM_THREADS``
     (None: all; Python threads on numba kernels that release the GIL,
@@ -175,9 +174,11 @@ class RaoBlackwellisedPF:
     #: overwritten by every step before being read: not state (a checkpoint records their dtype and shape only)
     scratch_attributes = ("_scratch_ints", "_scratch_floats", "_scratch_staged_ints", "_scratch_staged_cells")
 
-    #: label_prior="learn"'s current label frequencies (K,): an attribute of such a filter only (and
-    #: of its checkpoints); None, this class default, for the other filters, whose state is as without the option
+    #: label_prior="learn"'s (and "context"'s) current label frequencies (K,); "context"'s tilts (N, K), cells read
+    #: (N,) and frozen contexts (N,) (label_prior.ContextState): attributes of such filters only (and of their
+    #: checkpoints); None, these class defaults, for the other filters, whose state is as without the options
     _label_frequencies: np.ndarray | None = None
+    _context_tilts = _context_read = _context_frozen = None
 
     #: what the placeholder defaults run with the other defaults (estimator_options shows these)
     resolved_defaults = MappingProxyType({"resampling": FEARNHEAD_CLIFFORD})
@@ -220,10 +221,7 @@ class RaoBlackwellisedPF:
             self._log_weights[0] = 0.0
         self._weights = np.exp(self._log_weights)  # exp(_log_weights), kept beside them
         self._blocks = BlockPool.new(model, layout, n_particles, not model.is_static and self.lazy_dynamics)
-        if prior.kind == "fixed":  # every cell's prior tilted by the vector (rbpf_prior.py)
-            retilt(self._blocks, prior.frequencies)
-        elif prior.kind == LEARN:  # pi_0 = alpha / A, uniform: the rows as they are
-            self._label_frequencies = prior.alpha / prior.alpha.sum()
+        start_prior(self, prior)  # the rows tilted by a vector, or the learning state (rbpf_prior.py)
         fc = resampling == FEARNHEAD_CLIFFORD
         # the resample-move step's paths (rbpf_move.py); None without it
         self._history = None if move_window is None else PathHistory.new(model, n_particles, exact=fc)
@@ -311,11 +309,16 @@ class RaoBlackwellisedPF:
     @property
     def label_frequencies(self) -> np.ndarray | None:
         """(K,) the label frequencies every cell's prior is tilted by, a read-only copy: the current
-        estimate with ``label_prior="learn"``, the given vector, or None (the model's own prior)."""
+        estimate with ``label_prior="learn"`` or ``"context"``, the given vector, or None."""
         if self._label_frequencies is not None:
             return read_only(self._label_frequencies.copy())
         fixed = resolved_prior(self.model, self.options).frequencies
         return None if fixed is None else read_only(fixed.copy())
+
+    @property
+    def context_tilts(self) -> np.ndarray | None:
+        """(N, K) each cell's tilt v_i with ``label_prior="context"``, a read-only copy; else None."""
+        return None if self._context_tilts is None else read_only(self._context_tilts.copy())
 
     @property
     def recoveries(self) -> int:
@@ -399,12 +402,9 @@ class RaoBlackwellisedPF:
             if history.move_due(t, self.move_window, self.move_every, self.move_lag, rebuilds(self.model)):
                 self._history, self._blocks = history.move(self._blocks, self._locations, self._log_weights,
                                                            self.model, t, self.move_window, self.move_lag, self._rng,
-                                                           self.label_frequencies)
-        frequencies = self._label_frequencies
-        if frequencies is not None and t % (self.options["learn_every"] or DEFAULT_LEARN_EVERY) == 0:
-            alpha = resolved_prior(self.model, self.options).alpha
-            self._label_frequencies = learn(self._blocks, self.model, t, self._weights / self._weights.sum(),
-                                            frequencies, alpha, self._kit.kernels().threads)
+                                                           current_tilt(self))
+        if self._label_frequencies is not None and t % (self.options["learn_every"] or DEFAULT_LEARN_EVERY) == 0:
+            learn_prior(self, t, self._kit.kernels().threads)  # label_prior="learn" or "context" (rbpf_prior.py)
         return ancestors
 
     def _update_sampling(self, a: int | None, z, t: int) -> np.ndarray:

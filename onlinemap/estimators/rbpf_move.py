@@ -128,7 +128,8 @@ def rebuilds(model: GridModel) -> bool:
 
 def map_evidence(model: GridModel, frequencies: np.ndarray | None) -> MapEvidence:
     """The :class:`~onlinemap.kernels.rbpf_move.MapEvidence` of ``model`` with every cell's prior
-    tilted by ``frequencies`` (K,) (None: the model's own prior). O(N K)."""
+    tilted by ``frequencies`` (K,), or each cell by its own row of (N, K) (``label_prior="context"``;
+    None: the model's own prior). O(N K)."""
     prior = model.label_prior if frequencies is None else model.label_prior * frequencies
     return MapEvidence(np.ascontiguousarray(prior, dtype=np.float64), model.press_likelihood, rebuilds(model))
 
@@ -332,8 +333,8 @@ class PathHistory:
         uniforms (``rng.random``), in that order, dead slots too; the live ones are moved in slot
         order, in place, growing the map pool and the history when they run out of free rows
         (the memory guard allowed for P times :func:`map_rows_per_move` and
-        :func:`path_rows_per_move` rows before the step). ``frequencies`` (K,): the label-prior
-        tilt w every stored marginal carries (None: none). Returns the history and the pool (each
+        :func:`path_rows_per_move` rows before the step). ``frequencies`` (K,) or (N, K): the
+        label-prior tilt w every stored marginal carries (None: none). Returns the history and the pool (each
         this one or a grown copy). Cost: see the module docstring."""
         n_particles = len(locations)
         starts = rng.integers(self.first_start, t - lag - window + 1, size=n_particles)

@@ -11,6 +11,7 @@ import numpy as np
 
 from .. import state_checks as checks
 from ..checkpoint import state_node
+from ..label_prior import CONTEXT, n_context_codes
 from .block_pool import FORMAT_1_ATTRIBUTES, BlockPool
 from .rbpf_move import PathHistory
 
@@ -41,7 +42,8 @@ def check_state(state) -> None:
     """The invariants of a restored state (:mod:`onlinemap.state_checks`): the particles, their
     weights, the copy-on-write block pool (:meth:`BlockPool.check
     <onlinemap.estimators.block_pool.BlockPool.check>`) and, with ``label_prior="learn"``, the
-    label frequencies (positive, summing to 1: a Dirichlet posterior mean)."""
+    label frequencies (positive, summing to 1: a Dirichlet posterior mean); with ``"context"``
+    (:func:`check_context`) the frequencies and the context state."""
     model = state.model
     n, k, p = model.n_cells, model.n_labels, state.n_particles
     t = checks.step_index(state)
@@ -77,4 +79,33 @@ def check_state(state) -> None:
         if not np.all(np.isfinite(frequencies)) or np.any(frequencies <= 0) or np.any(frequencies > 1) \
                 or abs(frequencies.sum() - 1) > checks.ATOL:
             checks.fail("_label_frequencies", "must be label frequencies in (0, 1] summing to 1")
+    check_context(state, n, k)
     checks.belief(state, required=False)
+
+
+def check_context(state, n: int, k: int) -> None:
+    """The invariants of ``label_prior="context"``'s state (:class:`~onlinemap.label_prior.ContextState`)
+    in a filter of N = ``n`` cells and K = ``k`` labels: present exactly when the options ask for
+    it (with the learned frequencies), every cell's tilt (N, K) positive rows summing to 1 (the
+    retilt divides by them), the cells read (N,) bool, their frozen contexts (N,) -1 exactly
+    where not read and a context code (0 .. (K + 2)^4 - 1) where read. O(N K)."""
+    label_prior = state.options.get("label_prior")
+    wanted = isinstance(label_prior, str) and label_prior == CONTEXT
+    names = ("_context_tilts", "_context_read", "_context_frozen")
+    present = [getattr(state, name, None) is not None for name in names]
+    for name, there in zip(names, present):
+        if there != wanted:
+            checks.fail(name, f"must be {'an array' if wanted else 'None'} with label_prior={label_prior!r}")
+    if not wanted:
+        return
+    if getattr(state, "_label_frequencies", None) is None:
+        checks.fail("_label_frequencies", "must be the learned frequencies with label_prior='context'")
+    tilts = checks.array(state, "_context_tilts", (n, k), np.float64)
+    checks.probabilities("_context_tilts", tilts)
+    if np.any(tilts <= 0):
+        checks.fail("_context_tilts", "must be positive (a backed-off predictive)")
+    read = checks.array(state, "_context_read", (n,), np.bool_)
+    frozen = checks.array(state, "_context_frozen", (n,), np.int64)
+    if np.any(frozen[~read] != -1):
+        checks.fail("_context_frozen", "must be -1 at every cell not read")
+    checks.indices("_context_frozen", frozen[read], n_context_codes(k))
