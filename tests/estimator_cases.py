@@ -124,3 +124,23 @@ def dead_pid() -> int:
     child = subprocess.Popen([sys.executable, "-c", "pass"])
     child.wait()
     return child.pid
+
+
+def map_given_path(model: om.GridModel, path, actions, readings, tilt) -> np.ndarray:
+    """(N, K) the exact map of a static world given a path: ``normalise(label_prior * tilt * prod f)``
+    over the path's readings ``readings`` (T, F) and, with blocking labels, its presses (entered:
+    ``[k passable]``; stayed: ``1 - p_move [k passable]``), written out here from the model's
+    scalar tables step by step; ``tilt`` (K,) or (N, K)."""
+    blocks = np.zeros(model.n_labels, bool) if model.blocking is None else np.asarray(model.blocking)
+    expected = model.label_prior * tilt
+    for u, location in enumerate(path):
+        if u:
+            here = path[u - 1]
+            target = int(model.neighbors[here, int(actions[u - 1])])
+            if target != here:
+                expected[target] *= ~blocks if location == target else (1 - model.p_move) + model.p_move * blocks
+        for cell, z in zip(model.footprint_cells[location], readings[u]):
+            if cell >= 0:
+                expected[cell] *= model.sensor[:, z]
+        expected /= expected.sum(axis=1, keepdims=True)
+    return expected

@@ -17,7 +17,7 @@ from onlinemap.errors import CheckpointError, InvalidOptionError
 from onlinemap.hindsight import path_map, smoothed_rbpf_map, told_location
 from onlinemap.label_prior import (ContextState, context_codes, learn_context, neighbour_states, neighbour_table,
                                    unread_marginals)
-from estimator_cases import beliefs, random_run
+from estimator_cases import beliefs, map_given_path, random_run
 
 
 # --- the brute force: a cell's neighbours and code from its (row, column) ----------------------------------------
@@ -199,20 +199,9 @@ def test_every_particle_map_is_the_prior_tilted_by_v_times_its_paths_factors_thr
     v = est.context_tilts
     assert np.ptp(v, axis=0).max() > 0.1  # the cells' tilts differ: the check is per cell
     paths, maps = est._history.paths(est.t), est.particle_maps()
-    blocks = np.zeros(model.n_labels, bool) if model.blocking is None else np.asarray(model.blocking)
     readings = run.observations.reshape(run.n_steps, -1)
     for p in np.flatnonzero(est.weights > 0)[:8]:
-        expected = model.label_prior * v
-        for u, location in enumerate(paths[p]):
-            if u:
-                here, a = paths[p][u - 1], int(run.actions[u - 1])
-                target = int(model.neighbors[here, a])
-                if target != here:
-                    expected[target] *= ~blocks if location == target else (1 - model.p_move) + model.p_move * blocks
-            for cell, z in zip(model.footprint_cells[location], readings[u]):
-                if cell >= 0:
-                    expected[cell] *= model.sensor[:, z]
-            expected /= expected.sum(axis=1, keepdims=True)
+        expected = map_given_path(model, paths[p], run.actions, readings, v)
         np.testing.assert_allclose(maps[p], expected, atol=1e-9, rtol=0)
 
 

@@ -18,7 +18,7 @@ import pytest
 from scipy import stats
 
 import onlinemap as om
-from estimator_cases import random_run
+from estimator_cases import map_given_path, random_run
 from oracles import footprint_reads, grid_targets
 
 ROWS, COLS = 2, 3
@@ -259,20 +259,9 @@ def test_moves_run_on_a_blocking_building_with_a_footprint_and_the_learned_prior
     assert est.label_frequencies is not None and est.recoveries == 0
     assert est.moves.proposed > 100 and 0 < est.moves.accepted < est.moves.proposed
     paths, maps = est._history.paths(est.t), est.particle_maps()
-    blocks = np.asarray(model.blocking)
     readings = run.observations.reshape(run.n_steps, -1)
     for p in np.flatnonzero(est.weights > 0)[:5]:
-        expected = model.label_prior * est.label_frequencies
-        for u, l in enumerate(paths[p]):
-            if u:
-                here, a = paths[p][u - 1], int(run.actions[u - 1])
-                target = int(model.neighbors[here, a])
-                if target != here:
-                    expected[target] *= ~blocks if l == target else (1 - model.p_move) + model.p_move * blocks
-            for cell, z in zip(model.footprint_cells[l], readings[u]):
-                if cell >= 0:
-                    expected[cell] *= model.sensor[:, z]
-                expected /= expected.sum(axis=1, keepdims=True)
+        expected = map_given_path(model, paths[p], run.actions, readings, est.label_frequencies)
         np.testing.assert_allclose(maps[p], expected, atol=1e-9, rtol=0)
 
 
