@@ -212,14 +212,14 @@ def test_the_filter_learns_every_learn_every_steps_from_its_mixture_with_its_opt
     and read cells carry over between learning steps."""
     import onlinemap.estimators.rbpf_prior as rbpf_module
     calls = []
-    original = rbpf_module.learn_context
+    original = rbpf_module.learn_context_in_pool
 
     def recording(pool, model, t, weights, state, table, alpha, threads=1):
         mixture = pool.mixture(t, weights, threads)
         calls.append((t, mixture / mixture.sum(axis=1, keepdims=True), copy.deepcopy(state)))
         return original(pool, model, t, weights, state, table, alpha, threads)
 
-    monkeypatch.setattr(rbpf_module, "learn_context", recording)
+    monkeypatch.setattr(rbpf_module, "learn_context_in_pool", recording)
     model, run, est = run_building(steps=36, learn_every=5, prior_strength=2.0)
     for t in range(run.n_steps):
         est.update(None if t == 0 else int(run.actions[t - 1]), run.observations[t])

@@ -35,7 +35,7 @@ The kernels are not touched.
 
 - ``"context"`` (static grid worlds; :mod:`onlinemap.label_prior` for the rule): ``w_i = v_i``,
   every cell's own tilt (N, K), from ``v_0 = pi_0`` for every cell. Every ``learn_every`` steps,
-  where ``"learn"`` learns, :func:`learn_context` takes the same mixture m, finds the cells read
+  where ``"learn"`` learns, :func:`learn_context_in_pool` takes the same mixture m, finds the cells read
   (those whose mixture differs from their own unread marginal ``normalise(prior_i * v_i)``),
   freezes the neighbour context of those read for the first time (from the cells read before
   this step), learns pi as ``"learn"`` does and every cell's tilt ``v_i' = (n[c_i] + K pi) /
@@ -64,7 +64,7 @@ import numpy as np
 from ..errors import InvalidOptionError
 from ..label_prior import (CONTEXT, LEARN, ContextState, LabelPrior, fresh_context, learned_frequencies,
                            neighbour_table, plug_in_prior, tilt)
-from ..label_prior import learn_context as context_step
+from ..label_prior import learn_context
 from ..model import GridModel
 from .block_pool import BlockPool
 
@@ -133,7 +133,7 @@ def current_tilt(est) -> np.ndarray | None:
 
 def learn_prior(est, t: int, threads: int = 1) -> None:
     """The learning step at step ``t`` of the RBPF ``est`` with ``label_prior="learn"``
-    (:func:`learn`) or ``"context"`` (:func:`learn_context`): its pool retilted and its label
+    (:func:`learn`) or ``"context"`` (:func:`learn_context_in_pool`): its pool retilted and its label
     prior state replaced, in place. O(P N / B + R_used B K + N K)."""
     pool, model, weights = est._blocks, est.model, est._weights / est._weights.sum()
     alpha = resolved_prior(model, est.options).alpha
@@ -141,11 +141,11 @@ def learn_prior(est, t: int, threads: int = 1) -> None:
         est._label_frequencies = learn(pool, model, t, weights, est._label_frequencies, alpha, threads)
         return
     context = ContextState(est._context_tilts, est._context_read, est._context_frozen, est._label_frequencies)
-    est._context_tilts, est._context_read, est._context_frozen, est._label_frequencies = learn_context(
+    est._context_tilts, est._context_read, est._context_frozen, est._label_frequencies = learn_context_in_pool(
         pool, model, t, weights, context, neighbour_table(model), alpha, threads)
 
 
-def learn_context(pool: BlockPool, model: GridModel, t: int, weights: np.ndarray, state: ContextState,
+def learn_context_in_pool(pool: BlockPool, model: GridModel, t: int, weights: np.ndarray, state: ContextState,
                   table: np.ndarray, alpha: np.ndarray, threads: int = 1) -> ContextState:
     """One learning step of ``label_prior="context"`` (the module docstring): the new state
     (:func:`~onlinemap.label_prior.learn_context`) from the particles' mixture at step ``t``
@@ -154,6 +154,6 @@ def learn_context(pool: BlockPool, model: GridModel, t: int, weights: np.ndarray
     O(P N / B + R_used B K + N K)."""
     mixture = pool.mixture(t, weights, threads)
     mixture /= mixture.sum(axis=1, keepdims=True)
-    updated = context_step(mixture, model.label_prior, state, table, alpha)
+    updated = learn_context(mixture, model.label_prior, state, table, alpha)
     retilt(pool, updated.tilts / state.tilts)
     return updated
