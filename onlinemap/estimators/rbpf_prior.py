@@ -97,14 +97,20 @@ def retilt(pool: BlockPool, ratio: np.ndarray) -> None:
     pool.rows[used] = tilt(pool.rows[used], ratio)
 
 
+def _mixture_map(pool: BlockPool, t: int, weights: np.ndarray, threads: int) -> np.ndarray:
+    """(N, K) the particles' mixture map at step ``t`` (``weights`` (P,), normalised), rows
+    normalised. O(P N / B) plus one pass over the rows in use."""
+    mixture = pool.mixture(t, weights, threads)
+    return mixture / mixture.sum(axis=1, keepdims=True)
+
+
 def learn(pool: BlockPool, model: GridModel, t: int, weights: np.ndarray, frequencies: np.ndarray,
           alpha: np.ndarray, threads: int = 1) -> np.ndarray:
     """One learning step of ``label_prior="learn"`` (the module docstring): the new frequencies
     pi' (K,) from the particles' mixture at step ``t`` (``weights`` (P,), normalised) and the
     current ``frequencies`` pi_t (K,); retilts ``pool`` by ``pi' / pi_t`` in place. Returns pi'.
     O(P N / B + R_used B K + N K)."""
-    mixture = pool.mixture(t, weights, threads)
-    mixture /= mixture.sum(axis=1, keepdims=True)
+    mixture = _mixture_map(pool, t, weights, threads)
     updated = learned_frequencies(mixture, model.label_prior, frequencies, alpha)
     retilt(pool, updated / frequencies)
     return updated
@@ -152,8 +158,7 @@ def learn_context_in_pool(pool: BlockPool, model: GridModel, t: int, weights: np
     (``weights`` (P,), normalised), the current ``state``, the neighbours ``table`` (N, 4) and
     ``alpha`` (K,); retilts ``pool`` cell by cell by ``v' / v`` in place. Returns the new state.
     O(P N / B + R_used B K + N K)."""
-    mixture = pool.mixture(t, weights, threads)
-    mixture /= mixture.sum(axis=1, keepdims=True)
+    mixture = _mixture_map(pool, t, weights, threads)
     updated = learn_context(mixture, model.label_prior, state, table, alpha)
     retilt(pool, updated.tilts / state.tilts)
     return updated
