@@ -62,9 +62,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InvalidOptionError
-from ..label_prior import (CONTEXT, LEARN, ContextState, LabelPrior, fresh_context, learned_frequencies,
-                           neighbour_table, plug_in_prior, tilt)
-from ..label_prior import learn_context
+from ..label_prior import (CONTEXT, LEARN, ContextState, LabelPrior, fresh_context, learn_context,
+                           learned_frequencies, neighbour_table, plug_in_prior, tilt)
 from ..model import GridModel
 from .block_pool import BlockPool
 
@@ -152,7 +151,7 @@ def learn_prior(est, t: int, threads: int = 1) -> None:
 
 
 def learn_context_in_pool(pool: BlockPool, model: GridModel, t: int, weights: np.ndarray, state: ContextState,
-                  table: np.ndarray, alpha: np.ndarray, threads: int = 1) -> ContextState:
+                          table: np.ndarray, alpha: np.ndarray, threads: int = 1) -> ContextState:
     """One learning step of ``label_prior="context"`` (the module docstring): the new state
     (:func:`~onlinemap.label_prior.learn_context`) from the particles' mixture at step ``t``
     (``weights`` (P,), normalised), the current ``state``, the neighbours ``table`` (N, 4) and
