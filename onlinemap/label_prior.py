@@ -46,6 +46,15 @@ option ``label_prior``:
   total pseudo-count K, so a context seen n times weighs its counts n / (n + K). A population
   plug-in (empirical Bayes): the contexts come from the particles' mixture, not each particle's
   own map.
+- ``"particle_context"`` (the RBPF only, static grid worlds): the same table learned the same
+  way (from the cells most of the particles' weight has read, :func:`learn_context_ratios`),
+  applied per particle: before a step, each particle tilts the prior of every cell the step may
+  read that it has neither read nor tilted, by the ratio ``v'[c] / pi`` of the cell's context c
+  *in that particle's own map* (its neighbours read by that particle's path, their labels that
+  particle's most probable), frozen then. The table is tempered, ``v'[c] = w v[c] + (1 - w) pi``
+  with ``w = context_weight`` (default :data:`DEFAULT_CONTEXT_WEIGHT`): a particle whose map is
+  wrong reads its own errors back as context, and the untempered table lost more runs (measured:
+  the user guide's Results page).
 
 The hindsight fits of a recorded run (:func:`onlinemap.hindsight.told_location`,
 :func:`onlinemap.layered_em.fit_layered_map`) take the same option but read None as the model's
@@ -63,6 +72,11 @@ from scipy.special import gammaln
 from .errors import InvalidOptionError
 
 CONTEXT = "context"
+PARTICLE_CONTEXT = "particle_context"
+#: the priors that tilt each cell by its neighbours' labels (the RBPF's only)
+CONTEXT_KINDS = (CONTEXT, PARTICLE_CONTEXT)
+#: ``"particle_context"``'s default weight of the context table against the frequencies it backs off to
+DEFAULT_CONTEXT_WEIGHT = 0.5
 LEARN = "learn"
 MAX_PRIOR_ITERATIONS = 1000  # fixed_point_frequencies: a contraction, settled long before
 MODEL = "model"
@@ -82,8 +96,9 @@ OFF_GRID, NOT_READ = 0, 1
 class LabelPrior(NamedTuple):
     """A resolved ``label_prior`` option: ``kind`` is ``"model"`` (the model's own prior),
     ``"fixed"`` (``frequencies`` (K,) for every cell), ``"learn"`` (a Dirichlet with
-    concentrations ``alpha`` (K,) over the label frequencies) or ``"context"`` (the same
-    ``alpha`` for the frequencies the neighbour contexts back off to)."""
+    concentrations ``alpha`` (K,) over the label frequencies), ``"context"`` or
+    ``"particle_context"`` (the same ``alpha`` for the frequencies the neighbour contexts back
+    off to)."""
 
     kind: str
     frequencies: np.ndarray | None
@@ -95,30 +110,31 @@ def resolve_label_prior(n_labels: int, label_prior, prior_strength=None, *, mode
     """Check and resolve the ``label_prior`` / ``prior_strength`` options of an estimator for K =
     ``n_labels`` labels; ``model_learns``: None means ``"learn"`` (the model's label frequencies
     are unknown and the estimator can learn them); ``context``: the estimator takes
-    ``"context"`` (the RBPF). Raises :class:`~onlinemap.errors.InvalidOptionError` naming the
-    problem: an unknown string, ``"context"`` where it is not taken, a vector of the wrong length
-    or not a probability vector (entries in [0, 1] summing to 1), a ``prior_strength`` that is not
-    a positive finite number or given where nothing is learned. O(K)."""
-    if isinstance(label_prior, str) and label_prior == CONTEXT and not context:
-        raise InvalidOptionError("label_prior='context' is the RBPF's only (its per-cell neighbour-context tilt of "
-                                 "the block pool); this estimator or fit takes None, 'model', 'learn' or a vector")
-    learns = (isinstance(label_prior, str) and label_prior in (LEARN, CONTEXT)) or \
-        (label_prior is None and model_learns)
+    ``"context"`` and ``"particle_context"`` (the RBPF). Raises
+    :class:`~onlinemap.errors.InvalidOptionError` naming the problem: an unknown string, a context
+    prior where it is not taken, a vector of the wrong length or not a probability vector (entries
+    in [0, 1] summing to 1), a ``prior_strength`` that is not a positive finite number or given
+    where nothing is learned. O(K)."""
+    named = label_prior if isinstance(label_prior, str) else None
+    if named in CONTEXT_KINDS and not context:
+        raise InvalidOptionError(f"label_prior={named!r} is the RBPF's only (its neighbour-context tilt of the "
+                                 "block pool); this estimator or fit takes None, 'model', 'learn' or a vector")
+    learns = named in (LEARN, *CONTEXT_KINDS) or (label_prior is None and model_learns)
     if prior_strength is not None and not learns:
         raise InvalidOptionError("prior_strength is the Dirichlet's total pseudo-count of label_prior='learn'; "
                                  f"it means nothing with label_prior={label_prior!r}"
                                  + (" on a model whose label frequencies are known" if label_prior is None else ""))
-    if (label_prior is None and not learns) or (isinstance(label_prior, str) and label_prior == MODEL):
+    if (label_prior is None and not learns) or named == MODEL:
         return LabelPrior("model", None, None)
     if learns:
         strength = float(n_labels) if prior_strength is None else prior_strength
         if isinstance(strength, bool) or not isinstance(strength, (int, float, np.integer, np.floating)) \
                 or not 0 < float(strength) < math.inf:
             raise InvalidOptionError(f"prior_strength must be a positive finite number, got {prior_strength!r}")
-        return LabelPrior(CONTEXT if label_prior == CONTEXT else LEARN, None,
+        return LabelPrior(named if named in CONTEXT_KINDS else LEARN, None,
                           np.full(n_labels, float(strength) / n_labels))
-    if isinstance(label_prior, str):
-        learned = "'learn', 'context'" if context else "'learn'"
+    if named is not None:
+        learned = "'learn', 'context', 'particle_context'" if context else "'learn'"
         raise InvalidOptionError(f"label_prior must be None (what the model says), 'model' (the model's prior "
                                  f"table), {learned} or a vector of {n_labels} label frequencies, got {label_prior!r}")
     try:
@@ -203,17 +219,17 @@ def plug_in_prior(model, label_prior, prior_strength=None, learn_every=None, *, 
         raise InvalidOptionError(f"label_prior {prior.frequencies.tolist()} gives probability zero to every label "
                                  "some cell's model prior allows")
     if learn_every is not None:
-        if prior.kind not in (LEARN, CONTEXT):
+        if prior.kind not in (LEARN, *CONTEXT_KINDS):
             raise InvalidOptionError(f"learn_every is how often label_prior='learn' updates its frequencies; it "
                                      f"means nothing with label_prior={label_prior!r}")
         if isinstance(learn_every, (bool, np.bool_)) or not isinstance(learn_every, (int, np.integer)) \
                 or learn_every < 1:
             raise InvalidOptionError(f"learn_every must be a whole number of steps >= 1, got {learn_every!r}")
-    if prior.kind in (LEARN, CONTEXT) and not model.is_static:
+    if prior.kind in (LEARN, *CONTEXT_KINDS) and not model.is_static:
         raise InvalidOptionError(f"label_prior={prior.kind!r} needs a static world (the change matrix C = I): in a "
                                  "dynamic world a cell's marginal mixes readings of different ages, which one "
                                  "rescaling of the prior does not move consistently")
-    if prior.kind == CONTEXT:
+    if prior.kind in CONTEXT_KINDS:
         neighbour_table(model)  # refuses a model that is not a grid
     return prior
 
@@ -300,17 +316,39 @@ def context_codes(states: np.ndarray, table: np.ndarray, n_labels: int) -> np.nd
     return codes
 
 
+def context_counts(mixture: np.ndarray, read: np.ndarray, codes: np.ndarray, n_codes: int) -> np.ndarray:
+    """(n_codes, K) ``n[c, k]``, the summed ``mixture`` (N, K) over the ``read`` (N,) cells whose
+    context ``codes`` (N,) is c (codes in 0 .. n_codes - 1). O(N K + n_codes K)."""
+    counts = np.zeros((n_codes, mixture.shape[1]))
+    for k in range(mixture.shape[1]):
+        counts[:, k] = np.bincount(codes[read], weights=mixture[read, k], minlength=n_codes)
+    return counts
+
+
+def backed_off(counts: np.ndarray, frequencies: np.ndarray) -> np.ndarray:
+    """(C, K) the predictive of each context from its counts (C, K): ``(n[c] + S pi) / (sum_k
+    n[c, k] + S)``, S = K, backed off to the ``frequencies`` pi (K,). Rows sum to 1. O(C K)."""
+    strength = float(counts.shape[1])
+    return (counts + strength * frequencies) / (counts.sum(axis=1)[:, None] + strength)
+
+
 def context_tilts(mixture: np.ndarray, read: np.ndarray, codes: np.ndarray, frequencies: np.ndarray) -> np.ndarray:
     """(N, K) every cell's tilt ``v_i = (n[c_i] + S pi) / (sum_k n[c_i, k] + S)``, S = K, with
     ``n[c, k]`` the summed ``mixture`` (N, K) over the ``read`` (N,) cells of context ``c``,
     ``codes`` (N,) each cell's context and ``frequencies`` pi (K,). Rows sum to 1. O(N K)."""
-    n_labels = mixture.shape[1]
     contexts, which = np.unique(codes, return_inverse=True)  # only the contexts in use: (K + 2)^4 may be large
-    counts = np.zeros((len(contexts), n_labels))
-    for k in range(n_labels):
-        counts[:, k] = np.bincount(which[read], weights=mixture[read, k], minlength=len(contexts))
-    strength = float(n_labels)
-    return (counts[which] + strength * frequencies) / (counts.sum(axis=1)[which, None] + strength)
+    return backed_off(context_counts(mixture, read, which, len(contexts)), frequencies)[which]
+
+
+def freeze_contexts(mixture: np.ndarray, state: ContextState, now: np.ndarray,
+                    table: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(read, frozen), (N,) each: the cells read so far once those read ``now`` (N,) are added to
+    ``state.read``, and their contexts, the newly read ones frozen from the neighbour states
+    before this step (:func:`neighbour_states` of ``mixture`` (N, K) over ``state.read``: cells
+    read at the same step do not see each other), ``table`` (N, 4) the neighbours. O(N K)."""
+    first = now & ~state.read
+    before = context_codes(neighbour_states(mixture, state.read), table, mixture.shape[1])
+    return state.read | now, np.where(first, before, state.frozen)
 
 
 def learn_context(mixture: np.ndarray, prior: np.ndarray, state: ContextState, table: np.ndarray,
@@ -319,32 +357,63 @@ def learn_context(mixture: np.ndarray, prior: np.ndarray, state: ContextState, t
     (N, K) (rows summing to 1), the model's prior table (N, K), the current ``state``, the
     neighbours ``table`` (N, 4) and the Dirichlet ``alpha`` (K,). The cells read now are those
     whose mixture differs from their unread marginal ``normalise(prior_i * v_i)`` by more than
-    :data:`READ_TOLERANCE`; those read for the first time freeze their context from the states
-    before this step (:func:`neighbour_states` of the cells read before: cells read at the same
-    step do not see each other); the unread take theirs from the states after it. Then pi =
+    :data:`READ_TOLERANCE`; those read for the first time freeze their context
+    (:func:`freeze_contexts`); the unread take theirs from the states after it. Then pi =
     ``(alpha + sum of the mixture over the read cells) / (A + n_read)`` and the tilts
     (:func:`context_tilts`). A fresh state; ``state`` is not changed. O(N K)."""
     n_labels = mixture.shape[1]
     now = np.abs(mixture - unread_marginals(prior, state.tilts)).max(axis=1) > READ_TOLERANCE
-    first = now & ~state.read
-    before = context_codes(neighbour_states(mixture, state.read), table, n_labels)
-    frozen = np.where(first, before, state.frozen)
-    read = state.read | now
+    read, frozen = freeze_contexts(mixture, state, now, table)
     after = context_codes(neighbour_states(mixture, read), table, n_labels)
     frequencies = posterior_frequencies(alpha, mixture[read].sum(axis=0))
     tilts = context_tilts(mixture, read, np.where(read, frozen, after), frequencies)
     return ContextState(tilts, read, frozen, frequencies)
 
 
+def learn_context_ratios(mixture: np.ndarray, state: ContextState, now: np.ndarray, table: np.ndarray,
+                         alpha: np.ndarray, weight: float) -> tuple[ContextState, np.ndarray]:
+    """One learning step of ``label_prior="particle_context"`` (the module docstring): the cells
+    read ``now`` (N,) (most of the particles' weight read them) join the read ones, their contexts
+    frozen (:func:`freeze_contexts`); pi = ``(alpha + sum of the mixture (N, K) over the read
+    cells) / (A + n_read)``; every context's predictive ``v[c]`` (:func:`backed_off` of the
+    :func:`context_counts` of the read cells) tempered, ``v'[c] = weight v[c] + (1 - weight)
+    pi``. Returns the new state (its ``tilts`` are the state's, unused by this prior) and the
+    ratios ``v' / pi`` ((K + 2)^4, K), each context's tilt of a cell's prior. O(N K + (K + 2)^4 K)."""
+    read, frozen = freeze_contexts(mixture, state, now, table)
+    frequencies = posterior_frequencies(alpha, mixture[read].sum(axis=0))
+    predictive = backed_off(context_counts(mixture, read, frozen, n_context_codes(mixture.shape[1])), frequencies)
+    ratios = (weight * predictive + (1.0 - weight) * frequencies) / frequencies
+    return ContextState(state.tilts, read, frozen, frequencies), ratios
+
+
 def shown_options(options: dict, kind: str) -> dict:
     """An estimator's ``options`` (a fresh dict) as its filter runs them, for ``repr`` and the
     run logs: without the label-prior options when it uses the model's table (``kind`` of the
     resolved :class:`LabelPrior` ``"model"``: every repr as without the options), with
-    ``label_prior="learn"`` when it learns because the model says so. O(len(options))."""
+    ``label_prior="learn"`` when it learns because the model says so, ``context_weight`` only
+    with ``"particle_context"`` (its default filled in). O(len(options))."""
     options = dict(options)
     if kind == "model":
         for name in ("label_prior", "prior_strength", "learn_every"):
             options.pop(name, None)
     elif options.get("label_prior") is None:
         options["label_prior"] = LEARN
+    if kind == PARTICLE_CONTEXT:
+        options["context_weight"] = context_weight(options.get("context_weight"))
+    else:
+        options.pop("context_weight", None)
     return options
+
+
+def context_weight(value) -> float:
+    """``label_prior="particle_context"``'s option ``context_weight`` checked, None the default
+    :data:`DEFAULT_CONTEXT_WEIGHT`: the weight w in (0, 1] of the context table against the
+    frequencies (the module docstring). Raises :class:`~onlinemap.errors.InvalidOptionError`
+    otherwise. O(1)."""
+    if value is None:
+        return DEFAULT_CONTEXT_WEIGHT
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not 0 < float(value) <= 1:
+        raise InvalidOptionError(f"context_weight must be a number in (0, 1] (the weight of the neighbour-context "
+                                 f"table against the learned frequencies), got {value!r}")
+    return float(value)

@@ -60,7 +60,8 @@ from .block_pool import BlockPool, block_layout
 from .rbpf_kernels import StepKit, no_moves, observed, scratch_buffers, step_kit, thread_count
 from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start, history_growth
 from .rbpf_move import MoveCounts, PathHistory, move_options, rebuilds
-from .rbpf_prior import current_tilt, learn_prior, prior_options, resolved_prior, start_prior
+from .rbpf_prior import (current_tilt, learn_prior, mark_read, prior_options, resolved_prior, start_prior,
+                         tilt_step_cells, untilt)
 from .rbpf_recovery import describe, impossible, logsumexp, no_particle_explains, recovery_note, relocate
 from .rbpf_state import check_state, upgrade_attributes
 
@@ -151,8 +152,13 @@ class RaoBlackwellisedPF:
     ``learn_every`` steps (default 10) from the expected labels of the cells read, every cell's
     prior moved to them; ``"context"`` (static grid worlds; this filter only): every cell's own
     tilt v_i, its label's predictive given its 4 neighbours' labels as read before it, backed off
-    to those frequencies (:attr:`context_tilts`). Plug-in (empirical Bayes) priors, one pass over the
-    block rows in use, weights unchanged; :attr:`label_frequencies` gives the frequencies (checkpointed).
+    to those frequencies (:attr:`context_tilts`); ``"particle_context"`` (static grid worlds; this
+    filter only; not with ``move_window``): the same table tempered by ``context_weight`` w (default
+    0.5: ``w v + (1 - w) pi``), applied per particle, before each step, to the cells the step may
+    read, by their context in that particle's own map (P x N cell statuses carried through
+    resampling, recovery and checkpoints; a step that raises takes its tilts back). Plug-in
+    (empirical Bayes) priors, one pass over the block rows in use, weights unchanged;
+    :attr:`label_frequencies` gives the frequencies (checkpointed).
 
     ``threads``: how many threads the update and the belief use, at most ``NUMBA_NUM_THREADS``
     (None: all; Python threads on numba kernels that release the GIL,
@@ -179,6 +185,10 @@ class RaoBlackwellisedPF:
     #: checkpoints); None, these class defaults, for the other filters, whose state is as without the options
     _label_frequencies: np.ndarray | None = None
     _context_tilts = _context_read = _context_frozen = None
+    #: label_prior="particle_context"'s cell statuses (P, N) uint8 (kernels/rbpf_context.py) and its table of
+    #: ratios ((K + 2)^4, K), None before its first learning step; None for the other filters
+    _particle_cells: np.ndarray | None = None
+    _context_ratios: np.ndarray | None = None
 
     #: what the placeholder defaults run with the other defaults (estimator_options shows these)
     resolved_defaults = MappingProxyType({"resampling": FEARNHEAD_CLIFFORD})
@@ -188,7 +198,7 @@ class RaoBlackwellisedPF:
                  lazy_dynamics: bool = True, block_cells: int | None = None,
                  max_bytes: int = DEFAULT_MAX_BYTES, threads: int | None = 1, move_window: int | None = None,
                  move_every: int = 10, move_lag: int = 100, label_prior=None, prior_strength=None,
-                 learn_every: int | None = None):
+                 learn_every: int | None = None, context_weight: float | None = None):
         error = InvalidOptionError
         n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
         proposal, resampling = _scheme(proposal, resampling)
@@ -203,7 +213,7 @@ class RaoBlackwellisedPF:
         max_bytes = arguments.byte_limit("max_bytes", max_bytes, error)
         threads = thread_count(threads)
         move_window, move_every, move_lag = move_options(model, move_window, move_every, move_lag)
-        prior = prior_options(model, label_prior, prior_strength, learn_every)
+        prior = prior_options(model, label_prior, prior_strength, learn_every, context_weight, move_window)
         check_start(Sizing(model, n_particles, lazy_dynamics, threads, max_bytes), block_cells, move_window)
         layout = block_layout(model, block_cells)
         self.model = model
@@ -392,10 +402,21 @@ class RaoBlackwellisedPF:
         valid until the next step."""
         a, z = check_step(self.model, self._t + 1, action, observation)
         t = self._t + 1
-        if self.resampling == FEARNHEAD_CLIFFORD:
-            ancestors = self._update_fearnhead_clifford(a, z, t)
-        else:
-            ancestors = self._update_sampling(a, z, t)
+        by_particle = self._particle_cells is not None  # label_prior="particle_context" (rbpf_prior.py)
+        undo = tilt_step_cells(self, t, a, self._kit.width * self.n_particles) if by_particle and a is not None \
+            else None
+        parents = self._locations.copy() if by_particle else None
+        try:
+            if self.resampling == FEARNHEAD_CLIFFORD:
+                ancestors = self._update_fearnhead_clifford(a, z, t)
+            else:
+                ancestors = self._update_sampling(a, z, t)
+        except BaseException:
+            if undo is not None:  # the step changed nothing else
+                untilt(self, undo)
+            raise
+        if by_particle:
+            mark_read(self, ancestors, parents, a)
         history = self._history
         if history is not None:  # the step is taken: its record, then the resample-move step if due
             history.record_step(t, a, z)

@@ -59,26 +59,45 @@ of building ``belief.map`` once.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ..errors import InvalidOptionError
-from ..label_prior import (CONTEXT, LEARN, ContextState, LabelPrior, fresh_context, learn_context,
-                           learned_frequencies, neighbour_table, plug_in_prior, tilt)
+from ..kernels.rbpf_context import READ, context_tilt, context_tilt_count, context_untilt, read_weight
+from ..label_prior import (CONTEXT, LEARN, PARTICLE_CONTEXT, ContextState, LabelPrior, context_weight, fresh_context,
+                           learn_context, learn_context_ratios, learned_frequencies, neighbour_table, plug_in_prior,
+                           tilt)
 from ..model import GridModel
 from .block_pool import BlockPool
 
 
-def prior_options(model: GridModel, label_prior, prior_strength, learn_every) -> LabelPrior:
+def prior_options(model: GridModel, label_prior, prior_strength, learn_every, weight=None,
+                  move_window: int | None = None) -> LabelPrior:
     """Check and resolve the RBPF's label-prior options (:func:`~onlinemap.label_prior.plug_in_prior`,
-    ``"context"`` included; ``move_window`` goes with every one of them: the move keeps the tilt
-    w). Raises :class:`~onlinemap.errors.InvalidOptionError` naming the problem. O(N K)."""
-    return plug_in_prior(model, label_prior, prior_strength, learn_every, context=True)
+    ``"context"`` and ``"particle_context"`` included) and ``context_weight`` (``weight``, given
+    only with ``"particle_context"``, :func:`~onlinemap.label_prior.context_weight`).
+    ``move_window`` goes with every prior but ``"particle_context"`` (the move keeps one tilt w
+    for every particle; that prior tilts each particle's cells its own way, which a rebuilt map
+    would lose). Raises :class:`~onlinemap.errors.InvalidOptionError` naming the problem. O(N K)."""
+    prior = plug_in_prior(model, label_prior, prior_strength, learn_every, context=True)
+    if prior.kind == PARTICLE_CONTEXT:
+        context_weight(weight)
+        if move_window is not None:
+            raise InvalidOptionError("move_window (resample-move) rebuilds a particle's map with one prior tilt for "
+                                     "every particle; label_prior='particle_context' tilts each particle's cells by "
+                                     "their context in its own map, which the rebuilt map would lose: use "
+                                     "label_prior='context' or 'learn' with move_window")
+    elif weight is not None:
+        raise InvalidOptionError(f"context_weight is the weight of label_prior='particle_context''s context table; "
+                                 f"it means nothing with label_prior={label_prior!r}")
+    return prior
 
 
 def resolved_prior(model: GridModel, options: dict) -> LabelPrior:
     """The label prior a filter's ``options`` (checked when it was built) give. O(N K)."""
     return prior_options(model, options.get("label_prior"), options.get("prior_strength"),
-                         options.get("learn_every"))
+                         options.get("learn_every"), options.get("context_weight"))
 
 
 def retilt(pool: BlockPool, ratio: np.ndarray) -> None:
@@ -119,14 +138,18 @@ def start_prior(est, prior: LabelPrior) -> None:
     """Set up the label prior of a new RBPF ``est`` (its pool holds the model's prior): a fixed
     vector retilts the rows once; ``"learn"`` and ``"context"`` start from ``pi_0 = alpha / A``
     (uniform: the rows as they are), ``"context"`` with every cell's tilt pi_0 and nothing read
-    (:func:`~onlinemap.label_prior.fresh_context`). The model's prior: nothing. O(R B K)."""
+    (:func:`~onlinemap.label_prior.fresh_context`), ``"particle_context"`` with no cell of any
+    particle read or tilted and no table yet. The model's prior: nothing. O(R B K + P N)."""
     if prior.kind == "fixed":
         retilt(est._blocks, prior.frequencies)
-    elif prior.kind in (LEARN, CONTEXT):
+    elif prior.kind in (LEARN, CONTEXT, PARTICLE_CONTEXT):
         est._label_frequencies = prior.alpha / prior.alpha.sum()
-        if prior.kind == CONTEXT:
+        if prior.kind != LEARN:
             est._context_tilts, est._context_read, est._context_frozen, _ = fresh_context(
                 est.model.n_cells, est._label_frequencies)
+        if prior.kind == PARTICLE_CONTEXT:  # no table before the first learning step: nothing tilted
+            est._context_tilts = None
+            est._particle_cells = np.zeros((est.n_particles, est.model.n_cells), dtype=np.uint8)
 
 
 def current_tilt(est) -> np.ndarray | None:
@@ -138,10 +161,14 @@ def current_tilt(est) -> np.ndarray | None:
 
 def learn_prior(est, t: int, threads: int = 1) -> None:
     """The learning step at step ``t`` of the RBPF ``est`` with ``label_prior="learn"``
-    (:func:`learn`) or ``"context"`` (:func:`learn_context_in_pool`): its pool retilted and its label
-    prior state replaced, in place. O(P N / B + R_used B K + N K)."""
+    (:func:`learn`), ``"context"`` (:func:`learn_context_in_pool`) or ``"particle_context"``
+    (:func:`learn_particle_context`): its pool retilted and its label prior state replaced, in
+    place. O(P N / B + R_used B K + N K) (+ O(P N) for ``"particle_context"``)."""
     pool, model, weights = est._blocks, est.model, est._weights / est._weights.sum()
     alpha = resolved_prior(model, est.options).alpha
+    if est._particle_cells is not None:
+        learn_particle_context(est, t, weights, alpha, threads)
+        return
     if est._context_tilts is None:
         est._label_frequencies = learn(pool, model, t, weights, est._label_frequencies, alpha, threads)
         return
@@ -161,3 +188,85 @@ def learn_context_in_pool(pool: BlockPool, model: GridModel, t: int, weights: np
     updated = learn_context(mixture, model.label_prior, state, table, alpha)
     retilt(pool, updated.tilts / state.tilts)
     return updated
+
+
+def learn_particle_context(est, t: int, weights: np.ndarray, alpha: np.ndarray, threads: int = 1) -> None:
+    """One learning step of ``label_prior="particle_context"`` at step ``t`` (the module
+    docstring), in place: the cells read by most of the weight (``weights`` (P,), normalised)
+    join the population's read cells, the frequencies pi' and the tempered table of ratios are
+    learned from the mixture (:func:`~onlinemap.label_prior.learn_context_ratios`), and the pool is
+    retilted by ``pi' / pi`` (every cell, tilted or not: a tilted cell keeps its ratio).
+    O(P N + P N / B + R_used B K + N K + (K + 2)^4 K)."""
+    pool, model = est._blocks, est.model
+    mixture = _mixture_map(pool, t, weights, threads)
+    read = np.zeros(model.n_cells)
+    read_weight(est._particle_cells, weights, read)
+    state = ContextState(None, est._context_read, est._context_frozen, est._label_frequencies)
+    state, est._context_ratios = learn_context_ratios(mixture, state, read > 0.5, neighbour_table(model), alpha,
+                                                      context_weight(est.options.get("context_weight")))
+    retilt(pool, state.frequencies / est._label_frequencies)
+    est._context_read, est._context_frozen, est._label_frequencies = state.read, state.frozen, state.frequencies
+
+
+class ContextUndo(NamedTuple):
+    """What :func:`tilt_step_cells` wrote, to take it back (:func:`untilt`): ``count`` writes
+    logged in ``log`` (the fields :func:`~onlinemap.kernels.rbpf_context.context_tilt` fills),
+    ``pool`` the pool written (the filter's, or its grown copy) and ``previous`` the filter's
+    pool before."""
+
+    count: int
+    log: tuple
+    pool: BlockPool
+    previous: BlockPool
+
+
+def tilt_step_cells(est, t: int, action: int, need: int) -> ContextUndo | None:
+    """Before step ``t`` of the RBPF ``est`` with ``label_prior="particle_context"`` (and a table,
+    after its first learning step): tilt every live particle's untouched cells the step may read
+    (the footprint of the cell ``action`` points at) by their context in the particle's map
+    (:func:`~onlinemap.kernels.rbpf_context.context_tilt`). The pool is first reserved for the
+    writes and the step's ``need`` rows (``est._reserved``: a
+    :class:`~onlinemap.errors.MemoryLimitError` there changes nothing). Returns the undo, or None
+    when nothing was written. O(P F K + M B K) for M writes."""
+    status, ratios, model = est._particle_cells, est._context_ratios, est.model
+    if status is None or ratios is None:
+        return None
+    targets, footprint = model.moves[action], model.footprint_cells
+    count = context_tilt_count(est._locations, est._weights, targets, footprint, status)
+    if count == 0:
+        return None
+    previous = est._blocks
+    blocks = est._reserved(t, count + need)
+    log = (np.empty(count, dtype=np.int64), np.empty(count, dtype=np.int64), np.empty(count, dtype=np.int64),
+           np.empty(count, dtype=np.bool_), np.empty((count, model.n_labels)))
+    context_tilt(t, est._locations, est._weights, targets, footprint, neighbour_table(model), status, ratios,
+                 np.empty(model.n_labels), *log, *blocks.arrays())
+    est._blocks = blocks
+    return ContextUndo(count, log, blocks, previous)
+
+
+def untilt(est, undo: ContextUndo) -> None:
+    """Take back :func:`tilt_step_cells`'s writes (a step that raised after them): the pool's rows
+    in use, table and counts and the particles' cell statuses as before, the filter's pool the
+    one it had. O(M K)."""
+    context_untilt(undo.count, est._particle_cells, *undo.log, *undo.pool.arrays())
+    est._blocks = undo.previous
+
+
+def mark_read(est, ancestors: np.ndarray, parents: np.ndarray, action: int | None) -> None:
+    """After a step of the RBPF ``est`` with ``label_prior="particle_context"``: each slot takes its
+    ancestor's cell statuses (``ancestors`` (P,), sources keeping their own slot), then marks
+    :data:`~onlinemap.kernels.rbpf_context.READ` the footprint of its location and, with
+    blocking labels, the cell its parent's move pressed into (``parents`` (P,), the locations
+    before the step; not after a recovery, whose relocated children pressed nothing). O(P F +
+    P_copied N)."""
+    status, model, locations = est._particle_cells, est.model, est._locations
+    n_particles = len(ancestors)
+    copied = np.flatnonzero(ancestors != np.arange(n_particles))
+    status[copied] = status[ancestors[copied]]
+    cells = model.footprint_cells[locations]
+    slots = np.broadcast_to(np.arange(n_particles)[:, None], cells.shape)
+    inside = cells >= 0
+    status[slots[inside], cells[inside]] = READ
+    if model.has_blocking and action is not None and not est._recovered:
+        status[np.arange(n_particles), model.moves[action][parents[ancestors]]] = READ

@@ -11,7 +11,8 @@ import numpy as np
 
 from .. import state_checks as checks
 from ..checkpoint import state_node
-from ..label_prior import CONTEXT, n_context_codes
+from ..kernels.rbpf_context import READ
+from ..label_prior import CONTEXT, CONTEXT_KINDS, PARTICLE_CONTEXT, n_context_codes
 from .block_pool import FORMAT_1_ATTRIBUTES, BlockPool
 from .rbpf_move import PathHistory
 
@@ -42,8 +43,8 @@ def check_state(state) -> None:
     """The invariants of a restored state (:mod:`onlinemap.state_checks`): the particles, their
     weights, the copy-on-write block pool (:meth:`BlockPool.check
     <onlinemap.estimators.block_pool.BlockPool.check>`) and, with ``label_prior="learn"``, the
-    label frequencies (positive, summing to 1: a Dirichlet posterior mean); with ``"context"``
-    (:func:`check_context`) the frequencies and the context state."""
+    label frequencies (positive, summing to 1: a Dirichlet posterior mean); with ``"context"`` or
+    ``"particle_context"`` (:func:`check_context`) the frequencies and the context state."""
     model = state.model
     n, k, p = model.n_cells, model.n_labels, state.n_particles
     t = checks.step_index(state)
@@ -88,24 +89,46 @@ def check_context(state, n: int, k: int) -> None:
     in a filter of N = ``n`` cells and K = ``k`` labels: present exactly when the options ask for
     it (with the learned frequencies), every cell's tilt (N, K) positive rows summing to 1 (the
     retilt divides by them), the cells read (N,) bool, their frozen contexts (N,) -1 exactly
-    where not read and a context code (0 .. (K + 2)^4 - 1) where read. O(N K)."""
+    where not read and a context code (0 .. (K + 2)^4 - 1) where read. ``"particle_context"``:
+    the cells read and frozen contexts likewise, no per-cell tilts, the particles' cell statuses
+    (P, N) uint8 in {0, 1, 2} and the table of ratios, None or ((K + 2)^4, K) positive and finite
+    (:func:`check_particle_context`). O(N K + P N)."""
     label_prior = state.options.get("label_prior")
-    wanted = isinstance(label_prior, str) and label_prior == CONTEXT
-    names = ("_context_tilts", "_context_read", "_context_frozen")
-    present = [getattr(state, name, None) is not None for name in names]
-    for name, there in zip(names, present):
-        if there != wanted:
-            checks.fail(name, f"must be {'an array' if wanted else 'None'} with label_prior={label_prior!r}")
-    if not wanted:
+    named = label_prior if isinstance(label_prior, str) else None
+    wanted = {"_context_tilts": named == CONTEXT, "_context_read": named in CONTEXT_KINDS,
+              "_context_frozen": named in CONTEXT_KINDS, "_particle_cells": named == PARTICLE_CONTEXT}
+    for name, there in wanted.items():
+        if (getattr(state, name, None) is not None) != there:
+            checks.fail(name, f"must be {'an array' if there else 'None'} with label_prior={label_prior!r}")
+    if named not in CONTEXT_KINDS:
+        if getattr(state, "_context_ratios", None) is not None:
+            checks.fail("_context_ratios", f"must be None with label_prior={label_prior!r}")
         return
     if getattr(state, "_label_frequencies", None) is None:
-        checks.fail("_label_frequencies", "must be the learned frequencies with label_prior='context'")
-    tilts = checks.array(state, "_context_tilts", (n, k), np.float64)
-    checks.probabilities("_context_tilts", tilts)
-    if np.any(tilts <= 0):
-        checks.fail("_context_tilts", "must be positive (a backed-off predictive)")
+        checks.fail("_label_frequencies", f"must be the learned frequencies with label_prior={named!r}")
+    if named == CONTEXT:
+        tilts = checks.array(state, "_context_tilts", (n, k), np.float64)
+        checks.probabilities("_context_tilts", tilts)
+        if np.any(tilts <= 0):
+            checks.fail("_context_tilts", "must be positive (a backed-off predictive)")
     read = checks.array(state, "_context_read", (n,), np.bool_)
     frozen = checks.array(state, "_context_frozen", (n,), np.int64)
     if np.any(frozen[~read] != -1):
         checks.fail("_context_frozen", "must be -1 at every cell not read")
     checks.indices("_context_frozen", frozen[read], n_context_codes(k))
+    if named == PARTICLE_CONTEXT:
+        check_particle_context(state, n, k)
+
+
+def check_particle_context(state, n: int, k: int) -> None:
+    """``label_prior="particle_context"``'s own state: the cell statuses (P, N) uint8, each
+    untouched, tilted or read (``kernels/rbpf_context.py``), and the table of ratios ``v' / pi``,
+    None before the first learning step or ((K + 2)^4, K) positive and finite. O(P N)."""
+    status = checks.array(state, "_particle_cells", (state.n_particles, n), np.uint8)
+    if np.any(status > READ):
+        checks.fail("_particle_cells", f"must hold cell statuses 0 (untouched), 1 (tilted) or {READ} (read)")
+    ratios = getattr(state, "_context_ratios", None)
+    if ratios is not None:
+        ratios = checks.array(state, "_context_ratios", (n_context_codes(k), k), np.float64)
+        if not np.all(np.isfinite(ratios)) or np.any(ratios <= 0):
+            checks.fail("_context_ratios", "must be positive and finite (tilts of a cell's prior)")
