@@ -331,6 +331,13 @@ class RaoBlackwellisedPF:
         return None if self._context_tilts is None else read_only(self._context_tilts.copy())
 
     @property
+    def context_ratios(self) -> np.ndarray | None:
+        """((K + 2)^4, K) each neighbour context's tilt ``v'[c] / pi`` of a cell's prior with
+        ``label_prior="particle_context"`` after its first learning step (rows indexed by
+        :func:`~onlinemap.label_prior.context_codes`' codes), a read-only copy; else None."""
+        return None if self._context_ratios is None else read_only(self._context_ratios.copy())
+
+    @property
     def recoveries(self) -> int:
         """How many steps so far recovered from depletion (see the class docstring)."""
         return self._recoveries

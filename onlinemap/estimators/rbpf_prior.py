@@ -148,7 +148,7 @@ def start_prior(est, prior: LabelPrior) -> None:
             est._context_tilts, est._context_read, est._context_frozen, _ = fresh_context(
                 est.model.n_cells, est._label_frequencies)
         if prior.kind == PARTICLE_CONTEXT:  # no table before the first learning step: nothing tilted
-            est._context_tilts = None
+            est._context_tilts = est._context_ratios = None
             est._particle_cells = np.zeros((est.n_particles, est.model.n_cells), dtype=np.uint8)
 
 
