@@ -57,11 +57,13 @@ from ..rng import SeedLike, as_generator
 from ..validation import check_step
 from .base import BooleanFlag, ParticleSnapshot, draw_labels, register
 from .block_pool import BlockPool, block_layout
-from .rbpf_kernels import StepKit, no_moves, observed, scratch_buffers, step_kit, thread_count
+from .rbpf_kernels import SCHEMES  # noqa: F401 (the filter's named schemes, imported from here by studies)
+from .rbpf_kernels import (FEARNHEAD_CLIFFORD, StepKit, no_moves, observed, scheme, scratch_buffers, step_kit,
+                           thread_count)
 from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start, history_growth
 from .rbpf_move import MoveCounts, PathHistory, move_options, rebuilds
-from .rbpf_prior import (current_tilt, learn_prior, mark_read, prior_options, resolved_prior, start_prior,
-                         tilt_step_cells, untilt)
+from .rbpf_prior import (current_tilt, learn_prior, particle_context_step, prior_options, resolved_prior,
+                         start_prior)
 from .rbpf_recovery import describe, impossible, logsumexp, no_particle_explains, recovery_note, relocate
 from .rbpf_state import check_state, upgrade_attributes
 
@@ -70,19 +72,6 @@ logger = logging.getLogger(__name__)
 #: each filter's :class:`~onlinemap.estimators.rbpf_kernels.StepKit` by ``id``, dropped when the filter dies:
 #: beside the filter, not in it (a checkpoint stores ``vars(est)``); a ``WeakKeyDictionary`` costs 0.2-0.3 us more
 _KITS: dict[int, StepKit] = {}
-
-PROPOSALS = ("optimal", "transition")
-FEARNHEAD_CLIFFORD = "fearnhead_clifford"
-RESAMPLING = (*RESAMPLERS, FEARNHEAD_CLIFFORD)
-#: the filter's named schemes (the options that make each), which studies, benchmarks and figures
-#: compare: the default (optimal proposal, Fearnhead-Clifford resampling), the optimal proposal
-#: sampled with residual resampling, and the transition proposal with residual resampling
-SCHEMES: dict[str, dict[str, str]] = {
-    "FC": {"proposal": "optimal", "resampling": FEARNHEAD_CLIFFORD},
-    "optimal+residual": {"proposal": "optimal", "resampling": "residual"},
-    "transition+residual": {"proposal": "transition", "resampling": "residual"},
-}
-
 
 @register("rbpf")
 class RaoBlackwellisedPF:
@@ -185,10 +174,8 @@ class RaoBlackwellisedPF:
     #: checkpoints); None, these class defaults, for the other filters, whose state is as without the options
     _label_frequencies: np.ndarray | None = None
     _context_tilts = _context_read = _context_frozen = None
-    #: label_prior="particle_context"'s cell statuses (P, N) uint8 (kernels/rbpf_context.py) and its table of
-    #: ratios ((K + 2)^4, K), None before its first learning step; None for the other filters
-    _particle_cells: np.ndarray | None = None
-    _context_ratios: np.ndarray | None = None
+    #: "particle_context"'s cell statuses (P, N) uint8 (kernels/rbpf_context.py), its ratios ((K + 2)^4, K)
+    _particle_cells = _context_ratios = None
 
     #: what the placeholder defaults run with the other defaults (estimator_options shows these)
     resolved_defaults = MappingProxyType({"resampling": FEARNHEAD_CLIFFORD})
@@ -201,7 +188,7 @@ class RaoBlackwellisedPF:
                  learn_every: int | None = None, context_weight: float | None = None):
         error = InvalidOptionError
         n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
-        proposal, resampling = _scheme(proposal, resampling)
+        proposal, resampling = scheme(proposal, resampling)
         resample_threshold = arguments.probability("resample_threshold", resample_threshold, error)
         seed = arguments.seed("seed", seed, error)
         lazy_dynamics = arguments.flag("lazy_dynamics", lazy_dynamics, error)
@@ -409,21 +396,12 @@ class RaoBlackwellisedPF:
         valid until the next step."""
         a, z = check_step(self.model, self._t + 1, action, observation)
         t = self._t + 1
-        by_particle = self._particle_cells is not None  # label_prior="particle_context" (rbpf_prior.py)
-        undo = tilt_step_cells(self, t, a, self._kit.width * self.n_particles) if by_particle and a is not None \
-            else None
-        parents = self._locations.copy() if by_particle else None
-        try:
+        with particle_context_step(self, t, a) as taken:  # label_prior="particle_context"'s tilts (rbpf_prior.py)
             if self.resampling == FEARNHEAD_CLIFFORD:
                 ancestors = self._update_fearnhead_clifford(a, z, t)
             else:
                 ancestors = self._update_sampling(a, z, t)
-        except BaseException:
-            if undo is not None:  # the step changed nothing else
-                untilt(self, undo)
-            raise
-        if by_particle:
-            mark_read(self, ancestors, parents, a)
+            taken(ancestors)
         history = self._history
         if history is not None:  # the step is taken: its record, then the resample-move step if due
             history.record_step(t, a, z)
@@ -610,19 +588,3 @@ class RaoBlackwellisedPF:
         positions = (rng.random() + np.arange(size)) / size
         chosen = np.minimum(np.searchsorted(cdf, positions, side="right"), len(weights) - 1)
         return ParticleSnapshot(self._locations[chosen], self.particle_maps(chosen), np.full(size, -math.log(size)))
-
-
-def _scheme(proposal, resampling) -> tuple[str, str]:
-    """The options ``proposal`` and ``resampling``, checked (:class:`InvalidOptionError` naming
-    them), ``resampling`` None resolved: Fearnhead-Clifford for the optimal proposal, residual
-    for the transition one."""
-    error = InvalidOptionError
-    proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
-    if resampling is None:
-        resampling = FEARNHEAD_CLIFFORD if proposal == "optimal" else "residual"
-    resampling = arguments.choice("resampling", resampling, RESAMPLING, error)
-    if resampling == FEARNHEAD_CLIFFORD and proposal != "optimal":
-        raise error(f"proposal={proposal!r} samples one successor per particle; resampling="
-                    f"'{FEARNHEAD_CLIFFORD}' enumerates them all (the optimal proposal's weights): pass "
-                    f"resampling='residual' (or another sampling scheme) to use it")
-    return proposal, resampling

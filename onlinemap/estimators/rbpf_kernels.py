@@ -1,4 +1,5 @@
-"""The RBPF's kernel sets and the model's tables as its kernels take them.
+"""The RBPF's kernel sets, the model's tables as its kernels take them, and its schemes (the
+options ``proposal`` and ``resampling``: :func:`scheme`, :data:`SCHEMES`).
 
 A filter runs one of four kernel sets, fixed by its model and options: the paper's motion and
 sensor (:attr:`GridModel.is_paper_model <onlinemap.model.GridModel.is_paper_model>`: a child
@@ -32,6 +33,36 @@ from ..kernels.rbpf_commit import (Slots, Staged, rbpf_commit_cells, rbpf_commit
                                    rbpf_pick_children)
 from ..kernels.rbpf_enumerate import Children, Proposed, rbpf_enumerate, rbpf_enumerate_cells, rbpf_propose
 from ..model import GridModel
+from ..resampling import RESAMPLERS
+
+PROPOSALS = ("optimal", "transition")
+FEARNHEAD_CLIFFORD = "fearnhead_clifford"
+RESAMPLING = (*RESAMPLERS, FEARNHEAD_CLIFFORD)
+#: the filter's named schemes (the options that make each), which studies, benchmarks and figures
+#: compare: the default (optimal proposal, Fearnhead-Clifford resampling), the optimal proposal
+#: sampled with residual resampling, and the transition proposal with residual resampling
+SCHEMES: dict[str, dict[str, str]] = {
+    "FC": {"proposal": "optimal", "resampling": FEARNHEAD_CLIFFORD},
+    "optimal+residual": {"proposal": "optimal", "resampling": "residual"},
+    "transition+residual": {"proposal": "transition", "resampling": "residual"},
+}
+
+
+def scheme(proposal, resampling) -> tuple[str, str]:
+    """The RBPF's options ``proposal`` and ``resampling``, checked (:class:`InvalidOptionError`
+    naming them), ``resampling`` None resolved: Fearnhead-Clifford for the optimal proposal,
+    residual for the transition one. O(1)."""
+    error = InvalidOptionError
+    proposal = arguments.choice("proposal", proposal, PROPOSALS, error)
+    if resampling is None:
+        resampling = FEARNHEAD_CLIFFORD if proposal == "optimal" else "residual"
+    resampling = arguments.choice("resampling", resampling, RESAMPLING, error)
+    if resampling == FEARNHEAD_CLIFFORD and proposal != "optimal":
+        raise error(f"proposal={proposal!r} samples one successor per particle; resampling="
+                    f"'{FEARNHEAD_CLIFFORD}' enumerates them all (the optimal proposal's weights): pass "
+                    f"resampling='residual' (or another sampling scheme) to use it")
+    return proposal, resampling
+
 
 _WORLDS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 

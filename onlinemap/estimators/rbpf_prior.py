@@ -59,12 +59,13 @@ of building ``belief.map`` once.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from typing import NamedTuple
 
 import numpy as np
 
 from ..errors import InvalidOptionError
-from ..kernels.rbpf_context import READ, context_tilt, context_tilt_count, context_untilt, read_weight
+from ..kernels.rbpf_context import READ, TiltLog, context_tilt, context_tilt_count, context_untilt, read_weight, tilt_log
 from ..label_prior import (CONTEXT, LEARN, PARTICLE_CONTEXT, ContextState, LabelPrior, context_weight, fresh_context,
                            learn_context, learn_context_ratios, learned_frequencies, neighbour_table, plug_in_prior,
                            tilt)
@@ -209,15 +210,38 @@ def learn_particle_context(est, t: int, weights: np.ndarray, alpha: np.ndarray, 
 
 
 class ContextUndo(NamedTuple):
-    """What :func:`tilt_step_cells` wrote, to take it back (:func:`untilt`): ``count`` writes
-    logged in ``log`` (the fields :func:`~onlinemap.kernels.rbpf_context.context_tilt` fills),
-    ``pool`` the pool written (the filter's, or its grown copy) and ``previous`` the filter's
-    pool before."""
+    """What :func:`tilt_step_cells` wrote, to take it back (:func:`untilt`): its writes logged in
+    ``log`` (:class:`~onlinemap.kernels.rbpf_context.TiltLog`), ``pool`` the pool written (the
+    filter's, or its grown copy) and ``previous`` the filter's pool before."""
 
-    count: int
-    log: tuple
+    log: TiltLog
     pool: BlockPool
     previous: BlockPool
+
+
+@contextmanager
+def particle_context_step(est, t: int, action: int | None):
+    """Around step ``t`` of the RBPF ``est``: with ``label_prior="particle_context"``, tilt the
+    cells the step may read first (:func:`tilt_step_cells`), take the tilts back if the step
+    raises (:func:`untilt`: the filter as it was), and mark the cells read once it is taken
+    (:func:`mark_read`). Yields the function the step calls with its ancestors (P,). Without that
+    prior: nothing. O(P F K + M B K + P_copied N)."""
+    if est._particle_cells is None:
+        yield _taken
+        return
+    undo = None if action is None else tilt_step_cells(est, t, action, est._kit.width * est.n_particles)
+    parents, taken = est._locations.copy(), []
+    try:
+        yield taken.append
+    except BaseException:
+        if undo is not None:  # the step changed nothing else
+            untilt(est, undo)
+        raise
+    mark_read(est, taken[0], parents, action)
+
+
+def _taken(ancestors: np.ndarray) -> None:
+    """A step's ancestors, where nothing needs them."""
 
 
 def tilt_step_cells(est, t: int, action: int, need: int) -> ContextUndo | None:
@@ -229,7 +253,7 @@ def tilt_step_cells(est, t: int, action: int, need: int) -> ContextUndo | None:
     :class:`~onlinemap.errors.MemoryLimitError` there changes nothing). Returns the undo, or None
     when nothing was written. O(P F K + M B K) for M writes."""
     status, ratios, model = est._particle_cells, est._context_ratios, est.model
-    if status is None or ratios is None:
+    if ratios is None:
         return None
     targets, footprint = model.moves[action], model.footprint_cells
     count = context_tilt_count(est._locations, est._weights, targets, footprint, status)
@@ -237,19 +261,18 @@ def tilt_step_cells(est, t: int, action: int, need: int) -> ContextUndo | None:
         return None
     previous = est._blocks
     blocks = est._reserved(t, count + need)
-    log = (np.empty(count, dtype=np.int64), np.empty(count, dtype=np.int64), np.empty(count, dtype=np.int64),
-           np.empty(count, dtype=np.bool_), np.empty((count, model.n_labels)))
+    log = tilt_log(count, model.n_labels)
     context_tilt(t, est._locations, est._weights, targets, footprint, neighbour_table(model), status, ratios,
                  np.empty(model.n_labels), *log, *blocks.arrays())
     est._blocks = blocks
-    return ContextUndo(count, log, blocks, previous)
+    return ContextUndo(log, blocks, previous)
 
 
 def untilt(est, undo: ContextUndo) -> None:
     """Take back :func:`tilt_step_cells`'s writes (a step that raised after them): the pool's rows
     in use, table and counts and the particles' cell statuses as before, the filter's pool the
     one it had. O(M K)."""
-    context_untilt(undo.count, est._particle_cells, *undo.log, *undo.pool.arrays())
+    context_untilt(len(undo.log.particle), est._particle_cells, *undo.log, *undo.pool.arrays())
     est._blocks = undo.previous
 
 

@@ -12,12 +12,36 @@ are read as stored (no lazy dynamics).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
+import numpy as np
 from numba import njit
 
 from . import loop_kernel
 from .rbpf import Pool, write_cell
 
 UNTOUCHED, TILTED, READ = 0, 1, 2
+
+
+class TiltLog(NamedTuple):
+    """The undo log of :func:`context_tilt`, one entry per write (M of them): the ``particle`` and
+    ``cell`` (M,), the ``row`` (M,) the particle held before, whether the write ``copied`` it (M,)
+    bool, and the slot's ``values`` (M, K) before (a write in place)."""
+
+    particle: np.ndarray
+    cell: np.ndarray
+    row: np.ndarray
+    copied: np.ndarray
+    values: np.ndarray
+
+
+def tilt_log(size: int, n_labels: int) -> TiltLog:
+    """An empty :class:`TiltLog` for ``size`` writes of K = ``n_labels`` labels. O(size K)."""
+    return TiltLog(np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64),
+                   np.empty(size, dtype=np.bool_), np.empty((size, n_labels)))
+
+
+_LOG_END = len(TiltLog._fields)
 
 
 @njit(cache=True, inline="always")
@@ -46,17 +70,15 @@ def context_tilt_count(locations, weights, targets, footprint, status) -> int:
 
 
 @loop_kernel
-def context_tilt(t, locations, weights, targets, footprint, neighbours, status, ratios, values, undo_particle,
-                 undo_cell, undo_row, undo_copied, undo_values, *fields):
+def context_tilt(t, locations, weights, targets, footprint, neighbours, status, ratios, values, *fields):
     """Tilt, in place, each candidate cell c of each particle p (:func:`context_tilt_count`, the
     same order): its marginal ``normalise(m_pc * ratios[code])`` written at step t
     (:func:`~onlinemap.kernels.rbpf.write_cell`: a shared block copied first), its status
     :data:`TILTED`; ``code`` its context in p (module docstring; ``neighbours`` (N, 4), -1 off the
-    grid), ``ratios`` ((K + 2)^4, K). The undo log (one entry per write, :func:`context_untilt`):
-    ``undo_particle``, ``undo_cell``, ``undo_row`` (the row p held before), ``undo_copied``
-    (whether the write copied it), ``undo_values`` (M, K) (the slot's values before, written in
-    place). ``values`` (K,) scratch. Needs ``free_top[0] >= M``. O(P F (4 K + K) + M B K)."""
-    pool = Pool(*fields)
+    grid), ``ratios`` ((K + 2)^4, K). ``*fields``: a :class:`TiltLog` of M entries (filled, for
+    :func:`context_untilt`), then the pool's (``kernels/rbpf.py``: bundles and dispatch).
+    ``values`` (K,) scratch. Needs ``free_top[0] >= M``. O(P F (4 K + K) + M B K)."""
+    log, pool = TiltLog(*fields[:_LOG_END]), Pool(*fields[_LOG_END:])
     rows, table, cell_block, cell_slot, refcount = pool.rows, pool.table, pool.cell_block, pool.cell_slot, pool.refcount
     n_labels = rows.shape[2]
     base = n_labels + 2
@@ -84,37 +106,38 @@ def context_tilt(t, locations, weights, targets, footprint, neighbours, status, 
             slot = cell_slot[c]
             total = 0.0
             for k in range(n_labels):
-                undo_values[m, k] = rows[r, slot, k]
+                log.values[m, k] = rows[r, slot, k]
                 values[k] = rows[r, slot, k] * ratios[code, k]
                 total += values[k]
             for k in range(n_labels):
                 values[k] /= total
-            undo_particle[m], undo_cell[m], undo_row[m], undo_copied[m] = p, c, r, refcount[r] > 1
+            log.particle[m], log.cell[m], log.row[m], log.copied[m] = p, c, r, refcount[r] > 1
             write_cell(pool, t, p, c, values)
             status[p, c] = TILTED
             m += 1
 
 
 @loop_kernel
-def context_untilt(count, status, undo_particle, undo_cell, undo_row, undo_copied, undo_values, *fields):
-    """Undo the first ``count`` writes of :func:`context_tilt` (its log), last first: a copied
+def context_untilt(count, status, *fields):
+    """Undo the first ``count`` writes of :func:`context_tilt` (``*fields``: its :class:`TiltLog`,
+    then the pool's), last first: a copied
     block goes back to the row the particle held (the fresh row back on the free stack, where it
     was taken from), a slot written in place gets its values back, the cell's status
     :data:`UNTOUCHED`. The pool's rows in use, table, counts and free stack are then as before
     the tilt. O(count K)."""
-    pool = Pool(*fields)
+    log, pool = TiltLog(*fields[:_LOG_END]), Pool(*fields[_LOG_END:])
     rows, table, cell_block, cell_slot, refcount = pool.rows, pool.table, pool.cell_block, pool.cell_slot, pool.refcount
     for i in range(count - 1, -1, -1):
-        p, c, r = undo_particle[i], undo_cell[i], undo_row[i]
+        p, c, r = log.particle[i], log.cell[i], log.row[i]
         b = cell_block[c]
-        if undo_copied[i]:
+        if log.copied[i]:
             refcount[table[p, b]] = 0
             pool.free_top[0] += 1
             table[p, b] = r
             refcount[r] += 1
         else:
             for k in range(rows.shape[2]):
-                rows[r, cell_slot[c], k] = undo_values[i, k]
+                rows[r, cell_slot[c], k] = log.values[i, k]
         status[p, c] = UNTOUCHED
 
 
