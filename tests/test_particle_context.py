@@ -127,7 +127,8 @@ def test_every_live_particles_map_is_its_path_rebuilt_with_its_own_contexts(sche
         slots = [p]
         for u in range(run.n_steps - 1, 0, -1):
             slots.append(ancestry[u][slots[-1]])
-        want, status, count = rebuilt_map(model, run, slots[::-1], locations, tables, frequencies, est.label_frequencies)
+        want, status, count = rebuilt_map(model, run, slots[::-1], locations, tables, frequencies,
+                                          est.label_frequencies)
         np.testing.assert_allclose(maps[p], want, atol=1e-9, err_msg=f"particle {p}")
         np.testing.assert_array_equal(est._particle_cells[p], status, err_msg=f"particle {p}")
         tilted += count
@@ -267,3 +268,24 @@ def test_a_full_weight_filter_runs_and_differs_from_the_tempered_one():
     for _ in zip(beliefs(half, run), beliefs(full, run)):
         pass
     assert not np.allclose(half.context_ratios, full.context_ratios)
+
+
+def smallest_limit(model, **options) -> int:
+    """The least ``max_bytes`` with which the RBPF starts (bisection on MemoryLimitError)."""
+    low, high = 0, 1 << 32
+    while high - low > 1:
+        middle = (low + high) // 2
+        try:
+            om.make_estimator("rbpf", model, n_particles=50, max_bytes=middle, **options)
+        except om.MemoryLimitError:
+            low = middle
+        else:
+            high = middle
+    return high
+
+
+def test_the_memory_guard_counts_the_particles_cell_statuses():
+    """A particle_context filter needs P N bytes more to start than a learning one (its statuses)."""
+    model, _ = om.building(10, 10, seed=1)
+    assert smallest_limit(model, label_prior="particle_context") - smallest_limit(model, label_prior="learn") \
+        == 50 * model.n_cells

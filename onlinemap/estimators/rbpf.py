@@ -48,7 +48,7 @@ from .. import arguments
 from ..arrays import DEFAULT_MAX_BYTES, read_only
 from ..belief import Belief
 from ..errors import ImpossibleObservationError, InvalidOptionError, ModelError
-from ..label_prior import DEFAULT_LEARN_EVERY, shown_options
+from ..label_prior import DEFAULT_LEARN_EVERY, PARTICLE_CONTEXT, shown_options
 from ..kernels.rbpf import in_place_ancestors
 from ..kernels.rbpf_commit import Staged, rbpf_keep_children
 from ..model import GridModel
@@ -201,7 +201,8 @@ class RaoBlackwellisedPF:
         threads = thread_count(threads)
         move_window, move_every, move_lag = move_options(model, move_window, move_every, move_lag)
         prior = prior_options(model, label_prior, prior_strength, learn_every, context_weight, move_window)
-        check_start(Sizing(model, n_particles, lazy_dynamics, threads, max_bytes), block_cells, move_window)
+        statuses = n_particles * model.n_cells if prior.kind == PARTICLE_CONTEXT else 0  # uint8 (P, N)
+        check_start(Sizing(model, n_particles, lazy_dynamics, threads, max_bytes, statuses), block_cells, move_window)
         layout = block_layout(model, block_cells)
         self.model = model
         self.n_particles = n_particles
@@ -529,7 +530,9 @@ class RaoBlackwellisedPF:
     @property
     def _sizing(self) -> Sizing:
         """What the memory guard needs of this filter (:mod:`~onlinemap.estimators.rbpf_memory`)."""
-        return Sizing(self.model, self.n_particles, self.lazy_dynamics, self.threads, self.max_bytes)
+        statuses = self._particle_cells
+        return Sizing(self.model, self.n_particles, self.lazy_dynamics, self.threads, self.max_bytes,
+                      0 if statuses is None else statuses.nbytes)
 
     def _commit(self, kit: StepKit, t, blocks: BlockPool, ancestors, staged: Staged, log_weights, normaliser,
                 increment, resampled, recovered: bool = False) -> np.ndarray:

@@ -21,13 +21,16 @@ from .rbpf_move import (PathHistory, map_rows_per_move, move_scratch_bytes, new_
 
 
 class Sizing(NamedTuple):
-    """What the guard needs of a filter: its model, P, ``lazy_dynamics``, threads and ``max_bytes``."""
+    """What the guard needs of a filter: its model, P, ``lazy_dynamics``, threads, ``max_bytes``
+    and ``fixed_bytes``, what it holds beside its pool whatever the step (``label_prior=
+    "particle_context"``'s P N cell statuses)."""
 
     model: GridModel
     n_particles: int
     lazy_dynamics: bool
     threads: int
     max_bytes: int | float
+    fixed_bytes: int = 0
 
 
 def cells_written(model: GridModel) -> int:
@@ -80,9 +83,9 @@ def check_start(sizing: Sizing, block_cells: int | None, move_window: int | None
     """Refuse a filter whose first pool (every particle sharing one row per block, 2P rows to
     spare), buffers and, with ``move_window``, path history and a move's scratch exceed
     ``max_bytes``."""
-    model, p, lazy, threads, limit = sizing
+    model, p, lazy, threads, limit, fixed = sizing
     size, n_blocks = block_shape(model, block_cells)
-    need = state_bytes(model, p, size, n_blocks, n_blocks + 2 * p, 0, lazy, threads)
+    need = state_bytes(model, p, size, n_blocks, n_blocks + 2 * p, 0, lazy, threads) + fixed
     need += 0 if move_window is None else new_history_bytes(model, p) + move_scratch_bytes(model, move_window)
     if need > limit:
         raise MemoryLimitError(
@@ -99,13 +102,13 @@ def check_growth(sizing: Sizing, pool: BlockPool, t: int, rows: int, history_byt
     """Refuse step t when the pool must grow from its rows to ``rows`` or the path history must grow
     (to ``history_bytes`` in all; None: no history) and the filter would then exceed
     ``max_bytes``."""
-    model, p, lazy, threads, limit = sizing
+    model, p, lazy, threads, limit, fixed = sizing
     have = len(pool.rows)
     if rows <= have and not history_grows:
         return
     n_blocks, size = pool.block_members.shape
-    total = (history_bytes or 0) + state_bytes(model, p, size, n_blocks, rows, have if rows > have else 0, lazy,
-                                               threads)
+    total = (history_bytes or 0) + fixed + state_bytes(model, p, size, n_blocks, rows, have if rows > have else 0,
+                                                       lazy, threads)
     if total > limit:
         paths = "" if history_bytes is None else f", the path history of move_window {history_bytes / 1e9:.3g} GB"
         raise MemoryLimitError(
@@ -139,11 +142,11 @@ def check_recovery(sizing: Sizing, t: int, blocks: BlockPool, own_rows: int, his
     """Refuse a recovery at step t when the filter, with the step's pool ``blocks`` (and its own of
     ``own_rows`` rows while the step grew it) and its path history, plus :func:`recovery_bytes`
     would exceed ``max_bytes``."""
-    model, p, lazy, threads, limit = sizing
+    model, p, lazy, threads, limit, fixed = sizing
     n_blocks, size = blocks.block_members.shape
     rows = len(blocks.rows)
     held = state_bytes(model, p, size, n_blocks, rows, own_rows if rows != own_rows else 0, lazy,
-                       threads) + history_bytes
+                       threads) + history_bytes + fixed
     extra = recovery_bytes(model, p)
     if held + extra > limit:
         raise MemoryLimitError(

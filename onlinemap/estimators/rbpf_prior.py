@@ -65,7 +65,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import InvalidOptionError
-from ..kernels.rbpf_context import READ, TiltLog, context_tilt, context_tilt_count, context_untilt, read_weight, tilt_log
+from ..kernels.rbpf_context import (READ, TiltLog, context_tilt, context_tilt_count, context_untilt, read_weight,
+                                    tilt_log)
 from ..label_prior import (CONTEXT, LEARN, PARTICLE_CONTEXT, ContextState, LabelPrior, context_weight, fresh_context,
                            learn_context, learn_context_ratios, learned_frequencies, neighbour_table, plug_in_prior,
                            tilt)
