@@ -379,10 +379,11 @@ def test_bench_planning_reports_ms_per_decision_and_the_whole_loop():
     from onlinemap.bench import run_benchmarks
 
     table = run_benchmarks(["planning"], quick=True)
-    assert list(table["case"].str.contains("per decision")) == [True, False, True, False, False]
-    assert list(table["case"].str.contains("whole loop")) == [False, False, False, False, True]
-    assert table["case"].iloc[-1].startswith("32x32 building")
-    assert (table["ms"] > 0).all() and (table["reference_ms"] > 0).all() and table["cpu_ms"].iloc[-1] > 0
+    assert list(table["case"].str.contains("per decision")) == [True, False, True, False, False, False]
+    assert list(table["case"].str.contains("whole loop")) == [False, False, False, False, True, True]
+    assert table["case"].iloc[-2].startswith("32x32 building") and "particle_context" not in table["case"].iloc[-2]
+    assert "label_prior=particle_context" in table["case"].iloc[-1]
+    assert (table["ms"] > 0).all() and (table["reference_ms"] > 0).all() and (table["cpu_ms"].iloc[-2:] > 0).all()
 
 
 def corner_of(model, cell):

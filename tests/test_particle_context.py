@@ -174,6 +174,32 @@ def test_a_step_that_raises_after_its_tilts_leaves_the_filter_as_it_was():
     np.testing.assert_array_equal(est._particle_cells, twin._particle_cells)
 
 
+def test_a_recovery_relocates_particles_with_their_new_cells_read_and_a_valid_state():
+    """A noiseless sensor and a reading that contradicts the cell every particle read there (a
+    neighbour's label changed): the step recovers (relocated children), every slot's footprint is
+    read, the cells its ancestor had read stay read (a status never goes back), and the state
+    passes its checks; the filter then runs on."""
+    model, run, start = building_run(steps=60, p_obs=1.0)
+    for t in range(run.n_steps - 1):
+        start.update(None if t == 0 else int(run.actions[t - 1]), run.observations[t])
+    here = run.locations[-1]
+    for f in np.flatnonzero((model.footprint_cells[here] >= 0) & (model.footprint_cells[here] != here)):
+        est, observation = copy.deepcopy(start), run.observations[-1].copy()
+        observation[f] = model.label_names.index("free" if observation[f] else "wall")
+        before = est._particle_cells.copy()
+        ancestors = est.update_with_ancestors(int(run.actions[-1]), observation)
+        if est.recoveries:
+            break
+    assert est.recoveries == 1 and est.belief.recovered
+    status = est._particle_cells
+    for p in np.flatnonzero(est.weights > 0):
+        cells = model.footprint_cells[est.particles[p]]
+        assert np.all(status[p, cells[cells >= 0]] == READ)
+        assert np.all(status[p][before[ancestors[p]] == READ] == READ)
+    type(est).check_state(est)
+    est.update(0, run.observations[-1])
+
+
 # --- checkpoints ---------------------------------------------------------------------------------------------------
 def test_a_particle_context_filter_resumes_from_its_checkpoint_bit_for_bit(tmp_path):
     model, run, straight = building_run(steps=60)
