@@ -126,6 +126,36 @@ def dead_pid() -> int:
     return child.pid
 
 
+def resumed_bit_for_bit(make, run: om.Run, path, stop: int):
+    """Two filters ``make()``: one run straight through ``run``, one to ``stop``, saved to ``path``
+    and loaded; the loaded one's beliefs from ``stop`` on equal the straight one's bit for bit.
+    Returns (loaded at the end, saved at ``stop``, straight)."""
+    straight, est = make(), make()
+    expected = list(beliefs(straight, run))
+    for _ in beliefs(est, run, stop=stop):
+        pass
+    om.save(est, path)
+    resumed = om.load(path)
+    for got, want in zip(beliefs(resumed, run, start=stop), expected[stop:]):
+        np.testing.assert_array_equal(got.map, want.map)
+        np.testing.assert_array_equal(got.location, want.location)
+        assert got.log_evidence == want.log_evidence
+    return resumed, est, straight
+
+
+def assert_corruption_refused(est, run: om.Run, corrupt, name: str) -> None:
+    """Step ``est`` through ``run``: its state passes its checks; after ``corrupt(est)`` the checks
+    raise :class:`~onlinemap.errors.CheckpointError` naming ``name``."""
+    from onlinemap.errors import CheckpointError
+
+    for _ in beliefs(est, run):
+        pass
+    type(est).check_state(est)  # the good state passes
+    corrupt(est)
+    with pytest.raises(CheckpointError, match=name):
+        type(est).check_state(est)
+
+
 def map_given_path(model: om.GridModel, path, actions, readings, tilt) -> np.ndarray:
     """(N, K) the exact map of a static world given a path: ``normalise(label_prior * tilt * prod f)``
     over the path's readings ``readings`` (T, F) and, with blocking labels, its presses (entered:

@@ -17,7 +17,7 @@ from onlinemap.errors import CheckpointError, InvalidOptionError
 from onlinemap.hindsight import path_map, smoothed_rbpf_map, told_location
 from onlinemap.label_prior import (ContextState, context_codes, learn_context, neighbour_states, neighbour_table,
                                    unread_marginals)
-from estimator_cases import beliefs, map_given_path, random_run
+from estimator_cases import assert_corruption_refused, beliefs, map_given_path, random_run, resumed_bit_for_bit
 
 
 # --- the brute force: a cell's neighbours and code from its (row, column) ----------------------------------------
@@ -293,18 +293,10 @@ def test_a_step_that_raises_leaves_the_context_state_unchanged(fault):
 
 # --- checkpoints -----------------------------------------------------------------------------------------------------
 def test_a_context_filter_resumes_from_its_checkpoint_bit_for_bit(tmp_path):
-    model, run, straight = run_building(steps=60, learn_every=4, move_window=4, move_every=5, move_lag=5)
-    expected = list(beliefs(straight, run))
-    _, _, est = run_building(steps=60, learn_every=4, move_window=4, move_every=5, move_lag=5)
-    for _ in beliefs(est, run, stop=27):
-        pass
-    om.save(est, tmp_path / "context.npz")
-    resumed = om.load(tmp_path / "context.npz")
-    np.testing.assert_array_equal(resumed.context_tilts, est.context_tilts)
-    for got, want in zip(beliefs(resumed, run, start=27), expected[27:]):
-        np.testing.assert_array_equal(got.map, want.map)
-        np.testing.assert_array_equal(got.location, want.location)
-        assert got.log_evidence == want.log_evidence
+    options = dict(steps=60, learn_every=4, move_window=4, move_every=5, move_lag=5)
+    _, run, _ = run_building(**options)
+    resumed, _, straight = resumed_bit_for_bit(lambda: run_building(**options)[2], run, tmp_path / "context.npz",
+                                                 stop=27)
     np.testing.assert_array_equal(resumed.context_tilts, straight.context_tilts)
     np.testing.assert_array_equal(resumed._context_frozen, straight._context_frozen)
     np.testing.assert_array_equal(resumed.label_frequencies, straight.label_frequencies)
@@ -353,12 +345,7 @@ def corrupt_frequencies_missing(est):
     (corrupt_frequencies_missing, "_label_frequencies")])
 def test_a_corrupted_context_state_is_refused(corrupt, name):
     model, run, est = run_building(steps=25)
-    for _ in beliefs(est, run):
-        pass
-    type(est).check_state(est)  # the good state passes
-    corrupt(est)
-    with pytest.raises(CheckpointError, match=name):
-        type(est).check_state(est)
+    assert_corruption_refused(est, run, corrupt, name)
 
 
 def test_a_learning_filter_with_context_attributes_is_refused():

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 import onlinemap as om
-from onlinemap.errors import CheckpointError, ImpossibleObservationError, InvalidOptionError
+from onlinemap.errors import ImpossibleObservationError, InvalidOptionError
 from onlinemap.kernels.rbpf_context import context_tilt_count
 from onlinemap.label_prior import ContextState, learn_context_ratios, neighbour_table, posterior_frequencies
-from estimator_cases import beliefs, snapshot
+from estimator_cases import assert_corruption_refused, beliefs, resumed_bit_for_bit, snapshot
 from test_context_prior import brute_code
 
 UNTOUCHED, TILTED, READ = 0, 1, 2
@@ -202,18 +202,9 @@ def test_a_recovery_relocates_particles_with_their_new_cells_read_and_a_valid_st
 
 # --- checkpoints ---------------------------------------------------------------------------------------------------
 def test_a_particle_context_filter_resumes_from_its_checkpoint_bit_for_bit(tmp_path):
-    model, run, straight = building_run(steps=60)
-    expected = list(beliefs(straight, run))
-    _, _, est = building_run(steps=60)
-    for _ in beliefs(est, run, stop=27):
-        pass
-    om.save(est, tmp_path / "particle_context.npz")
-    resumed = om.load(tmp_path / "particle_context.npz")
-    np.testing.assert_array_equal(resumed.context_ratios, est.context_ratios)
-    for got, want in zip(beliefs(resumed, run, start=27), expected[27:]):
-        np.testing.assert_array_equal(got.map, want.map)
-        np.testing.assert_array_equal(got.location, want.location)
-        assert got.log_evidence == want.log_evidence
+    _, run, _ = building_run(steps=60)
+    resumed, _, straight = resumed_bit_for_bit(lambda: building_run(steps=60)[2], run,
+                                               tmp_path / "particle_context.npz", stop=27)
     np.testing.assert_array_equal(resumed._particle_cells, straight._particle_cells)
     np.testing.assert_array_equal(resumed.context_ratios, straight.context_ratios)
 
@@ -239,12 +230,7 @@ def corrupt_tilts_present(est):
     (corrupt_tilts_present, "_context_tilts")])
 def test_a_corrupted_particle_context_state_is_refused(corrupt, name):
     _, run, est = building_run(steps=25)
-    for _ in beliefs(est, run):
-        pass
-    type(est).check_state(est)  # the good state passes
-    corrupt(est)
-    with pytest.raises(CheckpointError, match=name):
-        type(est).check_state(est)
+    assert_corruption_refused(est, run, corrupt, name)
 
 
 def test_other_filters_hold_no_particle_context_state():

@@ -44,6 +44,20 @@ The kernels are not touched.
   ``v' / v``. The same plug-in: the contexts come from the population's mixture, not each
   particle's own map, and the weights are not changed.
 
+- ``"particle_context"`` (static grid worlds; not with ``move_window``): the same learning step
+  (:func:`learn_particle_context`) on the cells most of the weight has read (per-particle
+  statuses, not the mixture: a cell tilted but not read is not evidence) gives pi' (the pool
+  retilted by ``pi' / pi`` as ``"learn"``) and the tempered table of ratios ``v'[c] / pi``. Each
+  particle p's stored marginal of a cell i it tilted is then ``normalise(prior_i pi r_pi prod
+  f)``, with ``r_pi`` the ratio of i's context in p's own map when p tilted it: before step t,
+  :func:`tilt_step_cells` multiplies in ``r`` for each live particle's untouched cells of the
+  footprint of the cell the action points at (numba, copy-on-write writes, logged), and
+  :func:`untilt` takes them back if the step raises; after it, :func:`mark_read` carries the
+  statuses (P, N) through the genealogy and marks the cells read. The weights then see the
+  tilted prior: the evidence of a reading is computed against it. Cost: O(P F K + M B K) a step
+  for M cells tilted (each new cell once per lineage), O(P_copied N) to carry the statuses, and
+  O(P N) more per learning step; memory P N bytes.
+
 Limits: a recovery from depletion resets the cells it redraws to the model's prior (not the
 tilted one) until the next retilt moves them with the rest. The resample-move step
 (``move_window``) keeps the tilt: its map without the window is the stored marginal with the
