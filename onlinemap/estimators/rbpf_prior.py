@@ -79,8 +79,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import InvalidOptionError
-from ..kernels.rbpf_context import (READ, TiltLog, context_tilt, context_tilt_count, context_untilt, read_weight,
-                                    tilt_log)
+from ..kernels.rbpf_context import (TiltLog, context_mark_read, context_tilt, context_tilt_count, context_untilt,
+                                    read_weight, tilt_log)
 from ..label_prior import (CONTEXT, LEARN, PARTICLE_CONTEXT, ContextState, LabelPrior, context_weight, fresh_context,
                            learn_context, learn_context_ratios, learned_frequencies, neighbour_table, plug_in_prior,
                            tilt)
@@ -296,15 +296,11 @@ def mark_read(est, ancestors: np.ndarray, parents: np.ndarray, action: int | Non
     ancestor's cell statuses (``ancestors`` (P,), sources keeping their own slot), then marks
     :data:`~onlinemap.kernels.rbpf_context.READ` the footprint of its location and, with
     blocking labels, the cell its parent's move pressed into (``parents`` (P,), the locations
-    before the step; not after a recovery, whose relocated children pressed nothing). O(P F +
-    P_copied N)."""
-    status, model, locations = est._particle_cells, est.model, est._locations
-    n_particles = len(ancestors)
-    copied = np.flatnonzero(ancestors != np.arange(n_particles))
-    status[copied] = status[ancestors[copied]]
-    cells = model.footprint_cells[locations]
-    slots = np.broadcast_to(np.arange(n_particles)[:, None], cells.shape)
-    inside = cells >= 0
-    status[slots[inside], cells[inside]] = READ
+    before the step; not after a recovery, whose relocated children pressed nothing)
+    (:func:`~onlinemap.kernels.rbpf_context.context_mark_read`). O(P F + P_copied N)."""
+    model = est.model
     if model.has_blocking and action is not None and not est._recovered:
-        status[np.arange(n_particles), model.moves[action][parents[ancestors]]] = READ
+        pressed = model.moves[action][parents[ancestors]]
+    else:
+        pressed = np.full(len(ancestors), -1, dtype=np.int64)
+    context_mark_read(est._particle_cells, ancestors, est._locations, model.footprint_cells, pressed)

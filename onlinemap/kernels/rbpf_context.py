@@ -56,7 +56,7 @@ def _candidate(status, footprint, targets, locations, weights, p, f):
     return cell
 
 
-@njit(cache=True)
+@loop_kernel
 def context_tilt_count(locations, weights, targets, footprint, status) -> int:
     """How many (particle, cell) pairs :func:`context_tilt` writes: every live particle's (weight
     > 0) untouched cells of the footprint (N, F) of ``targets[location]`` (N,), the cell the
@@ -152,3 +152,24 @@ def read_weight(status, weights, out):
             for i in range(status.shape[1]):
                 if status[p, i] == READ:
                     out[i] += w
+
+
+@loop_kernel
+def context_mark_read(status, ancestors, locations, footprint, pressed):
+    """After a step, in place: each slot p with ``ancestors[p] != p`` takes its ancestor's statuses
+    (sources keep their own slot, so every copy is made before any slot is marked), then every
+    slot marks :data:`READ` the footprint (N, F) of its location and, where ``pressed[p] >= 0``,
+    the cell its move pressed into. O(P_copied N + P F)."""
+    n_particles = status.shape[0]
+    for p in range(n_particles):
+        q = ancestors[p]
+        if q != p:
+            for i in range(status.shape[1]):
+                status[p, i] = status[q, i]
+    for p in range(n_particles):
+        for f in range(footprint.shape[1]):
+            c = footprint[locations[p], f]
+            if c >= 0:
+                status[p, c] = READ
+        if pressed[p] >= 0:
+            status[p, pressed[p]] = READ
