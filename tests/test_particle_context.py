@@ -14,6 +14,7 @@ import pytest
 
 import onlinemap as om
 from onlinemap.errors import ImpossibleObservationError, InvalidOptionError
+from onlinemap.hindsight import smoothed_rbpf_map, told_location
 from onlinemap.kernels.rbpf_context import context_tilt_count
 from onlinemap.label_prior import ContextState, learn_context_ratios, neighbour_table, posterior_frequencies
 from estimator_cases import assert_corruption_refused, beliefs, resumed_bit_for_bit, snapshot
@@ -271,6 +272,12 @@ def test_a_world_it_cannot_serve_is_refused():
             om.make_estimator(name, model, label_prior="particle_context")
     with pytest.raises(InvalidOptionError, match="context_weight"):
         om.make_estimator("online_em", model, context_weight=0.5)
+    run = om.simulate(model, om.building(10, 10, seed=1)[1], om.random_walk(model, 11, seed=0), seed=0)
+    for fit in (lambda: told_location(model, run, label_prior="particle_context"),
+                lambda: smoothed_rbpf_map(model, run.actions, run.observations, n_particles=10,
+                                          label_prior="particle_context")):
+        with pytest.raises(InvalidOptionError, match="RBPF's only"):
+            fit()
 
 
 def test_a_full_weight_filter_runs_and_differs_from_the_tempered_one():
