@@ -1,6 +1,7 @@
 """numba kernels, one module per algorithm: ``exact`` (the joint belief's fused motion + sensor
 pass and map dynamics), ``rbpf`` and its ``rbpf_*`` modules (the particle filter's maps as
-copy-on-write blocks, its children, commits, recovery, threads and resample-move),
+copy-on-write blocks, its children, commits, recovery, threads, resample-move and per-particle
+context prior),
 ``resampling`` (Fearnhead-Clifford's optimal resampling), ``forward_backward`` (the EM
 estimators' location HMM) and ``layered`` (layered EM's stretches: forward-backward over start
 cells and offsets): the estimators' kernels. The planners' kernels live beside the

@@ -21,7 +21,8 @@ dropped one) instead of maps; a particle writing into a shared block first copie
 
 The jobs live in their own modules: ``rbpf_enumerate`` (children and proposals), ``rbpf_commit``
 (selection and the writes of a step), ``rbpf_recovery`` (relocation after depletion),
-``rbpf_parallel`` (the threaded drivers), ``rbpf_move`` (the resample-move step).
+``rbpf_parallel`` (the threaded drivers), ``rbpf_move`` (the resample-move step), ``rbpf_context``
+(the per-particle context prior's tilts).
 
 Bundles and dispatch: numba types a bundle argument in Python on every call from Python, some 5
 us for a :class:`Pool` against 0.1 us per array typed in C (measured), which a small filter's
