@@ -69,6 +69,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import gammaln
 
+from . import arguments
 from .errors import InvalidOptionError
 
 CONTEXT = "context"
@@ -409,11 +410,7 @@ def context_weight(value) -> float:
     """``label_prior="particle_context"``'s option ``context_weight`` checked, None the default
     :data:`DEFAULT_CONTEXT_WEIGHT`: the weight w in (0, 1] of the context table against the
     frequencies (the module docstring). Raises :class:`~onlinemap.errors.InvalidOptionError`
-    otherwise. O(1)."""
+    otherwise (:func:`~onlinemap.arguments.real`). O(1)."""
     if value is None:
         return DEFAULT_CONTEXT_WEIGHT
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
-            or not 0 < float(value) <= 1:
-        raise InvalidOptionError(f"context_weight must be a number in (0, 1] (the weight of the neighbour-context "
-                                 f"table against the learned frequencies), got {value!r}")
-    return float(value)
+    return arguments.real("context_weight", value, low=0.0, high=1.0, low_open=True, error=InvalidOptionError)
