@@ -165,9 +165,9 @@ def _successor(maps, ov, world, tables, p, l, n, s, h, step):
         if gated and ids[0] == c:  # the cell the move tried to enter, given the move's outcome
             w = 0
             for b in range(world.sensor.shape[0]):
-                lam += cells[w, b] * world.sensor[b, z]
+                lam += cells[w, b] * world.likelihood[z, b]
         else:
-            lam = _marginal(maps, ov, tables, p, c, h, cells[w], world.sensor[:, z])
+            lam = _marginal(maps, ov, tables, p, c, h, cells[w], world.likelihood[z])
             ids[w] = c
             used += 1
         if lam <= 0.0:
@@ -179,12 +179,13 @@ def _successor(maps, ov, world, tables, p, l, n, s, h, step):
 
 
 @njit(cache=True, inline="always")
-def _read(sensor, step, s):
+def _read(likelihood, step, s):
     """The rows ``cells`` (W, K) of successor s (:func:`_successor`) given their readings:
-    ``cells[w] <- cells[w] O[:, z] / lam`` for read f's row w = ``slots[f]``. Each footprint cell
-    is read once, so no likelihood depends on another read's posterior."""
+    ``cells[w] <- cells[w] O[:, z] / lam`` for read f's row w = ``slots[f]`` (``likelihood`` (Z,
+    K): the world's contiguous O.T, whose rows vectorise). Each footprint cell is read once, so no
+    likelihood depends on another read's posterior."""
     cells, lams, slots, readings = step.cells[s], step.lams[s], step.slots[s], step.readings
-    k = sensor.shape[0]
+    k = likelihood.shape[1]
     for f in range(slots.shape[0]):
         w = slots[f]
         if w < 0:
@@ -192,7 +193,7 @@ def _read(sensor, step, s):
         z = readings[f]
         lam = lams[f]
         for b in range(k):
-            cells[w, b] = cells[w, b] * sensor[b, z] / lam
+            cells[w, b] = cells[w, b] * likelihood[z, b] / lam
 
 
 @njit(cache=True, inline="always")
@@ -251,7 +252,7 @@ def _filter_step(loc, lw, maps, ov, world, tables, a, h, proposal_u, step, n_tou
         s = 1 if proposal_u[p] * total < w1 else 0
         lw[p] += math.log(total)
         loc[p] = j1 if s == 1 else j0
-        _read(world.sensor, step, s)
+        _read(world.likelihood, step, s)
         n_touched = _keep(ov, p, h, step.ids[s], step.cells[s], u1 if s == 1 else u0, n_touched)
         if lw[p] > top:
             top = lw[p]
