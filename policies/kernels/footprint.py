@@ -265,9 +265,7 @@ def _closed_loop_action(loc, lw, moves, distance, go, weights):
     """``argmin_a sum_p w_p [go(l_p, a) D(n) + (1 - go(l_p, a)) D(l_p)]``, ``n = moves[a, l_p]``:
     the expected distance ``D`` (N,) to the candidate's target after the press, ``go`` (N, A) the
     chance the press moves (0 where it cannot); ties to the lowest action. ``weights`` (R,):
-    scratch for ``w_p``. O(R A)."""
-    for p in range(loc.shape[0]):
-        weights[p] = math.exp(lw[p])
+    ``w_p = exp(lw_p)``, filled by the caller once for all of a state's candidates. O(R A)."""
     best = -1
     best_cost = np.inf
     for a in range(go.shape[1]):
@@ -330,7 +328,7 @@ def _press(moves, candidates, work, g, x, h, n_free, n_pending, n_groups):
     from a copy of the state (:func:`_fork`) and put on the stack. Returns (the group's first
     candidate, n_free, n_pending, n_groups)."""
     states, groups = work.states, work.groups
-    lead = -1
+    lead, weighted = -1, False
     for a in range(groups.parted.shape[0]):
         groups.parted[a] = -1
     for c in range(candidates.sequences.shape[0]):
@@ -338,6 +336,10 @@ def _press(moves, candidates, work, g, x, h, n_free, n_pending, n_groups):
             continue
         a = candidates.sequences[c, h - 1]
         if a < 0:
+            if not weighted:  # the state's weights, the same for each of its candidates
+                for p in range(states.lw.shape[1]):
+                    work.mixture.weights[p] = math.exp(states.lw[x, p])
+                weighted = True
             a = _closed_loop_action(states.loc[x], states.lw[x], moves, candidates.distances[c], candidates.go,
                                     work.mixture.weights)
         groups.action[c] = a
