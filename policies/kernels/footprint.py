@@ -441,7 +441,7 @@ def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agr
     each other press, and that group waits on a stack (:func:`roll_worlds`). The scores are those
     of rolling every candidate out alone, bit for bit; in the door world and 16 x 16 buildings
     5-30% of the steps are shared (plans 18% faster, measured on recorded plans). The buffers
-    are allocated here, the loops run in the kernel :func:`roll_worlds` (a compiled entry point
+    are allocated (or taken from ``kept``) here, the loops run in the kernel :func:`roll_worlds` (a compiled entry point
     would compile every kernel's code once more).
 
     ``threads``: the worlds go in that many contiguous runs (at most S) to Python threads
@@ -450,7 +450,8 @@ def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agr
     Cost O(S C H R (F + 1) K) for the steps (K^2 with map dynamics) plus O(S C R (D + H F) K)
     per checkpoint, less the shared steps, over the threads; memory O(threads C R (N + H F K) + S C H).
     ``kept``: a dict the caller keeps between its plans (never two at once), holding the threads'
-    buffers for the next plan (:func:`~policies.kernels.rollout_buffers.kept_works`)."""
+    buffers for the next plan (:func:`~policies.kernels.rollout_buffers.kept_works`; emptied if
+    the plan raises); the same scores."""
     n_worlds = hypotheses.locations.shape[0]
     if candidates.sequences.shape[0] == 0 or n_worlds == 0:  # nothing to score (no rollout state to start from)
         return
