@@ -307,6 +307,7 @@ class InfoGainExplorer:
         self._since_anchor = 0
         self._pi: PolicyIterationResult | None = None
         self._tables = rollout_tables(model, int(self.press_lengths[-1]))
+        self._kept: dict = {}  # the rollouts' buffers, reused from plan to plan
         self.frontier = FrontierExplorer(model) if self.targets else None  # where the unknown is
         self.presses = PressMemory(model)  # blocked and futile presses, for the moves towards a target
         self.closer = loop_closer(model, loop_closing, close_above, close_below, close_steps,
@@ -499,7 +500,7 @@ class InfoGainExplorer:
             else:
                 expected = footprint_expected_uncertainty(self.model, particles, sequences, checkpoints, worlds,
                                                           self.rng, location_nats, self._tables, distances, go,
-                                                          self.threads)
+                                                          self.threads, kept=self._kept)
         else:  # forks take fixed actions: a move towards a target is its walk from the most probable cell
             start = int(np.argmax(belief.location))
             fixed = [s if t < 0 else descent(self.model, go, distances[c], start, horizon)

@@ -93,13 +93,15 @@ def footprint_expected_uncertainty(model: GridModel, particles: ParticleSnapshot
                                    checkpoints: np.ndarray, worlds: tuple[np.ndarray, np.ndarray],
                                    rng: np.random.Generator, location_weight: float = 1.0,
                                    tables: RolloutTables | None = None, distances: np.ndarray | None = None,
-                                   go: np.ndarray | None = None, threads: int = 1) -> np.ndarray:
+                                   go: np.ndarray | None = None, threads: int = 1, *,
+                                   kept: dict | None = None) -> np.ndarray:
     """(C, H + 1) :func:`particle_expected_uncertainty` for any sensor footprint and blocking
     labels (:func:`policies.kernels.footprint.plan_rollouts`): ``sequences`` (C, H) actions, -1
     where the action is chosen in closed loop towards candidate c's target by ``distances`` (C, N)
     and ``go`` (N, A) (the chance each press moves). Every sequence sees the same worlds and random
     numbers. Cost O(S C (H R (F + 1) K^2 + n_checkpoints R (D + H F) K)), D the disputed cells,
-    the worlds split over ``threads`` threads (the same result for any count)."""
+    the worlds split over ``threads`` threads (the same result for any count); ``kept``: a dict
+    the caller keeps to reuse the rollout buffers from plan to plan (the same result)."""
     sequences = np.ascontiguousarray(sequences, dtype=np.int64)
     n_seq, horizon = sequences.shape
     tables = rollout_tables(model, horizon) if tables is None else tables
@@ -111,7 +113,7 @@ def footprint_expected_uncertainty(model: GridModel, particles: ParticleSnapshot
     plan_rollouts(particles._replace(maps=np.ascontiguousarray(particles.maps)), world_tables(model), tables,
                   Candidates(sequences, np.ascontiguousarray(distances), np.ascontiguousarray(go, dtype=np.float64)),
                   drawn, Scoring(float(location_weight), np.asarray(checkpoints, dtype=np.bool_)),
-                  Agreement(*agreement(model, particles, horizon, tables)), total, threads)
+                  Agreement(*agreement(model, particles, horizon, tables)), total, threads, kept)
     return total / len(drawn.locations)
 
 

@@ -29,8 +29,9 @@ from onlinemap.kernels import aligned, inner_kernel, loop_kernel, thread_kernel
 from onlinemap.kernels.rbpf import carried
 from onlinemap.kernels.rbpf_parallel import in_threads, thread_runs
 
-from .mixture import Mixture, mixture_scratch, mixture_uncertainty
+from .mixture import mixture_uncertainty
 from .planning import normalise, world_step
+from .rollout_buffers import Overlays, States, empty_overlays, kept_works, step_scratch
 
 
 NEGLIGIBLE = math.log(1e-9)  # a rollout drops a particle whose weight falls below 1e-9 of the largest
@@ -54,21 +55,6 @@ class Agreement(NamedTuple):
     entropy: np.ndarray
 
 
-class Overlays(NamedTuple):
-    """The overlays of R particles' maps (module docstring), with a leading (S',) axis for S'
-    rollout states or of one state (:func:`_state`): ``index`` (R, N) a cell's slot or -1,
-    ``cell``/``stamp`` (R, W), ``val`` (R, W, K), ``n`` (R,) slots used, ``touched`` (N,) and
-    ``touched_list`` (R W,) the cells some particle wrote."""
-
-    index: np.ndarray
-    cell: np.ndarray
-    val: np.ndarray
-    stamp: np.ndarray
-    n: np.ndarray
-    touched: np.ndarray
-    touched_list: np.ndarray
-
-
 class Beliefs(NamedTuple):
     """:func:`rollout_beliefs`' output: ``location`` (H + 1, N) and ``maps`` (H + 1, N, K) the
     weighted particle locations and map mixture after each step, ``where`` (H + 1,) the world's
@@ -78,52 +64,6 @@ class Beliefs(NamedTuple):
     maps: np.ndarray
     where: np.ndarray
     readings: np.ndarray
-
-
-class _States(NamedTuple):
-    """S' rollout states: particles ``loc``/``lw`` (S', R), the world's ``labels`` (S', N) and
-    ``where`` (S',), the touched cells' counts ``n_touched`` (S',), the :class:`Overlays`."""
-
-    loc: np.ndarray
-    lw: np.ndarray
-    labels: np.ndarray
-    where: np.ndarray
-    n_touched: np.ndarray
-    overlays: Overlays
-
-
-class _Step(NamedTuple):
-    """Scratch of a filter step, row s for successor s (0 stay, 1 move): ``ids`` (2, F + 1) the
-    cells it changes, ``cells`` (2, F + 1, K) their marginals, ``before`` (2, K) the cell pressed
-    towards, ``lams``/``slots`` (2, F) each read's likelihood and row; ``readings`` (F,)."""
-
-    ids: np.ndarray
-    cells: np.ndarray
-    before: np.ndarray
-    lams: np.ndarray
-    slots: np.ndarray
-    readings: np.ndarray
-
-
-class _Groups(NamedTuple):
-    """Candidate c's ``group`` (the candidates that pressed alike so far) and ``action`` (C,);
-    ``parted`` (A,) the group a press parts into at one step; ``pending`` (C, 3) groups to roll
-    out (group, state, first step); ``free`` (C,) states not in use, the last freed on top."""
-
-    group: np.ndarray
-    action: np.ndarray
-    parted: np.ndarray
-    pending: np.ndarray
-    free: np.ndarray
-
-
-class _Work(NamedTuple):
-    """Everything :func:`plan_rollouts` allocates once for all worlds."""
-
-    states: _States
-    step: _Step
-    mixture: Mixture
-    groups: _Groups
 
 
 @njit(cache=True, inline="always")
@@ -225,9 +165,9 @@ def _successor(maps, ov, world, tables, p, l, n, s, h, step):
         if gated and ids[0] == c:  # the cell the move tried to enter, given the move's outcome
             w = 0
             for b in range(world.sensor.shape[0]):
-                lam += cells[w, b] * world.sensor[b, z]
+                lam += cells[w, b] * world.likelihood[z, b]
         else:
-            lam = _marginal(maps, ov, tables, p, c, h, cells[w], world.sensor[:, z])
+            lam = _marginal(maps, ov, tables, p, c, h, cells[w], world.likelihood[z])
             ids[w] = c
             used += 1
         if lam <= 0.0:
@@ -239,12 +179,13 @@ def _successor(maps, ov, world, tables, p, l, n, s, h, step):
 
 
 @njit(cache=True, inline="always")
-def _read(sensor, step, s):
+def _read(likelihood, step, s):
     """The rows ``cells`` (W, K) of successor s (:func:`_successor`) given their readings:
-    ``cells[w] <- cells[w] O[:, z] / lam`` for read f's row w = ``slots[f]``. Each footprint cell
-    is read once, so no likelihood depends on another read's posterior."""
+    ``cells[w] <- cells[w] O[:, z] / lam`` for read f's row w = ``slots[f]`` (``likelihood`` (Z,
+    K): the world's contiguous O.T, whose rows vectorise). Each footprint cell is read once, so no
+    likelihood depends on another read's posterior."""
     cells, lams, slots, readings = step.cells[s], step.lams[s], step.slots[s], step.readings
-    k = sensor.shape[0]
+    k = likelihood.shape[1]
     for f in range(slots.shape[0]):
         w = slots[f]
         if w < 0:
@@ -252,7 +193,7 @@ def _read(sensor, step, s):
         z = readings[f]
         lam = lams[f]
         for b in range(k):
-            cells[w, b] = cells[w, b] * sensor[b, z] / lam
+            cells[w, b] = cells[w, b] * likelihood[z, b] / lam
 
 
 @njit(cache=True, inline="always")
@@ -311,7 +252,7 @@ def _filter_step(loc, lw, maps, ov, world, tables, a, h, proposal_u, step, n_tou
         s = 1 if proposal_u[p] * total < w1 else 0
         lw[p] += math.log(total)
         loc[p] = j1 if s == 1 else j0
-        _read(world.sensor, step, s)
+        _read(world.likelihood, step, s)
         n_touched = _keep(ov, p, h, step.ids[s], step.cells[s], u1 if s == 1 else u0, n_touched)
         if lw[p] > top:
             top = lw[p]
@@ -324,9 +265,7 @@ def _closed_loop_action(loc, lw, moves, distance, go, weights):
     """``argmin_a sum_p w_p [go(l_p, a) D(n) + (1 - go(l_p, a)) D(l_p)]``, ``n = moves[a, l_p]``:
     the expected distance ``D`` (N,) to the candidate's target after the press, ``go`` (N, A) the
     chance the press moves (0 where it cannot); ties to the lowest action. ``weights`` (R,):
-    scratch for ``w_p``. O(R A)."""
-    for p in range(loc.shape[0]):
-        weights[p] = math.exp(lw[p])
+    ``w_p = exp(lw_p)``, filled by the caller once for all of a state's candidates. O(R A)."""
     best = -1
     best_cost = np.inf
     for a in range(go.shape[1]):
@@ -351,23 +290,6 @@ def _reset(ov, n_touched):
         ov.n[p] = 0
     for j in range(n_touched):
         ov.touched[ov.touched_list[j]] = False
-
-
-def _overlays(n_states, r_count, n_cells, k, horizon, n_reads):
-    """Empty :class:`Overlays` of R particles' maps for ``n_states`` rollout states (each particle
-    writes at most H (F + 1) cells: W = max(H, 1) (F + 1)). O(S' R (N + W K))."""
-    width = max(horizon, 1) * (n_reads + 1)
-    return Overlays(aligned((n_states, r_count, n_cells), np.int32, -1),
-                    aligned((n_states, r_count, width), np.int64), aligned((n_states, r_count, width, k)),
-                    aligned((n_states, r_count, width), np.int64, 0),
-                    aligned((n_states, r_count), np.int64, 0), aligned((n_states, n_cells), np.bool_, 0),
-                    aligned((n_states, r_count * width), np.int64))
-
-
-def _step(n_reads, k):
-    """A filter step's scratch (:class:`_Step`) for F = ``n_reads`` readings."""
-    return _Step(aligned((2, n_reads + 1), np.int64), aligned((2, n_reads + 1, k)), aligned((2, k)),
-                 aligned((2, n_reads)), aligned((2, n_reads), np.int64), aligned(n_reads, np.int64))
 
 
 @inner_kernel
@@ -406,7 +328,7 @@ def _press(moves, candidates, work, g, x, h, n_free, n_pending, n_groups):
     from a copy of the state (:func:`_fork`) and put on the stack. Returns (the group's first
     candidate, n_free, n_pending, n_groups)."""
     states, groups = work.states, work.groups
-    lead = -1
+    lead, weighted = -1, False
     for a in range(groups.parted.shape[0]):
         groups.parted[a] = -1
     for c in range(candidates.sequences.shape[0]):
@@ -414,6 +336,10 @@ def _press(moves, candidates, work, g, x, h, n_free, n_pending, n_groups):
             continue
         a = candidates.sequences[c, h - 1]
         if a < 0:
+            if not weighted:  # the state's weights, the same for each of its candidates
+                for p in range(states.lw.shape[1]):
+                    work.mixture.weights[p] = math.exp(states.lw[x, p])
+                weighted = True
             a = _closed_loop_action(states.loc[x], states.lw[x], moves, candidates.distances[c], candidates.go,
                                     work.mixture.weights)
         groups.action[c] = a
@@ -498,22 +424,7 @@ def roll_worlds(particles, world, tables, candidates, hypotheses, scoring, agree
             n_free += 1
 
 
-def _rollout_work(particles, world, candidates, agreement, labels_dtype):
-    """The buffers one thread of :func:`plan_rollouts` rolls its worlds out in (:class:`_Work`):
-    C rollout states, a filter step's scratch, the mixture's and the groups'. O(C R (N + H F K) + R D K)."""
-    r_count, n_cells, k = particles.maps.shape
-    n_seq, horizon = candidates.sequences.shape
-    n_reads = world.footprint_cells.shape[1]
-    states = _States(aligned((n_seq, r_count), np.int64), aligned((n_seq, r_count)),
-                     aligned((n_seq, n_cells), labels_dtype), aligned(n_seq, np.int64),
-                     aligned(n_seq, np.int64, 0), _overlays(n_seq, r_count, n_cells, k, horizon, n_reads))
-    groups = _Groups(aligned(n_seq, np.int64), aligned(n_seq, np.int64),
-                     aligned(world.moves.shape[0], np.int64), aligned((n_seq, 3), np.int64),
-                     aligned(n_seq, np.int64))
-    return _Work(states, _step(n_reads, k), mixture_scratch(particles.maps, agreement.disputed), groups)
-
-
-def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agreement, out, threads=1):
+def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agreement, out, threads=1, kept=None):
     """Roll every candidate out in every hypothetical world through the thinned particle belief
     and add up its uncertainty: ``out[c, h] += U`` after h steps of candidate c in world s, for
     every h with ``scoring.checkpoints[h]`` (``out`` (C, H + 1); the caller divides by S).
@@ -530,22 +441,30 @@ def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agr
     each other press, and that group waits on a stack (:func:`roll_worlds`). The scores are those
     of rolling every candidate out alone, bit for bit; in the door world and 16 x 16 buildings
     5-30% of the steps are shared (plans 18% faster, measured on recorded plans). The buffers
-    are allocated here, the loops run in the kernel :func:`roll_worlds` (a compiled entry point
+    are allocated (or taken from ``kept``) here, the loops run in the kernel :func:`roll_worlds` (a compiled entry point
     would compile every kernel's code once more).
 
     ``threads``: the worlds go in that many contiguous runs (at most S) to Python threads
     (:func:`roll_worlds` releases the GIL; a run has its own buffers); each world's scores are
     added into ``out`` in world order, as one thread does: the same bits for any ``threads``.
     Cost O(S C H R (F + 1) K) for the steps (K^2 with map dynamics) plus O(S C R (D + H F) K)
-    per checkpoint, less the shared steps, over the threads; memory O(threads C R (N + H F K) + S C H)."""
+    per checkpoint, less the shared steps, over the threads; memory O(threads C R (N + H F K) + S C H).
+    ``kept``: a dict the caller keeps between its plans (never two at once), holding the threads'
+    buffers for the next plan (:func:`~policies.kernels.rollout_buffers.kept_works`; emptied if
+    the plan raises); the same scores."""
     n_worlds = hypotheses.locations.shape[0]
     if candidates.sequences.shape[0] == 0 or n_worlds == 0:  # nothing to score (no rollout state to start from)
         return
     runs = thread_runs(n_worlds, 1, threads)
-    works = [_rollout_work(particles, world, candidates, agreement, hypotheses.labels.dtype) for _ in runs]
+    works = kept_works(kept, len(runs), particles, world, candidates, agreement, hypotheses.labels.dtype)
     values = np.zeros((n_worlds,) + out.shape)
-    in_threads([functools.partial(roll_worlds, particles, world, tables, candidates, hypotheses, scoring, agreement,
-                                  work, start, stop, values) for work, (start, stop) in zip(works, runs)])
+    try:
+        in_threads([functools.partial(roll_worlds, particles, world, tables, candidates, hypotheses, scoring,
+                                      agreement, work, start, stop, values) for work, (start, stop) in zip(works, runs)])
+    except BaseException:
+        if kept is not None:  # a plan cut short may leave its overlays written
+            kept.clear()
+        raise
     for s in range(n_worlds):  # in world order, as one thread adds them
         out += values[s]
 
@@ -594,7 +513,7 @@ def rollout_beliefs(particles, world, tables, actions, hypotheses, beliefs):
     O(H R (N K + (F + 1) K^2))."""
     r_count, n_cells, k = particles.maps.shape
     n_reads = world.footprint_cells.shape[1]
-    states = _States(particles.locations.copy()[None], particles.log_weights.copy()[None],
-                     hypotheses.labels[:1].copy(), hypotheses.locations[:1].copy(), aligned(1, np.int64, 0),
-                     _overlays(1, r_count, n_cells, k, actions.shape[0], n_reads))
-    _roll_beliefs(particles, world, tables, actions, hypotheses, states, _step(n_reads, k), aligned(k), beliefs)
+    states = States(particles.locations.copy()[None], particles.log_weights.copy()[None],
+                    hypotheses.labels[:1].copy(), hypotheses.locations[:1].copy(), aligned(1, np.int64, 0),
+                    empty_overlays(1, r_count, n_cells, k, actions.shape[0], n_reads))
+    _roll_beliefs(particles, world, tables, actions, hypotheses, states, step_scratch(n_reads, k), aligned(k), beliefs)
