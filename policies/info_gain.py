@@ -87,6 +87,7 @@ from onlinemap.rng import SeedLike, as_generator
 from .frontier import FrontierExplorer, FrontierPlan
 from .information import (entropy, expected_uncertainty, information_reward, observation_count, sample_states,
                           unit_information)
+from .kernels.rollout_buffers import KeptBuffers
 from .loop_closing import loop_closer
 from .mdp import PolicyIterationResult, policy_iteration
 from .passability import (PressMemory, distances_to, expected_passability, move_chances, press_costs,
@@ -307,7 +308,7 @@ class InfoGainExplorer:
         self._since_anchor = 0
         self._pi: PolicyIterationResult | None = None
         self._tables = rollout_tables(model, int(self.press_lengths[-1]))
-        self._kept: dict = {}  # the rollouts' buffers, reused from plan to plan
+        self._kept = KeptBuffers()  # the rollouts' buffers, reused from plan to plan
         self.frontier = FrontierExplorer(model) if self.targets else None  # where the unknown is
         self.presses = PressMemory(model)  # blocked and futile presses, for the moves towards a target
         self.closer = loop_closer(model, loop_closing, close_above, close_below, close_steps,

@@ -27,6 +27,7 @@ from .information import entropy
 from .kernels.footprint import Agreement, Candidates, plan_rollouts
 from .kernels.mixture import disputed_cells
 from .kernels.planning import Hypotheses, RolloutTables, Scoring, rollout_uncertainty
+from .kernels.rollout_buffers import KeptBuffers
 
 
 def rollout_tables(model: GridModel, horizon: int) -> RolloutTables:
@@ -94,14 +95,15 @@ def footprint_expected_uncertainty(model: GridModel, particles: ParticleSnapshot
                                    rng: np.random.Generator, location_weight: float = 1.0,
                                    tables: RolloutTables | None = None, distances: np.ndarray | None = None,
                                    go: np.ndarray | None = None, threads: int = 1, *,
-                                   kept: dict | None = None) -> np.ndarray:
+                                   kept: KeptBuffers | None = None) -> np.ndarray:
     """(C, H + 1) :func:`particle_expected_uncertainty` for any sensor footprint and blocking
     labels (:func:`policies.kernels.footprint.plan_rollouts`): ``sequences`` (C, H) actions, -1
     where the action is chosen in closed loop towards candidate c's target by ``distances`` (C, N)
     and ``go`` (N, A) (the chance each press moves). Every sequence sees the same worlds and random
     numbers. Cost O(S C (H R (F + 1) K^2 + n_checkpoints R (D + H F) K)), D the disputed cells,
-    the worlds split over ``threads`` threads (the same result for any count); ``kept``: a dict
-    the caller keeps to reuse the rollout buffers from plan to plan (the same result)."""
+    the worlds split over ``threads`` threads (the same result for any count); ``kept``: the
+    :class:`~policies.kernels.rollout_buffers.KeptBuffers` the caller keeps to reuse the rollout
+    buffers from plan to plan (the same result)."""
     sequences = np.ascontiguousarray(sequences, dtype=np.int64)
     n_seq, horizon = sequences.shape
     tables = rollout_tables(model, horizon) if tables is None else tables

@@ -1,5 +1,6 @@
-"""The footprint rollouts' buffers kept from plan to plan (``plan_rollouts(..., kept=)``): a plan
-in reused buffers scores exactly as one in new buffers, and leaves them empty."""
+"""The footprint rollouts' buffers kept from plan to plan (``plan_rollouts(..., kept=)``, a
+:class:`~policies.kernels.rollout_buffers.KeptBuffers`): a plan in reused buffers scores exactly
+as one in new buffers, and leaves them empty."""
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ from onlinemap.estimators.rbpf_kernels import world_tables
 from policies.kernels import footprint
 from policies.kernels.footprint import Agreement, Candidates, plan_rollouts
 from policies.kernels.planning import Hypotheses, Scoring
+from policies.kernels.rollout_buffers import KeptBuffers
 from policies.rollouts import agreement, rollout_tables
 
 
@@ -60,25 +62,25 @@ def test_a_plan_in_kept_buffers_scores_as_in_new_ones(p_door, threads):
     model, _ = om.door_world(blocking=True, footprint="cross", p_door=p_door)
     plans = [_plan_inputs(model, seed) for seed in range(3)]
     longer = _plan_inputs(model, 9, horizon=10)
-    kept, index, before = {}, None, None
+    kept, index, before = KeptBuffers(), None, None
     for inputs in plans[:2] + [longer] + plans[1:] + plans[:1]:
         fresh = _scores(inputs, threads, None)
         assert np.array_equal(_scores(inputs, threads, kept), fresh)
-        _assert_empty(kept["works"])
-        now = kept["works"][0].states.overlays.index
+        _assert_empty(kept.works)
+        now = kept.works[0].states.overlays.index
         assert (now is index) == (before is not None and before.shape == inputs[3].sequences.shape)
         index, before = now, inputs[3].sequences
-    assert len(kept["works"]) == threads
+    assert len(kept.works) == threads
     scores = [_scores(inputs, threads, None) for inputs in plans]
     assert not np.array_equal(scores[0], scores[1])  # the plans differ: reusing stale state would show
 
 
 def test_a_plan_cut_short_drops_the_kept_buffers(monkeypatch):
-    """A rollout that raises (its overlays left written) empties ``kept``: the next plan takes new
+    """A rollout that raises (its overlays left written) clears ``kept``: the next plan takes new
     buffers and scores as in new ones."""
     model, _ = om.door_world(blocking=True, footprint="cross")
     inputs = _plan_inputs(model, 4)
-    kept = {}
+    kept = KeptBuffers()
     _scores(inputs, 1, kept)
     rolled = footprint.roll_worlds
 
@@ -89,6 +91,6 @@ def test_a_plan_cut_short_drops_the_kept_buffers(monkeypatch):
     monkeypatch.setattr(footprint, "roll_worlds", cut_short)
     with pytest.raises(KeyboardInterrupt):
         _scores(inputs, 1, kept)
-    assert kept == {}
+    assert kept.key is None and kept.works == []
     monkeypatch.setattr(footprint, "roll_worlds", rolled)
     assert np.array_equal(_scores(inputs, 1, kept), _scores(inputs, 1, None))

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -161,6 +162,19 @@ def _timed_loop(model, true_map, seed: int, quick: bool, threads: int, options: 
             1e3 * (clock.cpu[-1] - clock.cpu[WARM_STEPS]) / steps, 1e3 * float(np.median(filter_times)))
 
 
+class LoopCase(NamedTuple):
+    """One case of :func:`_closed_loop_rows`: a ``side`` x ``side`` building, ``seeds`` runs, the
+    target ``limit`` in ms per step (NaN: reported without a target), the planner's
+    ``planner_threads``, the RBPF's ``options`` beside its ``n_particles``."""
+
+    side: int
+    seeds: int
+    limit: float
+    planner_threads: int
+    options: dict
+    n_particles: int
+
+
 def _closed_loop_rows(quick: bool) -> list[dict]:
     """Issue 40: the whole exploration loop (:func:`policies.explore.exploration`: ``info_gain``
     with its defaults, an RBPF of 1000 particles learning the label frequencies, the world and
@@ -182,18 +196,21 @@ def _closed_loop_rows(quick: bool) -> list[dict]:
     rows = []
     threads = numba.config.NUMBA_NUM_THREADS
     context = {"label_prior": "particle_context"}
-    cases = [(32, 1 if quick else 3, LOOP_MS, 1, {}, 1000), (32, 1 if quick else 3, LOOP_MS, 1, context, 1000)]
-    cases += [] if quick else [(64, 1, float("nan"), 1, {}, 1000), (64, 1, float("nan"), 1, context, 1000),
-                               (32, 2, float("nan"), 1, {}, 5000)]
-    cases += [(32, 3, LOOP_MS, threads, {}, 1000)] if threads > 1 and not quick else []
-    for side, seeds, limit, planner_threads, options, n_particles in cases:
-        model, true_map = building(side, side, seed=3, p_move=0.8)
-        runs = [_timed_loop(model, true_map, seed, quick, planner_threads, options, n_particles)
-                for seed in range(seeds)]
+    seeds_32 = 1 if quick else 3  # runs of each 32 x 32 case with a target
+    cases = [LoopCase(32, seeds_32, LOOP_MS, 1, {}, 1000), LoopCase(32, seeds_32, LOOP_MS, 1, context, 1000)]
+    cases += [] if quick else [LoopCase(64, 1, float("nan"), 1, {}, 1000),
+                               LoopCase(64, 1, float("nan"), 1, context, 1000),
+                               LoopCase(32, 2, float("nan"), 1, {}, 5000)]
+    cases += [LoopCase(32, 3, LOOP_MS, threads, {}, 1000)] if threads > 1 and not quick else []
+    for case in cases:
+        model, true_map = building(case.side, case.side, seed=3, p_move=0.8)
+        runs = [_timed_loop(model, true_map, seed, quick, case.planner_threads, case.options, case.n_particles)
+                for seed in range(case.seeds)]
         wall, cpu, reference = np.median(np.asarray(runs), axis=0)
-        prior = ", label_prior=particle_context" if options else ""
-        rows.append({"case": f"{side}x{side} building (seed 3), blocking + cross, P={n_particles}{prior}: whole loop, ms per "
-                             f"step (info_gain, threads={planner_threads}, {seeds} run(s))", "ms": wall,
-                     "reference": "one RBPF step", "reference_ms": reference, "target": limit / reference,
+        prior = ", label_prior=particle_context" if case.options else ""
+        rows.append({"case": f"{case.side}x{case.side} building (seed 3), blocking + cross, P={case.n_particles}"
+                             f"{prior}: whole loop, ms per step (info_gain, threads={case.planner_threads}, "
+                             f"{case.seeds} run(s))", "ms": wall,
+                     "reference": "one RBPF step", "reference_ms": reference, "target": case.limit / reference,
                      "cpu_ms": cpu, "load": os.getloadavg()[0]})
     return rows

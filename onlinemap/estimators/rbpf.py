@@ -62,8 +62,8 @@ from .rbpf_kernels import (FEARNHEAD_CLIFFORD, StepKit, no_moves, observed, sche
                            thread_count)
 from .rbpf_memory import Sizing, cells_written, check_growth, check_recovery, check_start, history_growth
 from .rbpf_move import MoveCounts, PathHistory, move_options, rebuilds
-from .rbpf_prior import (current_tilt, learn_prior, particle_context_step, prior_options, resolved_prior,
-                         start_prior)
+from .rbpf_prior import (context_neighbours, current_tilt, learn_prior, particle_context_step, prior_options,
+                         resolved_prior, start_prior)
 from .rbpf_recovery import describe, impossible, logsumexp, no_particle_explains, recovery_note, relocate
 from .rbpf_state import check_state, upgrade_attributes
 
@@ -248,15 +248,18 @@ class RaoBlackwellisedPF:
     @property
     def _kit(self) -> StepKit:
         """The filter's :class:`~onlinemap.estimators.rbpf_kernels.StepKit`: its kernels, options,
-        the model's tables and views of its scratch buffers, built on first use and kept beside the
-        filter (``_KITS``). A checkpoint's load keeps the filter's own scratch buffers and checks its
+        the model's tables (the context priors' neighbour table included,
+        :func:`~onlinemap.estimators.rbpf_prior.context_neighbours`) and views of its scratch buffers,
+        built on first use and kept beside the filter (``_KITS``; a fork, a new filter, builds its
+        own). A checkpoint's load keeps the filter's own scratch buffers and checks its model and
         options equal (``CONSTANT_STATE``), so the kit stays valid. O(1) once built."""
         kit = _KITS.get(id(self))
         if kit is None:
             kit = _KITS[id(self)] = step_kit(self.model, self.n_particles, cells_written(self.model), self.threads,
                                              self.proposal == "optimal", self.resample_threshold, self.lazy_dynamics,
                                              (self._scratch_ints, self._scratch_floats, self._scratch_staged_ints,
-                                              self._scratch_staged_cells))
+                                              self._scratch_staged_cells),
+                                             context_neighbours(self.model, self.options.get("label_prior")))
             weakref.finalize(self, _KITS.pop, id(self), None)
         return kit
 

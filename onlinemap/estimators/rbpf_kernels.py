@@ -280,10 +280,12 @@ class StepKit(NamedTuple):
     model's :class:`~onlinemap.kernels.rbpf.World`, the serial and the threaded
     :class:`KernelSet`, ``identity`` (``arange(P)``, the ancestors of a step that does not
     resample: never written), the Fearnhead-Clifford buffers (None for the sampling schemes), the
-    sampling schemes' :class:`ProposalBuffers` (None for Fearnhead-Clifford) and the threads'
-    staging (None on one thread). A step then reads its arrays, options and kernels here: no
-    per-step lookups of options or rebuilt bundles and arrays (each some tenths of a microsecond
-    to microseconds, which a step of a few hundred particles pays in full)."""
+    sampling schemes' :class:`ProposalBuffers` (None for Fearnhead-Clifford), the threads'
+    staging (None on one thread) and ``neighbours``, the grid's (N, 4) neighbour table that the
+    label priors ``"context"`` and ``"particle_context"`` read (None with the other priors; derived
+    from the model, so never in a checkpoint). A step then reads its arrays, options and kernels
+    here: no per-step lookups of options or rebuilt bundles and arrays (each some tenths of a
+    microsecond to microseconds, which a step of a few hundred particles pays in full)."""
 
     n_particles: int
     width: int
@@ -298,6 +300,7 @@ class StepKit(NamedTuple):
     fc: FCBuffers | None
     proposal: ProposalBuffers | None
     staged: Staged | None
+    neighbours: np.ndarray | None
 
     def fc_buffers(self, n_labels: int) -> FCBuffers:
         """Fearnhead-Clifford's buffers: the filter's or, for a sampling scheme's step that
@@ -324,12 +327,13 @@ def scratch_buffers(n_particles: int, width: int, n_labels: int, fc: bool, threa
 
 
 def step_kit(model: GridModel, n_particles: int, width: int, threads: int, optimal: bool, threshold: float,
-             lazy_dynamics: bool, scratch: tuple[np.ndarray, ...]) -> StepKit:
+             lazy_dynamics: bool, scratch: tuple[np.ndarray, ...], neighbours: np.ndarray | None) -> StepKit:
     """A filter's :class:`StepKit` from its model, P, W, threads, options (``optimal``: the optimal
-    proposal; ``threshold``: ``resample_threshold``; ``lazy_dynamics``) and its four scratch
+    proposal; ``threshold``: ``resample_threshold``; ``lazy_dynamics``), its four scratch
     buffers (``ints``, ``floats`` of :func:`fc_buffers`, empty for a sampling scheme, which gets
     :func:`proposal_buffers` instead; the staging's ``ints`` and ``cells`` of
-    :func:`staged_buffers`). O(P), or O(P W K) for a sampling scheme's proposal buffers."""
+    :func:`staged_buffers`) and its label prior's ``neighbours`` (N, 4) or None. O(P), or O(P W K)
+    for a sampling scheme's proposal buffers."""
     ints, floats, staged_ints, staged_cells = scratch
     paper = model.is_paper_model
     fc = fc_buffers(ints, floats, n_particles, width, model.n_labels) if len(ints) else None
@@ -337,7 +341,7 @@ def step_kit(model: GridModel, n_particles: int, width: int, threads: int, optim
     eager = not model.is_static and not lazy_dynamics
     return StepKit(n_particles, width, threads, optimal, threshold, eager, world_tables(model), kernel_set(paper, 1),
                    kernel_set(paper, threads), np.arange(n_particles), fc, proposal,
-                   staged_buffers(staged_ints, staged_cells, n_particles, width))
+                   staged_buffers(staged_ints, staged_cells, n_particles, width), neighbours)
 
 
 @functools.cache

@@ -81,9 +81,9 @@ import numpy as np
 from ..errors import InvalidOptionError
 from ..kernels.rbpf_context import (TiltLog, context_mark_read, context_tilt, context_tilt_count, context_untilt,
                                     read_weight, tilt_log)
-from ..label_prior import (CONTEXT, LEARN, PARTICLE_CONTEXT, ContextState, LabelPrior, context_weight, fresh_context,
-                           learn_context, learn_context_ratios, learned_frequencies, neighbour_table, plug_in_prior,
-                           tilt)
+from ..label_prior import (CONTEXT, CONTEXT_KINDS, LEARN, PARTICLE_CONTEXT, ContextState, LabelPrior, context_weight,
+                           fresh_context, learn_context, learn_context_ratios, learned_frequencies, neighbour_table,
+                           plug_in_prior, tilt)
 from ..model import GridModel
 from .block_pool import BlockPool
 
@@ -108,6 +108,14 @@ def prior_options(model: GridModel, label_prior, prior_strength, learn_every, we
         raise InvalidOptionError(f"context_weight is the weight of label_prior='particle_context''s context table; "
                                  f"it means nothing with label_prior={label_prior!r}")
     return prior
+
+
+def context_neighbours(model: GridModel, label_prior) -> np.ndarray | None:
+    """(N, 4) the grid's neighbour table (:func:`~onlinemap.label_prior.neighbour_table`) that
+    ``label_prior`` (the option as given) ``"context"`` or ``"particle_context"`` reads at every
+    learning step and every tilt; None with any other prior. Made once per filter, in its step kit
+    (``RaoBlackwellisedPF._kit``): derived from the model, not state, so no checkpoint holds it. O(N)."""
+    return neighbour_table(model) if isinstance(label_prior, str) and label_prior in CONTEXT_KINDS else None
 
 
 def resolved_prior(model: GridModel, options: dict) -> LabelPrior:
@@ -190,7 +198,7 @@ def learn_prior(est, t: int, threads: int = 1) -> None:
         return
     context = ContextState(est._context_tilts, est._context_read, est._context_frozen, est._label_frequencies)
     est._context_tilts, est._context_read, est._context_frozen, est._label_frequencies = learn_context_in_pool(
-        pool, model, t, weights, context, neighbour_table(model), alpha, threads)
+        pool, model, t, weights, context, est._kit.neighbours, alpha, threads)
 
 
 def learn_context_in_pool(pool: BlockPool, model: GridModel, t: int, weights: np.ndarray, state: ContextState,
@@ -218,7 +226,7 @@ def learn_particle_context(est, t: int, weights: np.ndarray, alpha: np.ndarray, 
     read = np.zeros(model.n_cells)
     read_weight(est._particle_cells, weights, read)
     state = ContextState(None, est._context_read, est._context_frozen, est._label_frequencies)
-    state, est._context_ratios = learn_context_ratios(mixture, state, read > 0.5, neighbour_table(model), alpha,
+    state, est._context_ratios = learn_context_ratios(mixture, state, read > 0.5, est._kit.neighbours, alpha,
                                                       context_weight(est.options.get("context_weight")))
     retilt(pool, state.frequencies / est._label_frequencies)
     est._context_read, est._context_frozen, est._label_frequencies = state.read, state.frozen, state.frequencies
@@ -277,7 +285,7 @@ def tilt_step_cells(est, t: int, action: int, need: int) -> ContextUndo | None:
     previous = est._blocks
     blocks = est._reserved(t, count + need)
     log = tilt_log(count, model.n_labels)
-    context_tilt(t, est._locations, est._weights, targets, footprint, neighbour_table(model), status, ratios,
+    context_tilt(t, est._locations, est._weights, targets, footprint, est._kit.neighbours, status, ratios,
                  np.empty(model.n_labels), *log, *blocks.arrays())
     est._blocks = blocks
     return ContextUndo(log, blocks, previous)

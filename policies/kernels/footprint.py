@@ -449,9 +449,9 @@ def plan_rollouts(particles, world, tables, candidates, hypotheses, scoring, agr
     added into ``out`` in world order, as one thread does: the same bits for any ``threads``.
     Cost O(S C H R (F + 1) K) for the steps (K^2 with map dynamics) plus O(S C R (D + H F) K)
     per checkpoint, less the shared steps, over the threads; memory O(threads C R (N + H F K) + S C H).
-    ``kept``: a dict the caller keeps between its plans (never two at once), holding the threads'
-    buffers for the next plan (:func:`~policies.kernels.rollout_buffers.kept_works`; emptied if
-    the plan raises); the same scores."""
+    ``kept``: a :class:`~policies.kernels.rollout_buffers.KeptBuffers` the caller keeps between
+    its plans (never two at once), holding the threads' buffers for the next plan
+    (:func:`~policies.kernels.rollout_buffers.kept_works`; cleared if the plan raises); the same scores."""
     n_worlds = hypotheses.locations.shape[0]
     if candidates.sequences.shape[0] == 0 or n_worlds == 0:  # nothing to score (no rollout state to start from)
         return

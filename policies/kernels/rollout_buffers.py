@@ -1,7 +1,7 @@
 """The buffers of the footprint rollouts (:func:`policies.kernels.footprint.plan_rollouts`): the
 rollout states with their particles' overlays, a filter step's scratch, the candidates' groups;
 allocated in Python for the kernels (``onlinemap.kernels.aligned``), and kept by a caller
-between plans (:func:`kept_works`): a plan leaves every overlay empty, so the next one starts
+between plans (:class:`KeptBuffers`, :func:`kept_works`): a plan leaves every overlay empty, so the next one starts
 from them as from new buffers, without filling C R N overlay indices and touching megabytes of
 fresh pages (at 32 x 32, 8 candidates, R = 64: 3.7 ms of an 80 ms plan, measured).
 """
@@ -110,18 +110,35 @@ def rollout_work(particles, world, candidates, agreement, labels_dtype):
     return Work(states, step_scratch(n_reads, k), mixture_scratch(particles.maps, agreement.disputed), groups)
 
 
+class KeptBuffers:
+    """The rollout buffers a caller keeps from plan to plan (never two plans at once):
+    ``works`` the threads' :class:`Work` of the last plan and ``key`` the shapes and dtype they
+    were made for (:func:`kept_works`); none (``key`` None, ``works`` empty) when new or
+    :meth:`clear`-ed."""
+
+    __slots__ = ("key", "works")
+
+    def __init__(self) -> None:
+        self.key: tuple | None = None
+        self.works: list[Work] = []
+
+    def clear(self) -> None:
+        """Drop the buffers (a plan cut short may leave overlays written): the next plan takes new ones."""
+        self.key, self.works = None, []
+
+
 def kept_works(kept, count, particles, world, candidates, agreement, labels_dtype):
-    """``count`` threads' buffers (:func:`rollout_work`): those of ``kept`` (a dict the caller
-    keeps between its plans, or None) while every shape is the same, with the mixture's scratch
+    """``count`` threads' buffers (:func:`rollout_work`): those of ``kept`` (a
+    :class:`KeptBuffers`, or None) while every shape is the same, with the mixture's scratch
     anew (it holds the particles' disputed cells); else new ones, then kept. Only a plan that ran
     to its end leaves the overlays empty: one cut short must ``kept.clear()``. O(R D K + N K)
     reused, O(count C R (N + H F K)) new."""
     key = (count, particles.maps.shape, world.footprint_cells.shape, world.moves.shape, candidates.sequences.shape,
            np.dtype(labels_dtype))
-    if kept is not None and kept.get("key") == key:
-        works = [w._replace(mixture=mixture_scratch(particles.maps, agreement.disputed)) for w in kept["works"]]
+    if kept is not None and kept.key == key:
+        works = [w._replace(mixture=mixture_scratch(particles.maps, agreement.disputed)) for w in kept.works]
     else:
         works = [rollout_work(particles, world, candidates, agreement, labels_dtype) for _ in range(count)]
     if kept is not None:
-        kept.update(key=key, works=works)
+        kept.key, kept.works = key, works
     return works
