@@ -488,8 +488,9 @@ def learn_context_ratios(mixture: np.ndarray, state: ContextState, now: np.ndarr
     frozen (:func:`freeze_contexts`); pi = ``(alpha + sum of the mixture (N, K) over the read
     cells) / (A + n_read)``; every context's predictive ``v[c]`` (:func:`backed_off` of the
     :func:`context_counts` of the read cells, plus the ``pretrained`` pseudo-counts ((K + 2)^4,
-    K) if given) tempered, ``v'[c] = weight v[c] + (1 - weight) pi``. Returns the new state (its ``tilts`` are the state's, unused by this prior) and the
-    ratios ``v' / pi`` ((K + 2)^4, K), each context's tilt of a cell's prior. O(N K + (K + 2)^4 K)."""
+    K) if given) tempered, ``v'[c] = weight v[c] + (1 - weight) pi``. Returns the new state (its
+    ``tilts`` are the state's, unused by this prior) and the ratios ``v' / pi`` ((K + 2)^4, K),
+    each context's tilt of a cell's prior. O(N K + (K + 2)^4 K)."""
     read, frozen = freeze_contexts(mixture, state, now, table)
     frequencies = posterior_frequencies(alpha, mixture[read].sum(axis=0))
     counts = context_counts(mixture, read, frozen, n_context_codes(mixture.shape[1]))

@@ -145,10 +145,13 @@ def _with_later_options(node, est):
     """The encoded options of a checkpoint, with every keyword option of ``est``'s class that it
     does not name (one added after it was written) at its default, in the order of the class's
     signature (``est.options``'): a checkpoint predating an option loads into an estimator that
-    has it at its default, and only there."""
+    has it at its default, and only there. Options the class's ``options_omitted_at_default``
+    names are not filled in (its ``options`` leave them out at their default)."""
     options = decode_options(node)
+    omitted = getattr(type(est), "options_omitted_at_default", ())
     defaults = {p.name: p.default for p in inspect.signature(type(est).__init__).parameters.values()
-                if p.kind is inspect.Parameter.KEYWORD_ONLY and p.default is not inspect.Parameter.empty}
+                if p.kind is inspect.Parameter.KEYWORD_ONLY and p.default is not inspect.Parameter.empty
+                and p.name not in omitted}
     merged = {**defaults, **options}  # the signature's order, then any option it does not name
     return Encoder().encode(merged, "options")
 
