@@ -504,7 +504,8 @@ def shown_options(options: dict, kind: str) -> dict:
     run logs: without the label-prior options when it uses the model's table (``kind`` of the
     resolved :class:`LabelPrior` ``"model"``: every repr as without the options), with
     ``label_prior="learn"`` when it learns because the model says so, ``context_weight`` only
-    with ``"particle_context"`` (its default filled in). O(len(options))."""
+    with ``"particle_context"`` (its default filled in), ``context_table`` only when given.
+    O(len(options))."""
     options = dict(options)
     if kind == "model":
         for name in ("label_prior", "prior_strength", "learn_every"):
@@ -515,6 +516,8 @@ def shown_options(options: dict, kind: str) -> dict:
         options["context_weight"] = context_weight(options.get("context_weight"))
     else:
         options.pop("context_weight", None)
+    if options.get("context_table") is None:
+        options.pop("context_table", None)
     return options
 
 

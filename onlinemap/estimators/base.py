@@ -189,21 +189,16 @@ _last_belief = property(lambda self: self._belief, doc="The belief after the las
 
 def _record_options(cls: type) -> None:
     """Wrap ``cls.__init__`` so that every instance gets ``options``: its keyword options with the
-    defaults filled in, except those the class's ``options_omitted_at_default`` names while they
-    are their default (an option added later: the options, and so the checkpoints, of an
-    estimator without it stay as they were). The signature seen by :func:`inspect.signature` is
-    unchanged."""
+    defaults filled in (the signature seen by :func:`inspect.signature` is unchanged)."""
     init = cls.__init__
     params = inspect.signature(init).parameters.values()
     defaults = {p.name: p.default for p in params
                 if p.kind is inspect.Parameter.KEYWORD_ONLY and p.default is not inspect.Parameter.empty}
-    omitted = getattr(cls, "options_omitted_at_default", ())
 
     @functools.wraps(init)
     def __init__(self, model, *args, **options):
         init(self, model, *args, **options)
-        self.options = {name: value for name, value in {**defaults, **options}.items()
-                        if name not in omitted or value is not defaults[name]}
+        self.options = {**defaults, **options}
 
     cls.__init__ = __init__
 

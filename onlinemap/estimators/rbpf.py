@@ -147,8 +147,8 @@ class RaoBlackwellisedPF:
     read, by their context in that particle's own map (P x N cell statuses carried through
     resampling, recovery and checkpoints; a step that raises takes its tilts back). Plug-in
     (empirical Bayes) priors, one pass over the block rows in use, weights unchanged;
-    :attr:`label_frequencies` gives the frequencies (checkpointed). ``context_table`` (context priors only; not
-    in ``options`` while None): context pseudo-counts from known maps (:func:`~onlinemap.label_prior.context_table`).
+    :attr:`label_frequencies` gives the frequencies (checkpointed). ``context_table`` (context priors only):
+    context pseudo-counts learned from known maps (:func:`~onlinemap.label_prior.context_table`).
 
     ``threads``: how many threads the update and the belief use, at most ``NUMBA_NUM_THREADS``
     (None: all; Python threads on numba kernels that release the GIL,
@@ -178,8 +178,8 @@ class RaoBlackwellisedPF:
     #: "particle_context"'s cell statuses (P, N) uint8 (kernels/rbpf_context.py), its ratios ((K + 2)^4, K)
     _particle_cells = _context_ratios = None
 
-    #: options ``options`` leaves out at their default (None), so that checkpoints without them stay as they were
-    options_omitted_at_default = ("context_table",)
+    #: options a checkpoint leaves out while None (checkpoint.protocol.stored_options): those without stay as they were
+    checkpoint_omitted_options = ("context_table",)
     #: what the placeholder defaults run with the other defaults (estimator_options shows these)
     resolved_defaults = MappingProxyType({"resampling": FEARNHEAD_CLIFFORD})
 
