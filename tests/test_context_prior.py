@@ -214,10 +214,10 @@ def test_the_filter_learns_every_learn_every_steps_from_its_mixture_with_its_opt
     calls = []
     original = rbpf_module.learn_context_in_pool
 
-    def recording(pool, model, t, weights, state, table, alpha, threads=1):
+    def recording(pool, model, t, weights, state, table, alpha, threads=1, pretrained=None):
         mixture = pool.mixture(t, weights, threads)
         calls.append((t, mixture / mixture.sum(axis=1, keepdims=True), copy.deepcopy(state)))
-        return original(pool, model, t, weights, state, table, alpha, threads)
+        return original(pool, model, t, weights, state, table, alpha, threads, pretrained)
 
     monkeypatch.setattr(rbpf_module, "learn_context_in_pool", recording)
     model, run, est = run_building(steps=36, learn_every=5, prior_strength=2.0)

@@ -66,7 +66,7 @@ def state_dict(est) -> dict:
     attributes = {name: scratch_node(value, name) if name in scratch else encoder.encode(value, name)
                   for name, value in vars(est).items() if name not in _SEPARATE}
     return {"format": FORMAT, "format_version": FORMAT_VERSION, "onlinemap_version": _package_version(),
-            "estimator": est.name, "t": int(est.t), "options": Encoder().encode(dict(options), "options"),
+            "estimator": est.name, "t": int(est.t), "options": Encoder().encode(stored_options(est), "options"),
             "model": encode_model(est.model), "attributes": attributes}
 
 
@@ -111,8 +111,7 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
     field = model_difference(decode_model(state["model"]), est.model)
     if field is not None:
         raise CheckpointError(f"checkpoint's model differs from the estimator's model in {field!r}")
-    if not same_tree(_with_later_options(state["options"], est),
-                     Encoder().encode(dict(getattr(est, "options", {})), "options")):
+    if not same_tree(_with_later_options(state["options"], est), Encoder().encode(stored_options(est), "options")):
         options = Decoder().decode(state["options"], "options")
         raise CheckpointError(f"checkpoint was written with options {options}, the estimator has {est.options}")
     if type(state["attributes"]) is not dict:
@@ -141,14 +140,26 @@ def load_state_dict(est, state: dict, *, strict_version: bool = False, allow_new
     vars(est).update(restored)
 
 
+def stored_options(est) -> dict:
+    """``est.options`` as a checkpoint stores them (a fresh dict): without the options its class's
+    ``checkpoint_omitted_options`` names while they are None, their default (options added
+    later: the checkpoints of an estimator without them stay as they were, byte for byte)."""
+    omitted = getattr(type(est), "checkpoint_omitted_options", ())
+    return {name: value for name, value in getattr(est, "options", {}).items()
+            if name not in omitted or value is not None}
+
+
 def _with_later_options(node, est):
     """The encoded options of a checkpoint, with every keyword option of ``est``'s class that it
     does not name (one added after it was written) at its default, in the order of the class's
     signature (``est.options``'): a checkpoint predating an option loads into an estimator that
-    has it at its default, and only there."""
+    has it at its default, and only there (those of :func:`stored_options`, left out at None,
+    stay out)."""
     options = decode_options(node)
+    omitted = getattr(type(est), "checkpoint_omitted_options", ())
     defaults = {p.name: p.default for p in inspect.signature(type(est).__init__).parameters.values()
-                if p.kind is inspect.Parameter.KEYWORD_ONLY and p.default is not inspect.Parameter.empty}
+                if p.kind is inspect.Parameter.KEYWORD_ONLY and p.default is not inspect.Parameter.empty
+                and p.name not in omitted}
     merged = {**defaults, **options}  # the signature's order, then any option it does not name
     return Encoder().encode(merged, "options")
 

@@ -28,7 +28,7 @@ from ..model import GridModel
 _REGISTRY: dict[str, type] = {}
 #: the label-prior options (:mod:`onlinemap.label_prior`); an estimator they mean nothing to says why in
 #: its ``label_prior_refusal``, and ``make_estimator`` raises InvalidOptionError with it
-LABEL_PRIOR_OPTIONS = frozenset({"label_prior", "prior_strength", "learn_every", "context_weight"})
+LABEL_PRIOR_OPTIONS = frozenset({"label_prior", "prior_strength", "learn_every", "context_weight", "context_table"})
 #: the EM estimators' ``label_prior_refusal``
 MAP_IS_A_PARAMETER = ("its map is a parameter (the observation matrix B, fitted by EM), not a random variable "
                       "under a prior: there are no unread cells whose prior could be learned")

@@ -147,7 +147,8 @@ class RaoBlackwellisedPF:
     read, by their context in that particle's own map (P x N cell statuses carried through
     resampling, recovery and checkpoints; a step that raises takes its tilts back). Plug-in
     (empirical Bayes) priors, one pass over the block rows in use, weights unchanged;
-    :attr:`label_frequencies` gives the frequencies (checkpointed).
+    :attr:`label_frequencies` gives the frequencies (checkpointed). ``context_table`` (context priors only):
+    context pseudo-counts learned from known maps (:func:`~onlinemap.label_prior.context_table`).
 
     ``threads``: how many threads the update and the belief use, at most ``NUMBA_NUM_THREADS``
     (None: all; Python threads on numba kernels that release the GIL,
@@ -177,6 +178,8 @@ class RaoBlackwellisedPF:
     #: "particle_context"'s cell statuses (P, N) uint8 (kernels/rbpf_context.py), its ratios ((K + 2)^4, K)
     _particle_cells = _context_ratios = None
 
+    #: options a checkpoint leaves out while None (checkpoint.protocol.stored_options): those without stay as they were
+    checkpoint_omitted_options = ("context_table",)
     #: what the placeholder defaults run with the other defaults (estimator_options shows these)
     resolved_defaults = MappingProxyType({"resampling": FEARNHEAD_CLIFFORD})
 
@@ -185,7 +188,7 @@ class RaoBlackwellisedPF:
                  lazy_dynamics: bool = True, block_cells: int | None = None,
                  max_bytes: int = DEFAULT_MAX_BYTES, threads: int | None = 1, move_window: int | None = None,
                  move_every: int = 10, move_lag: int = 100, label_prior=None, prior_strength=None,
-                 learn_every: int | None = None, context_weight: float | None = None):
+                 learn_every: int | None = None, context_weight: float | None = None, context_table=None):
         error = InvalidOptionError
         n_particles = arguments.integer("n_particles", n_particles, minimum=1, error=error)
         proposal, resampling = scheme(proposal, resampling)
@@ -200,7 +203,8 @@ class RaoBlackwellisedPF:
         max_bytes = arguments.byte_limit("max_bytes", max_bytes, error)
         threads = thread_count(threads)
         move_window, move_every, move_lag = move_options(model, move_window, move_every, move_lag)
-        prior = prior_options(model, label_prior, prior_strength, learn_every, context_weight, move_window)
+        prior = prior_options(model, label_prior, prior_strength, learn_every, context_weight, move_window,
+                              context_table)
         statuses = n_particles * model.n_cells if prior.kind == PARTICLE_CONTEXT else 0  # uint8 (P, N)
         check_start(Sizing(model, n_particles, lazy_dynamics, threads, max_bytes, statuses), block_cells, move_window)
         layout = block_layout(model, block_cells)

@@ -42,7 +42,10 @@ The kernels are not touched.
   (sum n[c_i] + K)`` from the summed mixtures ``n`` of the read cells per context
   (:func:`~onlinemap.label_prior.learn_context`), and retilts the pool cell by cell by
   ``v' / v``. The same plug-in: the contexts come from the population's mixture, not each
-  particle's own map, and the weights are not changed.
+  particle's own map, and the weights are not changed. With the option ``context_table`` (a
+  :class:`~onlinemap.label_prior.ContextTable`, :func:`pretrained_counts`) its pseudo-counts T
+  join n in every context's predictive, ``(n[c_i] + T[c_i] + K pi) / (sum (n + T)[c_i] + K)``,
+  from the first learning step on (right after step 0).
 
 - ``"particle_context"`` (static grid worlds; not with ``move_window``): the same learning step
   (:func:`learn_particle_context`) on the cells most of the weight has read (per-particle
@@ -56,7 +59,8 @@ The kernels are not touched.
   statuses (P, N) through the genealogy and marks the cells read. The weights then see the
   tilted prior: the evidence of a reading is computed against it. Cost: O(P F K + M B K) a step
   for M cells tilted (each new cell once per lineage), O(P_copied N) to carry the statuses, and
-  O(P N) more per learning step; memory P N bytes.
+  O(P N) more per learning step; memory P N bytes. A ``context_table`` joins the learned counts
+  as with ``"context"``, before the tempering.
 
 Limits: a recovery from depletion resets the cells it redraws to the model's prior (not the
 tilted one) until the next retilt moves them with the rest. The resample-move step
@@ -81,18 +85,20 @@ import numpy as np
 from ..errors import InvalidOptionError
 from ..kernels.rbpf_context import (TiltLog, context_mark_read, context_tilt, context_tilt_count, context_untilt,
                                     read_weight, tilt_log)
-from ..label_prior import (CONTEXT, CONTEXT_KINDS, LEARN, PARTICLE_CONTEXT, ContextState, LabelPrior, context_weight,
-                           fresh_context, learn_context, learn_context_ratios, learned_frequencies, neighbour_table,
-                           plug_in_prior, tilt)
+from ..label_prior import (CONTEXT, CONTEXT_KINDS, LEARN, PARTICLE_CONTEXT, ContextState, ContextTable, LabelPrior,
+                           context_weight, fresh_context, learn_context, learn_context_ratios, learned_frequencies,
+                           neighbour_table, plug_in_prior, tilt)
 from ..model import GridModel
 from .block_pool import BlockPool
 
 
 def prior_options(model: GridModel, label_prior, prior_strength, learn_every, weight=None,
-                  move_window: int | None = None) -> LabelPrior:
+                  move_window: int | None = None, table=None) -> LabelPrior:
     """Check and resolve the RBPF's label-prior options (:func:`~onlinemap.label_prior.plug_in_prior`,
-    ``"context"`` and ``"particle_context"`` included) and ``context_weight`` (``weight``, given
-    only with ``"particle_context"``, :func:`~onlinemap.label_prior.context_weight`).
+    ``"context"`` and ``"particle_context"`` included), ``context_weight`` (``weight``, given
+    only with ``"particle_context"``, :func:`~onlinemap.label_prior.context_weight`) and
+    ``context_table`` (``table``, given only with a context prior: a
+    :class:`~onlinemap.label_prior.ContextTable` of the model's K labels).
     ``move_window`` goes with every prior but ``"particle_context"`` (the move keeps one tilt w
     for every particle; that prior tilts each particle's cells its own way, which a rebuilt map
     would lose). Raises :class:`~onlinemap.errors.InvalidOptionError` naming the problem. O(N K)."""
@@ -107,6 +113,16 @@ def prior_options(model: GridModel, label_prior, prior_strength, learn_every, we
     elif weight is not None:
         raise InvalidOptionError(f"context_weight is the weight of label_prior='particle_context''s context table; "
                                  f"it means nothing with label_prior={label_prior!r}")
+    if table is not None:
+        if prior.kind not in CONTEXT_KINDS:
+            raise InvalidOptionError(f"context_table holds pseudo-counts of the neighbour contexts of "
+                                     f"label_prior='context' or 'particle_context'; it means nothing with "
+                                     f"label_prior={label_prior!r}")
+        if not isinstance(table, ContextTable):
+            raise InvalidOptionError(f"context_table must be a ContextTable (label_prior.context_table), got "
+                                     f"{type(table).__name__}")
+        if table.n_labels != model.n_labels:
+            raise InvalidOptionError(f"context_table counts {table.n_labels} labels, the model has {model.n_labels}")
     return prior
 
 
@@ -121,7 +137,14 @@ def context_neighbours(model: GridModel, label_prior) -> np.ndarray | None:
 def resolved_prior(model: GridModel, options: dict) -> LabelPrior:
     """The label prior a filter's ``options`` (checked when it was built) give. O(N K)."""
     return prior_options(model, options.get("label_prior"), options.get("prior_strength"),
-                         options.get("learn_every"), options.get("context_weight"))
+                         options.get("learn_every"), options.get("context_weight"), table=options.get("context_table"))
+
+
+def pretrained_counts(est) -> np.ndarray | None:
+    """((K + 2)^4, K) the pseudo-counts of the RBPF ``est``'s ``context_table`` option
+    (:attr:`~onlinemap.label_prior.ContextTable.counts`, read-only), None without it. O(1)."""
+    table = est.options.get("context_table")
+    return None if table is None else table.counts
 
 
 def retilt(pool: BlockPool, ratio: np.ndarray) -> None:
@@ -198,18 +221,19 @@ def learn_prior(est, t: int, threads: int = 1) -> None:
         return
     context = ContextState(est._context_tilts, est._context_read, est._context_frozen, est._label_frequencies)
     est._context_tilts, est._context_read, est._context_frozen, est._label_frequencies = learn_context_in_pool(
-        pool, model, t, weights, context, est._kit.neighbours, alpha, threads)
+        pool, model, t, weights, context, est._kit.neighbours, alpha, threads, pretrained_counts(est))
 
 
 def learn_context_in_pool(pool: BlockPool, model: GridModel, t: int, weights: np.ndarray, state: ContextState,
-                          table: np.ndarray, alpha: np.ndarray, threads: int = 1) -> ContextState:
+                          table: np.ndarray, alpha: np.ndarray, threads: int = 1,
+                          pretrained: np.ndarray | None = None) -> ContextState:
     """One learning step of ``label_prior="context"`` (the module docstring): the new state
     (:func:`~onlinemap.label_prior.learn_context`) from the particles' mixture at step ``t``
-    (``weights`` (P,), normalised), the current ``state``, the neighbours ``table`` (N, 4) and
-    ``alpha`` (K,); retilts ``pool`` cell by cell by ``v' / v`` in place. Returns the new state.
-    O(P N / B + R_used B K + N K)."""
+    (``weights`` (P,), normalised), the current ``state``, the neighbours ``table`` (N, 4),
+    ``alpha`` (K,) and the ``context_table``'s ``pretrained`` counts (or None); retilts ``pool``
+    cell by cell by ``v' / v`` in place. Returns the new state. O(P N / B + R_used B K + N K)."""
     mixture = _mixture_map(pool, t, weights, threads)
-    updated = learn_context(mixture, model.label_prior, state, table, alpha)
+    updated = learn_context(mixture, model.label_prior, state, table, alpha, pretrained)
     retilt(pool, updated.tilts / state.tilts)
     return updated
 
@@ -227,7 +251,8 @@ def learn_particle_context(est, t: int, weights: np.ndarray, alpha: np.ndarray, 
     read_weight(est._particle_cells, weights, read)
     state = ContextState(None, est._context_read, est._context_frozen, est._label_frequencies)
     state, est._context_ratios = learn_context_ratios(mixture, state, read > 0.5, est._kit.neighbours, alpha,
-                                                      context_weight(est.options.get("context_weight")))
+                                                      context_weight(est.options.get("context_weight")),
+                                                      pretrained_counts(est))
     retilt(pool, state.frequencies / est._label_frequencies)
     est._context_read, est._context_frozen, est._label_frequencies = state.read, state.frozen, state.frequencies
 

@@ -10,11 +10,14 @@ import math
 import numpy as np
 
 from .. import state_checks as checks
-from ..checkpoint import state_node
+from ..checkpoint import state_class, state_node
 from ..kernels.rbpf_context import READ
-from ..label_prior import CONTEXT, CONTEXT_KINDS, PARTICLE_CONTEXT, n_context_codes
+from ..label_prior import CONTEXT, CONTEXT_KINDS, PARTICLE_CONTEXT, ContextTable, n_context_codes
 from .block_pool import FORMAT_1_ATTRIBUTES, BlockPool
 from .rbpf_move import PathHistory
+
+# the option context_table is checkpointed field by field, rebuilt through its checks (a bad one: CheckpointError)
+state_class(ContextTable)
 
 
 def upgrade_attributes(attributes: dict, version: int) -> dict:
