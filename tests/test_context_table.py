@@ -265,6 +265,42 @@ def test_without_the_option_options_and_checkpoints_are_as_before(buildings_tabl
     assert fork(with_table).options["context_table"] is buildings_table
 
 
+# --- the named table -----------------------------------------------------------------------------------------------
+def test_the_name_buildings_is_the_table_of_generated_buildings_20_to_29_and_the_same_filter():
+    """``context_table="buildings"`` stands for the table of the 32 x 32 generated buildings of seeds 20-29 at the
+    default strength (as the docs say), and a filter given the name steps as one given that table, bit for bit;
+    the name is what its options and checkpoint keep, and it resumes bit for bit."""
+    explicit = context_table(om.building(32, 32, seed=s) for s in range(20, 30))
+    np.testing.assert_array_equal(rbpf_prior.named_table("buildings").counts, explicit.counts)
+    model, run = building_run(30)
+    named = make_estimator("rbpf", model, n_particles=40, seed=5, label_prior="particle_context", learn_every=3,
+                           context_table="buildings")
+    given = make_estimator("rbpf", model, n_particles=40, seed=5, label_prior="particle_context", learn_every=3,
+                           context_table=explicit)
+    for a, b in zip(beliefs(named, run), beliefs(given, run)):
+        np.testing.assert_array_equal(a.location, b.location)
+        np.testing.assert_array_equal(a.map, b.map)
+    assert decode_options(named.state_dict()["options"])["context_table"] == "buildings"
+
+
+def test_a_named_table_resumes_from_its_checkpoint_bit_for_bit(tmp_path):
+    model, run = building_run(30)
+    make = lambda: make_estimator("rbpf", model, n_particles=40, seed=6, label_prior="context",  # noqa: E731
+                                  learn_every=4, context_table="buildings")
+    resumed, _, _ = resumed_bit_for_bit(make, run, tmp_path / "named.npz", stop=13)
+    assert resumed.options["context_table"] == "buildings"
+
+
+def test_a_bad_name_or_a_model_of_other_labels_is_refused_naming_why():
+    model, _ = om.building(10, 10, seed=1)
+    with pytest.raises(InvalidOptionError, match=r"context_table must be one of \('buildings',\), got str 'house'"):
+        make_estimator("rbpf", model, label_prior="context", context_table="house")
+    with pytest.raises(InvalidOptionError, match="counts 4 labels, the model has 2"):
+        make_estimator("rbpf", om.grid_model(6, 6, 2), label_prior="context", context_table="buildings")
+    with pytest.raises(InvalidOptionError, match="means nothing"):
+        make_estimator("rbpf", model, label_prior="learn", context_table="buildings")
+
+
 # --- the statistical property ---------------------------------------------------------------------------------------
 def test_a_table_from_buildings_shrinks_the_stayed_lean_in_an_unmapped_corridor(tmp_path):
     """examples/slip_bias.py's 3 x 16 corridor, 6 presses east, exact posteriors (Fearnhead-Clifford with
