@@ -113,6 +113,14 @@ def named_table(name: str) -> ContextTable:
     return context_table(building(32, 32, seed=seed) for seed in BUILDING_TABLE_SEEDS)
 
 
+def given_table(table):
+    """The ``context_table`` option as a table: a name of :data:`NAMED_TABLES` resolved by
+    :func:`named_table` (an unknown one: :class:`~onlinemap.errors.InvalidOptionError`), anything
+    else as given (None, a :class:`~onlinemap.label_prior.ContextTable`, or what
+    :func:`prior_options` refuses). O(1) once a name is built."""
+    return named_table(table) if isinstance(table, str) else table
+
+
 def prior_options(model: GridModel, label_prior, prior_strength, learn_every, weight=None,
                   move_window: int | None = None, table=None) -> LabelPrior:
     """Check and resolve the RBPF's label-prior options (:func:`~onlinemap.label_prior.plug_in_prior`,
@@ -140,8 +148,7 @@ def prior_options(model: GridModel, label_prior, prior_strength, learn_every, we
             raise InvalidOptionError(f"context_table holds pseudo-counts of the neighbour contexts of "
                                      f"label_prior='context' or 'particle_context'; it means nothing with "
                                      f"label_prior={label_prior!r}")
-        if isinstance(table, str):
-            table = named_table(table)
+        table = given_table(table)
         if not isinstance(table, ContextTable):
             raise InvalidOptionError(f"context_table must be a ContextTable (label_prior.context_table) or one of "
                                      f"{NAMED_TABLES}, got {type(table).__name__}")
@@ -167,8 +174,8 @@ def resolved_prior(model: GridModel, options: dict) -> LabelPrior:
 def pretrained_counts(est) -> np.ndarray | None:
     """((K + 2)^4, K) the pseudo-counts of the RBPF ``est``'s ``context_table`` option
     (:attr:`~onlinemap.label_prior.ContextTable.counts`, read-only), None without it. O(1)."""
-    table = est.options.get("context_table")
-    return None if table is None else (named_table(table) if isinstance(table, str) else table).counts
+    table = given_table(est.options.get("context_table"))
+    return None if table is None else table.counts
 
 
 def retilt(pool: BlockPool, ratio: np.ndarray) -> None:
